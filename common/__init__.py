@@ -1,0 +1,26 @@
+"""Small things every vrsim package may use: the error hierarchy and the version.
+
+`maps`, `vehicle` and `controller` never import each other or `services`; what they must share lives
+here, and only that.
+"""
+
+from common.errors import (
+    ControllerError,
+    MapError,
+    ScenarioError,
+    ServiceError,
+    VehicleError,
+    VrsimError,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "VrsimError",
+    "MapError",
+    "VehicleError",
+    "ControllerError",
+    "ScenarioError",
+    "ServiceError",
+    "__version__",
+]

@@ -1,0 +1,72 @@
+"""The `vrsim` command: one subcommand per use, each in its own ``services/cmd_<name>.py``.
+
+A command module defines ``HELP`` (one line), ``configure(parser)`` (adds its arguments; keep its
+module-level imports light, since ``vrsim --help`` imports every command module) and ``run(args) -> int``.
+
+Exit codes: 0 done, 2 bad input (a `common.VrsimError` or an argparse error: one line on stderr, no
+traceback), 1 internal error (a bug; set ``VRSIM_DEBUG=1`` to see the traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+import traceback
+
+from common import VrsimError, __version__
+
+# Order is the order `vrsim --help` lists them in.
+COMMANDS = ("run", "paper", "map", "serve", "query", "accuracy")
+
+
+def _available_commands():
+    """Yield (name, module) for each command module that exists."""
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"services.cmd_{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"services.cmd_{name}":
+                continue
+            raise
+        yield name, module
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vrsim",
+        description="Simulator for map-based variable-rate fertilizer application.",
+    )
+    parser.add_argument("--version", action="version", version=f"vrsim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, module in _available_commands():
+        cmd = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.configure(cmd)
+        cmd.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)  # exits 2 with a usage message on a bad command or option
+    try:
+        return int(args._run(args) or 0)
+    except VrsimError as exc:
+        print(f"vrsim {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"vrsim {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: a bug, not bad input
+        if os.environ.get("VRSIM_DEBUG"):
+            traceback.print_exc()
+        print(f"vrsim {args.command}: internal error: {type(exc).__name__}: {exc} "
+              "(this is a bug; VRSIM_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,31 @@
+import subprocess
+
+from tests.conftest import VRSIM
+
+
+def _vrsim(*args):
+    return subprocess.run([VRSIM, *args], capture_output=True, text=True, timeout=120)
+
+
+def test_help_lists_subcommands():
+    p = _vrsim("--help")
+    assert p.returncode == 0
+    assert "COMMAND" in p.stdout
+
+
+def test_version():
+    p = _vrsim("--version")
+    assert p.returncode == 0 and p.stdout.startswith("vrsim ")
+
+
+def test_unknown_subcommand_exits_2_without_traceback():
+    p = _vrsim("no-such-command")
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr + p.stdout
+    assert "invalid choice" in p.stderr
+
+
+def test_bad_option_exits_2():
+    p = _vrsim("--no-such-option")
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr

@@ -1,0 +1,1 @@
+"""vrsim vehicle package."""
