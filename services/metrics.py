@@ -1,0 +1,174 @@
+"""Accuracy metrics: how far the applied rate is from the prescribed one, on the map and in time.
+
+Pure functions over numpy arrays; no I/O. The formulas are the ones the README states.
+
+On the map (per grid cell, all cells of equal area ``cell_area_ha``):
+
+- a cell is *covered* when its swept-area fraction is at least ``COVERED_FRACTION``; partly covered
+  edge cells are left out of the error figures because their error is path geometry, not metering;
+- error ``e = applied_kg_ha - prescribed_kg_ha`` over covered cells inside the field;
+  ``mae = mean(|e|)``, ``rmse = sqrt(mean(e**2))``, ``bias = mean(e)``, and each also as % of the mean
+  prescription over those cells;
+- within +-p %: share of covered cells with a positive prescription where ``|e| <= p/100 * prescribed``;
+- prescribed_kg: sum over cells inside the field of ``prescribed * cell_area_ha * min(coverage, 1)``,
+  the product the prescription asks for on the area actually worked; applied_kg: all product metered;
+  mass balance ``100 * (applied - prescribed) / prescribed``;
+- off_target_kg: product landing outside the field or off the grid, plus product on zero-rate cells;
+- coverage_pct: share of the field's cells that are covered.
+
+In time (per tick, along the track), see `transitions`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
+TRANSITION_TOLERANCE = 0.10  # "within 10 % of the new rate"
+STEP_MIN_RELATIVE = 0.10  # a rate change of more than 10 % ...
+STEP_MIN_KG_HA = 5.0  # ... and more than 5 kg/ha is a rate step
+
+
+@dataclass(frozen=True)
+class MapMetrics:
+    prescribed_kg: float
+    applied_kg: float
+    mass_balance_pct: float
+    mae_kg_ha: float
+    rmse_kg_ha: float
+    bias_kg_ha: float
+    mae_pct: float
+    rmse_pct: float
+    bias_pct: float
+    within_5pct_area_pct: float
+    within_10pct_area_pct: float
+    off_target_kg: float
+    coverage_pct: float
+    covered_cells: int
+
+
+@dataclass(frozen=True)
+class TransitionMetrics:
+    count: int
+    time_s_mean: float
+    time_s_p95: float
+    distance_m_mean: float
+    distance_m_p95: float
+
+
+def _pct(part: float, whole: float) -> float:
+    return float(100.0 * part / whole) if whole > 0 else float("nan")
+
+
+def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, cell_area_ha,
+                applied_total_kg, off_grid_kg=0.0) -> MapMetrics:
+    """Applied-versus-prescribed figures over a grid.
+
+    Parameters
+    ----------
+    prescribed_kg_ha, applied_kg_ha, coverage_fraction : ndarray, shape (rows, cols)
+        Prescription (NaN on nodata), applied product per cell area, and swept share of each cell.
+    in_field : ndarray of bool, shape (rows, cols)
+        Cells whose centre lies inside the field boundary.
+    cell_area_ha : float
+        Area of one cell, in hectares.
+    applied_total_kg : float
+        All product metered during the run (kg), wherever it landed.
+    off_grid_kg : float
+        Product that landed outside the grid (kg).
+    """
+    rx = np.asarray(prescribed_kg_ha, dtype=float)
+    applied = np.asarray(applied_kg_ha, dtype=float)
+    cover = np.asarray(coverage_fraction, dtype=float)
+    field = np.asarray(in_field, dtype=bool)
+    if not (rx.shape == applied.shape == cover.shape == field.shape):
+        raise ValueError("prescribed, applied, coverage and in_field must have the same shape")
+    rx0 = np.nan_to_num(rx, nan=0.0)
+    covered = field & (cover >= COVERED_FRACTION) & np.isfinite(rx)
+    err = applied[covered] - rx[covered]
+    mean_rx = float(rx[covered].mean()) if err.size else float("nan")
+    mae = float(np.abs(err).mean()) if err.size else float("nan")
+    rmse = float(np.sqrt((err**2).mean())) if err.size else float("nan")
+    bias = float(err.mean()) if err.size else float("nan")
+    positive = rx[covered] > 0
+    rel = np.abs(err[positive]) / rx[covered][positive]
+    prescribed_kg = float((rx0[field] * np.minimum(cover[field], 1.0)).sum() * cell_area_ha)
+    applied_kg_cells = applied * cell_area_ha
+    off_target = float(applied_kg_cells[~field].sum() + applied_kg_cells[field & (rx0 <= 0)].sum()
+                       + off_grid_kg)
+    return MapMetrics(
+        prescribed_kg=prescribed_kg,
+        applied_kg=float(applied_total_kg),
+        mass_balance_pct=_pct(applied_total_kg - prescribed_kg, prescribed_kg),
+        mae_kg_ha=mae,
+        rmse_kg_ha=rmse,
+        bias_kg_ha=bias,
+        mae_pct=_pct(mae, mean_rx),
+        rmse_pct=_pct(rmse, mean_rx),
+        bias_pct=_pct(bias, mean_rx),
+        within_5pct_area_pct=_pct(np.count_nonzero(rel <= 0.05), rel.size),
+        within_10pct_area_pct=_pct(np.count_nonzero(rel <= 0.10), rel.size),
+        off_target_kg=off_target,
+        coverage_pct=_pct(np.count_nonzero(covered), np.count_nonzero(field)),
+        covered_cells=int(np.count_nonzero(covered)),
+    )
+
+
+def rate_steps(prescribed_kg_ha, active) -> np.ndarray:
+    """Tick indices where the prescription under the landing point steps to a new rate.
+
+    A step is a change between consecutive active ticks of more than `STEP_MIN_RELATIVE` of the
+    larger rate and more than `STEP_MIN_KG_HA`.
+    """
+    rx = np.asarray(prescribed_kg_ha, dtype=float)
+    on = np.asarray(active, dtype=bool)
+    prev, cur = rx[:-1], rx[1:]
+    change = np.abs(cur - prev)
+    big = np.fmax(np.abs(prev), np.abs(cur))
+    is_step = (on[:-1] & on[1:] & np.isfinite(change)
+               & (change > STEP_MIN_KG_HA) & (change > STEP_MIN_RELATIVE * big))
+    return np.flatnonzero(is_step) + 1
+
+
+def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> TransitionMetrics:
+    """Time and distance from each rate step until the applied rate is within 10 % of the new rate.
+
+    Parameters
+    ----------
+    time_s, distance_m : ndarray, shape (n,)
+        Time of each tick and distance travelled by the landing point up to it (monotone).
+    prescribed_kg_ha, applied_kg_ha : ndarray, shape (n,)
+        Prescription under the landing point and the applied rate there, per tick (NaN where the
+        rate is undefined, e.g. standing still).
+    active : ndarray of bool, shape (n,)
+        Ticks where the implement is on.
+
+    A step whose rate changes again before the applied rate settles is not counted (its transition
+    is unfinished, not fast or slow); one where the applied rate is already within tolerance at
+    the step counts as zero.
+    """
+    t = np.asarray(time_s, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    rx = np.asarray(prescribed_kg_ha, dtype=float)
+    applied = np.asarray(applied_kg_ha, dtype=float)
+    steps = rate_steps(rx, active)
+    ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
+    ok_idx = np.flatnonzero(ok)
+    ends = np.append(steps[1:], len(rx))  # a step's window closes at the next step
+    first_ok = ok_idx[np.minimum(np.searchsorted(ok_idx, steps), max(len(ok_idx) - 1, 0))] \
+        if ok_idx.size else np.full(len(steps), len(rx))
+    settled = (first_ok >= steps) & (first_ok < ends) if ok_idx.size else np.zeros(len(steps), bool)
+    k, j = steps[settled], first_ok[settled]
+    times, dists = t[j] - t[k], d[j] - d[k]
+    if times.size == 0:
+        nan = float("nan")
+        return TransitionMetrics(0, nan, nan, nan, nan)
+    return TransitionMetrics(
+        count=int(times.size),
+        time_s_mean=float(times.mean()),
+        time_s_p95=float(np.percentile(times, 95)),
+        distance_m_mean=float(dists.mean()),
+        distance_m_p95=float(np.percentile(dists, 95)),
+    )
