@@ -1,0 +1,298 @@
+"""The field run: map, tractor and controller in one loop.
+
+Data flow of one control tick (see the README's picture)::
+
+    SUMO pose --GNSS--> measured fix --look-ahead by the delivery delay--> landing point
+    --map lookup--> rate kg/ha --with speed, width, kg/rev--> target shaft rpm --PID--> valve current
+    --hydraulic plant--> shaft revolutions --x kg/rev--> kg metered --lands after the delay--> map
+
+The per-tick part (`ControlCore.tick`) is the one pure core that both `vrsim run` and the Zenoh
+controller service call. The stages that do not feed back (driving, GNSS noise, where product lands,
+the as-applied raster, the metrics) are vectorized over the whole run: the vehicle's path does not
+depend on the metering, so SUMO can drive the whole path first and the control loop follow it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import ScenarioError
+from controller import build_loop
+from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
+from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
+from services.scenario import Scenario
+from vehicle import Field, Gnss, SumoDriver, plan_coverage
+
+MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
+
+
+@dataclass
+class World:
+    """What a scenario builds before anything moves: field, path and the prescription on its grid."""
+
+    scenario: Scenario
+    field: Field
+    path: object  # vehicle.CoveragePath
+    grid: Grid  # the prescription, in the field's metric CRS
+
+
+def build_field(scenario: Scenario) -> Field:
+    spec = scenario.field
+    if spec.file is not None:
+        return Field.from_file(scenario.path(spec.file), crs=spec.crs)
+    if spec.rectangle is not None:
+        r = spec.rectangle
+        return Field.rectangle(r["width_m"], r["length_m"], lat=r["lat"], lon=r["lon"])
+    return Field.from_lonlat([tuple(p) for p in spec.polygon_lonlat])
+
+
+def build_prescription(scenario: Scenario, field: Field) -> Grid:
+    """The prescription on a grid in the field's CRS; refuses a map that misses the field."""
+    spec = scenario.map
+    if spec.synthetic is not None:
+        minx, miny, maxx, maxy = field.polygon.bounds
+        bounds = (minx - MAP_MARGIN_M, miny - MAP_MARGIN_M, maxx + MAP_MARGIN_M, maxy + MAP_MARGIN_M)
+        if spec.synthetic == "zones_gradient":
+            return _zones_plus_gradient(bounds, field.crs, spec.cell_size_m, scenario.seed, spec.params)
+        make = getattr(synthetic, spec.synthetic)
+        return make(bounds=bounds, crs=field.crs, cell_size_m=spec.cell_size_m, seed=scenario.seed,
+                    **spec.params)
+    grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
+                    crs=spec.crs)
+    grid.check_overlap(field.polygon, field.crs)
+    if not grid.crs.equals(field.crs):
+        grid = grid.reproject(field.crs, cell_size_m=spec.cell_size_m)
+    return grid
+
+
+def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
+    """The default scenario's map: sharp-edged zones with a gradient laid over them."""
+    zone_params = {k: v for k, v in params.items() if not k.startswith("gradient_")}
+    grad_params = {k[len("gradient_"):]: v for k, v in params.items() if k.startswith("gradient_")}
+    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **zone_params)
+    grad = synthetic.gradient(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **grad_params)
+    return zones.with_rates(zones.rates_kg_ha + grad.rates_kg_ha, source="synthetic:zones_gradient")
+
+
+def build_world(scenario: Scenario) -> World:
+    field = build_field(scenario)
+    grid = build_prescription(scenario, field)
+    spec = scenario.field
+    try:
+        path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
+                             heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
+    except ScenarioError:
+        raise
+    return World(scenario=scenario, field=field, path=path, grid=grid)
+
+
+@dataclass
+class TickOut:
+    """What one control tick produces (all SI except rpm)."""
+
+    landing_x_m: float
+    landing_y_m: float
+    prescribed_kg_ha: float  # the rate looked up at the predicted landing point
+    target_shaft_rpm: float
+    shaft_rpm: float
+    shaft_rev: float  # metering-shaft revolutions during this period
+    current_a: float
+    metered_kg: float  # product through the meter this period (0 with the sections off)
+
+
+class ControlCore:
+    """One control tick: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+
+    Deterministic and free of I/O; `vrsim run` and the controller service both call `tick`.
+    The landing point is predicted by dead reckoning from the fix: product metered now lands
+    `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
+    """
+
+    def __init__(self, grid: Grid, scenario: Scenario):
+        self.grid = grid
+        self.implement = scenario.implement
+        self.policy = RatePolicy(mode=scenario.map.policy,
+                                 default_rate_kg_ha=scenario.map.default_rate_kg_ha)
+        timing = scenario.timing
+        self.loop = build_loop(scenario.plant, scenario.controller, control_period_s=timing.control_period_s,
+                               plant_step_s=timing.plant_step_s, n=1)
+        self.control_period_s = timing.control_period_s
+        self.last_rate_kg_ha = float("nan")
+
+    def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
+             implement_on: bool) -> TickOut:
+        lead_m = speed_m_s * self.implement.delivery_delay_s
+        lx = x_m + lead_m * math.cos(heading_rad)
+        ly = y_m + lead_m * math.sin(heading_rad)
+        rate = self.grid.rate_at(lx, ly)
+        rate = self.policy.apply(rate, rate == rate, self.last_rate_kg_ha)
+        self.last_rate_kg_ha = rate
+        target = self.implement.target_shaft_rpm(rate, speed_m_s) if implement_on else 0.0
+        out = self.loop.step(target)
+        rev = float(out.shaft_rev[0])
+        return TickOut(lx, ly, rate, float(target), float(out.shaft_rpm[0]), rev, float(out.current_a[0]),
+                       self.implement.mass_kg(rev) if implement_on else 0.0)
+
+
+TRACK_KEYS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
+CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
+                "shaft_rev", "current_a", "metered_kg")
+
+
+def control_track(core: ControlCore, x_meas, y_meas, heading_rad, speed_m_s, implement_on,
+                  progress=None) -> dict[str, np.ndarray]:
+    """Run `core.tick` over a whole measured track, recording into preallocated arrays."""
+    n = len(x_meas)
+    rec = {k: np.empty(n) for k in CONTROL_KEYS}
+    cols = [rec[k] for k in CONTROL_KEYS]
+    xs, ys, hs, vs, on = (a.tolist() for a in (x_meas, y_meas, heading_rad, speed_m_s, implement_on))
+    tick = core.tick
+    chunk = 5000
+    for start in range(0, n, chunk):
+        for i in range(start, min(n, start + chunk)):
+            out = tick(xs[i], ys[i], hs[i], vs[i], on[i])
+            for col, value in zip(cols, (out.landing_x_m, out.landing_y_m, out.prescribed_kg_ha,
+                                         out.target_shaft_rpm, out.shaft_rpm, out.shaft_rev,
+                                         out.current_a, out.metered_kg), strict=True):
+                col[i] = value
+        if progress is not None:
+            progress(min(n, start + chunk), n)
+    return rec
+
+
+@dataclass
+class Landing:
+    """Where the product metered in each tick landed, and the rates there along the track."""
+
+    x0_m: np.ndarray
+    y0_m: np.ndarray
+    x1_m: np.ndarray
+    y1_m: np.ndarray
+    strip_length_m: np.ndarray
+    distance_m: np.ndarray  # landing point's travelled distance at each tick
+    prescribed_kg_ha: np.ndarray  # prescription at each strip's midpoint (true position)
+    applied_kg_ha: np.ndarray  # metered kg over the strip's area (NaN on strips shorter than 1 cm)
+
+
+def land(grid: Grid, time_s, x_m, y_m, metered_kg, width_m, delay_s, period_s) -> Landing:
+    """Product metered during [t, t + period] lands on the true path during the same span + delay."""
+    t0 = np.asarray(time_s) + delay_s
+    x0, y0 = np.interp(t0, time_s, x_m), np.interp(t0, time_s, y_m)
+    x1, y1 = np.interp(t0 + period_s, time_s, x_m), np.interp(t0 + period_s, time_s, y_m)
+    length = np.hypot(x1 - x0, y1 - y0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        applied = np.where(length > 0.01, metered_kg / (width_m * length) * 1e4, np.nan)
+    rx = grid.lookup(0.5 * (x0 + x1), 0.5 * (y0 + y1)).rate_kg_ha
+    return Landing(x0, y0, x1, y1, length, np.cumsum(length), rx, applied)
+
+
+def cells_in_field(grid: Grid, polygon) -> np.ndarray:
+    """Boolean (rows, cols): cells whose centre lies inside the field polygon."""
+    import shapely
+
+    cols, rows = np.meshgrid(np.arange(grid.cols) + 0.5, np.arange(grid.rows) + 0.5)
+    xs, ys = grid.transform * (cols, rows)
+    return shapely.contains_xy(polygon, xs, ys)
+
+
+@dataclass
+class RunResult:
+    world: World
+    track: dict
+    measured_x_m: np.ndarray
+    measured_y_m: np.ndarray
+    control: dict
+    landing: Landing
+    as_applied: AsApplied
+    in_field: np.ndarray
+    map_metrics: MapMetrics
+    transition_metrics: TransitionMetrics
+    stage_s: dict
+    summary: dict
+
+
+def run(scenario: Scenario, progress=None) -> RunResult:
+    """Run a scenario in process and return everything it measured."""
+    stage = {}
+    wall0 = clock = time.perf_counter()
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        stage[name] = stage.get(name, 0.0) + now - clock
+        clock = now
+
+    world = build_world(scenario)
+    lap("build_s")
+    timing = scenario.timing
+    with SumoDriver(world.path, scenario.tractor, step_s=timing.control_period_s, seed=scenario.seed,
+                    max_time_s=timing.max_sim_time_s) as driver:
+        track = driver.run_all()
+    lap("sumo_s")
+    gnss = Gnss(scenario.gnss, seed=scenario.seed)
+    x_meas, y_meas = gnss.measure(track["time_s"], track["x_m"], track["y_m"])
+    lap("gnss_s")
+    core = ControlCore(world.grid, scenario)
+    control = control_track(core, x_meas, y_meas, track["heading_rad"], track["speed_m_s"],
+                            track["implement_on"], progress)
+    lap("control_s")
+    summary, rest = account(world, track, control, wall0)
+    lap("metrics_s")
+    summary["wall_time_s"] = time.perf_counter() - wall0
+    summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
+    summary["stage_s"] = stage
+    return RunResult(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas, control=control,
+                     stage_s=stage, summary=summary, **rest)
+
+
+def account(world: World, track: dict, control: dict, wall0: float):
+    """Land the metered product, build the as-applied raster and compute the summary."""
+    scenario, grid = world.scenario, world.grid
+    implement, timing = scenario.implement, scenario.timing
+    landing = land(grid, track["time_s"], track["x_m"], track["y_m"], control["metered_kg"],
+                   implement.width_m, implement.delivery_delay_s, timing.control_period_s)
+    acc = AsApplied(grid)
+    acc.add_strips(landing.x0_m, landing.y0_m, landing.x1_m, landing.y1_m, implement.width_m,
+                   control["metered_kg"])
+    in_field = cells_in_field(grid, world.field.polygon)
+    cell_w, cell_h = grid.cell_size
+    mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, in_field,
+                     abs(cell_w * cell_h) / 1e4, float(control["metered_kg"].sum()), acc.outside_kg)
+    tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, landing.applied_kg_ha,
+                     np.asarray(track["implement_on"], bool))
+    n = len(track["time_s"])
+    summary = {
+        "scenario": scenario.name,
+        "field_area_ha": world.field.area_ha,
+        "sim_time_s": n * timing.control_period_s,
+        "wall_time_s": time.perf_counter() - wall0,
+        "ticks": n,
+        "realtime_factor": 0.0,
+        "prescribed_kg": mm.prescribed_kg,
+        "applied_kg": mm.applied_kg,
+        "mass_balance_pct": mm.mass_balance_pct,
+        "mae_kg_ha": mm.mae_kg_ha,
+        "rmse_kg_ha": mm.rmse_kg_ha,
+        "bias_kg_ha": mm.bias_kg_ha,
+        "within_5pct_area_pct": mm.within_5pct_area_pct,
+        "within_10pct_area_pct": mm.within_10pct_area_pct,
+        "transition_time_s_mean": tm.time_s_mean,
+        "transition_time_s_p95": tm.time_s_p95,
+        "transition_distance_m_mean": tm.distance_m_mean,
+        "transition_distance_m_p95": tm.distance_m_p95,
+        "off_target_kg": mm.off_target_kg,
+        "coverage_pct": mm.coverage_pct,
+        "mae_pct": mm.mae_pct,
+        "rmse_pct": mm.rmse_pct,
+        "bias_pct": mm.bias_pct,
+        "transitions": tm.count,
+        "covered_cells": mm.covered_cells,
+        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
+        "seed": scenario.seed,
+    }
+    rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm)
+    return summary, rest

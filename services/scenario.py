@@ -1,0 +1,273 @@
+"""Scenario files: one TOML file says which field, map, machine, GNSS and controller to run.
+
+Every table maps onto one configuration dataclass of the package that owns the concept
+(``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
+`vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
+`controller.PlantParams`), so a key is named and documented once, where it is used. Loading checks
+every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
+`ScenarioError` that names the file, the table and key, and the value.
+
+See ``scenarios/README.md`` for the keys of each table and ``services/scenarios/default.toml`` for
+the built-in default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from typing import Any
+
+from common import ScenarioError, VrsimError
+from controller import ControllerConfig, PlantParams
+from maps import synthetic
+from vehicle import DriveConfig, GnssConfig, Implement
+
+BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
+SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
+POLICIES = ("off", "hold", "default")
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """Where the field is: exactly one of `file`, `rectangle` or `polygon_lonlat`."""
+
+    file: str | None = None
+    crs: str | None = None  # for a shapefile without .prj
+    rectangle: dict | None = None  # {width_m, length_m, lat, lon}
+    polygon_lonlat: list | None = None  # [[lon, lat], ...]
+    headland_passes: int = 1
+    heading_deg: float | None = None  # AB heading; None = along the longest edge
+    turn_radius_m: float = 6.0
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """The prescription: a file `maps.read_map` reads, or a synthetic map of kind `synthetic`."""
+
+    file: str | None = None
+    rate_field: str | None = None
+    crs: str | None = None
+    synthetic: str | None = None
+    cell_size_m: float = 2.0
+    params: dict = field(default_factory=dict)  # keyword arguments of the synthetic generator
+    policy: str = "off"  # what the controller does outside the map or on nodata
+    default_rate_kg_ha: float = 0.0
+
+
+@dataclass(frozen=True)
+class TimingSpec:
+    control_period_s: float = 0.05
+    plant_step_s: float = 0.001
+    max_sim_time_s: float = 36000.0
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    plots: bool = True
+    html: bool = True
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    source: str  # the file it came from, or "builtin:<name>"
+    base_dir: str  # relative paths in the file are relative to this
+    seed: int
+    description: str
+    field: FieldSpec
+    map: MapSpec
+    implement: Implement
+    tractor: DriveConfig
+    gnss: GnssConfig
+    controller: ControllerConfig
+    plant: PlantParams
+    timing: TimingSpec
+    output: OutputSpec
+
+    def path(self, relative: str) -> str:
+        """A path from the scenario file, resolved against the file's folder."""
+        return relative if os.path.isabs(relative) else os.path.join(self.base_dir, relative)
+
+
+TOP_KEYS = {"name", "seed", "description", "field", "map", "implement", "tractor", "gnss",
+            "controller", "plant", "timing", "output"}
+
+
+def builtin_names() -> list[str]:
+    return sorted(f[:-5] for f in os.listdir(BUILTIN_DIR) if f.endswith(".toml"))
+
+
+def load(spec: str | None) -> Scenario:
+    """Load a scenario from a file path or a built-in name (None = the built-in default)."""
+    if spec is None:
+        spec = "default"
+    if not os.path.exists(spec) and spec in builtin_names():
+        path = os.path.join(BUILTIN_DIR, spec + ".toml")
+        with open(path, "rb") as fh:
+            return parse(fh.read().decode(), source=f"builtin:{spec}", base_dir=BUILTIN_DIR)
+    if not os.path.isfile(spec):
+        raise ScenarioError(f"{spec}: no such scenario file (built-in scenarios: "
+                            f"{', '.join(builtin_names())})")
+    try:
+        with open(spec, "rb") as fh:
+            text = fh.read().decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(f"{spec}: cannot read: {exc}") from None
+    return parse(text, source=spec, base_dir=os.path.dirname(os.path.abspath(spec)))
+
+
+def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenario:
+    """Parse and check a scenario's TOML text; `source` names it in error messages."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
+    _no_unknown(doc, TOP_KEYS, source, "")
+    for key in TOP_KEYS - {"name", "seed", "description"}:
+        if key in doc and not isinstance(doc[key], dict):
+            raise ScenarioError(f"{source}: [{key}] must be a table, got {doc[key]!r}")
+    name = _typed(doc, "name", str, source, "", default=os.path.splitext(os.path.basename(source))[0])
+    seed = _typed(doc, "seed", int, source, "", default=1)
+    if seed < 0:
+        raise ScenarioError(f"{source}: seed must be >= 0, got {seed}")
+    scenario = Scenario(
+        name=name.replace("builtin:", ""),
+        source=source,
+        base_dir=base_dir,
+        seed=seed,
+        description=_typed(doc, "description", str, source, "", default=""),
+        field=_build(FieldSpec, doc.get("field", {}), source, "field"),
+        map=_build(MapSpec, doc.get("map", {}), source, "map"),
+        implement=_build(Implement, doc.get("implement", {}), source, "implement"),
+        tractor=_build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
+        gnss=_build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
+        controller=_build(ControllerConfig, doc.get("controller", {}), source, "controller"),
+        plant=_build(PlantParams, doc.get("plant", {}), source, "plant"),
+        timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),
+        output=_build(OutputSpec, doc.get("output", {}), source, "output"),
+    )
+    _check_field(scenario.field, source)
+    _check_map(scenario.map, source)
+    _check_timing(scenario.timing, source)
+    return scenario
+
+
+def _no_unknown(table: dict, known, source: str, section: str) -> None:
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        where = f"[{section}] " if section else ""
+        raise ScenarioError(f"{source}: {where}unknown key {unknown[0]!r} "
+                            f"(known: {', '.join(sorted(known))})")
+
+
+def _typed(table: dict, key: str, kind, source: str, section: str, default=None):
+    if key not in table:
+        return default
+    value = table[key]
+    ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
+    if not ok:
+        where = f"[{section}] " if section else ""
+        raise ScenarioError(f"{source}: {where}{key} must be {kind.__name__}, got {value!r}")
+    return value
+
+
+def _expected_type(f: dataclasses.Field):
+    """The Python type a TOML value must have for dataclass field `f` (None: anything)."""
+    default = f.default if f.default is not dataclasses.MISSING else (
+        f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
+    if isinstance(default, bool):
+        return bool
+    if isinstance(default, (int, float)):
+        return (int, float) if isinstance(default, float) or "float" in str(f.type) else int
+    if isinstance(default, (str, dict, list)):
+        return type(default)
+    text = str(f.type)
+    for name, kind in (("float", (int, float)), ("int", int), ("str", str), ("bool", bool),
+                       ("dict", dict), ("list", list)):
+        if text.startswith(name):
+            return kind
+    return None
+
+
+def _build(cls, table: dict, source: str, section: str):
+    """Construct dataclass `cls` from TOML `table`, naming file, table, key and value on error."""
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    _no_unknown(table, fields, source, section)
+    for key, value in table.items():
+        kind = _expected_type(fields[key])
+        if kind is None or value is None:
+            continue
+        bad_bool = isinstance(value, bool) and kind is not bool
+        if bad_bool or not isinstance(value, kind):
+            names = kind.__name__ if isinstance(kind, type) else "number"
+            raise ScenarioError(f"{source}: [{section}] {key} must be {names}, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ScenarioError(f"{source}: [{section}] {key} must be finite, got {value!r}")
+    try:
+        return cls(**table)
+    except VrsimError as exc:
+        raise ScenarioError(f"{source}: [{section}] {exc}") from None
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"{source}: [{section}] {exc}") from None
+
+
+def _check_field(spec: FieldSpec, source: str) -> None:
+    given = [k for k in ("file", "rectangle", "polygon_lonlat") if getattr(spec, k) is not None]
+    if len(given) != 1:
+        raise ScenarioError(f"{source}: [field] needs exactly one of file, rectangle, polygon_lonlat "
+                            f"(got {', '.join(given) or 'none'})")
+    if spec.rectangle is not None:
+        _no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
+        for key in ("width_m", "length_m", "lat", "lon"):
+            value = spec.rectangle.get(key)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise ScenarioError(f"{source}: [field.rectangle] {key} must be a number, got {value!r}")
+    if spec.headland_passes < 0:
+        raise ScenarioError(f"{source}: [field] headland_passes must be >= 0, got {spec.headland_passes}")
+    if spec.turn_radius_m <= 0:
+        raise ScenarioError(f"{source}: [field] turn_radius_m must be > 0, got {spec.turn_radius_m}")
+
+
+def _check_map(spec: MapSpec, source: str) -> None:
+    if (spec.file is None) == (spec.synthetic is None):
+        raise ScenarioError(f"{source}: [map] needs exactly one of file or synthetic")
+    if spec.synthetic is not None:
+        if spec.synthetic not in SYNTHETIC_KINDS:
+            raise ScenarioError(f"{source}: [map] synthetic must be one of {', '.join(SYNTHETIC_KINDS)}, "
+                                f"got {spec.synthetic!r}")
+        if spec.synthetic != "zones_gradient":
+            accepted = set(inspect.signature(getattr(synthetic, spec.synthetic)).parameters)
+            _no_unknown(spec.params, accepted - {"bounds", "crs", "cell_size_m", "seed"}, source,
+                        "map.params")
+    if spec.policy not in POLICIES:
+        raise ScenarioError(f"{source}: [map] policy must be one of {', '.join(POLICIES)}, "
+                            f"got {spec.policy!r}")
+    if not spec.cell_size_m > 0:
+        raise ScenarioError(f"{source}: [map] cell_size_m must be > 0, got {spec.cell_size_m}")
+    if spec.default_rate_kg_ha < 0:
+        raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
+
+
+def _check_timing(spec: TimingSpec, source: str) -> None:
+    if not 0 < spec.plant_step_s <= spec.control_period_s:
+        raise ScenarioError(f"{source}: [timing] plant_step_s must be > 0 and <= control_period_s, "
+                            f"got {spec.plant_step_s}")
+    ratio = spec.control_period_s / spec.plant_step_s
+    if abs(ratio - round(ratio)) > 1e-9:
+        raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
+                            f"whole multiple of plant_step_s ({spec.plant_step_s})")
+    if not 0 < spec.max_sim_time_s:
+        raise ScenarioError(f"{source}: [timing] max_sim_time_s must be > 0, got {spec.max_sim_time_s}")
+
+
+def as_dict(scenario: Scenario) -> dict[str, Any]:
+    """The scenario as plain data (for summary.json and the services)."""
+    out = {}
+    for f in dataclasses.fields(scenario):
+        value = getattr(scenario, f.name)
+        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+    return out
