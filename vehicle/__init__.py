@@ -1,1 +1,16 @@
-"""vrsim vehicle package."""
+"""vrsim vehicle package: field geometry, coverage path, SUMO driving, implement/meter and GNSS.
+
+Knows nothing of maps' formats, control or Zenoh. Positions are metres in the field's UTM CRS;
+headings in the math convention (radians counter-clockwise from east) unless named ``*_deg``
+(compass bearing, degrees clockwise from north).
+"""
+
+from vehicle.coverage import CoveragePath, Segment, plan_coverage
+from vehicle.driver import DriveConfig, Pose, SumoDriver
+from vehicle.field import Field
+from vehicle.network import build_network, default_cache_dir, find_netconvert
+
+__all__ = [
+    "CoveragePath", "DriveConfig", "Field", "Pose", "Segment", "SumoDriver", "build_network",
+    "default_cache_dir", "find_netconvert", "plan_coverage",
+]

@@ -1,0 +1,347 @@
+"""Driving a coverage path in SUMO (libsumo, in-process) and reading the implement's pose each tick.
+
+SUMO reports the vehicle's front bumper. The implement's reference point trails it by
+``DriveConfig.implement_offset_m`` along the path, so the driver reads the route index and lane
+position (one planned segment per edge, lane position scaled to planned arc length), subtracts the
+offset, and looks the arc length up on the planned polyline: reported positions lie on the planned
+path by construction, and SUMO's own junction cut-backs and rounding never leak into them.
+
+Speed: swath and headland edges allow ``working_speed * (1 + variation)``; the tractor's own
+maximum speed follows a slow, seeded Gauss-Markov factor (clipped to +-``speed_variation_pct``)
+updated every ``speed_update_s``; turn edges are limited to ``turn_speed_m_s`` and SUMO brakes
+ahead of them with the vehicle type's deceleration.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.errors import VehicleError
+from vehicle.coverage import CoveragePath
+from vehicle.network import Network, build_network
+
+_VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """How the tractor drives.
+
+    Attributes
+    ----------
+    working_speed_m_s : float
+        Nominal speed on swaths and headland passes, m/s.
+    turn_speed_m_s : float
+        Speed limit in turns, m/s.
+    speed_variation_pct : float
+        Bound of the slow speed variation around the working speed, percent (0 = none).
+    speed_variation_tau_s : float
+        Correlation time of that variation, s.
+    speed_update_s : float
+        How often the tractor's target speed is updated, s.
+    accel_m_s2, decel_m_s2 : float
+        Acceleration and (comfortable) deceleration, m/s^2.
+    vehicle_length_m : float
+        Length of the tractor, m.
+    implement_offset_m : float
+        Distance from the tractor's front bumper back to the implement's reference point (the
+        spreader discs), m; at least the vehicle length.
+    """
+
+    working_speed_m_s: float = 2.5
+    turn_speed_m_s: float = 1.2
+    speed_variation_pct: float = 5.0
+    speed_variation_tau_s: float = 20.0
+    speed_update_s: float = 1.0
+    accel_m_s2: float = 0.8
+    decel_m_s2: float = 1.5
+    vehicle_length_m: float = 5.0
+    implement_offset_m: float = 6.5
+
+    def __post_init__(self):
+        for name in ("working_speed_m_s", "turn_speed_m_s", "speed_variation_tau_s", "speed_update_s",
+                     "accel_m_s2", "decel_m_s2", "vehicle_length_m", "implement_offset_m"):
+            _require(name, getattr(self, name), lo=0.0, lo_open=True)
+        _require("speed_variation_pct", self.speed_variation_pct, lo=0.0, hi=50.0)
+        if self.implement_offset_m < self.vehicle_length_m:
+            raise VehicleError(f"DriveConfig: implement_offset_m={self.implement_offset_m} must be >= "
+                               f"vehicle_length_m={self.vehicle_length_m} (the implement trails the tractor)")
+        if self.working_speed_m_s > 15.0:
+            raise VehicleError(f"DriveConfig: working_speed_m_s={self.working_speed_m_s} is not a field "
+                               "speed (> 15 m/s)")
+
+    @property
+    def max_speed_m_s(self) -> float:
+        """Highest speed the tractor may reach, m/s."""
+        return max(self.working_speed_m_s * (1 + self.speed_variation_pct / 100), self.turn_speed_m_s)
+
+    def edge_speeds_m_s(self, kinds) -> list:
+        """Speed limit per segment kind: turns at turn speed, working segments at the maximum."""
+        return [self.turn_speed_m_s if k == "turn" else self.max_speed_m_s for k in kinds]
+
+
+def _require(name, value, lo=None, hi=None, lo_open=False):
+    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and lo is not None:
+        ok = value > lo if lo_open else value >= lo
+    if ok and hi is not None:
+        ok = value <= hi
+    if not ok:
+        bound = f"{'>' if lo_open else '>='} {lo}" + (f" and <= {hi}" if hi is not None else "")
+        raise VehicleError(f"DriveConfig: {name} must be a number {bound}, got {value!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """The implement's state at one tick.
+
+    Attributes
+    ----------
+    time_s : float
+        Simulation time, s.
+    x_m, y_m : float
+        Implement reference point on the planned path, field CRS metres.
+    heading_rad : float
+        Direction of travel, math convention: radians counter-clockwise from +x (east).
+    speed_m_s : float
+        Ground speed, m/s.
+    implement_on : bool
+        Sections on (working segment) or off (turn, or past the end of the path).
+    segment_index : int
+        Index into ``path.segments``.
+    s_m : float
+        Arc length along the path, m.
+    """
+
+    time_s: float
+    x_m: float
+    y_m: float
+    heading_rad: float
+    speed_m_s: float
+    implement_on: bool
+    segment_index: int
+    s_m: float
+
+
+class SpeedVariation:
+    """Seeded, slow speed factor ``1 + pct/100 * g``, g a clipped Gauss-Markov process in [-1, 1].
+
+    ``g`` has a stationary standard deviation of 0.5 and correlation time ``tau_s``; one value per
+    update of period ``dt_s``. The same seed gives the same sequence whether read one value at a time
+    (`next`) or in blocks (`take`).
+    """
+
+    def __init__(self, pct: float, tau_s: float, dt_s: float, seed: int):
+        self._rng = np.random.default_rng(seed)
+        self._a = math.exp(-dt_s / tau_s)
+        self._b = 0.5 * math.sqrt(1 - self._a ** 2)
+        self._g = 0.5 * float(self._rng.standard_normal())
+        self._pct = pct
+
+    def next(self) -> float:
+        """The next speed factor (dimensionless)."""
+        factor = 1.0 + self._pct / 100.0 * min(1.0, max(-1.0, self._g))
+        self._g = self._a * self._g + self._b * float(self._rng.standard_normal())
+        return factor
+
+
+class SumoDriver:
+    """Drive a `CoveragePath` in SUMO through libsumo; one open driver per process.
+
+    Parameters
+    ----------
+    path : CoveragePath
+    drive : DriveConfig, optional
+    step_s : float
+        SUMO step length, s.
+    seed : int
+        Seeds SUMO and the speed variation.
+    cache_dir : str, optional
+        Network cache (default ``$VRSIM_CACHE/sumo`` or ``~/.cache/vrsim/sumo``).
+
+    Use as a context manager; `step` returns one `Pose` per tick until `finished`, `run_all` drives
+    the whole path into arrays. The network is built (or fetched from the cache) in the constructor.
+    """
+
+    _open: SumoDriver | None = None  # libsumo holds one simulation per process
+
+    def __init__(self, path: CoveragePath, drive: DriveConfig | None = None, step_s: float = 0.05,
+                 seed: int = 1, cache_dir: str | None = None):
+        if not isinstance(path, CoveragePath):
+            raise VehicleError(f"SumoDriver: path must be a CoveragePath, got {type(path).__name__}")
+        drive = drive or DriveConfig()
+        if not isinstance(drive, DriveConfig):
+            raise VehicleError(f"SumoDriver: drive must be a DriveConfig, got {type(drive).__name__}")
+        if not (isinstance(step_s, (int, float)) and math.isfinite(step_s) and 0.001 <= step_s <= 1.0):
+            raise VehicleError(f"SumoDriver: step_s must be within [0.001, 1] s, got {step_s!r}")
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise VehicleError(f"SumoDriver: seed must be an integer >= 0, got {seed!r}")
+        self.path, self.drive, self.step_s, self.seed = path, drive, float(step_s), int(seed)
+        self.network: Network = build_network(path.segments, drive.edge_speeds_m_s(path.kinds()),
+                                              lead_out_m=drive.implement_offset_m + 10.0,
+                                              cache_dir=cache_dir)
+        self._ls = None
+        self.finished = False
+        # Plain lists for the per-tick scalar lookup (bisect on a list beats numpy on scalars).
+        self._s = path.s_m.tolist()
+        self._x, self._y = path.xy[:, 0].tolist(), path.xy[:, 1].tolist()
+        d = np.diff(path.xy, axis=0)
+        self._h = np.arctan2(d[:, 1], d[:, 0]).tolist()
+        self._seg_start = path.seg_start_m.tolist()
+        self._on = [seg.implement_on for seg in path.segments]
+
+    # --- lifecycle -------------------------------------------------------------------------------
+    def __enter__(self) -> SumoDriver:
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Start SUMO, insert the tractor with its implement at the start of the path."""
+        if SumoDriver._open is not None:
+            raise VehicleError("SumoDriver: another SUMO simulation is open in this process "
+                               "(libsumo runs one per process); close it first")
+        import libsumo  # heavy; imported only when a simulation starts
+
+        SumoDriver._open = self
+        self._ls = libsumo
+        try:
+            libsumo.start(["sumo", "-n", self.network.net_file, "--step-length", repr(self.step_s),
+                           "--seed", str(self.seed), "--begin", "0", "--no-step-log", "true",
+                           "--no-warnings", "true", "--duration-log.disable", "true",
+                           "--time-to-teleport", "-1", "--xml-validation", "never"])
+        except libsumo.TraCIException as exc:
+            SumoDriver._open, self._ls = None, None
+            raise VehicleError(f"SUMO could not load {self.network.net_file}: {exc}") from None
+        self._setup_vehicle()
+
+    def close(self) -> None:
+        """Stop SUMO (idempotent)."""
+        if self._ls is not None:
+            self._ls.close()
+            self._ls = None
+            SumoDriver._open = None
+
+    def _setup_vehicle(self) -> None:
+        ls, drive = self._ls, self.drive
+        ls.vehicletype.copy("DEFAULT_VEHTYPE", _TYPE)
+        ls.vehicletype.setLength(_TYPE, drive.vehicle_length_m)
+        ls.vehicletype.setAccel(_TYPE, drive.accel_m_s2)
+        ls.vehicletype.setDecel(_TYPE, drive.decel_m_s2)
+        ls.vehicletype.setEmergencyDecel(_TYPE, max(drive.decel_m_s2 * 2, 4.0))
+        ls.vehicletype.setImperfection(_TYPE, 0.0)  # no random dawdling: variation is ours, seeded
+        ls.vehicletype.setSpeedDeviation(_TYPE, 0.0)
+        ls.vehicletype.setSpeedFactor(_TYPE, 1.0)
+        ls.vehicletype.setMaxSpeed(_TYPE, drive.max_speed_m_s)
+        edges = self.network.edge_ids
+        sumo_len = np.array([ls.lane.getLength(f"{e}_0") for e in edges])
+        planned = self.network.edge_length_m
+        # SUMO stores lengths to 0.01 m; scale lane positions back to planned arc length.
+        self._scale = (planned / sumo_len).tolist()
+        # Start where the implement sits at s = 0: the front bumper is implement_offset_m ahead.
+        offset = drive.implement_offset_m
+        starts = np.concatenate([[0.0], np.cumsum(planned)])
+        k0 = int(np.searchsorted(starts, offset, side="right") - 1)
+        self._k0, self._edge_start = k0, starts.tolist()
+        ls.route.add(_ROUTE, list(edges[k0:]))
+        ls.vehicle.add(_VEH, _ROUTE, typeID=_TYPE, depart="now", departLane="0",
+                       departPos=f"{(offset - starts[k0]) / self._scale[k0]:.6f}", departSpeed="0")
+        self._speed = SpeedVariation(drive.speed_variation_pct, drive.speed_variation_tau_s,
+                                     drive.speed_update_s, self.seed)
+        self._update_every = max(1, round(drive.speed_update_s / self.step_s))
+        self._tick = 0
+        self.finished = False
+
+    # --- driving ---------------------------------------------------------------------------------
+    def _advance(self):
+        """One SUMO step; returns (time_s, s_m, speed_m_s) of the implement, or None once gone."""
+        ls = self._ls
+        ls.simulationStep()
+        if self._tick % self._update_every == 0:  # after the step: the tractor is inserted in step 1
+            ls.vehicle.setMaxSpeed(_VEH, self.drive.working_speed_m_s * self._speed.next())
+        self._tick += 1
+        try:
+            k = ls.vehicle.getRouteIndex(_VEH) + self._k0
+            s = self._edge_start[k] + ls.vehicle.getLanePosition(_VEH) * self._scale[k]
+            v = ls.vehicle.getSpeed(_VEH)
+        except ls.TraCIException:  # arrived: the lead-out edge ended
+            return None
+        return self._tick * self.step_s, s - self.drive.implement_offset_m, v
+
+    def _require_open(self):
+        if self._ls is None:
+            raise VehicleError("SumoDriver: not open; use it as `with SumoDriver(...) as drv:`")
+        if self.finished:
+            raise VehicleError("SumoDriver: the path is finished")
+
+    def step(self) -> Pose:
+        """Advance one tick and return the implement's `Pose`; sets `finished` at the path's end."""
+        self._require_open()
+        got = self._advance()
+        length = self._s[-1]
+        if got is None or got[1] >= length:
+            self.finished = True
+            t = got[0] if got else self._tick * self.step_s
+            return self._pose(t, length, got[2] if got else 0.0, force_off=True)
+        return self._pose(*got)
+
+    def _pose(self, t, s, v, force_off=False) -> Pose:
+        s = max(0.0, s)
+        i = min(max(bisect.bisect_right(self._s, s) - 1, 0), len(self._s) - 2)
+        ds = self._s[i + 1] - self._s[i]
+        f = (s - self._s[i]) / ds if ds > 0 else 0.0
+        seg = min(max(bisect.bisect_right(self._seg_start, s) - 1, 0), len(self._on) - 1)
+        return Pose(t, self._x[i] + f * (self._x[i + 1] - self._x[i]),
+                    self._y[i] + f * (self._y[i + 1] - self._y[i]), self._h[i], v,
+                    self._on[seg] and not force_off, seg, s)
+
+    def run_all(self, max_time_s: float | None = None) -> dict:
+        """Drive the whole path (or the rest of it) and return per-tick arrays.
+
+        Returns
+        -------
+        dict of ndarray, shape (n,)
+            ``time_s``, ``s_m``, ``x_m``, ``y_m``, ``heading_rad`` (math convention), ``speed_m_s``,
+            ``implement_on`` (bool), ``segment_index`` (int).
+
+        Raises
+        ------
+        VehicleError
+            If the tractor has not finished after ``max_time_s`` (default: 10 x the path at turn
+            speed), e.g. because it stalled.
+        """
+        self._require_open()
+        if max_time_s is None:
+            max_time_s = 10 * self.path.length_m / min(self.drive.turn_speed_m_s,
+                                                       self.drive.working_speed_m_s) + 60.0
+        max_ticks = int(max_time_s / self.step_s) + 1
+        expected = self.path.length_m / (self.drive.working_speed_m_s * self.step_s)
+        cap = min(max_ticks, int(2 * expected) + 1000)
+        t_arr, s_arr, v_arr = np.empty(cap), np.empty(cap), np.empty(cap)
+        length, n, advance = self._s[-1], 0, self._advance
+        while True:
+            got = advance()
+            if got is None:
+                break
+            if n == cap:  # rare: grow by doubling
+                cap = min(2 * cap, max_ticks)
+                if n == cap:
+                    raise VehicleError(f"SumoDriver: the tractor did not finish the {length:.0f} m path "
+                                       f"within {max_time_s:.0f} s")
+                t_arr, s_arr, v_arr = (np.resize(a, cap) for a in (t_arr, s_arr, v_arr))
+            t_arr[n], s_arr[n], v_arr[n] = got
+            n += 1
+            if got[1] >= length:
+                break
+        self.finished = True
+        s = np.clip(s_arr[:n], 0.0, length)
+        x, y, heading, seg, on = self.path.locate(s)
+        on = on & (s < length)
+        return {"time_s": t_arr[:n].copy(), "s_m": s, "x_m": x, "y_m": y, "heading_rad": heading,
+                "speed_m_s": v_arr[:n].copy(), "implement_on": on, "segment_index": seg}

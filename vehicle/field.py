@@ -1,0 +1,251 @@
+"""A field: its boundary polygon in a local metric CRS (the UTM zone of its centroid).
+
+Boundaries come from GeoJSON, a shapefile (``.shp`` or a zipped one), a list of WGS84 vertices, or a
+rectangle by size. Everything downstream (coverage path, SUMO network, GNSS) works in metres in
+``field.crs``; `Field.to_wgs84` / `Field.from_wgs84` convert positions for output.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+
+import numpy as np
+import pyproj
+import shapely
+from shapely.geometry import MultiPolygon, Polygon, shape
+from shapely.validation import explain_validity
+
+from common.errors import VehicleError
+
+WGS84 = pyproj.CRS.from_epsg(4326)
+
+
+def utm_crs(lon: float, lat: float) -> pyproj.CRS:
+    """The WGS84 / UTM zone CRS holding (lon, lat) in degrees (EPSG 326xx north, 327xx south)."""
+    zone = int((lon + 180.0) // 6.0) % 60 + 1
+    return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
+
+
+@dataclass(eq=False)
+class Field:
+    """A field boundary in metres.
+
+    Attributes
+    ----------
+    polygon : shapely.Polygon
+        Boundary (with holes for obstacles, if any) in ``crs`` coordinates, metres.
+    crs : pyproj.CRS
+        The UTM zone of the boundary's centroid.
+    name : str
+        A label for reports (the file stem, or "rectangle"/"field").
+    """
+
+    polygon: Polygon
+    crs: pyproj.CRS
+    name: str = "field"
+    _to_wgs: pyproj.Transformer = dc_field(init=False, repr=False)
+    _from_wgs: pyproj.Transformer = dc_field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.polygon = _validated(self.polygon, self.name)
+        self._to_wgs = pyproj.Transformer.from_crs(self.crs, WGS84, always_xy=True)
+        self._from_wgs = pyproj.Transformer.from_crs(WGS84, self.crs, always_xy=True)
+
+    # --- constructors ----------------------------------------------------------------------------
+    @classmethod
+    def from_lonlat(cls, coords, name: str = "field") -> Field:
+        """A field from boundary vertices ``[(lon, lat), ...]`` in WGS84 degrees (closed or not)."""
+        try:
+            lonlat = np.asarray(coords, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise VehicleError(f"field {name!r}: coords must be (lon, lat) pairs: {exc}") from None
+        if lonlat.ndim != 2 or lonlat.shape[1] != 2 or len(lonlat) < 3:
+            raise VehicleError(f"field {name!r}: coords must be at least 3 (lon, lat) pairs, "
+                               f"got shape {lonlat.shape}")
+        return cls._from_geometry(Polygon(lonlat), WGS84, name)
+
+    @classmethod
+    def rectangle(cls, width_m: float, length_m: float, lat: float = 52.0, lon: float = 10.0,
+                  name: str = "rectangle") -> Field:
+        """An axis-aligned ``width_m`` (east) x ``length_m`` (north) field with its south-west corner
+        at (lon, lat) in degrees."""
+        for arg, value in (("width_m", width_m), ("length_m", length_m)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise VehicleError(f"field rectangle: {arg} must be > 0 m, got {value!r}")
+        if not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
+            raise VehicleError(f"field rectangle: lat={lat!r}, lon={lon!r} is outside UTM coverage")
+        crs = utm_crs(lon, lat)
+        x0, y0 = pyproj.Transformer.from_crs(WGS84, crs, always_xy=True).transform(lon, lat)
+        return cls(shapely.box(x0, y0, x0 + width_m, y0 + length_m), crs, name)
+
+    @classmethod
+    def from_file(cls, path: str, crs=None) -> Field:
+        """Read a boundary from GeoJSON (``.geojson``/``.json``) or a shapefile (``.shp`` or ``.zip``).
+
+        Parameters
+        ----------
+        path : str
+            The file. One polygon (or a multipolygon with one part, or a collection whose first
+            polygon feature is used).
+        crs : anything `pyproj.CRS.from_user_input` takes, optional
+            The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
+            WGS84 if the coordinates look like degrees.
+        """
+        if not os.path.isfile(path):
+            raise VehicleError(f"field file {path}: not found")
+        ext = os.path.splitext(path)[1].lower()
+        if ext in (".geojson", ".json"):
+            geom, file_crs = _read_geojson(path)
+        elif ext in (".shp", ".zip"):
+            geom, file_crs = _read_shapefile(path)
+        else:
+            raise VehicleError(f"field file {path}: unknown extension {ext!r} "
+                               "(want .geojson, .json, .shp or .zip)")
+        if crs is not None:
+            try:
+                file_crs = pyproj.CRS.from_user_input(crs)
+            except pyproj.exceptions.CRSError as exc:
+                raise VehicleError(f"field file {path}: crs={crs!r} is not a CRS: {exc}") from None
+        if file_crs is None:
+            minx, miny, maxx, maxy = geom.bounds
+            if not (-180 <= minx <= maxx <= 180 and -90 <= miny <= maxy <= 90):
+                raise VehicleError(f"field file {path}: no CRS given and coordinates {geom.bounds} "
+                                   "are not degrees; pass crs=")
+            file_crs = WGS84
+        return cls._from_geometry(geom, file_crs, os.path.splitext(os.path.basename(path))[0], path)
+
+    @classmethod
+    def _from_geometry(cls, geom, src_crs: pyproj.CRS, name: str, where: str | None = None) -> Field:
+        where = where or f"field {name!r}"
+        geom = _single_polygon(geom, where)
+        if geom.is_empty:
+            raise VehicleError(f"{where}: boundary is empty")
+        to_wgs = pyproj.Transformer.from_crs(src_crs, WGS84, always_xy=True)
+        lon, lat = to_wgs.transform(*geom.centroid.coords[0])
+        if not (math.isfinite(lon) and math.isfinite(lat)):
+            raise VehicleError(f"{where}: centroid {geom.centroid.coords[0]} does not map to WGS84")
+        crs = utm_crs(lon, lat)
+        if not geom.is_valid:  # name the defect before projecting can change it
+            raise VehicleError(f"{where}: boundary is invalid: {explain_validity(geom)}")
+        to_utm = pyproj.Transformer.from_crs(src_crs, crs, always_xy=True)
+        projected = shapely.transform(geom, lambda xy: np.column_stack(to_utm.transform(xy[:, 0], xy[:, 1])))
+        return cls(projected, crs, name)
+
+    # --- properties and conversions --------------------------------------------------------------
+    @property
+    def area_ha(self) -> float:
+        """Boundary area in hectares."""
+        return self.polygon.area / 1e4
+
+    def to_wgs84(self, x_m, y_m):
+        """(lon, lat) degrees of local (x, y) metres; arrays or scalars."""
+        return self._to_wgs.transform(x_m, y_m)
+
+    def from_wgs84(self, lon, lat):
+        """Local (x, y) metres of (lon, lat) degrees; arrays or scalars."""
+        return self._from_wgs.transform(lon, lat)
+
+    def longest_edge_heading_deg(self) -> float:
+        """Compass bearing (degrees clockwise from north, in [0, 180)) of the boundary's longest edge."""
+        xy = np.asarray(self.polygon.exterior.coords)
+        d = np.diff(xy, axis=0)
+        k = int(np.argmax(np.hypot(d[:, 0], d[:, 1])))
+        return math.degrees(math.atan2(d[k, 0], d[k, 1])) % 180.0
+
+
+def _validated(polygon, name: str) -> Polygon:
+    where = f"field {name!r}"
+    polygon = _single_polygon(polygon, where)
+    if polygon.is_empty or polygon.area <= 0:
+        raise VehicleError(f"{where}: boundary is empty (area 0)")
+    if not polygon.is_valid:
+        raise VehicleError(f"{where}: boundary is invalid: {explain_validity(polygon)}")
+    return shapely.normalize(polygon)
+
+
+def _single_polygon(geom, where: str) -> Polygon:
+    if isinstance(geom, MultiPolygon):
+        parts = [g for g in geom.geoms if not g.is_empty]
+        if len(parts) != 1:
+            raise VehicleError(f"{where}: boundary has {len(parts)} separate parts; give one polygon")
+        geom = parts[0]
+    if not isinstance(geom, Polygon):
+        raise VehicleError(f"{where}: boundary must be a polygon, got {geom.geom_type}")
+    return geom
+
+
+def _read_geojson(path: str):
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise VehicleError(f"field file {path}: not readable GeoJSON: {exc}") from None
+    crs = None
+    name = (doc.get("crs") or {}).get("properties", {}).get("name") if isinstance(doc, dict) else None
+    if name:
+        try:
+            crs = pyproj.CRS.from_user_input(name)
+        except pyproj.exceptions.CRSError:
+            raise VehicleError(f"field file {path}: crs name {name!r} is not a CRS") from None
+    geoms = _geojson_geometries(doc)
+    polys = [g for g in geoms if g and g.get("type") in ("Polygon", "MultiPolygon")]
+    if not polys:
+        raise VehicleError(f"field file {path}: no Polygon or MultiPolygon geometry in it")
+    try:
+        geom = shape(polys[0])
+    except (ValueError, TypeError, AttributeError, IndexError) as exc:
+        raise VehicleError(f"field file {path}: bad polygon coordinates: {exc}") from None
+    return geom, crs
+
+
+def _geojson_geometries(doc):
+    if not isinstance(doc, dict):
+        return []
+    kind = doc.get("type")
+    if kind == "FeatureCollection":
+        return [f.get("geometry") for f in doc.get("features", []) if isinstance(f, dict)]
+    if kind == "Feature":
+        return [doc.get("geometry")]
+    return [doc]
+
+
+def _read_shapefile(path: str):
+    import shapefile  # pyshp; only needed here
+
+    try:
+        with shapefile.Reader(path) as reader:
+            shapes = [s for s in reader.shapes() if s.shapeType in (shapefile.POLYGON, shapefile.POLYGONZ,
+                                                                    shapefile.POLYGONM)]
+            if not shapes:
+                raise VehicleError(f"field file {path}: no polygon shape in it")
+            geom = shape(shapes[0].__geo_interface__)
+    except shapefile.ShapefileException as exc:
+        raise VehicleError(f"field file {path}: not a readable shapefile: {exc}") from None
+    return geom, _read_prj(path)
+
+
+def _read_prj(path: str):
+    """The CRS from the ``.prj`` beside a ``.shp`` or inside a ``.zip``, else None."""
+    wkt = None
+    if path.lower().endswith(".zip"):
+        import zipfile
+
+        with zipfile.ZipFile(path) as z:
+            prj = [n for n in z.namelist() if n.lower().endswith(".prj")]
+            if prj:
+                wkt = z.read(prj[0]).decode("utf-8", "replace")
+    else:
+        prj = os.path.splitext(path)[0] + ".prj"
+        if os.path.isfile(prj):
+            with open(prj, encoding="utf-8", errors="replace") as f:
+                wkt = f.read()
+    if not wkt:
+        return None
+    try:
+        return pyproj.CRS.from_wkt(wkt)
+    except pyproj.exceptions.CRSError:
+        raise VehicleError(f"field file {path}: its .prj is not a CRS") from None
