@@ -1,0 +1,91 @@
+"""GeoTIFF (and any single-band raster GDAL reads) prescription maps, via rasterio."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import rasterio
+from rasterio.errors import RasterioError
+
+from common import MapError
+from maps.crs import as_crs
+from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.warn import MapWarning
+
+NODATA_OUT = -9999.0
+# GDAL's block cache defaults to 5 % of RAM; reading straight into our array needs none, and a big
+# cache would double the peak memory of a large read.
+_READ_ENV = {"GDAL_CACHEMAX": 16}
+
+
+def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+    """Read band 1 of a raster as rates in kg/ha.
+
+    Parameters
+    ----------
+    path : str
+        The raster file.
+    crs : pyproj.CRS or str, optional
+        Used only when the file has no CRS.
+    max_cells : int or None
+        Refuse rasters with more cells than this.
+
+    Notes
+    -----
+    The band is read by GDAL directly into a float64 array (no intermediate copy); the nodata value
+    becomes NaN. NaN cells are nodata when the file declares no nodata value or NaN; with another
+    nodata value they are refused, as are negative rates.
+    """
+    try:
+        with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
+            check_size(src.height, src.width, max_cells, path)
+            if src.count > 1:
+                warnings.warn(f"{path}: {src.count} bands; reading band 1 as the rate", MapWarning,
+                              stacklevel=2)
+            if src.crs is None and crs is None:
+                raise MapError(f"{path}: the raster has no CRS; give one (crs= / --crs)")
+            grid_crs = as_crs(src.crs.to_wkt(), f"{path}: CRS") if src.crs is not None else as_crs(crs, "crs")
+            rates = np.empty((src.height, src.width), dtype=np.float64)
+            src.read(1, out=rates)
+            nodata, transform = src.nodata, src.transform
+            tags = src.tags()
+    except RasterioError as exc:
+        raise MapError(f"{path}: cannot read as a raster: {exc}") from None
+    if nodata is not None and not np.isnan(nodata):
+        if np.isnan(rates).any():
+            raise MapError(f"{path}: NaN rates in cells that are not nodata (nodata is {nodata})")
+        rates[rates == nodata] = np.nan
+    _refuse_negative(rates, path)
+    return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff")
+
+
+def _refuse_negative(rates: np.ndarray, where: str) -> None:
+    # fmin.reduce skips NaN without allocating a mask over the whole raster.
+    if rates.size and np.fmin.reduce(rates, axis=None) < 0:
+        row, col = np.argwhere(rates < 0)[0]
+        raise MapError(f"{where}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
+
+
+def write_geotiff(grid: Grid, path: str) -> None:
+    """Write a grid as a tiled, DEFLATE-compressed GeoTIFF (float32 when that is lossless, else float64).
+
+    nodata cells are written as -9999 with that declared as the nodata value, so QGIS and farm
+    software that do not handle NaN show them as empty.
+    """
+    rates = grid.rates_kg_ha
+    as32 = rates.astype(np.float32)
+    dtype = "float32" if np.array_equal(as32, rates, equal_nan=True) else "float64"
+    data = np.where(np.isnan(rates), NODATA_OUT, as32 if dtype == "float32" else rates)
+    profile = dict(driver="GTiff", width=grid.cols, height=grid.rows, count=1, dtype=dtype,
+                   crs=grid.crs.to_wkt(), transform=grid.transform, nodata=NODATA_OUT, compress="deflate",
+                   predictor=3)
+    if grid.rows >= 256 and grid.cols >= 256:
+        profile.update(tiled=True, blockxsize=256, blockysize=256)
+    try:
+        with rasterio.open(path, "w", **profile) as dst:
+            dst.write(data.astype(dtype, copy=False), 1)
+            dst.update_tags(product=grid.product, unit=grid.unit)
+            dst.units = (grid.unit,)
+    except RasterioError as exc:
+        raise MapError(f"{path}: cannot write GeoTIFF: {exc}") from None

@@ -1,0 +1,340 @@
+"""The georeferenced prescription grid and point lookup.
+
+A `Grid` is a north-up raster of application rates in kg/ha: ``rates_kg_ha[row, col]`` with row 0
+the north row, an `affine.Affine` transform (rasterio convention: pixel (col, row) corner -> x, y),
+a pyproj CRS, and nodata cells as NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyproj
+from affine import Affine
+
+from common import MapError
+from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
+
+UNIT = "kg/ha"
+
+
+@dataclass(frozen=True)
+class LookupResult:
+    """Rates at points: arrays of the points' broadcast shape.
+
+    Attributes
+    ----------
+    rate_kg_ha : ndarray of float64
+        The rate; NaN outside the grid or on a nodata cell.
+    inside : ndarray of bool
+        True where the point lies on the grid (even on a nodata cell).
+    row, col : ndarray of int64
+        The cell holding the point; -1 outside.
+    """
+
+    rate_kg_ha: np.ndarray
+    inside: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+
+
+@dataclass
+class Grid:
+    """A prescription map: rates on a north-up grid in some CRS.
+
+    Parameters
+    ----------
+    rates_kg_ha : array_like, shape (rows, cols)
+        Rates in kg/ha, row 0 north; NaN marks nodata. Stored as C-contiguous float64 (no copy when
+        it already is one).
+    transform : affine.Affine
+        Cell (col, row) corner to CRS coordinates; must be north-up (no rotation), ``a > 0``,
+        ``e < 0``.
+    crs : pyproj.CRS or str
+        The grid's coordinate reference system.
+    product : str
+        Product name, for reports ("" when unknown).
+    source : str
+        File path, or ``"synthetic:<kind>"``.
+    format : str
+        ``"geotiff"``, ``"isoxml"``, ``"shapefile"``, ``"geojson"``, ``"csv"`` or ``"synthetic"``.
+    """
+
+    rates_kg_ha: np.ndarray
+    transform: Affine
+    crs: pyproj.CRS
+    product: str = ""
+    source: str = ""
+    format: str = ""
+    unit: str = field(default=UNIT)
+
+    def __post_init__(self):
+        rates = np.ascontiguousarray(self.rates_kg_ha, dtype=np.float64)
+        if rates.ndim != 2 or rates.size == 0:
+            raise MapError(f"{self._where()}: rates must be a non-empty 2-D array, got shape {rates.shape}")
+        t = self.transform
+        if not isinstance(t, Affine):
+            raise MapError(f"{self._where()}: transform must be an affine.Affine, got {type(t).__name__}")
+        if t.b != 0.0 or t.d != 0.0 or not (t.a > 0.0 and t.e < 0.0):
+            raise MapError(f"{self._where()}: only north-up grids are supported (transform {tuple(t)[:6]}); "
+                           "rotated or south-up rasters need warping first, e.g. with gdalwarp")
+        if not all(math.isfinite(v) for v in tuple(t)[:6]):
+            raise MapError(f"{self._where()}: transform has non-finite values {tuple(t)[:6]}")
+        self.rates_kg_ha = rates
+        self.crs = as_crs(self.crs, f"{self._where()}: crs")
+        if self.unit != UNIT:
+            raise MapError(f"{self._where()}: unit must be {UNIT!r}, got {self.unit!r}")
+        # Scalars for the per-tick fast path, so rate_at does no attribute chasing through Affine.
+        self._x0, self._dx, self._y0, self._dy = t.c, t.a, t.f, -t.e
+        self._inv_dx, self._inv_dy = 1.0 / t.a, 1.0 / -t.e
+
+    def _where(self) -> str:
+        return self.source or "grid"
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def rows(self) -> int:
+        return self.rates_kg_ha.shape[0]
+
+    @property
+    def cols(self) -> int:
+        return self.rates_kg_ha.shape[1]
+
+    @property
+    def cell_size(self) -> tuple[float, float]:
+        """(x, y) size of a cell in CRS units (metres, or degrees for lon/lat grids)."""
+        return (self.transform.a, -self.transform.e)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(west, south, east, north) in the grid's CRS."""
+        x0, y0 = self._x0, self._y0
+        return (x0, y0 - self.rows * self._dy, x0 + self.cols * self._dx, y0)
+
+    @property
+    def bounds_wgs84(self) -> tuple[float, float, float, float]:
+        """(west, south, east, north) in WGS84 degrees, densified so curved edges are enclosed."""
+        if self.crs.is_geographic and self.crs == WGS84:
+            return self.bounds
+        from maps.crs import transformer
+
+        w, s, e, n = transformer(self.crs, WGS84).transform_bounds(*self.bounds, densify_pts=21)
+        return (float(w), float(s), float(e), float(n))
+
+    @property
+    def cell_area_m2(self) -> float:
+        """Area of one cell in m^2 (projected CRSs only)."""
+        factor = metres_per_unit(self.crs)
+        if factor is None:
+            raise MapError(f"{self._where()}: cell area needs a projected CRS, the grid is in "
+                           f"{crs_label(self.crs)} degrees; reproject it first (Grid.reproject)")
+        return self._dx * self._dy * factor * factor
+
+    def cell_centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """x (cols,) and y (rows,) of the cell centres, in the grid's CRS."""
+        x = self._x0 + (np.arange(self.cols) + 0.5) * self._dx
+        y = self._y0 - (np.arange(self.rows) + 0.5) * self._dy
+        return x, y
+
+    # ------------------------------------------------------------------ lookup
+    def rate_at(self, x: float, y: float) -> float:
+        """Rate (kg/ha) at one point in the grid's CRS; NaN outside or on nodata. ~1 us per call."""
+        fc = (x - self._x0) * self._inv_dx
+        fr = (self._y0 - y) * self._inv_dy
+        # The comparisons also reject NaN coordinates (every comparison with NaN is False).
+        if 0.0 <= fc < self.rates_kg_ha.shape[1] and 0.0 <= fr < self.rates_kg_ha.shape[0]:
+            return float(self.rates_kg_ha[int(fr), int(fc)])
+        return math.nan
+
+    def lookup(self, x, y, crs=None, bilinear: bool = False) -> LookupResult:
+        """Rates at points, vectorized.
+
+        Parameters
+        ----------
+        x, y : float or array_like
+            Point coordinates in `crs` (x = easting or longitude, y = northing or latitude).
+        crs : pyproj.CRS or str, optional
+            CRS of the points; None means the grid's CRS, ``"EPSG:4326"`` lon/lat degrees.
+        bilinear : bool
+            Interpolate between the four nearest cell centres instead of taking the cell's value.
+            Where one of those four is nodata, the cell's own value is used; near the border the
+            centres are clamped to the grid.
+
+        Returns
+        -------
+        LookupResult
+            Arrays of the broadcast shape of `x` and `y`.
+        """
+        if crs is None:
+            x = np.asarray(x, dtype=np.float64)
+            y = np.asarray(y, dtype=np.float64)
+        else:
+            x, y = transform_xy(x, y, as_crs(crs, "lookup: crs"), self.crs)
+        fc = (x - self._x0) * self._inv_dx
+        fr = (self._y0 - y) * self._inv_dy
+        inside = (fc >= 0.0) & (fc < self.cols) & (fr >= 0.0) & (fr < self.rows)
+        # Outside points index cell (0, 0) and are masked afterwards: one take, no fancy filtering.
+        col = np.where(inside, fc, 0.0).astype(np.int64)
+        row = np.where(inside, fr, 0.0).astype(np.int64)
+        rate = self.rates_kg_ha.ravel().take(row * self.cols + col)
+        if bilinear:
+            rate = self._bilinear(fc, fr, rate)
+        rate = np.where(inside, rate, np.nan)
+        row = np.where(inside, row, -1)
+        col = np.where(inside, col, -1)
+        return LookupResult(rate, inside, row, col)
+
+    def _bilinear(self, fc: np.ndarray, fr: np.ndarray, nearest: np.ndarray) -> np.ndarray:
+        # Cell-centre coordinates: centre of cell c is at fc = c + 0.5.
+        cx = np.clip(fc - 0.5, 0.0, self.cols - 1.0)
+        cy = np.clip(fr - 0.5, 0.0, self.rows - 1.0)
+        c0 = np.minimum(np.nan_to_num(cx).astype(np.int64), max(self.cols - 2, 0))
+        r0 = np.minimum(np.nan_to_num(cy).astype(np.int64), max(self.rows - 2, 0))
+        c1 = np.minimum(c0 + 1, self.cols - 1)
+        r1 = np.minimum(r0 + 1, self.rows - 1)
+        tx = np.nan_to_num(cx) - c0
+        ty = np.nan_to_num(cy) - r0
+        flat = self.rates_kg_ha.ravel()
+        v00 = flat.take(r0 * self.cols + c0)
+        v01 = flat.take(r0 * self.cols + c1)
+        v10 = flat.take(r1 * self.cols + c0)
+        v11 = flat.take(r1 * self.cols + c1)
+        value = (v00 * (1 - tx) + v01 * tx) * (1 - ty) + (v10 * (1 - tx) + v11 * tx) * ty
+        return np.where(np.isnan(value), nearest, value)
+
+    def sample(self, *, lat=None, lon=None, x=None, y=None) -> dict:
+        """The rate at one point, as the map service replies and ``vrsim map sample --json`` prints.
+
+        Give either ``lat`` and ``lon`` (WGS84 degrees) or ``x`` and ``y`` (the grid's CRS).
+
+        Returns
+        -------
+        dict
+            ``{"rate_kg_ha": float or None, "inside": bool, "row": int or None, "col": int or None}``;
+            rate_kg_ha is None outside the grid and on nodata cells.
+        """
+        geo = lat is not None or lon is not None
+        proj = x is not None or y is not None
+        if geo == proj or (geo and (lat is None or lon is None)) or (proj and (x is None or y is None)):
+            raise MapError("sample: give either lat and lon, or x and y")
+        px, py, crs = (lon, lat, WGS84) if geo else (x, y, None)
+        named = (("lat", lat), ("lon", lon)) if geo else (("x", x), ("y", y))
+        for name, value in named:
+            if not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise MapError(f"sample: {name}={value!r} is not a finite number")
+        res = self.lookup(float(px), float(py), crs=crs)
+        inside = bool(res.inside)
+        rate = float(res.rate_kg_ha)
+        return {
+            "rate_kg_ha": rate if math.isfinite(rate) else None,
+            "inside": inside,
+            "row": int(res.row) if inside else None,
+            "col": int(res.col) if inside else None,
+        }
+
+    # ------------------------------------------------------------------ summaries
+    def info(self) -> dict:
+        """What ``vrsim map info --json`` prints: format, CRS, bounds, cell size, size, rate stats."""
+        rates = self.rates_kg_ha
+        valid = int(np.count_nonzero(~np.isnan(rates)))
+        has = valid > 0
+        factor = metres_per_unit(self.crs)
+        return {
+            "source": self.source,
+            "format": self.format,
+            "product": self.product,
+            "unit": self.unit,
+            "crs": crs_label(self.crs),
+            "bounds": list(self.bounds),
+            "bounds_wgs84": list(self.bounds_wgs84),
+            "cell_size": list(self.cell_size),
+            "cell_size_unit": "degree" if factor is None else "metre" if factor == 1.0 else
+                              self.crs.axis_info[0].unit_name,
+            "rows": self.rows,
+            "cols": self.cols,
+            "min_rate_kg_ha": float(np.nanmin(rates)) if has else None,
+            "mean_rate_kg_ha": float(np.nanmean(rates)) if has else None,
+            "max_rate_kg_ha": float(np.nanmax(rates)) if has else None,
+            "nodata_share": 1.0 - valid / rates.size,
+        }
+
+    # ------------------------------------------------------------------ CRS operations
+    def reproject(self, dst_crs, cell_size_m: float | None = None) -> Grid:
+        """This map on a north-up grid in another CRS, nearest-neighbour (zone edges stay sharp).
+
+        Parameters
+        ----------
+        dst_crs : pyproj.CRS or str
+            Target CRS, e.g. the field's UTM zone (`maps.utm_crs_for`).
+        cell_size_m : float, optional
+            Target cell size, in metres for a projected target (in degrees' equivalent metres at
+            the map's centre for a geographic one). Default: the source cell size in metres.
+        """
+        from maps.reproject import reproject_grid
+
+        return reproject_grid(self, as_crs(dst_crs, "reproject: dst_crs"), cell_size_m)
+
+    def check_overlap(self, polygon_or_bounds, crs) -> float:
+        """Refuse a field that does not overlap this map.
+
+        Parameters
+        ----------
+        polygon_or_bounds : shapely geometry or (minx, miny, maxx, maxy)
+            The field boundary.
+        crs : pyproj.CRS or str
+            CRS of the field.
+
+        Returns
+        -------
+        float
+            The share of the field's area that the map's bounds cover, in (0, 1].
+
+        Raises
+        ------
+        MapError
+            If the field and the map's bounds do not overlap, or the field has no area.
+        """
+        from maps.reproject import field_overlap
+
+        return field_overlap(self, polygon_or_bounds, as_crs(crs, "check_overlap: crs"))
+
+    def __repr__(self) -> str:
+        return (f"Grid({self.rows}x{self.cols}, crs={crs_label(self.crs)!r}, cell_size={self.cell_size}, "
+                f"source={self.source!r})")
+
+
+DEFAULT_MAX_CELLS = 200_000_000
+
+
+def check_size(rows: int, cols: int, max_cells: int | None, where: str) -> None:
+    """Refuse absurd grid sizes before allocating them (`max_cells` None: no cap)."""
+    if rows <= 0 or cols <= 0:
+        raise MapError(f"{where}: grid size {rows} rows x {cols} columns is empty")
+    if max_cells is not None and rows * cols > max_cells:
+        raise MapError(f"{where}: grid of {rows} rows x {cols} columns = {rows * cols:,} cells exceeds "
+                       f"the cap of {max_cells:,} cells (raise it with max_cells= / --max-cells if real)")
+
+
+def grid_from_bounds(bounds, cell_size, crs, rates=None, max_cells: int | None = DEFAULT_MAX_CELLS,
+                     **kwargs) -> Grid:
+    """A grid covering `bounds` (minx, miny, maxx, maxy) with cells of `cell_size` CRS units.
+
+    `cell_size` is one number (square cells) or (x, y). The grid's west and north edges are at the
+    bounds' minx and maxy; columns and rows are rounded up so the grid covers the bounds. `rates`
+    defaults to zeros.
+    """
+    minx, miny, maxx, maxy = (float(v) for v in bounds)
+    if not all(map(math.isfinite, (minx, miny, maxx, maxy))) or not (maxx > minx and maxy > miny):
+        raise MapError(f"bounds {tuple(bounds)!r}: need finite minx < maxx and miny < maxy")
+    dx, dy = (cell_size, cell_size) if np.ndim(cell_size) == 0 else cell_size
+    for v in (dx, dy):
+        if not (isinstance(v, (int, float, np.floating)) and v > 0 and math.isfinite(v)):
+            raise MapError(f"cell_size_m={cell_size!r}: must be a positive number")
+    cols = max(1, math.ceil((maxx - minx) / dx - 1e-9))
+    rows = max(1, math.ceil((maxy - miny) / dy - 1e-9))
+    check_size(rows, cols, max_cells, kwargs.get("source") or "grid")
+    if rates is None:
+        rates = np.zeros((rows, cols))
+    return Grid(rates, Affine(float(dx), 0.0, minx, 0.0, -float(dy), maxy), crs, **kwargs)

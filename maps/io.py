@@ -1,0 +1,116 @@
+"""`read_map` and `write_map`: one entry point for every supported format, chosen by the file."""
+
+from __future__ import annotations
+
+import os
+import zipfile
+
+from common import MapError
+from maps.grid import DEFAULT_MAX_CELLS, Grid
+
+READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
+               "zipped), GeoJSON zones or points (.geojson/.json), CSV points (.csv)"
+WRITE_FORMATS = ".tif/.tiff (GeoTIFF), .xml/.zip (ISOXML grid type 2), .geojson/.csv (points)"
+
+
+def read_map(path, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
+             max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+    """Read a prescription map in any supported format into a `Grid`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The map: GeoTIFF, ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or a .zip
+        holding one), GeoJSON (rate-zone polygons or a point table), CSV point table.
+    rate_field : str, optional
+        Attribute holding the rate (kg/ha) in zone and point files; guessed when None.
+    cell_size_m : float, optional
+        Rasterization cell size for zone files, metres (default 5).
+    crs : pyproj.CRS or str, optional
+        CRS of a file that does not say (a shapefile without .prj, a raster without CRS, a CSV of
+        x/y without .prj).
+    max_cells : int or None
+        Refuse grids larger than this (default 200 million cells); None: no cap.
+
+    Raises
+    ------
+    MapError
+        For every unreadable, inconsistent or unsupported input, naming the file and the problem.
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise MapError(f"{path}: no such file or folder")
+    lower = path.lower()
+    if os.path.isdir(path) or lower.endswith(".xml"):
+        from maps.isoxml import read_isoxml
+
+        return read_isoxml(path, max_cells=max_cells)
+    if lower.endswith(".zip"):
+        return _read_zip(path, rate_field, cell_size_m, crs, max_cells)
+    if lower.endswith((".tif", ".tiff", ".gtiff")):
+        from maps.geotiff import read_geotiff
+
+        return read_geotiff(path, crs=crs, max_cells=max_cells)
+    if lower.endswith(".shp"):
+        from maps.zones import read_zones
+
+        return read_zones(path, rate_field, cell_size_m, crs, max_cells)
+    if lower.endswith((".geojson", ".json")):
+        from maps.points import geojson_is_points, read_geojson_points
+        from maps.zones import load_geojson, read_zones
+
+        doc = load_geojson(path)
+        if geojson_is_points(doc, path):
+            return read_geojson_points(path, doc, rate_field, max_cells)
+        return read_zones(path, rate_field, cell_size_m, crs, max_cells)
+    if lower.endswith(".csv"):
+        from maps.points import read_csv
+
+        return read_csv(path, rate_field, crs, max_cells)
+    raise MapError(f"{path}: unknown map format (by extension); vrsim reads {READ_FORMATS}")
+
+
+def _read_zip(path, rate_field, cell_size_m, crs, max_cells) -> Grid:
+    """A .zip is an ISOXML TASKDATA or a zipped shapefile: tell by what it holds."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            names = [n.lower() for n in z.namelist()]
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise MapError(f"{path}: not a readable zip archive: {exc}") from None
+    if any(os.path.basename(n) == "taskdata.xml" for n in names):
+        from maps.isoxml import read_isoxml
+
+        return read_isoxml(path, max_cells=max_cells)
+    if any(n.endswith(".shp") for n in names):
+        from maps.zones import read_zones
+
+        return read_zones(path, rate_field, cell_size_m, crs, max_cells)
+    raise MapError(f"{path}: the zip archive holds neither a TASKDATA.XML nor a .shp")
+
+
+def write_map(grid: Grid, path) -> None:
+    """Write a grid; the format follows the extension.
+
+    ``.tif``/``.tiff``: GeoTIFF. ``.xml``: ISOXML TASKDATA.XML + GRD00001.BIN beside it (grid type
+    2, DDI 6, WGS84; other CRSs are reprojected). ``.zip``: the same in an archive. ``.geojson`` /
+    ``.json`` / ``.csv``: one point per cell centre.
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise MapError(f"{path}: folder {folder} does not exist")
+    lower = path.lower()
+    if lower.endswith((".tif", ".tiff")):
+        from maps.geotiff import write_geotiff as writer
+    elif lower.endswith((".xml", ".zip")):
+        from maps.isoxml import write_isoxml as writer
+    elif lower.endswith((".geojson", ".json")):
+        from maps.points import write_geojson as writer
+    elif lower.endswith(".csv"):
+        from maps.points import write_csv as writer
+    else:
+        raise MapError(f"{path}: unknown output format (by extension); vrsim writes {WRITE_FORMATS}")
+    try:
+        writer(grid, path)
+    except OSError as exc:
+        raise MapError(f"{path}: cannot write: {exc}") from None

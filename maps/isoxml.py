@@ -1,0 +1,299 @@
+"""ISO 11783-10 (ISOXML) TASKDATA prescription grids: read grid types 1 and 2, write type 2.
+
+The ``GRD`` element of a ``TSK`` (attributes per ISO 11783-10):
+
+====  ==========================  =========================================================
+A     GridMinimumNorthPosition    latitude of the grid's south edge, WGS84 degrees
+B     GridMinimumEastPosition     longitude of the grid's west edge, WGS84 degrees
+C     GridCellNorthSize           cell height, degrees
+D     GridCellEastSize            cell width, degrees
+E     GridMaximumColumn           number of columns
+F     GridMaximumRow              number of rows
+G     Filename                    binary file name without extension (``GRD00001`` -> .BIN)
+H     Filelength                  binary file length in bytes (optional; some writers get it wrong)
+I     GridType                    1: one byte per cell naming a TZN; 2: int32 LE per PDV per cell
+J     TreatmentZoneCode           type 2: the TZN whose PDV list says what each cell's values are
+====  ==========================  =========================================================
+
+Cells run east along a row; rows run north from the south-west corner, so the file's first row is the
+grid's south row (vrsim's row 0 is north: the rows are flipped on reading and writing). The rate is
+the process data value of DDI 6 (setpoint mass per area application rate) in mg/m^2; 1 mg/m^2 = 0.01
+kg/ha.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import posixpath
+import warnings
+import xml.etree.ElementTree as ET
+import zipfile
+from xml.etree.ElementTree import ParseError
+
+import defusedxml.ElementTree as DET
+import numpy as np
+from affine import Affine
+from defusedxml import DefusedXmlException
+
+from common import MapError, __version__
+from maps.crs import WGS84
+from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.warn import MapWarning
+
+DDI_MASS_PER_AREA = 0x0006  # Setpoint Mass Per Area Application Rate, mg/m^2
+KG_HA_PER_MG_M2 = 0.01
+MAX_XML_BYTES = 64 * 1024 * 1024
+# Names of common DDIs, so a refusal says what the file holds instead.
+DDI_NAMES = {
+    0x0001: "setpoint volume per area (mm^3/m^2)",
+    0x0006: "setpoint mass per area (mg/m^2)",
+    0x000B: "setpoint count per area (/m^2)",
+    0x0010: "setpoint spacing (mm)",
+}
+
+
+class _Folder:
+    """The TASKDATA's files, from a folder or a zip archive; names matched case-insensitively."""
+
+    def __init__(self, path: str):
+        self.path = path
+        if zipfile.is_zipfile(path):
+            self._zip = zipfile.ZipFile(path)
+            names = [n for n in self._zip.namelist() if not n.endswith("/")]
+            xmls = [n for n in names if posixpath.basename(n).upper() == "TASKDATA.XML"]
+            if not xmls:
+                raise MapError(f"{path}: the zip archive holds no TASKDATA.XML")
+            self.xml_name = min(xmls, key=len)  # the shallowest one
+            self._dir = posixpath.dirname(self.xml_name)
+            self._names = {posixpath.basename(n).upper(): n for n in names
+                           if posixpath.dirname(n) == self._dir}
+        else:
+            self._zip = None
+            self.xml_name = path
+            if os.path.isdir(path):
+                found = [os.path.join(d, n) for d in (path, os.path.join(path, "TASKDATA"))
+                         if os.path.isdir(d) for n in os.listdir(d) if n.upper() == "TASKDATA.XML"]
+                if not found:
+                    raise MapError(f"{path}: the folder holds no TASKDATA.XML")
+                self.xml_name = found[0]
+            self._dir = os.path.dirname(os.path.abspath(self.xml_name))
+            self._names = {n.upper(): os.path.join(self._dir, n) for n in os.listdir(self._dir)}
+
+    def read_xml(self) -> bytes:
+        return self._read(self.xml_name, MAX_XML_BYTES, "TASKDATA.XML")
+
+    def size(self, name: str) -> int | None:
+        member = self._names.get(name.upper())
+        if member is None:
+            return None
+        return self._zip.getinfo(member).file_size if self._zip else os.path.getsize(member)
+
+    def read(self, name: str, limit: int) -> bytes:
+        return self._read(self._names[name.upper()], limit, name)
+
+    def _read(self, member: str, limit: int, label: str) -> bytes:
+        try:
+            if self._zip:
+                with self._zip.open(member) as f:
+                    data = f.read(limit + 1)
+            else:
+                with open(member, "rb") as f:
+                    data = f.read(limit + 1)
+        except (OSError, zipfile.BadZipFile) as exc:
+            raise MapError(f"{self.path}: cannot read {label}: {exc}") from None
+        if len(data) > limit:
+            raise MapError(f"{self.path}: {label} is larger than {limit:,} bytes")
+        return data
+
+
+def _attr(el, key: str, kind, where: str, required: bool = True):
+    raw = el.get(key)
+    if raw is None:
+        if required:
+            raise MapError(f"{where}: {el.tag} has no attribute {key}")
+        return None
+    try:
+        return int(raw, 16) if kind == "hex" else kind(raw)
+    except ValueError:
+        raise MapError(f"{where}: {el.tag} attribute {key}={raw!r} is not a valid "
+                       f"{'hexadecimal DDI' if kind == 'hex' else kind.__name__}") from None
+
+
+def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
+    """(DDI, value, product id) of each PDV of a TZN, in file order."""
+    return [(_attr(p, "A", "hex", where), _attr(p, "B", int, where), p.get("C")) for p in tzn.findall("PDV")]
+
+
+def _ddi_list(ddis) -> str:
+    return ", ".join(f"{d:04X}" + (f" ({DDI_NAMES[d]})" if d in DDI_NAMES else "") for d in ddis)
+
+
+def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+    """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
+    folder = _Folder(path)
+    where = path
+    try:
+        root = DET.fromstring(folder.read_xml())
+    except DefusedXmlException as exc:
+        raise MapError(f"{where}: TASKDATA.XML refused: {exc} (entity and external references are not "
+                       "allowed)") from None
+    except ParseError as exc:
+        raise MapError(f"{where}: TASKDATA.XML is not well-formed XML: {exc}") from None
+    if root.tag != "ISO11783_TaskData":
+        raise MapError(f"{where}: root element is <{root.tag}>, not <ISO11783_TaskData>")
+    tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
+    if not tasks:
+        raise MapError(f"{where}: no task (TSK) has a grid (GRD): nothing to read as a prescription map")
+    if len(tasks) > 1:
+        warnings.warn(f"{where}: {len(tasks)} tasks have grids; reading the first, {tasks[0].get('A')}",
+                      MapWarning, stacklevel=2)
+    task = tasks[0]
+    grd = task.find("GRD")
+    south, west = _attr(grd, "A", float, where), _attr(grd, "B", float, where)
+    dlat, dlon = _attr(grd, "C", float, where), _attr(grd, "D", float, where)
+    cols, rows = _attr(grd, "E", int, where), _attr(grd, "F", int, where)
+    name, declared = grd.get("G"), _attr(grd, "H", int, where, required=False)
+    gtype, zone_code = _attr(grd, "I", int, where), _attr(grd, "J", int, where, required=False)
+    if not (-90.0 <= south <= 90.0 and -180.0 <= west <= 180.0):
+        raise MapError(f"{where}: GRD A={south!r}, B={west!r} is not a WGS84 latitude/longitude")
+    for key, value in (("C", dlat), ("D", dlon)):
+        if not (0.0 < value <= 1.0):
+            raise MapError(f"{where}: GRD {key}={value!r}: a cell size must be in (0, 1] degree")
+    if not (south + rows * dlat <= 90.0 + 1e-9):
+        raise MapError(f"{where}: GRD reaches north of the pole ({rows} rows of {dlat} degree from {south})")
+    check_size(rows, cols, max_cells, f"{where}: GRD E={cols}, F={rows}")
+    if gtype not in (1, 2):
+        raise MapError(f"{where}: GRD I={gtype}: grid type must be 1 or 2")
+    if not name:
+        raise MapError(f"{where}: GRD has no file name (attribute G)")
+    if folder.size(name + ".BIN") is None:
+        raise MapError(f"{where}: the grid's binary file {name}.BIN (GRD G={name!r}) is missing beside "
+                       "TASKDATA.XML")
+    zones = {_attr(z, "A", int, where): _zone_values(z, where) for z in task.findall("TZN")}
+
+    if gtype == 2:
+        if zone_code is None or zone_code not in zones:
+            raise MapError(f"{where}: grid type 2 needs GRD J naming a defined treatment zone; "
+                           f"J={zone_code}, zones defined: {sorted(zones)}")
+        layers = zones[zone_code]
+        ddis = [d for d, _, _ in layers]
+        if DDI_MASS_PER_AREA not in ddis:
+            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {_ddi_list(ddis) or 'none'}; "
+                           f"vrsim needs DDI 0006 ({DDI_NAMES[6]})")
+        cell_bytes = 4 * len(layers)
+    else:
+        cell_bytes = 1
+    data = _read_binary(folder, name, rows * cols * cell_bytes, declared, where,
+                        f"{cols} columns x {rows} rows x {cell_bytes} byte{'s' * (cell_bytes > 1)} per cell")
+    if gtype == 2:
+        raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., ddis.index(6)]
+        if (raw < 0).any():
+            r, c = np.argwhere(raw < 0)[0]
+            raise MapError(f"{where}: negative rate {int(raw[r, c])} mg/m^2 in {name} at row {r} "
+                           f"(from south), column {c}")
+        rates = raw.astype(np.float64) * KG_HA_PER_MG_M2
+        product_ref = layers[ddis.index(6)][2]
+    else:
+        codes = np.frombuffer(data, dtype=np.uint8).reshape(rows, cols)
+        rates, product_ref = _type1_rates(codes, zones, where)
+    transform = Affine(dlon, 0.0, west, 0.0, -dlat, south + rows * dlat)
+    return Grid(rates[::-1], transform, WGS84, product=_product_name(root, product_ref), source=path,
+                format="isoxml")
+
+
+def _read_binary(folder: _Folder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
+    fname = name + ".BIN"
+    size = folder.size(fname)
+    if size != expected:
+        raise MapError(f"{where}: {fname} has {size:,} bytes but the declared grid ({shape}) needs "
+                       f"{expected:,}: {'truncated' if size < expected else 'oversized'} or mis-declared")
+    if declared is not None and declared != size:
+        warnings.warn(f"{where}: GRD H (Filelength) says {declared:,} bytes but {fname} has {size:,}, as "
+                      "its grid needs; reading it", MapWarning, stacklevel=3)
+    return folder.read(fname, expected)
+
+
+def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray, str | None]:
+    """Rates from per-cell treatment-zone codes: a 256-entry table, NaN for zones without DDI 6."""
+    table = np.full(256, np.nan)
+    product_ref = None
+    for code, values in zones.items():
+        for ddi, value, product in values:
+            if ddi == DDI_MASS_PER_AREA and 0 <= code <= 255:
+                if value < 0:
+                    raise MapError(f"{where}: treatment zone {code} has a negative rate {value} mg/m^2")
+                table[code] = value * KG_HA_PER_MG_M2
+                product_ref = product_ref or product
+    if np.isnan(table).all():
+        ddis = sorted({d for values in zones.values() for d, _, _ in values})
+        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({DDI_NAMES[6]}); found DDI "
+                       f"{_ddi_list(ddis) or 'none'}")
+    used = np.unique(codes)
+    undefined = [int(c) for c in used if np.isnan(table[c])]
+    if undefined:
+        warnings.warn(f"{where}: grid cells name treatment zones {undefined} that have no DDI 0006 rate in "
+                      "TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=3)
+    return table[codes], product_ref
+
+
+def _product_name(root, ref: str | None) -> str:
+    if ref:
+        for pdt in root.iter("PDT"):
+            if pdt.get("A") == ref:
+                return pdt.get("B") or ""
+    return ""
+
+
+def write_isoxml(grid: Grid, path: str) -> None:
+    """Write a grid as TASKDATA with a type-2 grid of DDI 6 (mg/m^2, int32).
+
+    `path` ending in ``.zip`` gives an archive ``TASKDATA/TASKDATA.XML`` + ``TASKDATA/GRD00001.BIN``;
+    otherwise `path` is the XML file and ``GRD00001.BIN`` goes beside it. A grid not in WGS84 is first
+    reprojected (nearest neighbour, same cell size in metres). Type 2 has no nodata value: nodata
+    cells are written as 0 (apply nothing), with a warning. Rates are rounded to 0.01 kg/ha.
+    """
+    if not (grid.crs.is_geographic and grid.crs == WGS84):
+        grid = grid.reproject(WGS84)
+    rates = grid.rates_kg_ha
+    nodata = np.isnan(rates)
+    if nodata.any():
+        warnings.warn(f"{path}: ISOXML grid type 2 has no nodata value: {int(nodata.sum())} nodata cells are "
+                      "written as rate 0", MapWarning, stacklevel=2)
+    mg = np.rint(np.where(nodata, 0.0, rates) / KG_HA_PER_MG_M2)
+    if mg.max() > np.iinfo(np.int32).max:
+        raise MapError(f"{path}: rate {np.nanmax(rates)} kg/ha does not fit an ISOXML int32 in mg/m^2")
+    binary = mg[::-1].astype("<i4").tobytes()
+    xml = _taskdata_xml(grid, len(binary))
+    if path.lower().endswith(".zip"):
+        with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            z.writestr("TASKDATA/TASKDATA.XML", xml)
+            z.writestr("TASKDATA/GRD00001.BIN", binary)
+    else:
+        with open(path, "wb") as f:
+            f.write(xml)
+        with open(os.path.join(os.path.dirname(os.path.abspath(path)), "GRD00001.BIN"), "wb") as f:
+            f.write(binary)
+
+
+def _taskdata_xml(grid: Grid, length: int) -> bytes:
+    root = ET.Element("ISO11783_TaskData", VersionMajor="4", VersionMinor="2",
+                      ManagementSoftwareManufacturer="vrsim", ManagementSoftwareVersion=__version__,
+                      DataTransferOrigin="1")
+    task = ET.SubElement(root, "TSK", A="TSK1", B="vrsim prescription", G="1")
+    zone = ET.SubElement(task, "TZN", A="1", B="prescription")
+    pdv = {"A": "0006", "B": "0", "E": "VPN1"}
+    if grid.product:
+        pdv["C"] = "PDT1"
+    ET.SubElement(zone, "PDV", pdv)
+    west, south, _, _ = grid.bounds
+    dx, dy = grid.cell_size
+    ET.SubElement(task, "GRD", A=repr(south), B=repr(west), C=repr(dy), D=repr(dx), E=str(grid.cols),
+                  F=str(grid.rows), G="GRD00001", H=str(length), I="2", J="1")
+    if grid.product:
+        ET.SubElement(root, "PDT", A="PDT1", B=grid.product)
+    ET.SubElement(root, "VPN", A="VPN1", B="0", C="0.01", D="2", E="kg/ha")
+    ET.indent(root)
+    out = io.BytesIO()
+    ET.ElementTree(root).write(out, encoding="utf-8", xml_declaration=True)
+    return out.getvalue()

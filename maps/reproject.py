@@ -1,0 +1,92 @@
+"""Moving a grid between CRSs, and checking that a field and a map overlap."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyproj
+import shapely
+
+from common import MapError
+from maps.crs import WGS84, crs_label, metres_per_unit, transform_xy, transformer
+from maps.grid import Grid, grid_from_bounds
+
+# Metres per degree of latitude, and of longitude at the equator (WGS84, to 0.1 %: cell sizes only).
+M_PER_DEG_LAT = 110_574.0
+M_PER_DEG_LON = 111_320.0
+
+
+def cell_size_metres(grid: Grid) -> tuple[float, float]:
+    """(x, y) cell size in metres; for a lon/lat grid, at its centre latitude."""
+    factor = metres_per_unit(grid.crs)
+    dx, dy = grid.cell_size
+    if factor is not None:
+        return dx * factor, dy * factor
+    west, south, east, north = grid.bounds
+    lat = math.radians(0.5 * (south + north))
+    return dx * M_PER_DEG_LON * math.cos(lat), dy * M_PER_DEG_LAT
+
+
+def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -> Grid:
+    """See `Grid.reproject`."""
+    if cell_size_m is None:
+        cell_size_m = min(cell_size_metres(grid))
+    if not (isinstance(cell_size_m, (int, float)) and cell_size_m > 0 and math.isfinite(cell_size_m)):
+        raise MapError(f"reproject: cell_size_m={cell_size_m!r} must be a positive number")
+    west, south, east, north = transformer(grid.crs, dst_crs).transform_bounds(*grid.bounds, densify_pts=21)
+    if not all(map(math.isfinite, (west, south, east, north))):
+        raise MapError(f"reproject: {grid.source or 'grid'} cannot be expressed in {crs_label(dst_crs)}")
+    factor = metres_per_unit(dst_crs)
+    if factor is None:
+        lat = math.radians(0.5 * (south + north))
+        size = (cell_size_m / (M_PER_DEG_LON * math.cos(lat)), cell_size_m / M_PER_DEG_LAT)
+    else:
+        size = (cell_size_m / factor, cell_size_m / factor)
+        # Snap to multiples of the cell size so reprojected maps of one field share a lattice.
+        west = math.floor(west / size[0]) * size[0]
+        north = math.ceil(north / size[1]) * size[1]
+    out = grid_from_bounds((west, south, east, north), size, dst_crs, source=grid.source,
+                           format=grid.format, product=grid.product)
+    xc, yc = out.cell_centres()
+    # Row by row keeps the temporaries at one row of points, not the whole raster.
+    for r in range(out.rows):
+        sx, sy = transform_xy(xc, np.full_like(xc, yc[r]), dst_crs, grid.crs)
+        out.rates_kg_ha[r] = grid.lookup(sx, sy).rate_kg_ha
+    return out
+
+
+def field_overlap(grid: Grid, polygon_or_bounds, crs: pyproj.CRS) -> float:
+    """See `Grid.check_overlap`."""
+    if isinstance(polygon_or_bounds, shapely.Geometry):
+        field = polygon_or_bounds
+    else:
+        try:
+            minx, miny, maxx, maxy = (float(v) for v in polygon_or_bounds)
+        except (TypeError, ValueError):
+            raise MapError(f"check_overlap: {polygon_or_bounds!r} is neither a shapely geometry nor "
+                           "(minx, miny, maxx, maxy) bounds") from None
+        field = shapely.box(minx, miny, maxx, maxy)
+    if field.is_empty or field.area <= 0.0:
+        raise MapError("check_overlap: the field has no area")
+    if crs != grid.crs:
+        # Densify so long straight edges follow the projection's curvature.
+        span = max(field.bounds[2] - field.bounds[0], field.bounds[3] - field.bounds[1])
+        field = shapely.segmentize(field, span / 50.0)
+        field = shapely.transform(field, lambda x, y: transform_xy(x, y, crs, grid.crs), interleaved=False)
+    if not field.is_valid:
+        field = shapely.make_valid(field)
+    area = field.area
+    if not math.isfinite(area) or area <= 0.0:
+        raise MapError(f"check_overlap: the field cannot be expressed in the map's CRS {crs_label(grid.crs)}")
+    share = shapely.box(*grid.bounds).intersection(field).area / area
+    if share <= 0.0:
+        to_wgs84 = lambda x, y: transform_xy(x, y, grid.crs, WGS84)  # noqa: E731
+        fb = shapely.transform(field, to_wgs84, interleaved=False).bounds
+        raise MapError(f"{grid.source or 'map'}: the map (WGS84 bounds {_fmt(grid.bounds_wgs84)}) and the "
+                       f"field (WGS84 bounds {_fmt(fb)}) do not overlap")
+    return float(share)
+
+
+def _fmt(b) -> str:
+    return "[" + ", ".join(f"{v:.6f}" for v in b) + "]"

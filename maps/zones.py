@@ -1,0 +1,260 @@
+"""Rate-zone maps: polygons with a rate attribute (ESRI shapefile, zipped or not, or GeoJSON),
+rasterized to a grid with area-weighted values at zone edges.
+
+Rasterization burns zone indices with GDAL (rasterio.features.rasterize) on a grid `s` times finer
+than the target in each direction (s = 8, less for very large grids), then averages the rates of the
+covered sub-cells of each cell. The area weights are thus exact to 1/s^2 of a cell; a cell only
+partly covered takes the mean over its covered part (the field edge is not diluted with zeros); a cell
+not covered at all is nodata. Where zones overlap, the later feature wins.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import struct
+import warnings
+import zipfile
+
+import numpy as np
+import shapefile
+import shapely
+from affine import Affine
+from rasterio.features import rasterize
+
+from common import MapError
+from maps.crs import WGS84, as_crs, metres_per_unit, transform_xy, utm_crs_for
+from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.warn import MapWarning
+
+DEFAULT_CELL_SIZE_M = 5.0
+# Attribute names farm software uses for the rate, tried in this order (case-insensitive).
+RATE_NAMES = ("rate_kg_ha", "rate", "kg_ha", "kgha", "rx_rate", "target_rate", "tgt_rate", "targetrate",
+              "app_rate", "apprate", "application_rate", "dose", "prescription", "rx", "value")
+SUPERSAMPLE = 8
+MAX_FINE_CELLS = 16_000_000  # 64 MB of int32 zone indices
+
+
+def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
+               max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+    """Read a shapefile (.shp or .zip) or GeoJSON of rate-zone polygons and rasterize it.
+
+    Parameters
+    ----------
+    path : str
+        ``.shp``, ``.zip`` (a zipped shapefile) or ``.geojson``/``.json``.
+    rate_field : str, optional
+        The attribute holding the rate in kg/ha; guessed from common names when None.
+    cell_size_m : float, optional
+        Cell size of the grid, metres (default 5). Zones in lon/lat are rasterized in the UTM zone of
+        their centre.
+    crs : pyproj.CRS or str, optional
+        CRS of a shapefile without ``.prj`` (required then). GeoJSON without a ``crs`` member is
+        WGS84 (RFC 7946).
+    """
+    kind = "geojson" if path.lower().endswith((".geojson", ".json")) else "shapefile"
+    if kind == "geojson":
+        geoms, records, fields, src_crs = _geojson_features(path)
+    else:
+        geoms, records, fields, src_crs = _shapefile_features(path, crs)
+    if not geoms:
+        raise MapError(f"{path}: no polygon features")
+    field_name = _pick_rate_field(path, fields, rate_field)
+    rates = _rates(path, records, field_name)
+    return rasterize_zones(geoms, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
+
+
+def rasterize_zones(geoms, rates, crs, cell_size_m: float | None = None, source: str = "zones",
+                    format: str = "zones", max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+    """Rasterize polygons (shapely, in `crs`) with per-polygon rates (kg/ha) to an area-weighted grid."""
+    cell = DEFAULT_CELL_SIZE_M if cell_size_m is None else cell_size_m
+    if not (isinstance(cell, (int, float)) and math.isfinite(cell) and cell > 0):
+        raise MapError(f"{source}: cell_size_m={cell_size_m!r} must be a positive number")
+    crs = as_crs(crs)
+    geoms = np.asarray(geoms, dtype=object)
+    if crs.is_geographic:
+        minx, miny, maxx, maxy = shapely.total_bounds(geoms)
+        dst = utm_crs_for(0.5 * (minx + maxx), 0.5 * (miny + maxy))
+        geoms = shapely.transform(geoms, lambda x, y: transform_xy(x, y, crs, dst), interleaved=False)
+        crs = dst
+    size = cell / metres_per_unit(crs)
+    minx, miny, maxx, maxy = shapely.total_bounds(geoms)
+    west, north = math.floor(minx / size) * size, math.ceil(maxy / size) * size
+    cols = max(1, math.ceil((maxx - west) / size - 1e-9))
+    rows = max(1, math.ceil((north - miny) / size - 1e-9))
+    check_size(rows, cols, max_cells, f"{source}: rasterized at {cell} m")
+    s = max(1, min(SUPERSAMPLE, int(math.sqrt(MAX_FINE_CELLS / (rows * cols)))))
+    fine = rasterize(zip(geoms, range(len(geoms)), strict=True), out_shape=(rows * s, cols * s),
+                     transform=Affine(size / s, 0.0, west, 0.0, -size / s, north), fill=-1, dtype="int32")
+    table = np.append(np.asarray(rates, dtype=np.float64), np.nan)  # index -1 -> NaN
+    out = np.empty((rows, cols))
+    band = max(1, 4_000_000 // (cols * s * s))  # coarse rows per pass: bounded temporaries
+    for r0 in range(0, rows, band):
+        r1 = min(rows, r0 + band)
+        values = table[fine[r0 * s:r1 * s]].reshape(r1 - r0, s, cols, s)
+        covered = (~np.isnan(values)).sum(axis=(1, 3))
+        total = np.nansum(values, axis=(1, 3))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[r0:r1] = np.where(covered > 0, total / covered, np.nan)
+    return Grid(out, Affine(size, 0.0, west, 0.0, -size, north), crs, source=source, format=format)
+
+
+def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None) -> str:
+    """The rate attribute: the user's, else a known name, else the only numeric one."""
+    if rate_field is not None:
+        if rate_field not in fields:
+            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: {sorted(fields)}")
+        return rate_field
+    lower = {name.lower(): name for name in fields}
+    for candidate in RATE_NAMES:
+        if candidate in lower and fields[lower[candidate]]:
+            return lower[candidate]
+    numeric = [name for name, is_num in fields.items() if is_num]
+    if len(numeric) == 1:
+        warnings.warn(f"{path}: using attribute {numeric[0]!r} as the rate in kg/ha (its only numeric one)",
+                      MapWarning, stacklevel=3)
+        return numeric[0]
+    raise MapError(f"{path}: cannot tell which attribute is the rate; numeric attributes: "
+                   f"{numeric or 'none'}; name one with rate_field= / --rate-field")
+
+
+def _rates(path: str, records: list[dict], name: str) -> np.ndarray:
+    out = np.empty(len(records))
+    for i, rec in enumerate(records):
+        value = rec.get(name)
+        try:
+            out[i] = float(value)
+        except (TypeError, ValueError):
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r} is not a number") \
+                from None
+        if not math.isfinite(out[i]) or out[i] < 0:
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r}: rates must be "
+                           "finite and not negative")
+    return out
+
+
+def _polygonal(geom, path: str, i: int):
+    kind = geom.geom_type if geom is not None else "null"
+    if kind not in ("Polygon", "MultiPolygon"):
+        raise MapError(f"{path}: feature {i} is a {kind}, not a polygon: rate zones must be polygons")
+    return geom if geom.is_valid else shapely.make_valid(geom)
+
+
+# ---------------------------------------------------------------------- shapefile
+def _shapefile_features(path: str, crs):
+    files = _shapefile_parts(path)
+    if crs is None and files["prj"] is None:
+        raise MapError(f"{path}: the shapefile has no .prj, so its CRS is unknown; give one (crs= / --crs)")
+    src_crs = as_crs(crs, "crs") if files["prj"] is None else \
+        as_crs(files["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
+    try:
+        reader = shapefile.Reader(shp=files["shp"], dbf=files["dbf"], shx=files["shx"])
+        fields = {f[0]: f[1] in ("N", "F") for f in reader.fields[1:]}
+        geoms, records = [], []
+        for i, rec in enumerate(reader.iterShapeRecords()):
+            if rec.shape.shapeType == shapefile.NULL:
+                continue  # a feature without geometry covers nothing
+            if rec.shape.shapeType not in (shapefile.POLYGON, shapefile.POLYGONZ, shapefile.POLYGONM):
+                raise MapError(f"{path}: feature {i} is a {shapefile.SHAPETYPE_LOOKUP[rec.shape.shapeType]}, "
+                               "not a polygon: rate zones must be polygons")
+            geoms.append(_polygonal(shapely.geometry.shape(rec.shape.__geo_interface__), path, i))
+            records.append(rec.record.as_dict())
+    except shapefile.ShapefileException as exc:
+        raise MapError(f"{path}: not a readable shapefile: {exc}") from None
+    except (ValueError, struct.error, EOFError) as exc:
+        raise MapError(f"{path}: damaged shapefile: {exc}") from None
+    return geoms, records, fields, src_crs
+
+
+def _shapefile_parts(path: str) -> dict:
+    """File objects of .shp, .dbf, .shx (optional) and .prj (optional), from a folder or a zip."""
+    if not os.path.exists(path):
+        raise MapError(f"{path}: no such file")
+    if path.lower().endswith(".zip"):
+        try:
+            z = zipfile.ZipFile(path)
+        except zipfile.BadZipFile as exc:
+            raise MapError(f"{path}: not a zip archive: {exc}") from None
+        shps = [n for n in z.namelist() if n.lower().endswith(".shp") and not n.startswith("__MACOSX")]
+        if not shps:
+            raise MapError(f"{path}: the zip archive holds no .shp file")
+        if len(shps) > 1:
+            warnings.warn(f"{path}: {len(shps)} shapefiles in the archive; reading {shps[0]}", MapWarning,
+                          stacklevel=4)
+        stem = shps[0][:-4]
+        members = {n.lower(): n for n in z.namelist()}
+
+        def part(ext):
+            name = members.get((stem + ext).lower())
+            return io.BytesIO(z.read(name)) if name else None
+    else:
+        stem = path[:-4] if path.lower().endswith(".shp") else path
+        folder = os.path.dirname(os.path.abspath(stem))
+        members = {n.lower(): os.path.join(folder, n) for n in os.listdir(folder)}
+        base = os.path.basename(stem)
+
+        def part(ext):
+            name = members.get((base + ext).lower())
+            return open(name, "rb") if name else None  # noqa: SIM115 - pyshp reads them; GC closes
+    files = {ext[1:]: part(ext) for ext in (".shp", ".dbf", ".shx", ".prj")}
+    for ext, what in (("shp", "geometry"), ("dbf", "attributes, including the rate")):
+        if files[ext] is None:
+            raise MapError(f"{path}: the shapefile's .{ext} ({what}) is missing")
+    return files
+
+
+# ---------------------------------------------------------------------- GeoJSON
+def load_geojson(path: str) -> dict:
+    """Parse a GeoJSON file into a dict, MapError on anything but a JSON object."""
+    try:
+        with open(path, "rb") as f:
+            doc = json.load(f)
+    except OSError as exc:
+        raise MapError(f"{path}: cannot read: {exc.strerror}") from None
+    except (ValueError, RecursionError) as exc:
+        raise MapError(f"{path}: not valid JSON: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("type") not in ("FeatureCollection", "Feature"):
+        raise MapError(f"{path}: not a GeoJSON FeatureCollection or Feature")
+    return doc
+
+
+def geojson_crs(doc: dict, path: str):
+    """The CRS a GeoJSON declares with the (pre-RFC 7946) ``crs`` member, else WGS84."""
+    member = doc.get("crs")
+    if member is None:
+        return WGS84
+    try:
+        return as_crs(member["properties"]["name"], f"{path}: crs")
+    except (KeyError, TypeError):
+        raise MapError(f"{path}: crs member {member!r} is not "
+                       "{'type': 'name', 'properties': {'name': ...}}") from None
+
+
+def geojson_features(doc: dict, path: str) -> list[dict]:
+    feats = doc["features"] if doc["type"] == "FeatureCollection" else [doc]
+    if not isinstance(feats, list) or not all(isinstance(f, dict) for f in feats):
+        raise MapError(f"{path}: 'features' is not a list of objects")
+    return feats
+
+
+def _geojson_features(path: str):
+    doc = load_geojson(path)
+    geoms, records, fields = [], [], {}
+    for i, feat in enumerate(geojson_features(doc, path)):
+        try:
+            geom = shapely.geometry.shape(feat["geometry"]) if feat.get("geometry") else None
+        except (KeyError, TypeError, ValueError, AttributeError, shapely.errors.GEOSException) as exc:
+            raise MapError(f"{path}: feature {i}: bad geometry: {exc}") from None
+        props = feat.get("properties") or {}
+        if not isinstance(props, dict):
+            raise MapError(f"{path}: feature {i}: properties is not an object")
+        if geom is None:
+            continue
+        geoms.append(_polygonal(geom, path, i))
+        records.append(props)
+        for key, value in props.items():
+            is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
+            fields[key] = fields.get(key, True) and is_num
+    return geoms, records, fields, geojson_crs(doc, path)
