@@ -1,0 +1,130 @@
+"""`vrsim map`: inspect, sample, convert and plot prescription maps."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from common import MapError
+
+HELP = "prescription maps: info, sample, convert, plot"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="map_command", metavar="ACTION", required=True)
+
+    def reading(p):
+        p.add_argument("file", help="map file: GeoTIFF, ISOXML TASKDATA (folder, TASKDATA.XML, .zip), "
+                                    "shapefile (.shp/.zip), GeoJSON, CSV")
+        p.add_argument("--rate-field", help="attribute holding the rate (kg/ha) in zone/point files")
+        p.add_argument("--cell-size", type=float, metavar="M", help="cell size for zone files, m")
+        p.add_argument("--crs", help="CRS of a file that does not state one (e.g. a shapefile without .prj)")
+        p.add_argument("--max-cells", type=int, default=200_000_000, metavar="N",
+                       help="refuse grids with more cells (default 200,000,000; 0: no cap)")
+
+    p = sub.add_parser("info", help="format, CRS, bounds, cell size, size, rate statistics")
+    reading(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+    p = sub.add_parser("sample", help="the rate at a point (exit 0 inside or outside)")
+    reading(p)
+    p.add_argument("--lat", type=float, help="latitude, WGS84 degrees")
+    p.add_argument("--lon", type=float, help="longitude, WGS84 degrees")
+    p.add_argument("--x", type=float, help="x in the map's CRS")
+    p.add_argument("--y", type=float, help="y in the map's CRS")
+    p.add_argument("--json", action="store_true", help='print {"rate_kg_ha", "inside", "row", "col"}')
+
+    p = sub.add_parser("convert", help="write the map in another format (by OUT's extension)")
+    reading(p)
+    p.add_argument("out", help="output: .tif, .xml/.zip (ISOXML type 2), .geojson, .csv")
+    p.add_argument("--to-crs", help="reproject first (nearest neighbour), e.g. EPSG:32632")
+    p.add_argument("--to-cell-size", type=float, metavar="M", help="cell size when reprojecting, m")
+
+    p = sub.add_parser("plot", help="draw the map to a PNG")
+    reading(p)
+    p.add_argument("out", help="output .png")
+
+
+def _read(args):
+    import maps
+
+    return maps.read_map(args.file, rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
+                         max_cells=args.max_cells or None)
+
+
+def _warnings_as_lines() -> None:
+    """Map warnings (a repaired file) as one stderr line each, not Python's two-line format."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"vrsim map: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show
+
+
+def run(args) -> int:
+    _warnings_as_lines()
+    if args.max_cells < 0:
+        raise MapError(f"--max-cells {args.max_cells}: must be >= 0")
+    return {"info": _info, "sample": _sample, "convert": _convert, "plot": _plot}[args.map_command](args)
+
+
+def _info(args) -> int:
+    info = _read(args).info()
+    if args.json:
+        print(json.dumps(info))
+        return 0
+    for key, value in info.items():
+        if isinstance(value, list):
+            value = "[" + ", ".join(f"{v:.9g}" for v in value) + "]"
+        elif isinstance(value, float):
+            value = f"{value:.6g}"
+        print(f"{key:16} {value}")
+    return 0
+
+
+def _sample(args) -> int:
+    geo = args.lat is not None or args.lon is not None
+    proj = args.x is not None or args.y is not None
+    if geo == proj:
+        raise MapError("map sample: give --lat and --lon, or --x and --y")
+    for name in ("lat", "lon") if geo else ("x", "y"):
+        value = getattr(args, name)
+        if value is None or not math.isfinite(value):
+            raise MapError(f"map sample: --{name} {value}: a finite number is required")
+    grid = _read(args)
+    res = grid.sample(lat=args.lat, lon=args.lon) if geo else grid.sample(x=args.x, y=args.y)
+    if args.json:
+        print(json.dumps(res))
+    elif not res["inside"]:
+        print("outside the map")
+    elif res["rate_kg_ha"] is None:
+        print(f"nodata (row {res['row']}, col {res['col']})")
+    else:
+        print(f"{res['rate_kg_ha']:.6g} kg/ha (row {res['row']}, col {res['col']})")
+    return 0
+
+
+def _convert(args) -> int:
+    import maps
+
+    grid = _read(args)
+    if args.to_crs:
+        grid = grid.reproject(args.to_crs, cell_size_m=args.to_cell_size)
+    elif args.to_cell_size is not None:
+        raise MapError("map convert: --to-cell-size needs --to-crs")
+    maps.write_map(grid, args.out)
+    print(f"wrote {args.out} ({grid.rows} x {grid.cols} cells)")
+    return 0
+
+
+def _plot(args) -> int:
+    from maps.plot import plot_map
+
+    if not args.out.lower().endswith(".png"):
+        raise MapError(f"map plot: output {args.out!r} must end in .png")
+    plot_map(_read(args), args.out)
+    print(f"wrote {args.out}")
+    return 0
