@@ -6,11 +6,14 @@ headings in the math convention (radians counter-clockwise from east) unless nam
 """
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
-from vehicle.driver import DriveConfig, Pose, SumoDriver
+from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
 from vehicle.field import Field
+from vehicle.gnss import Gnss, GnssConfig
+from vehicle.implement import DelayLine, Implement
 from vehicle.network import build_network, default_cache_dir, find_netconvert
 
 __all__ = [
-    "CoveragePath", "DriveConfig", "Field", "Pose", "Segment", "SumoDriver", "build_network",
-    "default_cache_dir", "find_netconvert", "plan_coverage",
+    "CoveragePath", "DelayLine", "DriveConfig", "Field", "Gnss", "GnssConfig", "Implement", "Pose",
+    "Segment", "SpeedVariation", "SumoDriver", "build_network", "default_cache_dir", "find_netconvert",
+    "plan_coverage",
 ]

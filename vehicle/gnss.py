@@ -1,0 +1,189 @@
+"""A GNSS receiver: seeded, time-correlated position error, sample and hold at the update rate, latency.
+
+Error model: each horizontal axis carries a first-order Gauss-Markov error
+``e[j] = a e[j-1] + sigma sqrt(1 - a^2) w[j]``, ``a = exp(-1 / (rate_hz tau_s))``, started in its
+stationary distribution, one value per fix. Fix ``j`` samples the true position at
+``t_j = t0 + j / rate_hz`` (``t0``: the first time seen) and is output from ``t_j + latency_s`` until
+the next fix replaces it; before the first fix is due the receiver outputs fix 0.
+
+`Gnss.measure` does a whole track at once; `Gnss.fix` does one tick at a time for the services.
+Both interpolate the true position at ``t_j`` linearly between the two ticks around it and draw the
+same random numbers in the same order, so they give identical numbers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from common.errors import VehicleError
+
+# Per-axis 1-sigma horizontal error (m) and correlation time (s) of each receiver class.
+CLASSES = {
+    "perfect": (0.0, 1.0),
+    "rtk": (0.02, 10.0),
+    "dgps": (0.3, 60.0),
+    "autonomous": (1.5, 300.0),
+}
+
+
+@dataclass(frozen=True)
+class GnssConfig:
+    """A receiver.
+
+    Attributes
+    ----------
+    kind : str
+        "rtk" (~0.02 m), "dgps" (~0.3 m), "autonomous" (~1.5 m) or "perfect".
+    rate_hz : float
+        Fix rate, Hz.
+    latency_s : float
+        Delay from sampling a fix to its output, s.
+    sigma_m, tau_s : float, optional
+        Override the class's per-axis standard deviation (m) and correlation time (s).
+    """
+
+    kind: str = "rtk"
+    rate_hz: float = 10.0
+    latency_s: float = 0.1
+    sigma_m: float | None = None
+    tau_s: float | None = None
+
+    def __post_init__(self):
+        if self.kind not in CLASSES:
+            raise VehicleError(f"GnssConfig: kind must be one of {', '.join(CLASSES)}, got {self.kind!r}")
+        _positive("rate_hz", self.rate_hz, hi=100.0)
+        _positive("latency_s", self.latency_s, allow_zero=True, hi=10.0)
+        if self.sigma_m is not None:
+            _positive("sigma_m", self.sigma_m, allow_zero=True, hi=100.0)
+        if self.tau_s is not None:
+            _positive("tau_s", self.tau_s)
+
+    @property
+    def sigma(self) -> float:
+        return CLASSES[self.kind][0] if self.sigma_m is None else float(self.sigma_m)
+
+    @property
+    def tau(self) -> float:
+        return CLASSES[self.kind][1] if self.tau_s is None else float(self.tau_s)
+
+
+def _positive(name, value, allow_zero=False, hi=None):
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (value >= 0 if allow_zero else value > 0) and (hi is None or value <= hi)
+    if not ok:
+        bound = (">= 0" if allow_zero else "> 0") + (f" and <= {hi}" if hi is not None else "")
+        raise VehicleError(f"GnssConfig: {name} must be a number {bound}, got {value!r}")
+
+
+class Gnss:
+    """A seeded receiver of `GnssConfig` (see the module docstring for the model).
+
+    Parameters
+    ----------
+    config : GnssConfig
+    seed : int
+    """
+
+    def __init__(self, config: GnssConfig | None = None, seed: int = 1):
+        self.config = config or GnssConfig()
+        if not isinstance(self.config, GnssConfig):
+            raise VehicleError(f"Gnss: config must be a GnssConfig, got {type(config).__name__}")
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise VehicleError(f"Gnss: seed must be an integer >= 0, got {seed!r}")
+        self.seed = int(seed)
+        self.period_s = 1.0 / self.config.rate_hz
+        self._a = math.exp(-self.period_s / self.config.tau)
+        self._b = self.config.sigma * math.sqrt(1.0 - self._a ** 2)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the track: the next `fix` starts a new one from the same seed."""
+        self._rng = np.random.default_rng(self.seed)
+        self._t0 = None
+        self._prev = None        # (t, x, y) of the previous tick
+        self._fixes = []         # (x, y) of each fix sampled so far
+        self._err = None         # current (ex, ey)
+
+    # --- shared pieces ---------------------------------------------------------------------------
+    def _errors(self, n: int, start=None) -> np.ndarray:
+        """Next ``n`` Gauss-Markov errors, shape (n, 2), continuing from ``start`` (or stationary)."""
+        w = self._rng.standard_normal((n, 2))
+        first = w[0] * self.config.sigma if start is None else self._a * start + self._b * w[0]
+        if n == 1:
+            return first[None, :]
+        # e[j] = a e[j-1] + b w[j] as a first-order filter: the same operations, bit for bit, as
+        # the per-tick recursion (lfilter's z = 0*x - (-a)*y is exactly a*y).
+        rest, _ = lfilter([self._b], [1.0, -self._a], w[1:], axis=0, zi=(self._a * first)[None, :])
+        return np.concatenate([first[None, :], rest])
+
+    def _fix_count(self, t, floor=np.floor):
+        """How many fixes have been sampled by time ``t`` (array; scalar with ``floor=math.floor``)."""
+        return floor((t - self._t0) * self.config.rate_hz + 1e-9) + 1
+
+    def _due_index(self, t, floor=np.floor):
+        """Index of the newest fix whose output time has come at ``t`` (negative: fix 0 is used)."""
+        return floor((t - self._t0 - self.config.latency_s) * self.config.rate_hz + 1e-9)
+
+    # --- vectorized ------------------------------------------------------------------------------
+    def measure(self, time_s, x_m, y_m):
+        """Measured positions for a whole track (starts a new track; identical to calling `fix`).
+
+        Parameters
+        ----------
+        time_s, x_m, y_m : array_like, shape (n,)
+            Strictly increasing tick times (s) and true positions (m).
+
+        Returns
+        -------
+        x_meas_m, y_meas_m : ndarray, shape (n,)
+        """
+        t = np.asarray(time_s, dtype=float)
+        x, y = np.asarray(x_m, dtype=float), np.asarray(y_m, dtype=float)
+        if not (t.ndim == 1 and t.shape == x.shape == y.shape and len(t) > 0):
+            raise VehicleError(f"Gnss.measure: time_s, x_m, y_m must be 1-D of one length, got "
+                               f"{t.shape}, {x.shape}, {y.shape}")
+        if len(t) > 1 and not np.all(np.diff(t) > 0):
+            raise VehicleError("Gnss.measure: time_s must be strictly increasing")
+        self.reset()
+        self._t0 = t[0]
+        count = self._fix_count(t)  # fixes sampled once tick i is reached
+        n_fix = int(count[-1])
+        tj = t[0] + np.arange(n_fix) * self.period_s
+        # Fix j is sampled at the first tick i whose count exceeds j, between ticks i-1 and i.
+        i = np.searchsorted(count, np.arange(n_fix) + 1, side="left")
+        im = np.maximum(i - 1, 0)
+        f = np.divide(tj - t[im], t[i] - t[im], out=np.zeros(n_fix), where=i > 0)
+        fx = x[im] + (x[i] - x[im]) * f
+        fy = y[im] + (y[i] - y[im]) * f
+        fx[0], fy[0] = x[0], y[0]
+        e = self._errors(n_fix)
+        j = np.maximum(self._due_index(t), 0).astype(int)
+        return fx[j] + e[j, 0], fy[j] + e[j, 1]
+
+    # --- per tick --------------------------------------------------------------------------------
+    def fix(self, time_s: float, x_m: float, y_m: float):
+        """Measured position at one tick (call with increasing ``time_s``); returns (x_m, y_m)."""
+        t = float(time_s)
+        if self._t0 is None:
+            self._t0 = t
+            self._prev = (t, float(x_m), float(y_m))
+            self._sample(float(x_m), float(y_m))
+        else:
+            t_prev, x_prev, y_prev = self._prev
+            if not t > t_prev:
+                raise VehicleError(f"Gnss.fix: time_s must increase, got {t!r} after {t_prev!r}")
+            while len(self._fixes) < self._fix_count(t, math.floor):  # every fix sampled in (t_prev, t]
+                tj = self._t0 + len(self._fixes) * self.period_s
+                f = (tj - t_prev) / (t - t_prev)
+                self._sample(x_prev + (x_m - x_prev) * f, y_prev + (y_m - y_prev) * f)
+            self._prev = (t, float(x_m), float(y_m))
+        j = max(self._due_index(t, math.floor), 0)
+        return self._fixes[j]
+
+    def _sample(self, x, y):
+        self._err = self._errors(1, self._err)[0]
+        self._fixes.append((float(x + self._err[0]), float(y + self._err[1])))
