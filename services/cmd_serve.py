@@ -1,0 +1,188 @@
+"""`vrsim serve SERVICE [SCENARIO]`: run one Zenoh service, or `all` of them as separate processes.
+
+``all`` is the router (listening on 127.0.0.1:7448 unless ``--listen`` says otherwise) and starts
+map, vehicle, controller, monitor and scenario as child processes connected to it; Ctrl-C or SIGTERM
+stops them all. A single service is a client of a router (``--connect``, default 127.0.0.1:7448), or
+a router itself with ``--listen``. See docs/api.md for the keys.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from common import ServiceError
+from services import zenoh_common as zc
+
+HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, or all"
+CHOICES = (*zc.SERVICES, "router", "all")
+READY_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 10.0
+
+
+def configure(parser) -> None:
+    parser.add_argument("service", choices=CHOICES, metavar="SERVICE",
+                        help=f"one of {', '.join(CHOICES)}")
+    parser.add_argument("scenario", nargs="?", default=None,
+                        help="scenario file or built-in name: `all` starts a run of it once everything is "
+                             "up; `map` serves its prescription (default: the built-in default's)")
+    zc.add_arguments(parser)
+    parser.add_argument("--map", metavar="FILE", default=None,
+                        help="map service: serve this map file instead of a scenario's prescription")
+    parser.add_argument("--rate-field", default=None, help="map file: attribute holding the rate")
+    parser.add_argument("--cell-size", type=float, default=None, metavar="M", help="map file: cell size, m")
+    parser.add_argument("--crs", default=None, help="map file: its CRS when the file does not say")
+    parser.add_argument("--db", metavar="FILE", default=None,
+                        help="monitor: SQLite database (default runs/monitor-<prefix>-<machine>.sqlite)")
+    parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
+                        help="all: clock of the run it starts (default lockstep)")
+    parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
+    parser.add_argument("--ticks-per-message", type=int, default=None, metavar="N",
+                        help="all: lockstep ticks per message (default 20)")
+
+
+def run(args) -> int:
+    options = zc.options_from_args(args)
+    if args.service == "all":
+        return serve_all(args, options)
+    if args.service == "router":
+        zc.run_service("router", options, lambda session: [], default_mode="router")
+        return 0
+    if args.service == "map":
+        from services import svc_map
+
+        if args.map is not None:
+            grid, fixed = svc_map.file_grid(args.map, args.rate_field, args.cell_size, args.crs), True
+        else:
+            from services import scenario
+
+            grid, fixed = svc_map.scenario_grid(scenario.load(args.scenario)), False
+        svc_map.main(options, grid, fixed)
+    elif args.service == "monitor":
+        from services import svc_monitor
+
+        name = f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite"
+        db = args.db or os.path.join("runs", name)
+        svc_monitor.main(options, db)
+    else:
+        import importlib
+
+        importlib.import_module(f"services.svc_{args.service}").main(options)
+    return 0
+
+
+def _child_argv(args, options: zc.ZenohOptions, name: str) -> list[str]:
+    argv = [sys.executable, "-m", "services.cli", "serve", name, *options.child_args()]
+    if name == "map":
+        if args.map is not None:
+            argv += ["--map", os.path.abspath(args.map)]
+            for flag, value in (("--rate-field", args.rate_field), ("--cell-size", args.cell_size),
+                                ("--crs", args.crs)):
+                if value is not None:
+                    argv += [flag, str(value)]
+        elif args.scenario is not None:
+            argv.append(_abs_if_file(args.scenario))
+    if name == "monitor" and args.db is not None:
+        argv += ["--db", os.path.abspath(args.db)]
+    return argv
+
+
+def _abs_if_file(spec: str) -> str:
+    return os.path.abspath(spec) if os.path.exists(spec) else spec
+
+
+def serve_all(args, options: zc.ZenohOptions) -> int:
+    """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
+    start_payload = start_selector = None
+    if args.scenario is not None:  # refuse a bad scenario before starting anything
+        from services import scenario
+
+        sc = scenario.load(args.scenario)
+        start_payload, start_selector = _start_request(options.keys, sc, args)
+    # SIGTERM before the serving loop takes over must still stop the children (via `finally`).
+    signal.signal(signal.SIGTERM, _interrupt)
+    stop = threading.Event()
+    procs: dict[str, subprocess.Popen] = {}
+    env = dict(os.environ, **{zc.PARENT_ENV: str(os.getpid())})
+    with zc.open_session(options, "router") as session:
+        token = zc.declare_alive(session, options.keys, "router")
+        try:
+            for name in zc.SERVICES:
+                procs[name] = subprocess.Popen(_child_argv(args, options, name), env=env)
+            _wait_ready(session, options.keys, procs)
+            if start_payload is not None:
+                reply = zc.request_json(session, start_selector, start_payload, timeout_s=120.0,
+                                        what="vrsim serve all: starting the scenario")
+                print(f"vrsim serve all: started run {reply['run_id']}", file=sys.stderr, flush=True)
+            print(f"vrsim serve all: ready ({options.describe('router')}, prefix {options.prefix}, "
+                  f"machine {options.machine}); Ctrl-C stops", file=sys.stderr, flush=True)
+            reported: set[str] = set()
+
+            def watch() -> bool:
+                for name, proc in procs.items():
+                    if proc.poll() is not None and name not in reported:
+                        reported.add(name)
+                        print(f"vrsim serve all: the {name} service exited with code {proc.returncode}",
+                              file=sys.stderr, flush=True)
+                return False
+
+            zc.wait_for_signal(stop, also=watch)
+        finally:
+            _stop_children(procs)
+            token.undeclare()
+    print("vrsim serve all: stopped", file=sys.stderr, flush=True)
+    return 0
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _start_request(keys: zc.Keys, sc, args) -> tuple[bytes, str]:
+    """The scenario/start query for a loaded scenario (its text, source and folder)."""
+    from services import scenario
+
+    path = sc.source[len("builtin:"):] if sc.source.startswith("builtin:") else sc.source
+    if sc.source.startswith("builtin:"):
+        path = os.path.join(scenario.BUILTIN_DIR, path + ".toml")
+    with open(path, "rb") as fh:
+        text = fh.read()
+    params = {"source": sc.source, "base_dir": sc.base_dir, "clock": args.clock, "speed": args.speed}
+    if args.ticks_per_message is not None:
+        params["ticks_per_message"] = args.ticks_per_message
+    return text, keys.scenario("start") + "?" + ";".join(f"{k}={v}" for k, v in params.items())
+
+
+def _wait_ready(session, keys: zc.Keys, procs: dict) -> None:
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while True:
+        alive = set(zc.alive_services(session, keys, timeout_s=1.0))
+        missing = [n for n in procs if n not in alive]
+        if not missing:
+            return
+        dead = [f"{n} (exit code {p.returncode})" for n, p in procs.items() if p.poll() is not None]
+        if dead:
+            raise ServiceError(f"serve all: service(s) failed to start: {', '.join(dead)}")
+        if time.monotonic() > deadline:
+            raise ServiceError(f"serve all: waited {READY_TIMEOUT_S:g} s for the services to declare their "
+                               f"liveliness tokens ({keys.alive('*')}); still missing: {', '.join(missing)}")
+        time.sleep(0.1)
+
+
+def _stop_children(procs: dict) -> None:
+    for proc in procs.values():
+        if proc.poll() is None:
+            proc.terminate()
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    for name, proc in procs.items():
+        try:
+            proc.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            print(f"vrsim serve all: the {name} service did not stop within {STOP_TIMEOUT_S:g} s; killing it",
+                  file=sys.stderr, flush=True)
+            proc.kill()
+            proc.wait()

@@ -1,0 +1,312 @@
+"""The messages of the vrsim Zenoh API: one dataclass per message, JSON field names with units.
+
+Every message is a flat JSON object whose keys are the dataclass's fields. The per-tick streams
+(`Pose`, `ShaftState`, `RateSample`) travel as a JSON array of such objects: one element per tick
+(real-time mode sends one tick per message, lockstep mode several, see docs/api.md). Floats that are
+NaN (e.g. the rate outside the map) are JSON ``null``; decoding turns ``null`` back into NaN, except for
+fields typed ``X | None``, which stay None.
+
+Decoding checks every key and type and raises `common.ServiceError` naming the message, the field and
+the offending value, so a malformed message gets an error reply, never a traceback.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import ServiceError
+
+NAN = math.nan
+_NONE = object()
+
+
+class Message:
+    """Mixin: to_dict / to_json / from_dict / from_json for a flat dataclass."""
+
+    _spec: tuple  # ((name, kind, nullable), ...) built by `_message`
+
+    def to_dict(self) -> dict:
+        out = {}
+        for name, kind, _ in self._spec:
+            value = getattr(self, name)
+            if kind is float and value is not None and not math.isfinite(value):
+                value = None
+            out[name] = value
+        return out
+
+    def to_json(self) -> bytes:
+        return json.dumps(self.to_dict(), separators=(",", ":")).encode()
+
+    @classmethod
+    def from_dict(cls, doc, where: str = ""):
+        where = where or cls.__name__
+        if not isinstance(doc, dict):
+            raise ServiceError(f"{where}: expected a JSON object, got {_short(doc)}")
+        if len(doc) != len(cls._spec) or any(k not in doc for k, _, _ in cls._spec):
+            missing = [k for k, _, _ in cls._spec if k not in doc]
+            if missing:
+                raise ServiceError(f"{where}: missing field {missing[0]!r}")
+            unknown = sorted(set(doc) - {k for k, _, _ in cls._spec})
+            raise ServiceError(f"{where}: unknown field {unknown[0]!r} "
+                               f"(fields: {', '.join(k for k, _, _ in cls._spec)})")
+        values = {}
+        for name, kind, nullable in cls._spec:
+            values[name] = _check(doc[name], kind, nullable, where, name)
+        return cls(**values)
+
+    @classmethod
+    def from_json(cls, data: bytes | str | None):
+        return cls.from_dict(_loads(data, cls.__name__))
+
+
+def _check(value, kind, nullable: bool, where: str, name: str):
+    if value is None:
+        if kind is float and not nullable:
+            return NAN
+        if nullable:
+            return None
+    elif kind is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif kind is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif isinstance(value, kind):
+        return value
+    raise ServiceError(f"{where}: field {name} must be {kind.__name__}"
+                       f"{' or null' if nullable or kind is float else ''}, got {_short(value)}")
+
+
+def _short(value) -> str:
+    text = json.dumps(value) if not isinstance(value, (bytes, bytearray)) else repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _loads(data, what: str):
+    if data is None or len(data) == 0:
+        raise ServiceError(f"{what}: empty payload, expected JSON")
+    try:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ServiceError(f"{what}: payload is not valid JSON ({exc})") from None
+
+
+_KINDS = {"float": (float, False), "int": (int, False), "bool": (bool, False), "str": (str, False),
+          "float | None": (float, True), "int | None": (int, True), "str | None": (str, True),
+          "list": (list, False), "dict": (dict, False)}
+
+
+def _message(cls):
+    """Class decorator: a dataclass with the `Message` codec, its field kinds read from annotations."""
+    cls = dataclass(cls)
+    spec = []
+    for f in dataclasses.fields(cls):
+        if f.type not in _KINDS:
+            raise TypeError(f"{cls.__name__}.{f.name}: unsupported field type {f.type!r}")
+        spec.append((f.name, *_KINDS[f.type]))
+    cls._spec = tuple(spec)
+    return cls
+
+
+def encode_batch(records) -> bytes:
+    """A JSON array of messages (the per-tick streams)."""
+    return json.dumps([r.to_dict() for r in records], separators=(",", ":")).encode()
+
+
+def decode_batch(cls, data, max_len: int = 100_000) -> list:
+    """Decode a JSON array of ``cls`` messages (a single object is accepted as a batch of one)."""
+    doc = _loads(data, f"{cls.__name__} batch")
+    if isinstance(doc, dict):
+        doc = [doc]
+    if not isinstance(doc, list) or not doc:
+        raise ServiceError(f"{cls.__name__} batch: expected a non-empty JSON array of objects, "
+                           f"got {_short(doc)}")
+    if len(doc) > max_len:
+        raise ServiceError(f"{cls.__name__} batch: {len(doc)} records, at most {max_len} per message")
+    return [cls.from_dict(d, f"{cls.__name__}[{i}]") for i, d in enumerate(doc)]
+
+
+# ---------------------------------------------------------------------------------- per-tick streams
+@_message
+class Pose(Message):
+    """``<prefix>/<machine>/pose``: the implement at one tick (vehicle service).
+
+    Positions are metres in the field's metric CRS (its UTM zone): ``x_m, y_m`` the true position on
+    the path, ``measured_x_m, measured_y_m`` the GNSS fix the controller works from.
+    """
+
+    run_id: str
+    tick: int  # 0, 1, 2, ... within the run
+    time_s: float  # simulation time
+    x_m: float
+    y_m: float
+    measured_x_m: float
+    measured_y_m: float
+    heading_rad: float  # counter-clockwise from east
+    speed_m_s: float
+    implement_on: bool
+
+
+@_message
+class ShaftState(Message):
+    """``<prefix>/<machine>/shaft``: the metering shaft at the end of one control period (controller)."""
+
+    run_id: str
+    tick: int
+    time_s: float
+    target_shaft_rpm: float
+    shaft_rpm: float
+    shaft_rev: float  # revolutions during this period
+    current_a: float  # proportional-valve current
+
+
+@_message
+class RateSample(Message):
+    """``<prefix>/<machine>/rate``: prescribed and applied rate at the predicted landing point (controller).
+
+    ``applied_kg_ha`` is this period's metered mass over the area the implement covers in the period
+    (null at standstill); ``prescribed_kg_ha`` is null outside the map (policy "off").
+    """
+
+    run_id: str
+    tick: int
+    time_s: float
+    landing_x_m: float
+    landing_y_m: float
+    prescribed_kg_ha: float
+    applied_kg_ha: float
+    metered_kg: float
+    implement_on: bool
+
+
+# ------------------------------------------------------------------------------------------ map
+@_message
+class MapRate(Message):
+    """Reply of ``<prefix>/map/rate`` for one point (the dict `maps.Grid.sample` returns)."""
+
+    rate_kg_ha: float | None  # null outside the map and on nodata cells
+    inside: bool
+    row: int | None
+    col: int | None
+
+
+def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The batch body of ``<prefix>/map/rate``: ``{"x": [...], "y": [...]}`` (map CRS) or
+    ``{"lat": [...], "lon": [...]}`` (WGS84 degrees).
+
+    Returns
+    -------
+    (first, second, geographic) : (ndarray (n,), ndarray (n,), bool)
+        x, y in the map's CRS, or lon, lat with ``geographic`` True.
+    """
+    doc = _loads(data, "map/rate batch")
+    if not isinstance(doc, dict) or set(doc) not in ({"x", "y"}, {"lat", "lon"}):
+        keys = sorted(doc) if isinstance(doc, dict) else _short(doc)
+        raise ServiceError(f"map/rate batch: body must be {{\"x\": [...], \"y\": [...]}} or "
+                           f"{{\"lat\": [...], \"lon\": [...]}}, got keys {keys}")
+    geo = "lat" in doc
+    names = ("lon", "lat") if geo else ("x", "y")
+    arrays = []
+    for name in names:
+        values = doc[name]
+        if not isinstance(values, list):
+            raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {_short(values)}")
+        # type() rather than isinstance: bools (an int subclass) and numeric strings are refused.
+        bad = next((v for v in values if type(v) is not float and type(v) is not int), _NONE)
+        if bad is not _NONE:
+            raise ServiceError(f"map/rate batch: {name} holds a non-number {_short(bad)}")
+        arr = np.array(values, dtype=np.float64)
+        arrays.append(arr)
+    first, second = arrays
+    if len(first) != len(second):
+        raise ServiceError(f"map/rate batch: {names[0]} has {len(first)} values, {names[1]} {len(second)}")
+    if len(first) > max_points:
+        raise ServiceError(f"map/rate batch: {len(first)} points, at most {max_points} per query")
+    bad = ~np.isfinite(first) | ~np.isfinite(second)
+    if geo:
+        bad |= (np.abs(second) > 90.0) | (np.abs(first) > 180.0)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ServiceError(f"map/rate batch: point {i} ({names[0]}={first[i]!r}, {names[1]}={second[i]!r}) "
+                           f"is not finite{' or out of range' if geo else ''}")
+    return first, second, geo
+
+
+def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, col: np.ndarray) -> bytes:
+    """The batch reply of ``<prefix>/map/rate``: a JSON array of `MapRate` objects, built in one pass."""
+    rates = rate_kg_ha.tolist()
+    parts = []
+    append = parts.append
+    for r, ok, i, j in zip(rates, inside.tolist(), row.tolist(), col.tolist(), strict=True):
+        rate = "null" if r != r else repr(r)
+        if ok:
+            append(f'{{"rate_kg_ha":{rate},"inside":true,"row":{i},"col":{j}}}')
+        else:
+            append('{"rate_kg_ha":null,"inside":false,"row":null,"col":null}')
+    return ("[" + ",".join(parts) + "]").encode()
+
+
+# ------------------------------------------------------------------------------------- run control
+CLOCKS = ("lockstep", "realtime")
+
+
+@_message
+class RunStart(Message):
+    """What scenario control sends each service to load (and the vehicle to drive) a run."""
+
+    run_id: str
+    scenario_text: str  # the scenario file's TOML text
+    source: str  # names the scenario in error messages: its path, or "builtin:<name>"
+    base_dir: str  # relative paths in the scenario resolve against this
+    clock: str  # "lockstep" or "realtime"
+    speed: float  # real-time speed factor (2 = twice as fast as the wall clock)
+    ticks_per_message: int  # lockstep batching: ticks per pose message and control step
+
+    def __post_init__(self):
+        if self.clock not in CLOCKS:
+            raise ServiceError(f"RunStart: clock must be one of {', '.join(CLOCKS)}, got {self.clock!r}")
+        if not (isinstance(self.speed, (int, float)) and 0.01 <= self.speed <= 1000):
+            raise ServiceError(f"RunStart: speed must be within [0.01, 1000], got {self.speed!r}")
+        if not 1 <= self.ticks_per_message <= 1000:
+            raise ServiceError(f"RunStart: ticks_per_message must be within [1, 1000], "
+                               f"got {self.ticks_per_message!r}")
+
+
+@_message
+class StepAck(Message):
+    """Reply of ``<prefix>/<machine>/control/step``: the controller has processed these ticks."""
+
+    run_id: str
+    ticks: int  # ticks in this step
+    last_tick: int
+
+
+@_message
+class RunStatus(Message):
+    """Reply of ``<prefix>/<machine>/vehicle/status``: the run the vehicle drives."""
+
+    state: str  # "idle", "starting", "running", "finished", "stopped" or "failed"
+    run_id: str
+    scenario: str
+    clock: str
+    ticks: int  # ticks driven so far
+    sim_time_s: float
+    wall_s: float  # wall time since the run started
+    error: str  # why it failed ("" otherwise)
+
+
+@_message
+class MonitorStatus(Message):
+    """Reply of ``<prefix>/<machine>/monitor/status``: what the monitor has stored for a run."""
+
+    run_id: str
+    pose_records: int
+    shaft_records: int
+    rate_records: int
+    ticks: int  # complete ticks: pose, shaft and rate all received for 0..ticks-1
+    database: str

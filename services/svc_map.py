@@ -1,0 +1,101 @@
+"""The map service: the prescription map over Zenoh (``vrsim serve map``).
+
+Keys (see docs/api.md): ``<prefix>/map/info`` (what ``vrsim map info --json`` prints),
+``<prefix>/map/rate`` (one point from selector parameters ``lat``/``lon`` or ``x``/``y``, or a batch of
+points from a JSON body) and ``<prefix>/map/load`` (scenario control loads a scenario's prescription).
+The map is a file given with ``--map`` (then fixed) or the prescription of the current scenario on
+the field's metric grid (what the controller looks up).
+"""
+
+from __future__ import annotations
+
+import threading
+
+from common import ServiceError
+from services import messages
+from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serve
+
+MAX_BATCH_POINTS = 10_000_000
+
+
+class MapService:
+    """The handlers of the map service over one `maps.Grid` (swapped whole on `load`)."""
+
+    def __init__(self, grid, fixed: bool):
+        self.grid = grid
+        self.fixed = fixed
+        self.lock = threading.Lock()  # a load swaps the grid while queries may read it
+
+    def info(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        _no_body(params, payload)
+        return dumps(self.grid.info())
+
+    def rate(self, params: Params, payload: bytes | None) -> bytes:
+        grid = self.grid
+        if payload:
+            params.only()
+            first, second, geo = messages.decode_points(payload, MAX_BATCH_POINTS)
+            res = grid.lookup(first, second, crs="EPSG:4326" if geo else None)
+            return messages.encode_rates(res.rate_kg_ha, res.inside, res.row, res.col)
+        params.only("lat", "lon", "x", "y")
+        geo = params.has("lat") or params.has("lon")
+        if geo and (params.has("x") or params.has("y")):
+            raise ServiceError(f"{params.key}: give either lat and lon, or x and y, not both")
+        if geo:
+            lat, lon = params.number("lat", -90.0, 90.0), params.number("lon", -180.0, 180.0)
+            sample = grid.sample(lat=lat, lon=lon)
+        elif params.has("x") or params.has("y"):
+            sample = grid.sample(x=params.number("x"), y=params.number("y"))
+        else:
+            raise ServiceError(f"{params.key}: missing parameters: give lat and lon (WGS84) or x and y "
+                               "(map CRS), or a JSON body of points")
+        return dumps(sample)
+
+    def load(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        start = messages.RunStart.from_json(payload)
+        if self.fixed:
+            return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
+        grid = scenario_grid(*_parse(start))
+        with self.lock:
+            self.grid = grid
+        return dumps({"loaded": True, "source": grid.source, "rows": grid.rows, "cols": grid.cols})
+
+    def handlers(self) -> dict:
+        return {"info": self.info, "rate": self.rate, "load": self.load}
+
+
+def _no_body(params: Params, payload: bytes | None) -> None:
+    if payload:
+        raise ServiceError(f"{params.key}: takes no body")
+
+
+def _parse(start: messages.RunStart):
+    from services import scenario
+
+    return (scenario.parse(start.scenario_text, start.source, start.base_dir),)
+
+
+def scenario_grid(sc):
+    """The scenario's prescription on the field's metric grid (what `ControlCore` looks up)."""
+    from services.run import build_field, build_prescription
+
+    return build_prescription(sc, build_field(sc))
+
+
+def file_grid(path: str, rate_field=None, cell_size_m=None, crs=None):
+    import maps
+
+    return maps.read_map(path, rate_field=rate_field, cell_size_m=cell_size_m, crs=crs)
+
+
+def main(options: ZenohOptions, grid, fixed: bool, stop: threading.Event | None = None) -> None:
+    """Serve ``grid`` until SIGINT/SIGTERM (or ``stop``)."""
+    svc = MapService(grid, fixed)
+    keys = options.keys
+
+    def declare(session):
+        return [serve(session, keys.map_ns, svc.handlers(), f"{keys.prefix}/map/", "map")]
+
+    run_service("map", options, declare, stop=stop)
