@@ -1,0 +1,316 @@
+"""The closed loop (speed sensor -> PID -> saturated valve current -> plant) over n loops at once.
+
+Everything in one control period is linear except the current saturation, so the loop keeps one
+augmented state per loop, ``s = [plant x (5), sensor delay line (D), pid (5)]``, and a tick is
+
+1. ``u = g . s + g_r r`` (the PID's unsaturated output, linear in state and target),
+2. ``I = clip(Ka u)`` (the valve current limits),
+3. ``[s', outputs] = M [s, I, r, T_L]`` (one precomputed matrix: exact ZOH plant over the period,
+   delay-line shift with the new sensor sample, PID memory, and the outputs).
+
+PID memory ``[acc, e1, e2, y1, y2]`` (volts): ``acc`` is the previous saturated output u(n-1) for the
+incremental form (which is its anti-windup) and the error sum for the positional form (whose clamping
+anti-windup is the one nonlinear correction after the product).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import ControllerError
+from controller.discretize import Lifted, lift
+from controller.gains import FORMS, ControllerConfig, PidGains, resolve_gains
+from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
+
+N_PID = 5
+ACC, E1, E2, Y1, Y2 = range(N_PID)
+# Extra entries of the product's input after the state, and extra rows of its output after the state.
+IN_CURRENT, IN_TARGET, IN_LOAD = range(3)
+OUT_REV, OUT_RPM, OUT_CURRENT, OUT_MEASURED = range(4)
+
+
+@dataclass(frozen=True, slots=True)
+class StepOutput:
+    """What one control period did, per loop (all shape (n,)).
+
+    Attributes
+    ----------
+    shaft_rpm : metering-shaft speed at the end of the period [rpm].
+    shaft_rev : metering-shaft revolutions during the period (exact, from the angle state) [rev].
+    current_a : valve current held during the period, after saturation [A].
+    measured_rpm : the (delayed) speed-sensor reading the PID used this period [rpm].
+    """
+
+    shaft_rpm: np.ndarray
+    shaft_rev: np.ndarray
+    current_a: np.ndarray
+    measured_rpm: np.ndarray
+
+
+def _pid_row(gains: PidGains, form: str, dom: bool, sample_s: float) -> np.ndarray:
+    """Coefficients of u(n) on [acc, e, e1, e2, y, y1, y2] (volts) for one loop."""
+    kp, ki_t, kd_t = gains.kp, gains.ki * sample_s, gains.kd / sample_s
+    if form == "incremental":
+        # u(n) = u(n-1) + A e - B e1 + C e2 (paper eq. 16); on measurement D acts on -y.
+        if dom:
+            return np.array([1.0, kp + ki_t, -kp, 0.0, -kd_t, 2 * kd_t, -kd_t])
+        return np.array([1.0, kp + ki_t + kd_t, -(kp + 2 * kd_t), kd_t, 0.0, 0.0, 0.0])
+    # positional: u(n) = kp e + ki T (sum_{j<n} e + e) + D
+    if dom:
+        return np.array([ki_t, kp + ki_t, 0.0, 0.0, -kd_t, kd_t, 0.0])
+    return np.array([ki_t, kp + ki_t + kd_t, -kd_t, 0.0, 0.0, 0.0, 0.0])
+
+
+class _Layout:
+    """Index arithmetic of the augmented state for a delay line of D samples."""
+
+    def __init__(self, delay_slots: int):
+        self.D = delay_slots
+        self.ring0 = N_STATES
+        self.pid0 = N_STATES + delay_slots
+        self.ns = self.pid0 + N_PID          # state size
+        self.nv = self.ns + 3                 # product input size: state, current, target, load
+
+
+def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: float,
+                 plant_step_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The product matrix M (ns + 4, nv) and the fine-output rows F (N, nv) for one plant."""
+    A, B = state_space(p)
+    lifted = lift(A, B, shaft_rpm_row(p), shaft_rev_row(p), control_period_s, plant_step_s,
+                  p.sensor_delay_s)
+    d = lifted.delay_periods
+    ns, nv, r0, p0 = lay.ns, lay.nv, lay.ring0, lay.pid0
+    cur, tgt, load = ns + IN_CURRENT, ns + IN_TARGET, ns + IN_LOAD
+    ks, ka = p.sensor_gain_v_per_rpm, p.amplifier_gain_a_per_v
+    M = np.zeros((ns + 4, nv))
+    xu = list(range(N_STATES)) + [cur, load]     # columns that the lifted rows act on
+    M[:N_STATES, xu] = lifted.step[:N_STATES]
+    for j in range(d - 1):                       # delay line shifts towards its head
+        M[r0 + j, r0 + j + 1] = 1.0
+    M[r0 + d - 1, xu] = lifted.step[Lifted.ROW_SAMPLE]
+    if form == "incremental":
+        M[p0 + ACC, cur] = 1.0 / ka               # u(n-1) <- saturated output in volts
+    else:
+        M[p0 + ACC, p0 + ACC] = 1.0               # error sum += e
+        M[p0 + ACC, tgt], M[p0 + ACC, r0] = ks, -ks
+    M[p0 + E1, tgt], M[p0 + E1, r0] = ks, -ks     # e1 <- e = Ks (r - y_m)
+    M[p0 + E2, p0 + E1] = 1.0
+    M[p0 + Y1, r0] = ks                           # y1 <- Ks y_m
+    M[p0 + Y2, p0 + Y1] = 1.0
+    M[ns + OUT_REV, xu] = lifted.step[Lifted.ROW_REV]
+    M[ns + OUT_RPM, xu] = lifted.step[Lifted.ROW_RPM]
+    M[ns + OUT_CURRENT, cur] = 1.0
+    M[ns + OUT_MEASURED, r0] = 1.0
+    F = np.zeros((lifted.fine.shape[0], nv))
+    F[:, xu] = lifted.fine
+    return M, F
+
+
+def _gain_vector(p: PlantParams, row: np.ndarray, lay: _Layout) -> tuple[np.ndarray, float]:
+    """Turn a `_pid_row` into (g over the state, g_r on the target), substituting e and y."""
+    a_acc, a_e, a_e1, a_e2, a_y, a_y1, a_y2 = row
+    ks = p.sensor_gain_v_per_rpm
+    g = np.zeros(lay.ns)
+    g[lay.pid0 + ACC], g[lay.pid0 + E1], g[lay.pid0 + E2] = a_acc, a_e1, a_e2
+    g[lay.pid0 + Y1], g[lay.pid0 + Y2] = a_y1, a_y2
+    g[lay.ring0] = ks * (a_y - a_e)               # e = Ks r - Ks y_m, y = Ks y_m
+    return g, ks * a_e
+
+
+def _per_loop(value, n: int, name: str) -> list:
+    if isinstance(value, Sequence) and not isinstance(value, str):
+        if len(value) != n:
+            raise ControllerError(f"{name} must be one value or {n} values (n={n}), got {len(value)}")
+        return list(value)
+    return [value] * n
+
+
+class ClosedLoop:
+    """n independent sensor-PID-valve-motor loops advancing one control period per `step`.
+
+    Parameters
+    ----------
+    plants : PlantParams or sequence of n PlantParams
+    gains : PidGains or sequence of n PidGains
+    form : {"incremental", "positional"}
+    derivative_on_measurement : bool
+    control_period_s, plant_step_s : float
+        Controller period T and plant step h [s]; T must be a whole multiple of h.
+    n : int
+        Number of loops.
+    record_fine : bool
+        Also return the shaft speed at every plant step (`step_fine`), for step responses.
+
+    Notes
+    -----
+    Deterministic and self-contained: `state` and `set_state` capture everything, there is no clock.
+    """
+
+    def __init__(self, plants, gains, form: str = "incremental", derivative_on_measurement: bool = False,
+                 control_period_s: float = 0.05, plant_step_s: float = 0.001, n: int = 1,
+                 record_fine: bool = False):
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ControllerError(f"n must be a positive integer, got {n!r}")
+        if form not in FORMS:
+            raise ControllerError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
+        plant_list = _per_loop(plants, n, "plants")
+        gain_list = _per_loop(gains, n, "gains")
+        for p in plant_list:
+            if not isinstance(p, PlantParams):
+                raise ControllerError(f"plants must be PlantParams, got {type(p).__name__}")
+        self.n = n
+        self.form = form
+        self.control_period_s = float(control_period_s)
+        self.plant_step_s = float(plant_step_s)
+        unique = list(dict.fromkeys(plant_list))
+        self._lay = lay = _Layout(max(
+            math.floor(p.sensor_delay_s / control_period_s + 1e-12) + 1 for p in unique))
+        blocks = {p: _plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
+        M = np.stack([blocks[p][0] for p in plant_list]) if len(unique) > 1 else blocks[unique[0]][0]
+        F = np.stack([blocks[p][1] for p in plant_list]) if len(unique) > 1 else blocks[unique[0]][1]
+        self.n_fine = F.shape[-2]
+        if record_fine:
+            M = np.concatenate([M, F], axis=-2)
+        # The product is applied as v @ M.T (shared) or per loop (n, rows, nv).
+        self._MT = M.T.copy() if M.ndim == 2 else np.ascontiguousarray(np.swapaxes(M, 1, 2))
+        gvecs = [_gain_vector(p, _pid_row(g, form, derivative_on_measurement, control_period_s), lay)
+                 for p, g in zip(plant_list, gain_list, strict=True)]
+        self._g = np.stack([gv[0] for gv in gvecs])               # (n, ns)
+        self._gr = np.array([gv[1] for gv in gvecs])              # (n,)
+        self._ka = np.array([p.amplifier_gain_a_per_v for p in plant_list])
+        self._ks = np.array([p.sensor_gain_v_per_rpm for p in plant_list])
+        self._ilo = np.array([p.current_min_a for p in plant_list])
+        self._ihi = np.array([p.current_max_a for p in plant_list])
+        self._rmax = np.array([p.shaft_rpm_max for p in plant_list])
+        self._scalar = n == 1 and M.ndim == 2
+        if self._scalar:   # n = 1: plain floats for the few scalar operations, one mat-vec per tick
+            self._g0 = self._g[0]
+            self._f = (float(self._gr[0]), float(self._ka[0]), float(self._ilo[0]), float(self._ihi[0]),
+                       float(self._rmax[0]))
+        self._v = np.zeros((n, lay.nv))
+        self._ns = lay.ns
+
+    # -- state -------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to rest: plant, delay line and PID memory at zero."""
+        self._v[:] = 0.0
+
+    @property
+    def state(self) -> np.ndarray:
+        """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory."""
+        return self._v[:, :self._ns].copy()
+
+    def set_state(self, state: np.ndarray) -> None:
+        """Restore a state obtained from `state`."""
+        state = np.asarray(state, dtype=float)
+        if state.shape != (self.n, self._ns):
+            raise ControllerError(f"state must have shape {(self.n, self._ns)}, got {state.shape}")
+        self._v[:, :self._ns] = state
+
+    @property
+    def motor_angle_rad(self) -> np.ndarray:
+        """Total motor angle since rest [rad], shape (n,)."""
+        return self._v[:, N_STATES - 1].copy()
+
+    # -- stepping ----------------------------------------------------------------------------------------
+    def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
+        """Advance one control period.
+
+        Parameters
+        ----------
+        target_shaft_rpm : float or ndarray, shape (n,)
+            Metering-shaft speed setpoint [rpm]; clipped to [0, shaft_rpm_max].
+        load_torque_nm : float or ndarray, shape (n,)
+            External load torque on the motor during the period [N m].
+        """
+        out = self._advance(target_shaft_rpm, load_torque_nm)
+        ns = self._ns
+        if out.ndim == 1:
+            return StepOutput(out[ns + OUT_RPM:ns + OUT_RPM + 1], out[ns + OUT_REV:ns + OUT_REV + 1],
+                              out[ns + OUT_CURRENT:ns + OUT_CURRENT + 1],
+                              out[ns + OUT_MEASURED:ns + OUT_MEASURED + 1])
+        return StepOutput(out[:, ns + OUT_RPM], out[:, ns + OUT_REV], out[:, ns + OUT_CURRENT],
+                          out[:, ns + OUT_MEASURED])
+
+    def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
+        """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm].
+
+        Needs ``record_fine=True``.
+        """
+        if self._MT.shape[-1] == self._ns + 4:
+            raise ControllerError("step_fine needs a loop built with record_fine=True")
+        out = np.atleast_2d(self._advance(target_shaft_rpm, load_torque_nm))
+        ns = self._ns
+        so = StepOutput(out[:, ns + OUT_RPM], out[:, ns + OUT_REV], out[:, ns + OUT_CURRENT],
+                        out[:, ns + OUT_MEASURED])
+        return so, out[:, ns + 4:]
+
+    def _advance(self, target, load):
+        v, ns = self._v, self._ns
+        if self._scalar and not isinstance(target, np.ndarray) and not isinstance(load, np.ndarray):
+            gr, ka, ilo, ihi, rmax = self._f
+            r = float(target)
+            if not r >= 0.0:
+                if r != r:
+                    raise ControllerError(f"target_shaft_rpm must be a number, got {target!r}")
+                r = 0.0
+            elif r > rmax:
+                r = rmax
+            row = v[0]
+            cur = ka * (float(row[:ns] @ self._g0) + gr * r)
+            cur = ilo if cur < ilo else ihi if cur > ihi else cur
+            row[ns + IN_CURRENT], row[ns + IN_TARGET], row[ns + IN_LOAD] = cur, r, load
+            out = row @ self._MT
+            if self.form == "positional":
+                self._clamp(out[None, :], np.array([cur]), np.array([r]), row[None, :])
+            row[:ns] = out[:ns]
+            return out
+        r = np.minimum(np.maximum(np.broadcast_to(np.asarray(target, dtype=float), (self.n,)), 0.0),
+                       self._rmax)
+        if np.isnan(r).any():
+            raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
+        cur = self._ka * ((v[:, :ns] * self._g).sum(axis=1) + self._gr * r)
+        cur = np.minimum(np.maximum(cur, self._ilo), self._ihi)
+        v[:, ns + IN_CURRENT], v[:, ns + IN_TARGET], v[:, ns + IN_LOAD] = cur, r, load
+        out = v @ self._MT if self._MT.ndim == 2 else np.matmul(v[:, None, :], self._MT)[:, 0, :]
+        if self.form == "positional":
+            self._clamp(out, cur, r, v)
+        v[:, :ns] = out[:, :ns]
+        return out
+
+    def _clamp(self, out, cur, r, v):
+        """Positional anti-windup: do not integrate an error that pushes a saturated output further."""
+        lay = self._lay
+        e = self._ks * (r - v[:, lay.ring0])
+        unsat = self._ka * ((v[:, :lay.ns] * self._g).sum(axis=1) + self._gr * r)
+        frozen = ((unsat > self._ihi) & (e > 0)) | ((unsat < self._ilo) & (e < 0))
+        out[:, lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
+
+
+def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05,
+               plant_step_s: float = 0.001, n: int = 1, record_fine: bool = False) -> ClosedLoop:
+    """The loop the field run drives: `n` copies of `plant` under the controller `cfg`.
+
+    Parameters
+    ----------
+    plant : PlantParams
+    cfg : ControllerConfig
+    control_period_s : float
+        PID period T [s] (the paper: 0.05).
+    plant_step_s : float
+        Plant discretization step h [s] (the paper's bench: 0.001); T must be a multiple of h.
+    n : int
+        Number of identical loops (e.g. one per section).
+    """
+    if not isinstance(plant, PlantParams):
+        raise ControllerError(f"plant must be PlantParams, got {type(plant).__name__}")
+    if not isinstance(cfg, ControllerConfig):
+        raise ControllerError(f"cfg must be ControllerConfig, got {type(cfg).__name__}")
+    gains = resolve_gains(cfg, plant, control_period_s)
+    return ClosedLoop(plant, gains, form=cfg.form, derivative_on_measurement=cfg.derivative_on_measurement,
+                      control_period_s=control_period_s, plant_step_s=plant_step_s, n=n,
+                      record_fine=record_fine)

@@ -1,0 +1,215 @@
+"""Tuning on the model: the ultimate-gain experiment and a relay auto-tune, both by simulation, and
+the fit of the two sensor parameters that close the gap between the paper's model and its experiment.
+
+The paper's transfer functions alone put the 50 ms P loop's phase crossover at the Nyquist frequency
+(a 0.1 s oscillation); its measured 0.31 s needs more lag. `fit_sensor` finds the one transport delay
+that puts the sampled loop's -180 degree crossing at 2 pi / Tu, and the one sensor gain that makes the
+loop gain 1 there at Kp = Ku, from the exact pulse transfer function; `ultimate_gain_experiment` then
+checks it the way the paper did it, by raising the gain of a simulated loop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import brentq
+
+from common import ControllerError
+from controller.discretize import Lifted, delay_split, lift
+from controller.gains import PidGains
+from controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space
+from controller.simulate import simulate, unlimited
+
+
+def pulse_response(plant: PlantParams, theta: np.ndarray, control_period_s: float = 0.05,
+                   delay_s: float | None = None) -> np.ndarray:
+    """Pulse transfer function from valve current [A] to sensor reading [rpm] at ``z = exp(j theta)``.
+
+    ``G(z) = z^-d (c Phi_s (z I - Phi_T)^-1 Gamma_T + c Gamma_s)``: exact for the sampled loop with the
+    current held over each period and the sensor delay split as in `delay_split`.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (m,)
+        Normalized frequencies omega T [rad], in (0, pi].
+    delay_s : float, optional
+        Sensor delay to use instead of the plant's [s].
+    """
+    delay = plant.sensor_delay_s if delay_s is None else delay_s
+    A, B = state_space(plant)
+    lifted = lift(A, B, shaft_rpm_row(plant), shaft_rev_row(plant), control_period_s, control_period_s,
+                  delay)
+    nx = A.shape[0]
+    phi, gam = lifted.step[:nx, :nx], lifted.step[:nx, nx]
+    sample = lifted.step[Lifted.ROW_SAMPLE]
+    c_phi_s, c_gam_s = sample[:nx], sample[nx]
+    d, _ = delay_split(delay, control_period_s)
+    z = np.exp(1j * np.atleast_1d(theta))
+    resolvent = np.array([np.linalg.solve(zi * np.eye(nx) - phi, gam) for zi in z])
+    return z ** (-d) * (resolvent @ c_phi_s + c_gam_s)
+
+
+def _phase_at(plant, theta, control_period_s, delay_s):
+    """Unwrapped phase of the pulse response at `theta`, unwrapped along a grid from low frequency."""
+    grid = np.linspace(1e-4, theta, 400)
+    return np.unwrap(np.angle(pulse_response(plant, grid, control_period_s, delay_s)))[-1]
+
+
+@dataclass(frozen=True)
+class SensorFit:
+    """Sensor delay and gain that give a P loop with ultimate gain `ku` and period `tu_s`."""
+
+    sensor_delay_s: float
+    sensor_gain_v_per_rpm: float
+    ku: float
+    tu_s: float
+
+
+def fit_sensor(plant: PlantParams, ku: float, tu_s: float, control_period_s: float = 0.05) -> SensorFit:
+    """Fit the speed sensor's transport delay and gain to an ultimate gain `ku` and period `tu_s`.
+
+    The delay solves ``arg G(exp(j 2 pi T / Tu)) = -pi`` (phase falls monotonically with delay), the
+    gain ``Ku Ka Ks |G| = 1``. Only the plant's other parameters and T enter.
+    """
+    theta = 2 * math.pi * control_period_s / tu_s
+    if not (0 < theta < math.pi):
+        raise ControllerError(f"tu_s must exceed two control periods ({2 * control_period_s} s), "
+                              f"got {tu_s!r}")
+
+    def phase_error(delay):
+        return _phase_at(plant, theta, control_period_s, delay) + math.pi
+
+    if phase_error(0.0) < 0:
+        raise ControllerError(f"the plant alone already lags more than 180 degrees at Tu={tu_s!r} s")
+    hi = 1.0
+    while phase_error(hi) > 0:
+        hi *= 2
+    delay = brentq(phase_error, 0.0, hi, xtol=1e-12)
+    gain = abs(pulse_response(plant, np.array([theta]), control_period_s, delay)[0])
+    ks = 1.0 / (ku * plant.amplifier_gain_a_per_v * gain)
+    return SensorFit(sensor_delay_s=delay, sensor_gain_v_per_rpm=ks, ku=ku, tu_s=tu_s)
+
+
+@dataclass(frozen=True)
+class UltimateResult:
+    """Outcome of an ultimate-gain experiment.
+
+    Attributes
+    ----------
+    ku : proportional gain at the edge of sustained oscillation [V/V].
+    tu_s : period of that oscillation [s].
+    growth_per_s : oscillation growth rate at each tried gain [1/s] (negative: decaying).
+    gains_tried : the gains of the final sweep [V/V].
+    """
+
+    ku: float
+    tu_s: float
+    gains_tried: np.ndarray
+    growth_per_s: np.ndarray
+
+
+def _mean_speed(res, control_period_s):
+    """Shaft speed averaged over each control period [rpm], shape (n, K): exact, free of ringing."""
+    return (res.shaft_rev * 60.0 / control_period_s).T
+
+
+def _growth_rate(y: np.ndarray, dt: float) -> np.ndarray:
+    """Growth rate of the oscillation in each row [1/s], from the RMS of its first difference in the
+    second and the last quarter of the record (differencing removes the steady level)."""
+    dy = np.diff(y, axis=1)
+    q = dy.shape[1] // 4
+    early = np.sqrt(np.mean(dy[:, q:2 * q] ** 2, axis=1))
+    late = np.sqrt(np.mean(dy[:, -q:] ** 2, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(late / early) / ((dy.shape[1] - 2 * q) * dt)
+
+
+def _period(y: np.ndarray, dt: float) -> float:
+    """Mean spacing of the upward crossings of the record's mean level, linearly interpolated [s]."""
+    z = y - y.mean()
+    idx = np.nonzero((z[:-1] < 0) & (z[1:] >= 0))[0]
+    if len(idx) < 3:
+        raise ControllerError("no sustained oscillation to measure a period from")
+    crossings = (idx + z[idx] / (z[idx] - z[idx + 1])) * dt
+    return float((crossings[-1] - crossings[0]) / (len(crossings) - 1))
+
+
+def ultimate_gain_experiment(plant: PlantParams, control_period_s: float = 0.05, plant_step_s: float = 0.001,
+                             kp_range: tuple[float, float] = (0.05, 20.0), setpoint_rpm: float = 50.0,
+                             duration_s: float = 30.0, sweeps: int = 3, batch: int = 48) -> UltimateResult:
+    """Raise a P controller's gain until the loop oscillates steadily, and measure the period.
+
+    Simulated like the paper's experiment (integral off, derivative off) on the unsaturated plant: a
+    batch of gains spanning `kp_range` is stepped from rest; each gain's oscillation growth rate comes
+    from the simulated shaft speed; the sweep narrows `sweeps` times around the gain where growth
+    changes sign. The period is then measured from a run at that gain.
+    """
+    linear = unlimited(plant)
+    lo, hi = kp_range
+    gains = np.geomspace(lo, hi, batch)
+    for _ in range(sweeps):
+        res = simulate(linear, [PidGains(kp=float(k)) for k in gains], setpoint_rpm, duration_s,
+                       control_period_s, plant_step_s, fine=False)
+        growth = _growth_rate(_mean_speed(res, control_period_s), control_period_s)
+        unstable = np.nonzero(growth > 0)[0]
+        if len(unstable) == 0 or unstable[0] == 0:
+            raise ControllerError(f"no change from decaying to growing oscillation for Kp in {kp_range}")
+        i = unstable[0]
+        lo, hi = gains[i - 1], gains[i]
+        # linear interpolation of the growth rate between the bracketing gains
+        ku = lo + (hi - lo) * (-growth[i - 1]) / (growth[i] - growth[i - 1])
+        gains_tried, growth_tried = gains, growth
+        gains = np.linspace(lo, hi, batch)
+    res = simulate(linear, PidGains(kp=float(ku)), setpoint_rpm, 3 * duration_s, control_period_s,
+                   plant_step_s, fine=False)
+    y = _mean_speed(res, control_period_s)[0]
+    tu = _period(y[len(y) // 3:], control_period_s)
+    return UltimateResult(ku=float(ku), tu_s=tu, gains_tried=gains_tried, growth_per_s=growth_tried)
+
+
+@dataclass(frozen=True)
+class RelayResult:
+    """Astrom-Hagglund relay experiment: Ku = 4 d / (pi a), Tu the limit-cycle period.
+
+    Attributes
+    ----------
+    ku : estimated ultimate gain [V/V] (controller volts per sensor volt).
+    tu_s : limit-cycle period [s].
+    relay_amplitude_a : d, the current step either side of the bias [A].
+    oscillation_amplitude_rpm : a, half the peak-to-peak of the sensor reading the relay sees [rpm].
+    """
+
+    ku: float
+    tu_s: float
+    relay_amplitude_a: float
+    oscillation_amplitude_rpm: float
+
+
+def relay_autotune(plant: PlantParams, control_period_s: float = 0.05, plant_step_s: float = 0.001,
+                   setpoint_rpm: float = 100.0, relay_amplitude_a: float = 0.05,
+                   duration_s: float = 20.0) -> RelayResult:
+    """Relay auto-tune on the model: the valve current switches between bias +- d at each control tick
+    on the sign of the error, and the limit cycle gives Ku and Tu (describing-function estimate).
+
+    The relay is a P loop of very high gain whose current limits are the two relay levels; the bias is
+    the current that holds `setpoint_rpm` in steady state.
+    """
+    if plant is None:
+        raise ControllerError("relay auto-tune needs a plant")
+    bias = setpoint_rpm / plant.shaft_rpm_per_a
+    if not (relay_amplitude_a > 0 and bias - relay_amplitude_a >= 0):
+        raise ControllerError(f"relay_amplitude_a must be in (0, {bias:.4g}] A at {setpoint_rpm} rpm, "
+                              f"got {relay_amplitude_a!r}")
+    relay_plant = replace(plant, current_min_a=bias - relay_amplitude_a,
+                          current_max_a=bias + relay_amplitude_a, shaft_rpm_max=setpoint_rpm)
+    res = simulate(relay_plant, PidGains(kp=1e9), setpoint_rpm, duration_s, control_period_s, plant_step_s,
+                   fine=False)
+    seen = res.measured_rpm[len(res.measured_rpm) // 2:, 0]
+    amplitude_rpm = 0.5 * float(seen.max() - seen.min())
+    tu = _period(_mean_speed(res, control_period_s)[0][len(seen):], control_period_s)
+    d_volts = relay_amplitude_a / plant.amplifier_gain_a_per_v
+    a_volts = amplitude_rpm * plant.sensor_gain_v_per_rpm
+    return RelayResult(ku=4 * d_volts / (math.pi * a_volts), tu_s=tu, relay_amplitude_a=relay_amplitude_a,
+                       oscillation_amplitude_rpm=amplitude_rpm)
