@@ -110,13 +110,16 @@ class Field:
                 file_crs = pyproj.CRS.from_user_input(crs)
             except pyproj.exceptions.CRSError as exc:
                 raise VehicleError(f"field file {path}: crs={crs!r} is not a CRS: {exc}") from None
+        if geom.is_empty:
+            raise VehicleError(f"field file {path}: boundary is empty")
         if file_crs is None:
             minx, miny, maxx, maxy = geom.bounds
             if not (-180 <= minx <= maxx <= 180 and -90 <= miny <= maxy <= 90):
                 raise VehicleError(f"field file {path}: no CRS given and coordinates {geom.bounds} "
                                    "are not degrees; pass crs=")
             file_crs = WGS84
-        return cls._from_geometry(geom, file_crs, os.path.splitext(os.path.basename(path))[0], path)
+        return cls._from_geometry(geom, file_crs, os.path.splitext(os.path.basename(path))[0],
+                                  f"field file {path}")
 
     @classmethod
     def _from_geometry(cls, geom, src_crs: pyproj.CRS, name: str, where: str | None = None) -> Field:

@@ -1,0 +1,99 @@
+import json
+import os
+
+import numpy as np
+import pytest
+
+from common.errors import VehicleError
+from tests.conftest import ROOT
+from vehicle import Field
+
+DATA = os.path.join(ROOT, "tests", "data", "vehicle")
+
+
+def test_rectangle_is_metric_utm():
+    f = Field.rectangle(200.0, 300.0, lat=52.0, lon=10.0)
+    assert f.area_ha == pytest.approx(6.0)
+    assert f.crs.to_epsg() == 32632
+    assert f.polygon.bounds[2] - f.polygon.bounds[0] == pytest.approx(200.0)
+
+
+def test_wgs84_round_trip():
+    f = Field.rectangle(100.0, 100.0, lat=-33.9, lon=18.4)
+    assert f.crs.to_epsg() == 32734  # southern hemisphere zone 34
+    x, y = np.array(f.polygon.exterior.coords).T
+    lon, lat = f.to_wgs84(x, y)
+    assert np.all(np.abs(lat + 33.9) < 0.01)
+    x2, y2 = f.from_wgs84(lon, lat)
+    assert np.allclose(x2, x, atol=1e-6) and np.allclose(y2, y, atol=1e-6)
+
+
+def test_from_lonlat_l_shape_area():
+    f = Field.from_file(os.path.join(DATA, "l_field.geojson"))
+    g = Field.from_lonlat(json.load(open(os.path.join(DATA, "l_field.geojson")))
+                          ["features"][0]["geometry"]["coordinates"][0])
+    assert f.name == "l_field"
+    assert f.area_ha == pytest.approx(g.area_ha)
+    assert 6.0 < f.area_ha < 6.6  # 3 x 1.5 of 6.0 x 3.3 arc-second cells near 52 N
+
+
+@pytest.mark.parametrize("name", ["u_field.shp", "u_field.zip"])
+def test_shapefile_projected_with_prj(name):
+    f = Field.from_file(os.path.join(DATA, name))
+    assert f.crs.to_epsg() == 32632
+    assert f.area_ha == pytest.approx(8.99, abs=0.01)
+
+
+def test_projected_geojson_needs_crs(tmp_path):
+    utm = Field.rectangle(50, 80)
+    path = tmp_path / "utm.geojson"
+    coords = [list(map(float, c)) for c in utm.polygon.exterior.coords]
+    path.write_text(json.dumps({"type": "Polygon", "coordinates": [coords]}))
+    with pytest.raises(VehicleError, match="no CRS given"):
+        Field.from_file(str(path))
+    f = Field.from_file(str(path), crs="EPSG:32632")
+    assert f.area_ha == pytest.approx(0.4)
+
+
+@pytest.mark.parametrize("name, match", [
+    ("bowtie.geojson", "invalid: Self-intersection"),
+    ("empty.geojson", "no Polygon"),
+    ("missing.geojson", "not found"),
+])
+def test_bad_files_name_the_file(name, match):
+    with pytest.raises(VehicleError, match=match) as err:
+        Field.from_file(os.path.join(DATA, name))
+    assert name in str(err.value)
+
+
+def test_bad_extension_and_bad_json(tmp_path):
+    p = tmp_path / "f.kml"
+    p.write_text("x")
+    with pytest.raises(VehicleError, match="unknown extension"):
+        Field.from_file(str(p))
+    p = tmp_path / "f.geojson"
+    p.write_text("{not json")
+    with pytest.raises(VehicleError, match="not readable GeoJSON"):
+        Field.from_file(str(p))
+
+
+@pytest.mark.parametrize("w, l", [(0, 10), (-5, 10), (10, float("nan"))])
+def test_rectangle_rejects_bad_size(w, l):
+    with pytest.raises(VehicleError, match="must be > 0"):
+        Field.rectangle(w, l)
+
+
+def test_degenerate_and_empty_boundaries(tmp_path):
+    with pytest.raises(VehicleError, match="at least 3"):
+        Field.from_lonlat([(10, 52), (10.1, 52)])
+    with pytest.raises(VehicleError, match="invalid"):
+        Field.from_lonlat([(10, 52), (10.1, 52), (10.2, 52)])
+    p = tmp_path / "hollow.geojson"
+    p.write_text('{"type": "Polygon", "coordinates": []}')
+    with pytest.raises(VehicleError, match="hollow.geojson: boundary is empty"):
+        Field.from_file(str(p))
+
+
+def test_longest_edge_heading():
+    assert Field.rectangle(100, 400).longest_edge_heading_deg() == pytest.approx(0.0, abs=1e-6)
+    assert Field.rectangle(400, 100).longest_edge_heading_deg() == pytest.approx(90.0, abs=1e-6)
