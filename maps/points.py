@@ -173,7 +173,8 @@ def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid
     rows, cols = int(row.max()) + 1, int(col.max()) + 1
     check_size(rows, cols, max_cells, path)
     dx = _spacing(col, x)
-    dy = -_spacing(row, y)  # y falls as row rises
+    dy = _spacing(row, y)
+    dy = None if dy is None else -dy  # y falls as row rises
     if dx is None and dy is None:
         raise MapError(f"{path}: one point cannot define a cell size")
     dx, dy = dx or dy, dy or dx

@@ -109,7 +109,7 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
         return rate_field
     lower = {name.lower(): name for name in fields}
     for candidate in RATE_NAMES:
-        if candidate in lower and fields[lower[candidate]]:
+        if candidate in lower:  # by name even if not numeric: the error then names the bad value
             return lower[candidate]
     numeric = [name for name, is_num in fields.items() if is_num]
     if len(numeric) == 1:
