@@ -127,6 +127,38 @@ class PlantParams:
         return self.amplifier_gain_a_per_v * self.sensor_gain_v_per_rpm * self.shaft_rpm_per_a
 
 
+#: Why each value the paper does not give was chosen: (unit, reason). `assumptions` adds the values.
+ASSUMPTIONS = {
+    "motor_displacement_m3_per_rad": (
+        "m^3/rad", "Not in the paper. Only Kq/Dm matters; chosen so 1 A drives the unloaded motor at "
+        "1250 rpm (shaft 250 rpm at ratio 0.2, 25% above shaft_rpm_max). The paper's Kq = 1.87 m^3/(s A) "
+        "is about 10^4 times a real valve's, so Dm is scaled alike; the loop only sees Ka Ks Kq/Dm, "
+        "which the sensor fit absorbs."),
+    "sensor_gain_v_per_rpm": (
+        "V/rpm", "Not in the paper. Fitted together with sensor_delay_s so that vrsim's simulated "
+        "ultimate-gain experiment gives the paper's Ku = 0.955 (controller.tuning.fit_sensor)."),
+    "sensor_delay_s": (
+        "s", "Not in the paper. Transport delay of metering shaft and pulse-counting speed sensor, fitted "
+        "so the simulated experiment oscillates with the paper's Tu = 0.31 s. Without it the paper's "
+        "transfer functions (resonances at 184 and 335 rad/s) make the 50 ms P loop oscillate at the "
+        "Nyquist frequency, a 0.1 s period."),
+    "inertia_kg_m2": (
+        "kg m^2", "Not in the paper. Motor rotor plus reflected metering shaft; only scales the load-torque "
+        "path of eq. 12 (droop Kce/Dm^2 = 2 zh/(wh Jt)), which is zero unless a load torque is applied."),
+    "current_min_a": ("A", "Not in the paper. A 0-1 A proportional-valve coil; no reverse flow."),
+    "current_max_a": ("A", "Not in the paper. A 0-1 A proportional-valve coil."),
+    "shaft_rpm_max": (
+        "rpm", "Not in the paper. The default field (12 m, 2.5 m/s, 0.5 kg/rev) needs 108 rpm at "
+        "300 kg/ha; 200 rpm allows up to 555 kg/ha."),
+}
+
+
+def assumptions(p: PlantParams) -> dict[str, dict]:
+    """The assumed and fitted parameters of `p`: {name: {"value", "unit", "why"}}."""
+    return {name: {"value": getattr(p, name), "unit": unit, "why": why}
+            for name, (unit, why) in ASSUMPTIONS.items()}
+
+
 def state_space(p: PlantParams) -> tuple[np.ndarray, np.ndarray]:
     """Continuous model ``dx/dt = A x + B [current_a, load_torque_nm]``.
 

@@ -92,6 +92,27 @@ def fit_sensor(plant: PlantParams, ku: float, tu_s: float, control_period_s: flo
     return SensorFit(sensor_delay_s=delay, sensor_gain_v_per_rpm=ks, ku=ku, tu_s=tu_s)
 
 
+def ultimate_from_pulse(plant: PlantParams, control_period_s: float = 0.05) -> tuple[float, float]:
+    """(Ku, Tu) of the sampled P loop from its pulse transfer function: the first -180 degree crossing.
+
+    The frequency-domain counterpart of `ultimate_gain_experiment`, for cross-checks.
+    """
+    grid = np.linspace(1e-4, math.pi, 2000)
+    phase = np.unwrap(np.angle(pulse_response(plant, grid, control_period_s))) + math.pi
+    below = np.nonzero(phase <= 0)[0]
+    if len(below) == 0:
+        raise ControllerError("the sampled P loop never lags 180 degrees: no ultimate gain")
+    i = below[0]
+    if i == 0:
+        theta = grid[0]
+    else:
+        theta = brentq(lambda th: _phase_at(plant, th, control_period_s, plant.sensor_delay_s) + math.pi,
+                       grid[i - 1], grid[i])
+    gain = abs(pulse_response(plant, np.array([theta]), control_period_s)[0])
+    return 1.0 / (plant.amplifier_gain_a_per_v * plant.sensor_gain_v_per_rpm * gain), \
+        2 * math.pi * control_period_s / theta
+
+
 @dataclass(frozen=True)
 class UltimateResult:
     """Outcome of an ultimate-gain experiment.
@@ -123,7 +144,10 @@ def _growth_rate(y: np.ndarray, dt: float) -> np.ndarray:
     early = np.sqrt(np.mean(dy[:, q:2 * q] ** 2, axis=1))
     late = np.sqrt(np.mean(dy[:, -q:] ** 2, axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log(late / early) / ((dy.shape[1] - 2 * q) * dt)
+        rate = np.log(late / early) / ((dy.shape[1] - 2 * q) * dt)
+    # A loop that has come to rest (down to round-off) is as decaying as it gets.
+    at_rest = late <= 1e-9 * np.abs(y).max(axis=1)
+    return np.clip(np.where(at_rest | np.isnan(rate), -np.inf, rate), -1e6, 1e6)
 
 
 def _period(y: np.ndarray, dt: float) -> float:
