@@ -50,7 +50,7 @@ class PaperRun:
 
 def _finite(x) -> float | None:
     x = float(x)
-    return x if math.isfinite(x) else None
+    return (0.0 if abs(x) < 1e-9 else x) if math.isfinite(x) else None
 
 
 def _close(ours, paper) -> bool:
@@ -99,7 +99,7 @@ def _findings(summary: dict) -> list[str]:
         verdict = f"reproduces its {' and '.join(got)}" if got else "reproduces neither figure"
         lines.append(
             f"{kind} with the paper's gains: vrsim {verdict} (vrsim {e['overshoot_pct']:.4g}% / "
-            f"{e['settling_s']}s vs paper {e['paper_overshoot_pct']}% / {e['paper_settling_s']} s). These "
+            f"{e['settling_s']} s vs paper {e['paper_overshoot_pct']}% / {e['paper_settling_s']} s). These "
             f"figures were not fitted; the difference is what the model predicts, not tuned away.")
     lines.append(
         "Overshoot at 1 kHz includes the motor's lightly damped resonance (zh = 0.12) rung by each 50 ms "
@@ -108,7 +108,7 @@ def _findings(summary: dict) -> list[str]:
     lines.append(
         f"Textbook Ziegler-Nichols PID (Td = Tu/8, C = {tb['gains']['C']:.3g}) on this delay-dominated loop: "
         f"{tb['overshoot_pct']:.4g}% overshoot, settling {tb['settling_s']} s; the textbook PI "
-        f"({summary['textbook']['PI']['overshoot_pct']:.3g}%) is the best-damped of the six.")
+        f"({summary['textbook']['PI']['overshoot_pct']:.3g}% overshoot) is the best-damped of the six.")
     return lines
 
 

@@ -1,0 +1,99 @@
+"""`vrsim paper`: the seed paper's experiment on vrsim's model, side by side with the paper's figures."""
+
+from __future__ import annotations
+
+import json
+import os
+
+from common import VrsimError
+
+HELP = "reproduce Liang et al. 2013: ultimate gain and P/PI/PID step responses, paper vs vrsim"
+DEFAULT_OUT = os.path.join("runs", "paper")
+
+
+def configure(parser) -> None:
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    parser.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                        help=f"directory for step_responses.png (default: {DEFAULT_OUT})")
+
+
+def _fmt(x, spec=".4g") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def table(summary: dict) -> str:
+    """The side-by-side text report of `summary` (as returned by `controller.paper_experiment`)."""
+    u = summary["ultimate"]
+    lines = [
+        "Liang et al. 2013, valve-controlled hydraulic motor: paper vs vrsim",
+        "",
+        f"{'ultimate gain experiment':<28}{'paper':>10}{'vrsim':>10}",
+        f"{'  Ku [V/V]':<28}{u['paper_Ku']:>10.4g}{u['Ku']:>10.4g}",
+        f"{'  Tu [s]':<28}{u['paper_Tu_s']:>10.4g}{u['Tu_s']:>10.4g}",
+        f"  relay auto-tune on the model: Ku {u['relay_Ku']:.4g}, Tu {u['relay_Tu_s']:.4g} s; "
+        f"without the fitted delay: Ku {u['without_delay_Ku']:.4g}, Tu {u['without_delay_Tu_s']:.4g} s",
+        "",
+        f"{'step response (2% settling)':<28}{'overshoot %':>24}{'settling s':>24}",
+        f"{'':<28}{'paper':>8}{'vrsim':>8}{'50ms':>8}{'paper':>12}{'vrsim':>12}",
+    ]
+    for label, group in (("paper gains", summary), ("textbook Z-N", summary["textbook"])):
+        for kind in ("P", "PI", "PID"):
+            e = group[kind]
+            lines.append(f"  {label + ' ' + kind:<26}{_fmt(e['paper_overshoot_pct'], '.2f'):>8}"
+                         f"{_fmt(e['overshoot_pct'], '.2f'):>8}{_fmt(e['overshoot_pct_50ms_mean'], '.2f'):>8}"
+                         f"{_fmt(e['paper_settling_s'], '.3f'):>12}{_fmt(e['settling_s'], '.3f'):>12}")
+    lines += ["", "(50ms: overshoot of the speed averaged over each control period)", "", "Findings:"]
+    lines += [f"- {f}" for f in summary["findings"]]
+    lines += ["", "Assumptions (value, unit):"]
+    lines += [f"- {name} = {a['value']} {a['unit']}: {a['why']}"
+              for name, a in summary["assumptions"].items()]
+    return "\n".join(lines)
+
+
+def plot(run, path: str) -> None:
+    """Write the three step responses (like the paper's Figs. 5-7) to `path` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
+    for ax, kind in zip(axes, ("P", "PI", "PID"), strict=True):
+        e = run.summary[kind]
+        ax.plot(run.t_s, run.responses[kind], lw=0.8, label=f"paper gains ({_fmt(e['overshoot_pct'])}% / "
+                f"{_fmt(e['settling_s'])} s)")
+        tb = run.summary["textbook"][kind]
+        ax.plot(run.t_s, run.responses[f"textbook {kind}"], lw=0.8, alpha=0.8,
+                label=f"textbook Z-N ({_fmt(tb['overshoot_pct'])}% / {_fmt(tb['settling_s'])} s)")
+        ax.axhline(run.summary["assumptions"]["step_rpm"]["value"], color="k", lw=0.6, ls="--")
+        ax.set_title(f"{kind}: paper reports {e['paper_overshoot_pct']}% overshoot, "
+                     f"{e['paper_settling_s']} s settling")
+        ax.set_ylabel("shaft speed [rpm]")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlim(0, 8)
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(args) -> int:
+    from controller.experiment import run_paper
+
+    try:
+        os.makedirs(args.out, exist_ok=True)
+    except OSError as exc:
+        raise VrsimError(f"--out {args.out!r}: cannot create the directory ({exc.strerror})") from None
+    result = run_paper()
+    png = os.path.join(args.out, "step_responses.png")
+    try:
+        plot(result, png)
+    except OSError as exc:
+        raise VrsimError(f"--out {args.out!r}: cannot write {png} ({exc.strerror})") from None
+    if args.json:
+        print(json.dumps(result.summary, allow_nan=False))
+    else:
+        print(table(result.summary))
+        print(f"\nwrote {png}")
+    return 0
