@@ -76,7 +76,10 @@ def run(args) -> int:
 
 
 def _child_argv(args, options: zc.ZenohOptions, name: str) -> list[str]:
-    argv = [sys.executable, "-m", "services.cli", "serve", name, *options.child_args()]
+    argv = [sys.executable, "-m", "services.cli", "serve", name]
+    if name == "map" and args.map is None and args.scenario is not None:
+        argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
+    argv += options.child_args()
     if name == "map":
         if args.map is not None:
             argv += ["--map", os.path.abspath(args.map)]
@@ -84,8 +87,6 @@ def _child_argv(args, options: zc.ZenohOptions, name: str) -> list[str]:
                                 ("--crs", args.crs)):
                 if value is not None:
                     argv += [flag, str(value)]
-        elif args.scenario is not None:
-            argv.append(_abs_if_file(args.scenario))
     if name == "monitor" and args.db is not None:
         argv += ["--db", os.path.abspath(args.db)]
     return argv

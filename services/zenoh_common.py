@@ -136,7 +136,8 @@ def open_session(options: ZenohOptions, default_mode: str = "client"):
     try:
         return zenoh.open(options.config(default_mode))
     except zenoh.ZError as exc:
-        raise ServiceError(f"cannot open a zenoh session ({options.describe(default_mode)}): {exc}; "
+        reason = str(exc).split("  at ")[0].rstrip(". ")  # drop zenoh's Rust source location
+        raise ServiceError(f"cannot open a zenoh session ({options.describe(default_mode)}): {reason}; "
                            "is `vrsim serve all` running, or is the port taken?") from None
 
 
@@ -314,13 +315,14 @@ def key_name(key) -> str:
 Handler = Callable[[Params, bytes | None], bytes]
 
 
-def serve(session, namespace: str, handlers: dict[str, Handler], strip: str, service: str):
+def serve(session, namespace: str, handlers: dict[str, Handler], strip: str, service: str,
+          hint: str | None = None):
     """Declare one queryable over ``namespace`` that dispatches on the key's tail after ``strip``.
 
     A handler takes (params, payload bytes or None) and returns the reply payload. A `VrsimError`
     (bad input) becomes an error reply ``{"error": message}``; any other exception also becomes one
     (prefixed "internal error", traceback on stderr) so no query is left unanswered and the service
-    keeps serving.
+    keeps serving. ``hint`` replaces the list of keys in the unknown-key message.
     """
 
     def on_query(query) -> None:
@@ -330,7 +332,7 @@ def serve(session, namespace: str, handlers: dict[str, Handler], strip: str, ser
             handler = handlers.get(tail)
             if handler is None:
                 known = ", ".join(strip + t for t in sorted(handlers))
-                raise ServiceError(f"{key}: unknown key (the {service} service serves {known})")
+                raise ServiceError(f"{key}: unknown key ({hint or f'the {service} service serves {known}'})")
             payload = query.payload.to_bytes() if query.payload is not None else None
             reply = handler(Params(key, query.parameters), payload)
             query.reply(query.key_expr, reply)

@@ -1,0 +1,228 @@
+"""The monitor service: records every pose, shaft and rate sample in SQLite and reports applied
+versus prescribed (``vrsim serve monitor``).
+
+Every message it receives is committed to a local SQLite database (WAL) before the next one is read,
+so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
+``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
+`services.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
+as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored).
+"""
+
+from __future__ import annotations
+
+import os
+import sqlite3
+import threading
+import time
+
+import numpy as np
+
+from common import ServiceError
+from services import messages
+from services.zenoh_common import Params, ZenohOptions, dumps, guarded, run_service, serve
+
+STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
+SCHEMA_VERSION = 1
+
+
+def _columns(cls) -> list[str]:
+    return [name for name, _, _ in cls._spec if name not in ("run_id", "tick")]
+
+
+class MonitorStore:
+    """The monitor's SQLite database: runs, and one table per stream keyed by (run_id, tick).
+
+    Parameters
+    ----------
+    path : str
+        Database file; created with its folder if missing.
+    """
+
+    def __init__(self, path: str):
+        self.path = path
+        folder = os.path.dirname(os.path.abspath(path))
+        try:
+            os.makedirs(folder, exist_ok=True)
+            self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
+            self.db.execute("PRAGMA journal_mode=WAL")
+            # NORMAL in WAL mode: a committed transaction survives the process being killed.
+            self.db.execute("PRAGMA synchronous=NORMAL")
+            self._create()
+        except sqlite3.Error as exc:
+            raise ServiceError(f"--db {path}: cannot open the monitor database: {exc}") from None
+        self.lock = threading.Lock()  # subscriber threads and the report query share the connection
+
+    def _create(self) -> None:
+        db = self.db
+        db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
+        db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        db.execute("CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, "
+                   "run_id TEXT UNIQUE, scenario_text TEXT, source TEXT, base_dir TEXT, clock TEXT, "
+                   "started_unix REAL, last_unix REAL)")
+        for table, cls in STREAMS.items():
+            cols = ", ".join(f"{c} REAL" for c in _columns(cls))
+            db.execute(f"CREATE TABLE IF NOT EXISTS {table} (run_id TEXT, tick INTEGER, {cols}, "
+                       "PRIMARY KEY (run_id, tick)) WITHOUT ROWID")
+
+    def add_run(self, start: messages.RunStart) -> None:
+        with self.lock:
+            self.db.execute("INSERT OR REPLACE INTO runs (run_id, scenario_text, source, base_dir, clock, "
+                            "started_unix, last_unix) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                            (start.run_id, start.scenario_text, start.source, start.base_dir, start.clock,
+                             time.time(), time.time()))
+
+    def add(self, table: str, records: list) -> None:
+        """Store one message's records in one transaction (duplicates replace: idempotent)."""
+        cols = _columns(STREAMS[table])
+        rows = [(r.run_id, r.tick, *(getattr(r, c) for c in cols)) for r in records]
+        marks = ", ".join("?" * (len(cols) + 2))
+        with self.lock:
+            self.db.execute("BEGIN")
+            try:
+                self.db.executemany(f"INSERT OR REPLACE INTO {table} VALUES ({marks})", rows)
+                self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
+                                (time.time(), records[0].run_id))
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+
+    def run(self, run_id: str | None = None) -> dict:
+        """The run ``run_id`` (default: the latest started) as a dict of its `runs` row."""
+        query = "SELECT run_id, scenario_text, source, base_dir, clock, started_unix, last_unix FROM runs "
+        with self.lock:
+            if run_id is None:
+                row = self.db.execute(query + "ORDER BY seq DESC LIMIT 1").fetchone()
+            else:
+                row = self.db.execute(query + "WHERE run_id = ?", (run_id,)).fetchone()
+        if row is None:
+            what = "no run recorded yet" if run_id is None else f"no run {run_id!r}"
+            raise ServiceError(f"monitor: {what} in {self.path}")
+        return dict(zip(("run_id", "scenario_text", "source", "base_dir", "clock", "started_unix",
+                         "last_unix"), row, strict=True))
+
+    def counts(self, run_id: str) -> dict[str, int]:
+        """Records per stream, and ``complete``: ticks with all three stored."""
+        with self.lock:
+            out = {t: self.db.execute(f"SELECT COUNT(*) FROM {t} WHERE run_id = ?", (run_id,)).fetchone()[0]
+                   for t in STREAMS}
+            out["complete"] = self.db.execute(
+                "SELECT COUNT(*) FROM pose JOIN shaft USING (run_id, tick) JOIN rate USING (run_id, tick) "
+                "WHERE run_id = ?", (run_id,)).fetchone()[0]
+        return out
+
+    def arrays(self, run_id: str) -> tuple[dict, dict]:
+        """Track and control arrays (the shapes `services.run.account` takes) over the complete ticks:
+        0..n-1 with pose, shaft and rate all stored."""
+        pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
+        shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
+        rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg")
+        select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
+                           + [f"r.{c}" for c in rate_cols])
+        with self.lock:
+            rows = self.db.execute(
+                f"SELECT p.tick, {select} FROM pose p JOIN shaft s USING (run_id, tick) "
+                "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
+        table = np.array(rows, dtype=np.float64).reshape(len(rows), 1 + len(pose_cols) + 8)
+        ticks = table[:, 0]
+        # The complete prefix 0..n-1: a tick still in flight on one stream ends it.
+        gaps = np.flatnonzero(ticks != np.arange(len(ticks)))
+        n = int(gaps[0]) if len(gaps) else len(ticks)
+        cols = table[:n, 1:]
+        track = {c: cols[:, i] for i, c in enumerate(pose_cols)}
+        track["implement_on"] = track["implement_on"].astype(bool)
+        k = len(pose_cols)
+        control = {c: cols[:, k + i] for i, c in enumerate(shaft_cols + rate_cols)}
+        return track, control
+
+
+class MonitorService:
+    """Handlers of the monitor: ingest the streams, report, status, load a run."""
+
+    def __init__(self, store: MonitorStore):
+        self.store = store
+        self.worlds: dict[str, object] = {}  # run_id -> World, rebuilt once per run from its text
+        self.report_lock = threading.Lock()
+
+    def ingest(self, table: str):
+        cls = STREAMS[table]
+
+        def on_sample(sample) -> None:
+            self.store.add(table, messages.decode_batch(cls, sample.payload.to_bytes()))
+
+        return on_sample
+
+    def load(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        start = messages.RunStart.from_json(payload)
+        self.store.add_run(start)
+        return dumps({"loaded": True, "run_id": start.run_id})
+
+    def status(self, params: Params, payload: bytes | None) -> bytes:
+        params.only("run_id")
+        run = self.store.run(params.text("run_id"))
+        counts = self.store.counts(run["run_id"])
+        return messages.MonitorStatus(run["run_id"], counts["pose"], counts["shaft"], counts["rate"],
+                                      counts["complete"], self.store.path).to_json()
+
+    def report(self, params: Params, payload: bytes | None) -> bytes:
+        params.only("run_id")
+        with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
+            return dumps(self._report(params.text("run_id")))
+
+    def _report(self, run_id: str | None) -> dict:
+        from services.run import account
+
+        t0 = time.perf_counter()
+        run = self.store.run(run_id)
+        track, control = self.store.arrays(run["run_id"])
+        n = len(track["time_s"])
+        if n < 2:
+            raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
+        t1 = time.perf_counter()
+        world = self._world(run)
+        t2 = time.perf_counter()
+        summary, _ = account(world, track, control, t2)
+        wall = max(run["last_unix"] - run["started_unix"], 1e-9)
+        summary["wall_time_s"] = wall
+        summary["realtime_factor"] = summary["sim_time_s"] / wall
+        summary["stage_s"] = {"read_s": t1 - t0, "build_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
+        summary["outputs_wall_s"] = 0.0
+        summary["out_dir"] = self.store.path  # where the records are (the monitor writes no other output)
+        return summary
+
+    def _world(self, run: dict):
+        world = self.worlds.get(run["run_id"])
+        if world is None:
+            from services import scenario
+            from services.run import build_world
+
+            world = build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
+            self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
+        return world
+
+    def machine_handlers(self) -> dict:
+        return {"report": self.report}
+
+    def handlers(self) -> dict:
+        return {"load": self.load, "status": self.status}
+
+
+def main(options: ZenohOptions, db_path: str, stop: threading.Event | None = None) -> None:
+    """Serve the monitor on ``db_path`` until SIGINT/SIGTERM (or ``stop``)."""
+    store = MonitorStore(db_path)
+    svc = MonitorService(store)
+    keys = options.keys
+    base = f"{keys.prefix}/{keys.machine}/"
+
+    def declare(session):
+        subs = [session.declare_subscriber(getattr(keys, t), guarded("monitor", svc.ingest(t)))
+                for t in STREAMS]
+        return [*subs,
+                serve(session, keys.machine_ns, svc.machine_handlers(), base, "monitor"),
+                serve(session, keys.monitor_ns, svc.handlers(), base + "monitor/", "monitor")]
+
+    try:
+        run_service("monitor", options, declare, stop=stop)
+    finally:
+        store.db.close()

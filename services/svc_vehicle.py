@@ -1,0 +1,177 @@
+"""The vehicle service: drives the tractor in SUMO and publishes its pose (``vrsim serve vehicle``).
+
+The only process that runs SUMO (libsumo holds one simulation per process). A run is started by
+scenario control through ``<prefix>/<machine>/vehicle/start`` (body: `messages.RunStart`); a worker
+thread then steps `vehicle.SumoDriver` one control period at a time, takes the GNSS fix
+(`vehicle.Gnss.fix`, the same numbers as the vectorized ``measure`` of ``vrsim run``), publishes
+``<prefix>/<machine>/pose`` and sends the same poses to ``.../control/step``, waiting for its reply
+before driving on. Clocks: ``lockstep`` batches ``ticks_per_message`` ticks per message and runs as
+fast as the controller answers; ``realtime`` sends every tick when simulation time, divided by the
+speed factor, reaches the wall clock.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+import traceback
+
+from common import ServiceError, VrsimError
+from services import messages
+from services.zenoh_common import Params, ZenohOptions, error_message, run_service, serve
+
+STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
+
+
+class VehicleService:
+    """Run state and handlers of the vehicle service; the drive loop runs in a worker thread."""
+
+    def __init__(self, session, keys, publish_pose):
+        self.session, self.keys, self.publish_pose = session, keys, publish_pose
+        self.lock = threading.Lock()
+        self.status = messages.RunStatus("idle", "", "", "", 0, 0.0, 0.0, "")
+        self.stop_flag = threading.Event()
+        self.worker: threading.Thread | None = None
+        self.wall0 = time.monotonic()
+
+    # ------------------------------------------------------------------ handlers
+    def start(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        start = messages.RunStart.from_json(payload)
+        with self.lock:
+            if self.status.state in ("starting", "running"):
+                raise ServiceError(f"{params.key}: run {self.status.run_id} is {self.status.state}; "
+                                   "stop it first")
+            from services import scenario
+            from services.run import build_world
+
+            sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
+            world = build_world(sc)
+            self.stop_flag.clear()
+            self.wall0 = time.monotonic()
+            self.status = messages.RunStatus("starting", start.run_id, sc.name, start.clock, 0, 0.0, 0.0, "")
+            self.worker = threading.Thread(target=self._run, args=(start, world), name="vrsim-drive",
+                                           daemon=True)
+            self.worker.start()
+            return self.status.to_json()
+
+    def stop(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        self.stop_flag.set()
+        worker = self.worker
+        if worker is not None:
+            worker.join(timeout=5.0)
+        return self._status_json()
+
+    def get_status(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        return self._status_json()
+
+    def _status_json(self) -> bytes:
+        with self.lock:
+            st = self.status
+            if st.state in ("starting", "running"):
+                st.wall_s = time.monotonic() - self.wall0
+            return st.to_json()
+
+    def handlers(self) -> dict:
+        return {"start": self.start, "stop": self.stop, "status": self.get_status}
+
+    def close(self) -> None:
+        self.stop_flag.set()
+        if self.worker is not None:
+            self.worker.join(timeout=5.0)
+
+    # ------------------------------------------------------------------ the drive loop
+    def _set(self, **changes) -> None:
+        with self.lock:
+            for name, value in changes.items():
+                setattr(self.status, name, value)
+            self.status.wall_s = time.monotonic() - self.wall0
+
+    def _run(self, start: messages.RunStart, world) -> None:
+        try:
+            state = self._drive(start, world)
+            self._set(state=state)
+        except VrsimError as exc:
+            self._set(state="failed", error=str(exc))
+        except Exception as exc:  # noqa: BLE001 - a bug: the run fails visibly, the service lives on
+            traceback.print_exc(file=sys.stderr)
+            self._set(state="failed", error=f"internal error: {type(exc).__name__}: {exc}")
+
+    def _drive(self, start: messages.RunStart, world) -> str:
+        from vehicle import Gnss, SumoDriver
+
+        sc = world.scenario
+        period = sc.timing.control_period_s
+        max_ticks = int(sc.timing.max_sim_time_s / period)
+        realtime = start.clock == "realtime"
+        per_message = 1 if realtime else start.ticks_per_message
+        querier = self.session.declare_querier(self.keys.control_step, timeout=STEP_TIMEOUT_S)
+        try:
+            with SumoDriver(world.path, sc.tractor, step_s=period, seed=sc.seed) as driver:
+                gnss = Gnss(sc.gnss, seed=sc.seed)
+                self._set(state="running")
+                wall0, batch, tick = time.monotonic(), [], 0
+                while not driver.finished:
+                    if self.stop_flag.is_set():
+                        self._flush(querier, batch)
+                        return "stopped"
+                    if tick >= max_ticks:
+                        raise ServiceError(f"run {start.run_id}: not finished after [timing] "
+                                           f"max_sim_time_s = {sc.timing.max_sim_time_s:g} s")
+                    p = driver.step()
+                    mx, my = gnss.fix(p.time_s, p.x_m, p.y_m)
+                    batch.append(messages.Pose(start.run_id, tick, p.time_s, p.x_m, p.y_m, mx, my,
+                                               p.heading_rad, p.speed_m_s, bool(p.implement_on)))
+                    tick += 1
+                    if realtime:
+                        delay = wall0 + p.time_s / start.speed - time.monotonic()
+                        if delay > 0:
+                            time.sleep(delay)
+                    if len(batch) >= per_message:
+                        self._flush(querier, batch)
+                        self._set(ticks=tick, sim_time_s=p.time_s)
+                        batch = []
+                self._flush(querier, batch)
+                self._set(ticks=tick, sim_time_s=tick * period)
+            return "finished"
+        finally:
+            querier.undeclare()
+
+    def _flush(self, querier, batch: list) -> None:
+        """Publish the poses and wait until the controller has processed them."""
+        if not batch:
+            return
+        payload = messages.encode_batch(batch)
+        self.publish_pose(payload)
+        replies = list(querier.get(payload=payload))
+        for reply in replies:
+            if reply.ok is not None:
+                return
+        key = self.keys.control_step
+        if not replies:
+            raise ServiceError(f"{key}: no controller answered at tick {batch[0].tick} "
+                               "(controller not alive)")
+        message = error_message(replies[0].err.payload.to_bytes())
+        if message.lower().startswith("timeout"):
+            message = f"no reply within {STEP_TIMEOUT_S:g} s"
+        raise ServiceError(f"{key}: controller failed at tick {batch[0].tick}: {message}")
+
+
+def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
+    """Serve the vehicle until SIGINT/SIGTERM (or ``stop``)."""
+    import zenoh
+
+    keys = options.keys
+
+    def declare(session):
+        pub = session.declare_publisher(keys.pose, congestion_control=zenoh.CongestionControl.BLOCK)
+        svc = VehicleService(session, keys, pub.put)
+        queryable = serve(session, keys.vehicle_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/vehicle/",
+                          "vehicle")
+        return [queryable, svc, pub]
+
+    run_service("vehicle", options, declare, stop=stop)
+
