@@ -11,9 +11,11 @@ from vehicle.field import Field
 from vehicle.gnss import Gnss, GnssConfig
 from vehicle.implement import DelayLine, Implement
 from vehicle.network import build_network, default_cache_dir, find_netconvert
+from vehicle.record import vehicle_record
+from vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
 
 __all__ = [
     "CoveragePath", "DelayLine", "DriveConfig", "Field", "Gnss", "GnssConfig", "Implement", "Pose",
-    "Segment", "SpeedVariation", "SumoDriver", "build_network", "default_cache_dir", "find_netconvert",
-    "plan_coverage",
+    "Segment", "SpeedSensor", "SpeedSensorConfig", "SpeedVariation", "SumoDriver", "build_network",
+    "default_cache_dir", "find_netconvert", "plan_coverage", "vehicle_record",
 ]

@@ -1,0 +1,86 @@
+"""Pure parts of driving: configuration, speed variation, speed sensor, record (no SUMO here)."""
+
+import numpy as np
+import pytest
+
+from common.errors import VehicleError
+from vehicle import (
+    DriveConfig,
+    Field,
+    Gnss,
+    GnssConfig,
+    SpeedSensor,
+    SpeedSensorConfig,
+    SpeedVariation,
+    vehicle_record,
+)
+
+
+def test_drive_config_defaults_and_edge_speeds():
+    d = DriveConfig()
+    assert d.max_speed_m_s == pytest.approx(2.5 * 1.05)
+    assert d.edge_speeds_m_s(["headland", "turn", "swath"]) == [d.max_speed_m_s, 1.2, d.max_speed_m_s]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(working_speed_m_s=0), "working_speed_m_s must be a number > 0"),
+    (dict(turn_speed_m_s=-1), "turn_speed_m_s"),
+    (dict(accel_m_s2=float("nan")), "accel_m_s2"),
+    (dict(speed_variation_pct=-1), "speed_variation_pct"),
+    (dict(speed_variation_pct=80), "speed_variation_pct"),
+    (dict(implement_offset_m=3.0), "implement_offset_m=3.0 must be >= vehicle_length_m"),
+    (dict(working_speed_m_s=30.0), "not a field speed"),
+])
+def test_drive_config_validation(kwargs, match):
+    with pytest.raises(VehicleError, match=match):
+        DriveConfig(**kwargs)
+
+
+def test_speed_variation_is_seeded_slow_and_bounded():
+    a = [SpeedVariation(5.0, 20.0, 1.0, seed=1).next() for _ in range(1)]
+    v = SpeedVariation(5.0, 20.0, 1.0, seed=1)
+    xs = np.array([v.next() for _ in range(5000)])
+    assert xs[0] == a[0]
+    assert xs.min() >= 0.95 and xs.max() <= 1.05
+    assert 0.01 < np.std(xs) < 0.03
+    assert np.corrcoef(xs[:-1], xs[1:])[0, 1] > 0.9  # slow: one-second steps barely change it
+    w = SpeedVariation(5.0, 20.0, 1.0, seed=2)
+    assert [w.next() for _ in range(3)] != xs[:3].tolist()
+
+
+@pytest.mark.parametrize("kind", ["radar", "wheel", "perfect"])
+def test_speed_sensor_per_tick_equals_vectorized(kind):
+    t = 1.0 + np.arange(4000) * 0.03
+    v = 2.5 + 0.2 * np.sin(t)
+    cfg = SpeedSensorConfig(kind, rate_hz=10.0)
+    vec = SpeedSensor(cfg, seed=5).measure(t, v)
+    s = SpeedSensor(cfg, seed=5)
+    tick = np.array([s.read(a, b) for a, b in zip(t.tolist(), v.tolist(), strict=True)])
+    assert np.array_equal(vec, tick)
+    rel = vec / v - 1
+    sigma, bias = {"radar": (0.01, 0.0), "wheel": (0.005, 0.03), "perfect": (0.0, 0.0)}[kind]
+    assert np.mean(rel) == pytest.approx(bias, abs=0.002 + sigma * 0.1)
+    assert np.std(rel) <= sigma * 1.2 + 0.004  # + the sample-and-hold lag on a changing speed
+
+
+def test_speed_sensor_validation():
+    with pytest.raises(VehicleError, match="kind must be one of"):
+        SpeedSensorConfig("laser")
+    with pytest.raises(VehicleError, match="rate_hz"):
+        SpeedSensorConfig(rate_hz=0)
+    with pytest.raises(VehicleError, match="strictly increasing"):
+        SpeedSensor().measure([1.0, 1.0], [2.0, 2.0])
+
+
+def test_vehicle_record_columns():
+    field = Field.rectangle(100.0, 100.0)
+    x0, y0 = field.polygon.bounds[:2]
+    t = np.arange(1, 201) * 0.05
+    track = {"time_s": t, "x_m": x0 + 10 + t, "y_m": np.full_like(t, y0 + 50),
+             "heading_rad": np.zeros_like(t),
+             "speed_m_s": np.ones_like(t), "implement_on": np.ones_like(t, dtype=bool)}
+    rec = vehicle_record(field, track, Gnss(GnssConfig("dgps"), seed=1), SpeedSensor(seed=1))
+    assert set(rec) >= {"lon_deg", "lat_deg", "x_meas_m", "lon_meas_deg", "speed_meas_m_s"}
+    assert all(len(v) == len(t) for v in rec.values())
+    assert np.all(np.abs(rec["lat_deg"] - 52.0) < 0.001)
+    assert 0 < np.max(np.abs(rec["x_meas_m"] - rec["x_m"])) < 3.0

@@ -1,0 +1,114 @@
+"""The ground-speed sensor the rate controller reads: radar, wheel or perfect.
+
+Model: the sensor samples the true speed at ``rate_hz`` and holds it; each sample reads
+``v * (1 + bias + sigma * w)`` with ``w`` seeded standard normal noise. A radar is unbiased with about
+1 % noise; a wheel sensor over-reads by the wheel slip (about 3 %) with less noise. `SpeedSensor.measure`
+(a whole track) and `SpeedSensor.read` (one tick) give identical numbers for the same seed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.errors import VehicleError
+
+# (noise 1-sigma, bias) as fractions of the true speed
+CLASSES = {"perfect": (0.0, 0.0), "radar": (0.01, 0.0), "wheel": (0.005, 0.03)}
+
+
+@dataclass(frozen=True)
+class SpeedSensorConfig:
+    """A speed sensor.
+
+    Attributes
+    ----------
+    kind : str
+        "radar", "wheel" or "perfect".
+    rate_hz : float
+        Sample rate, Hz.
+    noise_pct, bias_pct : float, optional
+        Override the class's 1-sigma noise and bias, percent of the true speed.
+    """
+
+    kind: str = "radar"
+    rate_hz: float = 10.0
+    noise_pct: float | None = None
+    bias_pct: float | None = None
+
+    def __post_init__(self):
+        if self.kind not in CLASSES:
+            raise VehicleError(f"SpeedSensorConfig: kind must be one of {', '.join(CLASSES)}, "
+                               f"got {self.kind!r}")
+        checks = [("rate_hz", self.rate_hz, 0.0, 1000.0, True)]
+        if self.noise_pct is not None:
+            checks.append(("noise_pct", self.noise_pct, 0.0, 50.0, False))
+        if self.bias_pct is not None:
+            checks.append(("bias_pct", self.bias_pct, -50.0, 50.0, False))
+        for name, value, lo, hi, open_lo in checks:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            if not (ok and (value > lo if open_lo else value >= lo) and value <= hi):
+                raise VehicleError(f"SpeedSensorConfig: {name} must be a number in "
+                                   f"{'(' if open_lo else '['}{lo}, {hi}], got {value!r}")
+
+    @property
+    def sigma(self) -> float:
+        return CLASSES[self.kind][0] if self.noise_pct is None else self.noise_pct / 100.0
+
+    @property
+    def bias(self) -> float:
+        return CLASSES[self.kind][1] if self.bias_pct is None else self.bias_pct / 100.0
+
+
+class SpeedSensor:
+    """A seeded `SpeedSensorConfig` sensor."""
+
+    def __init__(self, config: SpeedSensorConfig | None = None, seed: int = 1):
+        self.config = config or SpeedSensorConfig()
+        if not isinstance(self.config, SpeedSensorConfig):
+            raise VehicleError("SpeedSensor: config must be a SpeedSensorConfig, "
+                               f"got {type(config).__name__}")
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
+            raise VehicleError(f"SpeedSensor: seed must be an integer >= 0, got {seed!r}")
+        self.seed = int(seed)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new track from the same seed."""
+        self._rng = np.random.default_rng(self.seed)
+        self._t0 = None
+        self._j = -1
+        self._value = 0.0
+
+    def _sample_index(self, t, floor=np.floor):
+        return floor((t - self._t0) * self.config.rate_hz + 1e-9)
+
+    def measure(self, time_s, speed_m_s) -> np.ndarray:
+        """Measured speed (m/s) for a whole track of increasing ``time_s`` (s); starts a new track."""
+        t, v = np.asarray(time_s, dtype=float), np.asarray(speed_m_s, dtype=float)
+        if not (t.ndim == 1 and t.shape == v.shape and len(t) > 0):
+            raise VehicleError(f"SpeedSensor.measure: time_s and speed_m_s must be 1-D of one length, "
+                               f"got {t.shape}, {v.shape}")
+        if len(t) > 1 and not np.all(np.diff(t) > 0):
+            raise VehicleError("SpeedSensor.measure: time_s must be strictly increasing")
+        self.reset()
+        self._t0 = t[0]
+        j = self._sample_index(t).astype(int)
+        w = self._rng.standard_normal(j[-1] + 1)
+        first = np.concatenate([[True], j[1:] != j[:-1]])  # the tick at which each sample is taken
+        sampled = v[first] * (1.0 + self.config.bias + self.config.sigma * w[j[first]])
+        return sampled[np.cumsum(first) - 1]
+
+    def read(self, time_s: float, speed_m_s: float) -> float:
+        """Measured speed (m/s) at one tick; call with increasing ``time_s``."""
+        t = float(time_s)
+        if self._t0 is None:
+            self._t0 = t
+        j = int(self._sample_index(t, math.floor))
+        if j > self._j:
+            w = self._rng.standard_normal(j - self._j)[-1]  # samples skipped between ticks draw too
+            self._value = float(speed_m_s * (1.0 + self.config.bias + self.config.sigma * w))
+            self._j = j
+        return self._value
