@@ -232,7 +232,8 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
         bad |= (np.abs(second) > 90.0) | (np.abs(first) > 180.0)
     if bad.any():
         i = int(np.argmax(bad))
-        raise ServiceError(f"map/rate batch: point {i} ({names[0]}={first[i]!r}, {names[1]}={second[i]!r}) "
+        raise ServiceError(f"map/rate batch: point {i} ({names[0]}={float(first[i])!r}, "
+                           f"{names[1]}={float(second[i])!r}) "
                            f"is not finite{' or out of range' if geo else ''}")
     return first, second, geo
 

@@ -1,0 +1,121 @@
+"""The message schemas of the Zenoh API: round trips, NaN as null, and errors that name the field."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from common import ServiceError
+from services import messages
+from services.messages import MapRate, Pose, RateSample, RunStart, ShaftState
+
+
+def pose(tick=0, **changes):
+    fields = dict(run_id="r1", tick=tick, time_s=0.05 * (tick + 1), x_m=678001.25, y_m=5775002.5,
+                  measured_x_m=678001.3, measured_y_m=5775002.4, heading_rad=1.5707963267948966,
+                  speed_m_s=2.2222222222222223, implement_on=True)
+    fields.update(changes)
+    return Pose(**fields)
+
+
+def test_pose_round_trip_is_exact():
+    p = pose(7)
+    back = Pose.from_json(p.to_json())
+    assert back == p
+    assert json.loads(p.to_json())["speed_m_s"] == 2.2222222222222223  # shortest repr: no digits lost
+
+
+def test_nan_travels_as_null_and_comes_back_as_nan():
+    r = RateSample("r1", 3, 0.2, 1.0, 2.0, math.nan, math.inf, 0.01, False)
+    doc = json.loads(r.to_json())
+    assert doc["prescribed_kg_ha"] is None and doc["applied_kg_ha"] is None
+    back = RateSample.from_json(r.to_json())
+    assert math.isnan(back.prescribed_kg_ha) and math.isnan(back.applied_kg_ha)
+    assert back.metered_kg == 0.01
+
+
+def test_optional_fields_stay_none():
+    m = MapRate(None, False, None, None)
+    assert MapRate.from_json(m.to_json()) == m
+    assert json.loads(m.to_json()) == {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
+
+
+def test_batch_round_trip_and_single_object_is_a_batch_of_one():
+    batch = [pose(i) for i in range(5)]
+    assert messages.decode_batch(Pose, messages.encode_batch(batch)) == batch
+    assert messages.decode_batch(Pose, batch[0].to_json()) == batch[:1]
+
+
+@pytest.mark.parametrize("doc, needle", [
+    ({"tick": 1}, "missing field 'run_id'"),
+    ({**pose().to_dict(), "extra_m": 1.0}, "unknown field 'extra_m'"),
+    ({**pose().to_dict(), "tick": 1.5}, "field tick must be int, got 1.5"),
+    ({**pose().to_dict(), "tick": True}, "field tick must be int, got true"),
+    ({**pose().to_dict(), "x_m": "1"}, 'field x_m must be float or null, got "1"'),
+    ({**pose().to_dict(), "implement_on": 1}, "field implement_on must be bool, got 1"),
+    ([1, 2], "expected a JSON object"),
+])
+def test_decode_names_the_field_and_value(doc, needle):
+    with pytest.raises(ServiceError) as err:
+        messages.decode_batch(Pose, json.dumps(doc).encode())
+    assert needle in str(err.value)
+
+
+@pytest.mark.parametrize("payload, needle", [
+    (b"", "empty payload"),
+    (b"{not json", "not valid JSON"),
+    (b"[]", "non-empty JSON array"),
+    (b'"text"', "non-empty JSON array"),
+])
+def test_decode_refuses_malformed_payloads(payload, needle):
+    with pytest.raises(ServiceError) as err:
+        messages.decode_batch(ShaftState, payload)
+    assert needle in str(err.value)
+
+
+def test_run_start_checks_its_values():
+    ok = RunStart("r", "text", "builtin:default", "/tmp", "lockstep", 1.0, 20)
+    assert RunStart.from_json(ok.to_json()) == ok
+    with pytest.raises(ServiceError, match="clock must be one of lockstep, realtime, got 'fast'"):
+        RunStart("r", "text", "s", "/tmp", "fast", 1.0, 20)
+    with pytest.raises(ServiceError, match="ticks_per_message must be within"):
+        RunStart("r", "text", "s", "/tmp", "lockstep", 1.0, 0)
+    with pytest.raises(ServiceError, match="speed must be within"):
+        RunStart("r", "text", "s", "/tmp", "realtime", 0.0, 1)
+
+
+def test_decode_points_both_forms():
+    x, y, geo = messages.decode_points(b'{"x": [1, 2.5], "y": [3, 4]}')
+    assert not geo and x.tolist() == [1.0, 2.5] and y.tolist() == [3.0, 4.0]
+    lon, lat, geo = messages.decode_points(b'{"lat": [52.1], "lon": [11.6]}')
+    assert geo and lon.tolist() == [11.6] and lat.tolist() == [52.1]
+
+
+@pytest.mark.parametrize("body, needle", [
+    ({"x": [1], "lat": [2]}, "got keys ['lat', 'x']"),
+    ({"x": [1, 2], "y": [3]}, "x has 2 values, y 1"),
+    ({"x": [1, True], "y": [3, 4]}, "non-number true"),
+    ({"x": [1, "2"], "y": [3, 4]}, 'non-number "2"'),
+    ({"x": [[1]], "y": [3]}, "non-number [1]"),
+    ({"x": 1, "y": 3}, "x must be an array"),
+    ({"lat": [91.0], "lon": [0.0]}, "point 0 (lon=0.0, lat=91.0) is not finite or out of range"),
+])
+def test_decode_points_refuses_bad_bodies(body, needle):
+    with pytest.raises(ServiceError) as err:
+        messages.decode_points(json.dumps(body).encode())
+    assert needle in str(err.value)
+
+
+def test_decode_points_refuses_nan_written_as_json_nan():
+    with pytest.raises(ServiceError, match="point 1 .* is not finite"):
+        messages.decode_points(b'{"x": [1, NaN], "y": [3, 4]}')
+
+
+def test_encode_rates_is_a_json_array_of_map_rates():
+    rate = np.array([120.5, np.nan, np.nan])
+    inside = np.array([True, True, False])
+    row, col = np.array([3, 4, -1]), np.array([5, 6, -1])
+    doc = json.loads(messages.encode_rates(rate, inside, row, col))
+    assert [MapRate.from_dict(d) for d in doc] == [MapRate(120.5, True, 3, 5), MapRate(None, True, 4, 6),
+                                                   MapRate(None, False, None, None)]
