@@ -181,6 +181,7 @@ def plan_coverage(field: Field, width_m: float, headland_passes: int = 1, headin
                            f"pass(es) of width_m={width_m}")
     u = np.array([math.sin(math.radians(heading_deg)), math.cos(math.radians(heading_deg))])
     offsets, pieces = _swath_pieces(inner, u, width_m, where)
+    pieces = _extend_to_strips(pieces, offsets, inner, field.polygon, u, width_m)
     start = None
     if rings:  # begin the swaths near where the last headland pass ends
         end = rings[-1][0]
@@ -255,6 +256,43 @@ def _swath_pieces(inner, u, width_m, where):
     if not pieces:
         raise VehicleError(f"{where}: too narrow for one swath of width_m={width_m}")
     return offsets, pieces
+
+
+def _u_ranges(geoms, u):
+    """(u_min, u_max) of each part of each geometry, as one list per geometry."""
+    out = []
+    for geom in geoms:
+        parts = [g for g in getattr(geom, "geoms", [geom]) if not g.is_empty]
+        out.append([(float((c := shapely.get_coordinates(g) @ u).min()), float(c.max())) for g in parts])
+    return out
+
+
+def _extend_to_strips(pieces, offsets, inner, boundary, u, width_m):
+    """Lengthen swath pieces so the working strip, not only its centre line, reaches the edge of the
+    area inside the headlands where that edge is slanted to the swaths.
+
+    Each end grows to the end of the strip's part of ``inner`` that holds the piece, but by at most
+    three working widths and never with the centre line leaving the field ``boundary``.
+    """
+    p = _perp(u)
+    coords = shapely.get_coordinates(boundary)
+    a0, a1 = (coords @ u).min() - 1.0, (coords @ u).max() + 1.0
+    half = width_m / 2 * (1 - 1e-6)
+    strips = [Polygon([a0 * u + (v - half) * p, a1 * u + (v - half) * p, a1 * u + (v + half) * p,
+                       a0 * u + (v + half) * p]) for v in offsets]
+    lines = [LineString([a0 * u + v * p, a1 * u + v * p]) for v in offsets]
+    strip_parts = _u_ranges(shapely.intersection(strips, inner), u)
+    field_parts = _u_ranges(shapely.intersection(lines, boundary), u)
+    out = []
+    for line, a, b in pieces:
+        lo, hi = a - 3 * width_m, b + 3 * width_m
+        for ranges in (strip_parts[line], field_parts[line]):
+            for r0, r1 in ranges:
+                if r0 <= a + 1e-6 and b - 1e-6 <= r1:
+                    lo, hi = max(lo, r0), min(hi, r1)
+                    break
+        out.append((line, min(a, lo), max(b, hi)))
+    return out
 
 
 def _serpentine(pieces, offsets, start=None):
