@@ -119,3 +119,22 @@ def test_field_too_narrow_for_one_swath():
 def test_turning_radius_the_field_cannot_hold():
     with pytest.raises(VehicleError, match="cannot hold turn_radius_m=40"):
         plan_coverage(Field.rectangle(60.0, 300.0), 6.0, headland_passes=1, turn_radius_m=40.0)
+
+
+def test_field_with_an_obstacle_hole():
+    outer = FIELDS["rectangle"]
+    holed = type(outer)(outer.polygon.difference(outer.polygon.centroid.buffer(25.0)), outer.crs, "holed")
+    path = plan_coverage(holed, 12.0, headland_passes=1)
+    rings = [s for s in path.segments if s.kind == "headland"]
+    assert len(rings) == 4  # two halves around the boundary, two around the obstacle
+    assert path.worked_area_ha / (path.inner.area / 1e4) >= 0.98
+    obstacle = shapely.Polygon(holed.polygon.interiors[0]).buffer(-0.01)
+    for seg in path.segments:
+        if seg.kind != "turn":
+            assert not shapely.LineString(seg.xy).intersects(obstacle)
+
+
+def test_default_heading_follows_the_longest_edge():
+    path = plan_coverage(Field.rectangle(400.0, 100.0), 12.0, headland_passes=0)
+    assert path.heading_deg == pytest.approx(90.0)
+    assert all(abs(s.xy[-1, 1] - s.xy[0, 1]) < 1e-6 for s in path.segments if s.kind == "swath")
