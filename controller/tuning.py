@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import brentq
 
 from common import ControllerError
 from controller.discretize import Lifted, delay_split, lift
@@ -81,6 +80,8 @@ def fit_sensor(plant: PlantParams, ku: float, tu_s: float, control_period_s: flo
     def phase_error(delay):
         return _phase_at(plant, theta, control_period_s, delay) + math.pi
 
+    from scipy.optimize import brentq  # scipy.optimize costs ~1 s to import: only when fitting
+
     if phase_error(0.0) < 0:
         raise ControllerError(f"the plant alone already lags more than 180 degrees at Tu={tu_s!r} s")
     hi = 1.0
@@ -103,6 +104,8 @@ def ultimate_from_pulse(plant: PlantParams, control_period_s: float = 0.05) -> t
     if len(below) == 0:
         raise ControllerError("the sampled P loop never lags 180 degrees: no ultimate gain")
     i = below[0]
+    from scipy.optimize import brentq
+
     if i == 0:
         theta = grid[0]
     else:

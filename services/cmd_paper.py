@@ -9,6 +9,7 @@ from common import VrsimError
 
 HELP = "reproduce Liang et al. 2013: ultimate gain and P/PI/PID step responses, paper vs vrsim"
 DEFAULT_OUT = os.path.join("runs", "paper")
+PLOT_S = 8.0  # seconds of response shown: all of the paper's settling times fit
 
 
 def configure(parser) -> None:
@@ -52,18 +53,18 @@ def table(summary: dict) -> str:
 
 def plot(run, path: str) -> None:
     """Write the three step responses (like the paper's Figs. 5-7) to `path` (PNG)."""
-    import matplotlib
+    from matplotlib.figure import Figure  # Agg canvas, without pyplot's global state
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
+    fig = Figure(figsize=(9, 10))
+    axes = fig.subplots(3, 1, sharex=True)
+    shown = run.t_s <= PLOT_S
+    t = run.t_s[shown]
     for ax, kind in zip(axes, ("P", "PI", "PID"), strict=True):
         e = run.summary[kind]
-        ax.plot(run.t_s, run.responses[kind], lw=0.8, label=f"paper gains ({_fmt(e['overshoot_pct'])}% / "
+        ax.plot(t, run.responses[kind][shown], lw=0.8, label=f"paper gains ({_fmt(e['overshoot_pct'])}% / "
                 f"{_fmt(e['settling_s'])} s)")
         tb = run.summary["textbook"][kind]
-        ax.plot(run.t_s, run.responses[f"textbook {kind}"], lw=0.8, alpha=0.8,
+        ax.plot(t, run.responses[f"textbook {kind}"][shown], lw=0.8, alpha=0.8,
                 label=f"textbook Z-N ({_fmt(tb['overshoot_pct'])}% / {_fmt(tb['settling_s'])} s)")
         ax.axhline(run.summary["assumptions"]["step_rpm"]["value"], color="k", lw=0.6, ls="--")
         ax.set_title(f"{kind}: paper reports {e['paper_overshoot_pct']}% overshoot, "
@@ -71,11 +72,10 @@ def plot(run, path: str) -> None:
         ax.set_ylabel("shaft speed [rpm]")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
-    axes[-1].set_xlim(0, 8)
+    axes[-1].set_xlim(0, PLOT_S)
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def run(args) -> int:
