@@ -38,13 +38,15 @@ class ScenarioService:
         from services import scenario
         from services.run import build_world
 
-        text, source, base_dir = self._scenario_text(params, payload)
-        sc = scenario.parse(text, source, base_dir)
-        build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)
         clock = params.text("clock", "lockstep")
         if clock not in messages.CLOCKS:
             raise ServiceError(f"{params.key}: parameter clock={clock!r} must be one of "
                                f"{', '.join(messages.CLOCKS)}")
+        speed = params.number("speed", 0.01, 1000.0, 1.0)
+        per_message = params.integer("ticks_per_message", 1, 1000, DEFAULT_TICKS_PER_MESSAGE)
+        text, source, base_dir = self._scenario_text(params, payload)
+        sc = scenario.parse(text, source, base_dir)
+        build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)
         with self.lock:
             state = self._vehicle_status()
             if state is not None and state["state"] in ("starting", "running"):
@@ -52,9 +54,7 @@ class ScenarioService:
                                    f"stop it first ({self.keys.scenario('stop')})")
             self.counter += 1
             run_id = f"{sc.name}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{self.counter}"
-            start = messages.RunStart(run_id, text, source, base_dir, clock,
-                                      params.number("speed", 0.01, 1000.0, 1.0),
-                                      params.integer("ticks_per_message", 1, 1000, DEFAULT_TICKS_PER_MESSAGE))
+            start = messages.RunStart(run_id, text, source, base_dir, clock, speed, per_message)
             body = start.to_json()
             for key, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
                               (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
@@ -64,10 +64,10 @@ class ScenarioService:
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
         from services import scenario
 
-        if not payload:
-            path = os.path.join(scenario.BUILTIN_DIR, "default.toml")
-            with open(path, encoding="utf-8") as fh:
-                return fh.read(), "builtin:default", scenario.BUILTIN_DIR
+        if not payload:  # the built-in default, refused as `vrsim run` would refuse it
+            sc = scenario.load(None)
+            with open(os.path.join(scenario.BUILTIN_DIR, "default.toml"), encoding="utf-8") as fh:
+                return fh.read(), sc.source, sc.base_dir
         try:
             text = payload.decode("utf-8")
         except UnicodeDecodeError:

@@ -1,0 +1,221 @@
+"""The Zenoh services as real processes on 127.0.0.1 (`vrsim serve all`), queried from this process
+and through the real `vrsim query` executable: map queries against known cells, a lockstep run that
+matches `vrsim run`, bad input of every kind, a bad scenario, and clean shutdown."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from tests.conftest import VRSIM
+from tests.integration.test_services_support import ServeAll, child_services, pid_alive, write_field_files
+
+# Keys of the summary whose values depend on the wall clock, not on the simulation.
+WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    return write_field_files(str(tmp_path_factory.mktemp("svc")))
+
+
+@pytest.fixture(scope="module")
+def net(files):
+    """serve all with the small scenario (its run starts at once, lockstep)."""
+    server = ServeAll(os.path.dirname(files["scenario"]), "scenario.toml")
+    try:
+        server.wait_ready()
+        yield server
+    finally:
+        children = server.children()
+        rc = server.stop()
+        assert rc == 0, server.output()
+        assert not [p for p in children.values() if pid_alive(p)], "children left running"
+
+
+def centre(grid, row, col):
+    x0, y0 = grid.transform.c, grid.transform.f
+    return x0 + (col + 0.5) * grid.transform.a, y0 + (row + 0.5) * grid.transform.e
+
+
+# ------------------------------------------------------------------------------------------ map
+def test_map_info_is_what_vrsim_map_info_prints(net, files):
+    ok, info = net.query("vrsim/map/info")
+    assert ok, info
+    cli = subprocess.run([VRSIM, "map", "info", files["map"], "--json"], capture_output=True, check=True)
+    assert info == json.loads(cli.stdout)
+
+
+@pytest.mark.parametrize("row, col", [(1, 1), (5, 5), (12, 3), (20, 10)])
+def test_map_rate_at_known_cells_by_x_y(net, files, row, col):
+    grid = files["grid"]
+    x, y = centre(grid, row, col)
+    ok, got = net.query(f"vrsim/map/rate?x={x!r};y={y!r}")
+    assert ok, got
+    assert got == {"rate_kg_ha": grid.rates_kg_ha[row, col], "inside": True, "row": row, "col": col}
+
+
+def test_map_rate_by_lat_lon_and_outside_and_nodata(net, files):
+    import pyproj
+
+    grid = files["grid"]
+    to_wgs = pyproj.Transformer.from_crs(files["crs"], "EPSG:4326", always_xy=True)
+    lon, lat = to_wgs.transform(*centre(grid, 7, 9))
+    ok, got = net.query(f"vrsim/map/rate?lat={lat!r};lon={lon!r}")
+    assert ok and got == {"rate_kg_ha": grid.rates_kg_ha[7, 9], "inside": True, "row": 7, "col": 9}
+    x, y = centre(grid, 0, 0)
+    assert net.query(f"vrsim/map/rate?x={x};y={y}") == (True, {"rate_kg_ha": None, "inside": True,
+                                                                "row": 0, "col": 0})
+    assert net.query(f"vrsim/map/rate?x={x - 100};y={y}") == (True, {"rate_kg_ha": None, "inside": False,
+                                                                      "row": None, "col": None})
+
+
+def test_map_rate_batch_matches_the_grid(net, files):
+    grid = files["grid"]
+    rng = np.random.default_rng(5)
+    w, s, e, n = grid.bounds
+    xs = rng.uniform(w - 10, e + 10, 2000)
+    ys = rng.uniform(s - 10, n + 10, 2000)
+    ok, got = net.query("vrsim/map/rate", json.dumps({"x": xs.tolist(), "y": ys.tolist()}).encode())
+    assert ok
+    want = grid.lookup(xs, ys)
+    assert len(got) == 2000
+    assert [g["inside"] for g in got] == want.inside.tolist()
+    rates = np.array([np.nan if g["rate_kg_ha"] is None else g["rate_kg_ha"] for g in got])
+    np.testing.assert_array_equal(rates, want.rate_kg_ha)
+    assert [g["row"] for g in got if g["inside"]] == want.row[want.inside].tolist()
+    assert [g["col"] for g in got if g["inside"]] == want.col[want.inside].tolist()
+
+
+def test_vrsim_query_prints_the_reply(net, files):
+    x, y = centre(files["grid"], 5, 5)
+    done = net.cli("query", "map/rate", f"x={x}", f"y={y}")
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout) == {"rate_kg_ha": files["grid"].rates_kg_ha[5, 5], "inside": True,
+                                       "row": 5, "col": 5}
+
+
+def test_vrsim_query_error_reply_is_one_line_and_exit_2(net):
+    done = net.cli("query", "map/rate", "x=abc", "y=1")
+    assert done.returncode == 2
+    assert done.stderr.decode() == "vrsim query: error: vrsim/map/rate: parameter x='abc' is not a number\n"
+    assert done.stdout == b""
+
+
+# ------------------------------------------------------------------------------------ bad input
+BAD = [
+    ("vrsim/map/rate", None, "missing parameters"),
+    ("vrsim/map/rate?x=1", None, "missing parameter y"),
+    ("vrsim/map/rate?x=abc;y=1", None, "parameter x='abc' is not a number"),
+    ("vrsim/map/rate?x=nan;y=1", None, "parameter x='nan' must be finite"),
+    ("vrsim/map/rate?x=1;y=inf", None, "parameter y='inf' must be finite"),
+    ("vrsim/map/rate?lat=91;lon=11", None, "parameter lat='91' is out of range [-90.0, 90.0]"),
+    ("vrsim/map/rate?lat=52;lon=-181", None, "parameter lon='-181' is out of range"),
+    ("vrsim/map/rate?lat=52;lon=11;x=1", None, "give either lat and lon, or x and y"),
+    ("vrsim/map/rate?z=1", None, "unknown parameter 'z'"),
+    ("vrsim/map/rate", b"{not json", "not valid JSON"),
+    ("vrsim/map/rate", b'{"x": [1, 2], "y": [1]}', "x has 2 values, y 1"),
+    ("vrsim/map/rate", b'{"x": [1, null], "y": [1, 2]}', "non-number null"),
+    ("vrsim/map/rate", b'{"lat": [1e999], "lon": [1]}', "is not finite"),
+    ("vrsim/map/info?verbose=1", None, "unknown parameter 'verbose'"),
+    ("vrsim/map/nothing", None, "unknown key (the map service serves vrsim/map/info"),
+    ("vrsim/nothing", None, "unknown key (the vrsim keys are"),
+    ("vrsim/tractor1/nothing", None, "unknown key (the monitor service serves vrsim/tractor1/report)"),
+    ("vrsim/tractor1/pose", None, "unknown key"),  # published, not queryable
+    ("vrsim/tractor1/report?run_id=nope", None, "no run 'nope'"),
+    ("vrsim/tractor1/control/step", b"[]", "non-empty JSON array"),
+    ("vrsim/tractor1/control/step", b'[{"run_id": "x"}]', "Pose[0]: missing field 'tick'"),
+    ("vrsim/tractor1/control/load", b"{}", "RunStart: missing field 'run_id'"),
+    ("vrsim/tractor1/vehicle/start", b"", "RunStart: empty payload"),
+    ("vrsim/scenario/start?clock=fast", None, "parameter clock='fast' must be one of lockstep, realtime"),
+    ("vrsim/scenario/start?speed=0", b"", "is out of range"),
+    ("vrsim/scenario/start", b"\xff\xfe", "not UTF-8"),
+    ("vrsim/scenario/status?x=1", None, "unknown parameter 'x'"),
+]
+
+
+@pytest.mark.parametrize("selector, body, needle", BAD, ids=[f"{i}" for i in range(len(BAD))])
+def test_bad_input_gets_an_error_reply_and_the_service_keeps_serving(net, selector, body, needle):
+    net.wait_status(lambda s: s["state"] in ("finished", "failed"))  # start/step checks need no run going
+    ok, reply = net.query(selector, body)
+    assert not ok, reply
+    assert set(reply) == {"error"} and needle in reply["error"], reply
+    ok, _ = net.query("vrsim/map/info")
+    assert ok
+
+
+def test_bad_scenario_is_refused_with_the_cli_message(net, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "bad"\n[implement]\nwidth_m = -3.0\n[field]\nrectangle = { width_m = 30.0, '
+                   'length_m = 30.0, lat = 52.0, lon = 11.0 }\n[map]\nsynthetic = "uniform"\n')
+    cli = subprocess.run([VRSIM, "run", str(bad), "--json", "--out", str(tmp_path / "out")],
+                         capture_output=True)
+    assert cli.returncode == 2
+    cli_message = cli.stderr.decode().strip().removeprefix("vrsim run: error: ")
+    ok, reply = net.query(f"vrsim/scenario/start?source={bad};base_dir={tmp_path}", bad.read_bytes())
+    assert not ok and reply == {"error": cli_message}
+    assert "width_m" in cli_message and "-3.0" in cli_message
+
+
+# ------------------------------------------------------------------------------------ lockstep
+def test_lockstep_run_matches_vrsim_run(net, files, tmp_path):
+    status = net.wait_status(lambda s: s["state"] in ("finished", "failed") and
+                             s["monitor_ticks"] == s["ticks"])
+    assert status["state"] == "finished", status
+    assert status["missing"] == []
+    ok, report = net.query("vrsim/tractor1/report")
+    assert ok, report
+    cli = subprocess.run([VRSIM, "run", files["scenario"], "--json", "--quiet", "--out",
+                          str(tmp_path / "run")], capture_output=True, check=True)
+    expected = json.loads(cli.stdout)
+    assert set(report) == set(expected)
+    assert report["ticks"] == status["ticks"] > 1000
+    for key, want in expected.items():
+        if key in WALL_KEYS:
+            continue
+        got = report[key]
+        if isinstance(want, float) and not math.isnan(want):
+            assert got == pytest.approx(want, rel=1e-9, abs=1e-12), key
+        else:
+            assert got == want, key
+
+
+def test_published_streams_can_be_watched(net, files):
+    """A second run in real time; `vrsim query --watch` sees its poses while it drives."""
+    net.wait_status(lambda s: s["state"] in ("finished", "failed"))
+    with open(files["scenario"], "rb") as fh:
+        text = fh.read()
+    folder = os.path.dirname(files["scenario"])
+    ok, started = net.query(f"vrsim/scenario/start?clock=realtime;speed=20;base_dir={folder}", text)
+    assert ok, started
+    try:
+        watch = net.cli("query", "pose", "--watch", "--count", "3")
+        assert watch.returncode == 0, watch.stderr
+        poses = [json.loads(line) for line in watch.stdout.decode().splitlines()]
+        assert len(poses) == 3 and all(len(p) == 1 and p[0]["run_id"] == started["run_id"] for p in poses)
+        ticks = [p[0]["tick"] for p in poses]
+        assert ticks == sorted(ticks) and len(set(ticks)) == 3
+        ok, refused = net.query("vrsim/scenario/start", text)
+        assert not ok and "stop it first" in refused["error"]
+    finally:
+        ok, stopped = net.query("vrsim/scenario/stop")
+    assert ok and stopped["state"] == "stopped", stopped
+
+
+def test_sigint_stops_every_process(files, tmp_path):
+    server = ServeAll(str(tmp_path), "--map", files["map"])
+    server.wait_ready()
+    children = server.children()
+    assert set(children) == {"map", "vehicle", "controller", "monitor", "scenario"}
+    t0 = time.monotonic()
+    assert server.stop(signal.SIGINT) == 0
+    assert time.monotonic() - t0 < 15
+    assert not [name for name, pid in children.items() if pid_alive(pid)]
+    assert child_services(server.proc.pid) == {}

@@ -1,0 +1,170 @@
+"""Helpers for the services' integration tests: a field and map with known cells, a `vrsim serve all`
+on a free loopback port, a zenoh client session in the test process, and child-process lookup."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import time
+
+import numpy as np
+from affine import Affine
+
+from tests.conftest import VRSIM
+
+CELL_M = 2.0
+MARGIN_M = 30.0
+FIELD = dict(width_m=36.0, length_m=60.0, lat=52.1, lon=11.6)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def known_rates(rows: int, cols: int) -> np.ndarray:
+    """Zones of 10 m x 10 m at 150, 200 or 250 kg/ha; the north-west corner cell is nodata."""
+    r, c = np.mgrid[0:rows, 0:cols]
+    rates = 150.0 + 50.0 * ((r // 5 + c // 5) % 3)
+    rates[0, 0] = np.nan
+    return rates
+
+
+def write_field_files(folder: str) -> dict:
+    """map.tif (EPSG:326xx, known cells) covering the field with a margin, and scenario.toml using it."""
+    import maps
+    from vehicle import Field
+
+    field = Field.rectangle(**FIELD)
+    minx, miny, maxx, maxy = field.polygon.bounds
+    x0, y0 = np.floor(minx - MARGIN_M), np.ceil(maxy + MARGIN_M)
+    cols = int(np.ceil((maxx + MARGIN_M - x0) / CELL_M))
+    rows = int(np.ceil((y0 - (miny - MARGIN_M)) / CELL_M))
+    grid = maps.Grid(known_rates(rows, cols), Affine(CELL_M, 0.0, x0, 0.0, -CELL_M, y0), field.crs,
+                     source="known")
+    map_path = os.path.join(folder, "map.tif")
+    maps.write_map(grid, map_path)
+    scenario_path = os.path.join(folder, "scenario.toml")
+    with open(scenario_path, "w") as fh:
+        fh.write(f"""name = "svc-small"
+seed = 3
+[field]
+rectangle = {json.dumps(FIELD).replace('"', '').replace(':', ' =')}
+headland_passes = 0
+[map]
+file = "map.tif"
+[implement]
+width_m = 12.0
+""")
+    return {"map": map_path, "scenario": scenario_path, "grid": grid, "crs": field.crs}
+
+
+class ServeAll:
+    """`vrsim serve all [SCENARIO]` as a real process group member on a free port."""
+
+    def __init__(self, folder: str, *extra: str):
+        self.port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.db = os.path.join(folder, f"monitor-{self.port}.sqlite")
+        self.log = open(os.path.join(folder, f"serve-{self.port}.log"), "w+")
+        argv = [VRSIM, "serve", "all", *extra, "--listen", self.endpoint, "--db", self.db]
+        self.proc = subprocess.Popen(argv, stdout=self.log, stderr=subprocess.STDOUT, cwd=folder)
+        self.session = None
+
+    def wait_ready(self, timeout_s: float = 60.0) -> None:
+        deadline = time.monotonic() + timeout_s
+        while "Ctrl-C stops" not in self.output():
+            if self.proc.poll() is not None:
+                raise AssertionError(f"vrsim serve all exited {self.proc.returncode}:\n{self.output()}")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"vrsim serve all not ready after {timeout_s} s:\n{self.output()}")
+            time.sleep(0.1)
+        self.session = open_client(self.endpoint)
+
+    def output(self) -> str:
+        self.log.flush()
+        with open(self.log.name) as fh:
+            return fh.read()
+
+    def children(self) -> dict[str, int]:
+        return child_services(self.proc.pid)
+
+    def query(self, selector: str, payload: bytes | None = None, timeout_s: float = 10.0):
+        """(ok, decoded JSON) of the single reply (ok False: an error reply's JSON)."""
+        kwargs = {"timeout": timeout_s}
+        if payload is not None:
+            kwargs["payload"] = payload
+        replies = list(self.session.get(selector, **kwargs))
+        assert len(replies) == 1, f"{selector}: {len(replies)} replies"
+        reply = replies[0]
+        if reply.ok is not None:
+            return True, json.loads(reply.ok.payload.to_bytes())
+        return False, json.loads(reply.err.payload.to_bytes())
+
+    def cli(self, *args: str, stdin: bytes | None = None) -> subprocess.CompletedProcess:
+        return subprocess.run([VRSIM, *args, "--connect", self.endpoint], input=stdin, capture_output=True,
+                              timeout=60)
+
+    def wait_status(self, predicate, timeout_s: float = 120.0) -> dict:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            ok, status = self.query("vrsim/scenario/status")
+            assert ok, status
+            if predicate(status):
+                return status
+            assert time.monotonic() < deadline, f"status never matched: {status}"
+            time.sleep(0.2)
+
+    def stop(self, sig=signal.SIGTERM) -> int:
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout=30)
+        finally:
+            self.log.close()
+
+
+def open_client(endpoint: str):
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    return zenoh.open(conf)
+
+
+def child_services(parent_pid: int) -> dict[str, int]:
+    """{service name: pid} of the `vrsim serve NAME` children of ``parent_pid`` (from /proc)."""
+    found = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+            if ppid != parent_pid:
+                continue
+            with open(f"/proc/{entry}/cmdline", "rb") as fh:
+                argv = fh.read().decode().split("\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        if "serve" in argv:
+            found[argv[argv.index("serve") + 1]] = int(entry)
+    return found
+
+
+def pid_alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
