@@ -109,13 +109,23 @@ def build_network(segments, speeds_m_s, lead_out_m: float, cache_dir: str | None
     nodes_xml, edges_xml = _plain_xml(shapes, speeds, lengths)
     edge_ids = tuple(f"e{i}" for i in range(len(shapes)))
 
-    key = hashlib.sha256("\n".join([_FORMAT, " ".join(NETCONVERT_OPTIONS), nodes_xml, edges_xml])
-                         .encode()).hexdigest()[:24]
+    inputs = [_FORMAT, _sumo_version(), " ".join(NETCONVERT_OPTIONS), nodes_xml, edges_xml]
+    key = hashlib.sha256("\n".join(inputs).encode()).hexdigest()[:24]
     cache_dir = cache_dir or default_cache_dir()
     net_file = os.path.join(cache_dir, f"{key}.net.xml")
     if not os.path.isfile(net_file):
         _convert(nodes_xml, edges_xml, net_file, netconvert or find_netconvert())
     return Network(net_file, edge_ids, lengths)
+
+
+def _sumo_version() -> str:
+    """The installed eclipse-sumo version (part of the cache key: a new netconvert rebuilds)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("eclipse-sumo")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _plain_xml(shapes, speeds, lengths):
