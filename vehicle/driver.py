@@ -162,6 +162,9 @@ class SumoDriver:
         Seeds SUMO and the speed variation.
     cache_dir : str, optional
         Network cache (default ``$VRSIM_CACHE/sumo`` or ``~/.cache/vrsim/sumo``).
+    max_time_s : float, optional
+        Simulated time after which an unfinished drive is an error (a stalled tractor); default
+        10 x the path length at turn speed.
 
     Use as a context manager; `step` returns one `Pose` per tick until `finished`, `run_all` drives
     the whole path into arrays. The network is built (or fetched from the cache) in the constructor.
@@ -170,7 +173,7 @@ class SumoDriver:
     _open: SumoDriver | None = None  # libsumo holds one simulation per process
 
     def __init__(self, path: CoveragePath, drive: DriveConfig | None = None, step_s: float = 0.05,
-                 seed: int = 1, cache_dir: str | None = None):
+                 seed: int = 1, cache_dir: str | None = None, max_time_s: float | None = None):
         if not isinstance(path, CoveragePath):
             raise VehicleError(f"SumoDriver: path must be a CoveragePath, got {type(path).__name__}")
         drive = drive or DriveConfig()
@@ -180,7 +183,12 @@ class SumoDriver:
             raise VehicleError(f"SumoDriver: step_s must be within [0.001, 1] s, got {step_s!r}")
         if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
             raise VehicleError(f"SumoDriver: seed must be an integer >= 0, got {seed!r}")
+        if max_time_s is None:
+            max_time_s = 10 * path.length_m / min(drive.turn_speed_m_s, drive.working_speed_m_s) + 60.0
+        elif not (isinstance(max_time_s, (int, float)) and math.isfinite(max_time_s) and max_time_s > 0):
+            raise VehicleError(f"SumoDriver: max_time_s must be a number > 0 s, got {max_time_s!r}")
         self.path, self.drive, self.step_s, self.seed = path, drive, float(step_s), int(seed)
+        self.max_time_s = float(max_time_s)
         self.network: Network = build_network(path.segments, drive.edge_speeds_m_s(path.kinds()),
                                               lead_out_m=drive.implement_offset_m + 10.0,
                                               cache_dir=cache_dir)
@@ -281,8 +289,13 @@ class SumoDriver:
             raise VehicleError("SumoDriver: the path is finished")
 
     def step(self) -> Pose:
-        """Advance one tick and return the implement's `Pose`; sets `finished` at the path's end."""
+        """Advance one tick and return the implement's `Pose`; sets `finished` at the path's end.
+
+        Raises `VehicleError` if the path is not finished by ``max_time_s``.
+        """
         self._require_open()
+        if self._tick * self.step_s >= self.max_time_s:
+            raise self._not_finished()
         got = self._advance()
         length = self._s[-1]
         if got is None or got[1] >= length:
@@ -301,7 +314,11 @@ class SumoDriver:
                     self._y[i] + f * (self._y[i + 1] - self._y[i]), self._h[i], v,
                     self._on[seg] and not force_off, seg, s)
 
-    def run_all(self, max_time_s: float | None = None) -> dict:
+    def _not_finished(self) -> VehicleError:
+        return VehicleError(f"SumoDriver: the tractor did not finish the {self.path.length_m:.0f} m path "
+                            f"within max_time_s={self.max_time_s:g} s of simulated time")
+
+    def run_all(self) -> dict:
         """Drive the whole path (or the rest of it) and return per-tick arrays.
 
         Returns
@@ -313,14 +330,10 @@ class SumoDriver:
         Raises
         ------
         VehicleError
-            If the tractor has not finished after ``max_time_s`` (default: 10 x the path at turn
-            speed), e.g. because it stalled.
+            If the tractor has not finished after ``max_time_s``, e.g. because it stalled.
         """
         self._require_open()
-        if max_time_s is None:
-            max_time_s = 10 * self.path.length_m / min(self.drive.turn_speed_m_s,
-                                                       self.drive.working_speed_m_s) + 60.0
-        max_ticks = int(max_time_s / self.step_s) + 1
+        max_ticks = max(int(self.max_time_s / self.step_s) - self._tick, 1)
         expected = self.path.length_m / (self.drive.working_speed_m_s * self.step_s)
         cap = min(max_ticks, int(2 * expected) + 1000)
         t_arr, s_arr, v_arr = np.empty(cap), np.empty(cap), np.empty(cap)
@@ -332,8 +345,7 @@ class SumoDriver:
             if n == cap:  # rare: grow by doubling
                 cap = min(2 * cap, max_ticks)
                 if n == cap:
-                    raise VehicleError(f"SumoDriver: the tractor did not finish the {length:.0f} m path "
-                                       f"within {max_time_s:.0f} s")
+                    raise self._not_finished()
                 t_arr, s_arr, v_arr = (np.resize(a, cap) for a in (t_arr, s_arr, v_arr))
             t_arr[n], s_arr[n], v_arr[n] = got
             n += 1

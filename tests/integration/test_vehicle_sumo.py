@@ -176,3 +176,16 @@ def test_driver_misuse(rect_path, cache):
         drv.step()
     with pytest.raises(VehicleError, match="step_s"):
         SumoDriver(rect_path, DRIVE, step_s=0.0, cache_dir=cache)
+
+
+def test_unfinished_drive_is_an_error(rect_path, cache):
+    with SumoDriver(rect_path, DRIVE, cache_dir=cache, max_time_s=30.0) as drv:
+        with pytest.raises(VehicleError, match="did not finish .* within max_time_s=30 s"):
+            drv.run_all()
+    with SumoDriver(rect_path, DRIVE, step_s=0.5, cache_dir=cache, max_time_s=2.0) as drv:
+        for _ in range(4):
+            drv.step()
+        with pytest.raises(VehicleError, match="max_time_s=2 s"):
+            drv.step()
+    with pytest.raises(VehicleError, match="max_time_s must be"):
+        SumoDriver(rect_path, DRIVE, cache_dir=cache, max_time_s=-1.0)
