@@ -48,6 +48,12 @@ class ScenarioService:
         sc = scenario.parse(text, source, base_dir)
         build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)
         with self.lock:
+            # Check first, so that no service loads a run that cannot start.
+            alive = zc.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
+            missing = [s for s in zc.SERVICES if s != "scenario" and s not in alive]
+            if missing:
+                raise ServiceError(f"{params.key}: cannot start, service(s) not alive: {', '.join(missing)} "
+                                   f"(liveliness {self.keys.alive('*')})")
             state = self._vehicle_status()
             if state is not None and state["state"] in ("starting", "running"):
                 raise ServiceError(f"{params.key}: run {state['run_id']} is {state['state']}; "

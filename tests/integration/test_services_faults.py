@@ -1,0 +1,110 @@
+"""Faults with real processes: a monitor killed with SIGKILL and restarted on its database reports
+over everything it had received; a killed controller or vehicle shows in scenario/status within 2 s
+and the monitor's records stay intact. The tests share one `vrsim serve all` and run in file order."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+import pytest
+
+from tests.conftest import VRSIM
+from tests.integration.test_services_support import ServeAll, pid_alive, write_field_files
+
+WALL_KEYS = {"stage_s"}  # the only keys a report recomputes from the clock (wall time is stored)
+
+
+@pytest.fixture(scope="module")
+def net(tmp_path_factory):
+    folder = str(tmp_path_factory.mktemp("faults"))
+    files = write_field_files(folder)
+    server = ServeAll(folder, "--map", files["map"])
+    extra = []
+    try:
+        server.wait_ready()
+        server.files, server.extra = files, extra
+        yield server
+    finally:
+        server.stop()
+        for proc in extra:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+def start(net, *params: str) -> dict:
+    folder = os.path.dirname(net.files["scenario"])
+    with open(net.files["scenario"], "rb") as fh:
+        selector = ";".join([f"vrsim/scenario/start?source={net.files['scenario']}", f"base_dir={folder}",
+                             *params])
+        ok, reply = net.query(selector, fh.read())
+    assert ok, reply
+    return reply
+
+
+def wait_missing(net, service: str, timeout_s: float) -> tuple[float, dict]:
+    t0 = time.monotonic()
+    while True:
+        ok, status = net.query("vrsim/scenario/status")
+        assert ok, status
+        if service in status["missing"]:
+            return time.monotonic() - t0, status
+        assert time.monotonic() - t0 < 10, status
+        time.sleep(0.05)
+
+
+def report_without_clock(net) -> dict:
+    ok, report = net.query("vrsim/tractor1/report")
+    assert ok, report
+    return {k: v for k, v in report.items() if k not in WALL_KEYS}
+
+
+def test_restarted_monitor_lost_nothing(net):
+    run = start(net)
+    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["state"] == "finished"
+                    and s["monitor_ticks"] == s["ticks"])
+    before = report_without_clock(net)
+    monitor = net.children()["monitor"]
+    os.kill(monitor, signal.SIGKILL)
+    wait_missing(net, "monitor", 10)
+    restarted = subprocess.Popen([VRSIM, "serve", "monitor", "--connect", net.endpoint, "--db", net.db],
+                                 stderr=subprocess.DEVNULL)
+    net.extra.append(restarted)
+    net.wait_status(lambda s: "monitor" in s["alive"], timeout_s=30)
+    assert report_without_clock(net) == before
+    assert before["ticks"] > 1000
+
+
+def test_killed_controller_is_reported_within_2s_and_records_stay(net):
+    run = start(net, "clock=realtime", "speed=2")
+    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["ticks"] >= 40)
+    controller = net.children()["controller"]
+    os.kill(controller, signal.SIGKILL)
+    elapsed, status = wait_missing(net, "controller", 2.0)
+    assert elapsed < 2.0, status
+    status = net.wait_status(lambda s: s["state"] == "failed", timeout_s=15)
+    assert "no controller answered" in status["error"], status
+    assert not pid_alive(controller)
+    ok, stored = net.query(f"vrsim/tractor1/monitor/status?run_id={run['run_id']}")
+    assert ok, stored
+    # Every tick the vehicle got through was stored on all three streams, and nothing else.
+    assert stored["ticks"] == stored["shaft_records"] == stored["rate_records"] >= 40
+    assert stored["pose_records"] - stored["ticks"] in (0, 1)  # at most the batch the controller missed
+    report = report_without_clock(net)
+    assert report["ticks"] == stored["ticks"]
+
+
+def test_killed_vehicle_is_reported_within_2s(net):
+    vehicle = net.children()["vehicle"]
+    os.kill(vehicle, signal.SIGKILL)
+    elapsed, status = wait_missing(net, "vehicle", 2.0)
+    assert elapsed < 2.0
+    assert status["state"] == "unknown" and status["error"] == "the vehicle service is not alive"
+    assert set(status["missing"]) == {"vehicle", "controller"}
+    with open(net.files["scenario"], "rb") as fh:
+        ok, refused = net.query(f"vrsim/scenario/start?base_dir={os.path.dirname(net.files['scenario'])}",
+                                fh.read())
+    assert not ok and refused["error"].startswith("vrsim/scenario/start: cannot start, service(s) not alive: "
+                                                  "vehicle, controller"), refused
