@@ -17,6 +17,7 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -95,9 +96,9 @@ def _require(name, value, lo=None, hi=None, lo_open=False):
         raise VehicleError(f"DriveConfig: {name} must be a number {bound}, got {value!r}")
 
 
-@dataclass(frozen=True, slots=True)
-class Pose:
-    """The implement's state at one tick.
+class Pose(NamedTuple):
+    """The implement's state at one tick (a named tuple: built ~10x faster than a frozen dataclass,
+    which matters at 130 000 ticks a run; ``pose._asdict()`` gives a dict).
 
     Attributes
     ----------
