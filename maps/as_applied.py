@@ -4,16 +4,22 @@ Each control tick the implement covers a strip: its width across, the distance t
 (x0, y0) to (x1, y1), carrying `mass_kg` of product. `AsApplied.add_strips` spreads each strip's mass
 over the cells it covers, area-weighted.
 
-Method (vectorized, no per-strip Python): each strip is cut into ``n_along x n_across`` equal
-sub-rectangles no larger than `h` = cell / (2 * subcells) on a side, and each sub-rectangle's share
-of the mass is put into the cell under its centre (midpoint rule); ``np.bincount`` sums all of them.
-The same sample points mark a coverage raster `subcells` times finer than the grid in each direction.
+Method (vectorized, no per-strip Python): the grid is divided into `subcells` x `subcells` sub-cells
+(2 x 2 by default). Each strip is cut into ``n_along x n_across`` equal sub-rectangles no larger than
+h = half a sub-cell on a side. Each sub-rectangle's mass and area are split between the sub-cells
+that its axis-aligned bounding box overlaps, in proportion to the overlap (at most 2 x 2, since the
+box is smaller than a sub-cell), with ``np.add.at``. A cell's applied mass is the sum over its
+sub-cells; its coverage the mean over its sub-cells of min(1, swept area / sub-cell area).
 
-Accuracy: the total is exact (every kilogram lands in a cell or in `outside_kg`); a cell's mass is
-off by at most the mass of the sub-rectangles straddling its edge, i.e. a strip's mass is located to
-within h / 2 (1/16 of a cell by default). Coverage is resolved to 1/subcells^2 of a cell (1/16).
-A zero-length strip (the machine standing still while applying) puts its mass on the cells under
-the points (x0, y0): its heading, and so its footprint, is unknown.
+Accuracy: the total is exact (every kilogram lands in a cell or in `outside_kg`). For strips
+travelling along the grid axes the split is exact, whatever the strip length (ticks of a few cm
+included). For oblique strips the bounding box smears each sub-rectangle by up to h across a cell
+edge: measured per-cell errors are below 0.5 % at any heading with full coverage (tests). Coverage
+is exact for axis-aligned swaths and within ~1.5 % per cell for oblique ones (the box smear moves
+swept area into neighbours, and the clip at 1 drops the excess); where two passes partly overlap
+inside one sub-cell it can be over-counted (the overlap counts twice before the clip), an error of
+at most one sub-cell along the overlap's edge. A zero-length strip (standing still while applying)
+puts its mass at its point and covers no area.
 """
 
 from __future__ import annotations
@@ -35,10 +41,11 @@ class AsApplied:
     grid : Grid
         The prescription (only its geometry is used); its CRS must be projected.
     subcells : int
-        Resolution of the coverage raster and sampling, per cell side (default 4).
+        Sub-cells per cell side of the accumulation raster (default 2); strips are sampled at half a
+        sub-cell.
     """
 
-    def __init__(self, grid: Grid, subcells: int = 4):
+    def __init__(self, grid: Grid, subcells: int = 2):
         if not isinstance(grid, Grid):
             raise MapError(f"AsApplied: grid must be a maps.Grid, got {type(grid).__name__}")
         if not (isinstance(subcells, int) and 1 <= subcells <= 32):
@@ -46,27 +53,41 @@ class AsApplied:
         self.grid = grid
         self._cell_area_m2 = grid.cell_area_m2  # refuses lon/lat grids with a clear message
         self._subcells = subcells
-        self._mass = np.zeros(grid.rows * grid.cols)
-        self._covered = np.zeros((grid.rows * subcells, grid.cols * subcells), dtype=bool)
-        self.outside_kg = 0.0
+        # Sub-cell raster with a one-sub-cell ring around it that collects everything off the grid
+        # (indices are clipped into the ring: no masks in the hot loop). Real part: mass in kg;
+        # imaginary part: swept area in CRS units^2, so one np.add.at updates both.
+        self._shape = (grid.rows * subcells + 2, grid.cols * subcells + 2)
+        self._acc = np.zeros(self._shape[0] * self._shape[1], dtype=np.complex128)
         self.total_kg = 0.0
         self.strips = 0
 
-    @property
-    def applied_kg_ha(self) -> np.ndarray:
-        """Applied product per cell, kg/ha, shape (rows, cols)."""
-        return self._mass.reshape(self.grid.rows, self.grid.cols) * (10_000.0 / self._cell_area_m2)
+    def _interior(self, part: np.ndarray) -> np.ndarray:
+        """The grid's sub-cells of `part` (flat, ring included) as (rows, s, cols, s) blocks."""
+        s = self._subcells
+        inner = part.reshape(self._shape)[1:-1, 1:-1]
+        return inner.reshape(self.grid.rows, s, self.grid.cols, s)
 
     @property
     def applied_kg(self) -> np.ndarray:
         """Applied product per cell, kg, shape (rows, cols)."""
-        return self._mass.reshape(self.grid.rows, self.grid.cols).copy()
+        return self._interior(self._acc.real).sum(axis=(1, 3))
+
+    @property
+    def applied_kg_ha(self) -> np.ndarray:
+        """Applied product per cell, kg/ha, shape (rows, cols)."""
+        return self.applied_kg * (10_000.0 / self._cell_area_m2)
+
+    @property
+    def outside_kg(self) -> float:
+        """Product that fell outside the grid, kg."""
+        return float(self._acc.real.sum() - self._interior(self._acc.real).sum())
 
     @property
     def coverage_fraction(self) -> np.ndarray:
-        """Share of each cell's area covered at least once, in [0, 1], shape (rows, cols)."""
-        s = self._subcells
-        return self._covered.reshape(self.grid.rows, s, self.grid.cols, s).mean(axis=(1, 3))
+        """Share of each cell's area that product was applied to, in [0, 1], shape (rows, cols)."""
+        dx, dy = self.grid.cell_size
+        sub_area = dx * dy / self._subcells**2
+        return np.minimum(self._interior(self._acc.imag) / sub_area, 1.0).mean(axis=(1, 3))
 
     def as_grid(self) -> Grid:
         """The applied rates as a `Grid` on the prescription's geometry (cells never covered: NaN)."""
@@ -101,45 +122,75 @@ class AsApplied:
         h = min(self.grid.cell_size) / (2 * self._subcells)
         n_al = np.maximum(1, np.ceil(length / h)).astype(np.int64)
         n_ac = np.maximum(1, np.ceil(width / h)).astype(np.int64)
-        n = n_al * n_ac
-        # Passes of whole strips with a bounded number of samples each.
-        ends = np.cumsum(n)
-        start = 0
-        while start < n.size:
-            base = ends[start - 1] if start else 0
-            stop = max(start + 1, int(np.searchsorted(ends, base + MAX_SAMPLES_PER_PASS, side="right")))
-            sl = slice(start, stop)
-            self._deposit(x0[sl], y0[sl], dx[sl], dy[sl], length[sl], width[sl], mass[sl],
-                          n_al[sl], n_ac[sl], n[sl])
-            start = stop
+        # Strips with the same sampling pattern are done together as (k, n_al, n_ac) arrays; a run
+        # has one or a few patterns (short ticks: n_al = 1; one working width).
+        key = n_al * (int(n_ac.max()) + 1) + n_ac
+        if (key == key[0]).all():
+            patterns, group = key[:1], None  # the usual case: skip the sort
+        else:
+            patterns, group = np.unique(key, return_inverse=True)
+        for g, k in enumerate(patterns):
+            idx = np.arange(key.size) if group is None else np.flatnonzero(group == g)
+            nal, nac = divmod(int(k), int(n_ac.max()) + 1)
+            per_pass = max(1, MAX_SAMPLES_PER_PASS // int(nal * nac))
+            for lo in range(0, idx.size, per_pass):
+                sel = idx[lo:lo + per_pass]
+                self._deposit(x0[sel], y0[sel], dx[sel], dy[sel], length[sel], width[sel], mass[sel],
+                              int(nal), int(nac))
         self.total_kg += float(mass.sum())
         self.strips += int(mass.size)
 
-    def _deposit(self, x0, y0, dx, dy, length, width, mass, n_al, n_ac, n):
-        total = int(n.sum())
-        strip = np.repeat(np.arange(n.size), n)
-        first = np.cumsum(n) - n
-        j = np.arange(total) - first[strip]
-        nac = n_ac[strip]
-        # Sub-rectangle centres in strip coordinates: u along in (0, 1), v across in (-1/2, 1/2).
-        u = ((j // nac) + 0.5) / n_al[strip]
-        v = ((j % nac) + 0.5) / nac - 0.5
+    def _deposit(self, x0, y0, dx, dy, length, width, mass, nal: int, nac: int):
+        col = (slice(None), None, None)  # per-strip values broadcast over (n_al, n_ac)
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(length > 0, 1.0 / length, 0.0)
-        # Unit normal (left of travel) scaled by width: across offset = v * width * normal.
-        nx = (-dy * inv * width)[strip]
-        ny = (dx * inv * width)[strip]
-        x = x0[strip] + u * dx[strip] + v * nx
-        y = y0[strip] + u * dy[strip] + v * ny
-        g, s = self.grid, self._subcells
-        fc = (x - g._x0) * (g._inv_dx * s)
-        fr = (g._y0 - y) * (g._inv_dy * s)
-        inside = (fc >= 0) & (fc < g.cols * s) & (fr >= 0) & (fr < g.rows * s)
-        fci = fc[inside].astype(np.int64)
-        fri = fr[inside].astype(np.int64)
-        share = (mass / n)[strip]
-        self.outside_kg += float(share[~inside].sum())
-        cell = (fri // s) * g.cols + (fci // s)
-        self._mass += np.bincount(cell, weights=share[inside], minlength=self._mass.size)
-        self._covered[fri, fci] = True
+        cos, sin = dx * inv, dy * inv
+        # Sub-rectangle centres: u along in (0, 1), v across in (-1/2, 1/2); across = left normal.
+        u = ((np.arange(nal) + 0.5) / nal)[None, :, None]
+        v = ((np.arange(nac) + 0.5) / nac - 0.5)[None, None, :]
+        x = x0[col] + u * dx[col] - v * (width * sin)[col]
+        y = y0[col] + u * dy[col] + v * (width * cos)[col]
+        # Axis-aligned extent of each sub-rectangle, for spreading it over the sub-cells it overlaps.
+        a_al, a_ac = length / nal, width / nac
+        ext_x = np.abs(cos) * a_al + np.abs(sin) * a_ac
+        ext_y = np.abs(sin) * a_al + np.abs(cos) * a_ac
+        # Strips carrying no product (sections off) sweep no coverage.
+        load = (mass + 1j * np.where(mass > 0, a_al * a_ac * nal * nac, 0.0)) / (nal * nac)
+        shape = x.shape
+        self._spread(x.ravel(), y.ravel(), np.broadcast_to(ext_x[col], shape).ravel(),
+                     np.broadcast_to(ext_y[col], shape).ravel(), np.broadcast_to(load[col], shape).ravel())
 
+    def _spread(self, x, y, ext_x, ext_y, load):
+        """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps."""
+        g, s = self.grid, self._subcells
+        rows, cols = self._shape
+        kx, ky = g._inv_dx * s, g._inv_dy * s
+        c0, c1, wc = _split((x - g._x0) * kx, 0.5 * kx * ext_x, cols)
+        r0, r1, wr = _split((g._y0 - y) * ky, 0.5 * ky * ext_y, rows)
+        r0 *= cols
+        r1 *= cols
+        lc = load * (1.0 - wc)
+        hc = load * wc
+        np.add.at(self._acc, r0 + c0, lc * (1.0 - wr))
+        np.add.at(self._acc, r0 + c1, hc * (1.0 - wr))
+        np.add.at(self._acc, r1 + c0, lc * wr)
+        np.add.at(self._acc, r1 + c1, hc * wr)
+
+
+def _split(f: np.ndarray, half: np.ndarray, n: int):
+    """Where a box of half-width `half` (< 1/2) centred at `f` (in sub-cell units) falls.
+
+    Returns the sub-cell holding `f`, the neighbour the box spills into, and the share that spills;
+    indices are shifted by +1 and clipped to 0..n-1 for the ring (n = sub-cells + 2).
+    """
+    cell = np.floor(f)
+    low = cell - (f - half)  # > 0: the box reaches into the sub-cell below
+    high = (f + half) - (cell + 1.0)  # > 0: ... into the one above
+    down = low > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        spill = np.where(down, low, np.maximum(high, 0.0)) / np.where(half > 0, 2.0 * half, 1.0)
+    other = np.where(down, cell, cell + 2.0)  # cell - 1 or cell + 1, shifted by the ring
+    cell += 1.0
+    np.clip(cell, 0, n - 1, out=cell)
+    np.clip(other, 0, n - 1, out=other)
+    return cell.astype(np.int64), other.astype(np.int64), spill

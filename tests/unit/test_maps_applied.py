@@ -1,0 +1,134 @@
+"""Synthetic maps and as-applied accumulation."""
+
+import numpy as np
+import pytest
+from affine import Affine
+
+from common import MapError
+from maps import AsApplied, Grid, synthetic
+
+UTM = "EPSG:32632"
+BOUNDS = (500_000.0, 5_300_000.0, 500_100.0, 5_300_100.0)  # 100 m x 100 m
+
+
+# ---------------------------------------------------------------------- synthetic
+@pytest.mark.parametrize("kind", ["uniform", "zones", "gradient", "random_field", "checkerboard"])
+def test_synthetic_deterministic_and_valid(kind):
+    make = getattr(synthetic, kind)
+    a, b = make(BOUNDS, UTM, cell_size_m=5.0, seed=7), make(BOUNDS, UTM, cell_size_m=5.0, seed=7)
+    np.testing.assert_array_equal(a.rates_kg_ha, b.rates_kg_ha)
+    assert (a.rows, a.cols) == (20, 20) and a.bounds == BOUNDS
+    assert a.source == f"synthetic:{kind}" and np.isfinite(a.rates_kg_ha).all() and (a.rates_kg_ha >= 0).all()
+
+
+def test_synthetic_seed_changes_random_maps():
+    for kind in ("zones", "random_field"):
+        make = getattr(synthetic, kind)
+        one, two = make(BOUNDS, UTM, seed=1), make(BOUNDS, UTM, seed=2)
+        assert not np.array_equal(one.rates_kg_ha, two.rates_kg_ha)
+
+
+def test_synthetic_shapes():
+    u = synthetic.uniform(BOUNDS, UTM, rate_kg_ha=123.0)
+    assert (u.rates_kg_ha == 123.0).all()
+    z = synthetic.zones(BOUNDS, UTM, n_zones=4, rate_range_kg_ha=(100, 200), rate_step_kg_ha=25)
+    assert set(np.unique(z.rates_kg_ha)) <= {100, 125, 150, 175, 200}
+    g = synthetic.gradient(BOUNDS, UTM, low_kg_ha=100, high_kg_ha=200, angle_deg=0.0)
+    assert g.rates_kg_ha[0, 0] == 100 and g.rates_kg_ha[0, -1] == 200
+    assert (np.diff(g.rates_kg_ha, axis=1) > 0).all() and (np.diff(g.rates_kg_ha, axis=0) == 0).all()
+    r = synthetic.random_field(BOUNDS, UTM, cell_size_m=1.0, mean_kg_ha=150, std_kg_ha=20,
+                               correlation_length_m=5)
+    assert r.rates_kg_ha.mean() == pytest.approx(150) and r.rates_kg_ha.std() == pytest.approx(20, rel=0.01)
+    # Smooth: neighbouring cells differ far less than the field's spread.
+    assert np.abs(np.diff(r.rates_kg_ha, axis=1)).mean() < 0.3 * r.rates_kg_ha.std()
+    c = synthetic.checkerboard(BOUNDS, UTM, cell_size_m=5.0, square_m=20.0, low_kg_ha=100, high_kg_ha=200)
+    assert c.rates_kg_ha[-1, 0] == 100 and c.rates_kg_ha[-1, 4] == 200 and c.rates_kg_ha[-5, 0] == 200
+    assert (c.rates_kg_ha[-4:, :4] == 100).all()  # one whole 20 m square in the south-west corner
+
+
+def test_synthetic_validation():
+    with pytest.raises(MapError, match="geographic"):
+        synthetic.uniform((9, 48, 9.01, 48.01), "EPSG:4326")
+    with pytest.raises(MapError, match="rate_kg_ha"):
+        synthetic.uniform(BOUNDS, UTM, rate_kg_ha=-1)
+    with pytest.raises(MapError, match="cell_size_m"):
+        synthetic.zones(BOUNDS, UTM, cell_size_m=0)
+    with pytest.raises(MapError, match="bounds"):
+        synthetic.gradient((1, 1, 0, 0), UTM)
+
+
+# ---------------------------------------------------------------------- as-applied
+def passes(rate_kg_ha, width_m=10.0, step_m=0.15, angle_deg=0.0, x0=500_000.0, y0=5_300_000.0, size=100.0):
+    """Back-and-forth passes of `width_m` covering a `size` square, as ticks of `step_m`."""
+    a = np.radians(angle_deg)
+    along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+    # Passes over a region three times the field's size, so any angle covers the field.
+    n_pass = int(np.ceil(size * 3 / width_m))
+    s = np.arange(0.0, size * 3, step_m) - size
+    segs = []
+    for k in range(n_pass):
+        off = (k + 0.5) * width_m - size
+        start = np.add.outer(s, 0)[:, None] * along + off * across
+        segs.append(np.column_stack((start, start + step_m * along)))
+    seg = np.concatenate(segs) + [x0, y0, x0, y0]
+    mass = rate_kg_ha * width_m * step_m / 10_000.0
+    return seg[:, 0], seg[:, 1], seg[:, 2], seg[:, 3], mass
+
+
+def field(cell=5.0):
+    return synthetic.uniform(BOUNDS, UTM, cell_size_m=cell, rate_kg_ha=0.0)
+
+
+def test_full_coverage_gives_target_rate_and_conserves_mass():
+    acc = AsApplied(field())
+    x0, y0, x1, y1, mass = passes(150.0)
+    acc.add_strips(x0, y0, x1, y1, 10.0, np.full(x0.size, mass))
+    np.testing.assert_allclose(acc.applied_kg_ha, 150.0, rtol=1e-9)
+    np.testing.assert_allclose(acc.coverage_fraction, 1.0)
+    assert acc.applied_kg.sum() + acc.outside_kg == pytest.approx(acc.total_kg, rel=1e-9)
+    assert acc.outside_kg > 0  # passes overshoot the field
+
+
+def test_diagonal_passes_and_chunking():
+    x0, y0, x1, y1, mass = passes(200.0, width_m=12.0, step_m=0.2, angle_deg=30.0)
+    one = AsApplied(field())
+    one.add_strips(x0, y0, x1, y1, 12.0, np.full(x0.size, mass))
+    chunked = AsApplied(field())
+    for part in np.array_split(np.arange(x0.size), 7):
+        chunked.add_strips(x0[part], y0[part], x1[part], y1[part], 12.0, np.full(part.size, mass))
+    np.testing.assert_allclose(chunked.applied_kg_ha, one.applied_kg_ha, rtol=1e-9)
+    # Sampling at 1/8 cell: per-cell error small, total exact.
+    np.testing.assert_allclose(one.applied_kg_ha, 200.0, rtol=0.03)
+    assert one.applied_kg_ha.mean() == pytest.approx(200.0, rel=0.005)
+    assert one.coverage_fraction.min() > 0.9
+
+
+def test_partial_strip_coverage_fraction_and_position():
+    acc = AsApplied(field(cell=10.0))
+    # One 5 m wide, 10 m long strip centred on x = 500 015 (cells 1: 500 010-500 020), row 0 north.
+    acc.add_strips(500_015.0, 5_300_100.0, 500_015.0, 5_300_090.0, 5.0, 1.0)
+    applied = acc.applied_kg
+    assert applied[0, 1] == pytest.approx(1.0) and applied.sum() == pytest.approx(1.0)
+    assert acc.coverage_fraction[0, 1] == pytest.approx(0.5)
+    assert acc.applied_kg_ha[0, 1] == pytest.approx(100.0)  # 1 kg on a 100 m^2 cell
+    grid = acc.as_grid()
+    assert grid.rates_kg_ha[0, 1] == pytest.approx(100.0) and np.isnan(grid.rates_kg_ha[5, 5])
+
+
+def test_zero_length_and_outside_strips():
+    acc = AsApplied(field())
+    acc.add_strips([500_050.0, 400_000.0], [5_300_050.0, 0.0], [500_050.0, 400_010.0], [5_300_050.0, 0.0],
+                   [6.0, 6.0], [2.0, 3.0])
+    assert acc.applied_kg.sum() == pytest.approx(2.0) and acc.outside_kg == pytest.approx(3.0)
+
+
+def test_as_applied_validation():
+    with pytest.raises(MapError, match="projected CRS"):
+        AsApplied(Grid(np.ones((2, 2)), Affine(0.001, 0, 9, 0, -0.001, 48), "EPSG:4326"))
+    acc = AsApplied(field())
+    with pytest.raises(MapError, match="mass_kg"):
+        acc.add_strips([0.0], [0.0], [1.0], [1.0], 3.0, [-1.0])
+    with pytest.raises(MapError, match="non-finite"):
+        acc.add_strips([np.nan], [0.0], [1.0], [1.0], 3.0, [1.0])
+    with pytest.raises(MapError, match="subcells"):
+        AsApplied(field(), subcells=0)
