@@ -76,7 +76,8 @@ class Field:
         for arg, value in (("width_m", width_m), ("length_m", length_m)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise VehicleError(f"field rectangle: {arg} must be > 0 m, got {value!r}")
-        if not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (lat, lon)) \
+                or not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
             raise VehicleError(f"field rectangle: lat={lat!r}, lon={lon!r} is outside UTM coverage")
         crs = utm_crs(lon, lat)
         x0, y0 = pyproj.Transformer.from_crs(WGS84, crs, always_xy=True).transform(lon, lat)
@@ -95,8 +96,9 @@ class Field:
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
             WGS84 if the coordinates look like degrees.
         """
-        if not os.path.isfile(path):
+        if not isinstance(path, (str, os.PathLike)) or not os.path.isfile(path):
             raise VehicleError(f"field file {path}: not found")
+        path = os.fspath(path)
         ext = os.path.splitext(path)[1].lower()
         if ext in (".geojson", ".json"):
             geom, file_crs = _read_geojson(path)
