@@ -113,9 +113,20 @@ def build_network(segments, speeds_m_s, lead_out_m: float, cache_dir: str | None
     key = hashlib.sha256("\n".join(inputs).encode()).hexdigest()[:24]
     cache_dir = cache_dir or default_cache_dir()
     net_file = os.path.join(cache_dir, f"{key}.net.xml")
-    if not os.path.isfile(net_file):
+    if not _complete(net_file):
         _convert(nodes_xml, edges_xml, net_file, netconvert or find_netconvert())
     return Network(net_file, edge_ids, lengths)
+
+
+def _complete(net_file: str) -> bool:
+    """True if ``net_file`` exists and ends its root element. SUMO can crash the whole process on a
+    truncated network, so a damaged cache entry is rebuilt rather than loaded."""
+    try:
+        with open(net_file, "rb") as f:
+            f.seek(max(0, os.path.getsize(net_file) - 64))
+            return b"</net>" in f.read()
+    except OSError:
+        return False
 
 
 def _sumo_version() -> str:

@@ -189,3 +189,13 @@ def test_unfinished_drive_is_an_error(rect_path, cache):
             drv.step()
     with pytest.raises(VehicleError, match="max_time_s must be"):
         SumoDriver(rect_path, DRIVE, cache_dir=cache, max_time_s=-1.0)
+
+
+def test_damaged_cache_entry_is_rebuilt(rect_path, tmp_path):
+    speeds = DRIVE.edge_speeds_m_s(rect_path.kinds())
+    net = build_network(rect_path.segments, speeds, 20.0, cache_dir=str(tmp_path))
+    with open(net.net_file, "w") as f:
+        f.write("<net><truncated")  # SUMO would crash the process on this
+    again = build_network(rect_path.segments, speeds, 20.0, cache_dir=str(tmp_path))
+    with open(again.net_file) as f:
+        assert f.read().rstrip().endswith("</net>")
