@@ -228,7 +228,11 @@ class SumoDriver:
         except libsumo.TraCIException as exc:
             SumoDriver._open, self._ls = None, None
             raise VehicleError(f"SUMO could not load {self.network.net_file}: {exc}") from None
-        self._setup_vehicle()
+        try:
+            self._setup_vehicle()
+        except BaseException:
+            self.close()
+            raise
 
     def close(self) -> None:
         """Stop SUMO (idempotent)."""
