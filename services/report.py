@@ -8,6 +8,7 @@ import html
 import json
 import math
 import os
+from dataclasses import replace
 
 import numpy as np
 
@@ -49,8 +50,8 @@ def write_outputs(result: RunResult, out_dir: str) -> dict[str, str]:
         fh.write(summary_json(doc) + "\n")
     grid = result.world.grid
     applied = result.as_applied.applied_kg_ha
-    write_map(grid.with_rates(applied, product="as-applied"), paths["as_applied.tif"])
-    write_map(grid.with_rates(applied - grid.rates_kg_ha, product="applied minus prescribed"),
+    write_map(replace(grid, rates_kg_ha=applied, product="as-applied"), paths["as_applied.tif"])
+    write_map(replace(grid, rates_kg_ha=applied - grid.rates_kg_ha, product="applied minus prescribed"),
               paths["error.tif"])
     write_track_csv(result, paths["track.csv"])
     if result.world.scenario.output.plots:

@@ -14,6 +14,7 @@ depend on the metering, so SUMO can drive the whole path first and the control l
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ScenarioError
-from controller import build_loop
+from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
 from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
 from services.scenario import Scenario
@@ -70,12 +71,18 @@ def build_prescription(scenario: Scenario, field: Field) -> Grid:
 
 
 def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
-    """The default scenario's map: sharp-edged zones with a gradient laid over them."""
+    """The default scenario's map: sharp-edged zones tilted by a gradient.
+
+    ``params`` holds `synthetic.zones` keywords and `synthetic.gradient` keywords prefixed with
+    ``gradient_``; the gradient's mean is removed, so it tilts the zones without changing their mean.
+    """
     zone_params = {k: v for k, v in params.items() if not k.startswith("gradient_")}
     grad_params = {k[len("gradient_"):]: v for k, v in params.items() if k.startswith("gradient_")}
     zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **zone_params)
     grad = synthetic.gradient(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **grad_params)
-    return zones.with_rates(zones.rates_kg_ha + grad.rates_kg_ha, source="synthetic:zones_gradient")
+    tilt = grad.rates_kg_ha - grad.rates_kg_ha.mean()
+    return dataclasses.replace(zones, rates_kg_ha=np.maximum(zones.rates_kg_ha + tilt, 0.0),
+                               source="synthetic:zones_gradient")
 
 
 def build_world(scenario: Scenario) -> World:
@@ -88,6 +95,14 @@ def build_world(scenario: Scenario) -> World:
     except ScenarioError:
         raise
     return World(scenario=scenario, field=field, path=path, grid=grid)
+
+
+def plant_for(scenario: Scenario) -> PlantParams:
+    """The scenario's plant with the implement's transmission ratio and shaft-speed limit: the machine
+    is described once, in ``[implement]``."""
+    imp = scenario.implement
+    return dataclasses.replace(scenario.plant, transmission_ratio=imp.transmission_ratio,
+                               shaft_rpm_max=imp.shaft_rpm_max)
 
 
 @dataclass
@@ -104,12 +119,25 @@ class TickOut:
     metered_kg: float  # product through the meter this period (0 with the sections off)
 
 
-class ControlCore:
-    """One control tick: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+def hold_last(rate_kg_ha: np.ndarray, last_kg_ha: float) -> np.ndarray:
+    """Replace NaN (unknown) rates by the last known one, starting from `last_kg_ha` (NaN: 0)."""
+    known = ~np.isnan(rate_kg_ha)
+    idx = np.maximum.accumulate(np.where(known, np.arange(rate_kg_ha.size), -1))
+    start = 0.0 if math.isnan(last_kg_ha) else last_kg_ha
+    return np.where(idx >= 0, rate_kg_ha[np.maximum(idx, 0)], start)
 
-    Deterministic and free of I/O; `vrsim run` and the controller service both call `tick`.
-    The landing point is predicted by dead reckoning from the fix: product metered now lands
-    `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
+
+class ControlCore:
+    """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+
+    Deterministic and free of I/O; `vrsim run` (a whole track at once, `run_track`) and the
+    controller service (one tick at a time, `tick`) run the same two stages:
+
+    1. `targets`: where product metered now will land, the prescription there (with the map's
+       policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
+       landing point is predicted by dead reckoning from the fix: product metered now lands
+       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
+    2. the closed loop (PID, valve, motor), one `ClosedLoop.step` per tick.
     """
 
     def __init__(self, grid: Grid, scenario: Scenario):
@@ -118,50 +146,64 @@ class ControlCore:
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
         timing = scenario.timing
-        self.loop = build_loop(scenario.plant, scenario.controller, control_period_s=timing.control_period_s,
-                               plant_step_s=timing.plant_step_s, n=1)
-        self.control_period_s = timing.control_period_s
+        self.loop = build_loop(plant_for(scenario), scenario.controller,
+                               control_period_s=timing.control_period_s, plant_step_s=timing.plant_step_s,
+                               n=1)
         self.last_rate_kg_ha = float("nan")
+
+    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
+        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
+        lead_m = np.asarray(speed_m_s) * self.implement.delivery_delay_s
+        lx = x_m + lead_m * np.cos(heading_rad)
+        ly = y_m + lead_m * np.sin(heading_rad)
+        found = self.grid.lookup(lx, ly)
+        if self.policy.mode == "hold":
+            rate = hold_last(found.rate_kg_ha, self.last_rate_kg_ha)
+        else:
+            rate = self.policy.apply(found.rate_kg_ha, found.inside)
+        if rate.size:
+            self.last_rate_kg_ha = float(rate[-1])
+        on = np.asarray(implement_on, bool)
+        target = np.where(on, self.implement.target_shaft_rpm(rate, speed_m_s), 0.0)
+        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target}
+
+    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
+                  progress=None) -> dict[str, np.ndarray]:
+        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`."""
+        rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on)
+        n = len(x_m)
+        rpm, rev, cur = np.empty(n), np.empty(n), np.empty(n)
+        step = self.loop.step
+        chunk = 10000
+        for start, target in enumerate(rec["target_shaft_rpm"].tolist()):
+            out = step(target)
+            rpm[start], rev[start], cur[start] = out.shaft_rpm[0], out.shaft_rev[0], out.current_a[0]
+            if progress is not None and start % chunk == chunk - 1:
+                progress(start + 1, n)
+        rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
+                   metered_kg=self._metered_kg(rev, implement_on))
+        return rec
 
     def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
              implement_on: bool) -> TickOut:
-        lead_m = speed_m_s * self.implement.delivery_delay_s
-        lx = x_m + lead_m * math.cos(heading_rad)
-        ly = y_m + lead_m * math.sin(heading_rad)
-        rate = self.grid.rate_at(lx, ly)
-        rate = self.policy.apply(rate, rate == rate, self.last_rate_kg_ha)
-        self.last_rate_kg_ha = rate
-        target = self.implement.target_shaft_rpm(rate, speed_m_s) if implement_on else 0.0
+        """Both stages for one tick."""
+        t = self.targets(np.array([x_m]), np.array([y_m]), np.array([heading_rad]), np.array([speed_m_s]),
+                         np.array([implement_on]))
+        target = float(t["target_shaft_rpm"][0])
         out = self.loop.step(target)
         rev = float(out.shaft_rev[0])
-        return TickOut(lx, ly, rate, float(target), float(out.shaft_rpm[0]), rev, float(out.current_a[0]),
-                       self.implement.mass_kg(rev) if implement_on else 0.0)
+        return TickOut(float(t["landing_x_m"][0]), float(t["landing_y_m"][0]),
+                       float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev, float(out.current_a[0]),
+                       float(self._metered_kg(np.array([rev]), np.array([implement_on]))[0]))
+
+    def _metered_kg(self, shaft_rev, implement_on) -> np.ndarray:
+        # Sections off close the gate: what the shaft turns then stays in the hopper.
+        return np.where(np.asarray(implement_on, bool), self.implement.mass_kg(shaft_rev), 0.0)
 
 
 TRACK_KEYS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
                 "shaft_rev", "current_a", "metered_kg")
-
-
-def control_track(core: ControlCore, x_meas, y_meas, heading_rad, speed_m_s, implement_on,
-                  progress=None) -> dict[str, np.ndarray]:
-    """Run `core.tick` over a whole measured track, recording into preallocated arrays."""
-    n = len(x_meas)
-    rec = {k: np.empty(n) for k in CONTROL_KEYS}
-    cols = [rec[k] for k in CONTROL_KEYS]
-    xs, ys, hs, vs, on = (a.tolist() for a in (x_meas, y_meas, heading_rad, speed_m_s, implement_on))
-    tick = core.tick
-    chunk = 5000
-    for start in range(0, n, chunk):
-        for i in range(start, min(n, start + chunk)):
-            out = tick(xs[i], ys[i], hs[i], vs[i], on[i])
-            for col, value in zip(cols, (out.landing_x_m, out.landing_y_m, out.prescribed_kg_ha,
-                                         out.target_shaft_rpm, out.shaft_rpm, out.shaft_rev,
-                                         out.current_a, out.metered_kg), strict=True):
-                col[i] = value
-        if progress is not None:
-            progress(min(n, start + chunk), n)
-    return rec
 
 
 @dataclass
@@ -237,8 +279,8 @@ def run(scenario: Scenario, progress=None) -> RunResult:
     x_meas, y_meas = gnss.measure(track["time_s"], track["x_m"], track["y_m"])
     lap("gnss_s")
     core = ControlCore(world.grid, scenario)
-    control = control_track(core, x_meas, y_meas, track["heading_rad"], track["speed_m_s"],
-                            track["implement_on"], progress)
+    control = core.run_track(x_meas, y_meas, track["heading_rad"], track["speed_m_s"],
+                             track["implement_on"], progress)
     lap("control_s")
     summary, rest = account(world, track, control, wall0)
     lap("metrics_s")

@@ -150,6 +150,10 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenari
         timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=_build(OutputSpec, doc.get("output", {}), source, "output"),
     )
+    for key in ("transmission_ratio", "shaft_rpm_max"):
+        if key in doc.get("plant", {}):
+            raise ScenarioError(f"{source}: [plant] {key}: set it in [implement], which describes the "
+                                f"machine once (got {doc['plant'][key]!r})")
     _check_field(scenario.field, source)
     _check_map(scenario.map, source)
     _check_timing(scenario.timing, source)
