@@ -193,7 +193,8 @@ class ControlCore:
         out = self.loop.step(target)
         rev = float(out.shaft_rev[0])
         return TickOut(float(t["landing_x_m"][0]), float(t["landing_y_m"][0]),
-                       float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev, float(out.current_a[0]),
+                       float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev,
+                       float(out.current_a[0]),
                        float(self._metered_kg(np.array([rev]), np.array([implement_on]))[0]))
 
     def _metered_kg(self, shaft_rev, implement_on) -> np.ndarray:
