@@ -38,6 +38,8 @@ class DriveConfig:
         Nominal speed on swaths and headland passes, m/s.
     turn_speed_m_s : float
         Speed limit in turns, m/s.
+    headland_speed_m_s : float, optional
+        Speed limit on headland passes, m/s (default: the working speed, with its variation).
     speed_variation_pct : float
         Bound of the slow speed variation around the working speed, percent (0 = none).
     speed_variation_tau_s : float
@@ -55,6 +57,7 @@ class DriveConfig:
 
     working_speed_m_s: float = 2.5
     turn_speed_m_s: float = 1.2
+    headland_speed_m_s: float | None = None
     speed_variation_pct: float = 5.0
     speed_variation_tau_s: float = 20.0
     speed_update_s: float = 1.0
@@ -68,6 +71,8 @@ class DriveConfig:
                      "accel_m_s2", "decel_m_s2", "vehicle_length_m", "implement_offset_m"):
             _require(name, getattr(self, name), lo=0.0, lo_open=True)
         _require("speed_variation_pct", self.speed_variation_pct, lo=0.0, hi=50.0)
+        if self.headland_speed_m_s is not None:
+            _require("headland_speed_m_s", self.headland_speed_m_s, lo=0.0, lo_open=True)
         if self.implement_offset_m < self.vehicle_length_m:
             raise VehicleError(f"DriveConfig: implement_offset_m={self.implement_offset_m} must be >= "
                                f"vehicle_length_m={self.vehicle_length_m} (the implement trails the tractor)")
@@ -81,8 +86,10 @@ class DriveConfig:
         return max(self.working_speed_m_s * (1 + self.speed_variation_pct / 100), self.turn_speed_m_s)
 
     def edge_speeds_m_s(self, kinds) -> list:
-        """Speed limit per segment kind: turns at turn speed, working segments at the maximum."""
-        return [self.turn_speed_m_s if k == "turn" else self.max_speed_m_s for k in kinds]
+        """Speed limit per segment kind: turns at turn speed, headland passes at headland speed (if
+        set), swaths at the maximum (the tractor's own varying maximum speed governs there)."""
+        limits = {"turn": self.turn_speed_m_s, "headland": self.headland_speed_m_s or self.max_speed_m_s}
+        return [limits.get(k, self.max_speed_m_s) for k in kinds]
 
 
 def _require(name, value, lo=None, hi=None, lo_open=False):
@@ -185,7 +192,8 @@ class SumoDriver:
         if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
             raise VehicleError(f"SumoDriver: seed must be an integer >= 0, got {seed!r}")
         if max_time_s is None:
-            max_time_s = 10 * path.length_m / min(drive.turn_speed_m_s, drive.working_speed_m_s) + 60.0
+            slowest = min(drive.turn_speed_m_s, drive.working_speed_m_s, drive.headland_speed_m_s or math.inf)
+            max_time_s = 10 * path.length_m / slowest + 60.0
         elif not (isinstance(max_time_s, (int, float)) and math.isfinite(max_time_s) and max_time_s > 0):
             raise VehicleError(f"SumoDriver: max_time_s must be a number > 0 s, got {max_time_s!r}")
         self.path, self.drive, self.step_s, self.seed = path, drive, float(step_s), int(seed)

@@ -199,3 +199,16 @@ def test_damaged_cache_entry_is_rebuilt(rect_path, tmp_path):
     again = build_network(rect_path.segments, speeds, 20.0, cache_dir=str(tmp_path))
     with open(again.net_file) as f:
         assert f.read().rstrip().endswith("</net>")
+
+
+def test_slower_headland_speed(cache):
+    path = plan_coverage(Field.rectangle(60.0, 100.0), 12.0, headland_passes=1)
+    drive = DriveConfig(headland_speed_m_s=1.8)
+    with SumoDriver(path, drive, seed=1, cache_dir=cache) as drv:
+        r = drv.run_all()
+    kinds = _kinds(path, r)
+    front = np.array(path.kinds())[path.segment_at(r["s_m"] + drive.implement_offset_m)]
+    on_headland = (kinds == "headland") & (front == "headland")
+    assert on_headland.sum() > 100
+    assert r["speed_m_s"][on_headland].max() <= 1.8 + 1e-9
+    assert r["speed_m_s"][kinds == "swath"].max() > 2.3

@@ -20,11 +20,14 @@ def test_drive_config_defaults_and_edge_speeds():
     d = DriveConfig()
     assert d.max_speed_m_s == pytest.approx(2.5 * 1.05)
     assert d.edge_speeds_m_s(["headland", "turn", "swath"]) == [d.max_speed_m_s, 1.2, d.max_speed_m_s]
+    slow = DriveConfig(headland_speed_m_s=1.8)
+    assert slow.edge_speeds_m_s(["headland", "turn", "swath"]) == [1.8, 1.2, slow.max_speed_m_s]
 
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(working_speed_m_s=0), "working_speed_m_s must be a number > 0"),
     (dict(turn_speed_m_s=-1), "turn_speed_m_s"),
+    (dict(headland_speed_m_s=0.0), "headland_speed_m_s"),
     (dict(accel_m_s2=float("nan")), "accel_m_s2"),
     (dict(speed_variation_pct=-1), "speed_variation_pct"),
     (dict(speed_variation_pct=80), "speed_variation_pct"),
