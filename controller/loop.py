@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,7 +32,6 @@ IN_CURRENT, IN_TARGET, IN_LOAD = range(3)
 OUT_REV, OUT_RPM, OUT_CURRENT, OUT_MEASURED = range(4)
 
 
-@dataclass(frozen=True, slots=True)
 class StepOutput:
     """What one control period did, per loop (all shape (n,)).
 
@@ -45,10 +43,18 @@ class StepOutput:
     measured_rpm : the (delayed) speed-sensor reading the PID used this period [rpm].
     """
 
-    shaft_rpm: np.ndarray
-    shaft_rev: np.ndarray
-    current_a: np.ndarray
-    measured_rpm: np.ndarray
+    __slots__ = ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm")
+
+    def __init__(self, shaft_rpm, shaft_rev, current_a, measured_rpm):
+        # a plain slotted class: a frozen dataclass costs ~1 us more per tick
+        self.shaft_rpm = shaft_rpm
+        self.shaft_rev = shaft_rev
+        self.current_a = current_a
+        self.measured_rpm = measured_rpm
+
+    def __repr__(self):
+        return (f"StepOutput(shaft_rpm={self.shaft_rpm}, shaft_rev={self.shaft_rev}, "
+                f"current_a={self.current_a}, measured_rpm={self.measured_rpm})")
 
 
 def _pid_row(gains: PidGains, form: str, dom: bool, sample_s: float) -> np.ndarray:
@@ -78,7 +84,11 @@ class _Layout:
 
 def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: float,
                  plant_step_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """The product matrix M (ns + 4, nv) and the fine-output rows F (N, nv) for one plant."""
+    """The product matrix M (ns + 7, nv) and the fine-output rows F (N, nv) for one plant.
+
+    M's rows: the next state (ns), three zero rows where the next tick writes its inputs (so the product
+    is directly the next tick's vector), and the outputs (4).
+    """
     A, B = state_space(p)
     lifted = lift(A, B, shaft_rpm_row(p), shaft_rev_row(p), control_period_s, plant_step_s,
                   p.sensor_delay_s)
@@ -86,7 +96,8 @@ def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: floa
     ns, nv, r0, p0 = lay.ns, lay.nv, lay.ring0, lay.pid0
     cur, tgt, load = ns + IN_CURRENT, ns + IN_TARGET, ns + IN_LOAD
     ks, ka = p.sensor_gain_v_per_rpm, p.amplifier_gain_a_per_v
-    M = np.zeros((ns + 4, nv))
+    out0 = ns + 3
+    M = np.zeros((out0 + 4, nv))
     xu = list(range(N_STATES)) + [cur, load]     # columns that the lifted rows act on
     M[:N_STATES, xu] = lifted.step[:N_STATES]
     for j in range(d - 1):                       # delay line shifts towards its head
@@ -101,10 +112,10 @@ def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: floa
     M[p0 + E2, p0 + E1] = 1.0
     M[p0 + Y1, r0] = ks                           # y1 <- Ks y_m
     M[p0 + Y2, p0 + Y1] = 1.0
-    M[ns + OUT_REV, xu] = lifted.step[Lifted.ROW_REV]
-    M[ns + OUT_RPM, xu] = lifted.step[Lifted.ROW_RPM]
-    M[ns + OUT_CURRENT, cur] = 1.0
-    M[ns + OUT_MEASURED, r0] = 1.0
+    M[out0 + OUT_REV, xu] = lifted.step[Lifted.ROW_REV]
+    M[out0 + OUT_RPM, xu] = lifted.step[Lifted.ROW_RPM]
+    M[out0 + OUT_CURRENT, cur] = 1.0
+    M[out0 + OUT_MEASURED, r0] = 1.0
     F = np.zeros((lifted.fine.shape[0], nv))
     F[:, xu] = lifted.fine
     return M, F
@@ -170,13 +181,10 @@ class ClosedLoop:
         self._lay = lay = _Layout(max(
             math.floor(p.sensor_delay_s / control_period_s + 1e-12) + 1 for p in unique))
         blocks = {p: _plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
-        M = np.stack([blocks[p][0] for p in plant_list]) if len(unique) > 1 else blocks[unique[0]][0]
-        F = np.stack([blocks[p][1] for p in plant_list]) if len(unique) > 1 else blocks[unique[0]][1]
+        shared = len(unique) == 1
+        M = blocks[unique[0]][0] if shared else np.stack([blocks[p][0] for p in plant_list])
+        F = blocks[unique[0]][1] if shared else np.stack([blocks[p][1] for p in plant_list])
         self.n_fine = F.shape[-2]
-        if record_fine:
-            M = np.concatenate([M, F], axis=-2)
-        # The product is applied as v @ M.T (shared) or per loop (n, rows, nv).
-        self._MT = M.T.copy() if M.ndim == 2 else np.ascontiguousarray(np.swapaxes(M, 1, 2))
         gvecs = [_gain_vector(p, _pid_row(g, form, derivative_on_measurement, control_period_s), lay)
                  for p, g in zip(plant_list, gain_list, strict=True)]
         self._g = np.stack([gv[0] for gv in gvecs])               # (n, ns)
@@ -186,35 +194,50 @@ class ClosedLoop:
         self._ilo = np.array([p.current_min_a for p in plant_list])
         self._ihi = np.array([p.current_max_a for p in plant_list])
         self._rmax = np.array([p.shaft_rpm_max for p in plant_list])
-        self._scalar = n == 1 and M.ndim == 2
-        if self._scalar:   # n = 1: plain floats for the few scalar operations, one mat-vec per tick
-            self._g0 = self._g[0]
+        self._scalar = n == 1 and shared
+        ns = lay.ns
+        self._iu = M.shape[-2]
+        if self._scalar:
+            # One more row: g . s', the state part of the next tick's PID output, so a tick of a single
+            # loop is one mat-vec plus a few float operations.
+            M = np.vstack([M, self._g[0] @ M[:ns]])
             self._f = (float(self._gr[0]), float(self._ka[0]), float(self._ilo[0]), float(self._ihi[0]),
-                       float(self._rmax[0]))
-        self._v = np.zeros((n, lay.nv))
-        self._ns = lay.ns
+                       float(self._rmax[0]), float(self._ks[0]), float(self._g[0, lay.pid0 + ACC]))
+        self._fine0 = M.shape[-2]
+        if record_fine:
+            M = np.concatenate([M, F], axis=-2)
+        self._M = np.ascontiguousarray(M)                         # (R, nv) or (n, R, nv)
+        self._MT = np.ascontiguousarray(np.swapaxes(M, -1, -2))   # v @ MT for a batch
+        self._record_fine = record_fine
+        self._ns = ns
+        self._v = np.zeros(M.shape[-2]) if self._scalar else np.zeros((n, M.shape[-2]))
 
     # -- state -------------------------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to rest: plant, delay line and PID memory at zero."""
-        self._v[:] = 0.0
+        self._v = np.zeros_like(self._v)
 
     @property
     def state(self) -> np.ndarray:
         """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory."""
-        return self._v[:, :self._ns].copy()
+        return np.atleast_2d(self._v)[:, :self._ns].copy()
 
     def set_state(self, state: np.ndarray) -> None:
         """Restore a state obtained from `state`."""
         state = np.asarray(state, dtype=float)
         if state.shape != (self.n, self._ns):
             raise ControllerError(f"state must have shape {(self.n, self._ns)}, got {state.shape}")
-        self._v[:, :self._ns] = state
+        self.reset()
+        if self._scalar:
+            self._v[:self._ns] = state[0]
+            self._v[self._iu] = self._g[0] @ state[0]
+        else:
+            self._v[:, :self._ns] = state
 
     @property
     def motor_angle_rad(self) -> np.ndarray:
         """Total motor angle since rest [rad], shape (n,)."""
-        return self._v[:, N_STATES - 1].copy()
+        return np.atleast_2d(self._v)[:, N_STATES - 1].copy()
 
     # -- stepping ----------------------------------------------------------------------------------------
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
@@ -226,33 +249,38 @@ class ClosedLoop:
             Metering-shaft speed setpoint [rpm]; clipped to [0, shaft_rpm_max].
         load_torque_nm : float or ndarray, shape (n,)
             External load torque on the motor during the period [N m].
+
+        Returns
+        -------
+        StepOutput
+            Arrays of shape (n,); views of a fresh array, never changed by later steps.
         """
         out = self._advance(target_shaft_rpm, load_torque_nm)
-        ns = self._ns
+        o = self._ns + 3
         if out.ndim == 1:
-            return StepOutput(out[ns + OUT_RPM:ns + OUT_RPM + 1], out[ns + OUT_REV:ns + OUT_REV + 1],
-                              out[ns + OUT_CURRENT:ns + OUT_CURRENT + 1],
-                              out[ns + OUT_MEASURED:ns + OUT_MEASURED + 1])
-        return StepOutput(out[:, ns + OUT_RPM], out[:, ns + OUT_REV], out[:, ns + OUT_CURRENT],
-                          out[:, ns + OUT_MEASURED])
+            return StepOutput(out[o + OUT_RPM:o + OUT_RPM + 1], out[o + OUT_REV:o + OUT_REV + 1],
+                              out[o + OUT_CURRENT:o + OUT_CURRENT + 1],
+                              out[o + OUT_MEASURED:o + OUT_MEASURED + 1])
+        return StepOutput(out[:, o + OUT_RPM], out[:, o + OUT_REV], out[:, o + OUT_CURRENT],
+                          out[:, o + OUT_MEASURED])
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm].
 
         Needs ``record_fine=True``.
         """
-        if self._MT.shape[-1] == self._ns + 4:
+        if not self._record_fine:
             raise ControllerError("step_fine needs a loop built with record_fine=True")
         out = np.atleast_2d(self._advance(target_shaft_rpm, load_torque_nm))
-        ns = self._ns
-        so = StepOutput(out[:, ns + OUT_RPM], out[:, ns + OUT_REV], out[:, ns + OUT_CURRENT],
-                        out[:, ns + OUT_MEASURED])
-        return so, out[:, ns + 4:]
+        o = self._ns + 3
+        so = StepOutput(out[:, o + OUT_RPM], out[:, o + OUT_REV], out[:, o + OUT_CURRENT],
+                        out[:, o + OUT_MEASURED])
+        return so, out[:, self._fine0:]
 
     def _advance(self, target, load):
         v, ns = self._v, self._ns
         if self._scalar and not isinstance(target, np.ndarray) and not isinstance(load, np.ndarray):
-            gr, ka, ilo, ihi, rmax = self._f
+            gr, ka, ilo, ihi, rmax, ks, g_acc = self._f
             r = float(target)
             if not r >= 0.0:
                 if r != r:
@@ -260,35 +288,37 @@ class ClosedLoop:
                 r = 0.0
             elif r > rmax:
                 r = rmax
-            row = v[0]
-            cur = ka * (float(row[:ns] @ self._g0) + gr * r)
-            cur = ilo if cur < ilo else ihi if cur > ihi else cur
-            row[ns + IN_CURRENT], row[ns + IN_TARGET], row[ns + IN_LOAD] = cur, r, load
-            out = row @ self._MT
+            unsat = ka * (v[self._iu] + gr * r)
+            cur = ilo if unsat < ilo else ihi if unsat > ihi else unsat
+            v[ns] = cur
+            v[ns + 1] = r
+            v[ns + 2] = load
+            out = self._M.dot(v[:ns + 3])
             if self.form == "positional":
-                self._clamp(out[None, :], np.array([cur]), np.array([r]), row[None, :])
-            row[:ns] = out[:ns]
+                e = ks * (r - v[self._lay.ring0])
+                if (unsat > ihi and e > 0) or (unsat < ilo and e < 0):   # clamping anti-windup
+                    out[self._lay.pid0 + ACC] -= e
+                    out[self._iu] -= g_acc * e
+            self._v = out
             return out
         r = np.minimum(np.maximum(np.broadcast_to(np.asarray(target, dtype=float), (self.n,)), 0.0),
                        self._rmax)
         if np.isnan(r).any():
             raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
-        cur = self._ka * ((v[:, :ns] * self._g).sum(axis=1) + self._gr * r)
-        cur = np.minimum(np.maximum(cur, self._ilo), self._ihi)
+        v = np.atleast_2d(v)
+        unsat = self._ka * (np.einsum("ij,ij->i", v[:, :ns], self._g) + self._gr * r)
+        cur = np.minimum(np.maximum(unsat, self._ilo), self._ihi)
         v[:, ns + IN_CURRENT], v[:, ns + IN_TARGET], v[:, ns + IN_LOAD] = cur, r, load
-        out = v @ self._MT if self._MT.ndim == 2 else np.matmul(v[:, None, :], self._MT)[:, 0, :]
+        vin = v[:, :ns + 3]
+        out = vin @ self._MT if self._MT.ndim == 2 else np.matmul(vin[:, None, :], self._MT)[:, 0, :]
         if self.form == "positional":
-            self._clamp(out, cur, r, v)
-        v[:, :ns] = out[:, :ns]
-        return out
-
-    def _clamp(self, out, cur, r, v):
-        """Positional anti-windup: do not integrate an error that pushes a saturated output further."""
-        lay = self._lay
-        e = self._ks * (r - v[:, lay.ring0])
-        unsat = self._ka * ((v[:, :lay.ns] * self._g).sum(axis=1) + self._gr * r)
-        frozen = ((unsat > self._ihi) & (e > 0)) | ((unsat < self._ilo) & (e < 0))
-        out[:, lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
+            e = self._ks * (r - v[:, self._lay.ring0])
+            frozen = ((unsat > self._ihi) & (e > 0)) | ((unsat < self._ilo) & (e < 0))
+            out[:, self._lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
+            if self._scalar:
+                out[:, self._iu] -= np.where(frozen, self._f[-1] * e, 0.0)
+        self._v = out[0] if self._scalar else out
+        return self._v
 
 
 def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05,

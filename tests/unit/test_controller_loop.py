@@ -51,13 +51,26 @@ def test_batch_equals_single_runs():
         np.testing.assert_allclose(batch.current_a[:, i], single.current_a[:, 0], rtol=1e-12, atol=1e-12)
 
 
-def test_scalar_fast_path_equals_array_path():
-    a, b = build_loop(P, ControllerConfig()), build_loop(P, ControllerConfig())
-    for k in range(100):
-        target = 30.0 + k
-        oa, ob = a.step(target), b.step(np.array([target]))
-        np.testing.assert_allclose(oa.shaft_rpm, ob.shaft_rpm, rtol=1e-13, atol=1e-12)
-        np.testing.assert_allclose(oa.current_a, ob.current_a, rtol=1e-13, atol=1e-15)
+@pytest.mark.parametrize("form", ["incremental", "positional"])
+def test_scalar_fast_path_equals_array_path_and_batch(form):
+    cfg = ControllerConfig(form=form, gains="manual", kind="PI", kp=0.1, ki=5.0)  # saturates both ways
+    weak = replace(P, current_max_a=0.8, shaft_rpm_max=195.0)
+    a, b, c = build_loop(weak, cfg), build_loop(weak, cfg), build_loop(weak, cfg, n=2)
+    saved, currents = None, []
+    for k in range(120):
+        target = 195.0 if (k // 30) % 2 == 0 else 5.0
+        oa, ob, oc = a.step(target), b.step(np.array([target])), c.step(np.array([target, target]))
+        for x, y in ((oa, ob), (oa, oc)):
+            np.testing.assert_allclose(x.shaft_rpm[0], y.shaft_rpm[0], rtol=1e-12, atol=1e-10)
+            np.testing.assert_allclose(x.current_a[0], y.current_a[0], rtol=1e-12, atol=1e-13)
+        currents.append(oa.current_a[0])
+        if k == 40:
+            saved = a.state
+    assert min(currents) == weak.current_min_a and max(currents) == weak.current_max_a
+    a.set_state(saved)      # the scalar path's cached PID term is rebuilt from the state
+    b.set_state(saved)
+    for _ in range(20):
+        np.testing.assert_allclose(a.step(150.0).current_a, b.step(np.array([150.0])).current_a, rtol=1e-12)
 
 
 @pytest.mark.parametrize("dom", [False, True])
