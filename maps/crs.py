@@ -80,6 +80,17 @@ def transform_xy(x, y, src: pyproj.CRS, dst: pyproj.CRS) -> tuple[np.ndarray, np
     return np.asarray(tx, dtype=np.float64), np.asarray(ty, dtype=np.float64)
 
 
+def crs_from_prj(text: str, what: str) -> pyproj.CRS:
+    """The CRS of a ``.prj`` (ESRI WKT) file, as its EPSG CRS when it matches one.
+
+    ESRI WKT loses EPSG codes and axis order; matching it back (confidence >= 90) makes a map read
+    from a shapefile or CSV compare equal to the same map from a GeoTIFF or ISOXML.
+    """
+    crs = as_crs(text, what)
+    code = crs.to_epsg(min_confidence=90)
+    return pyproj.CRS.from_epsg(code) if code else crs
+
+
 def utm_crs_for(lon: float, lat: float) -> pyproj.CRS:
     """The WGS84 / UTM zone CRS (EPSG:326zz north, 327zz south) containing a point.
 

@@ -19,7 +19,7 @@ import numpy as np
 from affine import Affine
 
 from common import MapError
-from maps.crs import WGS84, as_crs, transform_xy
+from maps.crs import WGS84, as_crs, crs_from_prj, transform_xy
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.zones import RATE_NAMES, geojson_crs, geojson_features
 
@@ -113,7 +113,7 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
         prj = os.path.splitext(path)[0] + ".prj"
         if os.path.exists(prj):
             with open(prj) as f:
-                src_crs = as_crs(f.read(), f"{prj}")
+                src_crs = crs_from_prj(f.read(), prj)
         elif crs is not None:
             src_crs = as_crs(crs, "crs")
         else:

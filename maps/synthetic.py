@@ -10,8 +10,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
-from scipy.spatial import cKDTree
 
 from common import MapError
 from maps.crs import as_crs, metres_per_unit
@@ -65,6 +63,8 @@ def zones(bounds, crs, cell_size_m: float = 5.0, seed: int = 0, n_zones: int = 6
     rates = rng.uniform(low, high, n_zones)
     if rate_step_kg_ha > 0:
         rates = np.clip(np.round(rates / rate_step_kg_ha) * rate_step_kg_ha, low, high)
+    from scipy.spatial import cKDTree  # here, not at import: scipy costs ~0.5 s to import
+
     xx, yy = np.broadcast_arrays(x, y)
     _, nearest = cKDTree(centres).query(np.column_stack((xx.ravel(), yy.ravel())))
     grid.rates_kg_ha[:] = rates[nearest].reshape(grid.rows, grid.cols)
@@ -96,6 +96,8 @@ def random_field(bounds, crs, cell_size_m: float = 5.0, seed: int = 0, mean_kg_h
     _check_rates("random_field", mean_kg_ha=mean_kg_ha, std_kg_ha=std_kg_ha,
                  correlation_length_m=correlation_length_m)
     grid, _, _ = _blank("random_field", bounds, crs, cell_size_m)
+    from scipy.ndimage import gaussian_filter  # here, not at import: scipy costs ~0.5 s to import
+
     noise = np.random.default_rng(seed).standard_normal((grid.rows, grid.cols))
     smooth = gaussian_filter(noise, sigma=correlation_length_m / cell_size_m, mode="reflect")
     sd = smooth.std()

@@ -25,7 +25,7 @@ from affine import Affine
 from rasterio.features import rasterize
 
 from common import MapError
-from maps.crs import WGS84, as_crs, metres_per_unit, transform_xy, utm_crs_for
+from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
 
@@ -148,7 +148,7 @@ def _shapefile_features(path: str, crs):
     if crs is None and files["prj"] is None:
         raise MapError(f"{path}: the shapefile has no .prj, so its CRS is unknown; give one (crs= / --crs)")
     src_crs = as_crs(crs, "crs") if files["prj"] is None else \
-        as_crs(files["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
+        crs_from_prj(files["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
     try:
         reader = shapefile.Reader(shp=files["shp"], dbf=files["dbf"], shx=files["shx"])
         fields = {f[0]: f[1] in ("N", "F") for f in reader.fields[1:]}
