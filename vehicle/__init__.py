@@ -3,6 +3,11 @@
 Knows nothing of maps' formats, control or Zenoh. Positions are metres in the field's UTM CRS;
 headings in the math convention (radians counter-clockwise from east) unless named ``*_deg``
 (compass bearing, degrees clockwise from north).
+
+One module per concept: `vehicle.field` (boundary, CRS), `vehicle.coverage` (headland passes,
+serpentine swaths, turns from `vehicle.dubins`), `vehicle.network` (netconvert, cache),
+`vehicle.driver` (libsumo, per-tick pose), `vehicle.gnss`, `vehicle.speed_sensor`,
+`vehicle.implement` (meter, sections, delivery delay) and `vehicle.record` (the per-tick record).
 """
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
