@@ -195,12 +195,14 @@ class ClosedLoop:
         self._ihi = np.array([p.current_max_a for p in plant_list])
         self._rmax = np.array([p.shaft_rpm_max for p in plant_list])
         self._scalar = n == 1 and shared
+        # With one plant and one set of gains, g . s' (the state part of the next tick's PID output) is one
+        # more row of M: a tick is then one product plus a few elementwise operations.
+        self._cached_u = shared and bool(np.all(self._g == self._g[0]))
         ns = lay.ns
         self._iu = M.shape[-2]
-        if self._scalar:
-            # One more row: g . s', the state part of the next tick's PID output, so a tick of a single
-            # loop is one mat-vec plus a few float operations.
+        if self._cached_u:
             M = np.vstack([M, self._g[0] @ M[:ns]])
+        if self._scalar:
             self._f = (float(self._gr[0]), float(self._ka[0]), float(self._ilo[0]), float(self._ihi[0]),
                        float(self._rmax[0]), float(self._ks[0]), float(self._g[0, lay.pid0 + ACC]))
         self._fine0 = M.shape[-2]
@@ -228,11 +230,10 @@ class ClosedLoop:
         if state.shape != (self.n, self._ns):
             raise ControllerError(f"state must have shape {(self.n, self._ns)}, got {state.shape}")
         self.reset()
-        if self._scalar:
-            self._v[:self._ns] = state[0]
-            self._v[self._iu] = self._g[0] @ state[0]
-        else:
-            self._v[:, :self._ns] = state
+        v = np.atleast_2d(self._v)    # a view of the 1-D vector of a single loop
+        v[:, :self._ns] = state
+        if self._cached_u:
+            v[:, self._iu] = state @ self._g[0]
 
     @property
     def motor_angle_rad(self) -> np.ndarray:
@@ -264,6 +265,39 @@ class ClosedLoop:
         return StepOutput(out[:, o + OUT_RPM], out[:, o + OUT_REV], out[:, o + OUT_CURRENT],
                           out[:, o + OUT_MEASURED])
 
+    def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
+        """Advance one control period per row of `targets_rpm`; the same as calling `step` per row.
+
+        Parameters
+        ----------
+        targets_rpm : ndarray, shape (K,) for n = 1, or (K, n)
+            Setpoint per period and loop [rpm].
+        load_torque_nm : float
+            Load torque held over the whole run [N m].
+
+        Returns
+        -------
+        StepOutput
+            Arrays of shape (K, n): the per-period outputs, recorded without a Python object per tick.
+        """
+        t = np.asarray(targets_rpm, dtype=float)
+        if t.ndim == 1 and self.n == 1:
+            t = t[:, None]
+        if t.ndim != 2 or t.shape[1] != self.n:
+            raise ControllerError(f"targets_rpm must have shape (K, {self.n}), got {np.shape(targets_rpm)}")
+        o = self._ns + 3
+        rec = np.empty((t.shape[0], 4, self.n))
+        rows = [OUT_RPM, OUT_REV, OUT_CURRENT, OUT_MEASURED]
+        if self._scalar:
+            flat = rec[:, :, 0]
+            advance = self._advance
+            for k, target in enumerate(t[:, 0].tolist()):
+                flat[k] = advance(target, load_torque_nm)[o:o + 4]
+        else:
+            for k in range(t.shape[0]):
+                rec[k] = np.atleast_2d(self._advance(t[k], load_torque_nm))[:, o:o + 4].T
+        return StepOutput(*(rec[:, i, :] for i in rows))
+
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm].
 
@@ -292,7 +326,8 @@ class ClosedLoop:
             cur = ilo if unsat < ilo else ihi if unsat > ihi else unsat
             v[ns] = cur
             v[ns + 1] = r
-            v[ns + 2] = load
+            if load:     # the product leaves the input slots at zero
+                v[ns + 2] = load
             out = self._M.dot(v[:ns + 3])
             if self.form == "positional":
                 e = ks * (r - v[self._lay.ring0])
@@ -301,24 +336,42 @@ class ClosedLoop:
                     out[self._iu] -= g_acc * e
             self._v = out
             return out
-        r = np.minimum(np.maximum(np.broadcast_to(np.asarray(target, dtype=float), (self.n,)), 0.0),
-                       self._rmax)
-        if np.isnan(r).any():
-            raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
+        r = self._targets(target)
         v = np.atleast_2d(v)
-        unsat = self._ka * (np.einsum("ij,ij->i", v[:, :ns], self._g) + self._gr * r)
+        u = v[:, self._iu] if self._cached_u else np.einsum("ij,ij->i", v[:, :ns], self._g)
+        unsat = self._ka * (u + self._gr * r)
         cur = np.minimum(np.maximum(unsat, self._ilo), self._ihi)
-        v[:, ns + IN_CURRENT], v[:, ns + IN_TARGET], v[:, ns + IN_LOAD] = cur, r, load
+        v[:, ns + IN_CURRENT] = cur
+        v[:, ns + IN_TARGET] = r
+        if isinstance(load, np.ndarray) or load:
+            v[:, ns + IN_LOAD] = load
         vin = v[:, :ns + 3]
         out = vin @ self._MT if self._MT.ndim == 2 else np.matmul(vin[:, None, :], self._MT)[:, 0, :]
         if self.form == "positional":
             e = self._ks * (r - v[:, self._lay.ring0])
             frozen = ((unsat > self._ihi) & (e > 0)) | ((unsat < self._ilo) & (e < 0))
-            out[:, self._lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
-            if self._scalar:
-                out[:, self._iu] -= np.where(frozen, self._f[-1] * e, 0.0)
+            if frozen.any():
+                out[:, self._lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
+                if self._cached_u:
+                    out[:, self._iu] -= np.where(frozen, self._g[0, self._lay.pid0 + ACC] * e, 0.0)
         self._v = out[0] if self._scalar else out
         return self._v
+
+    def _targets(self, target) -> np.ndarray:
+        """Targets as shape (n,), clipped to [0, shaft_rpm_max]; NaN is an error."""
+        if isinstance(target, np.ndarray) and target.shape == (self.n,):
+            r = target.astype(float, copy=False)
+        else:
+            try:
+                r = np.broadcast_to(np.asarray(target, dtype=float), (self.n,))
+            except (TypeError, ValueError):
+                raise ControllerError(f"target_shaft_rpm must be a number or shape ({self.n},), "
+                                      f"got {target!r}") from None
+        r = np.minimum(np.maximum(r, 0.0), self._rmax)
+        total = r.sum()
+        if total != total:
+            raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
+        return r
 
 
 def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05,

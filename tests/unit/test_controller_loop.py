@@ -134,3 +134,16 @@ def test_bad_inputs_raise_controller_error():
         build_loop(P, ControllerConfig(), control_period_s=0.05, plant_step_s=0.003)
     with pytest.raises(ControllerError, match="plants must be one value or 2"):
         ClosedLoop([P, P, P], PidGains(0.5), n=2)
+
+
+def test_run_equals_step_by_step():
+    targets = np.r_[np.full(30, 150.0), np.full(30, 20.0), np.full(30, 250.0)]
+    a, b = build_loop(P, ControllerConfig()), build_loop(P, ControllerConfig())
+    rec = a.run(targets)
+    outs = [b.step(float(t)) for t in targets]
+    for name in ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm"):
+        np.testing.assert_array_equal(getattr(rec, name)[:, 0], [getattr(o, name)[0] for o in outs])
+    two = build_loop(P, ControllerConfig(), n=2).run(np.column_stack([targets, targets / 2]))
+    np.testing.assert_allclose(two.shaft_rpm[:, 0], rec.shaft_rpm[:, 0], rtol=1e-12, atol=1e-10)
+    with pytest.raises(ControllerError, match="targets_rpm"):
+        a.run(np.zeros((5, 3)))
