@@ -147,3 +147,13 @@ def test_run_equals_step_by_step():
     np.testing.assert_allclose(two.shaft_rpm[:, 0], rec.shaft_rpm[:, 0], rtol=1e-12, atol=1e-10)
     with pytest.raises(ControllerError, match="targets_rpm"):
         a.run(np.zeros((5, 3)))
+
+
+def test_load_torque_is_rejected_by_integral_action_at_the_predicted_current():
+    loop = build_loop(P, ControllerConfig(kind="PI"))
+    for _ in range(300):
+        out = loop.step(100.0, load_torque_nm=20.0)
+    assert out.shaft_rpm[0] == pytest.approx(100.0, rel=1e-6)
+    # the valve must supply the motor-speed droop of eq. 12: Kce/Dm^2 * T_L [rad/s] more
+    droop_rpm = P.load_droop_rad_s_per_nm * 20.0 * P.transmission_ratio * 60 / (2 * np.pi)
+    assert out.current_a[0] == pytest.approx((100.0 + droop_rpm) / P.shaft_rpm_per_a, rel=1e-6)
