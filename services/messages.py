@@ -22,7 +22,6 @@ import numpy as np
 from common import ServiceError
 
 NAN = math.nan
-_NONE = object()
 
 
 class Message:
@@ -217,8 +216,8 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
         if not isinstance(values, list):
             raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {_short(values)}")
         # type() rather than isinstance: bools (an int subclass) and numeric strings are refused.
-        bad = next((v for v in values if type(v) is not float and type(v) is not int), _NONE)
-        if bad is not _NONE:
+        if not set(map(type, values)) <= {float, int}:
+            bad = next(v for v in values if type(v) is not float and type(v) is not int)
             raise ServiceError(f"map/rate batch: {name} holds a non-number {_short(bad)}")
         arr = np.array(values, dtype=np.float64)
         arrays.append(arr)

@@ -210,6 +210,8 @@ class MonitorService:
 
 def main(options: ZenohOptions, db_path: str, stop: threading.Event | None = None) -> None:
     """Serve the monitor on ``db_path`` until SIGINT/SIGTERM (or ``stop``)."""
+    import services.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
+
     store = MonitorStore(db_path)
     svc = MonitorService(store)
     keys = options.keys

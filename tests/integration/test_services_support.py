@@ -93,7 +93,7 @@ class ServeAll:
     def children(self) -> dict[str, int]:
         return child_services(self.proc.pid)
 
-    def query(self, selector: str, payload: bytes | None = None, timeout_s: float = 10.0):
+    def query(self, selector: str, payload: bytes | None = None, timeout_s: float = 60.0):
         """(ok, decoded JSON) of the single reply (ok False: an error reply's JSON)."""
         kwargs = {"timeout": timeout_s}
         if payload is not None:
