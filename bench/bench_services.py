@@ -55,8 +55,9 @@ def map_queries(net, grid, n: int, in_flight: int) -> float:
     t0 = time.perf_counter()
     for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
         slots.acquire()
-        net.session.get(f"vrsim/map/rate?x={x!r};y={y!r}", zenoh.handlers.Callback(on_reply, on_drop),
-                        timeout=10)
+        # indirect=False: these callbacks are trivial, so run them on zenoh's own thread (no hand-off)
+        net.session.get(f"vrsim/map/rate?x={x!r};y={y!r}",
+                        zenoh.handlers.Callback(on_reply, on_drop, indirect=False), timeout=10)
     for _ in range(n):
         done.acquire()
     elapsed = time.perf_counter() - t0
