@@ -43,16 +43,10 @@ def test_ultimate_point_is_reproduced_and_the_rest_is_reported_honestly(paper_js
     assert any("cannot come from its printed gains" in f for f in d["findings"])
 
 
-def test_table_without_json(tmp_path):
-    p = _vrsim("paper", "--out", str(tmp_path / "fig"))
+def test_table_without_json_into_the_default_out_dir(tmp_path):
+    p = _vrsim("paper", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert "paper vs vrsim" in p.stdout and "textbook Z-N PID" in p.stdout and "Findings:" in p.stdout
-    assert (tmp_path / "fig" / "step_responses.png").is_file()
-
-
-def test_default_out_dir_is_runs_paper(tmp_path):
-    p = _vrsim("paper", "--json", cwd=tmp_path)
-    assert p.returncode == 0, p.stderr
     assert (tmp_path / "runs" / "paper" / "step_responses.png").is_file()
 
 
