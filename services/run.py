@@ -164,7 +164,9 @@ class ControlCore:
         if rate.size:
             self.last_rate_kg_ha = float(rate[-1])
         on = np.asarray(implement_on, bool)
-        target = np.where(on, self.implement.target_shaft_rpm(rate, speed_m_s), 0.0)
+        # Within the meter's speed range while applying; a zero rate or sections off stop the shaft.
+        wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s))
+        target = np.where(on, wanted, 0.0)
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target}
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
