@@ -57,18 +57,23 @@ class StepOutput:
                 f"current_a={self.current_a}, measured_rpm={self.measured_rpm})")
 
 
-def _pid_row(gains: PidGains, form: str, dom: bool, sample_s: float) -> np.ndarray:
-    """Coefficients of u(n) on [acc, e, e1, e2, y, y1, y2] (volts) for one loop."""
-    kp, ki_t, kd_t = gains.kp, gains.ki * sample_s, gains.kd / sample_s
+def _pid_rows(kp: np.ndarray, ki: np.ndarray, kd: np.ndarray, form: str, dom: bool,
+              sample_s: float) -> np.ndarray:
+    """Coefficients of u(n) on [acc, e, e1, e2, y, y1, y2] (volts), shape (n, 7), from gains (n,)."""
+    ki_t, kd_t = ki * sample_s, kd / sample_s
+    zero, one = np.zeros_like(kp), np.ones_like(kp)
     if form == "incremental":
         # u(n) = u(n-1) + A e - B e1 + C e2 (paper eq. 16); on measurement D acts on -y.
         if dom:
-            return np.array([1.0, kp + ki_t, -kp, 0.0, -kd_t, 2 * kd_t, -kd_t])
-        return np.array([1.0, kp + ki_t + kd_t, -(kp + 2 * kd_t), kd_t, 0.0, 0.0, 0.0])
+            cols = (one, kp + ki_t, -kp, zero, -kd_t, 2 * kd_t, -kd_t)
+        else:
+            cols = (one, kp + ki_t + kd_t, -(kp + 2 * kd_t), kd_t, zero, zero, zero)
     # positional: u(n) = kp e + ki T (sum_{j<n} e + e) + D
-    if dom:
-        return np.array([ki_t, kp + ki_t, 0.0, 0.0, -kd_t, kd_t, 0.0])
-    return np.array([ki_t, kp + ki_t + kd_t, -kd_t, 0.0, 0.0, 0.0, 0.0])
+    elif dom:
+        cols = (ki_t, kp + ki_t, zero, zero, -kd_t, kd_t, zero)
+    else:
+        cols = (ki_t, kp + ki_t + kd_t, -kd_t, zero, zero, zero, zero)
+    return np.column_stack(cols)
 
 
 class _Layout:
@@ -121,14 +126,14 @@ def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: floa
     return M, F
 
 
-def _gain_vector(p: PlantParams, row: np.ndarray, lay: _Layout) -> tuple[np.ndarray, float]:
-    """Turn a `_pid_row` into (g over the state, g_r on the target), substituting e and y."""
-    a_acc, a_e, a_e1, a_e2, a_y, a_y1, a_y2 = row
-    ks = p.sensor_gain_v_per_rpm
-    g = np.zeros(lay.ns)
-    g[lay.pid0 + ACC], g[lay.pid0 + E1], g[lay.pid0 + E2] = a_acc, a_e1, a_e2
-    g[lay.pid0 + Y1], g[lay.pid0 + Y2] = a_y1, a_y2
-    g[lay.ring0] = ks * (a_y - a_e)               # e = Ks r - Ks y_m, y = Ks y_m
+def _gain_vectors(rows: np.ndarray, ks: np.ndarray, lay: _Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Turn `_pid_rows` into (g over the state (n, ns), g_r on the target (n,)), substituting
+    e = Ks r - Ks y_m and y = Ks y_m."""
+    a_acc, a_e, a_e1, a_e2, a_y, a_y1, a_y2 = rows.T
+    g = np.zeros((rows.shape[0], lay.ns))
+    p0 = lay.pid0
+    g[:, p0 + ACC], g[:, p0 + E1], g[:, p0 + E2], g[:, p0 + Y1], g[:, p0 + Y2] = a_acc, a_e1, a_e2, a_y1, a_y2
+    g[:, lay.ring0] = ks * (a_y - a_e)
     return g, ks * a_e
 
 
@@ -170,14 +175,17 @@ class ClosedLoop:
             raise ControllerError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
         plant_list = _per_loop(plants, n, "plants")
         gain_list = _per_loop(gains, n, "gains")
-        for p in plant_list:
-            if not isinstance(p, PlantParams):
-                raise ControllerError(f"plants must be PlantParams, got {type(p).__name__}")
+        for t in set(map(type, plant_list)):
+            if t is not PlantParams:
+                raise ControllerError(f"plants must be PlantParams, got {t.__name__}")
+        for g in set(map(type, gain_list)):
+            if g is not PidGains:
+                raise ControllerError(f"gains must be PidGains, got {g.__name__}")
         self.n = n
         self.form = form
         self.control_period_s = float(control_period_s)
         self.plant_step_s = float(plant_step_s)
-        unique = list(dict.fromkeys(plant_list))
+        unique = list(dict.fromkeys(plant_list)) if isinstance(plants, Sequence) else [plants]
         self._lay = lay = _Layout(max(
             math.floor(p.sensor_delay_s / control_period_s + 1e-12) + 1 for p in unique))
         blocks = {p: _plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
@@ -185,15 +193,19 @@ class ClosedLoop:
         M = blocks[unique[0]][0] if shared else np.stack([blocks[p][0] for p in plant_list])
         F = blocks[unique[0]][1] if shared else np.stack([blocks[p][1] for p in plant_list])
         self.n_fine = F.shape[-2]
-        gvecs = [_gain_vector(p, _pid_row(g, form, derivative_on_measurement, control_period_s), lay)
-                 for p, g in zip(plant_list, gain_list, strict=True)]
-        self._g = np.stack([gv[0] for gv in gvecs])               # (n, ns)
-        self._gr = np.array([gv[1] for gv in gvecs])              # (n,)
-        self._ka = np.array([p.amplifier_gain_a_per_v for p in plant_list])
-        self._ks = np.array([p.sensor_gain_v_per_rpm for p in plant_list])
-        self._ilo = np.array([p.current_min_a for p in plant_list])
-        self._ihi = np.array([p.current_max_a for p in plant_list])
-        self._rmax = np.array([p.shaft_rpm_max for p in plant_list])
+        def per_loop(name, source):   # one value per loop, without touching n objects when shared
+            values = [getattr(x, name) for x in source]
+            return np.array(values if len(source) == n else values * n, dtype=float)
+
+        plant_src = unique if shared else plant_list
+        gain_src = gain_list if isinstance(gains, Sequence) else [gains]
+        self._ka, self._ks = per_loop("amplifier_gain_a_per_v", plant_src), per_loop("sensor_gain_v_per_rpm",
+                                                                                      plant_src)
+        self._ilo, self._ihi = per_loop("current_min_a", plant_src), per_loop("current_max_a", plant_src)
+        self._rmax = per_loop("shaft_rpm_max", plant_src)
+        rows = _pid_rows(per_loop("kp", gain_src), per_loop("ki", gain_src), per_loop("kd", gain_src), form,
+                         derivative_on_measurement, control_period_s)
+        self._g, self._gr = _gain_vectors(rows, self._ks, lay)
         self._scalar = n == 1 and shared
         # With one plant and one set of gains, g . s' (the state part of the next tick's PID output) is one
         # more row of M: a tick is then one product plus a few elementwise operations.
@@ -272,7 +284,7 @@ class ClosedLoop:
         ----------
         targets_rpm : ndarray, shape (K,) for n = 1, or (K, n)
             Setpoint per period and loop [rpm].
-        load_torque_nm : float
+        load_torque_nm : float or ndarray, shape (n,)
             Load torque held over the whole run [N m].
 
         Returns
@@ -286,17 +298,17 @@ class ClosedLoop:
         if t.ndim != 2 or t.shape[1] != self.n:
             raise ControllerError(f"targets_rpm must have shape (K, {self.n}), got {np.shape(targets_rpm)}")
         o = self._ns + 3
-        rec = np.empty((t.shape[0], 4, self.n))
-        rows = [OUT_RPM, OUT_REV, OUT_CURRENT, OUT_MEASURED]
+        rec = np.empty((t.shape[0], self.n, 4))
         if self._scalar:
-            flat = rec[:, :, 0]
+            flat = rec[:, 0, :]
             advance = self._advance
             for k, target in enumerate(t[:, 0].tolist()):
                 flat[k] = advance(target, load_torque_nm)[o:o + 4]
         else:
             for k in range(t.shape[0]):
-                rec[k] = np.atleast_2d(self._advance(t[k], load_torque_nm))[:, o:o + 4].T
-        return StepOutput(*(rec[:, i, :] for i in rows))
+                rec[k] = self._advance(t[k], load_torque_nm)[:, o:o + 4]
+        return StepOutput(rec[:, :, OUT_RPM], rec[:, :, OUT_REV], rec[:, :, OUT_CURRENT],
+                          rec[:, :, OUT_MEASURED])
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm].

@@ -114,19 +114,23 @@ def simulate(plants, controllers, setpoint_rpm, duration_s: float, control_perio
         raise ControllerError(f"setpoint_rpm has {sp.shape[0]} rows, the run needs {K} control periods")
     targets = sp[:K] if sp.ndim == 2 else np.broadcast_to(sp, (K, n))
     N = loop.n_fine
-    shaft = np.zeros((n, K * N + 1)) if fine else None
-    rec = {name: np.empty((K, n)) for name in ("current_a", "measured_rpm", "shaft_rev", "target_rpm")}
-    rmax = np.array([p.shaft_rpm_max for p in (plants if isinstance(plants, Sequence) else [plants] * n)])
-    for k in range(K):
-        if fine:
+    rmax = (np.array([p.shaft_rpm_max for p in plants]) if isinstance(plants, Sequence)
+            else plants.shaft_rpm_max)
+    rec = {"target_rpm": np.clip(targets, 0.0, rmax)}
+    if fine:
+        shaft = np.zeros((n, K * N + 1))
+        for name in ("current_a", "measured_rpm", "shaft_rev"):
+            rec[name] = np.empty((K, n))
+        for k in range(K):
             out, f = loop.step_fine(targets[k], load_torque_nm)
             shaft[:, 1 + k * N:1 + (k + 1) * N] = f
-        else:
-            out = loop.step(targets[k], load_torque_nm)
-        rec["current_a"][k] = out.current_a
-        rec["measured_rpm"][k] = out.measured_rpm
-        rec["shaft_rev"][k] = out.shaft_rev
-        rec["target_rpm"][k] = np.clip(targets[k], 0.0, rmax)
-    t = np.arange(K * N + 1) * plant_step_s if fine else None
+            rec["current_a"][k] = out.current_a
+            rec["measured_rpm"][k] = out.measured_rpm
+            rec["shaft_rev"][k] = out.shaft_rev
+        t = np.arange(K * N + 1) * plant_step_s
+    else:
+        out = loop.run(targets, load_torque_nm)
+        rec.update(current_a=out.current_a, measured_rpm=out.measured_rpm, shaft_rev=out.shaft_rev)
+        shaft = t = None
     rec["shaft_rpm"] = shaft
     return SimResult(t_s=t, tick_t_s=np.arange(K) * control_period_s, **rec)
