@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import rasterio
 from rasterio.errors import RasterioError
+from rasterio.windows import Window
 
 from common import MapError
 from maps.crs import as_crs
@@ -33,9 +36,10 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
 
     Notes
     -----
-    The band is read by GDAL directly into a float64 array (no intermediate copy); the nodata value
-    becomes NaN. NaN cells are nodata when the file declares no nodata value or NaN; with another
-    nodata value they are refused, as are negative rates.
+    The band is read by GDAL directly into a float64 array (no intermediate copy), in bands of
+    rows on up to 4 threads; the nodata value becomes NaN. NaN cells are nodata when the file
+    declares no nodata value or NaN; with another nodata value they are refused, as are negative
+    rates.
     """
     try:
         with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
@@ -46,25 +50,53 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
             if src.crs is None and crs is None:
                 raise MapError(f"{path}: the raster has no CRS; give one (crs= / --crs)")
             grid_crs = as_crs(src.crs.to_wkt(), f"{path}: CRS") if src.crs is not None else as_crs(crs, "crs")
+            nodata, transform, tags = src.nodata, src.transform, src.tags()
             rates = np.empty((src.height, src.width), dtype=np.float64)
-            src.read(1, out=rates)
-            nodata, transform = src.nodata, src.transform
-            tags = src.tags()
+            bands = [(r0, min(src.height, r0 + BAND_ROWS)) for r0 in range(0, src.height, BAND_ROWS)]
+            if len(bands) == 1:
+                checks = [_read_band(src, rates, bands[0], nodata)]
+            else:
+                checks = _read_parallel(path, rates, bands, nodata)
     except RasterioError as exc:
         raise MapError(f"{path}: cannot read as a raster: {exc}") from None
-    if nodata is not None and not np.isnan(nodata):
-        if np.isnan(rates).any():
-            raise MapError(f"{path}: NaN rates in cells that are not nodata (nodata is {nodata})")
-        rates[rates == nodata] = np.nan
-    _refuse_negative(rates, path)
+    for r0, nan_found, low in checks:
+        if nan_found:
+            raise MapError(f"{path}: NaN rates in cells that are not nodata (nodata is {nodata}), "
+                           f"from row {r0}")
+        if low < 0:
+            row, col = np.argwhere(rates < 0)[0]
+            raise MapError(f"{path}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff")
 
 
-def _refuse_negative(rates: np.ndarray, where: str) -> None:
-    # fmin.reduce skips NaN without allocating a mask over the whole raster.
-    if rates.size and np.fmin.reduce(rates, axis=None) < 0:
-        row, col = np.argwhere(rates < 0)[0]
-        raise MapError(f"{where}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
+BAND_ROWS = 256  # rows per read: a few MB, so the checks run on data still in cache
+
+
+def _read_band(src, rates: np.ndarray, band: tuple[int, int], nodata) -> tuple[int, bool, float]:
+    """Read rows [r0, r1) of band 1 straight into `rates` (GDAL converts to float64), turn nodata
+    into NaN, and return (r0, NaN found that is not nodata, minimum rate)."""
+    r0, r1 = band
+    out = rates[r0:r1]
+    src.read(1, window=Window(0, r0, rates.shape[1], r1 - r0), out=out)
+    nan_found = False
+    if nodata is not None and not np.isnan(nodata):
+        nan_found = bool(np.isnan(out).any())
+        out[out == nodata] = np.nan
+    # fmin skips NaN; an all-NaN band gives NaN, which compares False below.
+    return r0, nan_found, float(np.fmin.reduce(out, axis=None))
+
+
+def _read_parallel(path: str, rates: np.ndarray, bands: list, nodata) -> list:
+    """Read bands on a few threads, each with its own dataset (GDAL releases the GIL while reading)."""
+    workers = max(1, min(4, os.cpu_count() or 1))
+
+    def work(part):
+        with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
+            return [_read_band(src, rates, band, nodata) for band in part]
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        parts = pool.map(work, [bands[i::workers] for i in range(workers)])
+        return [check for part in parts for check in part]
 
 
 def write_geotiff(grid: Grid, path: str) -> None:

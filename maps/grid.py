@@ -18,6 +18,7 @@ from common import MapError
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
 
 UNIT = "kg/ha"
+LOOKUP_CHUNK = 32_768  # points per pass of Grid.lookup: its temporaries stay in L2 cache
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,7 @@ class Grid:
         # Scalars for the per-tick fast path, so rate_at does no attribute chasing through Affine.
         self._x0, self._dx, self._y0, self._dy = t.c, t.a, t.f, -t.e
         self._inv_dx, self._inv_dy = 1.0 / t.a, 1.0 / -t.e
+        self._to_grid = None  # WGS84 -> grid transformer, made on first use
 
     def _where(self) -> str:
         return self.source or "grid"
@@ -172,19 +174,45 @@ class Grid:
             y = np.asarray(y, dtype=np.float64)
         else:
             x, y = transform_xy(x, y, as_crs(crs, "lookup: crs"), self.crs)
-        fc = (x - self._x0) * self._inv_dx
-        fr = (self._y0 - y) * self._inv_dy
-        inside = (fc >= 0.0) & (fc < self.cols) & (fr >= 0.0) & (fr < self.rows)
-        # Outside points index cell (0, 0) and are masked afterwards: one take, no fancy filtering.
-        col = np.where(inside, fc, 0.0).astype(np.int64)
-        row = np.where(inside, fr, 0.0).astype(np.int64)
-        rate = self.rates_kg_ha.ravel().take(row * self.cols + col)
+        x, y = np.broadcast_arrays(x, y)
+        shape = x.shape
+        x, y = x.ravel(), y.ravel()
+        n = x.size
+        out = LookupResult(np.empty(n), np.empty(n, dtype=bool), np.empty(n, dtype=np.int64),
+                           np.empty(n, dtype=np.int64))
+        # Chunks that fit in cache: the ~20 passes over the points then run at cache speed.
+        for lo in range(0, n, LOOKUP_CHUNK):
+            hi = min(n, lo + LOOKUP_CHUNK)
+            self._lookup_chunk(x[lo:hi], y[lo:hi], bilinear, out, slice(lo, hi))
+        return LookupResult(*(a.reshape(shape) for a in (out.rate_kg_ha, out.inside, out.row, out.col)))
+
+    def _lookup_chunk(self, x, y, bilinear, out: LookupResult, sl: slice) -> None:
+        fc = np.subtract(x, self._x0)
+        fc *= self._inv_dx
+        fr = np.subtract(self._y0, y)
+        fr *= self._inv_dy
+        inside = out.inside[sl]
+        np.greater_equal(fc, 0.0, out=inside)
+        inside &= fc < self.cols
+        inside &= fr >= 0.0
+        inside &= fr < self.rows
+        outside = ~inside
+        # Outside points (NaN included) index cell (0, 0) and are masked afterwards: one take, no
+        # fancy filtering, and no cast of NaN or huge values to integers.
+        fc[outside] = 0.0
+        fr[outside] = 0.0
+        col, row = out.col[sl], out.row[sl]
+        np.copyto(col, fc, casting="unsafe")
+        np.copyto(row, fr, casting="unsafe")
+        flat = row * self.cols
+        flat += col
+        rate = out.rate_kg_ha[sl]
+        self.rates_kg_ha.ravel().take(flat, out=rate)
         if bilinear:
-            rate = self._bilinear(fc, fr, rate)
-        rate = np.where(inside, rate, np.nan)
-        row = np.where(inside, row, -1)
-        col = np.where(inside, col, -1)
-        return LookupResult(rate, inside, row, col)
+            rate[:] = self._bilinear(fc, fr, rate)
+        rate[outside] = np.nan
+        row[outside] = -1
+        col[outside] = -1
 
     def _bilinear(self, fc: np.ndarray, fr: np.ndarray, nearest: np.ndarray) -> np.ndarray:
         # Cell-centre coordinates: centre of cell c is at fc = c + 0.5.
@@ -224,15 +252,24 @@ class Grid:
         for name, value in named:
             if not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise MapError(f"sample: {name}={value!r} is not a finite number")
-        res = self.lookup(float(px), float(py), crs=crs)
-        inside = bool(res.inside)
-        rate = float(res.rate_kg_ha)
-        return {
-            "rate_kg_ha": rate if math.isfinite(rate) else None,
-            "inside": inside,
-            "row": int(res.row) if inside else None,
-            "col": int(res.col) if inside else None,
-        }
+        px, py = float(px), float(py)
+        if crs is not None:
+            # Scalar pyproj call (~5 us), not the array path: the map service answers one point.
+            px, py = self._from_wgs84().transform(px, py, errcheck=False)
+        fc = (px - self._x0) * self._inv_dx
+        fr = (self._y0 - py) * self._inv_dy
+        if not (0.0 <= fc < self.cols and 0.0 <= fr < self.rows):
+            return {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
+        row, col = int(fr), int(fc)
+        rate = float(self.rates_kg_ha[row, col])
+        return {"rate_kg_ha": rate if rate == rate else None, "inside": True, "row": row, "col": col}
+
+    def _from_wgs84(self):
+        from maps.crs import transformer
+
+        if self._to_grid is None:
+            self._to_grid = transformer(WGS84, self.crs)
+        return self._to_grid
 
     # ------------------------------------------------------------------ summaries
     def info(self) -> dict:
