@@ -145,6 +145,12 @@ def _per_loop(value, n: int, name: str) -> list:
     return [value] * n
 
 
+def _values(source: list, name: str, n: int) -> np.ndarray:
+    """Attribute `name` of each loop's object, shape (n,); `source` is n objects or one shared one."""
+    values = [getattr(x, name) for x in source]
+    return np.array(values if len(source) == n else values * n, dtype=float)
+
+
 class ClosedLoop:
     """n independent sensor-PID-valve-motor loops advancing one control period per `step`.
 
@@ -193,17 +199,12 @@ class ClosedLoop:
         M = blocks[unique[0]][0] if shared else np.stack([blocks[p][0] for p in plant_list])
         F = blocks[unique[0]][1] if shared else np.stack([blocks[p][1] for p in plant_list])
         self.n_fine = F.shape[-2]
-        def per_loop(name, source):   # one value per loop, without touching n objects when shared
-            values = [getattr(x, name) for x in source]
-            return np.array(values if len(source) == n else values * n, dtype=float)
-
-        plant_src = unique if shared else plant_list
-        gain_src = gain_list if isinstance(gains, Sequence) else [gains]
-        self._ka, self._ks = per_loop("amplifier_gain_a_per_v", plant_src), per_loop("sensor_gain_v_per_rpm",
-                                                                                      plant_src)
-        self._ilo, self._ihi = per_loop("current_min_a", plant_src), per_loop("current_max_a", plant_src)
-        self._rmax = per_loop("shaft_rpm_max", plant_src)
-        rows = _pid_rows(per_loop("kp", gain_src), per_loop("ki", gain_src), per_loop("kd", gain_src), form,
+        ps = unique if shared else plant_list
+        gs = gain_list if isinstance(gains, Sequence) else [gains]
+        self._ka, self._ks = _values(ps, "amplifier_gain_a_per_v", n), _values(ps, "sensor_gain_v_per_rpm", n)
+        self._ilo, self._ihi = _values(ps, "current_min_a", n), _values(ps, "current_max_a", n)
+        self._rmax = _values(ps, "shaft_rpm_max", n)
+        rows = _pid_rows(_values(gs, "kp", n), _values(gs, "ki", n), _values(gs, "kd", n), form,
                          derivative_on_measurement, control_period_s)
         self._g, self._gr = _gain_vectors(rows, self._ks, lay)
         self._scalar = n == 1 and shared
