@@ -8,7 +8,7 @@ map_lookup_wgs84_points_per_s  the same with lon/lat points (pyproj transform in
 map_rate_at_us              Grid.rate_at, scalar, per call, us
 map_sample_us               Grid.sample(lat=, lon=), scalar (the map service's reply), per call, us
 geotiff_10k_load_s          read_map of a 10,000 x 10,000 float32 GeoTIFF (tiled, uncompressed), s
-geotiff_10k_peak_mem_ratio  peak RSS growth during that load / size of the float64 rate array
+geotiff_10k_peak_mem_ratio  peak RSS growth (VmHWM) during that load / size of the float64 rate array
 geotiff_10k_deflate_load_s  the same raster DEFLATE-compressed, s
 as_applied_tick_us          AsApplied.add_strips, one call with 130,000 ticks (12 m x 0.15 m strips,
                             serpentine passes on a 5 m grid), per strip, us
@@ -77,16 +77,19 @@ def _write_10k(path: str, compress: str | None) -> None:
 
 
 def _load_in_child(path: str) -> dict[str, float]:
-    """Load in a fresh process: peak RSS growth is then the load's alone."""
+    """Load in a fresh process and report its peak-RSS growth (VmHWM: ru_maxrss would carry this
+    process's own peak across exec)."""
     code = (
-        "import json, resource, time, sys\n"
-        "import maps, rasterio\n"
-        "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+        "import json, time\n"
+        "def hwm():\n"
+        "    with open('/proc/self/status') as f:\n"
+        "        return next(int(ln.split()[1]) for ln in f if ln.startswith('VmHWM'))\n"
+        "import maps, maps.geotiff\n"
+        "before = hwm()\n"
         "t0 = time.perf_counter()\n"
         f"g = maps.read_map({path!r})\n"
         "dt = time.perf_counter() - t0\n"
-        "after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
-        "print(json.dumps({'s': dt, 'grow_kb': after - before, 'bytes': g.rates_kg_ha.nbytes}))\n"
+        "print(json.dumps({'s': dt, 'grow_kb': hwm() - before, 'bytes': g.rates_kg_ha.nbytes}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
