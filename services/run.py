@@ -200,8 +200,11 @@ class ControlCore:
                        float(self._metered_kg(np.array([rev]), np.array([implement_on]))[0]))
 
     def _metered_kg(self, shaft_rev, implement_on) -> np.ndarray:
-        # Sections off close the gate: what the shaft turns then stays in the hopper.
-        return np.where(np.asarray(implement_on, bool), self.implement.mass_kg(shaft_rev), 0.0)
+        # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
+        # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
+        # (it does not lift product off the ground), so only forward revolutions count.
+        forward = np.maximum(shaft_rev, 0.0)
+        return np.where(np.asarray(implement_on, bool), self.implement.mass_kg(forward), 0.0)
 
 
 TRACK_KEYS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
