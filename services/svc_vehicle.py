@@ -4,8 +4,8 @@ The only process that runs SUMO (libsumo holds one simulation per process). A ru
 scenario control through ``<prefix>/<machine>/vehicle/start`` (body: `messages.RunStart`); a worker
 thread then steps `vehicle.SumoDriver` one control period at a time, takes the GNSS fix
 (`vehicle.Gnss.fix`, the same numbers as the vectorized ``measure`` of ``vrsim run``), publishes
-``<prefix>/<machine>/pose`` and sends the same poses to ``.../control/step``, waiting for its reply
-before driving on. Clocks: ``lockstep`` batches ``ticks_per_message`` ticks per message and runs as
+``<prefix>/<machine>/pose`` and sends the same poses to ``.../control/step`` (at most one batch
+unanswered, see `StepPipe`). Clocks: ``lockstep`` batches ``ticks_per_message`` ticks per message and runs as
 fast as the controller answers; ``realtime`` sends every tick when simulation time, divided by the
 speed factor, reaches the wall clock.
 """
@@ -109,6 +109,7 @@ class VehicleService:
         realtime = start.clock == "realtime"
         per_message = 1 if realtime else start.ticks_per_message
         querier = self.session.declare_querier(self.keys.control_step, timeout=STEP_TIMEOUT_S)
+        pipe = StepPipe(querier, self.publish_pose, self.keys.control_step)
         try:
             with SumoDriver(world.path, sc.tractor, step_s=period, seed=sc.seed) as driver:
                 gnss = Gnss(sc.gnss, seed=sc.seed)
@@ -116,7 +117,8 @@ class VehicleService:
                 wall0, batch, tick = time.monotonic(), [], 0
                 while not driver.finished:
                     if self.stop_flag.is_set():
-                        self._flush(querier, batch)
+                        pipe.send(batch)
+                        pipe.wait()
                         return "stopped"
                     if tick >= max_ticks:
                         raise ServiceError(f"run {start.run_id}: not finished after [timing] "
@@ -131,33 +133,54 @@ class VehicleService:
                         if delay > 0:
                             time.sleep(delay)
                     if len(batch) >= per_message:
-                        self._flush(querier, batch)
+                        pipe.send(batch)
                         self._set(ticks=tick, sim_time_s=p.time_s)
                         batch = []
-                self._flush(querier, batch)
+                pipe.send(batch)
+                pipe.wait()
                 self._set(ticks=tick, sim_time_s=tick * period)
             return "finished"
         finally:
             querier.undeclare()
 
-    def _flush(self, querier, batch: list) -> None:
-        """Publish the poses and wait until the controller has processed them."""
+
+
+class StepPipe:
+    """Sends pose batches to ``control/step`` with at most one unanswered batch in flight.
+
+    The vehicle drives the next batch while the controller works on this one (nearly twice the
+    ticks per second of waiting for each reply), yet never gets more than one batch ahead. Replies
+    are checked in order; a missing or error reply fails the run with the controller's message.
+    """
+
+    def __init__(self, querier, publish_pose, key: str):
+        self.querier, self.publish_pose, self.key = querier, publish_pose, key
+        self.pending = None  # (reply handler, first tick) of the batch in flight
+
+    def send(self, batch: list) -> None:
         if not batch:
             return
         payload = messages.encode_batch(batch)
         self.publish_pose(payload)
-        replies = list(querier.get(payload=payload))
-        for reply in replies:
-            if reply.ok is not None:
-                return
-        key = self.keys.control_step
+        handler = self.querier.get(payload=payload)
+        self.wait()
+        self.pending = (handler, batch[0].tick)
+
+    def wait(self) -> None:
+        """Until the batch in flight has been answered."""
+        if self.pending is None:
+            return
+        handler, tick = self.pending
+        self.pending = None
+        replies = list(handler)
+        if any(reply.ok is not None for reply in replies):
+            return
         if not replies:
-            raise ServiceError(f"{key}: no controller answered at tick {batch[0].tick} "
-                               "(controller not alive)")
+            raise ServiceError(f"{self.key}: no controller answered at tick {tick} (controller not alive)")
         message = error_message(replies[0].err.payload.to_bytes())
         if message.lower().startswith("timeout"):
             message = f"no reply within {STEP_TIMEOUT_S:g} s"
-        raise ServiceError(f"{key}: controller failed at tick {batch[0].tick}: {message}")
+        raise ServiceError(f"{self.key}: controller failed at tick {tick}: {message}")
 
 
 def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:

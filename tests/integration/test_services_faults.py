@@ -91,7 +91,8 @@ def test_killed_controller_is_reported_within_2s_and_records_stay(net):
     assert ok, stored
     # Every tick the vehicle got through was stored on all three streams, and nothing else.
     assert stored["ticks"] == stored["shaft_records"] == stored["rate_records"] >= 40
-    assert stored["pose_records"] - stored["ticks"] in (0, 1)  # at most the batch the controller missed
+    # Poses published without shaft and rate: at most the batch in flight and the one it failed on.
+    assert stored["pose_records"] - stored["ticks"] in (0, 1, 2)
     report = report_without_clock(net)
     assert report["ticks"] == stored["ticks"]
 
