@@ -243,7 +243,7 @@ def cells_in_field(grid: Grid, polygon) -> np.ndarray:
     import shapely
 
     cols, rows = np.meshgrid(np.arange(grid.cols) + 0.5, np.arange(grid.rows) + 0.5)
-    xs, ys = grid.transform * (cols, rows)
+    xs, ys = grid.transform @ (cols, rows)
     return shapely.contains_xy(polygon, xs, ys)
 
 
