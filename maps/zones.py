@@ -1,11 +1,12 @@
 """Rate-zone maps: polygons with a rate attribute (ESRI shapefile, zipped or not, or GeoJSON),
 rasterized to a grid with area-weighted values at zone edges.
 
-Rasterization burns zone indices with GDAL (rasterio.features.rasterize) on a grid `s` times finer
-than the target in each direction (s = 8, less for very large grids), then averages the rates of the
-covered sub-cells of each cell. The area weights are thus exact to 1/s^2 of a cell; a cell only
-partly covered takes the mean over its covered part (the field edge is not diluted with zeros); a cell
-not covered at all is nodata. Where zones overlap, the later feature wins.
+Polygons are read straight into vertex arrays (the .shp binary is parsed with numpy; no per-polygon
+geometry objects) and burnt with `maps.rasterize` on a grid `s` times finer than the target in each
+direction (s = 8, less for very large grids); each cell then takes the mean rate of its covered
+sub-cells. The area weights are thus exact to 1/s^2 of a cell; a cell only partly covered takes the
+mean over its covered part (the field edge is not diluted with zeros); a cell not covered at all is
+nodata. Where zones overlap, the later feature wins.
 """
 
 from __future__ import annotations
@@ -17,16 +18,16 @@ import os
 import struct
 import warnings
 import zipfile
+from dataclasses import dataclass
 
 import numpy as np
 import shapefile
-import shapely
 from affine import Affine
-from rasterio.features import rasterize
 
 from common import MapError
 from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.rasterize import rasterize_rings
 from maps.warn import MapWarning
 
 DEFAULT_CELL_SIZE_M = 5.0
@@ -35,6 +36,25 @@ RATE_NAMES = ("rate_kg_ha", "rate", "kg_ha", "kgha", "rx_rate", "target_rate", "
               "app_rate", "apprate", "application_rate", "dose", "prescription", "rx", "value")
 SUPERSAMPLE = 8
 MAX_FINE_CELLS = 16_000_000  # 64 MB of int32 zone indices
+
+
+@dataclass
+class Rings:
+    """Polygon rings of many features as flat arrays (see `maps.rasterize.rasterize_rings`)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    ring_start: np.ndarray  # (r + 1,) vertex offsets
+    ring_owner: np.ndarray  # (r,) feature of each ring
+
+    @classmethod
+    def from_lists(cls, rings: list[np.ndarray], owners: list[int]) -> Rings:
+        """From a list of (n, 2) vertex arrays and the feature index of each."""
+        if not rings:
+            return cls(np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
+        xy = np.concatenate(rings)
+        start = np.concatenate(([0], np.cumsum([len(r) for r in rings])))
+        return cls(xy[:, 0].copy(), xy[:, 1].copy(), start, np.asarray(owners, dtype=np.int64))
 
 
 def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
@@ -56,38 +76,38 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
     """
     kind = "geojson" if path.lower().endswith((".geojson", ".json")) else "shapefile"
     if kind == "geojson":
-        geoms, records, fields, src_crs = _geojson_features(path)
+        rings, values_of, fields, src_crs = _geojson_rings(path)
     else:
-        geoms, records, fields, src_crs = _shapefile_features(path, crs)
-    if not geoms:
+        rings, values_of, fields, src_crs = _shapefile_rings(path, crs)
+    if rings.ring_owner.size == 0:
         raise MapError(f"{path}: no polygon features")
     field_name = _pick_rate_field(path, fields, rate_field)
-    rates = _rates(path, records, field_name)
-    return rasterize_zones(geoms, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
+    rates = _rates(path, values_of(field_name), field_name)
+    return rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
 
 
-def rasterize_zones(geoms, rates, crs, cell_size_m: float | None = None, source: str = "zones",
+def rasterize_zones(rings: Rings, rates, crs, cell_size_m: float | None = None, source: str = "zones",
                     format: str = "zones", max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
-    """Rasterize polygons (shapely, in `crs`) with per-polygon rates (kg/ha) to an area-weighted grid."""
+    """Rasterize polygon rings (in `crs`) with per-feature rates (kg/ha) to an area-weighted grid."""
     cell = DEFAULT_CELL_SIZE_M if cell_size_m is None else cell_size_m
     if not (isinstance(cell, (int, float)) and math.isfinite(cell) and cell > 0):
         raise MapError(f"{source}: cell_size_m={cell_size_m!r} must be a positive number")
     crs = as_crs(crs)
-    geoms = np.asarray(geoms, dtype=object)
+    x, y = rings.x, rings.y
+    if x.size == 0 or not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise MapError(f"{source}: polygons without vertices or with non-finite coordinates")
     if crs.is_geographic:
-        minx, miny, maxx, maxy = shapely.total_bounds(geoms)
-        dst = utm_crs_for(0.5 * (minx + maxx), 0.5 * (miny + maxy))
-        geoms = shapely.transform(geoms, lambda x, y: transform_xy(x, y, crs, dst), interleaved=False)
+        dst = utm_crs_for(0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max()))
+        x, y = transform_xy(x, y, crs, dst)
         crs = dst
     size = cell / metres_per_unit(crs)
-    minx, miny, maxx, maxy = shapely.total_bounds(geoms)
-    west, north = math.floor(minx / size) * size, math.ceil(maxy / size) * size
-    cols = max(1, math.ceil((maxx - west) / size - 1e-9))
-    rows = max(1, math.ceil((north - miny) / size - 1e-9))
+    west, north = math.floor(x.min() / size) * size, math.ceil(y.max() / size) * size
+    cols = max(1, math.ceil((x.max() - west) / size - 1e-9))
+    rows = max(1, math.ceil((north - y.min()) / size - 1e-9))
     check_size(rows, cols, max_cells, f"{source}: rasterized at {cell} m")
     s = max(1, min(SUPERSAMPLE, int(math.sqrt(MAX_FINE_CELLS / (rows * cols)))))
-    fine = rasterize(zip(geoms, range(len(geoms)), strict=True), out_shape=(rows * s, cols * s),
-                     transform=Affine(size / s, 0.0, west, 0.0, -size / s, north), fill=-1, dtype="int32")
+    fine = rasterize_rings(x, y, rings.ring_start, rings.ring_owner, west, north, size / s,
+                           rows * s, cols * s)
     table = np.append(np.asarray(rates, dtype=np.float64), np.nan)  # index -1 -> NaN
     out = np.empty((rows, cols))
     band = max(1, 4_000_000 // (cols * s * s))  # coarse rows per pass: bounded temporaries
@@ -120,10 +140,9 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
                    f"{numeric or 'none'}; name one with rate_field= / --rate-field")
 
 
-def _rates(path: str, records: list[dict], name: str) -> np.ndarray:
-    out = np.empty(len(records))
-    for i, rec in enumerate(records):
-        value = rec.get(name)
+def _rates(path: str, values: list, name: str) -> np.ndarray:
+    out = np.empty(len(values))
+    for i, value in enumerate(values):
         try:
             out[i] = float(value)
         except (TypeError, ValueError):
@@ -135,37 +154,81 @@ def _rates(path: str, records: list[dict], name: str) -> np.ndarray:
     return out
 
 
-def _polygonal(geom, path: str, i: int):
-    kind = geom.geom_type if geom is not None else "null"
-    if kind not in ("Polygon", "MultiPolygon"):
-        raise MapError(f"{path}: feature {i} is a {kind}, not a polygon: rate zones must be polygons")
-    return geom if geom.is_valid else shapely.make_valid(geom)
-
-
 # ---------------------------------------------------------------------- shapefile
-def _shapefile_features(path: str, crs):
+POLYGON_TYPES = (shapefile.POLYGON, shapefile.POLYGONZ, shapefile.POLYGONM)
+
+
+def _shapefile_rings(path: str, crs):
     files = _shapefile_parts(path)
     if crs is None and files["prj"] is None:
         raise MapError(f"{path}: the shapefile has no .prj, so its CRS is unknown; give one (crs= / --crs)")
     src_crs = as_crs(crs, "crs") if files["prj"] is None else \
         crs_from_prj(files["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
+    dbf_errors = (shapefile.ShapefileException, ValueError, struct.error, EOFError, UnicodeDecodeError)
     try:
-        reader = shapefile.Reader(shp=files["shp"], dbf=files["dbf"], shx=files["shx"])
+        reader = shapefile.Reader(dbf=files["dbf"])
         fields = {f[0]: f[1] in ("N", "F") for f in reader.fields[1:]}
-        geoms, records = [], []
-        for i, rec in enumerate(reader.iterShapeRecords()):
-            if rec.shape.shapeType == shapefile.NULL:
-                continue  # a feature without geometry covers nothing
-            if rec.shape.shapeType not in (shapefile.POLYGON, shapefile.POLYGONZ, shapefile.POLYGONM):
-                raise MapError(f"{path}: feature {i} is a {shapefile.SHAPETYPE_LOOKUP[rec.shape.shapeType]}, "
-                               "not a polygon: rate zones must be polygons")
-            geoms.append(_polygonal(shapely.geometry.shape(rec.shape.__geo_interface__), path, i))
-            records.append(rec.record.as_dict())
-    except shapefile.ShapefileException as exc:
-        raise MapError(f"{path}: not a readable shapefile: {exc}") from None
-    except (ValueError, struct.error, EOFError) as exc:
-        raise MapError(f"{path}: damaged shapefile: {exc}") from None
-    return geoms, records, fields, src_crs
+        n_records = reader.numRecords
+    except dbf_errors as exc:
+        raise MapError(f"{path}: damaged .dbf: {exc}") from None
+    rings, owners, keep = _parse_shp(files["shp"].read(), path)
+    if len(keep) and keep[-1] >= n_records:
+        raise MapError(f"{path}: the .shp has more features than the .dbf has records ({n_records})")
+
+    def values_of(name: str) -> list:
+        # Only the rate column: parsing every attribute of every record costs seconds on big files.
+        try:
+            column = [rec[0] for rec in reader.iterRecords(fields=[name])]
+        except dbf_errors as exc:
+            raise MapError(f"{path}: damaged .dbf: {exc}") from None
+        return [column[i] for i in keep]
+
+    return Rings.from_lists(rings, owners), values_of, fields, src_crs
+
+
+def _parse_shp(data: bytes, path: str):
+    """Rings of the polygon records of a .shp file, parsed with struct/numpy (no per-ring objects).
+
+    Returns (rings, owner of each ring, index in the file of each kept feature); null shapes are
+    skipped, any other non-polygon shape is refused.
+    """
+    if len(data) < 100 or struct.unpack_from(">i", data, 0)[0] != 9994:
+        raise MapError(f"{path}: the .shp is not a shapefile (bad header)")
+    rings, owners, keep = [], [], []
+    pos, index = 100, 0
+    while pos + 8 <= len(data):
+        length = struct.unpack_from(">i", data, pos + 4)[0] * 2
+        body = pos + 8
+        if length < 4 or body + length > len(data):
+            raise MapError(f"{path}: damaged .shp: record {index} runs past the end of the file")
+        kind = struct.unpack_from("<i", data, body)[0]
+        if kind in POLYGON_TYPES:
+            n_parts, n_points = struct.unpack_from("<2i", data, body + 36)
+            parts_at = body + 44
+            points_at = parts_at + 4 * n_parts
+            if n_parts < 0 or n_points < 0 or points_at + 16 * n_points > body + length:
+                raise MapError(f"{path}: damaged .shp: record {index} declares {n_parts} parts and "
+                               f"{n_points} points that do not fit it")
+            points = np.frombuffer(data, "<f8", 2 * n_points, points_at).reshape(n_points, 2)
+            feature = len(keep)
+            if n_parts == 1:  # the common case, without the parts bookkeeping
+                rings.append(points)
+                owners.append(feature)
+            else:
+                bounds = (*struct.unpack_from(f"<{n_parts}i", data, parts_at), n_points)
+                ordered = all(a <= b for a, b in zip(bounds, bounds[1:], strict=False))
+                if bounds[0] != 0 or not ordered:
+                    raise MapError(f"{path}: damaged .shp: record {index} has part offsets {bounds[:-1]}")
+                for a, b in zip(bounds[:-1], bounds[1:], strict=False):
+                    rings.append(points[a:b])
+                    owners.append(feature)
+            keep.append(index)
+        elif kind != shapefile.NULL:
+            name = shapefile.SHAPETYPE_LOOKUP.get(kind, f"type {kind}")
+            raise MapError(f"{path}: feature {index} is a {name}, not a polygon: rate zones must be polygons")
+        pos = body + length
+        index += 1
+    return rings, owners, keep
 
 
 def _shapefile_parts(path: str) -> dict:
@@ -239,22 +302,29 @@ def geojson_features(doc: dict, path: str) -> list[dict]:
     return feats
 
 
-def _geojson_features(path: str):
+def _geojson_rings(path: str):
     doc = load_geojson(path)
-    geoms, records, fields = [], [], {}
+    rings, owners, records, fields = [], [], [], {}
     for i, feat in enumerate(geojson_features(doc, path)):
-        try:
-            geom = shapely.geometry.shape(feat["geometry"]) if feat.get("geometry") else None
-        except (KeyError, TypeError, ValueError, AttributeError, shapely.errors.GEOSException) as exc:
-            raise MapError(f"{path}: feature {i}: bad geometry: {exc}") from None
+        geom = feat.get("geometry")
         props = feat.get("properties") or {}
         if not isinstance(props, dict):
             raise MapError(f"{path}: feature {i}: properties is not an object")
-        if geom is None:
-            continue
-        geoms.append(_polygonal(geom, path, i))
+        if not geom:
+            continue  # a feature without geometry covers nothing
+        kind = geom.get("type") if isinstance(geom, dict) else None
+        if kind not in ("Polygon", "MultiPolygon"):
+            raise MapError(f"{path}: feature {i} is a {kind}, not a polygon: rate zones must be polygons")
+        polygons = [geom.get("coordinates")] if kind == "Polygon" else geom.get("coordinates")
+        try:
+            feature_rings = [np.asarray(ring, dtype=np.float64)[:, :2] for poly in polygons for ring in poly]
+        except (TypeError, ValueError, IndexError):
+            raise MapError(f"{path}: feature {i}: coordinates are not lists of [x, y] positions") from None
+        rings.extend(feature_rings)
+        owners.extend([len(records)] * len(feature_rings))
         records.append(props)
         for key, value in props.items():
             is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
             fields[key] = fields.get(key, True) and is_num
-    return geoms, records, fields, geojson_crs(doc, path)
+    return (Rings.from_lists(rings, owners), lambda name: [rec.get(name) for rec in records], fields,
+            geojson_crs(doc, path))
