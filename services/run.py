@@ -173,15 +173,15 @@ class ControlCore:
                   progress=None) -> dict[str, np.ndarray]:
         """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`."""
         rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on)
-        n = len(x_m)
+        targets, n = rec["target_shaft_rpm"], len(x_m)
         rpm, rev, cur = np.empty(n), np.empty(n), np.empty(n)
-        step = self.loop.step
-        chunk = 10000
-        for start, target in enumerate(rec["target_shaft_rpm"].tolist()):
-            out = step(target)
-            rpm[start], rev[start], cur[start] = out.shaft_rpm[0], out.shaft_rev[0], out.current_a[0]
-            if progress is not None and start % chunk == chunk - 1:
-                progress(start + 1, n)
+        chunk = 20000
+        for start in range(0, n, chunk):
+            part = slice(start, min(n, start + chunk))
+            out = self.loop.run(targets[part])
+            rpm[part], rev[part], cur[part] = out.shaft_rpm[:, 0], out.shaft_rev[:, 0], out.current_a[:, 0]
+            if progress is not None:
+                progress(part.stop, n)
         rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
                    metered_kg=self._metered_kg(rev, implement_on))
         return rec
