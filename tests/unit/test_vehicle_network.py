@@ -1,0 +1,26 @@
+import os
+
+from vehicle import default_cache_dir, find_netconvert
+from vehicle.network import _plain_xml
+
+
+def test_cache_dir_from_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv("VRSIM_CACHE", str(tmp_path))
+    assert default_cache_dir() == os.path.join(str(tmp_path), "sumo")
+    monkeypatch.delenv("VRSIM_CACHE")
+    assert default_cache_dir() == os.path.join(os.path.expanduser("~"), ".cache", "vrsim", "sumo")
+
+
+def test_netconvert_is_the_packaged_one():
+    exe = find_netconvert()
+    assert os.access(exe, os.X_OK) and os.path.basename(exe) == "netconvert"
+
+
+def test_plain_xml_one_edge_per_segment_with_planned_length():
+    import numpy as np
+
+    shapes = [np.array([[0.0, 0.0], [100.0, 0.0]]), np.array([[100.0, 0.0], [100.0, 12.0]])]
+    nodes, edges = _plain_xml(shapes, [2.6, 1.2], [100.0, 12.0])
+    assert nodes.count("<node ") == 3 and edges.count("<edge ") == 2
+    assert 'from="n0" to="n1"' in edges and 'from="n1" to="n2"' in edges
+    assert 'speed="1.2000" length="12.0000" spreadType="center"' in edges
