@@ -41,7 +41,7 @@ class LookupResult:
     col: np.ndarray
 
 
-@dataclass
+@dataclass(eq=False)  # grids compare by identity: == on the rate arrays would be ambiguous
 class Grid:
     """A prescription map: rates on a north-up grid in some CRS.
 
