@@ -17,7 +17,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from common.errors import VehicleError
 
@@ -117,6 +116,8 @@ class Gnss:
             return first[None, :]
         # e[j] = a e[j-1] + b w[j] as a first-order filter: the same operations, bit for bit, as
         # the per-tick recursion (lfilter's z = 0*x - (-a)*y is exactly a*y).
+        from scipy.signal import lfilter  # heavy (~0.5 s); only when a track is measured
+
         rest, _ = lfilter([self._b], [1.0, -self._a], w[1:], axis=0, zi=(self._a * first)[None, :])
         return np.concatenate([first[None, :], rest])
 
