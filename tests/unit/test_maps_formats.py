@@ -281,3 +281,30 @@ def test_isoxml_zip_nodata_warns(tmp_path):
         write_map(g, tmp_path / "t.zip")
     assert any("no nodata value" in str(w.message) for w in caught)
     np.testing.assert_array_equal(read_map(tmp_path / "t.zip").rates_kg_ha, [[1.0, 0.0]])
+
+
+def test_geojson_multipolygon_with_hole(tmp_path):
+    def box(w, n, size):
+        x, y = X0 + w, Y0 - n
+        return [[x, y], [x + size, y], [x + size, y - size], [x, y - size], [x, y]]
+
+    outer, hole, far = box(0, 0, 40), box(10, 10, 20), box(60, 0, 10)
+    geom = {"type": "MultiPolygon", "coordinates": [[outer, hole], [far]]}
+    feats = [{"type": "Feature", "geometry": geom, "properties": {"rate_kg_ha": 80}}]
+    g = read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), cell_size_m=10)
+    assert (g.rows, g.cols) == (4, 7)
+    assert np.isnan(g.rates_kg_ha[1:3, 1:3]).all() and np.isnan(g.rates_kg_ha[:, 4:6]).all()
+    assert g.rates_kg_ha[0, 0] == 80 and g.rates_kg_ha[0, 6] == 80
+    assert np.count_nonzero(~np.isnan(g.rates_kg_ha)) == 12 + 1
+
+
+def test_damaged_shapefile_refused(tmp_path):
+    for ext in (".shp", ".shx", ".dbf", ".prj"):
+        shutil.copy(fixture("lines" + ext if ext == ".prj" else "zones_noprj" + ext), tmp_path / f"z{ext}")
+    data = (tmp_path / "z.shp").read_bytes()
+    (tmp_path / "z.shp").write_bytes(data[:150])  # cut inside the first record
+    with pytest.raises(MapError, match="damaged .shp"):
+        read_map(tmp_path / "z.shp")
+    (tmp_path / "z.shp").write_bytes(b"\0" * 120)
+    with pytest.raises(MapError, match="bad header"):
+        read_map(tmp_path / "z.shp")
