@@ -26,9 +26,10 @@ from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
 from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
 from services.scenario import Scenario
-from vehicle import Field, Gnss, SumoDriver, plan_coverage
+from vehicle import Field, Gnss, SpeedSensor, SumoDriver, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
+SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
 
 
 @dataclass
@@ -271,6 +272,7 @@ class RunResult:
     track: dict
     measured_x_m: np.ndarray
     measured_y_m: np.ndarray
+    measured_speed_m_s: np.ndarray
     control: dict
     landing: Landing
     as_applied: AsApplied
@@ -299,20 +301,31 @@ def run(scenario: Scenario, progress=None) -> RunResult:
                     max_time_s=timing.max_sim_time_s) as driver:
         track = driver.run_all()
     lap("sumo_s")
-    gnss = Gnss(scenario.gnss, seed=scenario.seed)
-    x_meas, y_meas = gnss.measure(track["time_s"], track["x_m"], track["y_m"])
-    lap("gnss_s")
+    x_meas, y_meas, v_meas = measure(scenario, track)
+    lap("sensors_s")
     core = ControlCore(world.grid, scenario)
-    control = core.run_track(x_meas, y_meas, track["heading_rad"], track["speed_m_s"],
-                             track["implement_on"], progress)
+    control = core.run_track(x_meas, y_meas, track["heading_rad"], v_meas, track["implement_on"], progress)
     lap("control_s")
     summary, rest = account(world, track, control, wall0)
     lap("metrics_s")
     summary["wall_time_s"] = time.perf_counter() - wall0
     summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
     summary["stage_s"] = stage
-    return RunResult(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas, control=control,
-                     stage_s=stage, summary=summary, **rest)
+    return RunResult(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas,
+                     measured_speed_m_s=v_meas, control=control, stage_s=stage, summary=summary, **rest)
+
+
+def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:
+    """The GNSS receiver and the ground-speed sensor the controller reads, seeded from the scenario."""
+    return (Gnss(scenario.gnss, seed=scenario.seed),
+            SpeedSensor(scenario.speed_sensor, seed=scenario.seed + SPEED_SENSOR_SEED_OFFSET))
+
+
+def measure(scenario: Scenario, track: dict):
+    """Measured x, y (GNSS) and ground speed (speed sensor) over a whole true track."""
+    gnss, speed = sensors(scenario)
+    x, y = gnss.measure(track["time_s"], track["x_m"], track["y_m"])
+    return x, y, speed.measure(track["time_s"], track["speed_m_s"])
 
 
 def account(world: World, track: dict, control: dict, wall0: float):

@@ -24,7 +24,7 @@ from typing import Any
 from common import ScenarioError, VrsimError
 from controller import ControllerConfig, PlantParams
 from maps import synthetic
-from vehicle import DriveConfig, GnssConfig, Implement
+from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
@@ -83,6 +83,7 @@ class Scenario:
     implement: Implement
     tractor: DriveConfig
     gnss: GnssConfig
+    speed_sensor: SpeedSensorConfig
     controller: ControllerConfig
     plant: PlantParams
     timing: TimingSpec
@@ -94,7 +95,7 @@ class Scenario:
 
 
 TOP_KEYS = {"name", "seed", "description", "field", "map", "implement", "tractor", "gnss",
-            "controller", "plant", "timing", "output"}
+            "speed_sensor", "controller", "plant", "timing", "output"}
 
 
 def builtin_names() -> list[str]:
@@ -145,6 +146,7 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenari
         implement=_build(Implement, doc.get("implement", {}), source, "implement"),
         tractor=_build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=_build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
+        speed_sensor=_build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
         controller=_build(ControllerConfig, doc.get("controller", {}), source, "controller"),
         plant=_build(PlantParams, doc.get("plant", {}), source, "plant"),
         timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),

@@ -107,7 +107,8 @@ def test_tick_by_tick_core_matches_the_staged_run(tmp_path):
     n = 3000
     for i in range(n):
         out = core.tick(float(result.measured_x_m[i]), float(result.measured_y_m[i]),
-                        float(t["heading_rad"][i]), float(t["speed_m_s"][i]), bool(t["implement_on"][i]))
+                        float(t["heading_rad"][i]), float(result.measured_speed_m_s[i]),
+                        bool(t["implement_on"][i]))
         assert out.shaft_rpm == pytest.approx(result.control["shaft_rpm"][i], rel=1e-12, abs=1e-12)
         assert out.metered_kg == pytest.approx(result.control["metered_kg"][i], rel=1e-12, abs=1e-15)
         assert out.prescribed_kg_ha == result.control["prescribed_kg_ha"][i]
