@@ -118,6 +118,8 @@ class TickOut:
     shaft_rev: float  # metering-shaft revolutions during this period
     current_a: float
     metered_kg: float  # product through the meter this period (0 with the sections off)
+    width_on_m: float  # working width of the sections that are on
+    offset_m: float  # lateral offset of that width's centre, left of the heading
 
 
 def hold_last(rate_kg_ha: np.ndarray, last_kg_ha: float) -> np.ndarray:
@@ -141,8 +143,9 @@ class ControlCore:
     2. the closed loop (PID, valve, motor), one `ClosedLoop.step` per tick.
     """
 
-    def __init__(self, grid: Grid, scenario: Scenario):
+    def __init__(self, grid: Grid, scenario: Scenario, field_polygon=None):
         self.grid = grid
+        self.field_polygon = field_polygon  # sections whose centre would land outside it switch off
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
@@ -164,11 +167,29 @@ class ControlCore:
             rate = self.policy.apply(found.rate_kg_ha, found.inside)
         if rate.size:
             self.last_rate_kg_ha = float(rate[-1])
+        width_on, offset = self.sections(lx, ly, heading_rad, implement_on)
+        # Within the meter's speed range while applying; a zero rate or all sections off stop the shaft.
+        wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
+        target = np.where(width_on > 0, wanted, 0.0)
+        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
+                "width_on_m": width_on, "offset_m": offset}
+
+    def sections(self, x_m, y_m, heading_rad, implement_on):
+        """Working width of the sections that are on (m) and its centre's offset to the left (m).
+
+        Section control as terminals do it: with the implement on, a section applies when its centre
+        lands inside the field. The sections that are on are taken as one strip (they are contiguous
+        on convex edges; on a notch this spreads a little product over the gap).
+        """
+        imp = self.implement
         on = np.asarray(implement_on, bool)
-        # Within the meter's speed range while applying; a zero rate or sections off stop the shaft.
-        wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s))
-        target = np.where(on, wanted, 0.0)
-        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target}
+        if self.field_polygon is None:
+            return np.where(on, imp.width_m, 0.0), np.zeros(on.shape)
+        sec = imp.sections_on(self.field_polygon, x_m, y_m, heading_rad, on)
+        count = sec.sum(axis=1)
+        offsets = np.where(sec, imp.section_offsets_m, 0.0).sum(axis=1)
+        return count * imp.section_width_m, np.divide(offsets, count, out=np.zeros(count.shape),
+                                                      where=count > 0)
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
                   progress=None) -> dict[str, np.ndarray]:
@@ -184,7 +205,7 @@ class ControlCore:
             if progress is not None:
                 progress(part.stop, n)
         rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
-                   metered_kg=self._metered_kg(rev, implement_on))
+                   metered_kg=self._metered_kg(rev, rec["width_on_m"] > 0))
         return rec
 
     def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
@@ -192,25 +213,26 @@ class ControlCore:
         """Both stages for one tick."""
         t = self.targets(np.array([x_m]), np.array([y_m]), np.array([heading_rad]), np.array([speed_m_s]),
                          np.array([implement_on]))
-        target = float(t["target_shaft_rpm"][0])
+        target, width_on = float(t["target_shaft_rpm"][0]), float(t["width_on_m"][0])
         out = self.loop.step(target)
         rev = float(out.shaft_rev[0])
         return TickOut(float(t["landing_x_m"][0]), float(t["landing_y_m"][0]),
                        float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev,
                        float(out.current_a[0]),
-                       float(self._metered_kg(np.array([rev]), np.array([implement_on]))[0]))
+                       float(self._metered_kg(np.array([rev]), np.array([width_on > 0]))[0]),
+                       width_on, float(t["offset_m"][0]))
 
-    def _metered_kg(self, shaft_rev, implement_on) -> np.ndarray:
+    def _metered_kg(self, shaft_rev, applying) -> np.ndarray:
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
         # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
         # (it does not lift product off the ground), so only forward revolutions count.
         forward = np.maximum(shaft_rev, 0.0)
-        return np.where(np.asarray(implement_on, bool), self.implement.mass_kg(forward), 0.0)
+        return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
 
 
 TRACK_KEYS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
-                "shaft_rev", "current_a", "metered_kg")
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "offset_m")
 
 
 @dataclass
@@ -224,37 +246,45 @@ class Landing:
     strip_length_m: np.ndarray
     distance_m: np.ndarray  # landing point's travelled distance at each tick
     prescribed_kg_ha: np.ndarray  # prescription at each strip's midpoint (true position)
-    applied_kg_ha: np.ndarray  # metered kg over the strip's area (NaN on strips shorter than 1 cm)
+    applied_kg_ha: np.ndarray  # metered kg over the strip's area (NaN: shorter than 1 cm, or sections off)
 
 
-def land(grid: Grid, time_s, x_m, y_m, metered_kg, width_m, delay_s, period_s) -> Landing:
-    """Product metered during [t, t + period] lands on the true path during the same span + delay."""
+def land(grid: Grid, track: dict, metered_kg, width_on_m, offset_m, delay_s, period_s) -> Landing:
+    """Product metered during [t, t + period] lands on the true path during the same span + delay,
+    over the width of the sections that were on, shifted by their offset to the left."""
+    time_s, x_m, y_m = track["time_s"], track["x_m"], track["y_m"]
     t0 = np.asarray(time_s) + delay_s
-    x0, y0 = np.interp(t0, time_s, x_m), np.interp(t0, time_s, y_m)
-    x1, y1 = np.interp(t0 + period_s, time_s, x_m), np.interp(t0 + period_s, time_s, y_m)
+    hx = np.interp(t0, time_s, np.cos(track["heading_rad"]))
+    hy = np.interp(t0, time_s, np.sin(track["heading_rad"]))
+    norm = np.hypot(hx, hy)
+    shift = np.divide(offset_m, norm, out=np.zeros(norm.shape), where=norm > 0)
+    sx, sy = -hy * shift, hx * shift  # along the left normal
+    x0, y0 = np.interp(t0, time_s, x_m) + sx, np.interp(t0, time_s, y_m) + sy
+    x1, y1 = np.interp(t0 + period_s, time_s, x_m) + sx, np.interp(t0 + period_s, time_s, y_m) + sy
     length = np.hypot(x1 - x0, y1 - y0)
+    area = np.asarray(width_on_m) * length
     with np.errstate(divide="ignore", invalid="ignore"):
-        applied = np.where(length > 0.01, metered_kg / (width_m * length) * 1e4, np.nan)
+        applied = np.where((length > 0.01) & (area > 0), metered_kg / area * 1e4, np.nan)
     rx = grid.lookup(0.5 * (x0 + x1), 0.5 * (y0 + y1)).rate_kg_ha
     return Landing(x0, y0, x1, y1, length, np.cumsum(length), rx, applied)
 
 
-def merged_strips(landing: Landing, metered_kg: np.ndarray, cell_m: float):
-    """Consecutive ticks' strips joined into strips up to half a cell long: (x0, y0, x1, y1, kg).
+def merged_strips(landing: Landing, metered_kg, width_m, offset_m, cell_m: float):
+    """Consecutive ticks' strips joined into strips up to half a cell long: (x0, y0, x1, y1, width, kg).
 
     A tick's strip (0.125 m at 9 km/h and 50 ms) is far shorter than a map cell; joining k of them
     (their ends meet exactly) spreads each group's product evenly over at most half a cell, which
-    changes per-cell figures by a blur far below the cell size and cuts the raster work k-fold.
+    changes per-cell figures by a blur far below the cell size and cuts the raster work k-fold. A
+    group also ends where the sections change, so a joined strip has one width and offset.
     """
-    typical = float(np.median(landing.strip_length_m)) if landing.strip_length_m.size else 0.0
+    n = len(metered_kg)
+    typical = float(np.median(landing.strip_length_m)) if n else 0.0
     k = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
-    n = metered_kg.size
-    if k == 1 or n == 0:
-        return landing.x0_m, landing.y0_m, landing.x1_m, landing.y1_m, metered_kg
-    starts = np.arange(0, n, k)
-    ends = np.minimum(starts + k, n) - 1
+    change = np.flatnonzero((np.diff(width_m) != 0) | (np.diff(offset_m) != 0)) + 1
+    starts = np.union1d(np.arange(0, n, k), change).astype(np.int64)
+    ends = np.append(starts[1:], n) - 1
     return (landing.x0_m[starts], landing.y0_m[starts], landing.x1_m[ends], landing.y1_m[ends],
-            np.add.reduceat(metered_kg, starts))
+            np.asarray(width_m)[starts], np.add.reduceat(metered_kg, starts) if n else metered_kg)
 
 
 def cells_in_field(grid: Grid, polygon) -> np.ndarray:
@@ -303,7 +333,7 @@ def run(scenario: Scenario, progress=None) -> RunResult:
     lap("sumo_s")
     x_meas, y_meas, v_meas = measure(scenario, track)
     lap("sensors_s")
-    core = ControlCore(world.grid, scenario)
+    core = ControlCore(world.grid, scenario, world.field.polygon)
     control = core.run_track(x_meas, y_meas, track["heading_rad"], v_meas, track["implement_on"], progress)
     lap("control_s")
     summary, rest = account(world, track, control, wall0)
@@ -332,11 +362,12 @@ def account(world: World, track: dict, control: dict, wall0: float):
     """Land the metered product, build the as-applied raster and compute the summary."""
     scenario, grid = world.scenario, world.grid
     implement, timing = scenario.implement, scenario.timing
-    landing = land(grid, track["time_s"], track["x_m"], track["y_m"], control["metered_kg"],
-                   implement.width_m, implement.delivery_delay_s, timing.control_period_s)
+    width_on = control.get("width_on_m", np.where(track["implement_on"], implement.width_m, 0.0))
+    offset = control.get("offset_m", np.zeros(len(width_on)))
+    landing = land(grid, track, control["metered_kg"], width_on, offset, implement.delivery_delay_s,
+                   timing.control_period_s)
     acc = AsApplied(grid)
-    x0, y0, x1, y1, kg = merged_strips(landing, control["metered_kg"], min(grid.cell_size))
-    acc.add_strips(x0, y0, x1, y1, implement.width_m, kg)
+    acc.add_strips(*merged_strips(landing, control["metered_kg"], width_on, offset, min(grid.cell_size)))
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
     mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, in_field,

@@ -102,9 +102,9 @@ def test_tick_by_tick_core_matches_the_staged_run(tmp_path):
     """The controller service calls ControlCore.tick; vrsim run calls run_track: same numbers."""
     sc = scenario.load(quick(tmp_path, plots=False))
     result = field_run.run(sc)
-    core = field_run.ControlCore(result.world.grid, sc)
+    core = field_run.ControlCore(result.world.grid, sc, result.world.field.polygon)
     t = result.track
-    n = 3000
+    n = len(t["time_s"])
     for i in range(n):
         out = core.tick(float(result.measured_x_m[i]), float(result.measured_y_m[i]),
                         float(t["heading_rad"][i]), float(result.measured_speed_m_s[i]),
