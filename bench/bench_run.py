@@ -1,0 +1,61 @@
+"""Field-run speed: the built-in default (22 ha) and large (50 ha) scenarios.
+
+Figures:
+- ``run_default_wall_s``, ``run_large_wall_s``: wall time of `services.run.run` (build, SUMO, sensors,
+  control loop, landing and metrics; what `vrsim run` reports as wall_time_s);
+- ``run_default_realtime_factor``: simulated over wall time for the default scenario;
+- ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
+- ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command, Python start-up, imports and
+  writing every output file (GeoTIFFs, CSV, PNGs, HTML) included.
+
+    .venv/bin/python -m bench.bench_run
+"""
+
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+from services import run as field_run
+from services import scenario
+
+
+def _in_process(name: str) -> dict:
+    sc = scenario.load(name)
+    field_run.run(sc)  # warm: the SUMO network cache and lazy imports
+    best = None
+    for _ in range(2):
+        result = field_run.run(sc)
+        if best is None or result.summary["wall_time_s"] < best.summary["wall_time_s"]:
+            best = result
+    return best.summary
+
+
+def _cli_wall_s(name: str) -> float:
+    vrsim = os.path.join(os.path.dirname(sys.executable), "vrsim")
+    with tempfile.TemporaryDirectory() as out:
+        t0 = time.perf_counter()
+        subprocess.run([vrsim, "run", name, "--quiet", "--out", out], check=True, capture_output=True)
+        return time.perf_counter() - t0
+
+
+def run() -> dict:
+    default = _in_process("default")
+    large = _in_process("large")
+    figures = {
+        "run_default_wall_s": default["wall_time_s"],
+        "run_large_wall_s": large["wall_time_s"],
+        "run_default_realtime_factor": default["realtime_factor"],
+        "run_large_realtime_factor": large["realtime_factor"],
+        "run_default_ticks_per_s": default["ticks"] / default["wall_time_s"],
+        "run_default_cli_wall_s": _cli_wall_s("default"),
+    }
+    for stage, seconds in default["stage_s"].items():
+        figures[f"run_default_{stage.removesuffix('_s')}_share"] = seconds / default["wall_time_s"]
+    return figures
+
+
+if __name__ == "__main__":
+    for key, value in run().items():
+        print(f"{key:<36} {value:,.4g}")
