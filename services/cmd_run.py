@@ -19,10 +19,12 @@ def configure(parser) -> None:
 
 
 class Progress:
-    """A one-line progress bar on stderr, shown only once a run has taken more than a second."""
+    """A one-line progress bar on stderr, shown once a run has taken more than a second, and only on a
+    terminal (a log file gets no carriage-return noise)."""
 
     def __init__(self, label: str, enabled: bool):
-        self.label, self.enabled = label, enabled and sys.stderr.isatty() or enabled == "always"
+        self.label = label
+        self.enabled = enabled and sys.stderr.isatty()
         self.start = time.perf_counter()
         self.shown = False
 
@@ -31,7 +33,7 @@ class Progress:
             return
         frac = done / total if total else 1.0
         bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f} %")
+        sys.stderr.write(f"\r{self.label} control loop [{bar:<30}] {100 * frac:5.1f} %")
         sys.stderr.flush()
         self.shown = True
 
