@@ -42,7 +42,7 @@ def configure(parser) -> None:
                         help="all: clock of the run it starts (default lockstep)")
     parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
     parser.add_argument("--ticks-per-message", type=int, default=None, metavar="N",
-                        help="all: lockstep ticks per message (default 20)")
+                        help="all: lockstep ticks per message (default 50)")
 
 
 def run(args) -> int:

@@ -163,7 +163,8 @@ class Pose(Message):
     measured_x_m: float
     measured_y_m: float
     heading_rad: float  # counter-clockwise from east
-    speed_m_s: float
+    speed_m_s: float  # true ground speed
+    measured_speed_m_s: float  # what the ground-speed sensor reads (the controller uses this)
     implement_on: bool
 
 
@@ -184,8 +185,10 @@ class ShaftState(Message):
 class RateSample(Message):
     """``<prefix>/<machine>/rate``: prescribed and applied rate at the predicted landing point (controller).
 
-    ``applied_kg_ha`` is this period's metered mass over the area the implement covers in the period
-    (null at standstill); ``prescribed_kg_ha`` is null outside the map (policy "off").
+    ``applied_kg_ha`` is this period's metered mass over the area the sections that are on cover in
+    the period (null at standstill or with all sections off); ``prescribed_kg_ha`` is null outside the
+    map (policy "off"); ``width_on_m`` and ``offset_m`` are the working width of the sections that are
+    on and its centre's offset to the left of the heading (section control).
     """
 
     run_id: str
@@ -196,6 +199,8 @@ class RateSample(Message):
     prescribed_kg_ha: float
     applied_kg_ha: float
     metered_kg: float
+    width_on_m: float
+    offset_m: float
     implement_on: bool
 
 
@@ -312,7 +317,8 @@ class RunStatus(Message):
     clock: str
     ticks: int  # ticks driven so far
     sim_time_s: float
-    wall_s: float  # wall time since the run started
+    wall_s: float  # wall time since the run started (building the world and SUMO's network included)
+    drive_s: float  # wall time since the first tick
     error: str  # why it failed ("" otherwise)
 
 

@@ -2,17 +2,19 @@
 (``vrsim serve controller``).
 
 ``<prefix>/<machine>/control/step`` takes a JSON array of `messages.Pose` (the ticks since the last
-step, in order), runs `services.run.ControlCore.tick` on each measured position (the same core as
-``vrsim run``), publishes the results on ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies
-with a `messages.StepAck`. The reply is what keeps a lockstep run in step: the vehicle sends the next
-ticks only once the controller has processed these. ``.../control/load`` (from scenario control)
-builds a fresh core for a new run.
+step, in order), runs `services.run.ControlCore.run_track` on their measured positions (the core
+``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
+``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
+what keeps a lockstep run in step: the vehicle never has more than one batch unanswered.
+``.../control/load`` (from scenario control) builds a fresh core for a new run.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+
+import numpy as np
 
 from common import ServiceError
 from services import messages
@@ -29,20 +31,21 @@ class ControllerService:
         self.run_id = ""
         self.core = None
         self.next_tick = 0
-        self.width_m = self.period_s = math.nan
+        self.period_s = math.nan
 
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         start = messages.RunStart.from_json(payload)
         from services import scenario
         from services.run import ControlCore
-        from services.svc_map import scenario_grid
+        from services.svc_map import field_and_grid
 
         sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
-        core = ControlCore(scenario_grid(sc), sc)
+        field, grid = field_and_grid(sc)
+        core = ControlCore(grid, sc, field.polygon)
         with self.lock:
             self.run_id, self.core, self.next_tick = start.run_id, core, 0
-            self.width_m, self.period_s = sc.implement.width_m, sc.timing.control_period_s
+            self.period_s = sc.timing.control_period_s
         return dumps({"loaded": True, "run_id": start.run_id})
 
     def step(self, params: Params, payload: bytes | None) -> bytes:
@@ -67,18 +70,27 @@ class ControllerService:
                                    f"expected {self.next_tick + i}")
 
     def _tick_all(self, poses):
-        tick = self.core.tick
-        area_per_m = self.width_m * 1e-4  # ha per metre travelled
+        """`ControlCore.run_track` over this batch: the track's next ticks, so the loop's and the
+        policy's state carry over from the previous batch exactly as within one `vrsim run`."""
+        cols = ("measured_x_m", "measured_y_m", "heading_rad", "measured_speed_m_s")
+        mx, my, heading, speed = (np.array([getattr(p, c) for p in poses]) for c in cols)
+        on = np.array([p.implement_on for p in poses])
+        rec = self.core.run_track(mx, my, heading, speed, on)
+        travelled_m, width_m = speed * self.period_s, rec["width_on_m"]
+        # Below 1 cm of travel (as `services.run.land`) or with every section off a rate means nothing.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            applied = np.where((travelled_m > 0.01) & (width_m > 0),
+                               rec["metered_kg"] / (width_m * travelled_m * 1e-4), np.nan)
+        out = {k: v.tolist() for k, v in rec.items()}
+        applied = applied.tolist()
         shafts, rates = [], []
-        for p in poses:
-            out = tick(p.measured_x_m, p.measured_y_m, p.heading_rad, p.speed_m_s, p.implement_on)
-            travelled_m = p.speed_m_s * self.period_s
-            # Same 1 cm floor as `services.run.land` below which a rate is meaningless.
-            applied = out.metered_kg / (area_per_m * travelled_m) if travelled_m > 0.01 else math.nan
-            shafts.append(messages.ShaftState(p.run_id, p.tick, p.time_s, out.target_shaft_rpm, out.shaft_rpm,
-                                              out.shaft_rev, out.current_a))
-            rates.append(messages.RateSample(p.run_id, p.tick, p.time_s, out.landing_x_m, out.landing_y_m,
-                                             out.prescribed_kg_ha, applied, out.metered_kg, p.implement_on))
+        for i, p in enumerate(poses):
+            shafts.append(messages.ShaftState(p.run_id, p.tick, p.time_s, out["target_shaft_rpm"][i],
+                                              out["shaft_rpm"][i], out["shaft_rev"][i], out["current_a"][i]))
+            rates.append(messages.RateSample(p.run_id, p.tick, p.time_s, out["landing_x_m"][i],
+                                             out["landing_y_m"][i], out["prescribed_kg_ha"][i], applied[i],
+                                             out["metered_kg"][i], out["width_on_m"][i], out["offset_m"][i],
+                                             p.implement_on))
         return shafts, rates
 
     def handlers(self) -> dict:

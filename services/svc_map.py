@@ -112,9 +112,15 @@ def _parse(start: messages.RunStart):
 
 def scenario_grid(sc):
     """The scenario's prescription on the field's metric grid (what `ControlCore` looks up)."""
+    return field_and_grid(sc)[1]
+
+
+def field_and_grid(sc):
+    """The scenario's `vehicle.Field` and its prescription on the field's metric grid."""
     from services.run import build_field, build_prescription
 
-    return build_prescription(sc, build_field(sc))
+    field = build_field(sc)
+    return field, build_prescription(sc, field)
 
 
 def file_grid(path: str, rate_field=None, cell_size_m=None, crs=None):

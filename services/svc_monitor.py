@@ -22,7 +22,7 @@ from services import messages
 from services.zenoh_common import Params, ZenohOptions, dumps, guarded, run_service, serve
 
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: measured speed in pose, section width and offset in rate
 
 
 def _columns(cls) -> list[str]:
@@ -56,6 +56,10 @@ class MonitorStore:
         db = self.db
         db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT)")
         db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        found = db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()[0]
+        if found != str(SCHEMA_VERSION):
+            raise ServiceError(f"--db {self.path}: written by another vrsim version (schema {found}, "
+                               f"this one writes {SCHEMA_VERSION}); give a new --db file")
         db.execute("CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, "
                    "run_id TEXT UNIQUE, scenario_text TEXT, source TEXT, base_dir TEXT, clock TEXT, "
                    "started_unix REAL, last_unix REAL)")
@@ -116,14 +120,15 @@ class MonitorStore:
         0..n-1 with pose, shaft and rate all stored."""
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
-        rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg")
+        rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m", "offset_m")
         select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
                            + [f"r.{c}" for c in rate_cols])
         with self.lock:
             rows = self.db.execute(
                 f"SELECT p.tick, {select} FROM pose p JOIN shaft s USING (run_id, tick) "
                 "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
-        table = np.array(rows, dtype=np.float64).reshape(len(rows), 1 + len(pose_cols) + 8)
+        table = np.array(rows, dtype=np.float64).reshape(len(rows), 1 + len(pose_cols) + len(shaft_cols)
+                                                         + len(rate_cols))
         ticks = table[:, 0]
         # The complete prefix 0..n-1: a tick still in flight on one stream ends it.
         gaps = np.flatnonzero(ticks != np.arange(len(ticks)))

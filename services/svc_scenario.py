@@ -22,7 +22,7 @@ from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serv
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
-DEFAULT_TICKS_PER_MESSAGE = 20
+DEFAULT_TICKS_PER_MESSAGE = 50
 
 
 class ScenarioService:
@@ -106,6 +106,7 @@ class ScenarioService:
             "ticks": vehicle["ticks"] if vehicle else 0,
             "sim_time_s": vehicle["sim_time_s"] if vehicle else 0.0,
             "wall_s": vehicle["wall_s"] if vehicle else 0.0,
+            "drive_s": vehicle["drive_s"] if vehicle else 0.0,
             "monitor_ticks": monitor["ticks"] if monitor else None,
             "error": vehicle["error"] if vehicle else "the vehicle service is not alive",
             "alive": alive,

@@ -2,8 +2,9 @@
 
 The only process that runs SUMO (libsumo holds one simulation per process). A run is started by
 scenario control through ``<prefix>/<machine>/vehicle/start`` (body: `messages.RunStart`); a worker
-thread then steps `vehicle.SumoDriver` one control period at a time, takes the GNSS fix
-(`vehicle.Gnss.fix`, the same numbers as the vectorized ``measure`` of ``vrsim run``), publishes
+thread then steps `vehicle.SumoDriver` one control period at a time, reads the sensors per tick
+(`vehicle.Gnss.fix`, `vehicle.SpeedSensor.read`: the same numbers as the vectorized ``measure`` of
+``vrsim run``), publishes
 ``<prefix>/<machine>/pose`` and sends the same poses to ``.../control/step`` (at most one batch
 unanswered, see `StepPipe`). Clocks: ``lockstep`` batches ``ticks_per_message`` ticks per message and runs as
 fast as the controller answers; ``realtime`` sends every tick when simulation time, divided by the
@@ -30,10 +31,11 @@ class VehicleService:
     def __init__(self, session, keys, publish_pose):
         self.session, self.keys, self.publish_pose = session, keys, publish_pose
         self.lock = threading.Lock()
-        self.status = messages.RunStatus("idle", "", "", "", 0, 0.0, 0.0, "")
+        self.status = messages.RunStatus("idle", "", "", "", 0, 0.0, 0.0, 0.0, "")
         self.stop_flag = threading.Event()
         self.worker: threading.Thread | None = None
         self.wall0 = time.monotonic()
+        self.drive0: float | None = None  # when the first tick was driven
 
     # ------------------------------------------------------------------ handlers
     def start(self, params: Params, payload: bytes | None) -> bytes:
@@ -49,8 +51,9 @@ class VehicleService:
             sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
             world = build_world(sc)
             self.stop_flag.clear()
-            self.wall0 = time.monotonic()
-            self.status = messages.RunStatus("starting", start.run_id, sc.name, start.clock, 0, 0.0, 0.0, "")
+            self.wall0, self.drive0 = time.monotonic(), None
+            self.status = messages.RunStatus("starting", start.run_id, sc.name, start.clock, 0, 0.0, 0.0, 0.0,
+                                             "")
             self.worker = threading.Thread(target=self._run, args=(start, world), name="vrsim-drive",
                                            daemon=True)
             self.worker.start()
@@ -72,7 +75,7 @@ class VehicleService:
         with self.lock:
             st = self.status
             if st.state in ("starting", "running"):
-                st.wall_s = time.monotonic() - self.wall0
+                self._clock(st)
             return st.to_json()
 
     def handlers(self) -> dict:
@@ -88,7 +91,12 @@ class VehicleService:
         with self.lock:
             for name, value in changes.items():
                 setattr(self.status, name, value)
-            self.status.wall_s = time.monotonic() - self.wall0
+            self._clock(self.status)
+
+    def _clock(self, st: messages.RunStatus) -> None:
+        now = time.monotonic()
+        st.wall_s = now - self.wall0
+        st.drive_s = now - self.drive0 if self.drive0 is not None else 0.0
 
     def _run(self, start: messages.RunStart, world) -> None:
         try:
@@ -101,7 +109,8 @@ class VehicleService:
             self._set(state="failed", error=f"internal error: {type(exc).__name__}: {exc}")
 
     def _drive(self, start: messages.RunStart, world) -> str:
-        from vehicle import Gnss, SumoDriver
+        from services.run import sensors
+        from vehicle import SumoDriver
 
         sc = world.scenario
         period = sc.timing.control_period_s
@@ -112,9 +121,10 @@ class VehicleService:
         pipe = StepPipe(querier, self.publish_pose, self.keys.control_step)
         try:
             with SumoDriver(world.path, sc.tractor, step_s=period, seed=sc.seed) as driver:
-                gnss = Gnss(sc.gnss, seed=sc.seed)
-                self._set(state="running")
+                gnss, speed_sensor = sensors(sc)  # seeded as `vrsim run` seeds them
                 wall0, batch, tick = time.monotonic(), [], 0
+                self.drive0 = wall0
+                self._set(state="running")
                 while not driver.finished:
                     if self.stop_flag.is_set():
                         pipe.send(batch)
@@ -125,8 +135,9 @@ class VehicleService:
                                            f"max_sim_time_s = {sc.timing.max_sim_time_s:g} s")
                     p = driver.step()
                     mx, my = gnss.fix(p.time_s, p.x_m, p.y_m)
+                    mv = speed_sensor.read(p.time_s, p.speed_m_s)
                     batch.append(messages.Pose(start.run_id, tick, p.time_s, p.x_m, p.y_m, mx, my,
-                                               p.heading_rad, p.speed_m_s, bool(p.implement_on)))
+                                               p.heading_rad, p.speed_m_s, mv, bool(p.implement_on)))
                     tick += 1
                     if realtime:
                         delay = wall0 + p.time_s / start.speed - time.monotonic()

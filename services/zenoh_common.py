@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -75,7 +76,7 @@ class ZenohOptions:
             try:
                 conf = zenoh.Config.from_file(self.config_file)
             except (zenoh.ZError, OSError, ValueError) as exc:
-                raise ServiceError(f"--zenoh-config {self.config_file}: {exc}") from None
+                raise ServiceError(f"--zenoh-config {self.config_file}: {zenoh_reason(exc)}") from None
         else:
             conf = zenoh.Config()
             conf.insert_json5("scouting/multicast/enabled", "false")
@@ -136,9 +137,15 @@ def open_session(options: ZenohOptions, default_mode: str = "client"):
     try:
         return zenoh.open(options.config(default_mode))
     except zenoh.ZError as exc:
-        reason = str(exc).split("  at ")[0].rstrip(". ")  # drop zenoh's Rust source location
-        raise ServiceError(f"cannot open a zenoh session ({options.describe(default_mode)}): {reason}; "
+        where = options.describe(default_mode)
+        raise ServiceError(f"cannot open a zenoh session ({where}): {zenoh_reason(exc)}; "
                            "is `vrsim serve all` running, or is the port taken?") from None
+
+
+def zenoh_reason(exc: Exception) -> str:
+    """A zenoh error on one line, without the Rust source location it ends with."""
+    text = re.sub(r"\s+at /\S+\.rs:\d+\.?\s*$", "", str(exc))
+    return " ".join(line.strip(" |") for line in text.splitlines() if line.strip(" |"))
 
 
 @dataclass(frozen=True)

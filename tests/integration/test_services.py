@@ -204,6 +204,10 @@ def test_published_streams_can_be_watched(net, files):
         assert ticks == sorted(ticks) and len(set(ticks)) == 3
         ok, refused = net.query("vrsim/scenario/start", text)
         assert not ok and "stop it first" in refused["error"]
+        time.sleep(1.0)
+        ok, status = net.query("vrsim/scenario/status")
+        # speed=20: paced to the wall clock (never ahead; behind only when the machine is loaded)
+        assert 5 < status["sim_time_s"] / status["drive_s"] < 21, status
     finally:
         ok, stopped = net.query("vrsim/scenario/stop")
     assert ok and stopped["state"] == "stopped", stopped
@@ -239,3 +243,18 @@ def test_point_sampler_matches_grid_sample(files):
         assert sampler.xy(x, y) == grid.sample(x=x, y=y), (x, y)
         lon, lat = to_wgs.transform(x, y)
         assert sampler.lonlat(lon, lat) == grid.sample(lat=lat, lon=lon), (lon, lat)
+
+
+def test_zenoh_config_file_is_the_starting_point(net, tmp_path):
+    conf = tmp_path / "client.json5"
+    conf.write_text('{ mode: "client", connect: { endpoints: ["%s"] }, '
+                    'scouting: { multicast: { enabled: false } } }' % net.endpoint)
+    argv = [VRSIM, "query", "map/info", "--zenoh-config", str(conf)]
+    done = subprocess.run(argv, capture_output=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["rows"] > 0
+    conf.write_text("{ mode: ")
+    done = subprocess.run(argv, capture_output=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.decode().startswith(f"vrsim query: error: --zenoh-config {conf}: ")
+    assert len(done.stderr.decode().strip().splitlines()) == 1

@@ -20,7 +20,7 @@ def test_default_scenario_in_lockstep_matches_vrsim_run(tmp_path):
     server = ServeAll(str(tmp_path))
     try:
         server.wait_ready()
-        ok, started = server.query("vrsim/scenario/start?ticks_per_message=50")  # empty body: the default
+        ok, started = server.query("vrsim/scenario/start")  # empty body: the default scenario
         assert ok, started
         # Meanwhile, the same scenario in process (the machine has cores to spare while services wait).
         cli = subprocess.Popen([VRSIM, "run", "--json", "--quiet", "--out", str(tmp_path / "run")],
@@ -35,8 +35,8 @@ def test_default_scenario_in_lockstep_matches_vrsim_run(tmp_path):
     finally:
         assert server.stop() == 0
     expected = json.loads(out)
-    print(f"services: {status['ticks']} ticks in {status['wall_s']:.1f} s = "
-          f"{status['ticks'] / status['wall_s']:.0f} ticks/s")
+    print(f"services: {status['ticks']} ticks in {status['drive_s']:.1f} s = "
+          f"{status['ticks'] / status['drive_s']:.0f} ticks/s")
     assert set(report) == set(expected)
     assert report["ticks"] == expected["ticks"] > 100_000
     for key, want in expected.items():
