@@ -331,4 +331,7 @@ class MonitorStatus(Message):
     shaft_records: int
     rate_records: int
     ticks: int  # complete ticks: pose, shaft and rate all received for 0..ticks-1
+    live_samples: int  # rate samples with the implement on and both rates known
+    live_mae_kg_ha: float  # their mean |applied - prescribed| at the predicted landing point
+    live_bias_kg_ha: float  # their mean applied - prescribed
     database: str

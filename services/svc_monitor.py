@@ -21,6 +21,7 @@ from common import ServiceError
 from services import messages
 from services.zenoh_common import Params, ZenohOptions, dumps, guarded, run_service, serve
 
+NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 SCHEMA_VERSION = 2  # 2: measured speed in pose, section width and offset in rate
 
@@ -115,6 +116,17 @@ class MonitorStore:
                 "WHERE run_id = ?", (run_id,)).fetchone()[0]
         return out
 
+    def live_error(self, run_id: str) -> tuple[int, float, float]:
+        """(samples, mean |applied - prescribed|, mean applied - prescribed), kg/ha, over the rate
+        samples with the implement on and both rates known: the per-tick error at the landing point
+        predicted when metering, as it streams in (the report's figures are over the landed map)."""
+        with self.lock:
+            n, mae, bias = self.db.execute(
+                "SELECT COUNT(*), AVG(ABS(applied_kg_ha - prescribed_kg_ha)), "
+                "AVG(applied_kg_ha - prescribed_kg_ha) FROM rate WHERE run_id = ? AND implement_on "
+                "AND applied_kg_ha IS NOT NULL AND prescribed_kg_ha IS NOT NULL", (run_id,)).fetchone()
+        return n, NAN if mae is None else mae, NAN if bias is None else bias
+
     def arrays(self, run_id: str) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.run.account` takes) over the complete ticks:
         0..n-1 with pose, shaft and rate all stored."""
@@ -167,8 +179,9 @@ class MonitorService:
         params.only("run_id")
         run = self.store.run(params.text("run_id"))
         counts = self.store.counts(run["run_id"])
+        samples, mae, bias = self.store.live_error(run["run_id"])
         return messages.MonitorStatus(run["run_id"], counts["pose"], counts["shaft"], counts["rate"],
-                                      counts["complete"], self.store.path).to_json()
+                                      counts["complete"], samples, mae, bias, self.store.path).to_json()
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
         params.only("run_id")

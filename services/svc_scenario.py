@@ -108,6 +108,7 @@ class ScenarioService:
             "wall_s": vehicle["wall_s"] if vehicle else 0.0,
             "drive_s": vehicle["drive_s"] if vehicle else 0.0,
             "monitor_ticks": monitor["ticks"] if monitor else None,
+            "live_mae_kg_ha": monitor["live_mae_kg_ha"] if monitor else None,
             "error": vehicle["error"] if vehicle else "the vehicle service is not alive",
             "alive": alive,
             "missing": [s for s in zc.SERVICES if s not in alive],

@@ -172,6 +172,11 @@ def test_lockstep_run_matches_vrsim_run(net, files, tmp_path):
     assert status["missing"] == []
     ok, report = net.query("vrsim/tractor1/report")
     assert ok, report
+    ok, stored = net.query("vrsim/tractor1/monitor/status")
+    assert ok and stored["run_id"] == status["run_id"] and stored["ticks"] == status["ticks"], stored
+    assert 0 < stored["live_samples"] < stored["ticks"]  # turns (implement off) are left out
+    assert stored["live_mae_kg_ha"] >= abs(stored["live_bias_kg_ha"]) > 0
+    assert status["live_mae_kg_ha"] == stored["live_mae_kg_ha"]
     cli = subprocess.run([VRSIM, "run", files["scenario"], "--json", "--quiet", "--out",
                           str(tmp_path / "run")], capture_output=True, check=True)
     expected = json.loads(cli.stdout)
