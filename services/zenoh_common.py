@@ -107,9 +107,19 @@ class ZenohOptions:
 
     def child_args(self) -> list[str]:
         """Command-line options that make a child service a client of this process's router."""
-        connect = self.connect or tuple(self.listen) or (DEFAULT_ENDPOINT,)
-        args = [a for ep in connect for a in ("--connect", ep.replace("0.0.0.0", "127.0.0.1"))]
+        connect = self.connect or self.listen or self._config_listen() or (DEFAULT_ENDPOINT,)
+        local = [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in connect]
+        args = [a for ep in local for a in ("--connect", ep)]
         return args + ["--prefix", self.prefix, "--machine", self.machine]
+
+    def _config_listen(self) -> tuple[str, ...]:
+        """The router's listen endpoints in the ``--zenoh-config`` file, if it has one."""
+        if self.config_file is None:
+            return ()
+        endpoints = json.loads(self.config("router").get_json("listen/endpoints"))
+        if isinstance(endpoints, dict):  # zenoh's per-mode form {"router": [...], "peer": [...]}
+            endpoints = endpoints.get("router", [])
+        return tuple(endpoints)
 
 
 def add_arguments(parser) -> None:

@@ -263,3 +263,35 @@ def test_zenoh_config_file_is_the_starting_point(net, tmp_path):
     assert done.returncode == 2
     assert done.stderr.decode().startswith(f"vrsim query: error: --zenoh-config {conf}: ")
     assert len(done.stderr.decode().strip().splitlines()) == 1
+
+
+def test_serve_all_from_a_zenoh_config_file(files, tmp_path):
+    """The router's endpoint comes from --zenoh-config; the children connect to it."""
+    from tests.integration.test_services_support import free_port, open_client
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = tmp_path / "router.json5"
+    conf.write_text('{ mode: "router", listen: { endpoints: ["%s"] }, '
+                    'scouting: { multicast: { enabled: false } }, '
+                    'transport: { shared_memory: { enabled: false } } }' % endpoint)
+    log = open(tmp_path / "serve.log", "w+")
+    proc = subprocess.Popen([VRSIM, "serve", "all", "--zenoh-config", str(conf), "--map", files["map"],
+                             "--prefix", "farm/a", "--machine", "t7", "--db", str(tmp_path / "m.sqlite")],
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 60
+        while "Ctrl-C stops" not in (tmp_path / "serve.log").read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "serve.log").read_text()
+            time.sleep(0.1)
+        with open_client(endpoint) as session:
+            replies = list(session.get("farm/a/map/info", timeout=10))
+            assert replies[0].ok is not None
+            names = [str(r.ok.key_expr) for r in session.liveliness().get("farm/a/alive/*", timeout=2)]
+            assert sorted(names) == [f"farm/a/alive/{n}" for n in ("controller", "map", "monitor", "router",
+                                                                   "scenario", "vehicle")]
+            replies = list(session.get("farm/a/t7/report", timeout=10))
+            assert "no run recorded yet" in json.loads(replies[0].err.payload.to_bytes())["error"]
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 0
+        log.close()
