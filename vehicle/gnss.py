@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import VehicleError
+from vehicle.track import track_arrays
 
 # Per-axis 1-sigma horizontal error (m) and correlation time (s) of each receiver class.
 CLASSES = {
@@ -147,13 +148,7 @@ class Gnss:
         -------
         x_meas_m, y_meas_m : ndarray, shape (n,)
         """
-        t = np.asarray(time_s, dtype=float)
-        x, y = np.asarray(x_m, dtype=float), np.asarray(y_m, dtype=float)
-        if not (t.ndim == 1 and t.shape == x.shape == y.shape and len(t) > 0):
-            raise VehicleError(f"Gnss.measure: time_s, x_m, y_m must be 1-D of one length, got "
-                               f"{t.shape}, {x.shape}, {y.shape}")
-        if len(t) > 1 and not np.all(np.diff(t) > 0):
-            raise VehicleError("Gnss.measure: time_s must be strictly increasing")
+        t, x, y = track_arrays("Gnss.measure", time_s, x_m=x_m, y_m=y_m)
         self.reset()
         self._t0 = t[0]
         count = self._fix_count(t)  # fixes sampled once tick i is reached

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import VehicleError
+from vehicle.track import track_arrays
 
 # (noise 1-sigma, bias) as fractions of the true speed
 CLASSES = {"perfect": (0.0, 0.0), "radar": (0.01, 0.0), "wheel": (0.005, 0.03)}
@@ -87,12 +88,7 @@ class SpeedSensor:
 
     def measure(self, time_s, speed_m_s) -> np.ndarray:
         """Measured speed (m/s) for a whole track of increasing ``time_s`` (s); starts a new track."""
-        t, v = np.asarray(time_s, dtype=float), np.asarray(speed_m_s, dtype=float)
-        if not (t.ndim == 1 and t.shape == v.shape and len(t) > 0):
-            raise VehicleError(f"SpeedSensor.measure: time_s and speed_m_s must be 1-D of one length, "
-                               f"got {t.shape}, {v.shape}")
-        if len(t) > 1 and not np.all(np.diff(t) > 0):
-            raise VehicleError("SpeedSensor.measure: time_s must be strictly increasing")
+        t, v = track_arrays("SpeedSensor.measure", time_s, speed_m_s=speed_m_s)
         self.reset()
         self._t0 = t[0]
         j = self._sample_index(t).astype(int)

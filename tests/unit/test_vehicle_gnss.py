@@ -89,3 +89,12 @@ def test_bad_tracks():
         g.fix(1.0, 0.0, 0.0)
     with pytest.raises(VehicleError, match="seed"):
         Gnss(GnssConfig(), seed=-1)
+
+
+def test_sensors_refuse_ragged_or_unordered_tracks():
+    from vehicle import SpeedSensor
+
+    with pytest.raises(VehicleError, match=r"Gnss.measure: time_s, x_m, y_m must be 1-D of one length"):
+        Gnss(GnssConfig()).measure([0.0, 1.0], [0.0], [0.0, 1.0])
+    with pytest.raises(VehicleError, match="SpeedSensor.measure: time_s must be strictly increasing"):
+        SpeedSensor().measure([1.0, 0.0], [1.0, 1.0])
