@@ -23,7 +23,7 @@ class MapService:
     """The handlers of the map service over one `maps.Grid` (swapped whole on `load`)."""
 
     def __init__(self, grid, fixed: bool):
-        self.grid, self.sampler = grid, PointSampler(grid)
+        self.grid = grid
         self.fixed = fixed
         self.lock = threading.Lock()  # a load swaps the grid while queries may read it
 
@@ -45,9 +45,9 @@ class MapService:
             raise ServiceError(f"{params.key}: give either lat and lon, or x and y, not both")
         if geo:
             lat, lon = params.number("lat", -90.0, 90.0), params.number("lon", -180.0, 180.0)
-            sample = self.sampler.lonlat(lon, lat)
+            sample = grid.sample(lat=lat, lon=lon)
         elif params.has("x") or params.has("y"):
-            sample = self.sampler.xy(params.number("x"), params.number("y"))
+            sample = grid.sample(x=params.number("x"), y=params.number("y"))
         else:
             raise ServiceError(f"{params.key}: missing parameters: give lat and lon (WGS84) or x and y "
                                "(map CRS), or a JSON body of points")
@@ -59,44 +59,12 @@ class MapService:
         if self.fixed:
             return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
         grid = scenario_grid(*_parse(start))
-        sampler = PointSampler(grid)
         with self.lock:
-            self.grid, self.sampler = grid, sampler
+            self.grid = grid
         return dumps({"loaded": True, "source": grid.source, "rows": grid.rows, "cols": grid.cols})
 
     def handlers(self) -> dict:
         return {"info": self.info, "rate": self.rate, "load": self.load}
-
-
-class PointSampler:
-    """`maps.Grid.sample` for one point at a few microseconds instead of ~80 (numpy's per-call cost
-    on scalars dominates a single query). The same arithmetic as `Grid.lookup` and `Grid.rate_at`
-    (offset times the precomputed inverse cell size, truncated), so the cell is the same to the bit;
-    lat/lon go through the same cached transformer as ``lookup(..., crs="EPSG:4326")``.
-    """
-
-    def __init__(self, grid):
-        from maps.crs import WGS84, transformer
-
-        t = grid.transform
-        self.x0, self.inv_dx, self.y0, self.inv_dy = t.c, 1.0 / t.a, t.f, 1.0 / -t.e
-        self.rates, self.rows, self.cols = grid.rates_kg_ha, grid.rows, grid.cols
-        self.to_grid = None if grid.crs == WGS84 else transformer(WGS84, grid.crs).transform
-
-    def xy(self, x: float, y: float) -> dict:
-        fc = (x - self.x0) * self.inv_dx
-        fr = (self.y0 - y) * self.inv_dy
-        if 0.0 <= fc < self.cols and 0.0 <= fr < self.rows:
-            row, col = int(fr), int(fc)
-            rate = float(self.rates[row, col])
-            return {"rate_kg_ha": rate if rate == rate else None, "inside": True, "row": row, "col": col}
-        return {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
-
-    def lonlat(self, lon: float, lat: float) -> dict:
-        if self.to_grid is None:
-            return self.xy(lon, lat)
-        x, y = self.to_grid(lon, lat, errcheck=False)
-        return self.xy(float(x), float(y))
 
 
 def _no_body(params: Params, payload: bytes | None) -> None:

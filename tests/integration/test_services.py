@@ -230,26 +230,6 @@ def test_sigint_stops_every_process(files, tmp_path):
     assert child_services(server.proc.pid) == {}
 
 
-def test_point_sampler_matches_grid_sample(files):
-    """The map service's scalar fast path gives `Grid.sample`'s answer, on cell edges too."""
-    import pyproj
-
-    from services.svc_map import PointSampler
-
-    grid = files["grid"]
-    sampler = PointSampler(grid)
-    rng = np.random.default_rng(3)
-    w, s, e, n = grid.bounds
-    edges = np.arange(-1, 40)
-    xs = np.concatenate([rng.uniform(w - 5, e + 5, 300), w + 2.0 * edges, [e, w, np.nextafter(e, w)]])
-    ys = np.concatenate([rng.uniform(s - 5, n + 5, 300), n - 2.0 * edges, [n, s, np.nextafter(s, n)]])
-    to_wgs = pyproj.Transformer.from_crs(files["crs"], "EPSG:4326", always_xy=True)
-    for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
-        assert sampler.xy(x, y) == grid.sample(x=x, y=y), (x, y)
-        lon, lat = to_wgs.transform(x, y)
-        assert sampler.lonlat(lon, lat) == grid.sample(lat=lat, lon=lon), (lon, lat)
-
-
 def test_zenoh_config_file_is_the_starting_point(net, tmp_path):
     conf = tmp_path / "client.json5"
     conf.write_text('{ mode: "client", connect: { endpoints: ["%s"] }, '
