@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError
 from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
 from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
@@ -90,11 +89,8 @@ def build_world(scenario: Scenario) -> World:
     field = build_field(scenario)
     grid = build_prescription(scenario, field)
     spec = scenario.field
-    try:
-        path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
-                             heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
-    except ScenarioError:
-        raise
+    path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
+                         heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
     return World(scenario=scenario, field=field, path=path, grid=grid)
 
 
@@ -206,7 +202,7 @@ class ControlCore:
                 progress(part.stop, n)
         rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
                    metered_kg=self._metered_kg(rev, rec["width_on_m"] > 0))
-        return rec
+        return {key: rec[key] for key in CONTROL_KEYS}
 
     def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
              implement_on: bool) -> TickOut:
@@ -230,7 +226,6 @@ class ControlCore:
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
 
 
-TRACK_KEYS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
                 "shaft_rev", "current_a", "metered_kg", "width_on_m", "offset_m")
 
