@@ -33,23 +33,38 @@ def _available_commands():
         yield name, module
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
     parser = argparse.ArgumentParser(
         prog="vrsim",
         description="Simulator for map-based variable-rate fertilizer application.",
     )
     parser.add_argument("--version", action="version", version=f"vrsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    commands = {}
     for name, module in _available_commands():
         cmd = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.configure(cmd)
-        cmd.set_defaults(_run=module.run)
-    return parser
+        cmd.set_defaults(_run=module.run, command=name)
+        commands[name] = cmd
+    return parser, commands
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    """Parse the command line; exits 2 with a usage message on a bad command or option.
+
+    A command's options and positionals may interleave (``vrsim query KEY --body F NAME=VALUE``):
+    what the first pass leaves over is parsed again by the command's own parser, intermixed.
+    """
+    parser, commands = build_parser()
+    args, rest = parser.parse_known_args(argv)
+    if rest:
+        own = argv[argv.index(args.command) + 1:]
+        args = commands[args.command].parse_intermixed_args(own)
+    return args
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)  # exits 2 with a usage message on a bad command or option
+    args = parse(sys.argv[1:] if argv is None else argv)
     try:
         return int(args._run(args) or 0)
     except VrsimError as exc:

@@ -29,3 +29,13 @@ def test_bad_option_exits_2():
     p = _vrsim("--no-such-option")
     assert p.returncode == 2
     assert "Traceback" not in p.stderr
+
+
+def test_options_and_parameters_may_interleave():
+    from services.cli import parse
+
+    args = parse(["query", "scenario/start", "--body", "f.toml", "source=f.toml", "base_dir=/x"])
+    assert args.command == "query" and args.body == "f.toml"
+    assert args.params == ["source=f.toml", "base_dir=/x"]
+    args = parse(["run", "--json", "s.toml", "--quiet"])
+    assert args.scenario == "s.toml" and args.json and args.quiet
