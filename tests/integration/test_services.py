@@ -123,7 +123,7 @@ BAD = [
     ("vrsim/map/rate", b"{not json", "not valid JSON"),
     ("vrsim/map/rate", b'{"x": [1, 2], "y": [1]}', "x has 2 values, y 1"),
     ("vrsim/map/rate", b'{"x": [1, null], "y": [1, 2]}', "non-number null"),
-    ("vrsim/map/rate", b'{"lat": [1e999], "lon": [1]}', "is not finite"),
+    ("vrsim/map/rate", b'{"lat": [1e999], "lon": [1]}', "number is infinity"),
     ("vrsim/map/info?verbose=1", None, "unknown parameter 'verbose'"),
     ("vrsim/map/nothing", None, "unknown key (the map service serves vrsim/map/info"),
     ("vrsim/nothing", None, "unknown key (the vrsim keys are"),
