@@ -21,11 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common import ScenarioError
 from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
 from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
 from services.scenario import Scenario
-from vehicle import Field, Gnss, SpeedSensor, SumoDriver, plan_coverage
+from vehicle import CoveragePath, Field, Gnss, SpeedSensor, SumoDriver, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
@@ -37,7 +38,7 @@ class World:
 
     scenario: Scenario
     field: Field
-    path: object  # vehicle.CoveragePath
+    path: CoveragePath
     grid: Grid  # the prescription, in the field's metric CRS
 
 
@@ -57,11 +58,15 @@ def build_prescription(scenario: Scenario, field: Field) -> Grid:
     if spec.synthetic is not None:
         minx, miny, maxx, maxy = field.polygon.bounds
         bounds = (minx - MAP_MARGIN_M, miny - MAP_MARGIN_M, maxx + MAP_MARGIN_M, maxy + MAP_MARGIN_M)
-        if spec.synthetic == "zones_gradient":
-            return _zones_plus_gradient(bounds, field.crs, spec.cell_size_m, scenario.seed, spec.params)
-        make = getattr(synthetic, spec.synthetic)
-        return make(bounds=bounds, crs=field.crs, cell_size_m=spec.cell_size_m, seed=scenario.seed,
-                    **spec.params)
+        try:
+            if spec.synthetic == "zones_gradient":
+                return _zones_plus_gradient(bounds, field.crs, spec.cell_size_m, scenario.seed, spec.params)
+            make = getattr(synthetic, spec.synthetic)
+            return make(bounds=bounds, crs=field.crs, cell_size_m=spec.cell_size_m, seed=scenario.seed,
+                        **spec.params)
+        except (TypeError, ValueError) as exc:  # a parameter of the wrong shape, e.g. a 3-value range
+            raise ScenarioError(f"{scenario.source}: [map] params {spec.params!r} do not fit "
+                                f"synthetic {spec.synthetic!r}: {exc}") from None
     grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
                     crs=spec.crs)
     grid.check_overlap(field.polygon, field.crs)

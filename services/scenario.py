@@ -245,10 +245,7 @@ def _check_map(spec: MapSpec, source: str) -> None:
         if spec.synthetic not in SYNTHETIC_KINDS:
             raise ScenarioError(f"{source}: [map] synthetic must be one of {', '.join(SYNTHETIC_KINDS)}, "
                                 f"got {spec.synthetic!r}")
-        if spec.synthetic != "zones_gradient":
-            accepted = set(inspect.signature(getattr(synthetic, spec.synthetic)).parameters)
-            _no_unknown(spec.params, accepted - {"bounds", "crs", "cell_size_m", "seed"}, source,
-                        "map.params")
+        _no_unknown(spec.params, synthetic_params(spec.synthetic), source, "map.params")
     if spec.policy not in POLICIES:
         raise ScenarioError(f"{source}: [map] policy must be one of {', '.join(POLICIES)}, "
                             f"got {spec.policy!r}")
@@ -256,6 +253,18 @@ def _check_map(spec: MapSpec, source: str) -> None:
         raise ScenarioError(f"{source}: [map] cell_size_m must be > 0, got {spec.cell_size_m}")
     if spec.default_rate_kg_ha < 0:
         raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
+
+
+def synthetic_params(kind: str) -> set[str]:
+    """The `[map] params` keys a synthetic map of `kind` takes (`zones_gradient`: the zones' keys and
+    the gradient's prefixed with ``gradient_``)."""
+    def own(name):
+        given = {"bounds", "crs", "cell_size_m", "seed"}  # set by the run, not by the file
+        return set(inspect.signature(getattr(synthetic, name)).parameters) - given
+
+    if kind == "zones_gradient":
+        return own("zones") | {"gradient_" + p for p in own("gradient")}
+    return own(kind)
 
 
 def _check_timing(spec: TimingSpec, source: str) -> None:

@@ -121,6 +121,8 @@ def test_tick_by_tick_core_matches_the_staged_run(tmp_path):
     (("synthetic = \"zones\"", "synthetic = \"plasma\""), "synthetic must be one of"),
     (("[output]", "[implement]\nwidth_m = -12.0\n[output]"), "width_m"),
     (("[field]", "[fieeld]\n[field]"), "unknown key 'fieeld'"),
+    (("{ n_zones = 4 }", "{ n_zones = 4, slope = 2 }"), "[map.params] unknown key 'slope'"),
+    (("{ n_zones = 4 }", "{ rate_range_kg_ha = [1.0, 2.0, 3.0] }"), "do not fit synthetic 'zones'"),
 ])
 def test_bad_scenario_exits_2_naming_file_key_and_value(tmp_path, edit, message):
     path = quick(tmp_path)
