@@ -82,9 +82,11 @@ def geojson_is_points(doc: dict, path: str) -> bool:
 
 def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
                         max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
-    feats = geojson_features(doc, path)
+    # A feature without geometry places no point (as for zones): leave its properties out too, so
+    # rates stay paired with their coordinates.
+    feats = [f for f in geojson_features(doc, path) if f.get("geometry")]
     props = [f.get("properties") or {} for f in feats]
-    xy = [f["geometry"].get("coordinates") for f in feats if f.get("geometry")]
+    xy = [f["geometry"].get("coordinates") for f in feats]
     try:
         coords = np.array(xy, dtype=np.float64)[:, :2]
     except (ValueError, TypeError, IndexError):

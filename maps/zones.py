@@ -296,7 +296,7 @@ def geojson_crs(doc: dict, path: str):
 
 
 def geojson_features(doc: dict, path: str) -> list[dict]:
-    feats = doc["features"] if doc["type"] == "FeatureCollection" else [doc]
+    feats = doc.get("features") if doc["type"] == "FeatureCollection" else [doc]
     if not isinstance(feats, list) or not all(isinstance(f, dict) for f in feats):
         raise MapError(f"{path}: 'features' is not a list of objects")
     return feats

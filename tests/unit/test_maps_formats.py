@@ -209,6 +209,23 @@ def test_geojson_bad_input(tmp_path):
     feats = [{"type": "Feature", "geometry": line, "properties": {"rate": 1}}]
     with pytest.raises(MapError, match="LineString, not a polygon"):
         read_map(zones_geojson(tmp_path / "c.geojson", feats))
+    (tmp_path / "d.geojson").write_text('{"type": "FeatureCollection"}')
+    with pytest.raises(MapError, match="'features' is not a list"):
+        read_map(tmp_path / "d.geojson")
+
+
+def test_geojson_points_skip_features_without_geometry(tmp_path):
+    # A null-geometry feature places no point; its rate must not shift the others' onto wrong cells.
+    def point(x, rate):
+        return {"type": "Feature", "geometry": {"type": "Point", "coordinates": [x, 52.0]},
+                "properties": {"rate": rate}}
+
+    empty = {"type": "Feature", "geometry": None, "properties": {"rate": 5}}
+    doc = {"type": "FeatureCollection", "features": [empty, point(10.0, 100), point(10.001, 120)]}
+    (tmp_path / "p.geojson").write_text(json.dumps(doc))
+    g = read_map(tmp_path / "p.geojson")
+    assert (g.rows, g.cols) == (1, 2)
+    assert g.rates_kg_ha.tolist() == [[100.0, 120.0]]
 
 
 def test_many_small_zones_rasterize_fast(tmp_path):
