@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError
+from common import MapError, ScenarioError, VehicleError
 from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
 from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
@@ -91,11 +91,18 @@ def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
 
 
 def build_world(scenario: Scenario) -> World:
-    field = build_field(scenario)
-    grid = build_prescription(scenario, field)
+    """Field, prescription and coverage path; errors name the scenario file and its table."""
     spec = scenario.field
-    path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
-                         heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
+    try:
+        field = build_field(scenario)
+        path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
+                             heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
+    except VehicleError as exc:
+        raise ScenarioError(f"{scenario.source}: [field] {exc}") from None
+    try:
+        grid = build_prescription(scenario, field)
+    except MapError as exc:
+        raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
     return World(scenario=scenario, field=field, path=path, grid=grid)
 
 
