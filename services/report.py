@@ -88,8 +88,9 @@ def _pyplot():
 def plot_maps(result: RunResult, path: str) -> None:
     plt = _pyplot()
     grid = result.world.grid
+    # Metres from the map's south-west corner: UTM eastings of six digits crowd the axis.
     west, south, east, north = grid.bounds
-    extent = (west, east, south, north)
+    extent = (0.0, east - west, 0.0, north - south)
     rx, applied = grid.rates_kg_ha, result.as_applied.applied_kg_ha
     shown = np.where(result.in_field, 1.0, np.nan)
     vmax = float(np.nanmax(rx)) * 1.2 if np.isfinite(np.nanmax(rx)) else 1.0
@@ -100,16 +101,17 @@ def plot_maps(result: RunResult, path: str) -> None:
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
     fx, fy = result.world.field.polygon.exterior.xy
+    fx, fy = np.asarray(fx) - west, np.asarray(fy) - south
     for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
         im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
                        interpolation="nearest")
         ax.plot(fx, fy, color="k", lw=0.8)
         ax.set_title(title)
         ax.set_aspect("equal")
-        ax.set_xlabel("easting (m)")
+        ax.set_xlabel("east (m)")
         fig.colorbar(im, ax=ax, label="kg/ha", shrink=0.85)
-    axes[0].plot(result.track["x_m"], result.track["y_m"], color="w", lw=0.3, alpha=0.6)
-    axes[0].set_ylabel("northing (m)")
+    axes[0].plot(result.track["x_m"] - west, result.track["y_m"] - south, color="w", lw=0.3, alpha=0.6)
+    axes[0].set_ylabel("north (m) of the map's south-west corner")
     fig.suptitle(f"{result.world.scenario.name}: MAE {result.summary['mae_kg_ha']:.1f} kg/ha, "
                  f"within 10 %: {result.summary['within_10pct_area_pct']:.1f} % of covered area")
     fig.savefig(path, dpi=90)
