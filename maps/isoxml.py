@@ -63,6 +63,7 @@ class _Folder:
             names = [n for n in self._zip.namelist() if not n.endswith("/")]
             xmls = [n for n in names if posixpath.basename(n).upper() == "TASKDATA.XML"]
             if not xmls:
+                self.close()
                 raise MapError(f"{path}: the zip archive holds no TASKDATA.XML")
             self.xml_name = min(xmls, key=len)  # the shallowest one
             self._dir = posixpath.dirname(self.xml_name)
@@ -79,6 +80,17 @@ class _Folder:
                 self.xml_name = found[0]
             self._dir = os.path.dirname(os.path.abspath(self.xml_name))
             self._names = {n.upper(): os.path.join(self._dir, n) for n in os.listdir(self._dir)}
+
+    def __enter__(self) -> _Folder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the zip archive (a folder holds nothing open)."""
+        if self._zip is not None:
+            self._zip.close()
 
     def read_xml(self) -> bytes:
         return self._read(self.xml_name, MAX_XML_BYTES, "TASKDATA.XML")
@@ -131,7 +143,11 @@ def _ddi_list(ddis) -> str:
 
 def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
-    folder = _Folder(path)
+    with _Folder(path) as folder:
+        return _read_taskdata(folder, path, max_cells)
+
+
+def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
     where = path
     try:
         root = DET.fromstring(folder.read_xml())
@@ -147,7 +163,7 @@ def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
         raise MapError(f"{where}: no task (TSK) has a grid (GRD): nothing to read as a prescription map")
     if len(tasks) > 1:
         warnings.warn(f"{where}: {len(tasks)} tasks have grids; reading the first, {tasks[0].get('A')}",
-                      MapWarning, stacklevel=2)
+                      MapWarning, stacklevel=3)
     task = tasks[0]
     grd = task.find("GRD")
     south, west = _attr(grd, "A", float, where), _attr(grd, "B", float, where)
@@ -210,7 +226,7 @@ def _read_binary(folder: _Folder, name: str, expected: int, declared, where: str
                        f"{expected:,}: {'truncated' if size < expected else 'oversized'} or mis-declared")
     if declared is not None and declared != size:
         warnings.warn(f"{where}: GRD H (Filelength) says {declared:,} bytes but {fname} has {size:,}, as "
-                      "its grid needs; reading it", MapWarning, stacklevel=3)
+                      "its grid needs; reading it", MapWarning, stacklevel=4)
     return folder.read(fname, expected)
 
 
@@ -233,7 +249,7 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
     undefined = [int(c) for c in used if np.isnan(table[c])]
     if undefined:
         warnings.warn(f"{where}: grid cells name treatment zones {undefined} that have no DDI 0006 rate in "
-                      "TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=3)
+                      "TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=4)
     return table[codes], product_ref
 
 

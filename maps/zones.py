@@ -232,36 +232,43 @@ def _parse_shp(data: bytes, path: str):
 
 
 def _shapefile_parts(path: str) -> dict:
-    """File objects of .shp, .dbf, .shx (optional) and .prj (optional), from a folder or a zip."""
+    """Contents of .shp, .dbf, .shx (optional) and .prj (optional), from a folder or a zip, as
+    in-memory files: nothing stays open once this returns."""
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file")
+    exts = (".shp", ".dbf", ".shx", ".prj")
     if path.lower().endswith(".zip"):
         try:
             z = zipfile.ZipFile(path)
         except zipfile.BadZipFile as exc:
             raise MapError(f"{path}: not a zip archive: {exc}") from None
-        shps = [n for n in z.namelist() if n.lower().endswith(".shp") and not n.startswith("__MACOSX")]
-        if not shps:
-            raise MapError(f"{path}: the zip archive holds no .shp file")
-        if len(shps) > 1:
-            warnings.warn(f"{path}: {len(shps)} shapefiles in the archive; reading {shps[0]}", MapWarning,
-                          stacklevel=4)
-        stem = shps[0][:-4]
-        members = {n.lower(): n for n in z.namelist()}
-
-        def part(ext):
-            name = members.get((stem + ext).lower())
-            return io.BytesIO(z.read(name)) if name else None
+        with z:
+            shps = [n for n in z.namelist() if n.lower().endswith(".shp") and not n.startswith("__MACOSX")]
+            if not shps:
+                raise MapError(f"{path}: the zip archive holds no .shp file")
+            if len(shps) > 1:
+                warnings.warn(f"{path}: {len(shps)} shapefiles in the archive; reading {shps[0]}", MapWarning,
+                              stacklevel=4)
+            stem = shps[0][:-4]
+            members = {n.lower(): n for n in z.namelist()}
+            names = {ext: members.get((stem + ext).lower()) for ext in exts}
+            files = {ext[1:]: io.BytesIO(z.read(name)) if name else None for ext, name in names.items()}
     else:
         stem = path[:-4] if path.lower().endswith(".shp") else path
         folder = os.path.dirname(os.path.abspath(stem))
         members = {n.lower(): os.path.join(folder, n) for n in os.listdir(folder)}
         base = os.path.basename(stem)
-
-        def part(ext):
+        files = {}
+        for ext in exts:
             name = members.get((base + ext).lower())
-            return open(name, "rb") if name else None  # noqa: SIM115 - pyshp reads them; GC closes
-    files = {ext[1:]: part(ext) for ext in (".shp", ".dbf", ".shx", ".prj")}
+            if name is None:
+                files[ext[1:]] = None
+                continue
+            try:
+                with open(name, "rb") as f:
+                    files[ext[1:]] = io.BytesIO(f.read())
+            except OSError as exc:
+                raise MapError(f"{path}: cannot read {name}: {exc.strerror}") from None
     for ext, what in (("shp", "geometry"), ("dbf", "attributes, including the rate")):
         if files[ext] is None:
             raise MapError(f"{path}: the shapefile's .{ext} ({what}) is missing")

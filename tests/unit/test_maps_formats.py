@@ -136,6 +136,15 @@ def test_shapefile_needs_crs_without_prj():
     assert g.rate_at(X0 + 1, Y0 - 1) == 100 and g.rate_at(X0 + 49, Y0 - 29) == 200
 
 
+def test_shapefile_files_closed_after_reading(tmp_path):
+    # The parts are read into memory and closed: no file is left for the garbage collector.
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", ResourceWarning)
+        read_map(fixture("zones_noprj.shp"), crs="EPSG:32632", cell_size_m=5)
+        read_map(fixture("zones_utm32.zip"), cell_size_m=10)
+    assert not [w for w in seen if issubclass(w.category, ResourceWarning)]
+
+
 def test_shapefile_non_polygon_refused():
     with pytest.raises(MapError, match="POLYLINE, not a polygon"):
         read_map(fixture("lines.shp"))
@@ -239,7 +248,8 @@ def test_many_small_zones_rasterize_fast(tmp_path):
             w.poly([[(x, y), (x + 5, y), (x + 5, y - 5), (x, y - 5), (x, y)]])
             w.record(float(i % 300))
     with open(path + ".prj", "w") as f:
-        f.write(open(fixture("lines.prj")).read())
+        with open(fixture("lines.prj")) as src:
+            f.write(src.read())
     t0 = time.perf_counter()
     g = read_map(path + ".shp", cell_size_m=5)
     elapsed = time.perf_counter() - t0
