@@ -190,14 +190,19 @@ def _read_geojson(path: str):
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise VehicleError(f"field file {path}: not readable GeoJSON: {exc}") from None
     crs = None
-    name = (doc.get("crs") or {}).get("properties", {}).get("name") if isinstance(doc, dict) else None
+    member = doc.get("crs") if isinstance(doc, dict) else None
+    props = member.get("properties") if isinstance(member, dict) else None
+    name = props.get("name") if isinstance(props, dict) else None
+    if member and not name:
+        raise VehicleError(f"field file {path}: crs member {member!r} is not "
+                           "{'type': 'name', 'properties': {'name': ...}}")
     if name:
         try:
             crs = pyproj.CRS.from_user_input(name)
-        except pyproj.exceptions.CRSError:
+        except (pyproj.exceptions.CRSError, TypeError):
             raise VehicleError(f"field file {path}: crs name {name!r} is not a CRS") from None
     geoms = _geojson_geometries(doc)
-    polys = [g for g in geoms if g and g.get("type") in ("Polygon", "MultiPolygon")]
+    polys = [g for g in geoms if isinstance(g, dict) and g.get("type") in ("Polygon", "MultiPolygon")]
     if not polys:
         raise VehicleError(f"field file {path}: no Polygon or MultiPolygon geometry in it")
     try:
@@ -212,7 +217,10 @@ def _geojson_geometries(doc):
         return []
     kind = doc.get("type")
     if kind == "FeatureCollection":
-        return [f.get("geometry") for f in doc.get("features", []) if isinstance(f, dict)]
+        features = doc.get("features")
+        if not isinstance(features, list):
+            return []
+        return [f.get("geometry") for f in features if isinstance(f, dict)]
     if kind == "Feature":
         return [doc.get("geometry")]
     return [doc]

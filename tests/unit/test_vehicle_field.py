@@ -75,6 +75,12 @@ def test_bad_extension_and_bad_json(tmp_path):
     p.write_text("{not json")
     with pytest.raises(VehicleError, match="not readable GeoJSON"):
         Field.from_file(str(p))
+    p.write_text('{"type": "FeatureCollection", "features": null}')
+    with pytest.raises(VehicleError, match="no Polygon"):
+        Field.from_file(str(p))
+    p.write_text('{"type": "FeatureCollection", "crs": {"properties": "EPSG:4326"}, "features": [7]}')
+    with pytest.raises(VehicleError, match="crs member"):
+        Field.from_file(str(p))
 
 
 @pytest.mark.parametrize("w, l", [(0, 10), (-5, 10), (10, float("nan"))])
