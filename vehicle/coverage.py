@@ -343,7 +343,7 @@ def _dist(pos, cell, first, fwd, offsets):
     """Distance from ``pos`` (across, along) to where a cell would be entered."""
     line, a, b = cell[0] if first else cell[-1]
     if pos is None:
-        return 0.0 if (first and fwd and cell is not None) else 1.0
+        return 0.0 if (first and fwd) else 1.0  # no position yet: the first cell, as planned
     return math.hypot(offsets[line] - pos[0], (a if fwd else b) - pos[1])
 
 

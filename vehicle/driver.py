@@ -139,8 +139,7 @@ class SpeedVariation:
     """Seeded, slow speed factor ``1 + pct/100 * g``, g a clipped Gauss-Markov process in [-1, 1].
 
     ``g`` has a stationary standard deviation of 0.5 and correlation time ``tau_s``; one value per
-    update of period ``dt_s``. The same seed gives the same sequence whether read one value at a time
-    (`next`) or in blocks (`take`).
+    update of period ``dt_s`` (`next`). The same seed gives the same sequence.
     """
 
     def __init__(self, pct: float, tau_s: float, dt_s: float, seed: int):
