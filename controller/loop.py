@@ -15,13 +15,12 @@ anti-windup is the one nonlinear correction after the product).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from common import ControllerError
-from controller.discretize import Lifted, lift
+from controller.discretize import Lifted, delay_split, lift
 from controller.gains import FORMS, ControllerConfig, PidGains, resolve_gains
 from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
@@ -192,8 +191,7 @@ class ClosedLoop:
         self.control_period_s = float(control_period_s)
         self.plant_step_s = float(plant_step_s)
         unique = list(dict.fromkeys(plant_list)) if isinstance(plants, Sequence) else [plants]
-        self._lay = lay = _Layout(max(
-            math.floor(p.sensor_delay_s / control_period_s + 1e-12) + 1 for p in unique))
+        self._lay = lay = _Layout(max(delay_split(p.sensor_delay_s, control_period_s)[0] for p in unique))
         blocks = {p: _plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
         shared = len(unique) == 1
         M = blocks[unique[0]][0] if shared else np.stack([blocks[p][0] for p in plant_list])
