@@ -127,6 +127,7 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
     metrics = step_metrics(res.t_s, res.shaft_rpm, step_rpm)
     mean_rpm = np.hstack([np.zeros((len(literal) * 2, 1)), (res.shaft_rev * 60.0 / T).T])
     mean_metrics = step_metrics(np.arange(mean_rpm.shape[1]) * T, mean_rpm, step_rpm)
+    ran = {"step_rpm": step_rpm, "duration_s": duration_s}  # the values used, not the defaults
     entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i])
                for i, (k, g) in enumerate(zip(KINDS * 2, literal + textbook, strict=True))]
     summary = {
@@ -142,7 +143,7 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
         **{k: e for k, e in zip(KINDS, entries[:3], strict=True)},
         "textbook": {k: e for k, e in zip(KINDS, entries[3:], strict=True)},
         "paper_formulas": liang2013.formula_coefficients(),
-        "assumptions": {**assumptions(plant), **{k: {"value": v, "unit": u, "why": w}
+        "assumptions": {**assumptions(plant), **{k: {"value": ran.get(k, v), "unit": u, "why": w}
                                                    for k, (v, u, w) in EXPERIMENT_ASSUMPTIONS.items()}},
     }
     summary["findings"] = _findings(summary)

@@ -42,3 +42,12 @@ def test_relay_estimate_is_near_the_ultimate_point():
     assert r.ku == pytest.approx(0.955, rel=0.15)
     assert r.tu_s == pytest.approx(0.31, rel=0.25)
     assert round(r.tu_s / 0.05, 6) == int(round(r.tu_s / 0.05))
+
+
+def test_paper_run_reports_the_step_and_duration_it_used():
+    from controller.experiment import run_paper
+
+    run = run_paper(step_rpm=50.0, duration_s=10.0)
+    assumed = run.summary["assumptions"]
+    assert assumed["step_rpm"]["value"] == 50.0 and assumed["duration_s"]["value"] == 10.0
+    assert run.t_s[-1] == pytest.approx(10.0)
