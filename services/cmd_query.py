@@ -8,6 +8,7 @@ published key (pose, shaft, rate) instead and prints ``--count`` samples, one pe
 
 from __future__ import annotations
 
+import math
 import sys
 
 from common import ServiceError
@@ -15,7 +16,6 @@ from services import zenoh_common as zc
 
 HELP = "query a vrsim Zenoh service (e.g. `vrsim query map/rate lat=52.1 lon=11.6`) and print the reply"
 MACHINE_KEYS = ("report", "pose", "shaft", "rate")
-TOP_KEYS = ("map", "scenario", "alive")
 
 
 def configure(parser) -> None:
@@ -67,8 +67,8 @@ def _body(path: str | None) -> bytes | None:
 
 
 def run(args) -> int:
-    if not args.timeout > 0:
-        raise ServiceError(f"--timeout {args.timeout}: must be > 0")
+    if not 0 < args.timeout < math.inf:
+        raise ServiceError(f"--timeout {args.timeout}: must be a finite number > 0")
     if args.count < 1:
         raise ServiceError(f"--count {args.count}: must be >= 1")
     options = zc.options_from_args(args)
@@ -85,8 +85,13 @@ def run(args) -> int:
 def _watch(session, key: str, count: int, timeout_s: float) -> int:
     import queue
 
+    import zenoh
+
     got: queue.Queue = queue.Queue()
-    sub = session.declare_subscriber(key, lambda sample: got.put(sample.payload.to_bytes()))
+    try:
+        sub = session.declare_subscriber(key, lambda sample: got.put(sample.payload.to_bytes()))
+    except zenoh.ZError as exc:  # e.g. an invalid key expression
+        raise ServiceError(f"{key}: {zc.zenoh_reason(exc)}") from None
     try:
         for _ in range(count):
             try:

@@ -44,6 +44,9 @@ class MonitorStore:
         folder = os.path.dirname(os.path.abspath(path))
         try:
             os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+        try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
             # NORMAL in WAL mode: a committed transaction survives the process being killed.

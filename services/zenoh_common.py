@@ -153,8 +153,8 @@ def open_session(options: ZenohOptions, default_mode: str = "client"):
 
 
 def zenoh_reason(exc: Exception) -> str:
-    """A zenoh error on one line, without the Rust source location it ends with."""
-    text = re.sub(r"\s+at /\S+\.rs:\d+\.?\s*$", "", str(exc))
+    """A zenoh error on one line, without the Rust source locations it carries."""
+    text = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", str(exc))
     return " ".join(line.strip(" |") for line in text.splitlines() if line.strip(" |"))
 
 
@@ -398,7 +398,10 @@ def request(session, selector: str, payload: bytes | None = None, timeout_s: flo
     kwargs = {"timeout": timeout_s, "target": zenoh.QueryTarget.BEST_MATCHING}
     if payload is not None:
         kwargs["payload"] = payload
-    replies = list(session.get(selector, **kwargs))
+    try:
+        replies = list(session.get(selector, **kwargs))
+    except zenoh.ZError as exc:  # e.g. an invalid key expression ("$", "#" ...)
+        raise ServiceError(f"{what}: {zenoh_reason(exc)}") from None
     for reply in replies:
         if reply.ok is not None:
             return reply.ok.payload.to_bytes()

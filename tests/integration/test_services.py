@@ -109,6 +109,36 @@ def test_vrsim_query_error_reply_is_one_line_and_exit_2(net):
     assert done.stdout == b""
 
 
+@pytest.mark.parametrize("args, needle", [
+    (("query", "map/$x"), "vrsim query: error: vrsim/map/$x: Invalid Key Expr"),
+    (("query", "pose#", "--watch"), "vrsim query: error: vrsim/pose#: Invalid Key Expr"),
+    (("query", "map/info", "--timeout", "inf"), "vrsim query: error: --timeout inf: must be a finite number"),
+])
+def test_vrsim_query_bad_key_or_timeout_is_one_line_and_exit_2(net, args, needle):
+    done = net.cli(*args)
+    assert done.returncode == 2, done.stderr
+    err = done.stderr.decode()
+    assert err.startswith(needle) and len(err.splitlines()) == 1, err
+
+
+def test_zenoh_reason_drops_rust_locations_anywhere():
+    from services.zenoh_common import zenoh_reason
+
+    exc = Exception("Can not create a new TCP listener bound to tcp/127.0.0.1:7448: [127.0.0.1:7448: "
+                    "Address already in use (os error 98) at /root/.cargo/x/src/tcp.rs:61.]")
+    assert zenoh_reason(exc) == ("Can not create a new TCP listener bound to tcp/127.0.0.1:7448: "
+                                 "[127.0.0.1:7448: Address already in use (os error 98)]")
+
+
+def test_monitor_db_whose_folder_cannot_be_made_is_a_clear_error(tmp_path):
+    from common import ServiceError
+    from services.svc_monitor import MonitorStore
+
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ServiceError, match=r"--db .*/file/sub/m\.sqlite: cannot create its folder"):
+        MonitorStore(str(tmp_path / "file" / "sub" / "m.sqlite"))
+
+
 # ------------------------------------------------------------------------------------ bad input
 BAD = [
     ("vrsim/map/rate", None, "missing parameters"),
