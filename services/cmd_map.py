@@ -110,11 +110,11 @@ def _sample(args) -> int:
 def _convert(args) -> int:
     import maps
 
+    if args.to_cell_size is not None and not args.to_crs:  # before reading: a big map takes a while
+        raise MapError("map convert: --to-cell-size needs --to-crs")
     grid = _read(args)
     if args.to_crs:
         grid = grid.reproject(args.to_crs, cell_size_m=args.to_cell_size)
-    elif args.to_cell_size is not None:
-        raise MapError("map convert: --to-cell-size needs --to-crs")
     maps.write_map(grid, args.out)
     print(f"wrote {args.out} ({grid.rows} x {grid.cols} cells)")
     return 0

@@ -117,6 +117,7 @@ def test_bad_input_exit_2_one_line(tmp_path, shared_dir):
     assert "give --lat and --lon" in bad("sample", TIF, "--lat", 1, "--x", 2)
     assert "finite" in bad("sample", TIF, "--lat", "nan", "--lon", 1)
     assert "unknown output format" in bad("convert", TIF, tmp_path / "a.txt")
+    assert "needs --to-crs" in bad("convert", tmp_path / "nope.tif", tmp_path / "a.tif", "--to-cell-size", 2)
     assert ".png" in bad("plot", TIF, tmp_path / "a.jpg")
     hostile = '<!DOCTYPE x [<!ENTITY a "b">]><ISO11783_TaskData>&a;</ISO11783_TaskData>'
     (tmp_path / "TASKDATA.XML").write_text(hostile)
