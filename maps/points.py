@@ -114,8 +114,12 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
     if xk and yk:
         prj = os.path.splitext(path)[0] + ".prj"
         if os.path.exists(prj):
-            with open(prj) as f:
-                src_crs = crs_from_prj(f.read(), prj)
+            try:
+                with open(prj, encoding="utf-8", errors="replace") as f:  # as for a shapefile's .prj
+                    text = f.read()
+            except OSError as exc:
+                raise MapError(f"{prj}: cannot read: {exc.strerror}") from None
+            src_crs = crs_from_prj(text, prj)
         elif crs is not None:
             src_crs = as_crs(crs, "crs")
         else:

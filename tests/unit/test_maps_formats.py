@@ -274,6 +274,10 @@ def test_csv_errors(tmp_path):
     (tmp_path / "a.csv").write_text("x,y,rate\n1,2,3\n")
     with pytest.raises(MapError, match="no .prj"):
         read_map(tmp_path / "a.csv")
+    (tmp_path / "a.prj").write_bytes(b"\xff\xfe not a CRS")
+    with pytest.raises(MapError, match="a.prj"):
+        read_map(tmp_path / "a.csv")
+    (tmp_path / "a.prj").unlink()
     (tmp_path / "b.csv").write_text("foo,bar\n1,2\n")
     with pytest.raises(MapError, match="needs x,y or lon,lat"):
         read_map(tmp_path / "b.csv")
