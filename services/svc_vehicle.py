@@ -122,14 +122,13 @@ class VehicleService:
         try:
             with SumoDriver(world.path, sc.tractor, step_s=period, seed=sc.seed) as driver:
                 gnss, speed_sensor = sensors(sc)  # seeded as `vrsim run` seeds them
-                wall0, batch, tick = time.monotonic(), [], 0
+                wall0, batch, tick, state = time.monotonic(), [], 0, "finished"
                 self.drive0 = wall0
                 self._set(state="running")
                 while not driver.finished:
                     if self.stop_flag.is_set():
-                        pipe.send(batch)
-                        pipe.wait()
-                        return "stopped"
+                        state = "stopped"
+                        break
                     if tick >= max_ticks:
                         raise ServiceError(f"run {start.run_id}: not finished after [timing] "
                                            f"max_sim_time_s = {sc.timing.max_sim_time_s:g} s")
@@ -150,10 +149,9 @@ class VehicleService:
                 pipe.send(batch)
                 pipe.wait()
                 self._set(ticks=tick, sim_time_s=tick * period)
-            return "finished"
+            return state
         finally:
             querier.undeclare()
-
 
 
 class StepPipe:

@@ -305,3 +305,52 @@ def test_serve_all_from_a_zenoh_config_file(files, tmp_path):
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=30) == 0
         log.close()
+
+
+
+def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
+    """Stopped 3 ticks into a batch of 7: status counts every tick sent to the controller."""
+    import types
+
+    import services.run
+    import vehicle
+    from services import messages
+    from services.svc_vehicle import VehicleService
+    from services.zenoh_common import Keys
+
+    svc = VehicleService(None, Keys(), lambda payload: None)
+    sent = []
+
+    class Driver:
+        finished = False
+
+        def __init__(self, *args, **kwargs):
+            self.tick = 0
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def step(self):
+            self.tick += 1
+            if self.tick == 7 + 3:
+                svc.stop_flag.set()
+            return types.SimpleNamespace(time_s=0.05 * self.tick, x_m=1.0, y_m=2.0, heading_rad=0.0,
+                                         speed_m_s=2.0, implement_on=True)
+
+    ok = types.SimpleNamespace(ok=object())
+    querier = types.SimpleNamespace(get=lambda payload: sent.append(len(json.loads(payload))) or [ok],
+                                    undeclare=lambda: None)
+    svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)
+    gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
+    speed = types.SimpleNamespace(read=lambda t, v: v)
+    monkeypatch.setattr(vehicle, "SumoDriver", Driver)
+    monkeypatch.setattr(services.run, "sensors", lambda sc: (gnss, speed))
+    timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
+    scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1)
+    world = types.SimpleNamespace(scenario=scenario, path=None)
+    start = messages.RunStart("r", "", "s", "/", "lockstep", 1.0, 7)
+    assert svc._drive(start, world) == "stopped"
+    assert sent == [7, 3] and svc.status.ticks == 10
