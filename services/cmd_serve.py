@@ -145,12 +145,9 @@ def _interrupt(signum, frame):
 
 def _start_request(keys: zc.Keys, sc, args) -> tuple[bytes, str]:
     """The scenario/start query for a loaded scenario (its text, source and folder)."""
-    from services import scenario
+    from services.svc_scenario import scenario_file
 
-    path = sc.source[len("builtin:"):] if sc.source.startswith("builtin:") else sc.source
-    if sc.source.startswith("builtin:"):
-        path = os.path.join(scenario.BUILTIN_DIR, path + ".toml")
-    with open(path, "rb") as fh:
+    with open(scenario_file(sc), "rb") as fh:
         text = fh.read()
     params = {"source": sc.source, "base_dir": sc.base_dir, "clock": args.clock, "speed": args.speed}
     if args.ticks_per_message is not None:

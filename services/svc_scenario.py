@@ -12,6 +12,7 @@ level gets an error reply naming the keys that exist.
 from __future__ import annotations
 
 import os
+import re
 import threading
 import time
 
@@ -23,6 +24,22 @@ from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serv
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
 DEFAULT_TICKS_PER_MESSAGE = 50
+
+
+def new_run_id(name: str, counter: int) -> str:
+    """``<name>-<UTC time>-<pid>-<counter>``; characters that would break a selector parameter
+    (``;`` ``#`` ``?`` ``&`` spaces ...) in the scenario's name become ``_``."""
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "run"
+    return f"{safe}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{counter}"
+
+
+def scenario_file(sc) -> str:
+    """The file a loaded scenario was read from (a built-in's TOML under `scenario.BUILTIN_DIR`)."""
+    from services import scenario
+
+    if sc.source.startswith("builtin:"):
+        return os.path.join(scenario.BUILTIN_DIR, sc.source[len("builtin:"):] + ".toml")
+    return sc.source
 
 
 class ScenarioService:
@@ -59,7 +76,7 @@ class ScenarioService:
                 raise ServiceError(f"{params.key}: run {state['run_id']} is {state['state']}; "
                                    f"stop it first ({self.keys.scenario('stop')})")
             self.counter += 1
-            run_id = f"{sc.name}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{self.counter}"
+            run_id = new_run_id(sc.name, self.counter)
             start = messages.RunStart(run_id, text, source, base_dir, clock, speed, per_message)
             body = start.to_json()
             for key, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
@@ -72,7 +89,7 @@ class ScenarioService:
 
         if not payload:  # the built-in default, refused as `vrsim run` would refuse it
             sc = scenario.load(None)
-            with open(os.path.join(scenario.BUILTIN_DIR, "default.toml"), encoding="utf-8") as fh:
+            with open(scenario_file(sc), encoding="utf-8") as fh:
                 return fh.read(), sc.source, sc.base_dir
         try:
             text = payload.decode("utf-8")
@@ -98,6 +115,8 @@ class ScenarioService:
                 monitor = zc.request_json(self.session, selector, timeout_s=STATUS_TIMEOUT_S)
             except ServiceError:
                 monitor = None
+        silent = ("the vehicle service is not alive" if "vehicle" not in alive
+                  else f"the vehicle service did not answer within {STATUS_TIMEOUT_S:g} s")
         out = {
             "state": vehicle["state"] if vehicle else "unknown",
             "run_id": vehicle["run_id"] if vehicle else "",
@@ -109,7 +128,7 @@ class ScenarioService:
             "drive_s": vehicle["drive_s"] if vehicle else 0.0,
             "monitor_ticks": monitor["ticks"] if monitor else None,
             "live_mae_kg_ha": monitor["live_mae_kg_ha"] if monitor else None,
-            "error": vehicle["error"] if vehicle else "the vehicle service is not alive",
+            "error": vehicle["error"] if vehicle else silent,
             "alive": alive,
             "missing": [s for s in zc.SERVICES if s not in alive],
         }

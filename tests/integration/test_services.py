@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import time
@@ -354,3 +355,14 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     start = messages.RunStart("r", "", "s", "/", "lockstep", 1.0, 7)
     assert svc._drive(start, world) == "stopped"
     assert sent == [7, 3] and svc.status.ticks == 10
+
+
+def test_run_id_is_safe_in_a_selector_parameter():
+    import zenoh
+
+    from services.svc_scenario import new_run_id
+
+    run_id = new_run_id("north field; v2#b?", 3)
+    assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id
+    params = zenoh.Selector(f"vrsim/tractor1/report?run_id={run_id}").parameters
+    assert list(params) == [("run_id", run_id)]

@@ -97,6 +97,17 @@ def test_killed_controller_is_reported_within_2s_and_records_stay(net):
     assert report["ticks"] == stored["ticks"]
 
 
+def test_hung_vehicle_is_reported_as_silent_not_dead(net):
+    vehicle = net.children()["vehicle"]
+    os.kill(vehicle, signal.SIGSTOP)
+    try:
+        ok, status = net.query("vrsim/scenario/status")
+    finally:
+        os.kill(vehicle, signal.SIGCONT)
+    assert ok and status["state"] == "unknown" and "vehicle" in status["alive"], status
+    assert status["error"] == "the vehicle service did not answer within 1 s", status
+
+
 def test_killed_vehicle_is_reported_within_2s(net):
     vehicle = net.children()["vehicle"]
     os.kill(vehicle, signal.SIGKILL)
