@@ -5,7 +5,7 @@
 step, in order), runs `services.run.ControlCore.run_track` on their measured positions (the core
 ``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
 ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
-what keeps a lockstep run in step: the vehicle never has more than one batch unanswered.
+what keeps a lockstep run in step: the vehicle is never more than one batch ahead of the replies.
 ``.../control/load`` (from scenario control) builds a fresh core for a new run.
 """
 

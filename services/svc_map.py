@@ -23,9 +23,8 @@ class MapService:
     """The handlers of the map service over one `maps.Grid` (swapped whole on `load`)."""
 
     def __init__(self, grid, fixed: bool):
-        self.grid = grid
+        self.grid = grid  # a load rebinds it whole; a query reads it once
         self.fixed = fixed
-        self.lock = threading.Lock()  # a load swaps the grid while queries may read it
 
     def info(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
@@ -58,9 +57,10 @@ class MapService:
         start = messages.RunStart.from_json(payload)
         if self.fixed:
             return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
-        grid = scenario_grid(*_parse(start))
-        with self.lock:
-            self.grid = grid
+        from services import scenario
+
+        grid = scenario_grid(scenario.parse(start.scenario_text, start.source, start.base_dir))
+        self.grid = grid
         return dumps({"loaded": True, "source": grid.source, "rows": grid.rows, "cols": grid.cols})
 
     def handlers(self) -> dict:
@@ -70,12 +70,6 @@ class MapService:
 def _no_body(params: Params, payload: bytes | None) -> None:
     if payload:
         raise ServiceError(f"{params.key}: takes no body")
-
-
-def _parse(start: messages.RunStart):
-    from services import scenario
-
-    return (scenario.parse(start.scenario_text, start.source, start.base_dir),)
 
 
 def scenario_grid(sc):

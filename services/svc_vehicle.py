@@ -4,11 +4,11 @@ The only process that runs SUMO (libsumo holds one simulation per process). A ru
 scenario control through ``<prefix>/<machine>/vehicle/start`` (body: `messages.RunStart`); a worker
 thread then steps `vehicle.SumoDriver` one control period at a time, reads the sensors per tick
 (`vehicle.Gnss.fix`, `vehicle.SpeedSensor.read`: the same numbers as the vectorized ``measure`` of
-``vrsim run``), publishes
-``<prefix>/<machine>/pose`` and sends the same poses to ``.../control/step`` (at most one batch
-unanswered, see `StepPipe`). Clocks: ``lockstep`` batches ``ticks_per_message`` ticks per message and runs as
-fast as the controller answers; ``realtime`` sends every tick when simulation time, divided by the
-speed factor, reaches the wall clock.
+``vrsim run``), publishes ``<prefix>/<machine>/pose`` and sends the same poses to
+``.../control/step`` (at most one batch ahead of the replies, see `StepPipe`). Clocks: ``lockstep``
+batches ``ticks_per_message`` ticks per message and runs as fast as the controller answers;
+``realtime`` sends every tick when simulation time, divided by the speed factor, reaches the wall
+clock.
 """
 
 from __future__ import annotations
@@ -155,10 +155,11 @@ class VehicleService:
 
 
 class StepPipe:
-    """Sends pose batches to ``control/step`` with at most one unanswered batch in flight.
+    """Sends pose batches to ``control/step``, never more than one batch ahead of the replies.
 
     The vehicle drives the next batch while the controller works on this one (nearly twice the
-    ticks per second of waiting for each reply), yet never gets more than one batch ahead. Replies
+    ticks per second of waiting for each reply); `send` queries the new batch, then waits for the
+    reply to the previous one, so at most two are ever unanswered. Replies
     are checked in order; a missing or error reply fails the run with the controller's message.
     """
 

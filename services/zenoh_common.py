@@ -291,7 +291,7 @@ class Params:
         unknown = sorted(set(self.values) - set(names))
         if unknown:
             known = ", ".join(names) or "none"
-            raise ServiceError(f"{key_name(self.key)}: unknown parameter {unknown[0]!r} (known: {known})")
+            raise ServiceError(f"{self.key}: unknown parameter {unknown[0]!r} (known: {known})")
 
     def has(self, name: str) -> bool:
         return name in self.values
@@ -304,29 +304,25 @@ class Params:
         """A finite number within [lo, hi]; ``default`` None means the parameter is required."""
         if name not in self.values:
             if default is None:
-                raise ServiceError(f"{key_name(self.key)}: missing parameter {name}")
+                raise ServiceError(f"{self.key}: missing parameter {name}")
             return default
         raw = self.values[name]
         try:
             value = float(raw)
         except ValueError:
-            raise ServiceError(f"{key_name(self.key)}: parameter {name}={raw!r} is not a number") from None
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} is not a number") from None
         if not math.isfinite(value):
-            raise ServiceError(f"{key_name(self.key)}: parameter {name}={raw!r} must be finite")
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} must be finite")
         if (lo is not None and value < lo) or (hi is not None and value > hi):
-            raise ServiceError(f"{key_name(self.key)}: parameter {name}={raw!r} is out of range "
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} is out of range "
                                f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]")
         return value
 
     def integer(self, name: str, lo: int, hi: int, default: int) -> int:
         value = self.number(name, lo, hi, float(default))
         if value != int(value):
-            raise ServiceError(f"{key_name(self.key)}: parameter {name}={self.values[name]!r} must be whole")
+            raise ServiceError(f"{self.key}: parameter {name}={self.values[name]!r} must be whole")
         return int(value)
-
-
-def key_name(key) -> str:
-    return str(key)
 
 
 Handler = Callable[[Params, bytes | None], bytes]
