@@ -15,7 +15,7 @@ from common import ServiceError
 from services import zenoh_common as zc
 
 HELP = "query a vrsim Zenoh service (e.g. `vrsim query map/rate lat=52.1 lon=11.6`) and print the reply"
-MACHINE_KEYS = ("report", "pose", "shaft", "rate")
+MACHINE_KEYS = ("report", "pose", "shaft", "rate", "control", "vehicle", "monitor")  # first chunk
 
 
 def configure(parser) -> None:
@@ -39,7 +39,7 @@ def full_key(key: str, keys: zc.Keys) -> str:
     if key == keys.prefix or key.startswith(keys.prefix + "/"):
         return key
     first = key.split("/", 1)[0]
-    if first in MACHINE_KEYS or first in ("control", "vehicle", "monitor"):
+    if first in MACHINE_KEYS:
         return f"{keys.prefix}/{keys.machine}/{key}"
     return f"{keys.prefix}/{key}"
 
@@ -71,6 +71,8 @@ def run(args) -> int:
         raise ServiceError(f"--timeout {args.timeout}: must be a finite number > 0")
     if args.count < 1:
         raise ServiceError(f"--count {args.count}: must be >= 1")
+    if args.watch and (args.params or args.body is not None):
+        raise ServiceError("--watch subscribes to KEY: it takes no NAME=VALUE parameters and no --body")
     options = zc.options_from_args(args)
     key = full_key(args.key, options.keys)
     body = _body(args.body)

@@ -114,6 +114,7 @@ def test_vrsim_query_error_reply_is_one_line_and_exit_2(net):
     (("query", "map/$x"), "vrsim query: error: vrsim/map/$x: Invalid Key Expr"),
     (("query", "pose#", "--watch"), "vrsim query: error: vrsim/pose#: Invalid Key Expr"),
     (("query", "map/info", "--timeout", "inf"), "vrsim query: error: --timeout inf: must be a finite number"),
+    (("query", "pose", "--watch", "tick=3"), "vrsim query: error: --watch subscribes to KEY: it takes no"),
 ])
 def test_vrsim_query_bad_key_or_timeout_is_one_line_and_exit_2(net, args, needle):
     done = net.cli(*args)
