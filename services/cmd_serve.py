@@ -99,9 +99,14 @@ def _abs_if_file(spec: str) -> str:
 def serve_all(args, options: zc.ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
-    if args.scenario is not None:  # refuse a bad scenario before starting anything
-        from services import scenario
+    if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
+        from services import messages, scenario
 
+        for flag, value, (lo, hi) in (("--speed", args.speed, messages.SPEED_RANGE),
+                                      ("--ticks-per-message", args.ticks_per_message,
+                                       messages.TICKS_PER_MESSAGE_RANGE)):
+            if value is not None and not lo <= value <= hi:
+                raise ServiceError(f"{flag} {value:g}: must be within [{lo:g}, {hi:g}]")
         sc = scenario.load(args.scenario)
         start_payload, start_selector = _start_request(options.keys, sc, args)
     # SIGTERM before the serving loop takes over must still stop the children (via `finally`).

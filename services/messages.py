@@ -278,6 +278,8 @@ def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, co
 
 # ------------------------------------------------------------------------------------- run control
 CLOCKS = ("lockstep", "realtime")
+SPEED_RANGE = (0.01, 1000.0)  # real-time speed factor
+TICKS_PER_MESSAGE_RANGE = (1, 1000)
 
 
 @_message
@@ -295,10 +297,12 @@ class RunStart(Message):
     def __post_init__(self):
         if self.clock not in CLOCKS:
             raise ServiceError(f"RunStart: clock must be one of {', '.join(CLOCKS)}, got {self.clock!r}")
-        if not (isinstance(self.speed, (int, float)) and 0.01 <= self.speed <= 1000):
-            raise ServiceError(f"RunStart: speed must be within [0.01, 1000], got {self.speed!r}")
-        if not 1 <= self.ticks_per_message <= 1000:
-            raise ServiceError(f"RunStart: ticks_per_message must be within [1, 1000], "
+        lo, hi = SPEED_RANGE
+        if not (isinstance(self.speed, (int, float)) and lo <= self.speed <= hi):
+            raise ServiceError(f"RunStart: speed must be within [{lo:g}, {hi:g}], got {self.speed!r}")
+        lo, hi = TICKS_PER_MESSAGE_RANGE
+        if not lo <= self.ticks_per_message <= hi:
+            raise ServiceError(f"RunStart: ticks_per_message must be within [{lo}, {hi}], "
                                f"got {self.ticks_per_message!r}")
 
 

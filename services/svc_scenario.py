@@ -59,8 +59,9 @@ class ScenarioService:
         if clock not in messages.CLOCKS:
             raise ServiceError(f"{params.key}: parameter clock={clock!r} must be one of "
                                f"{', '.join(messages.CLOCKS)}")
-        speed = params.number("speed", 0.01, 1000.0, 1.0)
-        per_message = params.integer("ticks_per_message", 1, 1000, DEFAULT_TICKS_PER_MESSAGE)
+        speed = params.number("speed", *messages.SPEED_RANGE, default=1.0)
+        per_message = params.integer("ticks_per_message", *messages.TICKS_PER_MESSAGE_RANGE,
+                                     default=DEFAULT_TICKS_PER_MESSAGE)
         text, source, base_dir = self._scenario_text(params, payload)
         sc = scenario.parse(text, source, base_dir)
         build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)

@@ -123,6 +123,21 @@ def test_vrsim_query_bad_key_or_timeout_is_one_line_and_exit_2(net, args, needle
     assert err.startswith(needle) and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.parametrize("flag, value, needle", [
+    ("--speed", "0", "--speed 0: must be within [0.01, 1000]"),
+    ("--speed", "nan", "--speed nan: must be within"),
+    ("--ticks-per-message", "0", "--ticks-per-message 0: must be within [1, 1000]"),
+])
+def test_serve_all_refuses_a_bad_run_option_before_starting_anything(flag, value, needle):
+    from tests.integration.test_services_support import free_port
+
+    done = subprocess.run([VRSIM, "serve", "all", "default", flag, value, "--listen",
+                           f"tcp/127.0.0.1:{free_port()}"], capture_output=True, timeout=60)
+    err = done.stderr.decode()
+    assert done.returncode == 2 and err.startswith(f"vrsim serve: error: {needle}"), err
+    assert len(err.splitlines()) == 1, err  # nothing started
+
+
 def test_zenoh_reason_drops_rust_locations_anywhere():
     from services.zenoh_common import zenoh_reason
 
