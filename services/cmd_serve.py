@@ -47,6 +47,10 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     options = zc.options_from_args(args)
+    if args.scenario is not None and args.service not in ("all", "map"):
+        raise ServiceError(f"serve {args.service}: takes no SCENARIO ({args.scenario!r}); scenario control "
+                           "sends each service the run's scenario (give it to `vrsim serve all` or "
+                           "scenario/start)")
     if args.service == "all":
         return serve_all(args, options)
     if args.service == "router":

@@ -138,6 +138,12 @@ def test_serve_all_refuses_a_bad_run_option_before_starting_anything(flag, value
     assert len(err.splitlines()) == 1, err  # nothing started
 
 
+def test_serve_one_service_refuses_a_scenario_it_would_ignore():
+    done = subprocess.run([VRSIM, "serve", "vehicle", "default"], capture_output=True, timeout=60)
+    assert done.returncode == 2
+    assert done.stderr.decode().startswith("vrsim serve: error: serve vehicle: takes no SCENARIO ('default')")
+
+
 def test_zenoh_reason_drops_rust_locations_anywhere():
     from services.zenoh_common import zenoh_reason
 
