@@ -227,8 +227,13 @@ def _geojson_geometries(doc):
 
 
 def _read_shapefile(path: str):
+    import struct
+    import zipfile
+
     import shapefile  # pyshp; only needed here
 
+    # What pyshp lets through on a damaged file: a bad zip, a short or garbled header or record.
+    damaged = (shapefile.ShapefileException, zipfile.BadZipFile, struct.error, EOFError, ValueError, OSError)
     try:
         with shapefile.Reader(path) as reader:
             shapes = [s for s in reader.shapes() if s.shapeType in (shapefile.POLYGON, shapefile.POLYGONZ,
@@ -236,7 +241,7 @@ def _read_shapefile(path: str):
             if not shapes:
                 raise VehicleError(f"field file {path}: no polygon shape in it")
             geom = shape(shapes[0].__geo_interface__)
-    except shapefile.ShapefileException as exc:
+    except damaged as exc:
         raise VehicleError(f"field file {path}: not a readable shapefile: {exc}") from None
     return geom, _read_prj(path)
 

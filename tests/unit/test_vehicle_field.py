@@ -66,6 +66,14 @@ def test_bad_files_name_the_file(name, match):
     assert name in str(err.value)
 
 
+@pytest.mark.parametrize("name", ["f.zip", "f.shp"])
+def test_damaged_shapefile_is_a_vehicle_error(tmp_path, name):
+    p = tmp_path / name
+    p.write_text("garbage")
+    with pytest.raises(VehicleError, match="not a readable shapefile"):
+        Field.from_file(str(p))
+
+
 def test_bad_extension_and_bad_json(tmp_path):
     p = tmp_path / "f.kml"
     p.write_text("x")
