@@ -187,9 +187,11 @@ class MonitorService:
                                       counts["complete"], samples, mae, bias, self.store.path).to_json()
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
+        from services.report import summary_json  # what `vrsim run --json` prints with
+
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
-            return dumps(self._report(params.text("run_id")))
+            return summary_json(self._report(params.text("run_id"))).encode()
 
     def _report(self, run_id: str | None) -> dict:
         from services.run import account
