@@ -173,5 +173,9 @@ def _convert(nodes_xml: str, edges_xml: str, net_file: str, netconvert: str) -> 
             raise VehicleError(f"netconvert {netconvert}: failed (exit {proc.returncode}): {msg}")
         # Atomic publish: a concurrent run sees either no file or a complete one.
         tmp_final = f"{net_file}.{os.getpid()}.tmp"
-        shutil.move(out, tmp_final)
-        os.replace(tmp_final, net_file)
+        try:
+            shutil.move(out, tmp_final)
+            os.replace(tmp_final, net_file)
+        except OSError as exc:
+            raise VehicleError(f"SUMO cache directory {os.path.dirname(net_file)}: cannot store the "
+                               f"network: {exc.strerror}") from None

@@ -1,6 +1,9 @@
 import os
 
-from vehicle import default_cache_dir, find_netconvert
+import pytest
+
+from common.errors import VehicleError
+from vehicle import Segment, build_network, default_cache_dir, find_netconvert
 from vehicle.network import _plain_xml
 
 
@@ -24,3 +27,17 @@ def test_plain_xml_one_edge_per_segment_with_planned_length():
     assert nodes.count("<node ") == 3 and edges.count("<edge ") == 2
     assert 'from="n0" to="n1"' in edges and 'from="n1" to="n2"' in edges
     assert 'speed="1.2000" length="12.0000" spreadType="center"' in edges
+
+
+def test_unwritable_cache_is_a_vehicle_error(monkeypatch, tmp_path):
+    import numpy as np
+
+    import vehicle.network
+
+    def refuse(src, dst):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(vehicle.network.os, "replace", refuse)
+    seg = Segment("swath", np.array([[0.0, 0.0], [50.0, 0.0]]), True)
+    with pytest.raises(VehicleError, match="cannot store the network: Permission denied"):
+        build_network([seg], [2.5], 10.0, cache_dir=str(tmp_path))
