@@ -171,7 +171,7 @@ class SumoDriver:
         Network cache (default ``$VRSIM_CACHE/sumo`` or ``~/.cache/vrsim/sumo``).
     max_time_s : float, optional
         Simulated time after which an unfinished drive is an error (a stalled tractor); default
-        10 x the path length at turn speed.
+        10 x the time to drive the path at the slowest configured speed, plus 60 s.
 
     Use as a context manager; `step` returns one `Pose` per tick until `finished`, `run_all` drives
     the whole path into arrays. The network is built (or fetched from the cache) in the constructor.
