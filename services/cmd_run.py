@@ -52,7 +52,8 @@ def run(args) -> int:
         result = field_run.run(sc, progress=progress)
     finally:
         progress.close()
-    out_dir = args.out or os.path.join("runs", f"{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}")
+    safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in sc.name)  # a name may hold "/"
+    out_dir = args.out or os.path.join("runs", f"{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
     t0 = time.perf_counter()
     report.write_outputs(result, out_dir)
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
