@@ -8,9 +8,10 @@ Data flow of one control tick (see the README's picture)::
 
 The control part (`ControlCore`: `run_track` over a run or a batch of ticks, `tick` for one) is
 the one pure core that both `vrsim run` (the whole track) and the Zenoh controller service (each
-lockstep batch, carrying its state over) call. The stages that do not feed back (driving, GNSS noise, where product lands,
-the as-applied raster, the metrics) are vectorized over the whole run: the vehicle's path does not
-depend on the metering, so SUMO can drive the whole path first and the control loop follow it.
+lockstep batch, carrying its state over) call. The stages that do not feed back (driving, GNSS
+noise, where product lands, the as-applied raster, the metrics) are vectorized over the whole run:
+the vehicle's path does not depend on the metering, so SUMO can drive the whole path first and the
+control loop follow it.
 """
 
 from __future__ import annotations
