@@ -1,7 +1,7 @@
 """Field-run speed: the built-in default (22 ha) and large (50 ha) scenarios.
 
 Figures:
-- ``run_default_wall_s``, ``run_large_wall_s``: wall time of `services.run.run` (build, SUMO, sensors,
+- ``run_default_wall_s``, ``run_large_wall_s``: wall time of `services.sim.run.run` (build, SUMO, sensors,
   control loop, landing and metrics; what `vrsim run` reports as wall_time_s);
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
@@ -17,8 +17,8 @@ import sys
 import tempfile
 import time
 
-from services import run as field_run
-from services import scenario
+from services.sim import run as field_run
+from services.sim import scenario
 
 
 def _in_process(name: str) -> dict:

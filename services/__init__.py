@@ -1,4 +1,5 @@
-"""vrsim services: scenarios, the run loop, metrics, reports, the CLI and the Zenoh services.
+"""vrsim's services, one subpackage per job: `sim` (the simulation and Python API), `outputs` (files a
+run writes), `bus` (the Zenoh services) and `cli` (the `vrsim` command).
 
-This package composes `maps`, `vehicle` and `controller`; they never import it.
+Imports point one way: cli -> bus/outputs/sim -> maps/vehicle/controller -> common.
 """

@@ -6,7 +6,7 @@ failure names it and prints the table of what moved.
 
 import pytest
 
-from services import accuracy
+from services.sim import accuracy
 
 NAMES = accuracy.scenario_names()
 TIMING_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}

@@ -10,8 +10,8 @@ import pytest
 import rasterio
 from PIL import Image
 
-from services import run as field_run
-from services import scenario
+from services.sim import run as field_run
+from services.sim import scenario
 from tests.conftest import VRSIM
 
 QUICK = """

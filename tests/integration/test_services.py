@@ -145,7 +145,7 @@ def test_serve_one_service_refuses_a_scenario_it_would_ignore():
 
 
 def test_zenoh_reason_drops_rust_locations_anywhere():
-    from services.zenoh_common import zenoh_reason
+    from services.bus.config import zenoh_reason
 
     exc = Exception("Can not create a new TCP listener bound to tcp/127.0.0.1:7448: [127.0.0.1:7448: "
                     "Address already in use (os error 98) at /root/.cargo/x/src/tcp.rs:61.]")
@@ -155,7 +155,7 @@ def test_zenoh_reason_drops_rust_locations_anywhere():
 
 def test_monitor_db_whose_folder_cannot_be_made_is_a_clear_error(tmp_path):
     from common import ServiceError
-    from services.svc_monitor import MonitorStore
+    from services.bus.monitor import MonitorStore
 
     (tmp_path / "file").write_text("")
     with pytest.raises(ServiceError, match=r"--db .*/file/sub/m\.sqlite: cannot create its folder"):
@@ -335,11 +335,11 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     """Stopped 3 ticks into a batch of 7: status counts every tick sent to the controller."""
     import types
 
-    import services.run
+    import services.sim.run
     import vehicle
-    from services import messages
-    from services.svc_vehicle import VehicleService
-    from services.zenoh_common import Keys
+    from services.bus import messages
+    from services.bus.config import Keys
+    from services.bus.vehicle import VehicleService
 
     svc = VehicleService(None, Keys(), lambda payload: None)
     sent = []
@@ -370,7 +370,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
     speed = types.SimpleNamespace(read=lambda t, v: v)
     monkeypatch.setattr(vehicle, "SumoDriver", Driver)
-    monkeypatch.setattr(services.run, "sensors", lambda sc: (gnss, speed))
+    monkeypatch.setattr(services.sim.run, "sensors", lambda sc: (gnss, speed))
     timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
     scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1)
     world = types.SimpleNamespace(scenario=scenario, path=None)
@@ -382,7 +382,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
 def test_run_id_is_safe_in_a_selector_parameter():
     import zenoh
 
-    from services.svc_scenario import new_run_id
+    from services.bus.scenario import new_run_id
 
     run_id = new_run_id("north field; v2#b?", 3)
     assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id

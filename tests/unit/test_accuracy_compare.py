@@ -3,7 +3,7 @@ import json
 import pytest
 
 from common import ScenarioError
-from services import accuracy
+from services.sim import accuracy
 
 
 @pytest.fixture

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from common import ServiceError
-from services import messages
-from services.messages import MapRate, Pose, RateSample, RunStart, ShaftState
+from services.bus import messages
+from services.bus.messages import MapRate, Pose, RateSample, RunStart, ShaftState
 
 
 def pose(tick=0, **changes):

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from services.metrics import map_metrics, rate_steps, transitions
+from services.sim.metrics import map_metrics, rate_steps, transitions
 
 
 def _grid(rows=10, cols=10, rate=100.0):

@@ -7,7 +7,7 @@ Every table maps onto one configuration dataclass of the package that owns the c
 every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
 `ScenarioError` that names the file, the table and key, and the value.
 
-See ``scenarios/README.md`` for the keys of each table and ``services/scenarios/default.toml`` for
+See ``scenarios/README.md`` for the keys of each table and ``services/sim/scenarios/default.toml`` for
 the built-in default.
 """
 

@@ -26,8 +26,8 @@ import numpy as np
 from common import MapError, ScenarioError, VehicleError
 from controller import PlantParams, build_loop
 from maps import AsApplied, Grid, RatePolicy, read_map, synthetic
-from services.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
-from services.scenario import Scenario
+from services.sim.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
+from services.sim.scenario import Scenario
 from vehicle import CoveragePath, Field, Gnss, SpeedSensor, SumoDriver, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map

@@ -13,9 +13,9 @@ from dataclasses import replace
 import numpy as np
 
 from maps import write_map
-from services.metrics import rate_steps
-from services.run import RunResult
-from services.scenario import as_dict
+from services.sim.metrics import rate_steps
+from services.sim.run import RunResult
+from services.sim.scenario import as_dict
 
 TRACK_COLUMNS = ("time_s", "lat", "lon", "speed_m_s", "target_shaft_rpm", "shaft_rpm", "current_a",
                  "prescribed_kg_ha", "applied_kg_ha", "implement_on")

@@ -1,4 +1,4 @@
-"""The `vrsim` command: one subcommand per use, each in its own ``services/cmd_<name>.py``.
+"""The `vrsim` command: one subcommand per use, each in its own ``services/cli/<name>.py``.
 
 A command module defines ``HELP`` (one line), ``configure(parser)`` (adds its arguments; keep its
 module-level imports light, since ``vrsim --help`` imports every command module) and ``run(args) -> int``.
@@ -25,9 +25,9 @@ def _available_commands():
     """Yield (name, module) for each command module that exists."""
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"services.cmd_{name}")
+            module = importlib.import_module(f"services.cli.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"services.cmd_{name}":
+            if exc.name == f"services.cli.{name}":
                 continue
             raise
         yield name, module

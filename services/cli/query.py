@@ -12,7 +12,7 @@ import math
 import sys
 
 from common import ServiceError
-from services import zenoh_common as zc
+from services.bus import config as zc
 
 HELP = "query a vrsim Zenoh service (e.g. `vrsim query map/rate lat=52.1 lon=11.6`) and print the reply"
 MACHINE_KEYS = ("report", "pose", "shaft", "rate", "control", "vehicle", "monitor")  # first chunk

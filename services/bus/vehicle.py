@@ -19,8 +19,8 @@ import time
 import traceback
 
 from common import ServiceError, VrsimError
-from services import messages
-from services.zenoh_common import Params, ZenohOptions, error_message, run_service, serve
+from services.bus import messages
+from services.bus.config import Params, ZenohOptions, error_message, run_service, serve
 
 STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
 
@@ -45,8 +45,8 @@ class VehicleService:
             if self.status.state in ("starting", "running"):
                 raise ServiceError(f"{params.key}: run {self.status.run_id} is {self.status.state}; "
                                    "stop it first")
-            from services import scenario
-            from services.run import build_world
+            from services.sim import scenario
+            from services.sim.run import build_world
 
             sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
             world = build_world(sc)
@@ -109,7 +109,7 @@ class VehicleService:
             self._set(state="failed", error=f"internal error: {type(exc).__name__}: {exc}")
 
     def _drive(self, start: messages.RunStart, world) -> str:
-        from services.run import sensors
+        from services.sim.run import sensors
         from vehicle import SumoDriver
 
         sc = world.scenario

@@ -13,8 +13,8 @@ import json
 import threading
 
 from common import ServiceError
-from services import messages
-from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serve
+from services.bus import messages
+from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
 
 MAX_BATCH_POINTS = 10_000_000
 
@@ -57,7 +57,7 @@ class MapService:
         start = messages.RunStart.from_json(payload)
         if self.fixed:
             return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
-        from services import scenario
+        from services.sim import scenario
 
         grid = scenario_grid(scenario.parse(start.scenario_text, start.source, start.base_dir))
         self.grid = grid
@@ -79,7 +79,7 @@ def scenario_grid(sc):
 
 def field_and_grid(sc):
     """The scenario's `vehicle.Field` and its prescription on the field's metric grid."""
-    from services.run import build_field, build_prescription
+    from services.sim.run import build_field, build_prescription
 
     field = build_field(sc)
     return field, build_prescription(sc, field)

@@ -43,8 +43,9 @@ class Progress:
 
 
 def run(args) -> int:
-    from services import report, scenario
-    from services import run as field_run
+    from services.outputs import report
+    from services.sim import run as field_run
+    from services.sim import scenario
 
     sc = scenario.load(args.scenario)
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)

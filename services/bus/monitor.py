@@ -4,7 +4,7 @@ versus prescribed (``vrsim serve monitor``).
 Every message it receives is committed to a local SQLite database (WAL) before the next one is read,
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
 ``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
-`services.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
+`services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
 as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored).
 """
 
@@ -18,8 +18,8 @@ import time
 import numpy as np
 
 from common import ServiceError
-from services import messages
-from services.zenoh_common import Params, ZenohOptions, dumps, guarded, run_service, serve
+from services.bus import messages
+from services.bus.config import Params, ZenohOptions, dumps, guarded, run_service, serve
 
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
@@ -131,7 +131,7 @@ class MonitorStore:
         return n, NAN if mae is None else mae, NAN if bias is None else bias
 
     def arrays(self, run_id: str) -> tuple[dict, dict]:
-        """Track and control arrays (the shapes `services.run.account` takes) over the complete ticks:
+        """Track and control arrays (the shapes `services.sim.run.account` takes) over the complete ticks:
         0..n-1 with pose, shaft and rate all stored."""
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
@@ -187,14 +187,14 @@ class MonitorService:
                                       counts["complete"], samples, mae, bias, self.store.path).to_json()
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
-        from services.report import summary_json  # what `vrsim run --json` prints with
+        from services.outputs.report import summary_json  # what `vrsim run --json` prints with
 
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
             return summary_json(self._report(params.text("run_id"))).encode()
 
     def _report(self, run_id: str | None) -> dict:
-        from services.run import account
+        from services.sim.run import account
 
         t0 = time.perf_counter()
         run = self.store.run(run_id)
@@ -217,8 +217,8 @@ class MonitorService:
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
         if world is None:
-            from services import scenario
-            from services.run import build_world
+            from services.sim import scenario
+            from services.sim.run import build_world
 
             world = build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
@@ -233,7 +233,7 @@ class MonitorService:
 
 def main(options: ZenohOptions, db_path: str, stop: threading.Event | None = None) -> None:
     """Serve the monitor on ``db_path`` until SIGINT/SIGTERM (or ``stop``)."""
-    import services.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
+    import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
     store = MonitorStore(db_path)
     svc = MonitorService(store)

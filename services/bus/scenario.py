@@ -17,9 +17,9 @@ import threading
 import time
 
 from common import ServiceError
-from services import messages
-from services import zenoh_common as zc
-from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serve
+from services.bus import config as zc
+from services.bus import messages
+from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
@@ -35,7 +35,7 @@ def new_run_id(name: str, counter: int) -> str:
 
 def scenario_file(sc) -> str:
     """The file a loaded scenario was read from (a built-in's TOML under `scenario.BUILTIN_DIR`)."""
-    from services import scenario
+    from services.sim import scenario
 
     if sc.source.startswith("builtin:"):
         return os.path.join(scenario.BUILTIN_DIR, sc.source[len("builtin:"):] + ".toml")
@@ -52,8 +52,8 @@ class ScenarioService:
 
     def start(self, params: Params, payload: bytes | None) -> bytes:
         params.only("source", "base_dir", "clock", "speed", "ticks_per_message")
-        from services import scenario
-        from services.run import build_world
+        from services.sim import scenario
+        from services.sim.run import build_world
 
         clock = params.text("clock", "lockstep")
         if clock not in messages.CLOCKS:
@@ -86,7 +86,7 @@ class ScenarioService:
         return dumps({"run_id": run_id, "state": "running", "scenario": sc.name, "clock": clock})
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
-        from services import scenario
+        from services.sim import scenario
 
         if not payload:  # the built-in default, refused as `vrsim run` would refuse it
             sc = scenario.load(None)

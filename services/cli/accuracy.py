@@ -20,7 +20,7 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from common import ScenarioError
-    from services import accuracy
+    from services.sim import accuracy
 
     if args.update and not args.reason.strip():
         raise ScenarioError("--update needs --reason TEXT saying why the figures change")

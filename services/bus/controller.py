@@ -2,7 +2,7 @@
 (``vrsim serve controller``).
 
 ``<prefix>/<machine>/control/step`` takes a JSON array of `messages.Pose` (the ticks since the last
-step, in order), runs `services.run.ControlCore.run_track` on their measured positions (the core
+step, in order), runs `services.sim.run.ControlCore.run_track` on their measured positions (the core
 ``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
 ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
 what keeps a lockstep run in step: the vehicle is never more than one batch ahead of the replies.
@@ -17,8 +17,8 @@ import threading
 import numpy as np
 
 from common import ServiceError
-from services import messages
-from services.zenoh_common import Params, ZenohOptions, dumps, run_service, serve
+from services.bus import messages
+from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
 
 
 class ControllerService:
@@ -36,9 +36,9 @@ class ControllerService:
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         start = messages.RunStart.from_json(payload)
-        from services import scenario
-        from services.run import ControlCore
-        from services.svc_map import field_and_grid
+        from services.bus.map import field_and_grid
+        from services.sim import scenario
+        from services.sim.run import ControlCore
 
         sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
         field, grid = field_and_grid(sc)
@@ -77,7 +77,7 @@ class ControllerService:
         on = np.array([p.implement_on for p in poses])
         rec = self.core.run_track(mx, my, heading, speed, on)
         travelled_m, width_m = speed * self.period_s, rec["width_on_m"]
-        # Below 1 cm of travel (as `services.run.land`) or with every section off a rate means nothing.
+        # Below 1 cm of travel (as `services.sim.run.land`) or with every section off a rate means nothing.
         with np.errstate(divide="ignore", invalid="ignore"):
             applied = np.where((travelled_m > 0.01) & (width_m > 0),
                                rec["metered_kg"] / (width_m * travelled_m * 1e-4), np.nan)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 from common import ScenarioError
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 LIBRARY_DIR = os.path.join(ROOT, "tests", "accuracy")
 SCENARIO_DIR = os.path.join(LIBRARY_DIR, "scenarios")
 EXPECTED = os.path.join(LIBRARY_DIR, "expected.json")

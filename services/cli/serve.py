@@ -16,7 +16,7 @@ import threading
 import time
 
 from common import ServiceError
-from services import zenoh_common as zc
+from services.bus import config as zc
 
 HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, or all"
 CHOICES = (*zc.SERVICES, "router", "all")
@@ -57,17 +57,17 @@ def run(args) -> int:
         zc.run_service("router", options, lambda session: [], default_mode="router")
         return 0
     if args.service == "map":
-        from services import svc_map
+        from services.bus import map as svc_map
 
         if args.map is not None:
             grid, fixed = svc_map.file_grid(args.map, args.rate_field, args.cell_size, args.crs), True
         else:
-            from services import scenario
+            from services.sim import scenario
 
             grid, fixed = svc_map.scenario_grid(scenario.load(args.scenario)), False
         svc_map.main(options, grid, fixed)
     elif args.service == "monitor":
-        from services import svc_monitor
+        from services.bus import monitor as svc_monitor
 
         name = f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite"
         db = args.db or os.path.join("runs", name)
@@ -75,7 +75,7 @@ def run(args) -> int:
     else:
         import importlib
 
-        importlib.import_module(f"services.svc_{args.service}").main(options)
+        importlib.import_module(f"services.bus.{args.service}").main(options)
     return 0
 
 
@@ -104,7 +104,8 @@ def serve_all(args, options: zc.ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
-        from services import messages, scenario
+        from services.bus import messages
+        from services.sim import scenario
 
         for flag, value, (lo, hi) in (("--speed", args.speed, messages.SPEED_RANGE),
                                       ("--ticks-per-message", args.ticks_per_message,
@@ -154,7 +155,7 @@ def _interrupt(signum, frame):
 
 def _start_request(keys: zc.Keys, sc, args) -> tuple[bytes, str]:
     """The scenario/start query for a loaded scenario (its text, source and folder)."""
-    from services.svc_scenario import scenario_file
+    from services.bus.scenario import scenario_file
 
     with open(scenario_file(sc), "rb") as fh:
         text = fh.read()

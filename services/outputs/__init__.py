@@ -1,0 +1,1 @@
+"""Every file a run writes: summary.json, GeoTIFFs, track.csv, PNG plots and the HTML report."""
