@@ -2,7 +2,7 @@
 (``vrsim serve controller``).
 
 ``<prefix>/<machine>/control/step`` takes a JSON array of `messages.Pose` (the ticks since the last
-step, in order), runs `services.sim.run.ControlCore.run_track` on their measured positions (the core
+step, in order), runs `services.sim.core.ControlCore.run_track` on their measured positions (the core
 ``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
 ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
 what keeps a lockstep run in step: the vehicle is never more than one batch ahead of the replies.
@@ -18,7 +18,8 @@ import numpy as np
 
 from common import ServiceError
 from services.bus import messages
-from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
+from services.bus.config import ServiceConfig
+from services.bus.serving import Params, dumps, run_service, serve
 
 
 class ControllerService:
@@ -36,9 +37,9 @@ class ControllerService:
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         start = messages.RunStart.from_json(payload)
-        from services.bus.map import field_and_grid
         from services.sim import scenario
-        from services.sim.run import ControlCore
+        from services.sim.core import ControlCore
+        from services.sim.world import field_and_grid
 
         sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
         field, grid = field_and_grid(sc)
@@ -77,7 +78,8 @@ class ControllerService:
         on = np.array([p.implement_on for p in poses])
         rec = self.core.run_track(mx, my, heading, speed, on)
         travelled_m, width_m = speed * self.period_s, rec["width_on_m"]
-        # Below 1 cm of travel (as `services.sim.run.land`) or with every section off a rate means nothing.
+        # Below 1 cm of travel (as `services.sim.landing.land`)
+        # or with every section off a rate means nothing.
         with np.errstate(divide="ignore", invalid="ignore"):
             applied = np.where((travelled_m > 0.01) & (width_m > 0),
                                rec["metered_kg"] / (width_m * travelled_m * 1e-4), np.nan)
@@ -97,11 +99,11 @@ class ControllerService:
         return {"step": self.step, "load": self.load}
 
 
-def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
+def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the controller until SIGINT/SIGTERM (or ``stop``)."""
     import zenoh
 
-    keys = options.keys
+    keys = config.zenoh.keys
 
     def declare(session):
         # BLOCK: a slow subscriber (the monitor) slows the run down instead of losing records.
@@ -112,4 +114,5 @@ def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
                           "controller")
         return [queryable, *pubs.values()]
 
-    run_service("controller", options, declare, stop=stop)
+    run_service("controller", config.zenoh, declare, stop=stop)
+    return 0

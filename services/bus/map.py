@@ -14,7 +14,8 @@ import threading
 
 from common import ServiceError
 from services.bus import messages
-from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
+from services.bus.config import ServiceConfig
+from services.bus.serving import Params, dumps, run_service, serve
 
 MAX_BATCH_POINTS = 10_000_000
 
@@ -74,29 +75,31 @@ def _no_body(params: Params, payload: bytes | None) -> None:
 
 def scenario_grid(sc):
     """The scenario's prescription on the field's metric grid (what `ControlCore` looks up)."""
+    from services.sim.world import field_and_grid
+
     return field_and_grid(sc)[1]
 
 
-def field_and_grid(sc):
-    """The scenario's `vehicle.Field` and its prescription on the field's metric grid."""
-    from services.sim.run import build_field, build_prescription
+def configured_grid(config: ServiceConfig):
+    """The map to serve and whether it is fixed: ``config.map_file``, else the prescription of
+    ``config.scenario`` (a file or built-in name; None: the built-in default)."""
+    if config.map_file is not None:
+        import maps
 
-    field = build_field(sc)
-    return field, build_prescription(sc, field)
+        return maps.read_map(config.map_file, rate_field=config.rate_field, cell_size_m=config.cell_size_m,
+                             crs=config.crs), True
+    from services.sim import scenario
+
+    return scenario_grid(scenario.load(config.scenario)), False
 
 
-def file_grid(path: str, rate_field=None, cell_size_m=None, crs=None):
-    import maps
-
-    return maps.read_map(path, rate_field=rate_field, cell_size_m=cell_size_m, crs=crs)
-
-
-def main(options: ZenohOptions, grid, fixed: bool, stop: threading.Event | None = None) -> None:
-    """Serve ``grid`` until SIGINT/SIGTERM (or ``stop``)."""
-    svc = MapService(grid, fixed)
-    keys = options.keys
+def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
+    """Serve the configured map until SIGINT/SIGTERM (or ``stop``)."""
+    svc = MapService(*configured_grid(config))
+    keys = config.zenoh.keys
 
     def declare(session):
         return [serve(session, keys.map_ns, svc.handlers(), f"{keys.prefix}/map/", "map")]
 
-    run_service("map", options, declare, stop=stop)
+    run_service("map", config.zenoh, declare, stop=stop)
+    return 0

@@ -19,7 +19,8 @@ import numpy as np
 
 from common import ServiceError
 from services.bus import messages
-from services.bus.config import Params, ZenohOptions, dumps, guarded, run_service, serve
+from services.bus.config import ServiceConfig
+from services.bus.serving import Params, dumps, guarded, run_service, serve
 
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
@@ -187,7 +188,7 @@ class MonitorService:
                                       counts["complete"], samples, mae, bias, self.store.path).to_json()
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
-        from services.outputs.report import summary_json  # what `vrsim run --json` prints with
+        from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
 
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
@@ -218,7 +219,7 @@ class MonitorService:
         world = self.worlds.get(run["run_id"])
         if world is None:
             from services.sim import scenario
-            from services.sim.run import build_world
+            from services.sim.world import build_world
 
             world = build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
@@ -231,13 +232,18 @@ class MonitorService:
         return {"load": self.load, "status": self.status}
 
 
-def main(options: ZenohOptions, db_path: str, stop: threading.Event | None = None) -> None:
-    """Serve the monitor on ``db_path`` until SIGINT/SIGTERM (or ``stop``)."""
+def default_db(options) -> str:
+    """``runs/monitor-<prefix>-<machine>.sqlite``: one database per prefix and machine."""
+    return os.path.join("runs", f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+
+
+def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
+    """Serve the monitor on ``config.db`` (default `default_db`) until SIGINT/SIGTERM (or ``stop``)."""
     import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
-    store = MonitorStore(db_path)
+    store = MonitorStore(config.db or default_db(config.zenoh))
     svc = MonitorService(store)
-    keys = options.keys
+    keys = config.zenoh.keys
     base = f"{keys.prefix}/{keys.machine}/"
 
     def declare(session):
@@ -248,6 +254,7 @@ def main(options: ZenohOptions, db_path: str, stop: threading.Event | None = Non
                 serve(session, keys.monitor_ns, svc.handlers(), base + "monitor/", "monitor")]
 
     try:
-        run_service("monitor", options, declare, stop=stop)
+        run_service("monitor", config.zenoh, declare, stop=stop)
     finally:
         store.db.close()
+    return 0

@@ -17,9 +17,9 @@ import threading
 import time
 
 from common import ServiceError
-from services.bus import config as zc
-from services.bus import messages
-from services.bus.config import Params, ZenohOptions, dumps, run_service, serve
+from services.bus import client, messages
+from services.bus.config import SERVICES, Keys, ServiceConfig
+from services.bus.serving import Params, dumps, run_service, serve
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
@@ -33,19 +33,10 @@ def new_run_id(name: str, counter: int) -> str:
     return f"{safe}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{counter}"
 
 
-def scenario_file(sc) -> str:
-    """The file a loaded scenario was read from (a built-in's TOML under `scenario.BUILTIN_DIR`)."""
-    from services.sim import scenario
-
-    if sc.source.startswith("builtin:"):
-        return os.path.join(scenario.BUILTIN_DIR, sc.source[len("builtin:"):] + ".toml")
-    return sc.source
-
-
 class ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
-    def __init__(self, session, keys: zc.Keys):
+    def __init__(self, session, keys: Keys):
         self.session, self.keys = session, keys
         self.lock = threading.Lock()  # one start or stop at a time
         self.counter = 0
@@ -53,7 +44,7 @@ class ScenarioService:
     def start(self, params: Params, payload: bytes | None) -> bytes:
         params.only("source", "base_dir", "clock", "speed", "ticks_per_message")
         from services.sim import scenario
-        from services.sim.run import build_world
+        from services.sim.world import build_world
 
         clock = params.text("clock", "lockstep")
         if clock not in messages.CLOCKS:
@@ -67,8 +58,8 @@ class ScenarioService:
         build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)
         with self.lock:
             # Check first, so that no service loads a run that cannot start.
-            alive = zc.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
-            missing = [s for s in zc.SERVICES if s != "scenario" and s not in alive]
+            alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
+            missing = [s for s in SERVICES if s != "scenario" and s not in alive]
             if missing:
                 raise ServiceError(f"{params.key}: cannot start, service(s) not alive: {', '.join(missing)} "
                                    f"(liveliness {self.keys.alive('*')})")
@@ -82,7 +73,8 @@ class ScenarioService:
             body = start.to_json()
             for key, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
                               (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
-                zc.request(self.session, key, body, LOAD_TIMEOUT_S, what=f"{params.key}: the {name} service")
+                client.request(self.session, key, body, LOAD_TIMEOUT_S,
+                               what=f"{params.key}: the {name} service")
         return dumps({"run_id": run_id, "state": "running", "scenario": sc.name, "clock": clock})
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
@@ -90,7 +82,7 @@ class ScenarioService:
 
         if not payload:  # the built-in default, refused as `vrsim run` would refuse it
             sc = scenario.load(None)
-            with open(scenario_file(sc), encoding="utf-8") as fh:
+            with open(scenario.scenario_file(sc), encoding="utf-8") as fh:
                 return fh.read(), sc.source, sc.base_dir
         try:
             text = payload.decode("utf-8")
@@ -101,19 +93,19 @@ class ScenarioService:
 
     def _vehicle_status(self) -> dict | None:
         try:
-            return zc.request_json(self.session, self.keys.vehicle("status"), timeout_s=STATUS_TIMEOUT_S)
+            return client.request_json(self.session, self.keys.vehicle("status"), timeout_s=STATUS_TIMEOUT_S)
         except ServiceError:
             return None
 
     def status(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
-        alive = zc.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
+        alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
         vehicle = self._vehicle_status() if "vehicle" in alive else None
         monitor = None
         if "monitor" in alive and vehicle is not None and vehicle["run_id"]:
             try:
                 selector = f"{self.keys.monitor_status}?run_id={vehicle['run_id']}"
-                monitor = zc.request_json(self.session, selector, timeout_s=STATUS_TIMEOUT_S)
+                monitor = client.request_json(self.session, selector, timeout_s=STATUS_TIMEOUT_S)
             except ServiceError:
                 monitor = None
         silent = ("the vehicle service is not alive" if "vehicle" not in alive
@@ -131,23 +123,23 @@ class ScenarioService:
             "live_mae_kg_ha": monitor["live_mae_kg_ha"] if monitor else None,
             "error": vehicle["error"] if vehicle else silent,
             "alive": alive,
-            "missing": [s for s in zc.SERVICES if s not in alive],
+            "missing": [s for s in SERVICES if s not in alive],
         }
         return dumps(out)
 
     def stop(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         with self.lock:
-            return zc.request(self.session, self.keys.vehicle("stop"), timeout_s=10.0,
+            return client.request(self.session, self.keys.vehicle("stop"), timeout_s=10.0,
                               what=f"{params.key}: the vehicle service")
 
     def handlers(self) -> dict:
         return {"start": self.start, "status": self.status, "stop": self.stop}
 
 
-def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
+def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve scenario control until SIGINT/SIGTERM (or ``stop``)."""
-    keys = options.keys
+    keys = config.zenoh.keys
     hint = (f"the vrsim keys are {keys.map_info}, {keys.map_rate}, {keys.report}, {keys.pose}, {keys.shaft}, "
             f"{keys.rate}, {keys.scenario('start')}, {keys.scenario('status')}, {keys.scenario('stop')}; "
             "see docs/api.md")
@@ -158,4 +150,5 @@ def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
                 # <prefix>/<one chunk> is no vrsim key: answer so, rather than leave the caller in silence
                 serve(session, keys.top_ns, {}, f"{keys.prefix}/", "scenario", hint=hint)]
 
-    run_service("scenario", options, declare, stop=stop)
+    run_service("scenario", config.zenoh, declare, stop=stop)
+    return 0

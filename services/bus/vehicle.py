@@ -20,7 +20,8 @@ import traceback
 
 from common import ServiceError, VrsimError
 from services.bus import messages
-from services.bus.config import Params, ZenohOptions, error_message, run_service, serve
+from services.bus.config import ServiceConfig
+from services.bus.serving import Params, error_message, run_service, serve
 
 STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
 
@@ -46,7 +47,7 @@ class VehicleService:
                 raise ServiceError(f"{params.key}: run {self.status.run_id} is {self.status.state}; "
                                    "stop it first")
             from services.sim import scenario
-            from services.sim.run import build_world
+            from services.sim.world import build_world
 
             sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
             world = build_world(sc)
@@ -193,11 +194,11 @@ class StepPipe:
         raise ServiceError(f"{self.key}: controller failed at tick {tick}: {message}")
 
 
-def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
+def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the vehicle until SIGINT/SIGTERM (or ``stop``)."""
     import zenoh
 
-    keys = options.keys
+    keys = config.zenoh.keys
 
     def declare(session):
         pub = session.declare_publisher(keys.pose, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -206,5 +207,6 @@ def main(options: ZenohOptions, stop: threading.Event | None = None) -> None:
                           "vehicle")
         return [queryable, svc, pub]
 
-    run_service("vehicle", options, declare, stop=stop)
+    run_service("vehicle", config.zenoh, declare, stop=stop)
+    return 0
 

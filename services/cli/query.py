@@ -12,7 +12,15 @@ import math
 import sys
 
 from common import ServiceError
-from services.bus import config as zc
+from services.bus.client import request
+from services.bus.config import (
+    QUERY_TIMEOUT_S,
+    Keys,
+    add_arguments,
+    open_session,
+    options_from_args,
+    zenoh_reason,
+)
 
 HELP = "query a vrsim Zenoh service (e.g. `vrsim query map/rate lat=52.1 lon=11.6`) and print the reply"
 MACHINE_KEYS = ("report", "pose", "shaft", "rate", "control", "vehicle", "monitor")  # first chunk
@@ -23,15 +31,15 @@ def configure(parser) -> None:
     parser.add_argument("params", nargs="*", metavar="NAME=VALUE", help="selector parameters")
     parser.add_argument("--body", metavar="FILE", default=None,
                         help="send this file as the query's body ('-': standard input)")
-    parser.add_argument("--timeout", type=float, default=zc.QUERY_TIMEOUT_S, metavar="S",
-                        help=f"seconds to wait for the reply (default {zc.QUERY_TIMEOUT_S:g})")
+    parser.add_argument("--timeout", type=float, default=QUERY_TIMEOUT_S, metavar="S",
+                        help=f"seconds to wait for the reply (default {QUERY_TIMEOUT_S:g})")
     parser.add_argument("--watch", action="store_true", help="subscribe to KEY and print samples")
     parser.add_argument("--count", type=int, default=1, metavar="N",
                         help="--watch: samples to print (default 1)")
-    zc.add_arguments(parser)
+    add_arguments(parser)
 
 
-def full_key(key: str, keys: zc.Keys) -> str:
+def full_key(key: str, keys: Keys) -> str:
     """KEY with the prefix (and, for the per-machine keys, the machine) filled in."""
     key = key.strip("/")
     if not key:
@@ -73,13 +81,13 @@ def run(args) -> int:
         raise ServiceError(f"--count {args.count}: must be >= 1")
     if args.watch and (args.params or args.body is not None):
         raise ServiceError("--watch subscribes to KEY: it takes no NAME=VALUE parameters and no --body")
-    options = zc.options_from_args(args)
+    options = options_from_args(args)
     key = full_key(args.key, options.keys)
     body = _body(args.body)
-    with zc.open_session(options, "client") as session:
+    with open_session(options, "client") as session:
         if args.watch:
             return _watch(session, key, args.count, args.timeout)
-        reply = zc.request(session, selector(key, args.params), body, args.timeout, what=key)
+        reply = request(session, selector(key, args.params), body, args.timeout, what=key)
     sys.stdout.write(reply.decode("utf-8", "replace").rstrip("\n") + "\n")
     return 0
 
@@ -93,7 +101,7 @@ def _watch(session, key: str, count: int, timeout_s: float) -> int:
     try:
         sub = session.declare_subscriber(key, lambda sample: got.put(sample.payload.to_bytes()))
     except zenoh.ZError as exc:  # e.g. an invalid key expression
-        raise ServiceError(f"{key}: {zc.zenoh_reason(exc)}") from None
+        raise ServiceError(f"{key}: {zenoh_reason(exc)}") from None
     try:
         for _ in range(count):
             try:

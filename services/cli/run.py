@@ -43,7 +43,8 @@ class Progress:
 
 
 def run(args) -> int:
-    from services.outputs import report
+    from services.outputs.summary import summary_json, text_summary
+    from services.outputs.write import write_outputs
     from services.sim import run as field_run
     from services.sim import scenario
 
@@ -56,13 +57,13 @@ def run(args) -> int:
     safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in sc.name)  # a name may hold "/"
     out_dir = args.out or os.path.join("runs", f"{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
     t0 = time.perf_counter()
-    report.write_outputs(result, out_dir)
+    write_outputs(result, out_dir)
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
     result.summary["out_dir"] = out_dir
     if args.json:
-        print(report.summary_json(result.summary))
+        print(summary_json(result.summary))
     else:
-        print(report.text_summary(result.summary))
+        print(text_summary(result.summary))
         print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, "
               f"as_applied.tif, error.tif, summary.json)")
     return 0

@@ -8,6 +8,7 @@ a router itself with ``--listen``. See docs/api.md for the keys.
 
 from __future__ import annotations
 
+import importlib
 import os
 import signal
 import subprocess
@@ -16,10 +17,20 @@ import threading
 import time
 
 from common import ServiceError
-from services.bus import config as zc
+from services.bus.client import alive_services, request_json
+from services.bus.config import (
+    SERVICES,
+    Keys,
+    ServiceConfig,
+    ZenohOptions,
+    add_arguments,
+    open_session,
+    options_from_args,
+)
+from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
 
 HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, or all"
-CHOICES = (*zc.SERVICES, "router", "all")
+CHOICES = (*SERVICES, "router", "all")
 READY_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 
@@ -30,7 +41,7 @@ def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
                         help="scenario file or built-in name: `all` starts a run of it once everything is "
                              "up; `map` serves its prescription (default: the built-in default's)")
-    zc.add_arguments(parser)
+    add_arguments(parser)
     parser.add_argument("--map", metavar="FILE", default=None,
                         help="map service: serve this map file instead of a scenario's prescription")
     parser.add_argument("--rate-field", default=None, help="map file: attribute holding the rate")
@@ -46,40 +57,22 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    options = zc.options_from_args(args)
+    config = service_config(args)
     if args.scenario is not None and args.service not in ("all", "map"):
         raise ServiceError(f"serve {args.service}: takes no SCENARIO ({args.scenario!r}); scenario control "
                            "sends each service the run's scenario (give it to `vrsim serve all` or "
                            "scenario/start)")
     if args.service == "all":
-        return serve_all(args, options)
-    if args.service == "router":
-        zc.run_service("router", options, lambda session: [], default_mode="router")
-        return 0
-    if args.service == "map":
-        from services.bus import map as svc_map
-
-        if args.map is not None:
-            grid, fixed = svc_map.file_grid(args.map, args.rate_field, args.cell_size, args.crs), True
-        else:
-            from services.sim import scenario
-
-            grid, fixed = svc_map.scenario_grid(scenario.load(args.scenario)), False
-        svc_map.main(options, grid, fixed)
-    elif args.service == "monitor":
-        from services.bus import monitor as svc_monitor
-
-        name = f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite"
-        db = args.db or os.path.join("runs", name)
-        svc_monitor.main(options, db)
-    else:
-        import importlib
-
-        importlib.import_module(f"services.bus.{args.service}").main(options)
-    return 0
+        return serve_all(args, config.zenoh)
+    return importlib.import_module(f"services.bus.{args.service}").main(config)
 
 
-def _child_argv(args, options: zc.ZenohOptions, name: str) -> list[str]:
+def service_config(args) -> ServiceConfig:
+    return ServiceConfig(zenoh=options_from_args(args), scenario=args.scenario, map_file=args.map,
+                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db)
+
+
+def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
     argv = [sys.executable, "-m", "services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
@@ -100,7 +93,7 @@ def _abs_if_file(spec: str) -> str:
     return os.path.abspath(spec) if os.path.exists(spec) else spec
 
 
-def serve_all(args, options: zc.ZenohOptions) -> int:
+def serve_all(args, options: ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
@@ -118,15 +111,15 @@ def serve_all(args, options: zc.ZenohOptions) -> int:
     signal.signal(signal.SIGTERM, _interrupt)
     stop = threading.Event()
     procs: dict[str, subprocess.Popen] = {}
-    env = dict(os.environ, **{zc.PARENT_ENV: str(os.getpid())})
-    with zc.open_session(options, "router") as session:
-        token = zc.declare_alive(session, options.keys, "router")
+    env = dict(os.environ, **{PARENT_ENV: str(os.getpid())})
+    with open_session(options, "router") as session:
+        token = declare_alive(session, options.keys, "router")
         try:
-            for name in zc.SERVICES:
+            for name in SERVICES:
                 procs[name] = subprocess.Popen(_child_argv(args, options, name), env=env)
             _wait_ready(session, options.keys, procs)
             if start_payload is not None:
-                reply = zc.request_json(session, start_selector, start_payload, timeout_s=120.0,
+                reply = request_json(session, start_selector, start_payload, timeout_s=120.0,
                                         what="vrsim serve all: starting the scenario")
                 print(f"vrsim serve all: started run {reply['run_id']}", file=sys.stderr, flush=True)
             print(f"vrsim serve all: ready ({options.describe('router')}, prefix {options.prefix}, "
@@ -141,7 +134,7 @@ def serve_all(args, options: zc.ZenohOptions) -> int:
                               file=sys.stderr, flush=True)
                 return False
 
-            zc.wait_for_signal(stop, also=watch)
+            wait_for_signal(stop, also=watch)
         finally:
             _stop_children(procs)
             token.undeclare()
@@ -153,9 +146,9 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def _start_request(keys: zc.Keys, sc, args) -> tuple[bytes, str]:
+def _start_request(keys: Keys, sc, args) -> tuple[bytes, str]:
     """The scenario/start query for a loaded scenario (its text, source and folder)."""
-    from services.bus.scenario import scenario_file
+    from services.sim.scenario import scenario_file
 
     with open(scenario_file(sc), "rb") as fh:
         text = fh.read()
@@ -165,10 +158,10 @@ def _start_request(keys: zc.Keys, sc, args) -> tuple[bytes, str]:
     return text, keys.scenario("start") + "?" + ";".join(f"{k}={v}" for k, v in params.items())
 
 
-def _wait_ready(session, keys: zc.Keys, procs: dict) -> None:
+def _wait_ready(session, keys: Keys, procs: dict) -> None:
     deadline = time.monotonic() + READY_TIMEOUT_S
     while True:
-        alive = set(zc.alive_services(session, keys, timeout_s=1.0))
+        alive = set(alive_services(session, keys, timeout_s=1.0))
         missing = [n for n in procs if n not in alive]
         if not missing:
             return

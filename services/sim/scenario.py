@@ -102,6 +102,13 @@ def builtin_names() -> list[str]:
     return sorted(f[:-5] for f in os.listdir(BUILTIN_DIR) if f.endswith(".toml"))
 
 
+def scenario_file(scenario: Scenario) -> str:
+    """The file a loaded scenario was read from (a built-in's TOML under `BUILTIN_DIR`)."""
+    if scenario.source.startswith("builtin:"):
+        return os.path.join(BUILTIN_DIR, scenario.source[len("builtin:"):] + ".toml")
+    return scenario.source
+
+
 def load(spec: str | None) -> Scenario:
     """Load a scenario from a file path or a built-in name (None = the built-in default)."""
     if spec is None:

@@ -12,6 +12,7 @@ from PIL import Image
 
 from services.sim import run as field_run
 from services.sim import scenario
+from services.sim.core import ControlCore
 from tests.conftest import VRSIM
 
 QUICK = """
@@ -102,7 +103,7 @@ def test_tick_by_tick_core_matches_the_staged_run(tmp_path):
     """The controller service calls ControlCore.tick; vrsim run calls run_track: same numbers."""
     sc = scenario.load(quick(tmp_path, plots=False))
     result = field_run.run(sc)
-    core = field_run.ControlCore(result.world.grid, sc, result.world.field.polygon)
+    core = ControlCore(result.world.grid, sc, result.world.field.polygon)
     t = result.track
     n = len(t["time_s"])
     for i in range(n):

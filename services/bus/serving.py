@@ -1,0 +1,202 @@
+"""The serving side every vrsim Zenoh service shares: selector parameters, a queryable that never
+lets an exception escape, subscriber callbacks that report bad messages, liveliness and a service's
+life from session to shutdown."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import sys
+import threading
+import traceback
+from collections.abc import Callable
+
+from common import ServiceError, VrsimError
+from services.bus.config import Keys, ZenohOptions, open_session
+
+
+# ---------------------------------------------------------------------------------------- errors
+def error_payload(message: str) -> bytes:
+    return json.dumps({"error": message}).encode()
+
+
+def error_message(payload: bytes) -> str:
+    """The message of an error reply; non-JSON error payloads (zenoh's own, e.g. a timeout) verbatim."""
+    text = payload.decode("utf-8", "replace")
+    try:
+        doc = json.loads(text)
+    except ValueError:
+        return text
+    return doc["error"] if isinstance(doc, dict) and isinstance(doc.get("error"), str) else text
+
+
+class Params:
+    """Selector parameters of one query, with checks that name the key, parameter and value."""
+
+    def __init__(self, key: str, parameters):
+        self.key = key
+        self.values: dict[str, str] = {}
+        for name, value in parameters:  # zenoh.Parameters iterates (name, value) pairs
+            if name in self.values:
+                raise ServiceError(f"{key}: parameter {name} given twice")
+            self.values[name] = value
+
+    def only(self, *names: str) -> None:
+        unknown = sorted(set(self.values) - set(names))
+        if unknown:
+            known = ", ".join(names) or "none"
+            raise ServiceError(f"{self.key}: unknown parameter {unknown[0]!r} (known: {known})")
+
+    def has(self, name: str) -> bool:
+        return name in self.values
+
+    def text(self, name: str, default: str | None = None) -> str | None:
+        return self.values.get(name, default)
+
+    def number(self, name: str, lo: float | None = None, hi: float | None = None,
+               default: float | None = None) -> float:
+        """A finite number within [lo, hi]; ``default`` None means the parameter is required."""
+        if name not in self.values:
+            if default is None:
+                raise ServiceError(f"{self.key}: missing parameter {name}")
+            return default
+        raw = self.values[name]
+        try:
+            value = float(raw)
+        except ValueError:
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} is not a number") from None
+        if not math.isfinite(value):
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} must be finite")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            raise ServiceError(f"{self.key}: parameter {name}={raw!r} is out of range "
+                               f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]")
+        return value
+
+    def integer(self, name: str, lo: int, hi: int, default: int) -> int:
+        value = self.number(name, lo, hi, float(default))
+        if value != int(value):
+            raise ServiceError(f"{self.key}: parameter {name}={self.values[name]!r} must be whole")
+        return int(value)
+
+
+Handler = Callable[[Params, bytes | None], bytes]
+
+
+def serve(session, namespace: str, handlers: dict[str, Handler], strip: str, service: str,
+          hint: str | None = None):
+    """Declare one queryable over ``namespace`` that dispatches on the key's tail after ``strip``.
+
+    A handler takes (params, payload bytes or None) and returns the reply payload. A `VrsimError`
+    (bad input) becomes an error reply ``{"error": message}``; any other exception also becomes one
+    (prefixed "internal error", traceback on stderr) so no query is left unanswered and the service
+    keeps serving. ``hint`` replaces the list of keys in the unknown-key message.
+    """
+
+    def on_query(query) -> None:
+        key = str(query.key_expr)
+        try:
+            tail = key[len(strip):] if key.startswith(strip) else key
+            handler = handlers.get(tail)
+            if handler is None:
+                known = ", ".join(strip + t for t in sorted(handlers))
+                raise ServiceError(f"{key}: unknown key ({hint or f'the {service} service serves {known}'})")
+            payload = query.payload.to_bytes() if query.payload is not None else None
+            reply = handler(Params(key, query.parameters), payload)
+            query.reply(query.key_expr, reply)
+        except VrsimError as exc:
+            _reply_err(query, str(exc))
+        except Exception as exc:  # noqa: BLE001 - a bug must still answer, or the caller waits for nothing
+            traceback.print_exc(file=sys.stderr)
+            _reply_err(query, f"{key}: internal error in the {service} service: {type(exc).__name__}: {exc}")
+
+    return session.declare_queryable(namespace, on_query)
+
+
+def _reply_err(query, message: str) -> None:
+    try:
+        query.reply_err(error_payload(message))
+    except Exception:  # noqa: BLE001 - the querier may be gone; nothing else to tell
+        traceback.print_exc(file=sys.stderr)
+
+
+def guarded(what: str, fn: Callable) -> Callable:
+    """A subscriber callback that prints (instead of zenoh silently swallowing) what went wrong."""
+
+    def callback(sample) -> None:
+        try:
+            fn(sample)
+        except VrsimError as exc:
+            print(f"vrsim {what}: dropped a bad message on {sample.key_expr}: {exc}", file=sys.stderr)
+        except Exception:  # noqa: BLE001
+            print(f"vrsim {what}: internal error handling {sample.key_expr}:", file=sys.stderr)
+            traceback.print_exc(file=sys.stderr)
+
+    return callback
+
+
+def declare_alive(session, keys: Keys, service: str):
+    return session.liveliness().declare_token(keys.alive(service))
+
+
+# ---------------------------------------------------------------------------------------- lifetime
+def wait_for_signal(stop: threading.Event, also: Callable[[], bool] | None = None,
+                    poll_s: float = 0.2) -> None:
+    """Block until SIGINT/SIGTERM (or ``stop`` is set, or ``also()`` turns true)."""
+
+    def handler(signum, frame):
+        stop.set()
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while not stop.wait(poll_s):
+            if also is not None and also():
+                break
+    finally:
+        for sig, previous in old.items():
+            signal.signal(sig, previous)
+
+
+def dumps(doc) -> bytes:
+    """JSON reply bytes; NaN and infinities become null (JSON has no NaN)."""
+    return json.dumps(_finite(doc), separators=(",", ":")).encode()
+
+
+def _finite(doc):
+    if isinstance(doc, float):
+        return doc if math.isfinite(doc) else None
+    if isinstance(doc, dict):
+        return {k: _finite(v) for k, v in doc.items()}
+    if isinstance(doc, (list, tuple)):
+        return [_finite(v) for v in doc]
+    return doc
+
+
+PARENT_ENV = "VRSIM_SERVE_PARENT"  # set by `vrsim serve all` for its children
+
+
+def _parent_gone() -> Callable[[], bool] | None:
+    """A check that a child of `vrsim serve all` uses to exit when its parent died without stopping it."""
+    parent = os.environ.get(PARENT_ENV)
+    if not parent:
+        return None
+    return lambda: os.getppid() != int(parent)
+
+
+def run_service(name: str, options: ZenohOptions, declare: Callable, default_mode: str = "client",
+                stop: threading.Event | None = None) -> None:
+    """The life of one service: open a session, ``declare(session)``, announce liveliness, serve until
+    SIGINT/SIGTERM (or ``stop``), close. ``declare`` returns what to keep alive (queryables, ...)."""
+    stop = stop or threading.Event()
+    with open_session(options, default_mode) as session:
+        keep = declare(session)
+        token = declare_alive(session, options.keys, name)
+        print(f"vrsim serve {name}: ready ({options.describe(default_mode)}, prefix {options.prefix})",
+              file=sys.stderr, flush=True)
+        wait_for_signal(stop, also=_parent_gone())
+        token.undeclare()
+        for obj in keep or ():
+            close = getattr(obj, "undeclare", None) or getattr(obj, "close", None)
+            if close is not None:
+                close()

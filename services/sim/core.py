@@ -1,0 +1,153 @@
+"""The control core: fix -> landing point -> rate -> target shaft speed -> PID + plant -> product.
+
+The one pure core that both `vrsim run` (the whole track at once) and the Zenoh controller service
+(each lockstep batch, carrying its state over) call, so both give the same numbers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from controller import PlantParams, build_loop
+from maps import Grid, RatePolicy
+from services.sim.scenario import Scenario
+
+
+def plant_for(scenario: Scenario) -> PlantParams:
+    """The scenario's plant with the implement's transmission ratio and shaft-speed limit: the machine
+    is described once, in ``[implement]``."""
+    imp = scenario.implement
+    return dataclasses.replace(scenario.plant, transmission_ratio=imp.transmission_ratio,
+                               shaft_rpm_max=imp.shaft_rpm_max)
+
+
+@dataclass
+class TickOut:
+    """What one control tick produces (all SI except rpm)."""
+
+    landing_x_m: float
+    landing_y_m: float
+    prescribed_kg_ha: float  # the rate looked up at the predicted landing point
+    target_shaft_rpm: float
+    shaft_rpm: float
+    shaft_rev: float  # metering-shaft revolutions during this period
+    current_a: float
+    metered_kg: float  # product through the meter this period (0 with the sections off)
+    width_on_m: float  # working width of the sections that are on
+    offset_m: float  # lateral offset of that width's centre, left of the heading
+
+
+def hold_last(rate_kg_ha: np.ndarray, last_kg_ha: float) -> np.ndarray:
+    """Replace NaN (unknown) rates by the last known one, starting from `last_kg_ha` (NaN: 0)."""
+    known = ~np.isnan(rate_kg_ha)
+    idx = np.maximum.accumulate(np.where(known, np.arange(rate_kg_ha.size), -1))
+    start = 0.0 if math.isnan(last_kg_ha) else last_kg_ha
+    return np.where(idx >= 0, rate_kg_ha[np.maximum(idx, 0)], start)
+
+
+class ControlCore:
+    """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+
+    Deterministic and free of I/O; `vrsim run` (a whole track at once, `run_track`) and the
+    controller service (one tick at a time, `tick`) run the same two stages:
+
+    1. `targets`: where product metered now will land, the prescription there (with the map's
+       policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
+       landing point is predicted by dead reckoning from the fix: product metered now lands
+       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
+    2. the closed loop (PID, valve, motor), one `ClosedLoop.step` per tick.
+    """
+
+    def __init__(self, grid: Grid, scenario: Scenario, field_polygon=None):
+        self.grid = grid
+        self.field_polygon = field_polygon  # sections whose centre would land outside it switch off
+        self.implement = scenario.implement
+        self.policy = RatePolicy(mode=scenario.map.policy,
+                                 default_rate_kg_ha=scenario.map.default_rate_kg_ha)
+        timing = scenario.timing
+        self.loop = build_loop(plant_for(scenario), scenario.controller,
+                               control_period_s=timing.control_period_s, plant_step_s=timing.plant_step_s,
+                               n=1)
+        self.last_rate_kg_ha = float("nan")
+
+    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
+        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
+        lead_m = np.asarray(speed_m_s) * self.implement.delivery_delay_s
+        lx = x_m + lead_m * np.cos(heading_rad)
+        ly = y_m + lead_m * np.sin(heading_rad)
+        found = self.grid.lookup(lx, ly)
+        if self.policy.mode == "hold":
+            rate = hold_last(found.rate_kg_ha, self.last_rate_kg_ha)
+        else:
+            rate = self.policy.apply(found.rate_kg_ha, found.inside)
+        if rate.size:
+            self.last_rate_kg_ha = float(rate[-1])
+        width_on, offset = self.sections(lx, ly, heading_rad, implement_on)
+        # Within the meter's speed range while applying; a zero rate or all sections off stop the shaft.
+        wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
+        target = np.where(width_on > 0, wanted, 0.0)
+        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
+                "width_on_m": width_on, "offset_m": offset}
+
+    def sections(self, x_m, y_m, heading_rad, implement_on):
+        """Working width of the sections that are on (m) and its centre's offset to the left (m).
+
+        Section control as terminals do it: with the implement on, a section applies when its centre
+        lands inside the field. The sections that are on are taken as one strip (they are contiguous
+        on convex edges; on a notch this spreads a little product over the gap).
+        """
+        imp = self.implement
+        on = np.asarray(implement_on, bool)
+        if self.field_polygon is None:
+            return np.where(on, imp.width_m, 0.0), np.zeros(on.shape)
+        sec = imp.sections_on(self.field_polygon, x_m, y_m, heading_rad, on)
+        count = sec.sum(axis=1)
+        offsets = np.where(sec, imp.section_offsets_m, 0.0).sum(axis=1)
+        return count * imp.section_width_m, np.divide(offsets, count, out=np.zeros(count.shape),
+                                                      where=count > 0)
+
+    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
+                  progress=None) -> dict[str, np.ndarray]:
+        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`."""
+        rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on)
+        targets, n = rec["target_shaft_rpm"], len(x_m)
+        rpm, rev, cur = np.empty(n), np.empty(n), np.empty(n)
+        chunk = 20000
+        for start in range(0, n, chunk):
+            part = slice(start, min(n, start + chunk))
+            out = self.loop.run(targets[part])
+            rpm[part], rev[part], cur[part] = out.shaft_rpm[:, 0], out.shaft_rev[:, 0], out.current_a[:, 0]
+            if progress is not None:
+                progress(part.stop, n)
+        rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
+                   metered_kg=self._metered_kg(rev, rec["width_on_m"] > 0))
+        return {key: rec[key] for key in CONTROL_KEYS}
+
+    def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
+             implement_on: bool) -> TickOut:
+        """Both stages for one tick."""
+        t = self.targets(np.array([x_m]), np.array([y_m]), np.array([heading_rad]), np.array([speed_m_s]),
+                         np.array([implement_on]))
+        target, width_on = float(t["target_shaft_rpm"][0]), float(t["width_on_m"][0])
+        out = self.loop.step(target)
+        rev = float(out.shaft_rev[0])
+        return TickOut(float(t["landing_x_m"][0]), float(t["landing_y_m"][0]),
+                       float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev,
+                       float(out.current_a[0]),
+                       float(self._metered_kg(np.array([rev]), np.array([width_on > 0]))[0]),
+                       width_on, float(t["offset_m"][0]))
+
+    def _metered_kg(self, shaft_rev, applying) -> np.ndarray:
+        # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
+        # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
+        # (it does not lift product off the ground), so only forward revolutions count.
+        forward = np.maximum(shaft_rev, 0.0)
+        return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
+
+
+CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "offset_m")

@@ -1,0 +1,100 @@
+"""World building: what a scenario builds before anything moves (field, coverage path, prescription).
+
+Errors name the scenario file and its table. The prescription is always on a grid in the field's
+metric CRS (its UTM zone), which is where the control core looks rates up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import MapError, ScenarioError, VehicleError
+from maps import Grid, read_map, synthetic
+from services.sim.scenario import Scenario
+from vehicle import CoveragePath, Field, plan_coverage
+
+MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
+
+
+@dataclass
+class World:
+    """What a scenario builds before anything moves: field, path and the prescription on its grid."""
+
+    scenario: Scenario
+    field: Field
+    path: CoveragePath
+    grid: Grid  # the prescription, in the field's metric CRS
+
+
+def build_field(scenario: Scenario) -> Field:
+    spec = scenario.field
+    if spec.file is not None:
+        return Field.from_file(scenario.path(spec.file), crs=spec.crs)
+    if spec.rectangle is not None:
+        r = spec.rectangle
+        return Field.rectangle(r["width_m"], r["length_m"], lat=r["lat"], lon=r["lon"])
+    return Field.from_lonlat([tuple(p) for p in spec.polygon_lonlat])
+
+
+def build_prescription(scenario: Scenario, field: Field) -> Grid:
+    """The prescription on a grid in the field's CRS; refuses a map that misses the field."""
+    spec = scenario.map
+    if spec.synthetic is not None:
+        minx, miny, maxx, maxy = field.polygon.bounds
+        bounds = (minx - MAP_MARGIN_M, miny - MAP_MARGIN_M, maxx + MAP_MARGIN_M, maxy + MAP_MARGIN_M)
+        try:
+            if spec.synthetic == "zones_gradient":
+                return _zones_plus_gradient(bounds, field.crs, spec.cell_size_m, scenario.seed, spec.params)
+            make = getattr(synthetic, spec.synthetic)
+            return make(bounds=bounds, crs=field.crs, cell_size_m=spec.cell_size_m, seed=scenario.seed,
+                        **spec.params)
+        except (TypeError, ValueError) as exc:  # a parameter of the wrong shape, e.g. a 3-value range
+            raise ScenarioError(f"{scenario.source}: [map] params {spec.params!r} do not fit "
+                                f"synthetic {spec.synthetic!r}: {exc}") from None
+    grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
+                    crs=spec.crs)
+    grid.check_overlap(field.polygon, field.crs)
+    if not grid.crs.equals(field.crs):
+        grid = grid.reproject(field.crs, cell_size_m=spec.cell_size_m)
+    return grid
+
+
+def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
+    """The default scenario's map: sharp-edged zones tilted by a gradient.
+
+    ``params`` holds `synthetic.zones` keywords and `synthetic.gradient` keywords prefixed with
+    ``gradient_``; the gradient's mean is removed, so it tilts the zones without changing their mean.
+    """
+    zone_params = {k: v for k, v in params.items() if not k.startswith("gradient_")}
+    grad_params = {k[len("gradient_"):]: v for k, v in params.items() if k.startswith("gradient_")}
+    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **zone_params)
+    grad = synthetic.gradient(bounds=bounds, crs=crs, cell_size_m=cell_size_m, seed=seed, **grad_params)
+    tilt = grad.rates_kg_ha - grad.rates_kg_ha.mean()
+    return dataclasses.replace(zones, rates_kg_ha=np.maximum(zones.rates_kg_ha + tilt, 0.0),
+                               source="synthetic:zones_gradient")
+
+
+def build_world(scenario: Scenario) -> World:
+    """Field, prescription and coverage path; errors name the scenario file and its table."""
+    spec = scenario.field
+    try:
+        field = build_field(scenario)
+        path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
+                             heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
+    except VehicleError as exc:
+        raise ScenarioError(f"{scenario.source}: [field] {exc}") from None
+    try:
+        grid = build_prescription(scenario, field)
+    except MapError as exc:
+        raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
+    return World(scenario=scenario, field=field, path=path, grid=grid)
+
+
+def field_and_grid(scenario: Scenario) -> tuple[Field, Grid]:
+    """The scenario's field and its prescription on the field's metric grid, without planning a
+    path (what the map and controller services need)."""
+    field = build_field(scenario)
+    return field, build_prescription(scenario, field)

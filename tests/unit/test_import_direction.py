@@ -1,0 +1,90 @@
+"""Imports point one way: cli -> bus/outputs/sim -> maps/vehicle/controller -> common.
+
+Read from the source with `ast` (every import, also those inside functions), so a lazy import that
+goes the wrong way fails here, not in a user's run.
+"""
+
+import ast
+import os
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+DOMAIN = ("maps", "vehicle", "controller")
+ROOMS = ("sim", "outputs", "bus", "cli")
+# Modules of services.bus that are shared helpers, not services.
+BUS_HELPERS = ("services.bus", "services.bus.config", "services.bus.serving", "services.bus.client",
+               "services.bus.messages")
+
+
+def modules(package: str, root: str = ROOT) -> dict[str, set[str]]:
+    """{module name: the absolute module names it imports} for every .py file under `package`."""
+    out = {}
+    for folder, _, files in os.walk(os.path.join(root, *package.split("."))):
+        for name in files:
+            if not name.endswith(".py"):
+                continue
+            path = os.path.join(folder, name)
+            rel = os.path.relpath(path, root)[:-3].replace(os.sep, ".")
+            module = rel[:-len(".__init__")] if rel.endswith(".__init__") else rel
+            tree = ast.parse(open(path, encoding="utf-8").read(), path)
+            imported = set()
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Import):
+                    imported.update(alias.name for alias in node.names)
+                elif isinstance(node, ast.ImportFrom):
+                    assert node.level == 0, f"{path}: relative import; use absolute ones"
+                    imported.add(node.module)
+                    imported.update(f"{node.module}.{alias.name}" for alias in node.names)
+            out[module] = imported
+    return out
+
+
+def _under(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def _violations(package: str, forbidden, root: str = ROOT) -> list[str]:
+    return sorted(f"{mod} imports {imp}" for mod, imps in modules(package, root).items() for imp in imps
+                  if any(_under(imp, f) for f in forbidden))
+
+
+def test_common_imports_nothing_of_vrsim():
+    assert _violations("common", (*DOMAIN, "services")) == []
+
+
+@pytest.mark.parametrize("package", DOMAIN)
+def test_domain_packages_never_import_services_or_each_other(package):
+    others = [p for p in DOMAIN if p != package]
+    assert _violations(package, ("services", *others)) == []
+
+
+def test_sim_imports_no_other_room():
+    assert _violations("services.sim", ("services.outputs", "services.bus", "services.cli")) == []
+
+
+def test_outputs_import_neither_bus_nor_cli():
+    assert _violations("services.outputs", ("services.bus", "services.cli")) == []
+
+
+def test_bus_never_imports_cli():
+    assert _violations("services.bus", ("services.cli",)) == []
+
+
+def test_no_bus_service_imports_another_service():
+    found = modules("services.bus")
+    services = [m for m in found if m not in BUS_HELPERS]
+    assert {"services.bus.map", "services.bus.vehicle", "services.bus.controller", "services.bus.monitor",
+            "services.bus.scenario"} <= set(services)
+    bad = sorted(f"{mod} imports {imp}" for mod in services for imp in found[mod]
+                 if any(_under(imp, other) for other in services if other != mod))
+    assert bad == []
+
+
+def test_the_rule_catches_a_wrong_import(tmp_path):
+    """The checker itself: a lazy import from a domain package into services is reported."""
+    pkg = tmp_path / "maps"
+    pkg.mkdir()
+    (pkg / "bad.py").write_text("def f():\n    from services.sim import run\n")
+    assert _violations("maps", ("services",), str(tmp_path)) == ["maps.bad imports services.sim",
+                                                                 "maps.bad imports services.sim.run"]
