@@ -38,19 +38,12 @@ from defusedxml import DefusedXmlException
 
 from common import MapError, __version__
 from maps.crs import WGS84
+from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
+from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
 
-DDI_MASS_PER_AREA = 0x0006  # Setpoint Mass Per Area Application Rate, mg/m^2
-KG_HA_PER_MG_M2 = 0.01
 MAX_XML_BYTES = 64 * 1024 * 1024
-# Names of common DDIs, so a refusal says what the file holds instead.
-DDI_NAMES = {
-    0x0001: "setpoint volume per area (mm^3/m^2)",
-    0x0006: "setpoint mass per area (mg/m^2)",
-    0x000B: "setpoint count per area (/m^2)",
-    0x0010: "setpoint spacing (mm)",
-}
 
 
 class _Folder:
@@ -137,27 +130,32 @@ def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
     return [(_attr(p, "A", "hex", where), _attr(p, "B", int, where), p.get("C")) for p in tzn.findall("PDV")]
 
 
-def _ddi_list(ddis) -> str:
-    return ", ".join(f"{d:04X}" + (f" ({DDI_NAMES[d]})" if d in DDI_NAMES else "") for d in ddis)
-
-
 def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
     with _Folder(path) as folder:
         return _read_taskdata(folder, path, max_cells)
 
 
-def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
-    where = path
+def parse_xml(data: bytes, where: str, name: str, root_tag: str):
+    """Parse an ISOXML file's bytes safely (no entities, no external references) and check its root.
+
+    `where` is the TASKDATA path and `name` the file within it, for messages.
+    """
     try:
-        root = DET.fromstring(folder.read_xml())
+        root = DET.fromstring(data)
     except DefusedXmlException as exc:
-        raise MapError(f"{where}: TASKDATA.XML refused: {exc} (entity and external references are not "
+        raise MapError(f"{where}: {name} refused: {exc} (entity and external references are not "
                        "allowed)") from None
     except ParseError as exc:
-        raise MapError(f"{where}: TASKDATA.XML is not well-formed XML: {exc}") from None
-    if root.tag != "ISO11783_TaskData":
-        raise MapError(f"{where}: root element is <{root.tag}>, not <ISO11783_TaskData>")
+        raise MapError(f"{where}: {name} is not well-formed XML: {exc}") from None
+    if root.tag != root_tag:
+        raise MapError(f"{where}: {name}: root element is <{root.tag}>, not <{root_tag}>")
+    return root
+
+
+def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
+    where = path
+    root = parse_xml(folder.read_xml(), where, "TASKDATA.XML", "ISO11783_TaskData")
     tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
     if not tasks:
         raise MapError(f"{where}: no task (TSK) has a grid (GRD): nothing to read as a prescription map")
@@ -195,8 +193,8 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
         layers = zones[zone_code]
         ddis = [d for d, _, _ in layers]
         if DDI_MASS_PER_AREA not in ddis:
-            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {_ddi_list(ddis) or 'none'}; "
-                           f"vrsim needs DDI 0006 ({DDI_NAMES[6]})")
+            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {ddi_list(ddis) or 'none'}; "
+                           f"vrsim needs DDI 0006 ({NAMES[6]})")
         cell_bytes = 4 * len(layers)
     else:
         cell_bytes = 1
@@ -243,8 +241,8 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
                 product_ref = product_ref or product
     if np.isnan(table).all():
         ddis = sorted({d for values in zones.values() for d, _, _ in values})
-        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({DDI_NAMES[6]}); found DDI "
-                       f"{_ddi_list(ddis) or 'none'}")
+        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({NAMES[6]}); found DDI "
+                       f"{ddi_list(ddis) or 'none'}")
     used = np.unique(codes)
     undefined = [int(c) for c in used if np.isnan(table[c])]
     if undefined:
