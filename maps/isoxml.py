@@ -263,10 +263,14 @@ def write_isoxml(grid: Grid, path: str) -> None:
     """Write a grid as TASKDATA with a type-2 grid of DDI 6 (mg/m^2, int32).
 
     `path` ending in ``.zip`` gives an archive ``TASKDATA/TASKDATA.XML`` + ``TASKDATA/GRD00001.BIN``;
-    otherwise `path` is the XML file and ``GRD00001.BIN`` goes beside it. A grid not in WGS84 is first
-    reprojected (nearest neighbour, same cell size in metres). Type 2 has no nodata value: nodata
-    cells are written as 0 (apply nothing), with a warning. Rates are rounded to 0.01 kg/ha.
+    otherwise `path` is the TASKDATA folder (created if missing) or the ``TASKDATA.XML`` in it. A
+    folder that already holds a TASKDATA.XML is refused (its export would break); grid files of
+    other exports in it are left alone: the grid takes the first free ``GRDnnnnn`` name. A grid not
+    in WGS84 is first reprojected (nearest neighbour, same cell size in metres). Type 2 has no nodata
+    value: nodata cells are written as 0 (apply nothing), with a warning. Rates are rounded to
+    0.01 kg/ha.
     """
+    folder = None if path.lower().endswith(".zip") else taskdata_folder(path)
     if not (grid.crs.is_geographic and grid.crs == WGS84):
         grid = grid.reproject(WGS84)
     rates = grid.rates_kg_ha
@@ -278,19 +282,49 @@ def write_isoxml(grid: Grid, path: str) -> None:
     if mg.max() > np.iinfo(np.int32).max:
         raise MapError(f"{path}: rate {np.nanmax(rates)} kg/ha does not fit an ISOXML int32 in mg/m^2")
     binary = mg[::-1].astype("<i4").tobytes()
-    xml = _taskdata_xml(grid, len(binary))
-    if path.lower().endswith(".zip"):
+    if folder is None:
         with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
-            z.writestr("TASKDATA/TASKDATA.XML", xml)
+            z.writestr("TASKDATA/TASKDATA.XML", _taskdata_xml(grid, len(binary), "GRD00001"))
             z.writestr("TASKDATA/GRD00001.BIN", binary)
+        return
+    os.makedirs(folder, exist_ok=True)
+    name = _free_grid_name(folder)
+    # Exclusive creation: never replace a file, even one that appeared since the checks.
+    for fname, data in ((name + ".BIN", binary), ("TASKDATA.XML", _taskdata_xml(grid, len(binary), name))):
+        try:
+            with open(os.path.join(folder, fname), "xb") as f:
+                f.write(data)
+        except FileExistsError:
+            raise MapError(f"{path}: {fname} already exists in {folder}; vrsim does not overwrite") from None
+
+
+def taskdata_folder(path: str) -> str:
+    """The folder an ISOXML TASKDATA is written to: `path` itself, or the folder of its TASKDATA.XML.
+
+    Refuses other ``.xml`` names (the standard names the file TASKDATA.XML) and a folder that
+    already holds a TASKDATA.XML.
+    """
+    name = os.path.basename(os.path.normpath(path))
+    if name.upper() == "TASKDATA.XML":
+        folder = os.path.dirname(os.path.abspath(path))
+    elif name.lower().endswith(".xml"):
+        raise MapError(f"{path}: ISOXML is written as a TASKDATA folder: give the folder (e.g. out/TASKDATA) "
+                       f"or out/TASKDATA/TASKDATA.XML, the standard's file name, not {name}")
     else:
-        with open(path, "wb") as f:
-            f.write(xml)
-        with open(os.path.join(os.path.dirname(os.path.abspath(path)), "GRD00001.BIN"), "wb") as f:
-            f.write(binary)
+        folder = os.path.abspath(path)
+    if os.path.isdir(folder) and any(n.upper() == "TASKDATA.XML" for n in os.listdir(folder)):
+        raise MapError(f"{path}: {folder} already holds a TASKDATA.XML; vrsim does not overwrite an ISOXML "
+                       "export (its grid files belong to it): choose another folder")
+    return folder
 
 
-def _taskdata_xml(grid: Grid, length: int) -> bytes:
+def _free_grid_name(folder: str) -> str:
+    """The first ``GRDnnnnn`` without a .BIN in `folder` (any letter case)."""
+    taken = {n.upper() for n in os.listdir(folder)}
+    return next(f"GRD{i:05d}" for i in range(1, 100_000) if f"GRD{i:05d}.BIN" not in taken)
+
+
+def _taskdata_xml(grid: Grid, length: int, name: str) -> bytes:
     root = ET.Element("ISO11783_TaskData", VersionMajor="4", VersionMinor="2",
                       ManagementSoftwareManufacturer="vrsim", ManagementSoftwareVersion=__version__,
                       DataTransferOrigin="1")
@@ -303,7 +337,7 @@ def _taskdata_xml(grid: Grid, length: int) -> bytes:
     west, south, _, _ = grid.bounds
     dx, dy = grid.cell_size
     ET.SubElement(task, "GRD", A=repr(south), B=repr(west), C=repr(dy), D=repr(dx), E=str(grid.cols),
-                  F=str(grid.rows), G="GRD00001", H=str(length), I="2", J="1")
+                  F=str(grid.rows), G=name, H=str(length), I="2", J="1")
     if grid.product:
         ET.SubElement(root, "PDT", A="PDT1", B=grid.product)
     ET.SubElement(root, "VPN", A="VPN1", B="0", C="0.01", D="2", E="kg/ha")

@@ -47,7 +47,7 @@ def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -
         west = math.floor(west / size[0]) * size[0]
         north = math.ceil(north / size[1]) * size[1]
     out = grid_from_bounds((west, south, east, north), size, dst_crs, source=grid.source,
-                           format=grid.format, product=grid.product)
+                           format=grid.format, product=grid.product, quantity=grid.quantity)
     xc, yc = out.cell_centres()
     # Row by row keeps the temporaries at one row of points, not the whole raster.
     for r in range(out.rows):
