@@ -309,7 +309,11 @@ class Grid:
 
     # ------------------------------------------------------------------ CRS operations
     def reproject(self, dst_crs, cell_size_m: float | None = None) -> Grid:
-        """This map on a north-up grid in another CRS, nearest-neighbour (zone edges stay sharp).
+        """This map on a north-up grid in another CRS, resampled by GDAL (`rasterio.warp.reproject`).
+
+        A zone map (at most 64 distinct rates) is resampled nearest-neighbour (zone edges stay
+        sharp); a continuous one bilinearly, or by area-weighted average onto coarser cells (see
+        `maps.reproject.resampling_for`).
 
         Parameters
         ----------

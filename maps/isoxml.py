@@ -266,7 +266,7 @@ def write_isoxml(grid: Grid, path: str) -> None:
     otherwise `path` is the TASKDATA folder (created if missing) or the ``TASKDATA.XML`` in it. A
     folder that already holds a TASKDATA.XML is refused (its export would break); grid files of
     other exports in it are left alone: the grid takes the first free ``GRDnnnnn`` name. A grid not
-    in WGS84 is first reprojected (nearest neighbour, same cell size in metres). Type 2 has no nodata
+    in WGS84 is first reprojected (`Grid.reproject`, same cell size in metres). Type 2 has no nodata
     value: nodata cells are written as 0 (apply nothing), with a warning. Rates are rounded to
     0.01 kg/ha.
     """
