@@ -174,7 +174,8 @@ class PointLog:
 
 # ---------------------------------------------------------------------- reading
 # Attribute names of applied and target rate, tried in this order (case-insensitive). John Deere's
-# shapefiles cut names to 10 characters (AppliedRat, TargetRate); vrsim writes applied/target.
+# .dbf fills all 11 bytes of a field name ("AppliedRate", no terminator), which GDAL reads whole and
+# 10-character readers as "AppliedRat"; vrsim writes applied/target.
 APPLIED_NAMES = ("applied", "appliedrate", "appliedrat", "applied_rate", "applied_kg_ha", "actualrate",
                  "actual_rate", "as_applied", "rate_applied")
 TARGET_NAMES = ("target", "targetrate", "targetrat", "target_rate", "target_kg_ha", "setpoint",
