@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import math
 import os
 import re
 import tempfile
@@ -164,12 +165,24 @@ class PointLog:
         lon, lat = transform_xy(self.x, self.y, self.crs, WGS84)
         return np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
 
+    def thin(self, period_s: float) -> PointLog:
+        """The first record of every `period_s` of `time_s` (1.0: a 1 Hz log, as terminals log)."""
+        if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
+            raise MapError(f"{self._where()}: thin: period_s={period_s!r} must be a positive number")
+        slot = np.floor(self.time_s / period_s)
+        keep = np.flatnonzero(np.isfinite(slot) & np.concatenate(([True], slot[1:] != slot[:-1])))
+        return replace(self, **{name: getattr(self, name)[keep] for name in COLUMNS})
+
     def in_unit(self, unit: str) -> PointLog:
         """This log with its rates converted to `unit` (see `convert_rate`)."""
         if unit == self.unit:
             return self
         return replace(self, applied=convert_rate(self.applied, self.unit, unit),
                        target=convert_rate(self.target, self.unit, unit), unit=unit)
+
+
+COLUMNS = ("x", "y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m", "work_on",
+           "sections_on", "gnss_status")  # the per-record arrays of a PointLog
 
 
 # ---------------------------------------------------------------------- reading

@@ -132,3 +132,13 @@ def test_units():
         convert_rate([1.0], "bushel/ac", "kg/ha")
     with pytest.raises(MapError, match="applied has shape \\(2,\\), the log has 3 points"):
         PointLog([0, 1, 2], [0, 1, 2], "EPSG:4326", applied=[1.0, 2.0], target=1.0)
+
+
+def test_thin_to_one_hertz():
+    t = np.arange(0, 10, 0.05)  # 20 Hz ticks
+    log = PointLog(t, t, "EPSG:32632", applied=t, target=t, time_s=t, sections_on=np.ones((t.size, 3), bool))
+    one = log.thin(1.0)
+    np.testing.assert_allclose(one.time_s, np.arange(10.0), atol=1e-9)
+    assert one.points == 10 and one.sections_on.shape == (10, 3) and one.applied[3] == one.time_s[3]
+    with pytest.raises(MapError, match="period_s=0 must be a positive number"):
+        log.thin(0)
