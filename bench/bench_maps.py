@@ -14,6 +14,9 @@ as_applied_tick_us          AsApplied.add_strips, one call with 130,000 ticks (1
                             serpentine passes on a 5 m grid), per strip, us
 as_applied_tick_us_1m       the same on a 1 m grid, per strip, us
 zones_50k_rasterize_s       read_map of a shapefile of 50,000 small zone polygons (pyshp-written) at 2 m, s
+reproject_2k_to_wgs84_s     Grid.reproject of a 2000 x 2000 continuous map (1 m, UTM 32N) to WGS84 lon/lat
+                            at 1 m (bilinear, GDAL), best of 3, s
+reproject_2k_to_utm_s       the lon/lat result back to UTM 32N at 1 m, best of 3, s
 """
 
 from __future__ import annotations
@@ -166,6 +169,15 @@ def zones_figures() -> dict[str, float]:
         return {"zones_50k_rasterize_s": time.perf_counter() - t0}
 
 
+def reproject_figures() -> dict[str, float]:
+    from maps import synthetic
+
+    g = synthetic.random_field((500_000, 5_300_000, 502_000, 5_302_000), UTM, cell_size_m=1.0, seed=1)
+    wgs84 = g.reproject("EPSG:4326")
+    return {"reproject_2k_to_wgs84_s": _best(lambda: g.reproject("EPSG:4326")),
+            "reproject_2k_to_utm_s": _best(lambda: wgs84.reproject(UTM))}
+
+
 def lookup_figures() -> dict[str, float]:
     from maps import synthetic
     from maps.crs import WGS84, transform_xy
@@ -186,6 +198,7 @@ def run() -> dict[str, float]:
     figures = lookup_figures()
     figures.update(as_applied_figures())
     figures.update(zones_figures())
+    figures.update(reproject_figures())
     figures.update(geotiff_figures())
     return figures
 

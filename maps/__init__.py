@@ -1,8 +1,12 @@
 """vrsim maps: prescription grids from the formats farm software writes, CRS-correct lookup,
-synthetic maps, rate policies off the map, and as-applied accumulation.
+synthetic maps, rate policies off the map, as-applied accumulation, and as-applied logs (ISO 11783
+TimeLogs in TASKDATA, point shapefiles and GeoPackages) in and out.
 
 >>> from maps import Grid, read_map, write_map, synthetic, AsApplied, RatePolicy
+>>> from maps import PointLog, read_point_log, write_points, write_taskdata, read_timelogs
 """
+
+import importlib
 
 from maps import synthetic
 from maps.as_applied import AsApplied
@@ -11,6 +15,17 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
 from maps.io import read_map, write_map
 from maps.policy import RatePolicy
 from maps.warn import MapWarning
+
+# The as-applied log modules load on first use (module __getattr__): `import maps` stays as fast.
+_LAZY = {
+    "PointLog": "maps.pointlog",
+    "read_point_log": "maps.pointlog",
+    "write_points": "maps.pointlog",
+    "TimeLog": "maps.timelog",
+    "read_timelogs": "maps.timelog",
+    "write_taskdata": "maps.taskdata",
+    "read_taskdata_log": "maps.taskdata",
+}
 
 __all__ = [
     "Grid",
@@ -24,4 +39,11 @@ __all__ = [
     "grid_from_bounds",
     "MapWarning",
     "DEFAULT_MAX_CELLS",
+    *_LAZY,
 ]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'maps' has no attribute {name!r}")

@@ -39,7 +39,9 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
     The band is read by GDAL directly into a float64 array (no intermediate copy), in bands of
     rows on up to 4 threads; the nodata value becomes NaN. NaN cells are nodata when the file
     declares no nodata value or NaN; with another nodata value they are refused, as are negative
-    rates.
+    rates, unless the raster says it holds differences of rates (tag ``quantity=difference``, as
+    vrsim writes ``error.tif``, or a band description with "difference" in it): then the grid's
+    `quantity` is ``"difference"``.
     """
     try:
         with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
@@ -51,6 +53,7 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
                 raise MapError(f"{path}: the raster has no CRS; give one (crs= / --crs)")
             grid_crs = as_crs(src.crs.to_wkt(), f"{path}: CRS") if src.crs is not None else as_crs(crs, "crs")
             nodata, transform, tags = src.nodata, src.transform, src.tags()
+            quantity = _quantity(tags, src.descriptions[0])
             rates = np.empty((src.height, src.width), dtype=np.float64)
             bands = [(r0, min(src.height, r0 + BAND_ROWS)) for r0 in range(0, src.height, BAND_ROWS)]
             if len(bands) == 1:
@@ -63,10 +66,18 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
         if nan_found:
             raise MapError(f"{path}: NaN rates in cells that are not nodata (nodata is {nodata}), "
                            f"from row {r0}")
-        if low < 0:
+        if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
             raise MapError(f"{path}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
-    return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff")
+    return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
+                quantity=quantity)
+
+
+def _quantity(tags: dict, description: str | None) -> str:
+    """``"difference"`` when the raster says it holds signed differences of rates, else ``"rate"``."""
+    if tags.get("quantity") == "difference" or "difference" in (description or "").lower():
+        return "difference"
+    return "rate"
 
 
 BAND_ROWS = 256  # rows per read: a few MB, so the checks run on data still in cache
@@ -99,25 +110,31 @@ def _read_parallel(path: str, rates: np.ndarray, bands: list, nodata) -> list:
         return [check for part in parts for check in part]
 
 
-def write_geotiff(grid: Grid, path: str) -> None:
-    """Write a grid as a tiled, DEFLATE-compressed GeoTIFF (float32 when that is lossless, else float64).
+# Band descriptions (what GIS tools show as the band's name) when the grid names no product.
+DESCRIPTIONS = {"rate": "application rate", "difference": "rate difference"}
 
-    nodata cells are written as -9999 with that declared as the nodata value, so QGIS and farm
-    software that do not handle NaN show them as empty.
+
+def write_geotiff(grid: Grid, path: str) -> None:
+    """Write a grid as a tiled, DEFLATE-compressed float32 GeoTIFF.
+
+    float32 holds a rate to 7 significant digits (0.001 kg/ha at 10,000 kg/ha), and halves the file
+    of float64. nodata cells are written as -9999 with that declared as the nodata value, so QGIS and
+    farm software that do not handle NaN show them as empty. The band's description is the product
+    (or "application rate" / "rate difference") and its unit kg/ha; the dataset tags ``product``,
+    ``unit`` and ``quantity`` (``rate`` or ``difference``) let vrsim read it back for what it is.
     """
     rates = grid.rates_kg_ha
-    as32 = rates.astype(np.float32)
-    dtype = "float32" if np.array_equal(as32, rates, equal_nan=True) else "float64"
-    data = np.where(np.isnan(rates), NODATA_OUT, as32 if dtype == "float32" else rates)
-    profile = dict(driver="GTiff", width=grid.cols, height=grid.rows, count=1, dtype=dtype,
+    data = np.where(np.isnan(rates), NODATA_OUT, rates).astype(np.float32)
+    profile = dict(driver="GTiff", width=grid.cols, height=grid.rows, count=1, dtype="float32",
                    crs=grid.crs.to_wkt(), transform=grid.transform, nodata=NODATA_OUT, compress="deflate",
                    predictor=3)
     if grid.rows >= 256 and grid.cols >= 256:
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     try:
         with rasterio.open(path, "w", **profile) as dst:
-            dst.write(data.astype(dtype, copy=False), 1)
-            dst.update_tags(product=grid.product, unit=grid.unit)
+            dst.write(data, 1)
+            dst.update_tags(product=grid.product, unit=grid.unit, quantity=grid.quantity)
+            dst.set_band_description(1, grid.product or DESCRIPTIONS[grid.quantity])
             dst.units = (grid.unit,)
     except RasterioError as exc:
         raise MapError(f"{path}: cannot write GeoTIFF: {exc}") from None

@@ -18,6 +18,7 @@ from common import MapError
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
 
 UNIT = "kg/ha"
+QUANTITIES = ("rate", "difference")  # what the values are: rates (>= 0), or signed differences of rates
 LOOKUP_CHUNK = 32_768  # points per pass of Grid.lookup: its temporaries stay in L2 cache
 
 
@@ -61,6 +62,11 @@ class Grid:
         File path, or ``"synthetic:<kind>"``.
     format : str
         ``"geotiff"``, ``"isoxml"``, ``"shapefile"``, ``"geojson"``, ``"csv"`` or ``"synthetic"``.
+    unit : str
+        Always ``"kg/ha"``.
+    quantity : str
+        ``"rate"`` (a prescription or an as-applied map: rates >= 0) or ``"difference"`` (signed,
+        e.g. applied minus prescribed), which is no prescription.
     """
 
     rates_kg_ha: np.ndarray
@@ -70,6 +76,7 @@ class Grid:
     source: str = ""
     format: str = ""
     unit: str = field(default=UNIT)
+    quantity: str = "rate"
 
     def __post_init__(self):
         rates = np.ascontiguousarray(self.rates_kg_ha, dtype=np.float64)
@@ -87,6 +94,8 @@ class Grid:
         self.crs = as_crs(self.crs, f"{self._where()}: crs")
         if self.unit != UNIT:
             raise MapError(f"{self._where()}: unit must be {UNIT!r}, got {self.unit!r}")
+        if self.quantity not in QUANTITIES:
+            raise MapError(f"{self._where()}: quantity must be one of {QUANTITIES}, got {self.quantity!r}")
         # Scalars for the per-tick fast path, so rate_at does no attribute chasing through Affine.
         self._x0, self._dx, self._y0, self._dy = t.c, t.a, t.f, -t.e
         self._inv_dx, self._inv_dy = 1.0 / t.a, 1.0 / -t.e
@@ -283,6 +292,7 @@ class Grid:
             "format": self.format,
             "product": self.product,
             "unit": self.unit,
+            "quantity": self.quantity,
             "crs": crs_label(self.crs),
             "bounds": list(self.bounds),
             "bounds_wgs84": list(self.bounds_wgs84),
@@ -299,7 +309,11 @@ class Grid:
 
     # ------------------------------------------------------------------ CRS operations
     def reproject(self, dst_crs, cell_size_m: float | None = None) -> Grid:
-        """This map on a north-up grid in another CRS, nearest-neighbour (zone edges stay sharp).
+        """This map on a north-up grid in another CRS, resampled by GDAL (`rasterio.warp.reproject`).
+
+        A zone map (at most 64 distinct rates) is resampled nearest-neighbour (zone edges stay
+        sharp); a continuous one bilinearly, or by area-weighted average onto coarser cells (see
+        `maps.reproject.resampling_for`).
 
         Parameters
         ----------

@@ -10,7 +10,8 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid
 
 READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
                "zipped), GeoJSON zones or points (.geojson/.json), CSV points (.csv)"
-WRITE_FORMATS = ".tif/.tiff (GeoTIFF), .xml/.zip (ISOXML grid type 2), .geojson/.csv (points)"
+WRITE_FORMATS = ".tif/.tiff (GeoTIFF), a TASKDATA folder, .../TASKDATA.XML or .zip (ISOXML grid type 2), " \
+                ".geojson/.csv (points)"
 
 
 def read_map(path, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
@@ -91,9 +92,10 @@ def _read_zip(path, rate_field, cell_size_m, crs, max_cells) -> Grid:
 def write_map(grid: Grid, path) -> None:
     """Write a grid; the format follows the extension.
 
-    ``.tif``/``.tiff``: GeoTIFF. ``.xml``: ISOXML TASKDATA.XML + GRD00001.BIN beside it (grid type
-    2, DDI 6, WGS84; other CRSs are reprojected). ``.zip``: the same in an archive. ``.geojson`` /
-    ``.json`` / ``.csv``: one point per cell centre.
+    ``.tif``/``.tiff``: GeoTIFF. A folder (a path without extension, or an existing folder) or
+    ``.../TASKDATA.XML``: ISOXML TASKDATA.XML + a GRDnnnnn.BIN beside it (grid type 2, DDI 6, WGS84;
+    other CRSs are reprojected; never overwriting, see `maps.isoxml.write_isoxml`). ``.zip``: the
+    same in an archive. ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre.
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
@@ -102,7 +104,7 @@ def write_map(grid: Grid, path) -> None:
     lower = path.lower()
     if lower.endswith((".tif", ".tiff")):
         from maps.geotiff import write_geotiff as writer
-    elif lower.endswith((".xml", ".zip")):
+    elif lower.endswith((".xml", ".zip")) or os.path.isdir(path) or not os.path.splitext(path)[1]:
         from maps.isoxml import write_isoxml as writer
     elif lower.endswith((".geojson", ".json")):
         from maps.points import write_geojson as writer

@@ -38,19 +38,12 @@ from defusedxml import DefusedXmlException
 
 from common import MapError, __version__
 from maps.crs import WGS84
+from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
+from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
 
-DDI_MASS_PER_AREA = 0x0006  # Setpoint Mass Per Area Application Rate, mg/m^2
-KG_HA_PER_MG_M2 = 0.01
 MAX_XML_BYTES = 64 * 1024 * 1024
-# Names of common DDIs, so a refusal says what the file holds instead.
-DDI_NAMES = {
-    0x0001: "setpoint volume per area (mm^3/m^2)",
-    0x0006: "setpoint mass per area (mg/m^2)",
-    0x000B: "setpoint count per area (/m^2)",
-    0x0010: "setpoint spacing (mm)",
-}
 
 
 class _Folder:
@@ -137,27 +130,32 @@ def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
     return [(_attr(p, "A", "hex", where), _attr(p, "B", int, where), p.get("C")) for p in tzn.findall("PDV")]
 
 
-def _ddi_list(ddis) -> str:
-    return ", ".join(f"{d:04X}" + (f" ({DDI_NAMES[d]})" if d in DDI_NAMES else "") for d in ddis)
-
-
 def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
     with _Folder(path) as folder:
         return _read_taskdata(folder, path, max_cells)
 
 
-def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
-    where = path
+def parse_xml(data: bytes, where: str, name: str, root_tag: str):
+    """Parse an ISOXML file's bytes safely (no entities, no external references) and check its root.
+
+    `where` is the TASKDATA path and `name` the file within it, for messages.
+    """
     try:
-        root = DET.fromstring(folder.read_xml())
+        root = DET.fromstring(data)
     except DefusedXmlException as exc:
-        raise MapError(f"{where}: TASKDATA.XML refused: {exc} (entity and external references are not "
+        raise MapError(f"{where}: {name} refused: {exc} (entity and external references are not "
                        "allowed)") from None
     except ParseError as exc:
-        raise MapError(f"{where}: TASKDATA.XML is not well-formed XML: {exc}") from None
-    if root.tag != "ISO11783_TaskData":
-        raise MapError(f"{where}: root element is <{root.tag}>, not <ISO11783_TaskData>")
+        raise MapError(f"{where}: {name} is not well-formed XML: {exc}") from None
+    if root.tag != root_tag:
+        raise MapError(f"{where}: {name}: root element is <{root.tag}>, not <{root_tag}>")
+    return root
+
+
+def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
+    where = path
+    root = parse_xml(folder.read_xml(), where, "TASKDATA.XML", "ISO11783_TaskData")
     tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
     if not tasks:
         raise MapError(f"{where}: no task (TSK) has a grid (GRD): nothing to read as a prescription map")
@@ -195,8 +193,8 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
         layers = zones[zone_code]
         ddis = [d for d, _, _ in layers]
         if DDI_MASS_PER_AREA not in ddis:
-            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {_ddi_list(ddis) or 'none'}; "
-                           f"vrsim needs DDI 0006 ({DDI_NAMES[6]})")
+            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {ddi_list(ddis) or 'none'}; "
+                           f"vrsim needs DDI 0006 ({NAMES[6]})")
         cell_bytes = 4 * len(layers)
     else:
         cell_bytes = 1
@@ -243,8 +241,8 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
                 product_ref = product_ref or product
     if np.isnan(table).all():
         ddis = sorted({d for values in zones.values() for d, _, _ in values})
-        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({DDI_NAMES[6]}); found DDI "
-                       f"{_ddi_list(ddis) or 'none'}")
+        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({NAMES[6]}); found DDI "
+                       f"{ddi_list(ddis) or 'none'}")
     used = np.unique(codes)
     undefined = [int(c) for c in used if np.isnan(table[c])]
     if undefined:
@@ -265,10 +263,14 @@ def write_isoxml(grid: Grid, path: str) -> None:
     """Write a grid as TASKDATA with a type-2 grid of DDI 6 (mg/m^2, int32).
 
     `path` ending in ``.zip`` gives an archive ``TASKDATA/TASKDATA.XML`` + ``TASKDATA/GRD00001.BIN``;
-    otherwise `path` is the XML file and ``GRD00001.BIN`` goes beside it. A grid not in WGS84 is first
-    reprojected (nearest neighbour, same cell size in metres). Type 2 has no nodata value: nodata
-    cells are written as 0 (apply nothing), with a warning. Rates are rounded to 0.01 kg/ha.
+    otherwise `path` is the TASKDATA folder (created if missing) or the ``TASKDATA.XML`` in it. A
+    folder that already holds a TASKDATA.XML is refused (its export would break); grid files of
+    other exports in it are left alone: the grid takes the first free ``GRDnnnnn`` name. A grid not
+    in WGS84 is first reprojected (`Grid.reproject`, same cell size in metres). Type 2 has no nodata
+    value: nodata cells are written as 0 (apply nothing), with a warning. Rates are rounded to
+    0.01 kg/ha.
     """
+    folder = None if path.lower().endswith(".zip") else taskdata_folder(path)
     if not (grid.crs.is_geographic and grid.crs == WGS84):
         grid = grid.reproject(WGS84)
     rates = grid.rates_kg_ha
@@ -280,19 +282,49 @@ def write_isoxml(grid: Grid, path: str) -> None:
     if mg.max() > np.iinfo(np.int32).max:
         raise MapError(f"{path}: rate {np.nanmax(rates)} kg/ha does not fit an ISOXML int32 in mg/m^2")
     binary = mg[::-1].astype("<i4").tobytes()
-    xml = _taskdata_xml(grid, len(binary))
-    if path.lower().endswith(".zip"):
+    if folder is None:
         with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as z:
-            z.writestr("TASKDATA/TASKDATA.XML", xml)
+            z.writestr("TASKDATA/TASKDATA.XML", _taskdata_xml(grid, len(binary), "GRD00001"))
             z.writestr("TASKDATA/GRD00001.BIN", binary)
+        return
+    os.makedirs(folder, exist_ok=True)
+    name = _free_grid_name(folder)
+    # Exclusive creation: never replace a file, even one that appeared since the checks.
+    for fname, data in ((name + ".BIN", binary), ("TASKDATA.XML", _taskdata_xml(grid, len(binary), name))):
+        try:
+            with open(os.path.join(folder, fname), "xb") as f:
+                f.write(data)
+        except FileExistsError:
+            raise MapError(f"{path}: {fname} already exists in {folder}; vrsim does not overwrite") from None
+
+
+def taskdata_folder(path: str) -> str:
+    """The folder an ISOXML TASKDATA is written to: `path` itself, or the folder of its TASKDATA.XML.
+
+    Refuses other ``.xml`` names (the standard names the file TASKDATA.XML) and a folder that
+    already holds a TASKDATA.XML.
+    """
+    name = os.path.basename(os.path.normpath(path))
+    if name.upper() == "TASKDATA.XML":
+        folder = os.path.dirname(os.path.abspath(path))
+    elif name.lower().endswith(".xml"):
+        raise MapError(f"{path}: ISOXML is written as a TASKDATA folder: give the folder (e.g. out/TASKDATA) "
+                       f"or out/TASKDATA/TASKDATA.XML, the standard's file name, not {name}")
     else:
-        with open(path, "wb") as f:
-            f.write(xml)
-        with open(os.path.join(os.path.dirname(os.path.abspath(path)), "GRD00001.BIN"), "wb") as f:
-            f.write(binary)
+        folder = os.path.abspath(path)
+    if os.path.isdir(folder) and any(n.upper() == "TASKDATA.XML" for n in os.listdir(folder)):
+        raise MapError(f"{path}: {folder} already holds a TASKDATA.XML; vrsim does not overwrite an ISOXML "
+                       "export (its grid files belong to it): choose another folder")
+    return folder
 
 
-def _taskdata_xml(grid: Grid, length: int) -> bytes:
+def _free_grid_name(folder: str) -> str:
+    """The first ``GRDnnnnn`` without a .BIN in `folder` (any letter case)."""
+    taken = {n.upper() for n in os.listdir(folder)}
+    return next(f"GRD{i:05d}" for i in range(1, 100_000) if f"GRD{i:05d}.BIN" not in taken)
+
+
+def _taskdata_xml(grid: Grid, length: int, name: str) -> bytes:
     root = ET.Element("ISO11783_TaskData", VersionMajor="4", VersionMinor="2",
                       ManagementSoftwareManufacturer="vrsim", ManagementSoftwareVersion=__version__,
                       DataTransferOrigin="1")
@@ -305,7 +337,7 @@ def _taskdata_xml(grid: Grid, length: int) -> bytes:
     west, south, _, _ = grid.bounds
     dx, dy = grid.cell_size
     ET.SubElement(task, "GRD", A=repr(south), B=repr(west), C=repr(dy), D=repr(dx), E=str(grid.cols),
-                  F=str(grid.rows), G="GRD00001", H=str(length), I="2", J="1")
+                  F=str(grid.rows), G=name, H=str(length), I="2", J="1")
     if grid.product:
         ET.SubElement(root, "PDT", A="PDT1", B=grid.product)
     ET.SubElement(root, "VPN", A="VPN1", B="0", C="0.01", D="2", E="kg/ha")

@@ -4,8 +4,9 @@ Every cell is written, nodata ones with an empty (CSV) or null (GeoJSON) rate, w
 column, so reading the points back rebuilds the same grid. Points from other software (no row/col)
 are placed on the regular lattice their coordinates imply.
 
-GeoJSON carries its CRS in the (pre-RFC 7946) ``crs`` member that GDAL and QGIS read; CSV carries it
-in a ``.prj`` file beside it (WKT, as for a shapefile), and also has lon/lat columns.
+GeoJSON is written in WGS84 lon/lat (RFC 7946), with the cell centres in the grid's CRS as x/y
+properties; a (pre-RFC 7946) ``crs`` member in files from other software is still read. CSV carries
+its CRS in a ``.prj`` file beside it (WKT, as for a shapefile), and also has lon/lat columns.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from affine import Affine
 
 from common import MapError
-from maps.crs import WGS84, as_crs, crs_from_prj, transform_xy
+from maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.zones import RATE_NAMES, geojson_crs, geojson_features
 
@@ -36,20 +37,28 @@ def _cells(grid: Grid):
     return rows, cols, xc[cols], yc[rows], grid.rates_kg_ha.ravel()
 
 
+GRID_CRS = "grid_crs"  # foreign member (RFC 7946, 6.1): the CRS of the x/y properties
+
+
 def write_geojson(grid: Grid, path: str) -> None:
-    """Write one Point feature per cell: properties ``rate_kg_ha`` (null on nodata), ``row``, ``col``."""
+    """Write one Point feature per cell, in WGS84 lon/lat as RFC 7946 requires (no ``crs`` member).
+
+    Properties: ``rate_kg_ha`` (null on nodata), ``row``, ``col``, and the cell centre ``x``, ``y``
+    in the grid's own CRS, which the foreign member ``grid_crs`` names, so vrsim reads the exact grid
+    back while any GIS places the points right.
+    """
     rows, cols, x, y, rate = _cells(grid)
-    auth = grid.crs.to_authority(min_confidence=90)
-    name = f"urn:ogc:def:crs:{auth[0]}::{auth[1]}" if auth else grid.crs.to_wkt()
+    lon, lat = transform_xy(x, y, grid.crs, WGS84)
     head = {"type": "FeatureCollection", "name": os.path.splitext(os.path.basename(path))[0],
-            "crs": {"type": "name", "properties": {"name": name}}}
+            GRID_CRS: crs_label(grid.crs)}
     try:
         with open(path, "w") as f:
             f.write(json.dumps(head)[:-1] + ', "features": [\n')
             for i in range(rate.size):
                 r = None if math.isnan(rate[i]) else float(rate[i])
-                point = {"type": "Point", "coordinates": [float(x[i]), float(y[i])]}
-                props = {"rate_kg_ha": r, "row": int(rows[i]), "col": int(cols[i])}
+                point = {"type": "Point", "coordinates": [round(float(lon[i]), 9), round(float(lat[i]), 9)]}
+                props = {"rate_kg_ha": r, "row": int(rows[i]), "col": int(cols[i]), "x": float(x[i]),
+                         "y": float(y[i])}
                 f.write(("" if i == 0 else ",\n")
                         + json.dumps({"type": "Feature", "geometry": point, "properties": props}))
             f.write("\n]}\n")
@@ -92,8 +101,12 @@ def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
     except (ValueError, TypeError, IndexError):
         raise MapError(f"{path}: Point coordinates are not [x, y] numbers") from None
     table = {key: [p.get(key) for p in props] for key in set().union(*props)} if props else {}
-    return _grid_from_table(path, "geojson", coords[:, 0], coords[:, 1], table, geojson_crs(doc, path),
-                            rate_field, max_cells)
+    x, y, crs = coords[:, 0], coords[:, 1], geojson_crs(doc, path)
+    if doc.get(GRID_CRS) is not None and "x" in table and "y" in table:
+        # vrsim's own export: the cell centres in the grid's CRS, exactly.
+        x, y = (_numbers(path, table.pop(k), k) for k in ("x", "y"))
+        crs = as_crs(doc[GRID_CRS], f"{path}: {GRID_CRS}")
+    return _grid_from_table(path, "geojson", x, y, table, crs, rate_field, max_cells)
 
 
 def read_csv(path: str, rate_field: str | None = None, crs=None,

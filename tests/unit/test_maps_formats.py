@@ -7,9 +7,11 @@ import time
 import warnings
 
 import numpy as np
+import pyogrio
 import pytest
 import rasterio
 import shapefile
+import shapely
 from affine import Affine
 
 from common import MapError
@@ -107,17 +109,62 @@ def test_round_trip(tmp_path, ext):
     write_map(g, tmp_path / f"out{ext}")
     back = read_map(tmp_path / f"out{ext}")
     np.testing.assert_array_equal(np.isnan(back.rates_kg_ha), np.isnan(g.rates_kg_ha))
-    np.testing.assert_allclose(back.rates_kg_ha, g.rates_kg_ha, rtol=1e-12, equal_nan=True)
+    rtol = 6e-8 if ext == ".tif" else 1e-12  # GeoTIFFs are float32: 24-bit mantissa
+    np.testing.assert_allclose(back.rates_kg_ha, g.rates_kg_ha, rtol=rtol, equal_nan=True)
     assert back.transform.almost_equals(g.transform, precision=1e-6)
     assert back.crs.to_epsg() == 32632
     if ext == ".tif":
         assert back.product == "CAN 27"
 
 
-def test_geotiff_round_trip_keeps_float64_when_needed(tmp_path):
+def test_geotiff_written_float32_with_description_unit_and_nodata(tmp_path):
     g = synthetic.uniform((0, 0, 20, 20), "EPSG:32632", cell_size_m=10, rate_kg_ha=1 / 3)
+    g.rates_kg_ha[0, 1] = np.nan
     write_map(g, tmp_path / "a.tif")
-    assert read_map(tmp_path / "a.tif").rates_kg_ha[0, 0] == 1 / 3
+    with rasterio.open(tmp_path / "a.tif") as src:
+        assert src.dtypes == ("float32",) and src.nodata == -9999.0
+        assert src.descriptions == ("application rate",) and src.units == ("kg/ha",)
+        assert src.tags()["quantity"] == "rate" and src.read(1)[0, 1] == -9999.0
+    back = read_map(tmp_path / "a.tif")
+    assert back.rates_kg_ha[0, 0] == np.float32(1 / 3) and np.isnan(back.rates_kg_ha[0, 1])
+    assert back.quantity == "rate"
+
+
+def test_geotiff_signed_difference_read_but_negative_rates_refused(tmp_path):
+    g = synthetic.uniform((0, 0, 20, 20), "EPSG:32632", cell_size_m=10, rate_kg_ha=5.0)
+    g.rates_kg_ha[1, 1] = -12.5
+    diff = Grid(g.rates_kg_ha, g.transform, g.crs, product="applied minus prescribed", quantity="difference")
+    write_map(diff, tmp_path / "error.tif")
+    back = read_map(tmp_path / "error.tif")
+    assert back.quantity == "difference" and back.rates_kg_ha[1, 1] == -12.5
+    assert back.info()["min_rate_kg_ha"] == -12.5 and back.info()["quantity"] == "difference"
+    with rasterio.open(tmp_path / "error.tif") as src:
+        assert src.descriptions == ("applied minus prescribed",)
+    # Another tool's raster says so in its band description only.
+    write_tif(tmp_path / "d.tif", diff.rates_kg_ha.astype(np.float32))
+    with rasterio.open(tmp_path / "d.tif", "r+") as dst:
+        dst.set_band_description(1, "Rate difference (kg/ha)")
+    assert read_map(tmp_path / "d.tif").quantity == "difference"
+    # A rate map with a negative value is still refused.
+    write_map(Grid(g.rates_kg_ha, g.transform, g.crs), tmp_path / "rx.tif")
+    with pytest.raises(MapError, match="negative rate -12.5 kg/ha at row 1, column 1"):
+        read_map(tmp_path / "rx.tif")
+    with pytest.raises(MapError, match="quantity must be one of"):
+        Grid(g.rates_kg_ha, g.transform, g.crs, quantity="error")
+
+
+def test_geojson_is_wgs84_without_crs_member(tmp_path):
+    g = synthetic.random_field((X0, 5_299_900, X0 + 40, Y0), "EPSG:32632", cell_size_m=10, seed=2)
+    write_map(g, tmp_path / "p.geojson")
+    doc = json.loads((tmp_path / "p.geojson").read_text())
+    assert "crs" not in doc and doc["grid_crs"] == "EPSG:32632"
+    first = doc["features"][0]
+    lon, lat = _to_wgs84(first["properties"]["x"], first["properties"]["y"], "EPSG:32632")
+    assert first["geometry"]["coordinates"] == pytest.approx([lon, lat], abs=1e-9)
+    info = pyogrio.read_info(str(tmp_path / "p.geojson"))  # GDAL, an RFC 7946 reader
+    assert info["crs"] == "EPSG:4326" and info["features"] == g.rows * g.cols
+    _, _, geometry, _ = pyogrio.raw.read(str(tmp_path / "p.geojson"))
+    assert shapely.get_coordinates(shapely.from_wkb(geometry[:1]))[0] == pytest.approx([lon, lat], abs=1e-9)
 
 
 # ---------------------------------------------------------------------- zones

@@ -149,6 +149,48 @@ def test_reproject_wgs84_to_utm_keeps_values_and_sharp_edges():
     assert back.crs.is_geographic
 
 
+def test_reproject_continuous_map_bilinear_onto_finer_cells():
+    from maps import synthetic
+
+    g = synthetic.random_field((500_000, 5_300_000, 500_400, 5_300_400), UTM32, cell_size_m=10, seed=4)
+    u = g.reproject("EPSG:32633", cell_size_m=2.0)  # the next UTM zone: rotated and finer
+    x, y = u.cell_centres()
+    xx, yy = np.meshgrid(x, y)
+    expected = g.lookup(xx, yy, crs=u.crs, bilinear=True).rate_kg_ha
+    inner = ~np.isnan(u.rates_kg_ha)
+    inner[:3], inner[-3:], inner[:, :3], inner[:, -3:] = False, False, False, False
+    inside = g.lookup(xx, yy, crs=u.crs)
+    # Away from the map's edge (where GDAL and vrsim clamp differently), GDAL's bilinear is vrsim's.
+    sel = inner & (inside.row > 0) & (inside.row < g.rows - 1) & (inside.col > 0) & (inside.col < g.cols - 1)
+    assert sel.sum() > 20_000
+    np.testing.assert_allclose(u.rates_kg_ha[sel], expected[sel], rtol=2e-4)
+    assert len(np.unique(u.rates_kg_ha[sel])) > 10 * len(np.unique(g.rates_kg_ha))  # not nearest
+
+
+def test_reproject_continuous_map_averaged_onto_coarser_cells():
+    from maps import synthetic
+
+    g = synthetic.random_field((500_000, 5_300_000, 500_200, 5_300_200), UTM32, cell_size_m=1, seed=5)
+    g.rates_kg_ha[:40, :40] = np.nan  # nodata stays out of the averages
+    c = g.reproject(UTM32, cell_size_m=5.0)
+    assert (c.rows, c.cols) == (40, 40) and c.cell_size == (5.0, 5.0)
+    blocks = g.rates_kg_ha.reshape(40, 5, 40, 5)
+    counts = (~np.isnan(blocks)).sum(axis=(1, 3))
+    expected = np.where(counts > 0, np.nansum(blocks, axis=(1, 3)) / np.maximum(counts, 1), np.nan)
+    np.testing.assert_allclose(c.rates_kg_ha, expected, rtol=1e-9, equal_nan=True)
+    assert np.isnan(c.rates_kg_ha[:8, :8]).all()
+
+
+def test_reproject_zone_map_keeps_zone_rates_and_nodata():
+    from maps import synthetic
+
+    g = synthetic.zones((500_000, 5_300_000, 500_300, 5_300_300), UTM32, cell_size_m=5, seed=2)
+    g.rates_kg_ha[0, :] = np.nan
+    w = g.reproject("EPSG:4326", cell_size_m=7.0)  # coarser, still nearest: zones stay zones
+    assert set(np.unique(w.rates_kg_ha[~np.isnan(w.rates_kg_ha)])) <= set(np.unique(g.rates_kg_ha))
+    assert np.isnan(w.rates_kg_ha).any() and w.quantity == "rate"
+
+
 def test_check_overlap():
     g = small_grid()
     assert g.check_overlap((1000, 2000, 1040, 2030), UTM32) == pytest.approx(1.0)

@@ -106,6 +106,30 @@ def test_write_read_round_trip(tmp_path, name):
         assert (tmp_path / "GRD00001.BIN").stat().st_size == 7 * 9 * 4
 
 
+def test_write_never_overwrites_and_needs_a_folder(tmp_path):
+    g = wgs84_grid(np.full((3, 4), 150.0))
+    (tmp_path / "a").mkdir()
+    write_map(g, tmp_path / "a" / "TASKDATA.XML")
+    with pytest.raises(MapError, match="already holds a TASKDATA.XML; vrsim does not overwrite"):
+        write_map(g, tmp_path / "a" / "TASKDATA.XML")
+    with pytest.raises(MapError, match="already holds a TASKDATA.XML"):
+        write_map(g, tmp_path / "a")  # the folder itself
+    assert (tmp_path / "a" / "GRD00001.BIN").stat().st_size == 3 * 4 * 4
+    # A folder with another export's grid file but no TASKDATA.XML: the next free GRD name.
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "GRD00001.bin").write_bytes(b"another export")
+    write_map(g, tmp_path / "b")
+    assert (tmp_path / "b" / "GRD00001.bin").read_bytes() == b"another export"
+    assert 'G="GRD00002"' in (tmp_path / "b" / "TASKDATA.XML").read_text()
+    np.testing.assert_array_equal(read_map(tmp_path / "b").rates_kg_ha, g.rates_kg_ha)
+    # A new folder is made; other .xml names are not TASKDATA.
+    write_map(g, tmp_path / "c")
+    assert read_map(tmp_path / "c" / "TASKDATA.XML").rows == 3
+    with pytest.raises(MapError, match="written as a TASKDATA folder: .* not a.xml"):
+        write_map(g, tmp_path / "a.xml")
+    assert not (tmp_path / "GRD00001.BIN").exists()
+
+
 def test_write_utm_grid_reprojects_to_wgs84(tmp_path):
     rates = np.full((10, 10), 120.0)
     rates[:, 5:] = 80.0
