@@ -21,7 +21,7 @@ import tomllib
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, VrsimError
+from common import ScenarioError, VrsimError, is_number
 from controller import ControllerConfig, PlantParams
 from maps import synthetic
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
@@ -237,7 +237,7 @@ def _check_field(spec: FieldSpec, source: str) -> None:
         _no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
         for key in ("width_m", "length_m", "lat", "lon"):
             value = spec.rectangle.get(key)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            if not is_number(value):
                 raise ScenarioError(f"{source}: [field.rectangle] {key} must be a number, got {value!r}")
     if spec.headland_passes < 0:
         raise ScenarioError(f"{source}: [field] headland_passes must be >= 0, got {spec.headland_passes}")
