@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
+from common import ScenarioError, VehicleError
 from maps import AsApplied, Grid
 from services.sim import metrics
 from services.sim.core import ControlCore
@@ -58,6 +60,23 @@ class RunResult:
     summary: dict
 
 
+@contextmanager
+def driving(world: World):
+    """A `vehicle.SumoDriver` on the world's path with the scenario's tractor, tick and time limit
+    (``[timing] max_sim_time_s``; unset, the driver derives it from the path), as a context manager.
+
+    `vrsim run` and the vehicle service both drive through this, so they stop at the same limit with
+    the same message; a `VehicleError` while driving becomes a `ScenarioError` naming the scenario.
+    """
+    sc = world.scenario
+    try:
+        with SumoDriver(world.path, sc.tractor, step_s=sc.timing.control_period_s, seed=sc.seed,
+                        max_time_s=sc.timing.max_sim_time_s) as driver:
+            yield driver
+    except VehicleError as exc:
+        raise ScenarioError(f"{sc.source}: {exc}") from None
+
+
 def run(scenario: Scenario, progress=None) -> RunResult:
     """Run a scenario in process and return everything it measured."""
     stage = {}
@@ -71,9 +90,7 @@ def run(scenario: Scenario, progress=None) -> RunResult:
 
     world = build_world(scenario)
     lap("build_s")
-    timing = scenario.timing
-    with SumoDriver(world.path, scenario.tractor, step_s=timing.control_period_s, seed=scenario.seed,
-                    max_time_s=timing.max_sim_time_s) as driver:
+    with driving(world) as driver:
         track = driver.run_all()
     lap("sumo_s")
     x_meas, y_meas, v_meas = measure(scenario, track)

@@ -62,7 +62,10 @@ class MapSpec:
 class TimingSpec:
     control_period_s: float = 0.05
     plant_step_s: float = 0.001
-    max_sim_time_s: float = 36000.0
+    # Simulated time after which an unfinished drive fails (a stalled tractor). None: derived from
+    # the path by `vehicle.SumoDriver` (10 x the path at the slowest speed, plus 60 s), so a field of
+    # any size runs without raising it.
+    max_sim_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -282,7 +285,7 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
-    if not 0 < spec.max_sim_time_s:
+    if spec.max_sim_time_s is not None and not 0 < spec.max_sim_time_s:
         raise ScenarioError(f"{source}: [timing] max_sim_time_s must be > 0, got {spec.max_sim_time_s}")
 
 
