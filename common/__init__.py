@@ -1,9 +1,10 @@
-"""Small things every vrsim package may use: the error hierarchy and the version.
+"""Small things every vrsim package may use: the error hierarchy, number checks and the version.
 
 `maps`, `vehicle` and `controller` never import each other or `services`; what they must share lives
 here, and only that.
 """
 
+from common.checks import check_number, check_positive, is_number
 from common.errors import (
     ControllerError,
     MapError,
@@ -22,5 +23,8 @@ __all__ = [
     "ControllerError",
     "ScenarioError",
     "ServiceError",
+    "check_number",
+    "check_positive",
+    "is_number",
     "__version__",
 ]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import expm
 
-from common import ControllerError
+from common import ControllerError, check_positive
 
 
 def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -45,8 +45,7 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
 
 def fine_steps(control_period_s: float, plant_step_s: float) -> int:
     """Number of plant steps per control period; the period must be a whole multiple of the step."""
-    if not (math.isfinite(plant_step_s) and plant_step_s > 0):
-        raise ControllerError(f"plant_step_s must be a positive number, got {plant_step_s!r}")
+    check_positive(plant_step_s, "plant_step_s", ControllerError)
     if not (math.isfinite(control_period_s) and control_period_s >= plant_step_s):
         raise ControllerError(f"control_period_s must be >= plant_step_s ({plant_step_s!r}), "
                               f"got {control_period_s!r}")

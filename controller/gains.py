@@ -9,10 +9,9 @@ coefficients of the paper's incremental law ``du(n) = A e(n) - B e(n-1) + C e(n-
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from common import ControllerError
+from common import ControllerError, check_number
 from controller import liang2013
 
 KINDS = ("P", "PI", "PID")
@@ -86,9 +85,7 @@ class ControllerConfig:
         if "kp" not in given:
             raise ControllerError("controller kp is required with gains='manual', got None")
         for name, value in given.items():
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value < 0:
-                raise ControllerError(f"controller {name} must be a finite number >= 0, got {value!r}")
+            check_number(value, f"controller {name}", ControllerError, lo=0.0)
         if given.get("ki") and "I" not in self.kind:
             raise ControllerError(f"controller ki needs kind PI or PID (kind is {self.kind!r}), "
                                   f"got {self.ki!r}")

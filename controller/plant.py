@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from common import ControllerError
+from common import ControllerError, check_number
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
@@ -90,8 +90,7 @@ class PlantParams:
     def __post_init__(self):
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ControllerError(f"plant {f.name} must be a finite number, got {value!r}")
+            check_number(value, f"plant {f.name}", ControllerError)
             if f.name == "current_min_a":
                 continue  # may be negative: a valve that can reverse the motor
             nonneg = f.name == "sensor_delay_s"

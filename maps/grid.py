@@ -14,7 +14,7 @@ import numpy as np
 import pyproj
 from affine import Affine
 
-from common import MapError
+from common import MapError, check_number, check_positive
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
 
 UNIT = "kg/ha"
@@ -259,8 +259,7 @@ class Grid:
         px, py, crs = (lon, lat, WGS84) if geo else (x, y, None)
         named = (("lat", lat), ("lon", lon)) if geo else (("x", x), ("y", y))
         for name, value in named:
-            if not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise MapError(f"sample: {name}={value!r} is not a finite number")
+            check_number(value, f"sample: {name}", MapError)
         px, py = float(px), float(py)
         if crs is not None:
             # Scalar pyproj call (~5 us), not the array path: the map service answers one point.
@@ -381,8 +380,7 @@ def grid_from_bounds(bounds, cell_size, crs, rates=None, max_cells: int | None =
         raise MapError(f"bounds {tuple(bounds)!r}: need finite minx < maxx and miny < maxy")
     dx, dy = (cell_size, cell_size) if np.ndim(cell_size) == 0 else cell_size
     for v in (dx, dy):
-        if not (isinstance(v, (int, float, np.floating)) and v > 0 and math.isfinite(v)):
-            raise MapError(f"cell_size_m={cell_size!r}: must be a positive number")
+        check_positive(v, f"cell_size_m {cell_size!r}", MapError)
     cols = max(1, math.ceil((maxx - minx) / dx - 1e-9))
     rows = max(1, math.ceil((maxy - miny) / dy - 1e-9))
     check_size(rows, cols, max_cells, kwargs.get("source") or "grid")

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError
+from common import MapError, check_number
 
 MODES = ("off", "hold", "default")
 
@@ -31,39 +30,44 @@ class RatePolicy:
     def __post_init__(self):
         if self.mode not in MODES:
             raise MapError(f"RatePolicy: mode={self.mode!r}; must be one of {', '.join(MODES)}")
-        r = self.default_rate_kg_ha
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
-            raise MapError(f"RatePolicy: default_rate_kg_ha={r!r} must be a finite rate >= 0 kg/ha")
+        check_number(self.default_rate_kg_ha, "RatePolicy: default_rate_kg_ha", MapError, lo=0.0,
+                     unit="kg/ha")
 
     def apply(self, rate, inside, last=0.0):
-        """The rate to command.
+        """The rate to command, at one point or along a sequence of ticks.
 
         Parameters
         ----------
-        rate : float or ndarray
-            The looked-up rate, kg/ha (NaN on nodata or outside).
-        inside : bool or ndarray of bool
+        rate : float or ndarray, shape (n,)
+            The looked-up rate, kg/ha (NaN on nodata or outside); an array is a sequence of ticks in
+            time order.
+        inside : bool or ndarray of bool, shape (n,)
             Whether the point is on the map.
-        last : float or ndarray
-            The last commanded rate, kg/ha (for ``hold``; NaN or None counts as 0).
+        last : float or None
+            The rate commanded before (before the first tick of an array), kg/ha; for ``hold``.
+            NaN or None counts as 0.
 
         Returns
         -------
         float or ndarray
-            `rate` where it is known, else the policy's rate. Scalars in, a float out (~0.3 us).
+            `rate` where it is known, else the policy's rate. With ``hold``, an unknown rate in an
+            array takes the last known one before it in the array (else `last`), as tick-by-tick
+            calls carrying `last` over would. Scalars in, a float out (~0.3 us).
         """
-        if np.ndim(rate) == 0 and np.ndim(inside) == 0 and np.ndim(last) == 0:
+        if np.ndim(rate) == 0 and np.ndim(inside) == 0:
             rate = float(rate)
             if inside and rate == rate:  # rate == rate: not NaN, without a call
                 return rate
             return self._fallback(last)
         rate = np.asarray(rate, dtype=np.float64)
         known = np.asarray(inside, dtype=bool) & ~np.isnan(rate)
-        if self.mode == "hold":
-            fallback = np.nan_to_num(np.asarray(last if last is not None else 0.0, dtype=np.float64), nan=0.0)
-        else:
-            fallback = self._fallback(0.0)
-        return np.where(known, rate, fallback)
+        if self.mode != "hold":
+            return np.where(known, rate, self._fallback(last))
+        if rate.ndim != 1:
+            raise MapError(f"RatePolicy: hold needs a 1-D sequence of ticks, got shape {rate.shape}")
+        # Index of the last known rate at or before each tick (-1: none yet in this array).
+        held = np.maximum.accumulate(np.where(known, np.arange(rate.size), -1))
+        return np.where(held >= 0, rate[np.maximum(held, 0)], self._fallback(last))
 
     def _fallback(self, last) -> float:
         if self.mode == "off":

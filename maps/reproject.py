@@ -11,7 +11,7 @@ import shapely
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 
-from common import MapError
+from common import MapError, check_positive
 from maps.crs import WGS84, crs_label, metres_per_unit, transform_xy, transformer
 from maps.grid import Grid, grid_from_bounds
 
@@ -35,8 +35,7 @@ def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -
     """See `Grid.reproject`."""
     if cell_size_m is None:
         cell_size_m = min(cell_size_metres(grid))
-    if not (isinstance(cell_size_m, (int, float)) and cell_size_m > 0 and math.isfinite(cell_size_m)):
-        raise MapError(f"reproject: cell_size_m={cell_size_m!r} must be a positive number")
+    check_positive(cell_size_m, "reproject: cell_size_m", MapError)
     west, south, east, north = transformer(grid.crs, dst_crs).transform_bounds(*grid.bounds, densify_pts=21)
     if not all(map(math.isfinite, (west, south, east, north))):
         raise MapError(f"reproject: {grid.source or 'grid'} cannot be expressed in {crs_label(dst_crs)}")

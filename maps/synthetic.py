@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from common import MapError
+from common import MapError, check_number, check_positive
 from maps.crs import as_crs, metres_per_unit
 from maps.grid import Grid, grid_from_bounds
 
@@ -23,8 +23,7 @@ def _blank(kind: str, bounds, crs, cell_size_m: float) -> tuple[Grid, np.ndarray
     if factor is None:
         raise MapError(f"synthetic.{kind}: crs {crs.name!r} is geographic; use a projected CRS in "
                        "metres, e.g. maps.utm_crs_for(lon, lat)")
-    if not (isinstance(cell_size_m, (int, float)) and cell_size_m > 0 and math.isfinite(cell_size_m)):
-        raise MapError(f"synthetic.{kind}: cell_size_m={cell_size_m!r} must be a positive number")
+    check_positive(cell_size_m, f"synthetic.{kind}: cell_size_m", MapError)
     grid = grid_from_bounds(bounds, cell_size_m / factor, crs, source=f"synthetic:{kind}", format="synthetic")
     x, y = grid.cell_centres()
     return grid, (x[None, :] - grid.bounds[0]) * factor, (y[:, None] - grid.bounds[1]) * factor
@@ -32,8 +31,7 @@ def _blank(kind: str, bounds, crs, cell_size_m: float) -> tuple[Grid, np.ndarray
 
 def _check_rates(kind: str, **rates) -> None:
     for name, value in rates.items():
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-            raise MapError(f"synthetic.{kind}: {name}={value!r} must be a finite rate >= 0 kg/ha")
+        check_number(value, f"synthetic.{kind}: {name}", MapError, lo=0.0, unit="kg/ha")
 
 
 def uniform(bounds, crs, cell_size_m: float = 5.0, seed: int = 0, rate_kg_ha: float = 150.0) -> Grid:

@@ -24,7 +24,7 @@ import numpy as np
 import shapefile
 from affine import Affine
 
-from common import MapError
+from common import MapError, check_positive
 from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.rasterize import rasterize_rings
@@ -90,8 +90,7 @@ def rasterize_zones(rings: Rings, rates, crs, cell_size_m: float | None = None, 
                     format: str = "zones", max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Rasterize polygon rings (in `crs`) with per-feature rates (kg/ha) to an area-weighted grid."""
     cell = DEFAULT_CELL_SIZE_M if cell_size_m is None else cell_size_m
-    if not (isinstance(cell, (int, float)) and math.isfinite(cell) and cell > 0):
-        raise MapError(f"{source}: cell_size_m={cell_size_m!r} must be a positive number")
+    check_positive(cell, f"{source}: cell_size_m", MapError)
     crs = as_crs(crs)
     x, y = rings.x, rings.y
     if x.size == 0 or not (np.isfinite(x).all() and np.isfinite(y).all()):

@@ -17,6 +17,7 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
+from common.checks import check_number, check_positive
 from common.errors import VehicleError
 from vehicle.dubins import dubins_xy
 from vehicle.field import Field
@@ -164,15 +165,15 @@ def plan_coverage(field: Field, width_m: float, headland_passes: int = 1, headin
     VehicleError
         Bad width, passes or radius; a field too narrow for one swath or for the turning radius.
     """
-    _check_positive("width_m", width_m)
-    _check_positive("turn_radius_m", turn_radius_m)
+    check_positive(width_m, "plan_coverage: width_m", VehicleError)
+    check_positive(turn_radius_m, "plan_coverage: turn_radius_m", VehicleError)
     if not isinstance(headland_passes, (int, np.integer)) or isinstance(headland_passes, bool) \
             or headland_passes < 0:
         raise VehicleError(f"plan_coverage: headland_passes must be an integer >= 0, got {headland_passes!r}")
     if heading_deg is None:
         heading_deg = field.longest_edge_heading_deg()
-    elif not (isinstance(heading_deg, (int, float)) and math.isfinite(heading_deg)):
-        raise VehicleError(f"plan_coverage: heading_deg must be a finite number, got {heading_deg!r}")
+    else:
+        check_number(heading_deg, "plan_coverage: heading_deg", VehicleError)
     where = f"field {field.name!r}"
     rings = _headland_rings(field.polygon, width_m, headland_passes, turn_radius_m, where)
     inner = field.polygon.buffer(-headland_passes * width_m) if headland_passes else field.polygon
@@ -197,12 +198,6 @@ def plan_coverage(field: Field, width_m: float, headland_passes: int = 1, headin
         _append(segments, "swath", xy, step_m, turn_radius_m)
     return CoveragePath(segments, field, float(width_m), float(turn_radius_m), inner,
                         offsets, float(heading_deg) % 360.0)
-
-
-def _check_positive(name, value):
-    if not (isinstance(value, (int, float, np.floating)) and not isinstance(value, bool)
-            and math.isfinite(value) and value > 0):
-        raise VehicleError(f"plan_coverage: {name} must be a number > 0, got {value!r}")
 
 
 def _perp(u):

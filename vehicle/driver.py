@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from common.checks import check_number, check_positive
 from common.errors import VehicleError
 from vehicle.coverage import CoveragePath
 from vehicle.network import Network, build_network
@@ -93,14 +94,7 @@ class DriveConfig:
 
 
 def _require(name, value, lo=None, hi=None, lo_open=False):
-    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
-    if ok and lo is not None:
-        ok = value > lo if lo_open else value >= lo
-    if ok and hi is not None:
-        ok = value <= hi
-    if not ok:
-        bound = f"{'>' if lo_open else '>='} {lo}" + (f" and <= {hi}" if hi is not None else "")
-        raise VehicleError(f"DriveConfig: {name} must be a number {bound}, got {value!r}")
+    check_number(value, f"DriveConfig: {name}", VehicleError, lo=lo, hi=hi, lo_open=lo_open)
 
 
 class Pose(NamedTuple):
@@ -186,15 +180,14 @@ class SumoDriver:
         drive = drive or DriveConfig()
         if not isinstance(drive, DriveConfig):
             raise VehicleError(f"SumoDriver: drive must be a DriveConfig, got {type(drive).__name__}")
-        if not (isinstance(step_s, (int, float)) and math.isfinite(step_s) and 0.001 <= step_s <= 1.0):
-            raise VehicleError(f"SumoDriver: step_s must be within [0.001, 1] s, got {step_s!r}")
+        check_number(step_s, "SumoDriver: step_s", VehicleError, lo=0.001, hi=1.0, unit="s")
         if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
             raise VehicleError(f"SumoDriver: seed must be an integer >= 0, got {seed!r}")
         if max_time_s is None:
             slowest = min(drive.turn_speed_m_s, drive.working_speed_m_s, drive.headland_speed_m_s or math.inf)
             max_time_s = 10 * path.length_m / slowest + 60.0
-        elif not (isinstance(max_time_s, (int, float)) and math.isfinite(max_time_s) and max_time_s > 0):
-            raise VehicleError(f"SumoDriver: max_time_s must be a number > 0 s, got {max_time_s!r}")
+        else:
+            check_positive(max_time_s, "SumoDriver: max_time_s", VehicleError, unit="s")
         self.path, self.drive, self.step_s, self.seed = path, drive, float(step_s), int(seed)
         self.max_time_s = float(max_time_s)
         self.network: Network = build_network(path.segments, drive.edge_speeds_m_s(path.kinds()),

@@ -19,6 +19,7 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
+from common.checks import check_positive
 from common.errors import VehicleError
 
 WGS84 = pyproj.CRS.from_epsg(4326)
@@ -74,8 +75,7 @@ class Field:
         """An axis-aligned ``width_m`` (east) x ``length_m`` (north) field with its south-west corner
         at (lon, lat) in degrees."""
         for arg, value in (("width_m", width_m), ("length_m", length_m)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise VehicleError(f"field rectangle: {arg} must be > 0 m, got {value!r}")
+            check_positive(value, f"field rectangle: {arg}", VehicleError, unit="m")
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (lat, lon)) \
                 or not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
             raise VehicleError(f"field rectangle: lat={lat!r}, lon={lon!r} is outside UTM coverage")

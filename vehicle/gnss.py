@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.checks import check_number
 from common.errors import VehicleError
 from vehicle.track import track_arrays
 
@@ -72,11 +73,7 @@ class GnssConfig:
 
 
 def _positive(name, value, allow_zero=False, hi=None):
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value >= 0 if allow_zero else value > 0) and (hi is None or value <= hi)
-    if not ok:
-        bound = (">= 0" if allow_zero else "> 0") + (f" and <= {hi}" if hi is not None else "")
-        raise VehicleError(f"GnssConfig: {name} must be a number {bound}, got {value!r}")
+    check_number(value, f"GnssConfig: {name}", VehicleError, lo=0.0, hi=hi, lo_open=not allow_zero)
 
 
 class Gnss:

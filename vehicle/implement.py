@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from common.checks import check_number, check_positive
 from common.errors import VehicleError
 
 M2_PER_HA = 10_000.0
@@ -51,9 +52,9 @@ class Implement:
 
     def __post_init__(self):
         for name in ("width_m", "kg_per_rev", "transmission_ratio", "shaft_rpm_max"):
-            _check(name, getattr(self, name), positive=True)
+            check_positive(getattr(self, name), f"Implement: {name}", VehicleError)
         for name in ("shaft_rpm_min", "delivery_delay_s"):
-            _check(name, getattr(self, name), positive=False)
+            check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0)
         if not isinstance(self.sections, (int, np.integer)) or isinstance(self.sections, bool) \
                 or not 1 <= self.sections <= 128:
             raise VehicleError(f"Implement: sections must be an integer in [1, 128], got {self.sections!r}")
@@ -170,10 +171,3 @@ class DelayLine:
         self._buf.append(value)
         return self._buf.popleft()
 
-
-def _check(name, value, positive):
-    ok = isinstance(value, (int, float, np.floating)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (value > 0 if positive else value >= 0)
-    if not ok:
-        raise VehicleError(f"Implement: {name} must be a number {'> 0' if positive else '>= 0'}, "
-                           f"got {value!r}")

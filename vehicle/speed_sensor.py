@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.checks import check_number
 from common.errors import VehicleError
 from vehicle.track import track_arrays
 
@@ -49,10 +50,7 @@ class SpeedSensorConfig:
         if self.bias_pct is not None:
             checks.append(("bias_pct", self.bias_pct, -50.0, 50.0, False))
         for name, value, lo, hi, open_lo in checks:
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-            if not (ok and (value > lo if open_lo else value >= lo) and value <= hi):
-                raise VehicleError(f"SpeedSensorConfig: {name} must be a number in "
-                                   f"{'(' if open_lo else '['}{lo}, {hi}], got {value!r}")
+            check_number(value, f"SpeedSensorConfig: {name}", VehicleError, lo=lo, hi=hi, lo_open=open_lo)
 
     @property
     def sigma(self) -> float:

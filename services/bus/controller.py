@@ -19,7 +19,9 @@ import numpy as np
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
-from services.bus.serving import Params, dumps, run_service, serve
+from services.bus.serving import Params, run_service, serve
+from services.outputs.encode import dumps
+from services.sim.landing import applied_rate_kg_ha
 
 
 class ControllerService:
@@ -77,14 +79,10 @@ class ControllerService:
         mx, my, heading, speed = (np.array([getattr(p, c) for p in poses]) for c in cols)
         on = np.array([p.implement_on for p in poses])
         rec = self.core.run_track(mx, my, heading, speed, on)
-        travelled_m, width_m = speed * self.period_s, rec["width_on_m"]
-        # Below 1 cm of travel (as `services.sim.landing.land`)
-        # or with every section off a rate means nothing.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            applied = np.where((travelled_m > 0.01) & (width_m > 0),
-                               rec["metered_kg"] / (width_m * travelled_m * 1e-4), np.nan)
+        # The tick's strip as the controller sees it: measured speed x period (where the product
+        # really lands, `vrsim run` and the monitor's report work out from the true path).
+        applied = applied_rate_kg_ha(rec["metered_kg"], rec["width_on_m"], speed * self.period_s).tolist()
         out = {k: v.tolist() for k, v in rec.items()}
-        applied = applied.tolist()
         shafts, rates = [], []
         for i, p in enumerate(poses):
             shafts.append(messages.ShaftState(p.run_id, p.tick, p.time_s, out["target_shaft_rpm"][i],

@@ -9,13 +9,13 @@ the field's metric grid (what the controller looks up).
 
 from __future__ import annotations
 
-import json
 import threading
 
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
-from services.bus.serving import Params, dumps, run_service, serve
+from services.bus.serving import Params, run_service, serve
+from services.outputs.encode import dumps
 
 MAX_BATCH_POINTS = 10_000_000
 
@@ -51,7 +51,7 @@ class MapService:
         else:
             raise ServiceError(f"{params.key}: missing parameters: give lat and lon (WGS84) or x and y "
                                "(map CRS), or a JSON body of points")
-        return json.dumps(sample, separators=(",", ":")).encode()
+        return dumps(sample)
 
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()

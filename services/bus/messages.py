@@ -21,6 +21,7 @@ import numpy as np
 import orjson
 
 from common import ServiceError
+from services.outputs.encode import dumps
 
 NAN = math.nan
 
@@ -30,24 +31,13 @@ class Message:
 
     _spec: tuple  # ((name, kind, nullable), ...) built by `_message`
     _names: frozenset
-    _floats: tuple
 
     def to_dict(self) -> dict:
-        out = dict(self.__dict__)  # a plain dataclass: its fields, in order
-        try:
-            # One sum instead of a check per field: it is finite iff every term is (or overflowed).
-            finite = math.isfinite(sum(map(out.__getitem__, self._floats)))
-        except TypeError:  # a None among them
-            finite = False
-        if not finite:
-            for name in self._floats:
-                value = out[name]
-                if value is not None and not math.isfinite(value):
-                    out[name] = None
-        return out
+        """The fields, in order (NaN stays NaN: `to_json` writes it as null)."""
+        return dict(self.__dict__)
 
     def to_json(self) -> bytes:
-        return orjson.dumps(self.to_dict())
+        return dumps(self)
 
     @classmethod
     def from_dict(cls, doc, where: str = ""):
@@ -125,13 +115,12 @@ def _message(cls):
         spec.append((f.name, *_KINDS[f.type]))
     cls._spec = tuple(spec)
     cls._names = frozenset(name for name, _, _ in spec)
-    cls._floats = tuple(name for name, kind, _ in spec if kind is float)
     return cls
 
 
 def encode_batch(records) -> bytes:
     """A JSON array of messages (the per-tick streams)."""
-    return orjson.dumps([r.to_dict() for r in records])
+    return dumps(list(records))
 
 
 def decode_batch(cls, data, max_len: int = 100_000) -> list:
@@ -273,7 +262,7 @@ def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, co
             for r, i, j in zip(rates, rows, cols, strict=True)]
     for k in np.flatnonzero(~np.asarray(inside, bool)).tolist():
         docs[k] = _OUTSIDE
-    return orjson.dumps(docs)
+    return dumps(docs)
 
 
 # ------------------------------------------------------------------------------------- run control

@@ -20,7 +20,8 @@ import numpy as np
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
-from services.bus.serving import Params, dumps, guarded, run_service, serve
+from services.bus.serving import Params, guarded, run_service, serve
+from services.outputs.encode import dumps
 
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}

@@ -19,7 +19,8 @@ import time
 from common import ServiceError
 from services.bus import client, messages
 from services.bus.config import SERVICES, Keys, ServiceConfig
-from services.bus.serving import Params, dumps, run_service, serve
+from services.bus.serving import Params, run_service, serve
+from services.outputs.encode import dumps
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs

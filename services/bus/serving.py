@@ -15,11 +15,12 @@ from collections.abc import Callable
 
 from common import ServiceError, VrsimError
 from services.bus.config import Keys, ZenohOptions, open_session
+from services.outputs.encode import dumps
 
 
 # ---------------------------------------------------------------------------------------- errors
 def error_payload(message: str) -> bytes:
-    return json.dumps({"error": message}).encode()
+    return dumps({"error": message})
 
 
 def error_message(payload: bytes) -> str:
@@ -156,21 +157,6 @@ def wait_for_signal(stop: threading.Event, also: Callable[[], bool] | None = Non
     finally:
         for sig, previous in old.items():
             signal.signal(sig, previous)
-
-
-def dumps(doc) -> bytes:
-    """JSON reply bytes; NaN and infinities become null (JSON has no NaN)."""
-    return json.dumps(_finite(doc), separators=(",", ":")).encode()
-
-
-def _finite(doc):
-    if isinstance(doc, float):
-        return doc if math.isfinite(doc) else None
-    if isinstance(doc, dict):
-        return {k: _finite(v) for k, v in doc.items()}
-    if isinstance(doc, (list, tuple)):
-        return [_finite(v) for v in doc]
-    return doc
 
 
 PARENT_ENV = "VRSIM_SERVE_PARENT"  # set by `vrsim serve all` for its children

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 HELP = "run the accuracy regression library and compare it with the recorded figures"
@@ -20,6 +19,7 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from common import ScenarioError
+    from services.outputs.encode import dumps_text
     from services.sim import accuracy
 
     if args.update and not args.reason.strip():
@@ -38,8 +38,7 @@ def run(args) -> int:
     checks = [c for name, summary in results.items() for c in accuracy.compare(name, summary, expected)]
     moved = [c for c in checks if c.moved]
     if args.json:
-        print(json.dumps({"scenarios": sorted(results), "moved": len(moved),
-                          "checks": [c.__dict__ for c in checks]}, indent=1))
+        print(dumps_text({"scenarios": sorted(results), "moved": len(moved), "checks": checks}, indent=True))
     else:
         print(accuracy.table(checks))
         print(f"\n{len(results)} scenarios, {len(checks)} figures, {len(moved)} moved beyond tolerance")

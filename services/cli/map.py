@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 
 from common import MapError
+from services.outputs.encode import dumps_text
 
 HELP = "prescription maps: info, sample, convert, plot"
 
@@ -74,7 +74,7 @@ def run(args) -> int:
 def _info(args) -> int:
     info = _read(args).info()
     if args.json:
-        print(json.dumps(info))
+        print(dumps_text(info))
         return 0
     for key, value in info.items():
         if isinstance(value, list):
@@ -97,7 +97,7 @@ def _sample(args) -> int:
     grid = _read(args)
     res = grid.sample(lat=args.lat, lon=args.lon) if geo else grid.sample(x=args.x, y=args.y)
     if args.json:
-        print(json.dumps(res))
+        print(dumps_text(res))
     elif not res["inside"]:
         print("outside the map")
     elif res["rate_kg_ha"] is None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 
 from common import VrsimError
@@ -19,6 +18,7 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from controller.experiment import run_paper
+    from services.outputs.encode import dumps_text
     from services.outputs.paper import plot, table
 
     try:
@@ -32,7 +32,7 @@ def run(args) -> int:
     except OSError as exc:
         raise VrsimError(f"--out {args.out!r}: cannot write {png} ({exc.strerror})") from None
     if args.json:
-        print(json.dumps(result.summary, allow_nan=False))
+        print(dumps_text(result.summary))
     else:
         print(table(result.summary))
         print(f"\nwrote {png}")

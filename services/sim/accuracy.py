@@ -12,7 +12,6 @@ A metric has *moved* when ``|measured - value| > tol`` (or exactly one of them i
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -21,7 +20,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from common import ScenarioError
+from common import ScenarioError, is_number
+from services.sim.metrics import METRICS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 LIBRARY_DIR = os.path.join(ROOT, "tests", "accuracy")
@@ -29,25 +29,8 @@ SCENARIO_DIR = os.path.join(LIBRARY_DIR, "scenarios")
 EXPECTED = os.path.join(LIBRARY_DIR, "expected.json")
 CHANGELOG = os.path.join(LIBRARY_DIR, "CHANGELOG.md")
 
-# Held metrics and their tolerance: (absolute floor, share of the value). Chosen so that the
-# run-to-run noise of a deterministic simulation (zero on one machine, last-digit differences
-# across BLAS builds) passes and a change of the model or controller that a user would notice fails.
-TOLERANCES = {
-    "prescribed_kg": (0.5, 0.005),
-    "applied_kg": (0.5, 0.005),
-    "mass_balance_pct": (0.3, 0.0),
-    "mae_kg_ha": (0.3, 0.03),
-    "rmse_kg_ha": (0.3, 0.03),
-    "bias_kg_ha": (0.3, 0.03),
-    "within_5pct_area_pct": (1.0, 0.0),
-    "within_10pct_area_pct": (1.0, 0.0),
-    "transition_time_s_mean": (0.05, 0.05),
-    "transition_time_s_p95": (0.05, 0.05),
-    "transition_distance_m_mean": (0.1, 0.05),
-    "transition_distance_m_p95": (0.1, 0.05),
-    "off_target_kg": (0.2, 0.03),
-    "coverage_pct": (0.3, 0.0),
-}
+# Held metrics and their tolerance (absolute floor, share of the value), from the metrics table.
+TOLERANCES = {m.key: m.tolerance for m in METRICS if m.tolerance is not None}
 
 
 @dataclass
@@ -97,7 +80,8 @@ def tolerance(metric: str, value: float | None) -> float:
 
 
 def _num(value):
-    return None if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+    """A figure as compared: a finite number, or None (null, NaN: the figure does not exist)."""
+    return value if is_number(value) else None
 
 
 def compare(name: str, summary: dict, expected: dict) -> list[Check]:

@@ -7,7 +7,6 @@ The one pure core that both `vrsim run` (the whole track at once) and the Zenoh 
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,14 +40,6 @@ class TickOut:
     offset_m: float  # lateral offset of that width's centre, left of the heading
 
 
-def hold_last(rate_kg_ha: np.ndarray, last_kg_ha: float) -> np.ndarray:
-    """Replace NaN (unknown) rates by the last known one, starting from `last_kg_ha` (NaN: 0)."""
-    known = ~np.isnan(rate_kg_ha)
-    idx = np.maximum.accumulate(np.where(known, np.arange(rate_kg_ha.size), -1))
-    start = 0.0 if math.isnan(last_kg_ha) else last_kg_ha
-    return np.where(idx >= 0, rate_kg_ha[np.maximum(idx, 0)], start)
-
-
 class ControlCore:
     """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
 
@@ -80,10 +71,7 @@ class ControlCore:
         lx = x_m + lead_m * np.cos(heading_rad)
         ly = y_m + lead_m * np.sin(heading_rad)
         found = self.grid.lookup(lx, ly)
-        if self.policy.mode == "hold":
-            rate = hold_last(found.rate_kg_ha, self.last_rate_kg_ha)
-        else:
-            rate = self.policy.apply(found.rate_kg_ha, found.inside)
+        rate = self.policy.apply(found.rate_kg_ha, found.inside, self.last_rate_kg_ha)
         if rate.size:
             self.last_rate_kg_ha = float(rate[-1])
         width_on, offset = self.sections(lx, ly, heading_rad, implement_on)

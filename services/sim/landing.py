@@ -9,6 +9,30 @@ import numpy as np
 
 from maps import Grid
 
+MIN_STRIP_M = 0.01  # below 1 cm of travel in a tick (standing still) a tick's rate means nothing
+M2_PER_HA = 1e4
+
+
+def applied_rate_kg_ha(metered_kg, width_m, length_m) -> np.ndarray:
+    """The applied rate of a tick: its metered product over the strip it covers, kg/ha.
+
+    Parameters
+    ----------
+    metered_kg, width_m, length_m : array_like, shape (n,)
+        Product metered in each tick, the width of the sections that were on, and the length of the
+        strip (m).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``metered_kg / (width_m * length_m)`` in kg/ha; NaN where the strip is shorter than
+        `MIN_STRIP_M` or no section is on.
+    """
+    length = np.asarray(length_m, dtype=float)
+    area_m2 = np.asarray(width_m, dtype=float) * length
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where((length > MIN_STRIP_M) & (area_m2 > 0), metered_kg / area_m2 * M2_PER_HA, np.nan)
+
 
 @dataclass
 class Landing:
@@ -37,9 +61,7 @@ def land(grid: Grid, track: dict, metered_kg, width_on_m, offset_m, delay_s, per
     x0, y0 = np.interp(t0, time_s, x_m) + sx, np.interp(t0, time_s, y_m) + sy
     x1, y1 = np.interp(t0 + period_s, time_s, x_m) + sx, np.interp(t0 + period_s, time_s, y_m) + sy
     length = np.hypot(x1 - x0, y1 - y0)
-    area = np.asarray(width_on_m) * length
-    with np.errstate(divide="ignore", invalid="ignore"):
-        applied = np.where((length > 0.01) & (area > 0), metered_kg / area * 1e4, np.nan)
+    applied = applied_rate_kg_ha(metered_kg, width_on_m, length)
     rx = grid.lookup(0.5 * (x0 + x1), 0.5 * (y0 + y1)).rate_kg_ha
     return Landing(x0, y0, x1, y1, length, np.cumsum(length), rx, applied)
 

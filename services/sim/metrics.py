@@ -17,6 +17,11 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 - coverage_pct: share of the field's cells that are covered.
 
 In time (per tick, along the track), see `transitions`.
+
+`METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, and the
+tolerance the accuracy library holds it to. The summary's keys (`summary`), the rows of the text and
+HTML reports, the accuracy library's tolerances and the monitor's report all derive from it, so a new
+figure is one row here plus where it is computed.
 """
 
 from __future__ import annotations
@@ -29,6 +34,82 @@ COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as 
 TRANSITION_TOLERANCE = 0.10  # "within 10 % of the new rate"
 STEP_MIN_RELATIVE = 0.10  # a rate change of more than 10 % ...
 STEP_MIN_KG_HA = 5.0  # ... and more than 5 kg/ha is a rate step
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One figure of a run's summary.
+
+    Attributes
+    ----------
+    key : str
+        Its key in the summary (``vrsim run --json``, summary.json, the monitor's report).
+    unit : str
+        Unit shown beside it ("" for a count).
+    label : str
+        Its row in the text and HTML reports; "" keeps it out of them.
+    description : str
+        What it measures, in one line.
+    tolerance : (float, float) or None
+        What the accuracy library holds it to: (absolute floor, share of the value); None for figures
+        of the machine (timings) or of the set-up, not of the model.
+    """
+
+    key: str
+    unit: str
+    label: str
+    description: str
+    tolerance: tuple[float, float] | None = None
+
+
+# The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
+# machine, last-digit differences across BLAS builds) passes and a change of the model or controller
+# that a user would notice fails.
+METRICS = (
+    Metric("field_area_ha", "ha", "Field area", "area of the field boundary"),
+    Metric("sim_time_s", "s", "Simulated time", "ticks x control period"),
+    Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)"),
+    Metric("ticks", "", "", "control ticks driven"),
+    Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time"),
+    Metric("prescribed_kg", "kg", "Prescribed product",
+           "what the prescription asks for on the area actually worked", (0.5, 0.005)),
+    Metric("applied_kg", "kg", "Applied product", "all product metered", (0.5, 0.005)),
+    Metric("mass_balance_pct", "%", "Mass balance", "100 (applied - prescribed) / prescribed", (0.3, 0.0)),
+    Metric("mae_kg_ha", "kg/ha", "Mean absolute error", "mean |applied - prescribed| over covered cells",
+           (0.3, 0.03)),
+    Metric("rmse_kg_ha", "kg/ha", "RMSE", "root mean square of applied - prescribed over covered cells",
+           (0.3, 0.03)),
+    Metric("bias_kg_ha", "kg/ha", "Bias", "mean applied - prescribed over covered cells", (0.3, 0.03)),
+    Metric("within_5pct_area_pct", "%", "Covered area within +-5 %",
+           "share of covered cells within 5 % of a positive prescription", (1.0, 0.0)),
+    Metric("within_10pct_area_pct", "%", "Covered area within +-10 %",
+           "share of covered cells within 10 % of a positive prescription", (1.0, 0.0)),
+    Metric("transition_time_s_mean", "s", "Transition time, mean",
+           "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05)),
+    Metric("transition_time_s_p95", "s", "Transition time, 95th percentile", "as above, 95th percentile",
+           (0.05, 0.05)),
+    Metric("transition_distance_m_mean", "m", "Transition distance, mean",
+           "distance along the landing path over the transition", (0.1, 0.05)),
+    Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
+           "as above, 95th percentile", (0.1, 0.05)),
+    Metric("off_target_kg", "kg", "Off-target product",
+           "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03)),
+    Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0)),
+    Metric("mae_pct", "%", "", "mean absolute error over the mean prescription of the covered cells"),
+    Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells"),
+    Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells"),
+    Metric("transitions", "", "", "rate steps whose transition settled"),
+    Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %"),
+    Metric("path_length_m", "m", "", "length of the landing path"),
+)
+
+
+def summary(scenario_name: str, seed: int, figures: dict) -> dict:
+    """The run's summary: ``scenario``, every `METRICS` key in table order from `figures`, ``seed``.
+
+    Raises KeyError naming a figure of the table that `figures` lacks (a bug, not bad input).
+    """
+    return {"scenario": scenario_name, **{m.key: figures[m.key] for m in METRICS}, "seed": seed}
 
 
 @dataclass(frozen=True)
@@ -51,11 +132,11 @@ class MapMetrics:
 
 @dataclass(frozen=True)
 class TransitionMetrics:
-    count: int
-    time_s_mean: float
-    time_s_p95: float
-    distance_m_mean: float
-    distance_m_p95: float
+    transitions: int
+    transition_time_s_mean: float
+    transition_time_s_p95: float
+    transition_distance_m_mean: float
+    transition_distance_m_p95: float
 
 
 def _pct(part: float, whole: float) -> float:
@@ -166,9 +247,9 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> 
         nan = float("nan")
         return TransitionMetrics(0, nan, nan, nan, nan)
     return TransitionMetrics(
-        count=int(times.size),
-        time_s_mean=float(times.mean()),
-        time_s_p95=float(np.percentile(times, 95)),
-        distance_m_mean=float(dists.mean()),
-        distance_m_p95=float(np.percentile(dists, 95)),
+        transitions=int(times.size),
+        transition_time_s_mean=float(times.mean()),
+        transition_time_s_p95=float(np.percentile(times, 95)),
+        transition_distance_m_mean=float(dists.mean()),
+        transition_distance_m_p95=float(np.percentile(dists, 95)),
     )

@@ -15,12 +15,16 @@ control loop follow it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
+from common import ScenarioError, VehicleError
 from maps import AsApplied, Grid
+from services.sim import metrics
 from services.sim.core import ControlCore
 from services.sim.landing import Landing, land, merged_strips
 from services.sim.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
@@ -32,12 +36,11 @@ SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from th
 
 
 def cells_in_field(grid: Grid, polygon) -> np.ndarray:
-    """Boolean (rows, cols): cells whose centre lies inside the field polygon."""
+    """Boolean (rows, cols): cells whose centre (`maps.Grid.cell_centres`) lies inside the polygon."""
     import shapely
 
-    cols, rows = np.meshgrid(np.arange(grid.cols) + 0.5, np.arange(grid.rows) + 0.5)
-    xs, ys = grid.transform @ (cols, rows)
-    return shapely.contains_xy(polygon, xs, ys)
+    x, y = grid.cell_centres()
+    return shapely.contains_xy(polygon, x[None, :], y[:, None])
 
 
 @dataclass
@@ -57,6 +60,23 @@ class RunResult:
     summary: dict
 
 
+@contextmanager
+def driving(world: World):
+    """A `vehicle.SumoDriver` on the world's path with the scenario's tractor, tick and time limit
+    (``[timing] max_sim_time_s``; unset, the driver derives it from the path), as a context manager.
+
+    `vrsim run` and the vehicle service both drive through this, so they stop at the same limit with
+    the same message; a `VehicleError` while driving becomes a `ScenarioError` naming the scenario.
+    """
+    sc = world.scenario
+    try:
+        with SumoDriver(world.path, sc.tractor, step_s=sc.timing.control_period_s, seed=sc.seed,
+                        max_time_s=sc.timing.max_sim_time_s) as driver:
+            yield driver
+    except VehicleError as exc:
+        raise ScenarioError(f"{sc.source}: {exc}") from None
+
+
 def run(scenario: Scenario, progress=None) -> RunResult:
     """Run a scenario in process and return everything it measured."""
     stage = {}
@@ -70,9 +90,7 @@ def run(scenario: Scenario, progress=None) -> RunResult:
 
     world = build_world(scenario)
     lap("build_s")
-    timing = scenario.timing
-    with SumoDriver(world.path, scenario.tractor, step_s=timing.control_period_s, seed=scenario.seed,
-                    max_time_s=timing.max_sim_time_s) as driver:
+    with driving(world) as driver:
         track = driver.run_all()
     lap("sumo_s")
     x_meas, y_meas, v_meas = measure(scenario, track)
@@ -119,34 +137,15 @@ def account(world: World, track: dict, control: dict, wall0: float):
     tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, landing.applied_kg_ha,
                      np.asarray(track["implement_on"], bool))
     n = len(track["time_s"])
-    summary = {
-        "scenario": scenario.name,
+    figures = {
+        **dataclasses.asdict(mm), **dataclasses.asdict(tm),
         "field_area_ha": world.field.area_ha,
         "sim_time_s": n * timing.control_period_s,
         "wall_time_s": time.perf_counter() - wall0,
         "ticks": n,
-        "realtime_factor": 0.0,
-        "prescribed_kg": mm.prescribed_kg,
-        "applied_kg": mm.applied_kg,
-        "mass_balance_pct": mm.mass_balance_pct,
-        "mae_kg_ha": mm.mae_kg_ha,
-        "rmse_kg_ha": mm.rmse_kg_ha,
-        "bias_kg_ha": mm.bias_kg_ha,
-        "within_5pct_area_pct": mm.within_5pct_area_pct,
-        "within_10pct_area_pct": mm.within_10pct_area_pct,
-        "transition_time_s_mean": tm.time_s_mean,
-        "transition_time_s_p95": tm.time_s_p95,
-        "transition_distance_m_mean": tm.distance_m_mean,
-        "transition_distance_m_p95": tm.distance_m_p95,
-        "off_target_kg": mm.off_target_kg,
-        "coverage_pct": mm.coverage_pct,
-        "mae_pct": mm.mae_pct,
-        "rmse_pct": mm.rmse_pct,
-        "bias_pct": mm.bias_pct,
-        "transitions": tm.count,
-        "covered_cells": mm.covered_cells,
+        "realtime_factor": 0.0,  # the caller knows its wall time
         "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
-        "seed": scenario.seed,
     }
+    summary = metrics.summary(scenario.name, scenario.seed, figures)
     rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm)
     return summary, rest

@@ -21,7 +21,7 @@ import tomllib
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, VrsimError
+from common import ScenarioError, VrsimError, is_number
 from controller import ControllerConfig, PlantParams
 from maps import synthetic
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
@@ -62,7 +62,10 @@ class MapSpec:
 class TimingSpec:
     control_period_s: float = 0.05
     plant_step_s: float = 0.001
-    max_sim_time_s: float = 36000.0
+    # Simulated time after which an unfinished drive fails (a stalled tractor). None: derived from
+    # the path by `vehicle.SumoDriver` (10 x the path at the slowest speed, plus 60 s), so a field of
+    # any size runs without raising it.
+    max_sim_time_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -237,7 +240,7 @@ def _check_field(spec: FieldSpec, source: str) -> None:
         _no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
         for key in ("width_m", "length_m", "lat", "lon"):
             value = spec.rectangle.get(key)
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            if not is_number(value):
                 raise ScenarioError(f"{source}: [field.rectangle] {key} must be a number, got {value!r}")
     if spec.headland_passes < 0:
         raise ScenarioError(f"{source}: [field] headland_passes must be >= 0, got {spec.headland_passes}")
@@ -282,7 +285,7 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
-    if not 0 < spec.max_sim_time_s:
+    if spec.max_sim_time_s is not None and not 0 < spec.max_sim_time_s:
         raise ScenarioError(f"{source}: [timing] max_sim_time_s must be > 0, got {spec.max_sim_time_s}")
 
 

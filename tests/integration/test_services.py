@@ -336,7 +336,6 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     import types
 
     import services.sim.run
-    import vehicle
     from services.bus import messages
     from services.bus.config import Keys
     from services.bus.vehicle import VehicleService
@@ -369,7 +368,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)
     gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
     speed = types.SimpleNamespace(read=lambda t, v: v)
-    monkeypatch.setattr(vehicle, "SumoDriver", Driver)
+    monkeypatch.setattr(services.sim.run, "SumoDriver", Driver)
     monkeypatch.setattr(services.sim.run, "sensors", lambda sc: (gnss, speed))
     timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
     scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1)
@@ -388,3 +387,36 @@ def test_run_id_is_safe_in_a_selector_parameter():
     assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id
     params = zenoh.Selector(f"vrsim/tractor1/report?run_id={run_id}").parameters
     assert list(params) == [("run_id", run_id)]
+
+
+def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
+    """An explicit [timing] max_sim_time_s wins, and the vehicle service (real SUMO, real world) fails
+    at it with the very message `vrsim run` gives."""
+    import types
+
+    from common import ScenarioError
+    from services.bus import messages
+    from services.bus.config import Keys
+    from services.bus.vehicle import VehicleService
+    from services.sim import run as field_run
+    from services.sim import scenario
+    from services.sim.world import build_world
+
+    path = tmp_path / "short.toml"
+    path.write_text('[field]\nrectangle = { width_m = 40.0, length_m = 80.0, lat = 52.0, lon = 10.0 }\n'
+                    '[map]\nsynthetic = "uniform"\n[timing]\nmax_sim_time_s = 20.0\n')
+    sc = scenario.load(str(path))
+    with pytest.raises(ScenarioError) as ran:
+        field_run.run(sc)
+    assert str(path) in str(ran.value) and "within max_time_s=20 s" in str(ran.value)
+
+    svc = VehicleService(None, Keys(), lambda payload: None)
+    ok = types.SimpleNamespace(ok=object())
+    querier = types.SimpleNamespace(get=lambda payload: [ok], undeclare=lambda: None)
+    svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)
+    start = messages.RunStart("r", "", str(path), str(tmp_path), "lockstep", 1.0, 50)
+    with pytest.raises(ScenarioError) as served:
+        svc._drive(start, build_world(sc))
+    assert str(served.value) == str(ran.value)
+    assert svc.status.ticks == 400  # 20 s of 50 ms ticks, all sent to the controller
+

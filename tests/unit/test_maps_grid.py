@@ -204,15 +204,26 @@ def test_check_overlap():
         g.check_overlap((1000, 2000, 1000, 2000), UTM32)
 
 
-@pytest.mark.parametrize("mode,expected", [("off", [10.0, 0.0, 0.0]), ("hold", [10.0, 7.0, 7.0]),
-                                           ("default", [10.0, 3.0, 3.0])])
-def test_rate_policy(mode, expected):
+@pytest.mark.parametrize("mode,expected,along", [
+    ("off", [10.0, 0.0, 0.0], [0.0, 10.0, 0.0, 0.0, 20.0]),
+    # hold along a sequence: the last known rate before each tick, else the one before the sequence
+    ("hold", [10.0, 7.0, 7.0], [7.0, 10.0, 10.0, 10.0, 20.0]),
+    ("default", [10.0, 3.0, 3.0], [3.0, 10.0, 3.0, 3.0, 20.0])])
+def test_rate_policy(mode, expected, along):
     p = RatePolicy(mode, default_rate_kg_ha=3.0)
     assert p.apply(10.0, True, 7.0) == expected[0]
     assert p.apply(float("nan"), True, 7.0) == expected[1]  # nodata
     assert p.apply(10.0, False, 7.0) == expected[2]  # outside
-    arr = p.apply(np.array([10.0, np.nan, 10.0]), np.array([True, True, False]), np.array([7.0, 7.0, 7.0]))
-    np.testing.assert_array_equal(arr, expected)
+    rate = np.array([np.nan, 10.0, np.nan, 10.0, 20.0])
+    inside = np.array([True, True, True, False, True])
+    arr = p.apply(rate, inside, 7.0)
+    np.testing.assert_array_equal(arr, along)
+    # The same as tick-by-tick calls that carry the last commanded rate over.
+    last, ticks = 7.0, []
+    for r, i in zip(rate, inside, strict=True):
+        last = p.apply(float(r), bool(i), last)
+        ticks.append(last)
+    np.testing.assert_array_equal(arr, ticks)
 
 
 def test_rate_policy_validation_and_hold_without_history():

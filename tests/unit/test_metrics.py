@@ -1,7 +1,17 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
-from services.sim.metrics import map_metrics, rate_steps, transitions
+from services.sim.metrics import (
+    METRICS,
+    MapMetrics,
+    TransitionMetrics,
+    map_metrics,
+    rate_steps,
+    summary,
+    transitions,
+)
 
 
 def _grid(rows=10, cols=10, rate=100.0):
@@ -71,9 +81,9 @@ def test_transition_time_and_distance():
     applied = np.array([100, 100, 100, 100, 120, 150, 175, 185, 195, 200, 200, 200], float)
     m = transitions(t, d, rx, applied, np.ones(12, bool))
     # step at tick 4; first within 10 % (>= 180) at tick 7
-    assert m.count == 1
-    assert m.time_s_mean == pytest.approx(1.5)
-    assert m.distance_m_mean == pytest.approx(3.0)
+    assert m.transitions == 1
+    assert m.transition_time_s_mean == pytest.approx(1.5)
+    assert m.transition_distance_m_mean == pytest.approx(3.0)
 
 
 def test_unsettled_step_is_not_counted():
@@ -81,5 +91,24 @@ def test_unsettled_step_is_not_counted():
     rx = np.array([100, 100, 200, 200, 100, 100, 100, 100], float)
     applied = np.array([100, 100, 110, 120, 110, 100, 100, 100], float)
     m = transitions(t, t, rx, applied, np.ones(8, bool))
-    assert m.count == 1  # the step at 2 never settles before the step back at 4
-    assert m.time_s_mean == 0.0
+    assert m.transitions == 1  # the step at 2 never settles before the step back at 4
+    assert m.transition_time_s_mean == 0.0
+
+
+def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():
+    from services.outputs.summary import SUMMARY_ROWS
+    from services.sim.accuracy import TOLERANCES
+
+    keys = [m.key for m in METRICS]
+    assert len(keys) == len(set(keys))
+    assert TOLERANCES == {m.key: m.tolerance for m in METRICS if m.tolerance is not None}
+    assert "wall_time_s" not in TOLERANCES and "mae_kg_ha" in TOLERANCES  # the machine is not held
+    assert SUMMARY_ROWS == tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
+    # Every figure the metric functions compute is a row of the table.
+    computed = {f.name for f in dataclasses.fields(MapMetrics)} | {f.name for f in dataclasses.fields(
+        TransitionMetrics)}
+    assert computed <= set(keys)
+    figures = {k: float(i) for i, k in enumerate(keys)}
+    assert list(summary("s", 3, figures)) == ["scenario", *keys, "seed"]
+    with pytest.raises(KeyError, match="coverage_pct"):
+        summary("s", 3, {k: v for k, v in figures.items() if k != "coverage_pct"})

@@ -93,7 +93,7 @@ def test_bad_extension_and_bad_json(tmp_path):
 
 @pytest.mark.parametrize("w, l", [(0, 10), (-5, 10), (10, float("nan"))])
 def test_rectangle_rejects_bad_size(w, l):
-    with pytest.raises(VehicleError, match="must be > 0"):
+    with pytest.raises(VehicleError, match="must be a number > 0 m, got"):
         Field.rectangle(w, l)
 
 
