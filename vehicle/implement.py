@@ -9,8 +9,6 @@ apply ``rate`` kg/ha over ``width`` m at ``speed`` m/s the shaft must turn at
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,22 +78,6 @@ class Implement:
         rpm = np.asarray(shaft_rpm, dtype=float)
         return np.where(rpm > 0, np.clip(rpm, self.shaft_rpm_min, self.shaft_rpm_max), 0.0)
 
-    def applied_rate_kg_ha(self, shaft_rpm, speed_m_s, width_m=None):
-        """Rate a shaft speed applies at a ground speed, kg/ha (0 where the tractor stands)."""
-        width = np.asarray(self.width_m if width_m is None else width_m, dtype=float)
-        flow_kg_s = np.asarray(shaft_rpm, dtype=float) / 60.0 * self.kg_per_rev
-        area_m2_s = np.asarray(speed_m_s, dtype=float) * width
-        out = np.zeros(np.broadcast(flow_kg_s, area_m2_s).shape)
-        return np.divide(flow_kg_s * M2_PER_HA, area_m2_s, out=out, where=area_m2_s > 0)
-
-    def motor_rpm(self, shaft_rpm):
-        """Hydraulic-motor speed driving the shaft at ``shaft_rpm``, rpm."""
-        return np.asarray(shaft_rpm, dtype=float) / self.transmission_ratio
-
-    def shaft_rpm(self, motor_rpm):
-        """Metering-shaft speed at a hydraulic-motor speed, rpm."""
-        return np.asarray(motor_rpm, dtype=float) * self.transmission_ratio
-
     def mass_kg(self, shaft_rev):
         """Product metered by ``shaft_rev`` shaft revolutions, kg."""
         return np.asarray(shaft_rev, dtype=float) * self.kg_per_rev
@@ -134,40 +116,3 @@ class Implement:
         sy = y[:, None] + np.cos(h)[:, None] * off
         inside = shapely.contains_xy(polygon, sx, sy)
         return inside & np.atleast_1d(np.asarray(implement_on, dtype=bool))[:, None]
-
-    # --- delivery delay --------------------------------------------------------------------------
-    def delay_ticks(self, step_s: float) -> int:
-        """The delivery delay in whole ticks of ``step_s``."""
-        if not (isinstance(step_s, (int, float)) and math.isfinite(step_s) and step_s > 0):
-            raise VehicleError(f"Implement: step_s must be > 0, got {step_s!r}")
-        return round(self.delivery_delay_s / step_s)
-
-    def delayed(self, values, step_s: float, fill=0.0):
-        """``values`` (per tick, shape (n, ...)) as they reach the ground: shifted by the delivery
-        delay, the first ticks filled with ``fill``. Same numbers as feeding a `DelayLine`."""
-        v = np.asarray(values)
-        k = min(self.delay_ticks(step_s), len(v))
-        out = np.empty_like(v)
-        out[:k] = fill
-        out[k:] = v[: len(v) - k]
-        return out
-
-    def delay_line(self, step_s: float, fill=0.0) -> DelayLine:
-        """A per-tick `DelayLine` of the delivery delay."""
-        return DelayLine(self.delay_ticks(step_s), fill)
-
-
-class DelayLine:
-    """Per-tick pure delay of ``ticks`` ticks: `push` a value, get the one pushed ``ticks`` ago."""
-
-    def __init__(self, ticks: int, fill=0.0):
-        if not isinstance(ticks, int) or ticks < 0:
-            raise VehicleError(f"DelayLine: ticks must be an integer >= 0, got {ticks!r}")
-        self._buf = deque([fill] * ticks)
-
-    def push(self, value):
-        if not self._buf:
-            return value
-        self._buf.append(value)
-        return self._buf.popleft()
-

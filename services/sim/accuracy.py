@@ -44,6 +44,11 @@ class Check:
 
 
 def scenario_names() -> list[str]:
+    """The library's scenarios; refuses an installed vrsim, which ships no library."""
+    if not os.path.isdir(SCENARIO_DIR):
+        raise ScenarioError(f"vrsim accuracy needs a source checkout: the accuracy library is not at "
+                            f"{LIBRARY_DIR} (an installed vrsim ships no tests; run it in a clone of the "
+                            "repository)")
     return sorted(f[:-5] for f in os.listdir(SCENARIO_DIR) if f.endswith(".toml"))
 
 

@@ -7,7 +7,6 @@ The one pure core that both `vrsim run` (the whole track at once) and the Zenoh 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,33 +23,19 @@ def plant_for(scenario: Scenario) -> PlantParams:
                                shaft_rpm_max=imp.shaft_rpm_max)
 
 
-@dataclass
-class TickOut:
-    """What one control tick produces (all SI except rpm)."""
-
-    landing_x_m: float
-    landing_y_m: float
-    prescribed_kg_ha: float  # the rate looked up at the predicted landing point
-    target_shaft_rpm: float
-    shaft_rpm: float
-    shaft_rev: float  # metering-shaft revolutions during this period
-    current_a: float
-    metered_kg: float  # product through the meter this period (0 with the sections off)
-    width_on_m: float  # working width of the sections that are on
-    offset_m: float  # lateral offset of that width's centre, left of the heading
-
-
 class ControlCore:
     """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
 
-    Deterministic and free of I/O; `vrsim run` (a whole track at once, `run_track`) and the
-    controller service (one tick at a time, `tick`) run the same two stages:
+    Deterministic and free of I/O; `vrsim run` (the whole track in one `run_track`) and the
+    controller service (`run_track` on each lockstep batch, the state carried over) run the same
+    two stages:
 
     1. `targets`: where product metered now will land, the prescription there (with the map's
        policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
        landing point is predicted by dead reckoning from the fix: product metered now lands
        `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
-    2. the closed loop (PID, valve, motor), one `ClosedLoop.step` per tick.
+    2. the closed loop (PID, valve, motor): `controller.ClosedLoop.run` over the targets, one
+       control period per tick (sequential by nature: one lifted matrix product per period).
     """
 
     def __init__(self, grid: Grid, scenario: Scenario, field_polygon=None):
@@ -114,20 +99,6 @@ class ControlCore:
         rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
                    metered_kg=self._metered_kg(rev, rec["width_on_m"] > 0))
         return {key: rec[key] for key in CONTROL_KEYS}
-
-    def tick(self, x_m: float, y_m: float, heading_rad: float, speed_m_s: float,
-             implement_on: bool) -> TickOut:
-        """Both stages for one tick."""
-        t = self.targets(np.array([x_m]), np.array([y_m]), np.array([heading_rad]), np.array([speed_m_s]),
-                         np.array([implement_on]))
-        target, width_on = float(t["target_shaft_rpm"][0]), float(t["width_on_m"][0])
-        out = self.loop.step(target)
-        rev = float(out.shaft_rev[0])
-        return TickOut(float(t["landing_x_m"][0]), float(t["landing_y_m"][0]),
-                       float(t["prescribed_kg_ha"][0]), target, float(out.shaft_rpm[0]), rev,
-                       float(out.current_a[0]),
-                       float(self._metered_kg(np.array([rev]), np.array([width_on > 0]))[0]),
-                       width_on, float(t["offset_m"][0]))
 
     def _metered_kg(self, shaft_rev, applying) -> np.ndarray:
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped

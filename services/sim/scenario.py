@@ -143,8 +143,6 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenari
             raise ScenarioError(f"{source}: [{key}] must be a table, got {doc[key]!r}")
     name = _typed(doc, "name", str, source, "", default=os.path.splitext(os.path.basename(source))[0])
     seed = _typed(doc, "seed", int, source, "", default=1)
-    if seed < 0:
-        raise ScenarioError(f"{source}: seed must be >= 0, got {seed}")
     scenario = Scenario(
         name=name.replace("builtin:", ""),
         source=source,
@@ -162,14 +160,71 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenari
         timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=_build(OutputSpec, doc.get("output", {}), source, "output"),
     )
+    _machine_once(doc.get("plant", {}), source)
+    _check(scenario)
+    return scenario
+
+
+def with_changes(scenario: Scenario, **changes) -> Scenario:
+    """A copy of `scenario` with some values changed, checked as a scenario file's would be.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    **changes
+        ``name``, ``seed`` or ``description``, or a table as a dict of the keys to change, e.g.
+        ``implement={"width_m": 18.0}``, ``controller={"kind": "PI"}``; the other keys keep their values.
+
+    Returns
+    -------
+    Scenario
+        The changed copy (the original is frozen and stays as it was).
+
+    Raises
+    ------
+    ScenarioError
+        Naming the scenario, the table, the key and the value, as loading a file with it would.
+
+    ``dataclasses.replace`` works too (``replace(sc, implement=replace(sc.implement, width_m=18.0))``):
+    the owning dataclass checks its own values, but not what a scenario checks across tables.
+    """
+    source, top = scenario.source, {}
+    for key, value in changes.items():
+        if key in ("name", "description"):
+            top[key] = _typed(changes, key, str, source, "")
+        elif key == "seed":
+            top[key] = _typed(changes, key, int, source, "")
+        elif key in TOP_KEYS:
+            if not isinstance(value, dict):
+                raise ScenarioError(f"{source}: [{key}] changes must be a dict of its keys, got {value!r}")
+            current = getattr(scenario, key)
+            kept = {f.name: getattr(current, f.name) for f in dataclasses.fields(current) if f.init}
+            _no_unknown(value, kept, source, key)
+            if key == "plant":
+                _machine_once(value, source)
+            top[key] = _build(type(current), {**kept, **value}, source, key)
+        else:
+            _no_unknown({key: value}, TOP_KEYS, source, "")
+    changed = dataclasses.replace(scenario, **top)
+    _check(changed)
+    return changed
+
+
+def _machine_once(plant_table: dict, source: str) -> None:
     for key in ("transmission_ratio", "shaft_rpm_max"):
-        if key in doc.get("plant", {}):
+        if key in plant_table:
             raise ScenarioError(f"{source}: [plant] {key}: set it in [implement], which describes the "
-                                f"machine once (got {doc['plant'][key]!r})")
+                                f"machine once (got {plant_table[key]!r})")
+
+
+def _check(scenario: Scenario) -> None:
+    """What a scenario checks across its tables (each table's dataclass checks its own values)."""
+    source = scenario.source
+    if scenario.seed < 0:
+        raise ScenarioError(f"{source}: seed must be >= 0, got {scenario.seed}")
     _check_field(scenario.field, source)
     _check_map(scenario.map, source)
     _check_timing(scenario.timing, source)
-    return scenario
 
 
 def _no_unknown(table: dict, known, source: str, section: str) -> None:

@@ -1,5 +1,6 @@
 """vrsim run end to end: real SUMO, real files, through the real executable where it matters."""
 
+import dataclasses
 import json
 import os
 import re
@@ -10,9 +11,11 @@ import pytest
 import rasterio
 from PIL import Image
 
+from maps import write_map
 from services.sim import run as field_run
 from services.sim import scenario
 from services.sim.core import ControlCore
+from services.sim.world import build_world
 from tests.conftest import VRSIM
 
 QUICK = """
@@ -99,20 +102,48 @@ def test_uniform_map_at_constant_speed_balances_within_one_percent(tmp_path):
     assert result.summary["within_10pct_area_pct"] > 90.0
 
 
-def test_tick_by_tick_core_matches_the_staged_run(tmp_path):
-    """The controller service calls ControlCore.tick; vrsim run calls run_track: same numbers."""
+def with_nodata_hole(tmp_path) -> str:
+    """The quick scenario on a GeoTIFF copy of its map with a nodata hole in the field, policy hold."""
     sc = scenario.load(quick(tmp_path, plots=False))
+    grid = build_world(sc).grid
+    rates = grid.rates_kg_ha.copy()
+    rates[40:50, 20:30] = np.nan
+    write_map(dataclasses.replace(grid, rates_kg_ha=rates), str(tmp_path / "rx.tif"))
+    text = open(sc.source).read().replace('synthetic = "zones"', 'file = "rx.tif"\npolicy = "hold"')
+    path = tmp_path / "hold.toml"
+    path.write_text(text.replace("params = { n_zones = 4 }\n", ""))
+    return str(path)
+
+
+@pytest.mark.parametrize("policy", ["off", "hold"])
+def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
+    """The controller service calls ControlCore.run_track on each lockstep batch (one tick in real-time
+    mode), carrying its state over; vrsim run calls it once on the whole track: same numbers."""
+    sc = scenario.load(quick(tmp_path, plots=False) if policy == "off" else with_nodata_hole(tmp_path))
+    assert sc.map.policy == policy
     result = field_run.run(sc)
     core = ControlCore(result.world.grid, sc, result.world.field.polygon)
     t = result.track
     n = len(t["time_s"])
-    for i in range(n):
-        out = core.tick(float(result.measured_x_m[i]), float(result.measured_y_m[i]),
-                        float(t["heading_rad"][i]), float(result.measured_speed_m_s[i]),
-                        bool(t["implement_on"][i]))
-        assert out.shaft_rpm == pytest.approx(result.control["shaft_rpm"][i], rel=1e-12, abs=1e-12)
-        assert out.metered_kg == pytest.approx(result.control["metered_kg"][i], rel=1e-12, abs=1e-15)
-        assert out.prescribed_kg_ha == result.control["prescribed_kg_ha"][i]
+    # Single ticks first (real-time mode), then lockstep batches of uneven sizes.
+    sizes = [1] * 200 + [7, 50, 333, 1]
+    cuts = np.cumsum(sizes)
+    cuts = np.append(cuts[cuts < n], np.arange(cuts[-1], n, 50)[1:])
+    parts = []
+    for part in np.split(np.arange(n), cuts):
+        if part.size:
+            parts.append(core.run_track(result.measured_x_m[part], result.measured_y_m[part],
+                                        t["heading_rad"][part], result.measured_speed_m_s[part],
+                                        t["implement_on"][part]))
+    batched = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    np.testing.assert_allclose(batched["shaft_rpm"], result.control["shaft_rpm"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(batched["metered_kg"], result.control["metered_kg"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(batched["prescribed_kg_ha"], result.control["prescribed_kg_ha"])
+    assert len(parts) > 200 and batched["metered_kg"].sum() > 0
+    if policy == "hold":  # the hole was crossed, and held rates filled it
+        looked_up = result.world.grid.lookup(batched["landing_x_m"], batched["landing_y_m"]).rate_kg_ha
+        held = np.isnan(looked_up)
+        assert held.sum() > 20 and (batched["prescribed_kg_ha"][held] > 0).all()
 
 
 @pytest.mark.parametrize("edit, message", [

@@ -1,4 +1,4 @@
-"""Pure parts of driving: configuration, speed variation, speed sensor, record (no SUMO here)."""
+"""Pure parts of driving: configuration, speed variation, speed sensor (no SUMO here)."""
 
 import numpy as np
 import pytest
@@ -6,13 +6,9 @@ import pytest
 from common.errors import VehicleError
 from vehicle import (
     DriveConfig,
-    Field,
-    Gnss,
-    GnssConfig,
     SpeedSensor,
     SpeedSensorConfig,
     SpeedVariation,
-    vehicle_record,
 )
 
 
@@ -73,17 +69,3 @@ def test_speed_sensor_validation():
         SpeedSensorConfig(rate_hz=0)
     with pytest.raises(VehicleError, match="strictly increasing"):
         SpeedSensor().measure([1.0, 1.0], [2.0, 2.0])
-
-
-def test_vehicle_record_columns():
-    field = Field.rectangle(100.0, 100.0)
-    x0, y0 = field.polygon.bounds[:2]
-    t = np.arange(1, 201) * 0.05
-    track = {"time_s": t, "x_m": x0 + 10 + t, "y_m": np.full_like(t, y0 + 50),
-             "heading_rad": np.zeros_like(t),
-             "speed_m_s": np.ones_like(t), "implement_on": np.ones_like(t, dtype=bool)}
-    rec = vehicle_record(field, track, Gnss(GnssConfig("dgps"), seed=1), SpeedSensor(seed=1))
-    assert set(rec) >= {"lon_deg", "lat_deg", "x_meas_m", "lon_meas_deg", "speed_meas_m_s"}
-    assert all(len(v) == len(t) for v in rec.values())
-    assert np.all(np.abs(rec["lat_deg"] - 52.0) < 0.001)
-    assert 0 < np.max(np.abs(rec["x_meas_m"] - rec["x_m"])) < 3.0

@@ -1,0 +1,33 @@
+"""The Python API example (scenarios/python_api.py) runs as the README shows it, from another folder."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import ROOT
+
+SCRIPT = os.path.join(ROOT, "scenarios", "python_api.py")
+
+
+def test_python_api_example_loads_changes_runs_and_writes(tmp_path):
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, SCRIPT, str(out)], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = {line.split()[0]: [float(v) for v in line.split()[1:]] for line in p.stdout.splitlines()
+            if line.startswith("quick_zones")}
+    assert set(rows) == {"quick_zones", "quick_zones_fast"}
+    speed, mae, within, t_mean, d_mean = rows["quick_zones"]
+    fast_speed, fast_mae, _, _, fast_d_mean = rows["quick_zones_fast"]
+    assert fast_speed == 4.0 and speed == 2.5  # the change in code took effect
+    assert 0 < mae < 50 and within > 50 and t_mean > 0
+    assert fast_d_mean > d_mean  # faster over the ground: the same transition covers more of it
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scenario"] == "quick_zones_fast"
+    assert summary["mae_kg_ha"] == pytest.approx(fast_mae, abs=5e-4)
+    assert summary["scenario_config"]["tractor"]["working_speed_m_s"] == 4.0
+    for name in ("as_applied.tif", "error.tif", "track.csv", "map.png", "timeseries.png", "report.html"):
+        assert (out / name).is_file(), name
