@@ -137,10 +137,15 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
         refused = _refuse_operator(request, operator, "start")
         if refused is not None:
             return refused
+        params = dict(request.query_params)
+        try:
+            operator.check("start", params)
+        except VrsimError as exc:
+            return _error(400, str(exc))
         body = await _body(request)
         if body is None:
             return _error(413, f"/api/start: the scenario is larger than {MAX_SCENARIO_BYTES} bytes")
-        return await _bus(operator.request, "start", body, dict(request.query_params))
+        return await _bus(operator.request, "start", body, params)
 
     async def api_stop(request: Request) -> Response:
         refused = _refuse_operator(request, operator, "stop")

@@ -25,7 +25,7 @@ from services.bus import client, messages
 from services.bus.config import Keys, ZenohOptions, open_session
 from services.bus.serving import guarded
 from services.bus.web import picture
-from services.bus.web.live import HISTORY_POINTS, LiveView, ViewGrid
+from services.bus.web.live import FIELDS, HISTORY_POINTS, RECORD_FIELDS, Batch, LiveView, ViewGrid
 
 DECODERS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 RECORDS_PAGE = 20_000  # ticks per monitor/records query (the monitor's cap)
@@ -67,13 +67,11 @@ class Bridge:
                 for s in DECODERS]
 
     def _on_message(self, stream: str, handler):
-        cls = DECODERS[stream]
-
         def on_sample(sample) -> None:
-            records = messages.decode_batch(cls, sample.payload.to_bytes())
-            new_run = handler(records)
+            batch = decode(stream, sample.payload.to_bytes(), FIELDS[stream])
+            new_run = handler(batch)
             if new_run is not None:
-                self._follow(new_run, catch_up=records[0].tick > 0)
+                self._follow(new_run, catch_up=batch.tick[0] > 0)
 
         return on_sample
 
@@ -224,9 +222,9 @@ class Bridge:
         while start < upto and not self.stop.is_set():
             count = min(RECORDS_PAGE, upto - start)
             pages = {s: self._records(s, run_id, start, count) for s in DECODERS}
-            self.view.backfill(run_id, pages["pose"], pages["shaft"], pages["rate"], stride)
-            if pages["rate"]:
-                start, idle_since = pages["rate"][-1].tick + 1, time.monotonic()
+            self.view.backfill(pages["pose"], pages["shaft"], pages["rate"], stride)
+            if len(pages["rate"].tick):
+                start, idle_since = int(pages["rate"].tick[-1]) + 1, time.monotonic()
             elif time.monotonic() - idle_since > CATCHUP_PATIENCE_S:
                 self.view.set_catchup(run_id, "failed", f"the monitor has no rate records from tick {start}")
                 return
@@ -234,14 +232,18 @@ class Bridge:
                 time.sleep(0.5)  # the monitor is behind: it stores what is still on its way
         self.view.set_catchup(run_id, "done")
 
-    def _records(self, stream: str, run_id: str, start: int, count: int) -> list:
+    def _records(self, stream: str, run_id: str, start: int, count: int) -> Batch:
+        """Ticks [start, start + count) of ``run_id``'s ``stream`` the monitor has stored."""
         selector = (f"{self.keys.monitor_records}?run_id={run_id};stream={stream};"
                     f"from_tick={start};count={count}")
         raw = client.request(self.session, selector, timeout_s=60.0)
         if raw.strip() == b"[]":
-            return []
-        records = messages.decode_batch(DECODERS[stream], raw, max_len=count)
-        return [r for r in records if r.run_id == run_id and start <= r.tick < start + count]
+            return Batch(run_id, {f: np.zeros(0) for f in RECORD_FIELDS[stream]})
+        batch = decode(stream, raw, RECORD_FIELDS[stream], max_len=count)
+        if batch.run_id != run_id:
+            return Batch(run_id, {k: v[:0] for k, v in batch.cols.items()})
+        before = np.maximum.accumulate(np.concatenate([[start - 1], batch.tick[:-1]]))
+        return batch.take((batch.tick > before) & (batch.tick < start + count))  # ascending, in range
 
 
 class Operator:
@@ -258,13 +260,18 @@ class Operator:
         self.keys = options.keys
         self.session = open_session(options)
 
-    def request(self, verb: str, body: bytes | None = None, params: dict | None = None) -> dict:
-        """``<prefix>/scenario/<verb>`` (start or stop) with ``body`` and selector ``params``."""
-        params = params or {}
+    def check(self, verb: str, params: dict) -> None:
+        """Refuse parameters other than `PARAMS`, and values that could break a selector."""
         for name, value in params.items():
             if name not in self.PARAMS or not self._VALUE.match(value):
-                raise ServiceError(f"/api/{verb}: parameter {name}={value!r} is not one of "
+                raise ServiceError(f"/api/{verb}: parameter {name}={value[:40]!r} is not one of "
                                    f"{', '.join(self.PARAMS)} with a plain value")
+
+    def request(self, verb: str, body: bytes | None = None, params: dict | None = None) -> dict:
+        """``<prefix>/scenario/<verb>`` (start or stop) with ``body`` and selector ``params``: the one
+        function through which the web service writes to the bus."""
+        params = params or {}
+        self.check(verb, params)
         selector = self.keys.scenario(verb) + ("?" + ";".join(f"{k}={v}" for k, v in params.items())
                                                if params else "")
         return _object(client.request_json(self.session, selector, body or None, timeout_s=120.0,
@@ -272,6 +279,16 @@ class Operator:
 
     def close(self) -> None:
         self.session.close()
+
+
+def decode(stream: str, payload: bytes, fields: tuple[str, ...], max_len: int = 100_000) -> Batch:
+    """One message of ``stream`` as a `Batch` of ``fields``, checked by the stream's schema and
+    refused when its records are of several runs (a publisher sends one run's ticks per message)."""
+    cols, last = messages.decode_columns(DECODERS[stream], payload, ("run_id", *fields), max_len)
+    run_ids = cols.pop("run_id")
+    if run_ids.count(run_ids[0]) != len(run_ids):
+        raise ServiceError(f"{stream}: a message with records of several runs ({run_ids[0]!r}, ...)")
+    return Batch(run_ids[0], cols, last.to_dict())
 
 
 def field_geometry(world) -> dict:

@@ -34,6 +34,36 @@ MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m 
 STREAMS = ("pose", "shaft", "rate")
 
 
+# The fields of each stream the view reads: live, and from the monitor's records (for the charts too).
+FIELDS = {"pose": ("tick", "heading_rad"), "shaft": ("tick",),
+          "rate": ("tick", "landing_x_m", "landing_y_m", "width_on_m", "offset_m", "applied_kg_ha",
+                   "implement_on")}
+RECORD_FIELDS = {"pose": FIELDS["pose"], "shaft": ("tick", "target_shaft_rpm", "shaft_rpm"),
+                 "rate": (*FIELDS["rate"], "time_s", "prescribed_kg_ha")}
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Records of one stream as columns (`messages.decode_columns`): ``cols`` holds ``tick`` and the
+    fields the view reads, arrays of one length in the order they came; ``last`` is the last record
+    whole (as `Message.to_dict`), what the page shows."""
+
+    run_id: str
+    cols: dict
+    last: dict | None = None
+
+    @property
+    def tick(self) -> np.ndarray:
+        return self.cols["tick"]
+
+    def take(self, which) -> Batch:
+        return Batch(self.run_id, {k: v[which] for k, v in self.cols.items()}, self.last)
+
+    def extend(self, other: Batch) -> Batch:
+        return Batch(self.run_id, {k: np.concatenate([v, other.cols[k]]) for k, v in self.cols.items()},
+                     other.last)
+
+
 @dataclass(frozen=True)
 class ViewGrid:
     """The raster the page shows, in the map's CRS: the map's own grid, or every ``stride``-th cell of
@@ -124,11 +154,11 @@ class AppliedLayer:
         sample = np.broadcast_to(np.arange(len(x))[:, None], cell.shape)
         on = cell >= 0
         pairs = np.unique(sample[on] * self.grid.cells + cell[on])  # each sample once per cell
-        cells, which = pairs % self.grid.cells, pairs // self.grid.cells
-        np.add.at(self.sum_kg_ha, cells, rate[which])
-        np.add.at(self.samples, cells, 1)
+        cells, inverse = np.unique(pairs % self.grid.cells, return_inverse=True)
+        self.sum_kg_ha[cells] += np.bincount(inverse, weights=rate[pairs // self.grid.cells])
+        self.samples[cells] += np.bincount(inverse)
         self.stamp[cells] = seq
-        return len(np.unique(cells))
+        return len(cells)
 
     def since(self, seq: int) -> dict:
         """Cells changed after frame ``seq``: ``{"i": flat indices, "v": mean kg/ha}`` (-1: all)."""
@@ -172,7 +202,8 @@ class LiveView:
         self.catchup_points: list = []  # chart points from the records, added to the history when done
         self.heading_tick = np.full(HEADING_RING, -1, dtype=np.int64)
         self.heading_rad = np.zeros(HEADING_RING)
-        self.waiting: deque = deque(maxlen=HEADING_RING)  # rate samples whose pose has not come yet
+        self.waiting: Batch | None = None  # rate samples whose pose has not come yet
+        self.unpainted: list = []  # oriented samples for the next frame to paint
         self.newest_pose_tick = -1
         self.unoriented = 0  # rate samples left unpainted: their pose never came
         self.history.clear()
@@ -180,86 +211,97 @@ class LiveView:
         if self.map is not None:
             self.layer = AppliedLayer(self.map["grid"])
 
-    def _changed_run(self, stream: str, records: list) -> str | None:
+    def _changed_run(self, stream: str, batch: Batch) -> str | None:
         """Start over on a message of another run; returns that run's id (None: same run)."""
-        run_id = records[0].run_id
-        new = run_id != self.run_id
+        new = batch.run_id != self.run_id
         if new:
-            self._reset_run(run_id)
+            self._reset_run(batch.run_id)
             self.epoch += 1
         if self.first_tick[stream] is None:
-            self.first_tick[stream] = records[0].tick
-        return run_id if new else None
+            self.first_tick[stream] = int(batch.tick[0])
+        return batch.run_id if new else None
 
     # ---------------------------------------------------------------- from the bus
-    def on_pose(self, poses: list) -> str | None:
-        """Poses of one message; returns the run id when it starts a run this view had not seen."""
+    def on_pose(self, batch: Batch) -> str | None:
+        """One pose message; returns the run id when it starts a run this view had not seen."""
         with self.lock:
-            new = self._changed_run("pose", poses)
-            ticks = np.array([p.tick for p in poses], dtype=np.int64)
-            self.heading_tick[ticks % HEADING_RING] = ticks
-            self.heading_rad[ticks % HEADING_RING] = [p.heading_rad for p in poses]
-            self.newest_pose_tick = max(self.newest_pose_tick, int(ticks[-1]))
-            if self.waiting:  # rate samples that came before their poses (another publisher's path)
-                waiting, self.waiting = list(self.waiting), deque(maxlen=HEADING_RING)
+            new = self._changed_run("pose", batch)
+            slot = batch.tick % HEADING_RING
+            self.heading_tick[slot] = batch.tick
+            self.heading_rad[slot] = batch.cols["heading_rad"]
+            self.newest_pose_tick = max(self.newest_pose_tick, int(batch.tick.max()))
+            if self.waiting is not None:  # rate samples that came before their poses
+                waiting, self.waiting = self.waiting, None
                 self._paint_oriented(waiting)
-            self.latest["pose"] = poses[-1].to_dict()
+            self.latest["pose"] = batch.last
             self.dirty = True
             return new
 
-    def on_shaft(self, shafts: list) -> str | None:
+    def on_shaft(self, batch: Batch) -> str | None:
         with self.lock:
-            new = self._changed_run("shaft", shafts)
-            self.latest["shaft"] = shafts[-1].to_dict()
+            new = self._changed_run("shaft", batch)
+            self.latest["shaft"] = batch.last
             self.dirty = True
             return new
 
-    def on_rate(self, rates: list) -> str | None:
+    def on_rate(self, batch: Batch) -> str | None:
         with self.lock:
-            new = self._changed_run("rate", rates)
-            self._paint_oriented([r for r in rates if r.tick >= self.backfilled_to])
-            self.latest["rate"] = rates[-1].to_dict()
+            new = self._changed_run("rate", batch)
+            self._paint_oriented(batch.take(batch.tick >= self.backfilled_to))
+            self.latest["rate"] = batch.last
             self.dirty = True
             return new
 
-    def _paint_oriented(self, rates: list) -> None:
+    def _paint_oriented(self, rates: Batch) -> None:
         """Paint the samples whose tick's pose (heading) is known; the others wait for it (the vehicle
         publishes a tick's pose before the controller its rate, but they reach here on two paths)."""
-        ticks = np.array([r.tick for r in rates], dtype=np.int64)
-        slot = ticks % HEADING_RING
-        known = self.heading_tick[slot] == ticks
-        self._paint([r for r, k in zip(rates, known, strict=True) if k], self.heading_rad[slot[known]])
+        slot = rates.tick % HEADING_RING
+        known = self.heading_tick[slot] == rates.tick
+        self._paint(rates.take(known), self.heading_rad[slot[known]])
         # Poses come in tick order: a sample whose pose should have come already never gets one.
-        later = ~known & (ticks > self.newest_pose_tick)
-        self.waiting.extend(r for r, k in zip(rates, later, strict=True) if k)
+        later = ~known & (rates.tick > self.newest_pose_tick)
         self.unoriented += int(np.count_nonzero(~known & ~later))
+        if later.any():
+            waiting = rates.take(later) if self.waiting is None else self.waiting.extend(rates.take(later))
+            self.waiting = waiting.take(slice(-HEADING_RING, None))
 
-    def _paint(self, rates: list, heading: np.ndarray) -> None:
-        if self.layer is None or not rates:
-            return
-        cols = ("landing_x_m", "landing_y_m", "width_on_m", "offset_m", "applied_kg_ha")
-        x, y, w, off, applied = (np.array([getattr(r, c) for r in rates], dtype=np.float64) for c in cols)
-        on = np.array([r.implement_on for r in rates])
-        self.layer.paint(self.seq + 1, x, y, heading, np.where(on, w, 0.0), off, applied)
+    def _paint(self, rates: Batch, heading: np.ndarray) -> None:
+        """Queue oriented samples; `_flush` paints them in one go (numpy's per-call cost, paid per
+        message, would be most of the work: a lockstep run sends some 300 rate messages a second)."""
+        if self.layer is not None and len(rates.tick):
+            c = rates.cols
+            width = np.where(c["implement_on"], c["width_on_m"], 0.0)
+            self.unpainted.append((c["landing_x_m"], c["landing_y_m"], heading, width, c["offset_m"],
+                                   c["applied_kg_ha"]))
 
-    def backfill(self, run_id: str, poses: list, shafts: list, rates: list, stride: int) -> int:
+    def _flush(self, seq: int) -> None:
+        if self.unpainted and self.layer is not None:
+            self.layer.paint(seq, *(np.concatenate(col) for col in zip(*self.unpainted, strict=True)))
+        self.unpainted = []
+
+    def backfill(self, poses: Batch, shafts: Batch, rates: Batch, stride: int) -> int:
         """Records of the run's past from the monitor (ticks before those seen live): paint the rates
-        (oriented by the poses of the same ticks) and add every ``stride``-th tick to the chart history.
-        Returns the ticks painted."""
+        (oriented by the poses of the same ticks) and keep every ``stride``-th tick for the chart
+        history. Returns the ticks painted."""
         with self.lock:
-            if run_id != self.run_id:
+            if rates.run_id != self.run_id:
                 return 0
             live = self.first_tick["rate"]
-            rates = [r for r in rates if r.tick >= self.backfilled_to and (live is None or r.tick < live)]
-            heading_of = {p.tick: p.heading_rad for p in poses}
-            self._paint(rates, np.array([heading_of.get(r.tick, np.nan) for r in rates]))
-            if rates:
-                self.backfilled_to = rates[-1].tick + 1
-            shaft_of = {s.tick: s for s in shafts}
-            self.catchup_points += [_point(shaft_of.get(r.tick), r) for r in rates if r.tick % stride == 0]
-            self.catchup["ticks"] += len(rates)
+            rates = rates.take((rates.tick >= self.backfilled_to) & (rates.tick < (live if live is not None
+                                                                                   else np.inf)))
+            if not len(rates.tick):
+                return 0
+            self._paint(rates, _at(poses, rates.tick, "heading_rad"))
+            self._flush(self.seq + 1)
+            self.backfilled_to = int(rates.tick[-1]) + 1
+            some = rates.take(rates.tick % stride == 0)
+            columns = [some.cols["time_s"], _at(shafts, some.tick, "target_shaft_rpm"),
+                       _at(shafts, some.tick, "shaft_rpm"), some.cols["prescribed_kg_ha"],
+                       some.cols["applied_kg_ha"]]
+            self.catchup_points += [[_json(v) for v in row] for row in zip(*columns, strict=True)]
+            self.catchup["ticks"] += len(rates.tick)
             self.dirty = True
-            return len(rates)
+            return len(rates.tick)
 
     def set_catchup(self, run_id: str, state: str, note: str = "") -> None:
         with self.lock:
@@ -302,6 +344,7 @@ class LiveView:
             if self.layer is not None and self.layer.grid == grid:
                 return False
             self.layer = AppliedLayer(grid)
+            self.unpainted = []
             self.backfilled_to = 0
             last = self.latest["rate"]
             self.first_tick["rate"] = None if last is None else last["tick"] + 1
@@ -327,6 +370,7 @@ class LiveView:
                 return None
             self.seq += 1
             self.dirty = False
+            self._flush(self.seq)
             if self.latest["rate"] is not None or self.latest["shaft"] is not None:
                 point = _point_dicts(self.latest["shaft"], self.latest["rate"])
                 if not self.history or self.history[-1][1] != point:
@@ -363,9 +407,16 @@ class LiveView:
             return self.run_id, dict(self.first_tick)
 
 
-def _point(shaft, rate) -> list:
-    """One chart point: [time_s, target_shaft_rpm, shaft_rpm, prescribed_kg_ha, applied_kg_ha]."""
-    return _point_dicts(shaft.to_dict() if shaft is not None else None, rate.to_dict())
+def _at(batch: Batch, ticks: np.ndarray, field: str) -> np.ndarray:
+    """``batch``'s ``field`` at ``ticks`` (NaN where it has no such tick); its ticks ascend."""
+    i = np.clip(np.searchsorted(batch.tick, ticks), 0, max(len(batch.tick) - 1, 0))
+    if not len(batch.tick):
+        return np.full(len(ticks), np.nan)
+    return np.where(batch.tick[i] == ticks, batch.cols[field][i], np.nan)
+
+
+def _json(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
 
 
 def _point_dicts(shaft: dict | None, rate: dict | None) -> list:

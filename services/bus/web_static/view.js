@@ -116,16 +116,19 @@
     if (!d || !d.i.length) return;
     if (!values) { pending.push(d); return; }
     const lut = view.map.scale.lut, lo = view.map.scale.vmin_kg_ha, hi = view.map.scale.vmax_kg_ha;
-    const px = layerImg.data;
+    const px = layerImg.data, cols = grid.cols;
+    let r0 = Infinity, r1 = -1, c0 = Infinity, c1 = -1; // the changed rectangle, put back alone
     for (let k = 0; k < d.i.length; k++) {
       const i = d.i[k], v = d.v[k];
       if (i < 0 || i >= values.length) continue;
+      const r = Math.floor(i / cols), col = i - r * cols;
+      r0 = Math.min(r0, r); r1 = Math.max(r1, r); c0 = Math.min(c0, col); c1 = Math.max(c1, col);
       if (Number.isNaN(values[i])) S.appliedCells++;
       values[i] = v;
       const c = lut[Math.max(0, Math.min(lut.length - 1, Math.round((v - lo) / (hi - lo) * (lut.length - 1))))];
       px[4 * i] = c[0]; px[4 * i + 1] = c[1]; px[4 * i + 2] = c[2]; px[4 * i + 3] = 255;
     }
-    layer.getContext("2d").putImageData(layerImg, 0, 0);
+    if (r1 >= 0) layer.getContext("2d").putImageData(layerImg, 0, 0, c0, r0, c1 - c0 + 1, r1 - r0 + 1);
   }
 
   function countCells() {
@@ -141,6 +144,10 @@
     $("vmax").textContent = scale.vmax_kg_ha.toFixed(0);
   }
 
+  // The map canvas: a background (prescription, path, field) drawn again only when the view, the run,
+  // the layer choice or the size changes; per frame only the applied layer, the trail and the tractor.
+  let background = null, backgroundKey = "";
+
   function drawMap() {
     const cv = $("map"), box = cv.getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
     if (!grid) return;
@@ -152,29 +159,25 @@
       cv.height = Math.round(cssH * dpr);
       cv.style.height = `${cssH}px`;
     }
-    const c = cv.getContext("2d");
-    c.setTransform(dpr, 0, 0, dpr, 0, 0);
-    c.clearRect(0, 0, cssW, cssH);
     const ox = (cssW - wM * scale) / 2, oy = (cssH - hM * scale) / 2;
     const X = (x) => ox + (x - grid.west_m) * scale, Y = (y) => oy + (grid.north_m - y) * scale;
     const which = document.querySelector("input[name=layer]:checked").value;
-    c.imageSmoothingEnabled = false;
-    if (mapImg && which !== "applied") {
-      c.globalAlpha = which === "both" ? 0.35 : 1;
-      c.drawImage(mapImg, ox, oy, wM * scale, hM * scale);
-      c.globalAlpha = 1;
+    const key = [cv.width, cv.height, S.mapVersion, S.mapLoaded, S.runId, !!run.field, which].join();
+    if (key !== backgroundKey) {
+      backgroundKey = key;
+      background = drawBackground(cv.width, cv.height, dpr, X, Y, ox, oy, wM * scale, hM * scale, which);
     }
+    const c = cv.getContext("2d");
+    c.setTransform(1, 0, 0, 1, 0, 0);
+    c.clearRect(0, 0, cv.width, cv.height);
+    c.drawImage(background, 0, 0);
+    c.setTransform(dpr, 0, 0, dpr, 0, 0);
+    c.imageSmoothingEnabled = false;
     if (layer && which !== "prescription") c.drawImage(layer, ox, oy, wM * scale, hM * scale);
-    const field = run.field;
-    if (field) {
-      c.lineWidth = 1;
-      c.setLineDash([4, 3]);
-      c.strokeStyle = "rgba(255,255,255,0.8)";
-      polyline(c, field.path, X, Y, false);
-      c.setLineDash([]);
+    if (run.field) {
       c.lineWidth = 2;
       c.strokeStyle = "#222";
-      for (const ring of field.boundary) polyline(c, ring, X, Y, true);
+      for (const ring of run.field.boundary) polyline(c, ring, X, Y, true);
     }
     if (trail.length > 1) {
       c.lineWidth = 2;
@@ -200,6 +203,27 @@
       c.stroke();
       c.restore();
     }
+  }
+
+  function drawBackground(width, height, dpr, X, Y, ox, oy, w, h, which) {
+    const bg = document.createElement("canvas");
+    bg.width = width;
+    bg.height = height;
+    const c = bg.getContext("2d");
+    c.setTransform(dpr, 0, 0, dpr, 0, 0);
+    c.imageSmoothingEnabled = false;
+    if (mapImg && which !== "applied") {
+      c.globalAlpha = which === "both" ? 0.35 : 1;
+      c.drawImage(mapImg, ox, oy, w, h);
+      c.globalAlpha = 1;
+    }
+    if (run.field) {
+      c.lineWidth = 1;
+      c.setLineDash([4, 3]);
+      c.strokeStyle = "rgba(255,255,255,0.8)";
+      polyline(c, run.field.path, X, Y, false);
+    }
+    return bg;
   }
 
   function polyline(c, pts, X, Y, close) {
@@ -270,13 +294,17 @@
       const tr = document.createElement("tr");
       let v = doc[key];
       if (Array.isArray(v)) v = v.join(", ") || "none";
-      else if (typeof v === "number") v = digits === undefined ? String(v) : v.toFixed(digits);
+      else if (typeof v === "number") v = digits === undefined ? String(v) : fixed(v, digits);
       else if (v === null || v === undefined || v === "") v = "-";
       tr.innerHTML = "<td></td><td></td>";
       tr.cells[0].textContent = label;
       tr.cells[1].textContent = v;
       return tr;
     }));
+  }
+
+  function fixed(v, digits) {
+    return v.toFixed(digits).replace(/^-(0\.?0*)$/, "$1"); // no "-0.00"
   }
 
   function showStatus(st) {
