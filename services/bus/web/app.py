@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import time
 
 import orjson
 from starlette.applications import Starlette
@@ -61,6 +62,8 @@ class Frames:
 
 
 def sse(kind: str, doc: dict) -> bytes:
+    """One event; ``sent_unix``: when it left (wall clock, s), for a client's own latency figures."""
+    doc["sent_unix"] = time.time()
     return b"event: " + kind.encode() + b"\ndata: " + orjson.dumps(doc) + b"\n\n"
 
 
@@ -87,17 +90,22 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
 
     async def events(request: Request) -> Response:
         async def stream():
+            loop = asyncio.get_running_loop()
             bridge.viewers += 1
             try:
                 doc = view.hello()
+                sent = loop.time()
                 yield sse("hello", doc)
                 while not frames.closing:
                     if not await frames.next(doc["seq"]):
                         yield b": keepalive\n\n"
                         continue
+                    # Events of one stream leave at least FRAME_S apart, also after a stall.
+                    await asyncio.sleep(max(0.0, sent + FRAME_S - loop.time()))
                     if frames.closing:
                         return
                     doc = view.delta(doc["seq"], doc["epoch"])
+                    sent = loop.time()
                     yield sse(doc["type"], doc)
             finally:
                 bridge.viewers -= 1

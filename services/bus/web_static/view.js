@@ -108,9 +108,21 @@
   function clearApplied() {
     pending = [];
     if (values) values.fill(NaN);
-    if (layerImg) layerImg.data.fill(0);
+    if (layerImg) {
+      layerImg.data.fill(0);
+      layer.getContext("2d").clearRect(0, 0, layer.width, layer.height);
+    }
     S.appliedCells = 0;
   }
+
+  // For scripts and tests: the cells the applied layer's canvas really shows.
+  S.layerPixels = () => {
+    if (!layer) return 0;
+    const px = layer.getContext("2d").getImageData(0, 0, layer.width, layer.height).data;
+    let n = 0;
+    for (let i = 3; i < px.length; i += 4) if (px[i] > 0) n++;
+    return n;
+  };
 
   function applyCells(d) {
     if (!d || !d.i.length) return;
