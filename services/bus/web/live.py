@@ -223,34 +223,37 @@ class LiveView:
 
     # ---------------------------------------------------------------- from the bus
     def on_pose(self, batch: Batch) -> str | None:
-        """One pose message; returns the run id when it starts a run this view had not seen."""
-        with self.lock:
-            new = self._changed_run("pose", batch)
-            slot = batch.tick % HEADING_RING
-            self.heading_tick[slot] = batch.tick
-            self.heading_rad[slot] = batch.cols["heading_rad"]
-            self.newest_pose_tick = max(self.newest_pose_tick, int(batch.tick.max()))
-            if self.waiting is not None:  # rate samples that came before their poses
-                waiting, self.waiting = self.waiting, None
-                self._paint_oriented(waiting)
-            self.latest["pose"] = batch.last
-            self.dirty = True
-            return new
+        """One pose message; returns the run id when it starts a run this view had not seen (so for
+        `on_shaft` and `on_rate`)."""
+        return self._received("pose", batch, self._orient)
 
     def on_shaft(self, batch: Batch) -> str | None:
+        return self._received("shaft", batch, lambda b: None)
+
+    def on_rate(self, batch: Batch) -> str | None:
+        return self._received("rate", batch, self._paint_new)
+
+    def _paint_new(self, rates: Batch) -> None:
+        """Paint what the monitor's records have not painted already (a late joiner's overlap)."""
+        self._paint_oriented(rates.take(rates.tick >= self.backfilled_to))
+
+    def _received(self, stream: str, batch: Batch, use) -> str | None:
         with self.lock:
-            new = self._changed_run("shaft", batch)
-            self.latest["shaft"] = batch.last
+            new = self._changed_run(stream, batch)
+            use(batch)
+            self.latest[stream] = batch.last
             self.dirty = True
             return new
 
-    def on_rate(self, batch: Batch) -> str | None:
-        with self.lock:
-            new = self._changed_run("rate", batch)
-            self._paint_oriented(batch.take(batch.tick >= self.backfilled_to))
-            self.latest["rate"] = batch.last
-            self.dirty = True
-            return new
+    def _orient(self, poses: Batch) -> None:
+        """Keep the poses' headings by tick, and paint the rate samples that were waiting for them."""
+        slot = poses.tick % HEADING_RING
+        self.heading_tick[slot] = poses.tick
+        self.heading_rad[slot] = poses.cols["heading_rad"]
+        self.newest_pose_tick = max(self.newest_pose_tick, int(poses.tick.max()))
+        if self.waiting is not None:
+            waiting, self.waiting = self.waiting, None
+            self._paint_oriented(waiting)
 
     def _paint_oriented(self, rates: Batch) -> None:
         """Paint the samples whose tick's pose (heading) is known; the others wait for it (the vehicle
