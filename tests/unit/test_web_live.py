@@ -131,6 +131,15 @@ def test_a_new_run_starts_over_and_tells_the_browser_to():
     assert view.delta(view.seq, epoch)["type"] == "hello"
 
 
+def test_a_run_left_behind_is_not_shown_again():
+    view = view_with_map()
+    view.on_pose(batch([pose("a", 0, 1010.0)]))
+    view.on_pose(batch([pose("b", 0, 1010.0)]))
+    assert view.adopt_run("a") is False  # a status from before b started
+    assert view.on_pose(batch([pose("a", 1, 1011.0)])) is None and view.run_id == "b"
+    assert view.adopt_run("c") is True and view.run_id == "c"
+
+
 def test_a_rate_sample_that_comes_before_its_pose_is_painted_when_the_pose_comes():
     view = view_with_map()
     view.on_pose(batch([pose("r", 0, 1010.0)]))

@@ -117,7 +117,7 @@ class Bridge:
                 traceback.print_exc(file=sys.stderr)
 
     def _poll(self) -> None:
-        last_report, final_done = -math.inf, ""
+        next_report, final_done = -math.inf, ""
         while True:
             try:
                 status = self.status()
@@ -129,15 +129,18 @@ class Bridge:
             run_id, state = status.get("run_id"), status.get("state")
             if isinstance(run_id, str) and run_id and self.view.adopt_run(run_id):
                 self._follow(run_id, catch_up=True)
-            due = state == "running" and time.monotonic() - last_report >= self.report_every_s
+            due = state == "running" and time.monotonic() >= next_report
             final = state in FINAL_STATES and final_done != run_id
             if self.viewers > 0 and run_id == self.view.run_id and RUN_ID.match(run_id) and (due or final):
-                last_report = time.monotonic()
+                asked = time.monotonic()
                 try:
                     self.view.set_report(run_id, self.report(run_id))
                     final_done = run_id if final else final_done
                 except VrsimError:
                     pass  # no complete ticks yet, or the monitor is down: the page keeps the last one
+                # A report rebuilds the whole run in the monitor: at most a fifth of its time on them.
+                took = time.monotonic() - asked
+                next_report = asked + max(self.report_every_s, 5 * took)
             if self.stop.wait(STATUS_EVERY_S):
                 return
 

@@ -190,9 +190,13 @@ class LiveView:
         self.status_seq = -1
         self.report: dict | None = None
         self.report_seq = -1
+        self.left: deque = deque(maxlen=32)  # runs this view moved on from: never shown again
+        self.run_id = ""
         self._reset_run("")
 
     def _reset_run(self, run_id: str) -> None:
+        if self.run_id:
+            self.left.append(self.run_id)
         self.run_id = run_id
         self.run: dict = {"run_id": run_id}  # scenario, clock, field boundary and path, once known
         self.latest: dict = {s: None for s in STREAMS}
@@ -239,6 +243,8 @@ class LiveView:
 
     def _received(self, stream: str, batch: Batch, use) -> str | None:
         with self.lock:
+            if batch.run_id in self.left:  # a late message of a run that is over (or a forged one)
+                return None
             new = self._changed_run(stream, batch)
             use(batch)
             self.latest[stream] = batch.last
@@ -321,7 +327,7 @@ class LiveView:
     def adopt_run(self, run_id: str) -> bool:
         """Show ``run_id`` (a run found through scenario status, before any of its messages)."""
         with self.lock:
-            if run_id == self.run_id:
+            if run_id == self.run_id or run_id in self.left:  # a status older than the messages
                 return False
             self._reset_run(run_id)
             self.epoch += 1
