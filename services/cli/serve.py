@@ -116,7 +116,7 @@ def serve_all(args, options: ZenohOptions) -> int:
     if args.web:
         from services.bus.web import DEFAULT_LISTEN, parse_listen
 
-        parse_listen(args.web_listen or DEFAULT_LISTEN)  # refused before any process starts
+        parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen")  # before anything starts
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
         from services.bus import messages
         from services.sim import scenario

@@ -23,12 +23,13 @@ DEFAULT_LISTEN = "127.0.0.1:8448"
 READY_TIMEOUT_S = 10.0
 
 
-def parse_listen(text: str) -> tuple[str, int]:
-    """``HOST:PORT`` (``[::1]:PORT`` for IPv6) -> (host, port), refusing anything else."""
+def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int]:
+    """``HOST:PORT`` (``[::1]:PORT`` for IPv6) -> (host, port), refusing anything else (the message
+    names ``flag``)."""
     host, sep, port = text.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
     if not sep or not host or "/" in text or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ServiceError(f"serve web: --listen {text!r}: expected HOST:PORT, e.g. {DEFAULT_LISTEN} "
+        raise ServiceError(f"{flag} {text!r}: expected HOST:PORT, e.g. {DEFAULT_LISTEN} "
                            "(the web service is a client of the zenoh router: --connect says where that is)")
     return host, int(port)
 
