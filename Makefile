@@ -5,7 +5,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.vrsim-installed
 
-.PHONY: demo test test-unit test-integration test-accuracy lint bench clean
+CHROMIUM := /usr/bin/chromium
+
+.PHONY: demo test test-unit test-integration test-accuracy lint bench clean chromium
 
 $(STAMP): requirements.lock pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -19,14 +21,20 @@ demo: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
-test: lint
+test: lint chromium
 	$(BIN)/python -m pytest
 
 test-unit: $(STAMP)
 	$(BIN)/python -m pytest -m unit
 
-test-integration: $(STAMP)
+test-integration: $(STAMP) chromium
 	$(BIN)/python -m pytest -m integration
+
+# The web page's test drives Debian's Chromium (through Playwright, which downloads no browser):
+# install it when it is missing (needs root, as on CI).
+chromium:
+	@test -x $(CHROMIUM) || { echo "installing Chromium for the web page's test (apt-get, needs root)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; }
 
 test-accuracy: $(STAMP)
 	$(BIN)/python -m pytest -m accuracy

@@ -212,6 +212,14 @@ class Keys:
     def monitor_status(self) -> str:
         return self._m("monitor/status")
 
+    @property
+    def monitor_run(self) -> str:
+        return self._m("monitor/run")
+
+    @property
+    def monitor_records(self) -> str:
+        return self._m("monitor/records")
+
     # controller
     @property
     def control_ns(self) -> str:
@@ -266,3 +274,5 @@ class ServiceConfig:
     cell_size_m: float | None = None
     crs: str | None = None
     db: str | None = None  # monitor: its SQLite file (None: runs/monitor-<prefix>-<machine>.sqlite)
+    web_listen: str | None = None  # web: HOST:PORT of the page (None: 127.0.0.1:8448)
+    operator: ZenohOptions | None = None  # web: the session that may start and stop runs (None: viewer)

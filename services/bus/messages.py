@@ -136,6 +136,48 @@ def decode_batch(cls, data, max_len: int = 100_000) -> list:
     return [cls.from_dict(d, f"{cls.__name__}[{i}]") for i, d in enumerate(doc)]
 
 
+def decode_columns(cls, data, fields: tuple[str, ...], max_len: int = 100_000) -> tuple[dict, object]:
+    """A JSON array of ``cls`` messages as columns: the same checks as `decode_batch` (every record
+    has exactly the fields, each requested field has its type), several times faster for a reader that
+    needs a few fields of every record (the web service keeps up with a lockstep run this way).
+
+    Returns
+    -------
+    (columns, last) : (dict, cls)
+        ``{field: ndarray}`` for ``fields`` (float fields: NaN for null; str fields: a list), and the
+        last record decoded whole. Anything that does not fit raises `decode_batch`'s own error.
+    """
+    doc = _loads(data, f"{cls.__name__} batch")
+    doc = [doc] if isinstance(doc, dict) else doc
+    names = cls._names
+    if not (isinstance(doc, list) and 0 < len(doc) <= max_len
+            and all(type(d) is dict and d.keys() == names for d in doc)):
+        _refuse(cls, data, max_len)
+    kinds = {name: (kind, nullable) for name, kind, nullable in cls._spec}
+    columns = {}
+    for name in fields:
+        kind, nullable = kinds[name]
+        values = [d[name] for d in doc]
+        found = set(map(type, values))
+        none = {type(None)} if nullable or kind is float else set()
+        allowed = ({float, int} if kind is float else {kind}) | none
+        if not found <= allowed:
+            _refuse(cls, data, max_len)
+        if kind is str:
+            columns[name] = values
+        elif type(None) in found:
+            columns[name] = np.array([NAN if v is None else v for v in values], dtype=np.float64)
+        else:
+            columns[name] = np.array(values, dtype=np.float64 if kind is float else kind)
+    return columns, cls.from_dict(doc[-1], f"{cls.__name__}[{len(doc) - 1}]")
+
+
+def _refuse(cls, data, max_len: int):
+    """Raise `decode_batch`'s error for a batch a faster check refused (it names record and field)."""
+    decode_batch(cls, data, max_len)
+    raise ServiceError(f"{cls.__name__} batch: does not fit the schema")  # decode_batch raised already
+
+
 # ---------------------------------------------------------------------------------- per-tick streams
 @_message
 class Pose(Message):

@@ -25,6 +25,7 @@ from services.outputs.encode import dumps
 
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
+MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
 SCHEMA_VERSION = 2  # 2: measured speed in pose, section width and offset in rate
 
 
@@ -132,6 +133,20 @@ class MonitorStore:
                 "AND applied_kg_ha IS NOT NULL AND prescribed_kg_ha IS NOT NULL", (run_id,)).fetchone()
         return n, NAN if mae is None else mae, NAN if bias is None else bias
 
+    def records(self, table: str, run_id: str, from_tick: int, count: int) -> list:
+        """The stored messages of one stream with ticks in [from_tick, from_tick + count), in tick order
+        (what was published, for a client that joins a run late)."""
+        cls = STREAMS[table]
+        cols = _columns(cls)
+        with self.lock:
+            rows = self.db.execute(f"SELECT tick, {', '.join(cols)} FROM {table} WHERE run_id = ? "
+                                   "AND tick >= ? AND tick < ? ORDER BY tick",
+                                   (run_id, from_tick, from_tick + count)).fetchall()
+        kinds = [kind for name, kind, _ in cls._spec if name in cols]
+        # SQLite hands back REAL columns as floats (NaN stored as NULL): give each field its type back.
+        return [cls(run_id, tick, *(NAN if v is None else kind(v)
+                                    for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
+
     def arrays(self, run_id: str) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.account` takes) over the complete ticks:
         0..n-1 with pose, shaft and rate all stored."""
@@ -188,6 +203,23 @@ class MonitorService:
         return messages.MonitorStatus(run["run_id"], counts["pose"], counts["shaft"], counts["rate"],
                                       counts["complete"], samples, mae, bias, self.store.path).to_json()
 
+    def run_info(self, params: Params, payload: bytes | None) -> bytes:
+        params.only("run_id")
+        return dumps(self.store.run(params.text("run_id")))
+
+    def records(self, params: Params, payload: bytes | None) -> bytes:
+        params.only("run_id", "stream", "from_tick", "count")
+        stream = params.text("stream")
+        if stream is None:
+            raise ServiceError(f"{params.key}: missing parameter stream (one of {', '.join(STREAMS)})")
+        if stream not in STREAMS:
+            raise ServiceError(f"{params.key}: parameter stream={stream!r} must be one of "
+                               f"{', '.join(STREAMS)}")
+        run = self.store.run(params.text("run_id"))
+        from_tick = params.integer("from_tick", 0, 2**62, 0)
+        count = params.integer("count", 1, MAX_RECORDS, MAX_RECORDS)
+        return messages.encode_batch(self.store.records(stream, run["run_id"], from_tick, count))
+
     def report(self, params: Params, payload: bytes | None) -> bytes:
         from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
 
@@ -230,7 +262,7 @@ class MonitorService:
         return {"report": self.report}
 
     def handlers(self) -> dict:
-        return {"load": self.load, "status": self.status}
+        return {"load": self.load, "status": self.status, "run": self.run_info, "records": self.records}
 
 
 def default_db(options) -> str:

@@ -29,8 +29,8 @@ from services.bus.config import (
 )
 from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
 
-HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, or all"
-CHOICES = (*SERVICES, "router", "all")
+HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, web, or all"
+CHOICES = (*SERVICES, "router", "web", "all")
 READY_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 
@@ -54,6 +54,13 @@ def configure(parser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
     parser.add_argument("--ticks-per-message", type=int, default=None, metavar="N",
                         help="all: lockstep ticks per message (default 50)")
+    parser.add_argument("--web", action="store_true",
+                        help="all: also start the web service (the live page, with start and stop)")
+    parser.add_argument("--web-listen", metavar="HOST:PORT", default=None,
+                        help="all --web: where the page listens (default 127.0.0.1:8448); "
+                             "`serve web` takes it as --listen HOST:PORT")
+    parser.add_argument("--operator", action="store_true",
+                        help="web: allow starting and stopping runs from the page (default: a viewer)")
 
 
 def run(args) -> int:
@@ -68,8 +75,16 @@ def run(args) -> int:
 
 
 def service_config(args) -> ServiceConfig:
-    return ServiceConfig(zenoh=options_from_args(args), scenario=args.scenario, map_file=args.map,
-                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db)
+    web_listen = None
+    if args.service == "web":  # its --listen is the page's HOST:PORT: it is a zenoh client only
+        if len(args.listen) > 1:
+            raise ServiceError("serve web: give --listen HOST:PORT once")
+        web_listen, args.listen = (args.listen or [None])[0], []
+    options = options_from_args(args)
+    return ServiceConfig(zenoh=options, scenario=args.scenario, map_file=args.map,
+                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db,
+                         web_listen=web_listen or args.web_listen,
+                         operator=options if args.operator else None)  # the bus has no roles yet
 
 
 def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
@@ -86,6 +101,8 @@ def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
                     argv += [flag, str(value)]
     if name == "monitor" and args.db is not None:
         argv += ["--db", os.path.abspath(args.db)]
+    if name == "web":
+        argv += ["--operator"] + (["--listen", args.web_listen] if args.web_listen else [])
     return argv
 
 
@@ -96,6 +113,10 @@ def _abs_if_file(spec: str) -> str:
 def serve_all(args, options: ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
+    if args.web:
+        from services.bus.web import DEFAULT_LISTEN, parse_listen
+
+        parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen")  # before anything starts
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
         from services.bus import messages
         from services.sim import scenario
@@ -115,7 +136,7 @@ def serve_all(args, options: ZenohOptions) -> int:
     with open_session(options, "router") as session:
         token = declare_alive(session, options.keys, "router")
         try:
-            for name in SERVICES:
+            for name in SERVICES + (("web",) if args.web else ()):
                 procs[name] = subprocess.Popen(_child_argv(args, options, name), env=env)
             _wait_ready(session, options.keys, procs)
             if start_payload is not None:

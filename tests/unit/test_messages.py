@@ -120,3 +120,22 @@ def test_encode_rates_is_a_json_array_of_map_rates():
     doc = json.loads(messages.encode_rates(rate, inside, row, col))
     assert [MapRate.from_dict(d) for d in doc] == [MapRate(120.5, True, 3, 5), MapRate(None, True, 4, 6),
                                                    MapRate(None, False, None, None)]
+
+
+def test_columns_are_the_batch_fields_and_refusals_are_decode_batchs():
+    batch = [pose(i, x_m=float("nan") if i == 2 else 678001.25 + i) for i in range(4)]
+    cols, last = messages.decode_columns(Pose, messages.encode_batch(batch), ("run_id", "tick", "x_m",
+                                                                             "implement_on"))
+    assert last == batch[-1] and cols["run_id"] == ["r1"] * 4 and cols["tick"].tolist() == [0, 1, 2, 3]
+    assert np.isnan(cols["x_m"][2]) and cols["x_m"][3] == 678004.25 and cols["implement_on"].all()
+    one, _ = messages.decode_columns(Pose, batch[0].to_json(), ("tick",))
+    assert one["tick"].tolist() == [0]
+    for doc, needle in [([{**pose().to_dict(), "tick": True}], "Pose[0]: field tick must be int, got true"),
+                        ([pose().to_dict(), {**pose().to_dict(), "x_m": "1"}],
+                         'Pose[1]: field x_m must be float or null, got "1"'),
+                        ([{"tick": 1}], "Pose[0]: missing field 'run_id'"), ([], "non-empty JSON array")]:
+        with pytest.raises(ServiceError) as err:
+            messages.decode_columns(Pose, json.dumps(doc).encode(), ("tick", "x_m"))
+        assert needle in str(err.value)
+    with pytest.raises(ServiceError, match="3 records, at most 2"):
+        messages.decode_columns(Pose, messages.encode_batch(batch[:3]), ("tick",), max_len=2)

@@ -1,0 +1,434 @@
+"""What the live page shows, as state that the bus threads update and the web server reads in frames.
+
+Pure: no zenoh, no HTTP. The bus side calls `LiveView.on_pose` / `on_shaft` / `on_rate` with decoded
+messages (every message, at whatever rate the run goes); the web side calls `LiveView.frame` at most
+every `FRAME_S` and hands each browser `LiveView.delta` since what that browser last got. A browser
+that falls behind does not make anything queue up: its next delta covers everything since its last
+one (the cells painted since, the latest pose/shaft/rate, the chart points still held).
+
+The as-applied layer is accumulated here, server side, because the browser gets at most 20 frames a
+second while a lockstep run carries some 15,000 rate samples a second: only the server sees them all.
+It is the live view's layer, not the report's: each rate sample's applied rate (metered kg over the
+area its sections covered in the period) is spread across the working width that was on, at the
+landing point the controller predicted, and a cell shows the mean of the samples that touched it. The
+report's raster (product put where it really landed on the true path, area-weighted) is what the
+monitor computes the metrics on; the two agree to within the GNSS error and a cell's edge.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import ServiceError
+
+FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
+MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
+HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second
+HEADING_RING = 8192  # ticks of pose heading kept to orient the rate samples that follow them
+MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m cells needs 12)
+STREAMS = ("pose", "shaft", "rate")
+
+
+# The fields of each stream the view reads: live, and from the monitor's records (for the charts too).
+FIELDS = {"pose": ("tick", "heading_rad"), "shaft": ("tick",),
+          "rate": ("tick", "landing_x_m", "landing_y_m", "width_on_m", "offset_m", "applied_kg_ha",
+                   "implement_on")}
+RECORD_FIELDS = {"pose": FIELDS["pose"], "shaft": ("tick", "target_shaft_rpm", "shaft_rpm"),
+                 "rate": (*FIELDS["rate"], "time_s", "prescribed_kg_ha")}
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Records of one stream as columns (`messages.decode_columns`): ``cols`` holds ``tick`` and the
+    fields the view reads, arrays of one length in the order they came; ``last`` is the last record
+    whole (as `Message.to_dict`), what the page shows."""
+
+    run_id: str
+    cols: dict
+    last: dict | None = None
+
+    @property
+    def tick(self) -> np.ndarray:
+        return self.cols["tick"]
+
+    def take(self, which) -> Batch:
+        return Batch(self.run_id, {k: v[which] for k, v in self.cols.items()}, self.last)
+
+    def extend(self, other: Batch) -> Batch:
+        return Batch(self.run_id, {k: np.concatenate([v, other.cols[k]]) for k, v in self.cols.items()},
+                     other.last)
+
+
+@dataclass(frozen=True)
+class ViewGrid:
+    """The raster the page shows, in the map's CRS: the map's own grid, or every ``stride``-th cell of
+    it when the map has more than `MAX_VIEW_CELLS` cells. Row 0 is the north row."""
+
+    west_m: float
+    north_m: float
+    cell_x_m: float
+    cell_y_m: float
+    rows: int
+    cols: int
+    stride: int = 1
+
+    @classmethod
+    def from_info(cls, info, max_cells: int = MAX_VIEW_CELLS) -> ViewGrid:
+        """From a ``map/info`` reply (untrusted: every field used is checked)."""
+        if not isinstance(info, dict):
+            raise ServiceError(f"map/info: expected a JSON object, got {type(info).__name__}")
+        bounds, cell = info.get("bounds"), info.get("cell_size")
+        rows, cols = info.get("rows"), info.get("cols")
+        if not (_numbers(bounds, 4) and _numbers(cell, 2) and min(cell) > 0):
+            raise ServiceError(f"map/info: bounds {bounds!r} and cell_size {cell!r} must be 4 and 2 finite "
+                               "numbers, cell sizes > 0")
+        if not all(type(v) is int and v > 0 for v in (rows, cols)) or rows * cols > 10**10:
+            raise ServiceError(f"map/info: rows {rows!r} and cols {cols!r} must be positive integers")
+        stride = max(1, math.ceil(math.sqrt(rows * cols / max_cells)))
+        return cls(float(bounds[0]), float(bounds[3]), cell[0] * stride, cell[1] * stride,
+                   math.ceil(rows / stride), math.ceil(cols / stride), stride)
+
+    @property
+    def cells(self) -> int:
+        return self.rows * self.cols
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """x and y of every cell's centre, row-major, shape (rows * cols,)."""
+        x = self.west_m + (np.arange(self.cols) + 0.5) * self.cell_x_m
+        y = self.north_m - (np.arange(self.rows) + 0.5) * self.cell_y_m
+        return np.tile(x, self.rows), np.repeat(y, self.cols)
+
+    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Flat cell index of each point (row * cols + col), -1 off the grid or not finite."""
+        with np.errstate(invalid="ignore"):
+            col = np.floor((np.asarray(x) - self.west_m) / self.cell_x_m)
+            row = np.floor((self.north_m - np.asarray(y)) / self.cell_y_m)
+            inside = (col >= 0) & (col < self.cols) & (row >= 0) & (row < self.rows)
+        return np.where(inside, np.where(inside, row, 0) * self.cols + np.where(inside, col, 0), -1
+                        ).astype(np.int64)
+
+    def to_dict(self) -> dict:
+        return {"west_m": self.west_m, "north_m": self.north_m, "cell_x_m": self.cell_x_m,
+                "cell_y_m": self.cell_y_m, "rows": self.rows, "cols": self.cols, "stride": self.stride}
+
+
+def _numbers(value, n: int) -> bool:
+    return (isinstance(value, list) and len(value) == n
+            and all(type(v) in (int, float) and math.isfinite(v) for v in value))
+
+
+class AppliedLayer:
+    """The live as-applied layer on a `ViewGrid`: per cell the mean applied rate (kg/ha) of the rate
+    samples whose working width touched it, and the frame in which it last changed."""
+
+    def __init__(self, grid: ViewGrid):
+        self.grid = grid
+        self.sum_kg_ha = np.zeros(grid.cells)
+        self.samples = np.zeros(grid.cells, dtype=np.int64)
+        self.stamp = np.full(grid.cells, -1, dtype=np.int64)  # frame seq of the last change
+
+    def paint(self, seq: int, x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha) -> int:
+        """Add samples (arrays of one length); returns the number of cells touched.
+
+        Each sample is a line across the heading, ``width_m`` long, centred ``offset_m`` to the left
+        of (x, y), sampled every half cell; a sample counts once in each cell it touches. Samples with
+        a non-finite value, or no width, are left out (sections off, standstill, off the map).
+        """
+        x, y, h, w, off, rate = (np.asarray(a, dtype=np.float64) for a in
+                                 (x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha))
+        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(h) & np.isfinite(off) & np.isfinite(rate) \
+            & np.isfinite(w) & (w > 0)
+        if not ok.any():
+            return 0
+        x, y, h, w, off, rate = x[ok], y[ok], h[ok], w[ok], off[ok], rate[ok]
+        spacing = 0.5 * min(self.grid.cell_x_m, self.grid.cell_y_m)
+        k = int(min(MAX_ACROSS, max(1, math.ceil(float(w.max()) / spacing))))
+        across = off[:, None] + ((np.arange(k) + 0.5) / k - 0.5)[None, :] * w[:, None]
+        left_x, left_y = -np.sin(h), np.cos(h)  # the left normal of a heading counter-clockwise from east
+        cell = self.grid.index(x[:, None] + left_x[:, None] * across, y[:, None] + left_y[:, None] * across)
+        sample = np.broadcast_to(np.arange(len(x))[:, None], cell.shape)
+        on = cell >= 0
+        pairs = np.unique(sample[on] * self.grid.cells + cell[on])  # each sample once per cell
+        cells, inverse = np.unique(pairs % self.grid.cells, return_inverse=True)
+        self.sum_kg_ha[cells] += np.bincount(inverse, weights=rate[pairs // self.grid.cells])
+        self.samples[cells] += np.bincount(inverse)
+        self.stamp[cells] = seq
+        return len(cells)
+
+    def since(self, seq: int) -> dict:
+        """Cells changed after frame ``seq``: ``{"i": flat indices, "v": mean kg/ha}`` (-1: all)."""
+        i = np.flatnonzero(self.stamp > seq)
+        return {"i": i.tolist(), "v": np.round(self.sum_kg_ha[i] / self.samples[i], 2).tolist()}
+
+    @property
+    def painted(self) -> int:
+        return int(np.count_nonzero(self.samples))
+
+
+class LiveView:
+    """Everything the page shows: the run, the latest pose/shaft/rate, the applied layer, the chart
+    history, scenario status and report. Thread-safe; see the module's docstring for the data flow.
+
+    ``epoch`` counts the changes after which a browser must start over from a full `hello` (a new run,
+    a new map, a catch-up from the monitor's records that filled in the past); ``seq`` counts frames.
+    """
+
+    def __init__(self, history_points: int = HISTORY_POINTS):
+        self.lock = threading.Lock()
+        self.epoch = 0
+        self.seq = 0
+        self.dirty = False
+        self.history: deque = deque(maxlen=history_points)  # (seq, [time_s, target, shaft, rx, applied])
+        self.map: dict | None = None  # {"info", "grid", "version"}
+        self.layer: AppliedLayer | None = None
+        self.status: dict | None = None
+        self.status_seq = -1
+        self.report: dict | None = None
+        self.report_seq = -1
+        self.left: deque = deque(maxlen=32)  # runs this view moved on from: never shown again
+        self.run_id = ""
+        self._reset_run("")
+
+    def _reset_run(self, run_id: str) -> None:
+        if self.run_id:
+            self.left.append(self.run_id)
+        self.run_id = run_id
+        self.run: dict = {"run_id": run_id}  # scenario, clock, field boundary and path, once known
+        self.latest: dict = {s: None for s in STREAMS}
+        self.first_tick: dict = {s: None for s in STREAMS}  # first tick seen live, per stream
+        self.backfilled_to = 0  # rate ticks below this were painted from the monitor's records
+        self.catchup = {"state": "none", "ticks": 0}
+        self.catchup_points: list = []  # chart points from the records, added to the history when done
+        self.heading_tick = np.full(HEADING_RING, -1, dtype=np.int64)
+        self.heading_rad = np.zeros(HEADING_RING)
+        self.waiting: Batch | None = None  # rate samples whose pose has not come yet
+        self.unpainted: list = []  # oriented samples for the next frame to paint
+        self.newest_pose_tick = -1
+        self.unoriented = 0  # rate samples left unpainted: their pose never came
+        self.history.clear()
+        self.report, self.report_seq = None, -1
+        if self.map is not None:
+            self.layer = AppliedLayer(self.map["grid"])
+
+    def _changed_run(self, stream: str, batch: Batch) -> str | None:
+        """Start over on a message of another run; returns that run's id (None: same run)."""
+        new = batch.run_id != self.run_id
+        if new:
+            self._reset_run(batch.run_id)
+            self.epoch += 1
+        if self.first_tick[stream] is None:
+            self.first_tick[stream] = int(batch.tick[0])
+        return batch.run_id if new else None
+
+    # ---------------------------------------------------------------- from the bus
+    def on_pose(self, batch: Batch) -> str | None:
+        """One pose message; returns the run id when it starts a run this view had not seen (so for
+        `on_shaft` and `on_rate`)."""
+        return self._received("pose", batch, self._orient)
+
+    def on_shaft(self, batch: Batch) -> str | None:
+        return self._received("shaft", batch, lambda b: None)
+
+    def on_rate(self, batch: Batch) -> str | None:
+        return self._received("rate", batch, self._paint_new)
+
+    def _paint_new(self, rates: Batch) -> None:
+        """Paint what the monitor's records have not painted already (a late joiner's overlap)."""
+        self._paint_oriented(rates.take(rates.tick >= self.backfilled_to))
+
+    def _received(self, stream: str, batch: Batch, use) -> str | None:
+        with self.lock:
+            if batch.run_id in self.left:  # a late message of a run that is over (or a forged one)
+                return None
+            new = self._changed_run(stream, batch)
+            use(batch)
+            self.latest[stream] = batch.last
+            self.dirty = True
+            return new
+
+    def _orient(self, poses: Batch) -> None:
+        """Keep the poses' headings by tick, and paint the rate samples that were waiting for them."""
+        slot = poses.tick % HEADING_RING
+        self.heading_tick[slot] = poses.tick
+        self.heading_rad[slot] = poses.cols["heading_rad"]
+        self.newest_pose_tick = max(self.newest_pose_tick, int(poses.tick.max()))
+        if self.waiting is not None:
+            waiting, self.waiting = self.waiting, None
+            self._paint_oriented(waiting)
+
+    def _paint_oriented(self, rates: Batch) -> None:
+        """Paint the samples whose tick's pose (heading) is known; the others wait for it (the vehicle
+        publishes a tick's pose before the controller its rate, but they reach here on two paths)."""
+        slot = rates.tick % HEADING_RING
+        known = self.heading_tick[slot] == rates.tick
+        self._paint(rates.take(known), self.heading_rad[slot[known]])
+        # Poses come in tick order: a sample whose pose should have come already never gets one.
+        later = ~known & (rates.tick > self.newest_pose_tick)
+        self.unoriented += int(np.count_nonzero(~known & ~later))
+        if later.any():
+            waiting = rates.take(later) if self.waiting is None else self.waiting.extend(rates.take(later))
+            self.waiting = waiting.take(slice(-HEADING_RING, None))
+
+    def _paint(self, rates: Batch, heading: np.ndarray) -> None:
+        """Queue oriented samples; `_flush` paints them in one go (numpy's per-call cost, paid per
+        message, would be most of the work: a lockstep run sends some 300 rate messages a second)."""
+        if self.layer is not None and len(rates.tick):
+            c = rates.cols
+            width = np.where(c["implement_on"], c["width_on_m"], 0.0)
+            self.unpainted.append((c["landing_x_m"], c["landing_y_m"], heading, width, c["offset_m"],
+                                   c["applied_kg_ha"]))
+
+    def _flush(self, seq: int) -> None:
+        if self.unpainted and self.layer is not None:
+            self.layer.paint(seq, *(np.concatenate(col) for col in zip(*self.unpainted, strict=True)))
+        self.unpainted = []
+
+    def backfill(self, poses: Batch, shafts: Batch, rates: Batch, stride: int) -> int:
+        """Records of the run's past from the monitor (ticks before those seen live): paint the rates
+        (oriented by the poses of the same ticks) and keep every ``stride``-th tick for the chart
+        history. Returns the ticks painted."""
+        with self.lock:
+            if rates.run_id != self.run_id:
+                return 0
+            live = self.first_tick["rate"]
+            rates = rates.take((rates.tick >= self.backfilled_to) & (rates.tick < (live if live is not None
+                                                                                   else np.inf)))
+            if not len(rates.tick):
+                return 0
+            self._paint(rates, _at(poses, rates.tick, "heading_rad"))
+            self._flush(self.seq + 1)
+            self.backfilled_to = int(rates.tick[-1]) + 1
+            some = rates.take(rates.tick % stride == 0)
+            columns = [some.cols["time_s"], _at(shafts, some.tick, "target_shaft_rpm"),
+                       _at(shafts, some.tick, "shaft_rpm"), some.cols["prescribed_kg_ha"],
+                       some.cols["applied_kg_ha"]]
+            self.catchup_points += [[_json(v) for v in row] for row in zip(*columns, strict=True)]
+            self.catchup["ticks"] += len(rates.tick)
+            self.dirty = True
+            return len(rates.tick)
+
+    def set_catchup(self, run_id: str, state: str, note: str = "") -> None:
+        with self.lock:
+            if run_id == self.run_id:
+                self.catchup.update(state=state, note=note)
+                if state in ("done", "failed"):
+                    room = self.history.maxlen - len(self.history)
+                    older = self.catchup_points[-room:] if room > 0 else []
+                    self.history.extendleft((0, p) for p in reversed(older))  # oldest first again
+                    self.catchup_points = []
+                    self.epoch += 1  # browsers start over with the past filled in
+                self.dirty = True
+
+    def adopt_run(self, run_id: str) -> bool:
+        """Show ``run_id`` (a run found through scenario status, before any of its messages)."""
+        with self.lock:
+            if run_id == self.run_id or run_id in self.left:  # a status older than the messages
+                return False
+            self._reset_run(run_id)
+            self.epoch += 1
+            self.dirty = True
+            return True
+
+    def set_run_info(self, run_id: str, info: dict) -> None:
+        with self.lock:
+            if run_id == self.run_id:
+                self.run.update(info)
+                self.epoch += 1
+                self.dirty = True
+
+    def set_map(self, info: dict, grid: ViewGrid, version: int) -> bool:
+        """The map served now. On another grid the applied layer starts over, and from the next rate
+        tick on it is painted live; returns True when ticks before that need painting from the
+        monitor's records (a run's map is loaded before it starts, but seen here after its first
+        messages)."""
+        with self.lock:
+            self.map = {"info": info, "grid": grid, "version": version}
+            self.epoch += 1
+            self.dirty = True
+            if self.layer is not None and self.layer.grid == grid:
+                return False
+            self.layer = AppliedLayer(grid)
+            self.unpainted = []
+            self.backfilled_to = 0
+            last = self.latest["rate"]
+            self.first_tick["rate"] = None if last is None else last["tick"] + 1
+            return last is not None or (self.catchup["state"] != "none")
+
+    def set_status(self, status: dict) -> None:
+        with self.lock:
+            if status != self.status:
+                self.status, self.status_seq = status, self.seq + 1
+                self.dirty = True
+
+    def set_report(self, run_id: str, report: dict) -> None:
+        with self.lock:
+            if run_id == self.run_id:
+                self.report, self.report_seq = report, self.seq + 1
+                self.dirty = True
+
+    # ---------------------------------------------------------------- to the browsers
+    def frame(self) -> int | None:
+        """Close a frame if anything changed since the last; returns its seq (None: nothing new)."""
+        with self.lock:
+            if not self.dirty:
+                return None
+            self.seq += 1
+            self.dirty = False
+            self._flush(self.seq)
+            if self.latest["rate"] is not None or self.latest["shaft"] is not None:
+                point = _point_dicts(self.latest["shaft"], self.latest["rate"])
+                if not self.history or self.history[-1][1] != point:
+                    self.history.append((self.seq, point))
+            return self.seq
+
+    def hello(self) -> dict:
+        """Everything, for a browser that (re)starts: ``{"type": "hello", ...}``."""
+        with self.lock:
+            return self._doc("hello", -1)
+
+    def delta(self, since_seq: int, since_epoch: int) -> dict:
+        """What changed after frame ``since_seq``; a `hello` when the epoch moved on since."""
+        with self.lock:
+            return self._doc("hello" if since_epoch != self.epoch else "frame", since_seq)
+
+    def _doc(self, kind: str, since: int) -> dict:
+        since = -1 if kind == "hello" else since
+        doc = {"type": kind, "epoch": self.epoch, "seq": self.seq, "run_id": self.run_id,
+               "pose": self.latest["pose"], "shaft": self.latest["shaft"], "rate": self.latest["rate"],
+               "points": [p for s, p in self.history if s > since],
+               "applied": self.layer.since(since) if self.layer is not None else {"i": [], "v": []}}
+        if kind == "hello":
+            doc.update(run=self.run, map_version=self.map["version"] if self.map else None,
+                       catchup=self.catchup)
+        if self.status_seq > since:
+            doc["status"] = self.status
+        if self.report_seq > since:
+            doc["report"] = self.report
+        return doc
+
+    def run_state(self) -> tuple[str, dict]:
+        with self.lock:
+            return self.run_id, dict(self.first_tick)
+
+
+def _at(batch: Batch, ticks: np.ndarray, field: str) -> np.ndarray:
+    """``batch``'s ``field`` at ``ticks`` (NaN where it has no such tick); its ticks ascend."""
+    i = np.clip(np.searchsorted(batch.tick, ticks), 0, max(len(batch.tick) - 1, 0))
+    if not len(batch.tick):
+        return np.full(len(ticks), np.nan)
+    return np.where(batch.tick[i] == ticks, batch.cols[field][i], np.nan)
+
+
+def _json(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _point_dicts(shaft: dict | None, rate: dict | None) -> list:
+    time_s = (rate or shaft)["time_s"]
+    return [time_s, shaft["target_shaft_rpm"] if shaft else None, shaft["shaft_rpm"] if shaft else None,
+            rate["prescribed_kg_ha"] if rate else None, rate["applied_kg_ha"] if rate else None]

@@ -1,0 +1,369 @@
+// vrsim live view: one page, plain JavaScript and canvas, everything from this server (no network).
+// Data: GET /api/view (role, map geometry, colour scale), GET /api/map.png (the prescription),
+// /events (Server-Sent Events: `hello` = everything, then `frame` = what changed, at most 20 a second).
+// State for scripts and tests: window.vrsimView.
+"use strict";
+(() => {
+  const HISTORY = 600; // chart points shown (30 s of frames at 20 a second)
+  const TRAIL = 400; // recent true positions drawn behind the tractor
+  const $ = (id) => document.getElementById(id);
+
+  const S = (window.vrsimView = {
+    connected: false, events: 0, hellos: 0, frames: 0, runId: "", role: "viewer",
+    pose: null, shaft: null, rate: null, status: null, report: null, catchup: null,
+    tractorMoves: 0, appliedCells: 0, points: 0, mapVersion: null, mapLoaded: false, draws: 0,
+  });
+
+  let view = null; // /api/view
+  let mapImg = null; // the prescription PNG
+  let grid = null; // view grid: west_m, north_m, cell_x_m, cell_y_m, rows, cols
+  let values = null; // Float32Array rows*cols of applied kg/ha (NaN: not yet)
+  let layer = null; // offscreen canvas of the applied layer, one pixel per cell
+  let layerImg = null;
+  let pending = []; // applied deltas that came before the grid
+  let run = {};
+  let points = [];
+  let trail = [];
+  let viewRequests = 0;
+  let dirty = true;
+
+  // ------------------------------------------------------------------ events
+  const es = new EventSource("/events");
+  es.onopen = () => setConn(true);
+  es.onerror = () => setConn(false);
+  es.addEventListener("hello", (e) => onDoc(JSON.parse(e.data), true));
+  es.addEventListener("frame", (e) => onDoc(JSON.parse(e.data), false));
+
+  function setConn(on) {
+    S.connected = on;
+    $("conn").textContent = on ? "live" : "reconnecting";
+    $("conn").className = on ? "conn live" : "conn";
+  }
+
+  function onDoc(doc, hello) {
+    S.events++;
+    if (hello) {
+      S.hellos++;
+      run = doc.run || {};
+      S.runId = doc.run_id;
+      S.catchup = doc.catchup;
+      points = [];
+      trail = [];
+      clearApplied();
+      if (doc.map_version !== S.mapVersion) loadView(doc.map_version);
+    } else {
+      S.frames++;
+    }
+    if (doc.pose) {
+      const p = doc.pose;
+      if (!S.pose || p.x_m !== S.pose.x_m || p.y_m !== S.pose.y_m) S.tractorMoves++;
+      S.pose = p;
+      trail.push([p.x_m, p.y_m]);
+      if (trail.length > TRAIL) trail.splice(0, trail.length - TRAIL);
+    }
+    if (doc.shaft) S.shaft = doc.shaft;
+    if (doc.rate) S.rate = doc.rate;
+    for (const pt of doc.points) points.push(pt);
+    if (points.length > HISTORY) points.splice(0, points.length - HISTORY);
+    S.points = points.length;
+    applyCells(doc.applied);
+    if (doc.status) { S.status = doc.status; showStatus(doc.status); }
+    if (doc.report) { S.report = doc.report; showReport(doc.report); }
+    if (hello) showCatchup();
+    $("run").textContent = S.runId ? `${S.runId}${run.scenario ? " · " + run.scenario : ""}` : "no run yet";
+    dirty = true;
+  }
+
+  // ------------------------------------------------------------------ map and layers
+  function loadView(version) {
+    S.mapVersion = version;
+    values = null; // deltas wait in `pending` until the new grid is there
+    const request = ++viewRequests;
+    fetch("/api/view").then((r) => r.json()).then((doc) => {
+      if (request !== viewRequests) return; // a later request is on its way: its answer counts
+      view = doc;
+      S.role = doc.role;
+      $("ops").hidden = doc.role !== "operator";
+      if (!doc.map) return;
+      grid = doc.map.grid;
+      S.mapVersion = doc.map.version;
+      values = new Float32Array(grid.rows * grid.cols).fill(NaN);
+      layer = document.createElement("canvas");
+      layer.width = grid.cols;
+      layer.height = grid.rows;
+      layerImg = layer.getContext("2d").createImageData(grid.cols, grid.rows);
+      for (const d of pending.splice(0)) applyCells(d);
+      S.appliedCells = countCells();
+      drawLegend(doc.map.scale);
+      const info = doc.map.info;
+      $("mapinfo").textContent = `${info.source} · ${info.crs} · ${grid.cols}×${grid.rows} cells of ` +
+        `${grid.cell_x_m.toFixed(1)} m`;
+      const img = new Image();
+      img.onload = () => { mapImg = img; S.mapLoaded = true; dirty = true; };
+      img.src = doc.map.png;
+      dirty = true;
+    }).catch(() => { if (request === viewRequests) S.mapVersion = null; });
+  }
+
+  function clearApplied() {
+    pending = [];
+    if (values) values.fill(NaN);
+    if (layerImg) {
+      layerImg.data.fill(0);
+      layer.getContext("2d").clearRect(0, 0, layer.width, layer.height);
+    }
+    S.appliedCells = 0;
+  }
+
+  // For scripts and tests: the cells the applied layer's canvas really shows.
+  S.layerPixels = () => {
+    if (!layer) return 0;
+    const px = layer.getContext("2d").getImageData(0, 0, layer.width, layer.height).data;
+    let n = 0;
+    for (let i = 3; i < px.length; i += 4) if (px[i] > 0) n++;
+    return n;
+  };
+
+  function applyCells(d) {
+    if (!d || !d.i.length) return;
+    if (!values) { pending.push(d); return; }
+    const lut = view.map.scale.lut, lo = view.map.scale.vmin_kg_ha, hi = view.map.scale.vmax_kg_ha;
+    const px = layerImg.data, cols = grid.cols;
+    let r0 = Infinity, r1 = -1, c0 = Infinity, c1 = -1; // the changed rectangle, put back alone
+    for (let k = 0; k < d.i.length; k++) {
+      const i = d.i[k], v = d.v[k];
+      if (i < 0 || i >= values.length) continue;
+      const r = Math.floor(i / cols), col = i - r * cols;
+      r0 = Math.min(r0, r); r1 = Math.max(r1, r); c0 = Math.min(c0, col); c1 = Math.max(c1, col);
+      if (Number.isNaN(values[i])) S.appliedCells++;
+      values[i] = v;
+      const c = lut[Math.max(0, Math.min(lut.length - 1, Math.round((v - lo) / (hi - lo) * (lut.length - 1))))];
+      px[4 * i] = c[0]; px[4 * i + 1] = c[1]; px[4 * i + 2] = c[2]; px[4 * i + 3] = 255;
+    }
+    if (r1 >= 0) layer.getContext("2d").putImageData(layerImg, 0, 0, c0, r0, c1 - c0 + 1, r1 - r0 + 1);
+  }
+
+  function countCells() {
+    let n = 0;
+    for (let i = 0; i < values.length; i++) if (!Number.isNaN(values[i])) n++;
+    return n;
+  }
+
+  function drawLegend(scale) {
+    const c = $("legend").getContext("2d");
+    scale.lut.forEach((rgb, i) => { c.fillStyle = `rgb(${rgb})`; c.fillRect(i, 0, 1, 12); });
+    $("vmin").textContent = scale.vmin_kg_ha.toFixed(0);
+    $("vmax").textContent = scale.vmax_kg_ha.toFixed(0);
+  }
+
+  // The map canvas: a background (prescription, path, field) drawn again only when the view, the run,
+  // the layer choice or the size changes; per frame only the applied layer, the trail and the tractor.
+  let background = null, backgroundKey = "";
+
+  function drawMap() {
+    const cv = $("map"), box = cv.getBoundingClientRect(), dpr = window.devicePixelRatio || 1;
+    if (!grid) return;
+    const wM = grid.cols * grid.cell_x_m, hM = grid.rows * grid.cell_y_m;
+    const cssW = box.width, cssH = Math.min(cssW * hM / wM, window.innerHeight * 0.78);
+    const scale = Math.min(cssW / wM, cssH / hM);
+    if (cv.width !== Math.round(cssW * dpr) || cv.height !== Math.round(cssH * dpr)) {
+      cv.width = Math.round(cssW * dpr);
+      cv.height = Math.round(cssH * dpr);
+      cv.style.height = `${cssH}px`;
+    }
+    const ox = (cssW - wM * scale) / 2, oy = (cssH - hM * scale) / 2;
+    const X = (x) => ox + (x - grid.west_m) * scale, Y = (y) => oy + (grid.north_m - y) * scale;
+    const which = document.querySelector("input[name=layer]:checked").value;
+    const key = [cv.width, cv.height, S.mapVersion, S.mapLoaded, S.runId, !!run.field, which].join();
+    if (key !== backgroundKey) {
+      backgroundKey = key;
+      background = drawBackground(cv.width, cv.height, dpr, X, Y, ox, oy, wM * scale, hM * scale, which);
+    }
+    const c = cv.getContext("2d");
+    c.setTransform(1, 0, 0, 1, 0, 0);
+    c.clearRect(0, 0, cv.width, cv.height);
+    c.drawImage(background, 0, 0);
+    c.setTransform(dpr, 0, 0, dpr, 0, 0);
+    c.imageSmoothingEnabled = false;
+    if (layer && which !== "prescription") c.drawImage(layer, ox, oy, wM * scale, hM * scale);
+    if (run.field) {
+      c.lineWidth = 2;
+      c.strokeStyle = "#222";
+      for (const ring of run.field.boundary) polyline(c, ring, X, Y, true);
+    }
+    if (trail.length > 1) {
+      c.lineWidth = 2;
+      c.strokeStyle = "rgba(214,59,47,0.6)";
+      polyline(c, trail, X, Y, false);
+    }
+    const p = S.pose;
+    if (p && p.x_m !== null) {
+      c.lineWidth = 2;
+      c.strokeStyle = "#fff";
+      c.beginPath();
+      c.arc(X(p.measured_x_m), Y(p.measured_y_m), 6, 0, 2 * Math.PI);
+      c.stroke();
+      c.save();
+      c.translate(X(p.x_m), Y(p.y_m));
+      c.rotate(-p.heading_rad); // counter-clockwise from east; the canvas turns clockwise
+      c.beginPath();
+      c.moveTo(11, 0); c.lineTo(-7, 6); c.lineTo(-7, -6); c.closePath();
+      c.fillStyle = "#d63b2f";
+      c.fill();
+      c.strokeStyle = "#fff";
+      c.lineWidth = 1.5;
+      c.stroke();
+      c.restore();
+    }
+  }
+
+  function drawBackground(width, height, dpr, X, Y, ox, oy, w, h, which) {
+    const bg = document.createElement("canvas");
+    bg.width = width;
+    bg.height = height;
+    const c = bg.getContext("2d");
+    c.setTransform(dpr, 0, 0, dpr, 0, 0);
+    c.imageSmoothingEnabled = false;
+    if (mapImg && which !== "applied") {
+      c.globalAlpha = which === "both" ? 0.35 : 1;
+      c.drawImage(mapImg, ox, oy, w, h);
+      c.globalAlpha = 1;
+    }
+    if (run.field) {
+      c.lineWidth = 1;
+      c.setLineDash([4, 3]);
+      c.strokeStyle = "rgba(255,255,255,0.8)";
+      polyline(c, run.field.path, X, Y, false);
+    }
+    return bg;
+  }
+
+  function polyline(c, pts, X, Y, close) {
+    if (!pts || pts.length < 2) return;
+    c.beginPath();
+    c.moveTo(X(pts[0][0]), Y(pts[0][1]));
+    for (let k = 1; k < pts.length; k++) c.lineTo(X(pts[k][0]), Y(pts[k][1]));
+    if (close) c.closePath();
+    c.stroke();
+  }
+
+  // ------------------------------------------------------------------ charts
+  function drawChart(id, a, b, colours) {
+    const cv = $(id), dpr = window.devicePixelRatio || 1, w = cv.clientWidth, h = 170;
+    if (cv.width !== Math.round(w * dpr)) { cv.width = Math.round(w * dpr); cv.height = Math.round(h * dpr); }
+    const c = cv.getContext("2d");
+    c.setTransform(dpr, 0, 0, dpr, 0, 0);
+    c.clearRect(0, 0, w, h);
+    const pts = points.filter((p) => p[a] !== null || p[b] !== null);
+    const L = 44, R = 6, T = 6, B = 20;
+    c.strokeStyle = "#ccc";
+    c.strokeRect(L, T, w - L - R, h - T - B);
+    if (pts.length < 1) return;
+    let lo = Infinity, hi = -Infinity;
+    for (const p of pts) for (const k of [a, b]) if (p[k] !== null) { lo = Math.min(lo, p[k]); hi = Math.max(hi, p[k]); }
+    if (!(hi > lo)) { hi = lo + 1; lo -= 1; }
+    const pad = (hi - lo) * 0.08; lo -= pad; hi += pad;
+    const t0 = pts[0][0], t1 = Math.max(pts[pts.length - 1][0], t0 + 1e-9);
+    const X = (t) => L + (t - t0) / (t1 - t0) * (w - L - R), Y = (v) => T + (hi - v) / (hi - lo) * (h - T - B);
+    c.fillStyle = "#666";
+    c.font = "11px system-ui";
+    for (const v of [lo + pad, (lo + hi) / 2, hi - pad]) c.fillText(v.toFixed(v < 10 ? 1 : 0), 2, Y(v) + 4);
+    c.fillText(`${t0.toFixed(1)} s`, L, h - 5);
+    const end = `${t1.toFixed(1)} s (sim time)`;
+    c.fillText(end, w - R - c.measureText(end).width, h - 5);
+    [[a, colours[0]], [b, colours[1]]].forEach(([k, colour]) => {
+      c.strokeStyle = colour;
+      c.lineWidth = 1.5;
+      c.beginPath();
+      let open = false;
+      for (const p of pts) {
+        if (p[k] === null) { open = false; continue; }
+        if (open) c.lineTo(X(p[0]), Y(p[k])); else c.moveTo(X(p[0]), Y(p[k]));
+        open = true;
+      }
+      c.stroke();
+    });
+  }
+
+  // ------------------------------------------------------------------ tables
+  const STATUS_ROWS = [
+    ["state", "state"], ["scenario", "scenario"], ["clock", "clock"], ["ticks", "ticks", 0],
+    ["sim time, s", "sim_time_s", 1], ["wall time, s", "wall_s", 1], ["monitor ticks", "monitor_ticks", 0],
+    ["live MAE, kg/ha", "live_mae_kg_ha", 2], ["services missing", "missing"], ["error", "error"],
+  ];
+  const REPORT_ROWS = [
+    ["applied, kg", "applied_kg", 1], ["prescribed, kg", "prescribed_kg", 1],
+    ["mass balance, %", "mass_balance_pct", 2], ["MAE, kg/ha", "mae_kg_ha", 2], ["RMSE, kg/ha", "rmse_kg_ha", 2],
+    ["bias, kg/ha", "bias_kg_ha", 2], ["within ±5 %, % area", "within_5pct_area_pct", 1],
+    ["within ±10 %, % area", "within_10pct_area_pct", 1], ["coverage, %", "coverage_pct", 1],
+    ["transitions", "transitions", 0], ["transition time, s", "transition_time_s_mean", 2],
+    ["off target, kg", "off_target_kg", 2], ["ticks", "ticks", 0],
+  ];
+
+  function fill(id, rows, doc) {
+    const body = $(id).tBodies[0];
+    body.replaceChildren(...rows.map(([label, key, digits]) => {
+      const tr = document.createElement("tr");
+      let v = doc[key];
+      if (Array.isArray(v)) v = v.join(", ") || "none";
+      else if (typeof v === "number") v = digits === undefined ? String(v) : fixed(v, digits);
+      else if (v === null || v === undefined || v === "") v = "-";
+      tr.innerHTML = "<td></td><td></td>";
+      tr.cells[0].textContent = label;
+      tr.cells[1].textContent = v;
+      return tr;
+    }));
+  }
+
+  function fixed(v, digits) {
+    return v.toFixed(digits).replace(/^-(0\.?0*)$/, "$1"); // no "-0.00"
+  }
+
+  function showStatus(st) {
+    fill("statusTable", STATUS_ROWS, st);
+    $("state").textContent = st.state;
+    $("state").className = `badge ${st.state}`;
+  }
+
+  function showReport(rep) { fill("reportTable", REPORT_ROWS, rep); }
+
+  function showCatchup() {
+    const c = S.catchup;
+    $("catchup").textContent = c && c.state !== "none"
+      ? `${c.ticks} ticks of this run from the monitor's records, from before this view saw it live ` +
+        `(${c.state}${c.note ? ": " + c.note : ""})`
+      : "";
+  }
+
+  // ------------------------------------------------------------------ operator
+  async function operate(verb) {
+    $("opmsg").textContent = "";
+    let url = `/api/${verb}`, body = null;
+    if (verb === "start") {
+      url += `?clock=${encodeURIComponent($("clock").value)}&speed=${encodeURIComponent($("speed").value)}`;
+      const file = $("scenario").files[0];
+      body = file ? await file.text() : "";
+    }
+    const r = await fetch(url, { method: "POST", body, headers: { "Content-Type": "text/plain" } });
+    const doc = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
+    if (!r.ok) $("opmsg").textContent = doc.error || `HTTP ${r.status}`;
+  }
+  $("start").onclick = () => operate("start");
+  $("stop").onclick = () => operate("stop");
+  document.querySelectorAll("input[name=layer]").forEach((el) => { el.onchange = () => { dirty = true; }; });
+  window.addEventListener("resize", () => { dirty = true; });
+
+  // ------------------------------------------------------------------ drawing, at most once a display frame
+  function draw() {
+    if (dirty) {
+      dirty = false;
+      drawMap();
+      drawChart("shaftChart", 1, 2, ["#e07b00", "#1f5fbf"]);
+      drawChart("rateChart", 3, 4, ["#555", "#1d8a4a"]);
+      S.draws++;
+    }
+    requestAnimationFrame(draw);
+  }
+  loadView(null);
+  requestAnimationFrame(draw);
+})();
