@@ -5,6 +5,7 @@ here, and only that.
 """
 
 from common.errors import (
+    ClusterError,
     ControllerError,
     MapError,
     ScenarioError,
@@ -22,5 +23,6 @@ __all__ = [
     "ControllerError",
     "ScenarioError",
     "ServiceError",
+    "ClusterError",
     "__version__",
 ]
