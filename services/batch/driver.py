@@ -25,6 +25,10 @@ T = TypeVar("T")
 
 TASK_RETRIES = 1  # a task that raises runs once more
 ALLOWED_FAILURES = 1  # embedded cluster: a task whose worker died is rescheduled once
+# Embedded cluster: a worker holds only the task it runs (Dask's default 1.1 queues a second one on a
+# one-thread worker), so a worker's death counts against that task alone, and a run of seconds loses
+# nothing by not being prefetched.
+WORKER_SATURATION = 1.0
 CONNECT_TIMEOUT_S = 10.0
 
 
@@ -34,6 +38,12 @@ DASHBOARD_ADDRESS = "127.0.0.1:8787"
 def dashboard_available() -> bool:
     """True if bokeh, which Dask's dashboard needs, is installed here."""
     return importlib.util.find_spec("bokeh") is not None
+
+
+def check_workers(workers: int | None) -> None:
+    """Refuse a worker count below one (None: the machine's cores)."""
+    if workers is not None and workers < 1:
+        raise ClusterError(f"--workers must be >= 1, got {workers}")
 
 
 @contextmanager
@@ -60,18 +70,11 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
     ClusterError
         `workers` < 1, or the scheduler does not answer, or no worker joins it within `timeout_s`.
     """
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    if workers is not None and workers < 1:
-        raise ClusterError(f"--workers must be >= 1, got {workers}")
+    check_workers(workers)
     if scheduler is None:
-        http = {"dashboard": dashboard,
-                "dashboard_address": DASHBOARD_ADDRESS if dashboard else "127.0.0.1:0"}
-        with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                          host="127.0.0.1", scheduler_port=0, worker_dashboard_address=None,
-                          silence_logs=logging.CRITICAL,
-                          scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, **http}) as cluster, \
-                Client(cluster) as client:
+        with _local_cluster(workers or os.cpu_count() or 1, dashboard) as cluster, Client(cluster) as client:
             yield client
         return
     try:
@@ -86,6 +89,18 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
         yield client
     finally:
         client.close()
+
+
+def _local_cluster(workers: int, dashboard: bool):
+    """The embedded cluster: `workers` processes of one thread on 127.0.0.1."""
+    import dask
+    from distributed import LocalCluster
+
+    http = {"dashboard": dashboard, "dashboard_address": DASHBOARD_ADDRESS if dashboard else "127.0.0.1:0"}
+    with dask.config.set({"distributed.scheduler.worker-saturation": WORKER_SATURATION}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            scheduler_port=0, worker_dashboard_address=None, silence_logs=logging.CRITICAL,
+                            scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, **http})
 
 
 def describe_failure(exc: BaseException) -> str:

@@ -58,7 +58,7 @@ class SweepProgress:
 
 def run(args) -> int:
     from common import ScenarioError
-    from services.batch.driver import dashboard_available, open_client, run_tasks
+    from services.batch.driver import check_workers, dashboard_available, open_client, run_tasks
     from services.outputs.summary import summary_json
     from services.outputs.sweep_report import write_sweep_report
     from services.outputs.sweep_results import ResultsTable, RunOutputs
@@ -66,6 +66,7 @@ def run(args) -> int:
 
     if args.resume and not args.out:
         raise ScenarioError("--resume needs --out DIR: the folder of the sweep to go on with")
+    check_workers(args.workers)
     t0 = time.perf_counter()
     sweep = load_sweep(args.sweep)
     specs = plan(sweep)

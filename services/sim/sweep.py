@@ -202,11 +202,12 @@ def _seeds(doc: dict, source: str) -> tuple[int, ...] | None:
 
 def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
     """``[axes]`` as {dotted key: list or range}: a quoted key ``"controller.kp"`` and a nested table
-    ``controller.kp`` (unquoted) mean the same; a table of range keys is a range, not a nesting."""
+    ``controller.kp`` (unquoted) mean the same; a table with ``min`` or ``max`` is a range, not a
+    nesting."""
     out = {}
     for key, value in table.items():
         dotted = f"{prefix}{key}"
-        if isinstance(value, dict) and value and not set(value) <= set(RANGE_KEYS):
+        if isinstance(value, dict) and value and not {"min", "max"} & set(value):
             out.update(_flatten(value, dotted + "."))
         else:
             out[dotted] = value
