@@ -11,6 +11,7 @@ import io
 import math
 
 import numpy as np
+from matplotlib.ticker import NullFormatter
 
 from services.outputs.plots import _pyplot
 from services.outputs.summary import SUMMARY_ROWS
@@ -26,6 +27,7 @@ from services.sim.sweep import (
 
 LABELS = {key: f"{label} [{unit}]" for label, key, unit in SUMMARY_ROWS}
 BEST_K = 3  # configurations listed per metric
+MAX_TICKS = 12  # an axis with at most this many values is labelled at each value and joined by a line
 SENSE_WORDS = {"min": "lower is better", "max": "higher is better", "zero": "closest to 0 is better"}
 
 
@@ -67,7 +69,12 @@ def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
     fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows))
     fig.subplots_adjust(left=0.05, right=0.98, bottom=0.05, top=0.93, hspace=0.55, wspace=0.25)
     scenarios = list(dict.fromkeys(c.scenario for c in configs))
+    shown = sorted({v for c in configs for v in _positions([dict(c.axes)[axis_key]])[0]})
     for ax, metric in zip(axes.flat, metrics, strict=False):
+        if not any(len(c.values(metric)) for c in configs):
+            ax.text(0.5, 0.5, "no value in any run\n(e.g. no rate step crossed)", ha="center",
+                    va="center", transform=ax.transAxes, fontsize=8, color="0.4")
+        cats = None
         for i, name in enumerate(scenarios):
             mine = [c for c in configs if c.scenario == name]
             x, cats = _positions([dict(c.axes)[axis_key] for c in mine])
@@ -78,12 +85,15 @@ def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
             xs = np.unique(x)
             ys = [np.nanmean(stats[x == v, 0]) if np.isfinite(stats[x == v, 0]).any() else np.nan
                   for v in xs]
-            if len(xs) <= 30:  # a line of means for discrete axes; a sampled axis shows points only
+            if len(xs) <= MAX_TICKS:  # a line of means for discrete axes; a sampled axis shows points
                 ax.plot(xs, ys, "-", color=color, lw=1)
-            if cats:
-                ax.set_xticks(range(len(cats)), cats)
         if log:
             ax.set_xscale("log")
+        if cats:
+            ax.set_xticks(range(len(cats)), cats)
+        elif len(shown) <= MAX_TICKS:  # the swept values themselves, also on a log axis
+            ax.set_xticks(shown, [f"{v:g}" for v in shown])
+            ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_title(_label(metric), fontsize=9)
         ax.set_xlabel(axis_key, fontsize=8)
         ax.tick_params(labelsize=7)
@@ -97,7 +107,8 @@ def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
 
 def plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
     """The two metrics of each configuration (means over seeds, bars: 95 % intervals), the Pareto
-    front highlighted and labelled."""
+    front highlighted and numbered; returns the figure and the front's configurations in that
+    numbering (along the first metric)."""
     plt = _pyplot()
     mx, my = pair
     sx = np.array([mean_ci95(c.values(mx)) for c in configs]).reshape(-1, 2)
@@ -106,15 +117,14 @@ def plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
     fig, ax = plt.subplots(figsize=(9, 6.5), constrained_layout=True)
     ax.errorbar(sx[:, 0], sy[:, 0], xerr=np.nan_to_num(sx[:, 1]), yerr=np.nan_to_num(sy[:, 1]), fmt="o",
                 ms=4, color="0.6", alpha=0.7, label="configurations")
-    order = np.argsort(sx[front, 0])
-    ax.plot(sx[front, 0][order], sy[front, 0][order], "o-", color="C3", label="Pareto front")
-    for i in np.flatnonzero(front):
-        ax.annotate(configs[i].label(), (sx[i, 0], sy[i, 0]), fontsize=7, xytext=(4, 4),
-                    textcoords="offset points")
+    on_front = np.flatnonzero(front)[np.argsort(sx[front, 0])]
+    ax.plot(sx[on_front, 0], sy[on_front, 0], "o-", color="C3", label="Pareto front")
+    for number, i in enumerate(on_front, start=1):
+        ax.annotate(str(number), (sx[i, 0], sy[i, 0]), fontsize=8, xytext=(4, 4), textcoords="offset points")
     ax.set_xlabel(f"{_label(mx)} ({SENSE_WORDS[METRIC_SENSE[mx]]})")
     ax.set_ylabel(f"{_label(my)} ({SENSE_WORDS[METRIC_SENSE[my]]})")
     ax.legend()
-    return fig
+    return fig, [configs[i] for i in on_front]
 
 
 def _best_table(configs: list[Configuration]) -> str:
@@ -154,8 +164,10 @@ def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
     if configs:
         parts.append("<h2>Best configurations per metric</h2>" + _best_table(configs))
         if sweep.pareto:
+            fig, front = plot_pareto(configs, sweep.pareto)
+            items = "".join(f"<li>{html.escape(c.label())}</li>" for c in front)
             parts.append(f"<h2>Pareto front: {html.escape(' vs '.join(sweep.pareto))}</h2>"
-                         + _png(plot_pareto(configs, sweep.pareto)))
+                         + _png(fig) + f"<ol>{items}</ol>")
         for axis in sweep.axes:
             parts.append(f"<h2>Against {html.escape(axis.key)}</h2>"
                          + _png(plot_axis(configs, axis.key, axis.log)))

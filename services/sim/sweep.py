@@ -1,6 +1,7 @@
 """Sweeps: many runs of base scenarios over axes of dotted keys, a design and seeds.
 
-Pure and deterministic; no cluster, no files written. `load_sweep` reads and checks a sweep file,
+No cluster and no files written here, and all of it pure and deterministic but the task.
+`load_sweep` reads and checks a sweep file,
 `plan` expands it into `RunSpec` s (plain data, one per run, each keyed by a hash of its resolved
 scenario), `run_row` is the task that runs one spec and returns one result row, and
 `configurations`, `mean_ci95`, `best` and `pareto_front` are the statistics of the sweep's report.
@@ -15,6 +16,8 @@ A sweep file (see ``scenarios/README.md``)::
     [axes]
     "controller.kp" = [0.4, 0.6, 0.8]
     "implement.delivery_delay_s" = { min = 0.4, max = 1.6, n = 4 }
+    [set]                                      # the same in every run (not a column)
+    "controller.gains" = "manual"
     [report]
     pareto = ["within_10pct_area_pct", "transition_distance_m_mean"]
 """
@@ -40,7 +43,7 @@ from services.sim import scenario as scenario_mod
 from services.sim.overrides import key_parts
 from services.sim.scenario import _no_unknown, _typed  # the scenario loader's own checks and messages
 
-SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "axes", "report")
+SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "set", "axes", "report")
 RANGE_KEYS = ("min", "max", "n", "log")
 REPORT_KEYS = ("pareto",)
 ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
@@ -103,6 +106,7 @@ class Sweep:
     design: str
     samples: int | None
     design_seed: int
+    fixed: tuple[tuple[str, Any], ...]  # [set]: (dotted key, value) set in every run
     axes: tuple[Axis, ...]
     pareto: tuple[str, str] | None
 
@@ -121,9 +125,10 @@ class RunSpec:
     text: str
     source: str
     base_dir: str
+    fixed: tuple[tuple[str, Any], ...] = ()  # the sweep's [set], the same in every run
 
     def overrides(self) -> list[tuple[str, Any]]:
-        return [*self.axes, ("seed", self.seed)]
+        return [*self.fixed, *self.axes, ("seed", self.seed)]
 
     def load(self) -> scenario_mod.Scenario:
         return scenario_mod.parse(self.text, self.source, self.base_dir, self.overrides())
@@ -162,9 +167,14 @@ def parse_sweep(text: str, source: str = "<sweep>", base_dir: str = ".") -> Swee
     axes = _axes(_typed(doc, "axes", dict, source, "", default={}), source, design)
     if design != "grid" and not axes:
         raise ScenarioError(f"{source}: design {design!r} needs at least one axis in [axes]")
+    fixed = tuple(_flatten(_typed(doc, "set", dict, source, "", default={}), ranges=False).items())
+    for key, _ in fixed:
+        key_parts(key, f"{source}: [set] {key!r}")
+        if key in {a.key for a in axes}:
+            raise ScenarioError(f"{source}: [set] {key!r} is also an axis; set it in one place")
     return Sweep(source=source, scenarios=_scenarios(doc, source, base_dir), seeds=_seeds(doc, source),
                  design=design, samples=samples,
-                 design_seed=_typed(doc, "design_seed", int, source, "", default=0),
+                 design_seed=_typed(doc, "design_seed", int, source, "", default=0), fixed=fixed,
                  axes=axes, pareto=_pareto(_typed(doc, "report", dict, source, "", default={}), source))
 
 
@@ -200,15 +210,15 @@ def _seeds(doc: dict, source: str) -> tuple[int, ...] | None:
     return tuple(seeds)
 
 
-def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
-    """``[axes]`` as {dotted key: list or range}: a quoted key ``"controller.kp"`` and a nested table
-    ``controller.kp`` (unquoted) mean the same; a table with ``min`` or ``max`` is a range, not a
-    nesting."""
+def _flatten(table: dict, prefix: str = "", ranges: bool = True) -> dict[str, Any]:
+    """``[axes]`` or ``[set]`` as {dotted key: value}: a quoted key ``"controller.kp"`` and a nested
+    table ``controller.kp`` (unquoted) mean the same; in ``[axes]`` (`ranges`) a table with ``min``
+    or ``max`` is a range, not a nesting."""
     out = {}
     for key, value in table.items():
         dotted = f"{prefix}{key}"
-        if isinstance(value, dict) and value and not {"min", "max"} & set(value):
-            out.update(_flatten(value, dotted + "."))
+        if isinstance(value, dict) and value and not (ranges and {"min", "max"} & set(value)):
+            out.update(_flatten(value, dotted + ".", ranges))
         else:
             out[dotted] = value
     return out
@@ -354,10 +364,11 @@ def plan(sweep: Sweep) -> list[RunSpec]:
         for point in points:
             values = tuple(zip(keys, point, strict=True))
             for seed in sweep.seeds or (None,):
-                overrides = [*values, *([("seed", seed)] if seed is not None else [])]
+                overrides = [*sweep.fixed, *values, *([("seed", seed)] if seed is not None else [])]
                 sc = _checked(sweep, base, overrides)
                 spec = RunSpec(key=scenario_key(sc), scenario=base.label, seed=sc.seed, axes=values,
-                               text=base.text, source=base.source, base_dir=base.base_dir)
+                               text=base.text, source=base.source, base_dir=base.base_dir,
+                               fixed=sweep.fixed)
                 specs.setdefault(spec.key, spec)
     return list(specs.values())
 
@@ -370,7 +381,7 @@ def _check_range_ends(sweep: Sweep, base: BaseScenario, point: tuple) -> None:
             for end in (axis.low, axis.high):
                 values = [(a.key, v) for a, v in zip(sweep.axes, point, strict=True)]
                 values[j] = (axis.key, end)
-                _checked(sweep, base, values)
+                _checked(sweep, base, [*sweep.fixed, *values])
 
 
 def _checked(sweep: Sweep, base: BaseScenario, overrides: list) -> scenario_mod.Scenario:

@@ -2,6 +2,7 @@
 random, lhs; seeds; ranges, log, integers), run keys, bad input, and the report's statistics."""
 
 import math
+import os
 import textwrap
 
 import numpy as np
@@ -18,6 +19,7 @@ from services.sim.sweep import (
     plan,
     scenario_key,
 )
+from tests.conftest import ROOT
 
 BASE = """
 name = "base"
@@ -338,3 +340,29 @@ def test_configurations_group_seeds_and_skip_failed_rows():
     assert [(c.axes, len(c.rows)) for c in configs] == [((("controller.kp", 0.4),), 2),
                                                         ((("controller.kp", 0.8),), 2)]
     assert configs[0].values("mae_kg_ha").tolist() == [5.0, 6.0]
+
+
+def test_set_is_in_every_run_and_not_an_axis(folder):
+    sw = sweep_of(folder, """
+        scenarios = ["default"]
+        [set]
+        "controller.gains" = "manual"
+        implement = { sections = 4 }
+        [axes]
+        "controller.kp" = [0.4, 0.8]
+    """)
+    assert sw.fixed == (("controller.gains", "manual"), ("implement.sections", 4))
+    specs = plan(sw)
+    assert [dict(s.axes) for s in specs] == [{"controller.kp": 0.4}, {"controller.kp": 0.8}]
+    assert all(s.load().implement.sections == 4 and s.load().controller.gains == "manual" for s in specs)
+    with pytest.raises(ScenarioError, match=r"\[set\] 'controller.kp' is also an axis"):
+        sweep_of(folder, 'scenarios = ["default"]\n[set]\n"controller.kp" = 1.0\n'
+                         '[axes]\n"controller.kp" = [1]\n')
+
+
+def test_the_example_sweep_plans():
+    sw = load_sweep(os.path.join(ROOT, "scenarios", "sweep_gains.toml"))
+    specs = plan(sw)
+    assert len(specs) == 54 and sw.pareto == ("within_10pct_area_pct", "mass_balance_pct")
+    sc = specs[0].load()
+    assert (sc.controller.gains, sc.controller.kd, sc.name) == ("manual", 0.00003, "quick_rectangle")
