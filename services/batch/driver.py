@@ -79,7 +79,9 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
         return
     try:
         client = Client(scheduler, timeout=f"{timeout_s}s")
-    except (OSError, TimeoutError, ValueError, TypeError) as exc:
+    except (ValueError, TypeError) as exc:
+        raise ClusterError(f"--scheduler {scheduler}: not an address like tcp://host:8786 ({exc})") from None
+    except (OSError, TimeoutError) as exc:
         raise ClusterError(f"--scheduler {scheduler}: no answer within {timeout_s:g} s ({exc})") from None
     try:
         try:

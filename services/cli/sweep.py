@@ -82,6 +82,7 @@ def run(args) -> int:
         dashboard = dashboard_available() and not args.no_dashboard
         with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
             workers = len(client.scheduler_info().get("workers", {}))
+            progress.start = time.perf_counter()  # the rate counts runs, not the cluster's start
             if dashboard and not args.quiet:
                 print(f"vrsim sweep: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
 

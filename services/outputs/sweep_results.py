@@ -73,6 +73,7 @@ class ResultsTable:
     """
 
     def __init__(self, out_dir: str, resume: bool = False, flush_every_s: float = 1.0):
+        self.out_dir = out_dir
         self.parquet = os.path.join(out_dir, PARQUET)
         self.csv = os.path.join(out_dir, CSV)
         self.flush_every_s = flush_every_s
@@ -83,7 +84,6 @@ class ResultsTable:
                                 f"another --out")
         if exists:
             self.rows = read_rows(self.parquet)
-        os.makedirs(out_dir, exist_ok=True)
         self._flushed = time.monotonic()
 
     @property
@@ -97,6 +97,8 @@ class ResultsTable:
             self.flush()
 
     def flush(self) -> None:
+        """Write both files now (and create `out_dir`: nothing is created before the first flush)."""
+        os.makedirs(self.out_dir, exist_ok=True)
         if self.rows:
             write_parquet(self.rows, self.parquet)
             write_csv(self.rows, self.csv)

@@ -182,6 +182,10 @@ def test_a_separately_started_scheduler_and_worker_give_the_same_table(local, tm
             time.sleep(0.2)
         address = json.loads(scheduler_file.read_text())["address"]
         assert address.startswith("tcp://127.0.0.1:")
+        lonely = vrsim("sweep", str(folder / "s.toml"), "--scheduler", address, "--timeout", "2",
+                       "--out", str(tmp_path / "lonely"))
+        assert lonely.returncode == 2
+        assert lonely.stderr == f"vrsim sweep: error: --scheduler {address}: no worker joined within 2 s\n"
         worker = subprocess.Popen(
             [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
              "--nworkers", "1", "--host", "127.0.0.1", "--no-dashboard", "--dashboard-address",
@@ -209,6 +213,7 @@ def test_a_scheduler_that_does_not_answer_exits_2(local):
     assert re.fullmatch(r"vrsim sweep: error: --scheduler tcp://127\.0\.0\.1:\d+: no answer within 2 s .*\n",
                         p.stderr)
     assert time.monotonic() - t0 < 60
+    assert not (folder / "nowhere").exists()
 
 
 @pytest.mark.parametrize("args, message", [
