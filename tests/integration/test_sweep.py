@@ -241,12 +241,13 @@ def test_bad_input_is_one_line_and_exit_2(local, args, message):
 
 def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
     """Real worker processes killed mid-task (os._exit in the task): once -> the retry succeeds;
-    every time -> a failed result after the retry; the other tasks finish either way."""
+    every time -> a failed result after the retry; a task that raises runs twice, then fails; the
+    other tasks finish either way."""
     from services.batch.driver import open_client, run_tasks
     from tests.integration.sweep_support import square_or_die
 
     items = [(1, "", ""), (2, "once", str(tmp_path / "died-once")), (3, "always", str(tmp_path / "x")),
-             (4, "", "")]
+             (4, "", ""), (5, "raise", str(tmp_path / "attempts"))]
     done = {}
     with open_client(workers=2, dashboard=False) as client:
         run_tasks(client, items, square_or_die, key=lambda item: f"square-{item[0]}",
@@ -255,3 +256,5 @@ def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
     assert (tmp_path / "died-once").exists()
     result, error = done[3]
     assert result is None and "worker died while running this task (2 attempts)" in error
+    assert done[5] == (None, "ValueError: no square of 5 today")
+    assert (tmp_path / "attempts").read_text() == "attempt\n" * 2
