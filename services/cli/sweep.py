@@ -56,13 +56,39 @@ class SweepProgress:
             sys.stderr.write("\n")
 
 
+def _run_on_dask(args, todo, task, table, progress) -> int:
+    """Run the specs `todo` on the cluster the options name, each row into `table` as it comes;
+    returns how many workers the cluster had."""
+    from services.batch.driver import dashboard_available, open_client, run_tasks
+    from services.sim.sweep import failed_row
+
+    dashboard = dashboard_available() and not args.no_dashboard
+    with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
+        workers = len(client.scheduler_info().get("workers", {}))
+        progress.start = time.perf_counter()  # the rate counts runs, not the cluster's start
+        if dashboard and not args.quiet:
+            print(f"vrsim sweep: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
+
+        def on_done(spec, row, error):
+            row = row if row is not None else failed_row(spec, error)
+            table.add(row)
+            progress.update(row)
+
+        try:
+            run_tasks(client, todo, task, key=lambda s: f"vrsim-run-{s.key}", on_done=on_done)
+        finally:
+            table.flush()
+            progress.close()
+    return workers
+
+
 def run(args) -> int:
     from common import ScenarioError
-    from services.batch.driver import check_workers, dashboard_available, open_client, run_tasks
+    from services.batch.driver import check_workers
     from services.outputs.summary import summary_json
     from services.outputs.sweep_report import write_sweep_report
     from services.outputs.sweep_results import ResultsTable, RunOutputs
-    from services.sim.sweep import failed_row, load_sweep, plan, run_row
+    from services.sim.sweep import load_sweep, plan, run_row
 
     if args.resume and not args.out:
         raise ScenarioError("--resume needs --out DIR: the folder of the sweep to go on with")
@@ -77,25 +103,7 @@ def run(args) -> int:
     todo = [s for s in specs if s.key not in done]
     task = functools.partial(run_row, after=RunOutputs(out_dir)) if args.run_outputs else run_row
     progress = SweepProgress(len(todo), enabled=not args.quiet)
-    workers = 0
-    if todo:
-        dashboard = dashboard_available() and not args.no_dashboard
-        with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
-            workers = len(client.scheduler_info().get("workers", {}))
-            progress.start = time.perf_counter()  # the rate counts runs, not the cluster's start
-            if dashboard and not args.quiet:
-                print(f"vrsim sweep: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
-
-            def on_done(spec, row, error):
-                row = row if row is not None else failed_row(spec, error)
-                table.add(row)
-                progress.update(row)
-
-            try:
-                run_tasks(client, todo, task, key=lambda s: f"vrsim-run-{s.key}", on_done=on_done)
-            finally:
-                table.flush()
-                progress.close()
+    workers = _run_on_dask(args, todo, task, table, progress) if todo else 0
     table.flush()
     report = os.path.join(out_dir, "report.html")
     write_sweep_report(table.rows, sweep, report)

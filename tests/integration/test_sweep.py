@@ -57,9 +57,9 @@ def sweep(folder, *args):
     return json.loads(p.stdout)
 
 
-def same_figures(a: dict, b: dict) -> dict:
-    """The keys where two rows differ, timing left out."""
-    keys = (set(a) | set(b)) - TIMING
+def same_figures(a: dict, b: dict, ignore=()) -> dict:
+    """The keys where two rows differ, timing (and `ignore`) left out."""
+    keys = (set(a) | set(b)) - TIMING - set(ignore)
     return {k: (a.get(k), b.get(k)) for k in keys if a.get(k) != b.get(k)}
 
 
@@ -129,18 +129,22 @@ def test_resume_reruns_nothing(local):
     assert read_rows(str(folder / "out" / "results.parquet")) == rows
 
 
-def test_resume_runs_only_what_is_missing(local):
+def test_resume_runs_only_what_is_missing_and_run_outputs_are_written_when_asked(local):
     folder, _, rows = local
     out = folder / "partial"
     out.mkdir()
-    kept = [r for r in rows if not (r["status"] == "ok" and r["controller.kp"] == 0.8)]
-    write_parquet(kept, str(out / "results.parquet"))
-    outcome = sweep(folder, "--resume", "--out", str(out), "--workers", "1")
+    missing = next(r for r in rows if r["status"] == "ok" and r["controller.kp"] == 0.8)
+    write_parquet([r for r in rows if r is not missing], str(out / "results.parquet"))
+    outcome = sweep(folder, "--resume", "--out", str(out), "--workers", "1", "--run-outputs")
     assert (outcome["skipped"], outcome["ran"], outcome["ok"]) == (3, 1, 1)
     again = {r["key"]: r for r in read_rows(str(out / "results.parquet"))}
     assert set(again) == {r["key"] for r in rows}
     for row in rows:
-        assert same_figures(again[row["key"]], row) == {}
+        assert same_figures(again[row["key"]], row, ignore={"outputs_wall_s"}) == {}
+    assert again[missing["key"]]["outputs_wall_s"] > 0  # what writing its files took
+    assert [p.name for p in (out / "runs").iterdir()] == [missing["key"]]
+    saved = json.loads((out / "runs" / missing["key"] / "summary.json").read_text())
+    assert saved["mae_kg_ha"] == missing["mae_kg_ha"] and saved["scenario_config"]["controller"]["kp"] == 0.8
 
 
 def test_an_existing_table_is_not_overwritten_without_resume(local):
