@@ -6,6 +6,7 @@ here, and only that.
 
 from common.checks import check_number, check_positive, is_number
 from common.errors import (
+    ClusterError,
     ControllerError,
     MapError,
     ScenarioError,
@@ -26,5 +27,6 @@ __all__ = [
     "check_number",
     "check_positive",
     "is_number",
+    "ClusterError",
     "__version__",
 ]

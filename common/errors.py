@@ -28,3 +28,7 @@ class ScenarioError(VrsimError):
 
 class ServiceError(VrsimError):
     """A Zenoh service that cannot be reached or answered badly."""
+
+
+class ClusterError(VrsimError):
+    """A Dask scheduler that does not answer, or a cluster without workers."""

@@ -1,5 +1,5 @@
 """vrsim's services, one subpackage per job: `sim` (the simulation and Python API), `outputs` (files a
-run writes), `bus` (the Zenoh services) and `cli` (the `vrsim` command).
+run writes), `bus` (the Zenoh services), `batch` (many runs on Dask) and `cli` (the `vrsim` command).
 
-Imports point one way: cli -> bus/outputs/sim -> maps/vehicle/controller -> common.
+Imports point one way: cli -> bus/batch/outputs/sim -> maps/vehicle/controller -> common.
 """

@@ -1,4 +1,5 @@
-"""`vrsim run [SCENARIO] [--out DIR] [--json] [--quiet]`: one field scenario, in process."""
+"""`vrsim run [SCENARIO] [--set KEY=VALUE ...] [--out DIR] [--json] [--quiet]`: one field scenario, in
+process."""
 
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ HELP = "run a field scenario (file or built-in name; default: the built-in 'defa
 def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
                         help="scenario TOML file or built-in name (default, large)")
+    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
+                        help="override a scenario key, checked like the file's (controller.kp=0.8, "
+                             "gnss.kind=dgps, seed=3); repeatable")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -47,8 +51,9 @@ def run(args) -> int:
     from services.outputs.write import write_outputs
     from services.sim import run as field_run
     from services.sim import scenario
+    from services.sim.overrides import parse_assignment
 
-    sc = scenario.load(args.scenario)
+    sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
         result = field_run.run(sc, progress=progress)

@@ -18,12 +18,15 @@ import inspect
 import math
 import os
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 from common import ScenarioError, VrsimError, is_number
 from controller import ControllerConfig, PlantParams
 from maps import synthetic
+from services.sim.overrides import Override
+from services.sim.overrides import apply as apply_overrides
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
@@ -112,14 +115,19 @@ def scenario_file(scenario: Scenario) -> str:
     return scenario.source
 
 
-def load(spec: str | None) -> Scenario:
-    """Load a scenario from a file path or a built-in name (None = the built-in default)."""
+def load(spec: str | None, overrides: Iterable[Override] = ()) -> Scenario:
+    """Load a scenario from a file path or a built-in name (None = the built-in default), with
+    dotted-key `overrides` (``("controller.kp", 0.8)``) applied before it is checked."""
+    return parse(*read(spec), overrides=overrides)
+
+
+def read(spec: str | None) -> tuple[str, str, str]:
+    """(text, source, base_dir) of a scenario file path or built-in name (None = the default)."""
     if spec is None:
         spec = "default"
     if not os.path.exists(spec) and spec in builtin_names():
-        path = os.path.join(BUILTIN_DIR, spec + ".toml")
-        with open(path, "rb") as fh:
-            return parse(fh.read().decode(), source=f"builtin:{spec}", base_dir=BUILTIN_DIR)
+        with open(os.path.join(BUILTIN_DIR, spec + ".toml"), "rb") as fh:
+            return fh.read().decode(), f"builtin:{spec}", BUILTIN_DIR
     if not os.path.isfile(spec):
         raise ScenarioError(f"{spec}: no such scenario file (built-in scenarios: "
                             f"{', '.join(builtin_names())})")
@@ -128,15 +136,19 @@ def load(spec: str | None) -> Scenario:
             text = fh.read().decode("utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"{spec}: cannot read: {exc}") from None
-    return parse(text, source=spec, base_dir=os.path.dirname(os.path.abspath(spec)))
+    return text, spec, os.path.dirname(os.path.abspath(spec))
 
 
-def parse(text: str, source: str = "<scenario>", base_dir: str = ".") -> Scenario:
-    """Parse and check a scenario's TOML text; `source` names it in error messages."""
+def parse(text: str, source: str = "<scenario>", base_dir: str = ".",
+          overrides: Iterable[Override] = ()) -> Scenario:
+    """Parse and check a scenario's TOML text; `source` names it in error messages. `overrides`
+    (dotted key, value) are set in the document first (`services.sim.overrides`), so they are
+    checked like the file's own keys."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
+    doc = apply_overrides(doc, overrides, source)
     _no_unknown(doc, TOP_KEYS, source, "")
     for key in TOP_KEYS - {"name", "seed", "description"}:
         if key in doc and not isinstance(doc[key], dict):

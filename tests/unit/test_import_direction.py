@@ -1,4 +1,4 @@
-"""Imports point one way: cli -> bus/outputs/sim -> maps/vehicle/controller -> common.
+"""Imports point one way: cli -> bus/batch/outputs/sim -> maps/vehicle/controller -> common.
 
 Read from the source with `ast` (every import, also those inside functions), so a lazy import that
 goes the wrong way fails here, not in a user's run.
@@ -11,7 +11,7 @@ import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DOMAIN = ("maps", "vehicle", "controller")
-ROOMS = ("sim", "outputs", "bus", "cli")
+ROOMS = ("sim", "outputs", "bus", "batch", "cli")
 # Modules of services.bus that are shared helpers, not services.
 BUS_HELPERS = ("services.bus", "services.bus.config", "services.bus.serving", "services.bus.client",
                "services.bus.messages")
@@ -60,11 +60,22 @@ def test_domain_packages_never_import_services_or_each_other(package):
 
 
 def test_sim_imports_no_other_room():
-    assert _violations("services.sim", ("services.outputs", "services.bus", "services.cli")) == []
+    assert _violations("services.sim", ("services.outputs", "services.bus", "services.batch",
+                                        "services.cli")) == []
 
 
-def test_outputs_import_neither_bus_nor_cli():
-    assert _violations("services.outputs", ("services.bus", "services.cli")) == []
+def test_outputs_import_neither_bus_nor_batch_nor_cli():
+    assert _violations("services.outputs", ("services.bus", "services.batch", "services.cli")) == []
+
+
+def test_batch_imports_only_sim():
+    assert _violations("services.batch", ("services.outputs", "services.bus", "services.cli")) == []
+
+
+@pytest.mark.parametrize("package", ["common", *DOMAIN, *(f"services.{room}" for room in ROOMS
+                                                          if room != "batch")])
+def test_only_batch_imports_dask(package):
+    assert _violations(package, ("dask", "distributed")) == []
 
 
 def test_bus_never_imports_cli():

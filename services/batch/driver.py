@@ -1,0 +1,153 @@
+"""The Dask driver: open a client on an embedded or existing cluster, run tasks, stream results.
+
+Why Dask (`dask.distributed`): its embedded `LocalCluster` needs nothing but pip, and the same code
+reaches a real cluster by its scheduler's address. libsumo allows one simulation per process, so the
+embedded cluster has one process per worker and one thread each.
+
+Retries: a task that raises is run once more (``retries=1``); a worker that dies running a task gets
+the task rescheduled once (the embedded scheduler's ``allowed_failures=1``; an existing cluster
+applies its own ``distributed.scheduler.allowed-failures``, 3 by default); after that the task is
+reported failed (`KilledWorker`) and the rest go on.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import logging
+import os
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+from common import ClusterError
+
+T = TypeVar("T")
+
+TASK_RETRIES = 1  # a task that raises runs once more
+ALLOWED_FAILURES = 1  # embedded cluster: a task whose worker died is rescheduled once
+# Embedded cluster: a worker holds only the task it runs (Dask's default 1.1 queues a second one on a
+# one-thread worker), so a worker's death counts against that task alone, and a run of seconds loses
+# nothing by not being prefetched.
+WORKER_SATURATION = 1.0
+CONNECT_TIMEOUT_S = 10.0
+
+
+DASHBOARD_ADDRESS = "127.0.0.1:8787"
+
+
+def dashboard_available() -> bool:
+    """True if bokeh, which Dask's dashboard needs, is installed here."""
+    return importlib.util.find_spec("bokeh") is not None
+
+
+def check_workers(workers: int | None) -> None:
+    """Refuse a worker count below one (None: the machine's cores)."""
+    if workers is not None and workers < 1:
+        raise ClusterError(f"--workers must be >= 1, got {workers}")
+
+
+@contextmanager
+def open_client(scheduler: str | None = None, workers: int | None = None, dashboard: bool = False,
+                timeout_s: float = CONNECT_TIMEOUT_S) -> Iterator[Any]:
+    """A `distributed.Client` on an existing cluster (`scheduler`) or on an embedded `LocalCluster`.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        An existing scheduler's address (``tcp://host:8786``); None starts an embedded cluster on
+        127.0.0.1 that is closed on exit.
+    workers : int, optional
+        Worker processes of the embedded cluster (one thread each); default: the machine's cores.
+    dashboard : bool
+        Serve the embedded cluster's dashboard on `DASHBOARD_ADDRESS` (another free port if that one
+        is taken; needs bokeh). Without it the scheduler's small HTTP server (health, metrics) takes a
+        free port on 127.0.0.1.
+    timeout_s : float
+        How long to wait for the scheduler to answer and for a first worker, s.
+
+    Raises
+    ------
+    ClusterError
+        `workers` < 1, or the scheduler does not answer, or no worker joins it within `timeout_s`.
+    """
+    from distributed import Client
+
+    check_workers(workers)
+    if scheduler is None:
+        with _local_cluster(workers or os.cpu_count() or 1, dashboard) as cluster, Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = Client(scheduler, timeout=f"{timeout_s}s")
+    except (ValueError, TypeError) as exc:
+        raise ClusterError(f"--scheduler {scheduler}: not an address like tcp://host:8786 ({exc})") from None
+    except (OSError, TimeoutError) as exc:
+        raise ClusterError(f"--scheduler {scheduler}: no answer within {timeout_s:g} s ({exc})") from None
+    try:
+        try:
+            client.wait_for_workers(1, timeout=timeout_s)
+        except TimeoutError:
+            raise ClusterError(f"--scheduler {scheduler}: no worker joined within {timeout_s:g} s") from None
+        yield client
+    finally:
+        client.close()
+
+
+def _local_cluster(workers: int, dashboard: bool):
+    """The embedded cluster: `workers` processes of one thread on 127.0.0.1."""
+    import dask
+    from distributed import LocalCluster
+
+    http = {"dashboard": dashboard, "dashboard_address": DASHBOARD_ADDRESS if dashboard else "127.0.0.1:0"}
+    with dask.config.set({"distributed.scheduler.worker-saturation": WORKER_SATURATION}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            scheduler_port=0, worker_dashboard_address=None, silence_logs=logging.CRITICAL,
+                            scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, **http})
+
+
+def describe_failure(exc: BaseException) -> str:
+    """A task's exception as one line for its failed row."""
+    from distributed import KilledWorker
+
+    if isinstance(exc, KilledWorker):
+        return (f"worker died while running this task ({exc.allowed_failures + 1} attempts); "
+                f"KilledWorker on {exc.last_worker.address}")
+    return f"{type(exc).__name__}: {exc}"
+
+
+def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callable[[T], str],
+              on_done: Callable[[T, Any, str | None], None], retries: int = TASK_RETRIES) -> None:
+    """Run ``task(item)`` for every item on the cluster; call ``on_done(item, result, error)`` in this
+    process as each finishes, in the order they finish (`distributed.as_completed`).
+
+    A task that failed (raised twice, its worker died twice, or was cancelled) comes back with
+    ``result=None`` and `error` its one-line description; the others keep running.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    items : sequence
+        Plain data; each is pickled to a worker.
+    task : callable
+        A module-level function (importable on the workers) of one item.
+    key : callable
+        The task's Dask key for an item (unique within the batch).
+    on_done : callable
+        Gets each item, its result (or None) and its error (or None).
+    retries : int
+        Extra runs of a task that raises.
+    """
+    from distributed import as_completed
+
+    futures = {client.submit(task, item, key=key(item), retries=retries, pure=False): item
+               for item in items}
+    for future in as_completed(list(futures)):
+        item = futures.pop(future)
+        if future.status == "finished":
+            result, error = future.result(), None
+        elif future.status == "cancelled":
+            result, error = None, "cancelled: the cluster dropped this task"
+        else:
+            result, error = None, describe_failure(future.exception())
+        future.release()
+        on_done(item, result, error)

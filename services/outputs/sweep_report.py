@@ -1,0 +1,186 @@
+"""A sweep's report.html: one self-contained page (pictures embedded) with, for each accuracy metric,
+its spread against each axis (mean and 95 % interval over seeds per configuration), the best
+configurations per metric, the Pareto front of the two metrics named in ``[report] pareto``, and the
+failed runs with their errors."""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+
+import numpy as np
+from matplotlib.ticker import NullFormatter
+
+from services.outputs.plots import _pyplot
+from services.outputs.summary import SUMMARY_ROWS
+from services.sim.sweep import (
+    METRIC_SENSE,
+    Configuration,
+    Sweep,
+    best,
+    configurations,
+    mean_ci95,
+    pareto_front,
+)
+
+LABELS = {key: f"{label} [{unit}]" for label, key, unit in SUMMARY_ROWS}
+BEST_K = 3  # configurations listed per metric
+MAX_TICKS = 12  # an axis with at most this many values is labelled at each value and joined by a line
+SENSE_WORDS = {"min": "lower is better", "max": "higher is better", "zero": "closest to 0 is better"}
+
+
+def _label(metric: str) -> str:
+    return LABELS.get(metric, metric)
+
+
+def _png(fig) -> str:
+    """A figure as an <img> with the PNG inline."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    _pyplot().close(fig)
+    data = base64.b64encode(buf.getvalue()).decode()
+    return f'<img alt="plot" src="data:image/png;base64,{data}">'
+
+
+def _fmt(value: float, half: float = math.nan) -> str:
+    if not math.isfinite(value):
+        return "n/a"
+    return f"{value:,.3g}" + (f" ± {half:,.2g}" if math.isfinite(half) else "")
+
+
+def _positions(values: list) -> tuple[np.ndarray, list | None]:
+    """x positions of axis values: the numbers themselves, or the index of a category (with its
+    tick labels)."""
+    if all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return np.asarray(values, dtype=float), None
+    cats = list(dict.fromkeys(str(v) for v in values))
+    return np.array([cats.index(str(v)) for v in values], dtype=float), cats
+
+
+def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
+    """One figure: every ranked metric against one axis, a point per configuration (mean over seeds,
+    bar: 95 % interval) and a line through the mean per axis value, a colour per scenario."""
+    plt = _pyplot()
+    metrics = list(METRIC_SENSE)
+    ncols = 4
+    nrows = math.ceil(len(metrics) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows))
+    fig.subplots_adjust(left=0.05, right=0.98, bottom=0.05, top=0.93, hspace=0.55, wspace=0.25)
+    scenarios = list(dict.fromkeys(c.scenario for c in configs))
+    shown = sorted({v for c in configs for v in _positions([dict(c.axes)[axis_key]])[0]})
+    for ax, metric in zip(axes.flat, metrics, strict=False):
+        if not any(len(c.values(metric)) for c in configs):
+            ax.text(0.5, 0.5, "no value in any run\n(e.g. no rate step crossed)", ha="center",
+                    va="center", transform=ax.transAxes, fontsize=8, color="0.4")
+        cats = None
+        for i, name in enumerate(scenarios):
+            mine = [c for c in configs if c.scenario == name]
+            x, cats = _positions([dict(c.axes)[axis_key] for c in mine])
+            stats = np.array([mean_ci95(c.values(metric)) for c in mine]).reshape(-1, 2)
+            color = f"C{i}"
+            ax.errorbar(x, stats[:, 0], yerr=np.nan_to_num(stats[:, 1]), fmt="o", ms=3, alpha=0.6,
+                        color=color, label=name)
+            xs = np.unique(x)
+            ys = [np.nanmean(stats[x == v, 0]) if np.isfinite(stats[x == v, 0]).any() else np.nan
+                  for v in xs]
+            if len(xs) <= MAX_TICKS:  # a line of means for discrete axes; a sampled axis shows points
+                ax.plot(xs, ys, "-", color=color, lw=1)
+        if log:
+            ax.set_xscale("log")
+        if cats:
+            ax.set_xticks(range(len(cats)), cats)
+        elif len(shown) <= MAX_TICKS:  # the swept values themselves, also on a log axis
+            ax.set_xticks(shown, [f"{v:g}" for v in shown])
+            ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_title(_label(metric), fontsize=9)
+        ax.set_xlabel(axis_key, fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(metrics):]:
+        ax.set_visible(False)
+    if len(scenarios) > 1:
+        axes.flat[0].legend(fontsize=7)
+    fig.suptitle(f"Each metric against {axis_key} (mean over seeds, bar: 95 % interval)")
+    return fig
+
+
+def plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
+    """The two metrics of each configuration (means over seeds, bars: 95 % intervals), the Pareto
+    front highlighted and numbered; returns the figure and the front's configurations in that
+    numbering (along the first metric)."""
+    plt = _pyplot()
+    mx, my = pair
+    sx = np.array([mean_ci95(c.values(mx)) for c in configs]).reshape(-1, 2)
+    sy = np.array([mean_ci95(c.values(my)) for c in configs]).reshape(-1, 2)
+    front = pareto_front(sx[:, 0], sy[:, 0], mx, my)
+    fig, ax = plt.subplots(figsize=(9, 6.5), constrained_layout=True)
+    ax.errorbar(sx[:, 0], sy[:, 0], xerr=np.nan_to_num(sx[:, 1]), yerr=np.nan_to_num(sy[:, 1]), fmt="o",
+                ms=4, color="0.6", alpha=0.7, label="configurations")
+    on_front = np.flatnonzero(front)[np.argsort(sx[front, 0])]
+    ax.plot(sx[on_front, 0], sy[on_front, 0], "o-", color="C3", label="Pareto front")
+    for number, i in enumerate(on_front, start=1):
+        ax.annotate(str(number), (sx[i, 0], sy[i, 0]), fontsize=8, xytext=(4, 4), textcoords="offset points")
+    ax.set_xlabel(f"{_label(mx)} ({SENSE_WORDS[METRIC_SENSE[mx]]})")
+    ax.set_ylabel(f"{_label(my)} ({SENSE_WORDS[METRIC_SENSE[my]]})")
+    ax.legend()
+    return fig, [configs[i] for i in on_front]
+
+
+def _best_table(configs: list[Configuration]) -> str:
+    rows = []
+    for metric in METRIC_SENSE:
+        for rank, (config, mean, half) in enumerate(best(configs, metric, BEST_K), start=1):
+            name = f"{_label(metric)} ({SENSE_WORDS[METRIC_SENSE[metric]]})" if rank == 1 else ""
+            rows.append(f"<tr><td>{html.escape(name)}</td><td>{rank}</td>"
+                        f"<td>{html.escape(config.label())}</td><td>{_fmt(mean, half)}</td>"
+                        f"<td>{len(config.values(metric))}</td></tr>")
+    return ("<table><tr><th>metric</th><th>rank</th><th>configuration</th>"
+            "<th>mean ± 95 %</th><th>seeds</th></tr>" + "\n".join(rows) + "</table>")
+
+
+def _failed_table(rows: list[dict], axis_keys: list[str]) -> str:
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if not failed:
+        return "<p>No run failed.</p>"
+    body = "\n".join(
+        f"<tr><td>{html.escape(str(r['scenario']))}</td><td>{r['seed']}</td>"
+        f"<td>{html.escape(', '.join(f'{k}={r.get(k)}' for k in axis_keys))}</td>"
+        f"<td>{html.escape(str(r.get('error')))}</td></tr>" for r in failed)
+    return ("<table><tr><th>scenario</th><th>seed</th><th>axes</th><th>error</th></tr>" + body
+            + "</table>")
+
+
+def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
+    """Write report.html for the result `rows` of `sweep` to `path`."""
+    axis_keys = [a.key for a in sweep.axes]
+    configs = configurations(rows, axis_keys)
+    n_ok = sum(r.get("status") == "ok" for r in rows)
+    parts = [f"<p>{len(rows)} runs: {n_ok} ok, {len(rows) - n_ok} failed; {len(configs)} configurations; "
+             f"design {html.escape(sweep.design)}"
+             + (f" ({sweep.samples} samples)" if sweep.samples else "")
+             + f"; seeds {html.escape(str(list(sweep.seeds)) if sweep.seeds else 'of each scenario')}; "
+             f"scenarios {html.escape(', '.join(b.label for b in sweep.scenarios))}.</p>"]
+    if configs:
+        parts.append("<h2>Best configurations per metric</h2>" + _best_table(configs))
+        if sweep.pareto:
+            fig, front = plot_pareto(configs, sweep.pareto)
+            items = "".join(f"<li>{html.escape(c.label())}</li>" for c in front)
+            parts.append(f"<h2>Pareto front: {html.escape(' vs '.join(sweep.pareto))}</h2>"
+                         + _png(fig) + f"<ol>{items}</ol>")
+        for axis in sweep.axes:
+            parts.append(f"<h2>Against {html.escape(axis.key)}</h2>"
+                         + _png(plot_axis(configs, axis.key, axis.log)))
+    parts.append("<h2>Failed runs</h2>" + _failed_table(rows, axis_keys))
+    title = html.escape(f"vrsim sweep: {sweep.source}")
+    page = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
+<style>body{{font-family:sans-serif;margin:2em;max-width:1500px}}table{{border-collapse:collapse}}
+td,th{{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left}}img{{max-width:100%}}</style>
+</head><body><h1>{title}</h1>
+{chr(10).join(parts)}
+<p>Every run is a row of results.parquet and results.csv beside this page.</p>
+</body></html>
+"""
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(page)

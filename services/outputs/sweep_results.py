@@ -1,0 +1,120 @@
+"""A sweep's result table, ``results.parquet`` and ``results.csv``, kept current as runs finish; and
+the optional per-run output files of a sweep.
+
+Both files are rewritten whole (to a temporary file, then renamed over the old one) at most once per
+`flush_every_s` and at the end, so a reader or a ``--resume`` after a crash always finds a complete
+table, at most that much behind. Columns: ``key, scenario, seed``, one per axis (its dotted key), the
+run's numeric figures, then ``wall_s, status, error``; a failed run's figures are null.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import time
+
+from common import ScenarioError
+from services.sim.sweep import ROW_FIRST, ROW_LAST
+
+PARQUET = "results.parquet"
+CSV = "results.csv"
+
+
+def columns(rows: list[dict]) -> list[str]:
+    """The table's columns: identity first, status last, the rest in first-seen order."""
+    middle = {}
+    for row in rows:
+        middle.update(dict.fromkeys(k for k in row if k not in ROW_FIRST and k not in ROW_LAST))
+    return [*ROW_FIRST, *middle, *ROW_LAST]
+
+
+def read_rows(path: str) -> list[dict]:
+    """The rows of a results.parquet (nulls as None)."""
+    import pyarrow.parquet as pq
+
+    try:
+        return pq.read_table(path).to_pylist()
+    except (OSError, ValueError) as exc:
+        raise ScenarioError(f"{path}: cannot read the results table: {exc}") from None
+
+
+def write_parquet(rows: list[dict], path: str) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    names = columns(rows)
+    table = pa.table({name: pa.array([row.get(name) for row in rows]) for name in names})
+    tmp = f"{path}.{os.getpid()}.tmp"
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def write_csv(rows: list[dict], path: str) -> None:
+    """CSV with a header; floats as Python writes them (round-trip exact), nulls as empty fields."""
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns(rows), restval="")
+        writer.writeheader()
+        writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
+    os.replace(tmp, path)
+
+
+class ResultsTable:
+    """The rows of a sweep in `out_dir`, written as they come.
+
+    Parameters
+    ----------
+    out_dir : str
+    resume : bool
+        Keep the rows of an existing results.parquet (their keys are `done`); without it, an existing
+        table is an error rather than overwritten.
+    flush_every_s : float
+        Rewrite the files at most this often while rows come in, s.
+    """
+
+    def __init__(self, out_dir: str, resume: bool = False, flush_every_s: float = 1.0):
+        self.out_dir = out_dir
+        self.parquet = os.path.join(out_dir, PARQUET)
+        self.csv = os.path.join(out_dir, CSV)
+        self.flush_every_s = flush_every_s
+        self.rows: list[dict] = []
+        exists = os.path.isfile(self.parquet)
+        if exists and not resume:
+            raise ScenarioError(f"{self.parquet} exists: add --resume to go on with that sweep, or choose "
+                                f"another --out")
+        if exists:
+            self.rows = read_rows(self.parquet)
+        self._flushed = time.monotonic()
+
+    @property
+    def done(self) -> set[str]:
+        """Keys of the runs already in the table."""
+        return {row["key"] for row in self.rows}
+
+    def add(self, row: dict) -> None:
+        self.rows.append(row)
+        if time.monotonic() - self._flushed >= self.flush_every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write both files now (and create `out_dir`: nothing is created before the first flush)."""
+        os.makedirs(self.out_dir, exist_ok=True)
+        if self.rows:
+            write_parquet(self.rows, self.parquet)
+            write_csv(self.rows, self.csv)
+        self._flushed = time.monotonic()
+
+
+class RunOutputs:
+    """``after`` hook of `services.sim.sweep.run_row` that writes a run's usual output files into
+    ``<root>/runs/<key>/`` and adds ``outputs_wall_s`` to its figures (picklable: it runs on workers)."""
+
+    def __init__(self, root: str):
+        self.root = os.path.abspath(root)
+
+    def __call__(self, spec, result) -> None:
+        from services.outputs.write import write_outputs
+
+        t0 = time.perf_counter()
+        write_outputs(result, os.path.join(self.root, "runs", spec.key))
+        result.summary["outputs_wall_s"] = time.perf_counter() - t0

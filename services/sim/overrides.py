@@ -1,0 +1,72 @@
+"""Dotted-key overrides of a scenario: ``vrsim run --set controller.kp=0.8`` and the axes of a sweep.
+
+An override is a (dotted key, value) pair applied to the parsed TOML document *before* the scenario
+loader checks it, so an overridden value is checked exactly like one written in the file, by the same
+code and with the same messages (file, table, key, value). ``seed=3`` sets a top-level key,
+``implement.sections=12`` a key of a table, ``map.params.mean_kg_ha=150`` a key of a nested table.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from collections.abc import Iterable
+from typing import Any
+
+from common import ScenarioError
+
+Override = tuple[str, Any]
+
+
+def key_parts(key: str, where: str) -> list[str]:
+    """The parts of dotted `key` (``"controller.kp"`` -> ``["controller", "kp"]``).
+
+    Raises
+    ------
+    ScenarioError
+        An empty key or an empty part (``"controller..kp"``); `where` names the origin in the message.
+    """
+    parts = key.split(".")
+    if not key or any(not p.strip() or p != p.strip() for p in parts):
+        raise ScenarioError(f"{where}: {key!r} is not a dotted key like controller.kp")
+    return parts
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value read as a TOML value (``0.8``, ``12``, ``true``, ``"x"``, ``[1, 2]``,
+    ``{ a = 1 }``); text that is not a TOML value is taken as a string (``dgps``)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignment(text: str) -> Override:
+    """``"KEY=VALUE"`` of ``--set`` as (dotted key, value); the key is checked, the value parsed."""
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise ScenarioError(f"--set {text!r}: expected KEY=VALUE, e.g. controller.kp=0.8")
+    key = key.strip()
+    key_parts(key, f"--set {text!r}")
+    return key, parse_value(value.strip())
+
+
+def apply(doc: dict, overrides: Iterable[Override], source: str) -> dict:
+    """A copy of TOML document `doc` with each (dotted key, value) set; tables on the way are created.
+
+    Raises
+    ------
+    ScenarioError
+        A key that goes through a value that is not a table (``controller.kp.x``), naming `source`.
+    """
+    out = copy.deepcopy(doc)
+    for key, value in overrides:
+        *tables, last = key_parts(key, source)
+        node = out
+        for depth, part in enumerate(tables):
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                path = ".".join(tables[:depth + 1])
+                raise ScenarioError(f"{source}: cannot set {key}: {path} is {node!r}, not a table")
+        node[last] = copy.deepcopy(value)
+    return out
