@@ -40,34 +40,12 @@ import pyproj
 
 from common import MapError
 from maps.crs import WGS84, as_crs, transform_xy
+from maps.units import RATE_UNITS, convert_rate
 from maps.warn import MapWarning
 
 NOT_AVAILABLE = 15  # ISO 11783 position status: not available
 
-# Rate units vrsim can convert between: unit -> (kind, factor to kg/ha or L/ha).
-_HA_PER_AC = 0.40468564224
-RATE_UNITS = {
-    "kg/ha": ("mass", 1.0),
-    "t/ha": ("mass", 1000.0),
-    "lb/ac": ("mass", 0.45359237 / _HA_PER_AC),
-    "L/ha": ("volume", 1.0),
-    "gal/ac": ("volume", 3.785411784 / _HA_PER_AC),
-    "floz/ac": ("volume", 0.0295735295625 / _HA_PER_AC),
-}
 LENGTH_M = {"m": 1.0, "ft": 0.3048, "in": 0.0254, "cm": 0.01, "mm": 0.001}
-
-
-def convert_rate(values, unit: str, to_unit: str) -> np.ndarray:
-    """Rates in `unit` expressed in `to_unit` (both in `RATE_UNITS`, of the same kind)."""
-    known = sorted(RATE_UNITS)
-    if unit not in RATE_UNITS or to_unit not in RATE_UNITS:
-        bad = unit if unit not in RATE_UNITS else to_unit
-        raise MapError(f"rate unit {bad!r} is not one vrsim converts; known: {known}")
-    (kind, f_from), (kind_to, f_to) = RATE_UNITS[unit], RATE_UNITS[to_unit]
-    if kind != kind_to:
-        raise MapError(f"cannot convert a {kind} rate ({unit}) to a {kind_to} rate ({to_unit}) without the "
-                       "product's density")
-    return np.asarray(values, dtype=np.float64) * (f_from / f_to)
 
 
 @dataclass(eq=False)

@@ -64,6 +64,6 @@ def run(args) -> int:
         print(summary_json(result.summary))
     else:
         print(text_summary(result.summary))
-        print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, "
-              f"as_applied.tif, error.tif, summary.json)")
+        print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, prescription.tif, "
+              f"as_applied.tif, error.tif, taskdata/, as_applied_points, summary.json)")
     return 0
