@@ -12,7 +12,7 @@ import os
 from common import __version__
 from services.outputs.summary import fmt
 from services.sim.core import config_as_run
-from services.sim.metrics import METRICS
+from services.sim.metrics import LOG_UNIT, METRICS
 from services.sim.run import RunResult
 
 # The scenario tables the report shows, in this order (the plant as run: `config_as_run`).
@@ -52,8 +52,10 @@ def key_values(doc: dict) -> str:
 
 
 def definitions(metrics, rate_unit: str = "") -> str:
-    """What each figure means: its key, unit and description, from a table of `Metric` rows."""
-    body = "".join(f"<tr><td><code>{m.key}</code></td><td>{html.escape(m.unit or rate_unit)}</td>"
+    """What each figure means: its key, unit and description, from a table of `Metric` rows (figures
+    in `LOG_UNIT` in `rate_unit`)."""
+    body = "".join(f"<tr><td><code>{m.key}</code></td>"
+                   f"<td>{html.escape(rate_unit if m.unit == LOG_UNIT else m.unit)}</td>"
                    f"<td>{html.escape(m.description)}</td></tr>" for m in metrics)
     return f"<table><tr><th>key</th><th>unit</th><th>meaning</th></tr>{body}</table>"
 

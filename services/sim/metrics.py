@@ -253,3 +253,91 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> 
         transition_distance_m_mean=float(dists.mean()),
         transition_distance_m_p95=float(np.percentile(dists, 95)),
     )
+
+
+# ------------------------------------------------------------------------------ per point (a log)
+LOG_UNIT = "(log unit)"  # a figure in the unit of the log's rates (`vrsim evaluate`)
+
+# The figures of `vrsim evaluate` over the points of an as-applied log, in the order it prints them.
+# The run's figures above are over map cells (area-weighted, covered cells only); these are over
+# logged points, each of the same weight, so mass balance and the within-shares differ in definition
+# from the run's. The transitions are the run's own (`transitions`), over the points.
+POINT_METRICS = (
+    Metric("points", "", "Points compared",
+           "records with the implement on and both rates (with a prescription or a field: a position on "
+           "the map, inside the field)"),
+    Metric("applied_mean", LOG_UNIT, "Applied rate, mean", "mean applied rate over the points compared"),
+    Metric("target_mean", LOG_UNIT, "Target rate, mean",
+           "mean target over the points compared: the logged target, or the prescription at the point"),
+    Metric("mae", LOG_UNIT, "Mean absolute error", "mean |applied - target|"),
+    Metric("rmse", LOG_UNIT, "RMSE", "root mean square of applied - target"),
+    Metric("bias", LOG_UNIT, "Bias", "mean applied - target"),
+    Metric("mass_balance_pct", "%", "Mass balance",
+           "100 (sum of applied - sum of target) / sum of target over the points, each point of the same "
+           "weight (a log at a fixed rate weighs each second alike, not each hectare)"),
+    Metric("within_5pct_pct", "%", "Points within +-5 %",
+           "share of the points with a positive target where |applied - target| <= 5 % of it"),
+    Metric("within_10pct_pct", "%", "Points within +-10 %",
+           "share of the points with a positive target where |applied - target| <= 10 % of it"),
+    Metric("transitions", "", "Rate steps settled",
+           "steps of the target between consecutive points compared (more than 10 % and 5 kg/ha, or 5 L/ha "
+           "for a volume rate) after which the applied rate came within 10 % before the next step"),
+    Metric("transition_time_s_mean", "s", "Transition time, mean",
+           "from a step until the applied rate is within 10 % of the new target (to the log's interval)"),
+    Metric("transition_distance_m_mean", "m", "Transition distance, mean",
+           "distance along the logged positions over the transition"),
+)
+
+
+@dataclass(frozen=True)
+class PointMetrics:
+    points: int
+    applied_mean: float
+    target_mean: float
+    mae: float
+    rmse: float
+    bias: float
+    mass_balance_pct: float
+    within_5pct_pct: float
+    within_10pct_pct: float
+    transitions: int
+    transition_time_s_mean: float
+    transition_distance_m_mean: float
+
+
+def point_metrics(applied, target, time_s, distance_m, compared, step_scale: float = 1.0) -> PointMetrics:
+    """Applied-versus-target figures over the points of a log (`POINT_METRICS` says what each is).
+
+    Parameters
+    ----------
+    applied, target : ndarray, shape (n,)
+        Applied rate and what it is compared with, per point, in one unit.
+    time_s, distance_m : ndarray, shape (n,)
+        Time of each point and distance travelled up to it (monotone), for the transitions.
+    compared : ndarray of bool, shape (n,)
+        The points to compare (implement on, both rates finite, ...).
+    step_scale : float
+        Factor from the rates' unit to kg/ha (or L/ha), so a rate step means the same in any unit.
+    """
+    a = np.asarray(applied, dtype=float)
+    t = np.asarray(target, dtype=float)
+    use = np.asarray(compared, dtype=bool) & np.isfinite(a) & np.isfinite(t)
+    err = a[use] - t[use]
+    nan = float("nan")
+    positive = t[use] > 0
+    rel = np.abs(err[positive]) / t[use][positive]
+    tm = transitions(time_s, distance_m, t * step_scale, a * step_scale, use)
+    return PointMetrics(
+        points=int(err.size),
+        applied_mean=float(a[use].mean()) if err.size else nan,
+        target_mean=float(t[use].mean()) if err.size else nan,
+        mae=float(np.abs(err).mean()) if err.size else nan,
+        rmse=float(np.sqrt((err**2).mean())) if err.size else nan,
+        bias=float(err.mean()) if err.size else nan,
+        mass_balance_pct=_pct(a[use].sum() - t[use].sum(), t[use].sum()),
+        within_5pct_pct=_pct(np.count_nonzero(rel <= 0.05), rel.size),
+        within_10pct_pct=_pct(np.count_nonzero(rel <= 0.10), rel.size),
+        transitions=tm.transitions,
+        transition_time_s_mean=tm.transition_time_s_mean,
+        transition_distance_m_mean=tm.transition_distance_m_mean,
+    )
