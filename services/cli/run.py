@@ -44,7 +44,7 @@ class Progress:
 
 def run(args) -> int:
     from services.outputs.summary import summary_json, text_summary
-    from services.outputs.write import write_outputs
+    from services.outputs.write import outputs_line, write_outputs
     from services.sim import run as field_run
     from services.sim import scenario
 
@@ -64,6 +64,5 @@ def run(args) -> int:
         print(summary_json(result.summary))
     else:
         print(text_summary(result.summary))
-        print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, prescription.tif, "
-              f"as_applied.tif, error.tif, taskdata/, as_applied_points, summary.json)")
+        print(outputs_line(out_dir))
     return 0

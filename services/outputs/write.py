@@ -17,6 +17,12 @@ FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "tra
          "timeseries.png", "report.html")
 
 
+def outputs_line(out_dir: str) -> str:
+    """The line `vrsim run` and `vrsim report` print after the summary."""
+    return (f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, prescription.tif, "
+            "as_applied.tif, error.tif, taskdata/, as_applied_points, summary.json)")
+
+
 def write_outputs(result: RunResult, out_dir: str) -> dict[str, str]:
     """Write every output file into `out_dir`; returns {name: path}.
 
