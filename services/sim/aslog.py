@@ -7,7 +7,8 @@ One record per control tick, thinned to ``[output] log_rate_hz`` (the first tick
   the position status is ISO 11783's 8, "simulate mode"), heading in degrees clockwise from north;
 - target: the setpoint the controller worked to (the prescription at the predicted landing point);
 - applied: the actual rate of the tick, its metered product over the strip it lands on
-  (`services.sim.landing.applied_rate_kg_ha`), NaN at a standstill;
+  (`services.sim.landing.applied_rate_kg_ha`); 0 with every section off, NaN (not logged) at a
+  standstill with sections on;
 - working width and section states: the sections that were on (`section_states`).
 
 The applied rate of a record is metered at the record's time and lands ``delivery_delay_s`` later,
@@ -63,7 +64,7 @@ def run_point_log(world, track: dict, control: dict, applied_kg_ha, started_unix
     implement = world.scenario.implement
     width_on = np.asarray(control["width_on_m"], dtype=float)
     log = PointLog(
-        track["x_m"], track["y_m"], world.field.crs, applied=applied_kg_ha,
+        track["x_m"], track["y_m"], world.field.crs, applied=np.where(width_on > 0, applied_kg_ha, 0.0),
         target=control["prescribed_kg_ha"], unit="kg/ha", time_s=track["time_s"],
         start=np.datetime64(round(started_unix * 1000.0), "ms"),
         heading_deg=compass_deg(track["heading_rad"]),

@@ -104,7 +104,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
                            f"({prescription.unit}): {exc}") from None
     x_m, y_m, crs = _metric_positions(log)
     lx, ly = _delayed(log, x_m, y_m, delay_s, where)
-    compared = log.work_on & np.isfinite(log.applied)
+    compared = applying(log) & np.isfinite(log.applied)
     if prescription is not None:
         target = prescription.lookup(lx, ly, crs=crs).rate_kg_ha
         against = prescription.source or "prescription"
@@ -127,6 +127,13 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
     figures = point_metrics(log.applied, target, time_s, distance, compared, step_scale=scale)
     return Evaluation(log, log.unit, against, np.asarray(target, float), compared, lx, ly, crs, distance,
                       float(delay_s), figures)
+
+
+def applying(log: PointLog) -> np.ndarray:
+    """Records where the machine applied: work state on and, where the log has section states, a
+    section on."""
+    sections = log.sections_on
+    return log.work_on & (sections.any(axis=1) if sections.shape[1] else True)
 
 
 def _metric_positions(log: PointLog):

@@ -264,8 +264,8 @@ LOG_UNIT = "(log unit)"  # a figure in the unit of the log's rates (`vrsim evalu
 # from the run's. The transitions are the run's own (`transitions`), over the points.
 POINT_METRICS = (
     Metric("points", "", "Points compared",
-           "records with the implement on and both rates (with a prescription or a field: a position on "
-           "the map, inside the field)"),
+           "records with the implement on (and a section on, where the log has section states) and both "
+           "rates (with a prescription or a field: a position on the map, inside the field)"),
     Metric("applied_mean", LOG_UNIT, "Applied rate, mean", "mean applied rate over the points compared"),
     Metric("target_mean", LOG_UNIT, "Target rate, mean",
            "mean target over the points compared: the logged target, or the prescription at the point"),
