@@ -33,7 +33,6 @@ width_m = 12.0
 sections = 4
 shaft_rpm_max = 120.0
 [output]
-plots = false
 %s
 """
 DEERE = os.path.join("data", "asapplied", "jd-gen4-application-point-onehertz.zip")
@@ -56,7 +55,7 @@ def farm_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("farm")
     result = field_run.run(scenario.load(scenario_file(str(folder))))
     out = folder / "out"
-    write_outputs(result, str(out))
+    write_outputs(result, str(out))  # no plot worker: the pictures are drawn in this process
     return result, out
 
 
@@ -201,10 +200,33 @@ def test_round_trip_run_timelog_evaluate(farm_run):
     assert json.loads(p.stdout)["mae"] > 1.05 * got["mae"]  # without the delay, each step is 0.8 s off
 
 
+def test_pictures_drawn_here_and_by_the_worker(farm_run, tmp_path):
+    from PIL import Image
+
+    from services.outputs import plots
+    from services.outputs.plot_worker import PlotWorker
+
+    result, out = farm_run
+    worker = PlotWorker().start()
+    try:
+        worker.submit("draw_maps", plots.map_picture(result), str(tmp_path / "map.png"))
+        worker.submit("print_money", None, str(tmp_path / "x.png"))
+        worker.result()
+        with pytest.raises(RuntimeError, match="print_money .*x.png: ValueError: unknown drawing"):
+            worker.result()
+    finally:
+        worker.close()
+    for path in (out / "map.png", out / "timeseries.png", tmp_path / "map.png"):
+        with Image.open(path) as im:
+            assert im.size[0] > 900, path
+    assert "data:image/png;base64" in (out / "report.html").read_text()
+
+
 def test_output_options(tmp_path):
     folder = str(tmp_path)
     out = tmp_path / "o"
-    p = vrsim("run", scenario_file(folder, 'log_rate_hz = 4.0\npoints = "shp"'), "--quiet", "--out", str(out))
+    p = vrsim("run", scenario_file(folder, 'log_rate_hz = 4.0\npoints = "shp"\nplots = false'), "--quiet",
+              "--out", str(out))
     assert p.returncode == 0, p.stderr
     (timelog,) = maps.read_timelogs(out / "taskdata")
     points = maps.read_point_log(out / "as_applied_points.zip")
