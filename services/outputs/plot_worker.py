@@ -26,7 +26,6 @@ class PlotWorker:
 
     def __init__(self):
         self.proc = None
-        self.pending = 0
 
     def start(self) -> PlotWorker:
         self.proc = subprocess.Popen([sys.executable, "-m", "services.outputs.plot_worker"],
@@ -37,7 +36,6 @@ class PlotWorker:
         """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path`."""
         pickle.dump((drawing, picture, path), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
         self.proc.stdin.flush()
-        self.pending += 1
 
     def result(self) -> None:
         """Wait for the next job; what went wrong in the worker is raised here (a RuntimeError: a bug)."""
@@ -45,7 +43,6 @@ class PlotWorker:
             status, detail = pickle.load(self.proc.stdout)
         except EOFError:
             raise RuntimeError(f"the plot worker ended (exit code {self.proc.wait()})") from None
-        self.pending -= 1
         if status != "ok":
             raise RuntimeError(f"the plot worker: {detail}")
 
@@ -81,4 +78,7 @@ def serve(stdin, stdout) -> None:
 
 
 if __name__ == "__main__":
-    serve(sys.stdin.buffer, sys.stdout.buffer)
+    try:
+        serve(sys.stdin.buffer, sys.stdout.buffer)
+    except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
+        pass

@@ -123,13 +123,3 @@ def draw_timeseries(pic: SeriesPicture, path: str) -> None:
     ax2.legend(loc="upper right")
     fig.suptitle(pic.title)
     fig.savefig(path, dpi=90)
-
-
-def plot_maps(result, path: str) -> None:
-    """Draw map.png of a run, here."""
-    draw_maps(map_picture(result), path)
-
-
-def plot_timeseries(result, path: str) -> None:
-    """Draw timeseries.png of a run, here."""
-    draw_timeseries(series_picture(result), path)
