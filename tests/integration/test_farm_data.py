@@ -263,6 +263,19 @@ def test_evaluate_john_deere_export(shared_dir, tmp_path):
     assert json.loads((tmp_path / "ev" / "evaluation.json").read_text()) == got
     p = vrsim("evaluate", path)
     assert p.returncode == 0 and "Points compared" in p.stdout and "gal/ac" in p.stdout
+    # --field: a boundary over the southern half of the points keeps about half of them
+    log = maps.read_point_log(path)
+    west, east = log.x.min() - 0.001, log.x.max() + 0.001
+    south, mid = log.y.min() - 0.001, float(np.median(log.y))
+    ring = [[west, south], [east, south], [east, mid], [west, mid], [west, south]]
+    boundary = tmp_path / "south.geojson"
+    boundary.write_text(json.dumps({"type": "Feature", "properties": {},
+                                    "geometry": {"type": "Polygon", "coordinates": [ring]}}))
+    p = vrsim("evaluate", path, "--field", str(boundary), "--json")
+    assert p.returncode == 0, p.stderr
+    assert 300 < json.loads(p.stdout)["points"] < 480
+    p = vrsim("evaluate", path, "--field", str(tmp_path / "none.geojson"))
+    assert p.returncode == 2 and "none.geojson" in p.stderr, p.stderr
 
 
 def test_evaluate_bad_input_exits_2_naming_file_and_field(shared_dir, tmp_path, farm_run):
