@@ -5,7 +5,8 @@ Every message it receives is committed to a local SQLite database (WAL) before t
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
 ``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
 `services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
-as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored).
+as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored). That rebuild
+is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
 """
 
 from __future__ import annotations
