@@ -147,7 +147,9 @@ class PointLog:
         """The first record of every `period_s` of `time_s` (1.0: a 1 Hz log, as terminals log)."""
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
             raise MapError(f"{self._where()}: thin: period_s={period_s!r} must be a positive number")
-        slot = np.floor(self.time_s / period_s)
+        # A tick's time over the period is a whole number give or take rounding (0.15 / 0.05 =
+        # 2.9999999999999996): nudged, so thinning at the tick's own period keeps every tick.
+        slot = np.floor(self.time_s / period_s + 1e-9)
         keep = np.flatnonzero(np.isfinite(slot) & np.concatenate(([True], slot[1:] != slot[:-1])))
         return replace(self, **{name: getattr(self, name)[keep] for name in COLUMNS})
 
