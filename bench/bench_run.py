@@ -5,8 +5,9 @@ Figures:
   control loop, landing and metrics; what `vrsim run` reports as wall_time_s);
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
-- ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command, Python start-up, imports and
-  writing every output file (GeoTIFFs, CSV, PNGs, HTML) included.
+- ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
+  start-up, imports and every output file included (summary.json, three GeoTIFFs, track.csv, the
+  TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the better of two runs.
 
     .venv/bin/python -m bench.bench_run
 """
@@ -32,12 +33,15 @@ def _in_process(name: str) -> dict:
     return best.summary
 
 
-def _cli_wall_s(name: str) -> float:
+def _cli_wall_s(name: str, runs: int = 2) -> float:
     vrsim = os.path.join(os.path.dirname(sys.executable), "vrsim")
-    with tempfile.TemporaryDirectory() as out:
-        t0 = time.perf_counter()
-        subprocess.run([vrsim, "run", name, "--quiet", "--out", out], check=True, capture_output=True)
-        return time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(runs):
+        with tempfile.TemporaryDirectory() as out:
+            t0 = time.perf_counter()
+            subprocess.run([vrsim, "run", name, "--quiet", "--out", out], check=True, capture_output=True)
+            best = min(best, time.perf_counter() - t0)
+    return best
 
 
 def run() -> dict:

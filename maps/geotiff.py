@@ -13,7 +13,8 @@ from rasterio.windows import Window
 
 from common import MapError
 from maps.crs import as_crs
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.grid import DEFAULT_MAX_CELLS, UNIT, Grid, check_size
+from maps.units import RATE_UNITS
 from maps.warn import MapWarning
 
 NODATA_OUT = -9999.0
@@ -69,8 +70,9 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
         if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
             raise MapError(f"{path}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
+    unit = tags.get("unit") if tags.get("unit") in RATE_UNITS else UNIT  # vrsim's own maps say theirs
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
-                quantity=quantity)
+                quantity=quantity, unit=unit)
 
 
 def _quantity(tags: dict, description: str | None) -> str:
@@ -120,7 +122,7 @@ def write_geotiff(grid: Grid, path: str) -> None:
     float32 holds a rate to 7 significant digits (0.001 kg/ha at 10,000 kg/ha), and halves the file
     of float64. nodata cells are written as -9999 with that declared as the nodata value, so QGIS and
     farm software that do not handle NaN show them as empty. The band's description is the product
-    (or "application rate" / "rate difference") and its unit kg/ha; the dataset tags ``product``,
+    (or "application rate" / "rate difference") and its unit the grid's; the dataset tags ``product``,
     ``unit`` and ``quantity`` (``rate`` or ``difference``) let vrsim read it back for what it is.
     """
     rates = grid.rates_kg_ha

@@ -16,6 +16,7 @@ from affine import Affine
 
 from common import MapError, check_number, check_positive
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
+from maps.units import RATE_UNITS
 
 UNIT = "kg/ha"
 QUANTITIES = ("rate", "difference")  # what the values are: rates (>= 0), or signed differences of rates
@@ -63,7 +64,9 @@ class Grid:
     format : str
         ``"geotiff"``, ``"isoxml"``, ``"shapefile"``, ``"geojson"``, ``"csv"`` or ``"synthetic"``.
     unit : str
-        Always ``"kg/ha"``.
+        ``"kg/ha"`` for every map vrsim reads as a prescription; a map of another rate unit of
+        `maps.units.RATE_UNITS` (e.g. an error map of a gal/ac log) is written and read back, but is
+        no prescription (the field run refuses it).
     quantity : str
         ``"rate"`` (a prescription or an as-applied map: rates >= 0) or ``"difference"`` (signed,
         e.g. applied minus prescribed), which is no prescription.
@@ -92,8 +95,8 @@ class Grid:
             raise MapError(f"{self._where()}: transform has non-finite values {tuple(t)[:6]}")
         self.rates_kg_ha = rates
         self.crs = as_crs(self.crs, f"{self._where()}: crs")
-        if self.unit != UNIT:
-            raise MapError(f"{self._where()}: unit must be {UNIT!r}, got {self.unit!r}")
+        if self.unit not in RATE_UNITS:
+            raise MapError(f"{self._where()}: unit must be one of {', '.join(RATE_UNITS)}, got {self.unit!r}")
         if self.quantity not in QUANTITIES:
             raise MapError(f"{self._where()}: quantity must be one of {QUANTITIES}, got {self.quantity!r}")
         # Scalars for the per-tick fast path, so rate_at does no attribute chasing through Affine.

@@ -268,8 +268,13 @@ def write_isoxml(grid: Grid, path: str) -> None:
     other exports in it are left alone: the grid takes the first free ``GRDnnnnn`` name. A grid not
     in WGS84 is first reprojected (`Grid.reproject`, same cell size in metres). Type 2 has no nodata
     value: nodata cells are written as 0 (apply nothing), with a warning. Rates are rounded to
-    0.01 kg/ha.
+    0.01 kg/ha. Only rates in kg/ha are written: a map of differences (an error map) or of another
+    unit is refused.
     """
+    if grid.quantity != "rate" or grid.unit != "kg/ha":
+        what = "differences of rates" if grid.quantity != "rate" else "rates"
+        raise MapError(f"{path}: an ISOXML prescription holds rates in kg/ha; {grid.source or 'the grid'} "
+                       f"holds {what} in {grid.unit}")
     folder = None if path.lower().endswith(".zip") else taskdata_folder(path)
     if not (grid.crs.is_geographic and grid.crs == WGS84):
         grid = grid.reproject(WGS84)

@@ -40,34 +40,12 @@ import pyproj
 
 from common import MapError
 from maps.crs import WGS84, as_crs, transform_xy
+from maps.units import RATE_UNITS, convert_rate
 from maps.warn import MapWarning
 
 NOT_AVAILABLE = 15  # ISO 11783 position status: not available
 
-# Rate units vrsim can convert between: unit -> (kind, factor to kg/ha or L/ha).
-_HA_PER_AC = 0.40468564224
-RATE_UNITS = {
-    "kg/ha": ("mass", 1.0),
-    "t/ha": ("mass", 1000.0),
-    "lb/ac": ("mass", 0.45359237 / _HA_PER_AC),
-    "L/ha": ("volume", 1.0),
-    "gal/ac": ("volume", 3.785411784 / _HA_PER_AC),
-    "floz/ac": ("volume", 0.0295735295625 / _HA_PER_AC),
-}
 LENGTH_M = {"m": 1.0, "ft": 0.3048, "in": 0.0254, "cm": 0.01, "mm": 0.001}
-
-
-def convert_rate(values, unit: str, to_unit: str) -> np.ndarray:
-    """Rates in `unit` expressed in `to_unit` (both in `RATE_UNITS`, of the same kind)."""
-    known = sorted(RATE_UNITS)
-    if unit not in RATE_UNITS or to_unit not in RATE_UNITS:
-        bad = unit if unit not in RATE_UNITS else to_unit
-        raise MapError(f"rate unit {bad!r} is not one vrsim converts; known: {known}")
-    (kind, f_from), (kind_to, f_to) = RATE_UNITS[unit], RATE_UNITS[to_unit]
-    if kind != kind_to:
-        raise MapError(f"cannot convert a {kind} rate ({unit}) to a {kind_to} rate ({to_unit}) without the "
-                       "product's density")
-    return np.asarray(values, dtype=np.float64) * (f_from / f_to)
 
 
 @dataclass(eq=False)
@@ -169,7 +147,9 @@ class PointLog:
         """The first record of every `period_s` of `time_s` (1.0: a 1 Hz log, as terminals log)."""
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
             raise MapError(f"{self._where()}: thin: period_s={period_s!r} must be a positive number")
-        slot = np.floor(self.time_s / period_s)
+        # A tick's time over the period is a whole number give or take rounding (0.15 / 0.05 =
+        # 2.9999999999999996): nudged, so thinning at the tick's own period keeps every tick.
+        slot = np.floor(self.time_s / period_s + 1e-9)
         keep = np.flatnonzero(np.isfinite(slot) & np.concatenate(([True], slot[1:] != slot[:-1])))
         return replace(self, **{name: getattr(self, name)[keep] for name in COLUMNS})
 
@@ -469,8 +449,13 @@ def write_points(log: PointLog, path) -> str:
         else:
             if os.path.exists(path):
                 os.remove(path)  # GPKG would add a layer to an existing file
-            pyogrio.raw.write(path, geometry, values, names, driver="GPKG", geometry_type="Point",
-                              crs="EPSG:4326", layer="as_applied_points")
+            # Through Arrow: GDAL takes the columns whole (the datetime column record by record through
+            # pyogrio.raw.write takes 0.7 s for 9,000 points; this, 0.05 s).
+            import pyarrow as pa
+
+            table = pa.table({**dict(zip(names, values, strict=True)), "geometry": pa.array(geometry)})
+            pyogrio.raw.write_arrow(table, path, driver="GPKG", geometry_type="Point", crs="EPSG:4326",
+                                    layer="as_applied_points", geometry_name="geometry")
     except (OSError, pyogrio.errors.DataSourceError, pyogrio.errors.FieldError) as exc:
         raise MapError(f"{path}: cannot write: {exc}") from None
     return path

@@ -5,7 +5,8 @@ Every message it receives is committed to a local SQLite database (WAL) before t
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
 ``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
 `services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
-as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored).
+as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored). That rebuild
+is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
 SCHEMA_VERSION = 2  # 2: measured speed in pose, section width and offset in rate
+MEASURED = ("measured_x_m", "measured_y_m", "measured_speed_m_s")  # what the controller read, per tick
 
 
 def _columns(cls) -> list[str]:
@@ -148,9 +150,9 @@ class MonitorStore:
                                     for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
 
     def arrays(self, run_id: str) -> tuple[dict, dict]:
-        """Track and control arrays (the shapes `services.sim.run.account` takes) over the complete ticks:
-        0..n-1 with pose, shaft and rate all stored."""
-        pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on")
+        """Track and control arrays (the shapes `services.sim.run.account` takes; the track also holds
+        the `MEASURED` arrays) over the complete ticks: 0..n-1 with pose, shaft and rate all stored."""
+        pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m", "offset_m")
         select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
@@ -228,33 +230,12 @@ class MonitorService:
             return summary_json(self._report(params.text("run_id"))).encode()
 
     def _report(self, run_id: str | None) -> dict:
-        from services.sim.run import account
-
-        t0 = time.perf_counter()
-        run = self.store.run(run_id)
-        track, control = self.store.arrays(run["run_id"])
-        n = len(track["time_s"])
-        if n < 2:
-            raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
-        t1 = time.perf_counter()
-        world = self._world(run)
-        t2 = time.perf_counter()
-        summary, _ = account(world, track, control, t2)
-        wall = max(run["last_unix"] - run["started_unix"], 1e-9)
-        summary["wall_time_s"] = wall
-        summary["realtime_factor"] = summary["sim_time_s"] / wall
-        summary["stage_s"] = {"read_s": t1 - t0, "build_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
-        summary["outputs_wall_s"] = 0.0
-        summary["out_dir"] = self.store.path  # where the records are (the monitor writes no other output)
-        return summary
+        return recorded_run(self.store, self.store.run(run_id), self._world).summary
 
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
         if world is None:
-            from services.sim import scenario
-            from services.sim.world import build_world
-
-            world = build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
+            world = run_world(run)
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
         return world
 
@@ -263,6 +244,50 @@ class MonitorService:
 
     def handlers(self) -> dict:
         return {"load": self.load, "status": self.status, "run": self.run_info, "records": self.records}
+
+
+def run_world(run: dict):
+    """The world of a recorded run, rebuilt from the scenario text the run was started with."""
+    from services.sim import scenario
+    from services.sim.world import build_world
+
+    return build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
+
+
+def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
+    """A services run as a `services.sim.run.RunResult`, rebuilt from its records over the complete
+    ticks with `services.sim.run.account`, the function ``vrsim run`` uses: the monitor's report is its
+    summary, and ``vrsim report`` writes its files with ``vrsim run``'s writers.
+
+    Parameters
+    ----------
+    store : MonitorStore
+    run : dict
+        The run's row (`MonitorStore.run`).
+    world_of : callable
+        ``world_of(run) -> World`` (default `run_world`; the monitor keeps the last one).
+    """
+    from services.sim.run import RunResult, account
+
+    t0 = time.perf_counter()
+    track, control = store.arrays(run["run_id"])
+    n = len(track["time_s"])
+    if n < 2:
+        raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
+    measured = {key: track.pop(key) for key in MEASURED}
+    t1 = time.perf_counter()
+    world = world_of(run)
+    t2 = time.perf_counter()
+    summary, rest = account(world, track, control, t2)
+    wall = max(run["last_unix"] - run["started_unix"], 1e-9)
+    summary["wall_time_s"] = wall
+    summary["realtime_factor"] = summary["sim_time_s"] / wall
+    stage = {"read_s": t1 - t0, "build_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
+    summary["stage_s"] = stage
+    summary["outputs_wall_s"] = 0.0
+    summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
+    return RunResult(world=world, track=track, control=control, stage_s=stage, summary=summary,
+                     started_unix=run["started_unix"], **measured, **rest)
 
 
 def default_db(options) -> str:

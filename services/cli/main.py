@@ -18,7 +18,7 @@ import traceback
 from common import VrsimError, __version__
 
 # Order is the order `vrsim --help` lists them in.
-COMMANDS = ("run", "sweep", "paper", "map", "serve", "query", "accuracy")
+COMMANDS = ("run", "sweep", "evaluate", "report", "paper", "map", "serve", "query", "accuracy")
 
 
 def _available_commands():

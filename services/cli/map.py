@@ -38,7 +38,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("convert", help="write the map in another format (by OUT's extension)")
     reading(p)
-    p.add_argument("out", help="output: .tif, .xml/.zip (ISOXML type 2), .geojson, .csv")
+    p.add_argument("out", help="output: .tif; a folder, .../TASKDATA.XML or .zip (ISOXML grid type 2, never "
+                               "overwriting); .geojson (WGS84); .csv")
     p.add_argument("--to-crs", help="reproject first (nearest neighbour), e.g. EPSG:32632")
     p.add_argument("--to-cell-size", type=float, metavar="M", help="cell size when reprojecting, m")
 

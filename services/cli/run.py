@@ -47,28 +47,34 @@ class Progress:
 
 
 def run(args) -> int:
+    from services.outputs.plot_worker import PlotWorker
     from services.outputs.summary import summary_json, text_summary
-    from services.outputs.write import write_outputs
+    from services.outputs.write import outputs_line, write_outputs
     from services.sim import run as field_run
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
 
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
+    # The pictures are drawn in a second process, which imports matplotlib while the run simulates.
+    plotter = PlotWorker().start() if sc.output.plots else None
     try:
-        result = field_run.run(sc, progress=progress)
+        try:
+            result = field_run.run(sc, progress=progress)
+        finally:
+            progress.close()
+        safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in sc.name)  # a name may hold "/"
+        out_dir = args.out or os.path.join("runs", f"{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
+        t0 = time.perf_counter()
+        write_outputs(result, out_dir, plotter)
     finally:
-        progress.close()
-    safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in sc.name)  # a name may hold "/"
-    out_dir = args.out or os.path.join("runs", f"{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
-    t0 = time.perf_counter()
-    write_outputs(result, out_dir)
+        if plotter is not None:
+            plotter.close()
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
     result.summary["out_dir"] = out_dir
     if args.json:
         print(summary_json(result.summary))
     else:
         print(text_summary(result.summary))
-        print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, "
-              f"as_applied.tif, error.tif, summary.json)")
+        print(outputs_line(out_dir))
     return 0

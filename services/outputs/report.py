@@ -1,36 +1,111 @@
-"""report.html: one self-contained page (the pictures are embedded) with the summary table."""
+"""report.html: one self-contained page (the pictures are embedded): the figures, the settings the
+run used, the versions, and what each figure means (from `services.sim.metrics.METRICS`). `vrsim run`,
+`vrsim report` and `vrsim evaluate` write it with `page`."""
 
 from __future__ import annotations
 
 import base64
 import html
+import importlib.metadata
 import os
 
-from services.outputs.summary import SUMMARY_ROWS, fmt
+from common import __version__
+from services.outputs.summary import fmt
+from services.sim.core import config_as_run
+from services.sim.metrics import LOG_UNIT, METRICS
 from services.sim.run import RunResult
+
+# The scenario tables the report shows, in this order (the plant as run: `config_as_run`).
+SETTINGS = (("controller", "Controller"), ("implement", "Implement"), ("gnss", "GNSS"),
+            ("speed_sensor", "Speed sensor"), ("tractor", "Tractor"), ("map", "Prescription"),
+            ("timing", "Timing"), ("plant", "Metering drive (plant, as run)"))
+STYLE = """body{font-family:sans-serif;margin:2em;max-width:1500px}
+table{border-collapse:collapse;margin-bottom:1em}
+td,th{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}
+td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}"""
+
+
+def versions() -> dict[str, str]:
+    """vrsim's version and SUMO's (libsumo, which drives the tractor)."""
+    try:
+        sumo = importlib.metadata.version("libsumo")
+    except importlib.metadata.PackageNotFoundError:
+        sumo = "not installed"
+    return {"vrsim": __version__, "SUMO (libsumo)": sumo}
+
+
+def _esc(value) -> str:
+    return html.escape(fmt(value) if not isinstance(value, (dict, list)) else str(value))
+
+
+def figures_table(rows, values: dict) -> str:
+    """One row per (label, key, unit) with the figure `values[key]`."""
+    body = "".join(f"<tr><td>{html.escape(label)}</td><td class=n>{_esc(values[key])}</td>"
+                   f"<td>{html.escape(unit)}</td></tr>" for label, key, unit in rows)
+    return f"<table>{body}</table>"
+
+
+def key_values(doc: dict) -> str:
+    """A two-column table of a dict's keys and values."""
+    body = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{_esc(v)}</td></tr>" for k, v in doc.items())
+    return f"<table>{body}</table>"
+
+
+def definitions(metrics, rate_unit: str = "") -> str:
+    """What each figure means: its key, unit and description, from a table of `Metric` rows (figures
+    in `LOG_UNIT` in `rate_unit`)."""
+    body = "".join(f"<tr><td><code>{m.key}</code></td>"
+                   f"<td>{html.escape(rate_unit if m.unit == LOG_UNIT else m.unit)}</td>"
+                   f"<td>{html.escape(m.description)}</td></tr>" for m in metrics)
+    return f"<table><tr><th>key</th><th>unit</th><th>meaning</th></tr>{body}</table>"
+
+
+def _sections(sections) -> list[str]:
+    return [f"<h2>{html.escape(heading)}</h2>\n{body}" for heading, body in sections]
+
+
+def page(title: str, intro: str, sections, images, after, files_note: str) -> str:
+    """The page: `sections`, then the PNGs at `images` (embedded), then `after`; sections are
+    (heading, HTML) pairs."""
+    parts = _sections(sections)
+    for path in images:
+        if os.path.isfile(path):
+            with open(path, "rb") as fh:
+                data = base64.b64encode(fh.read()).decode()
+            name = html.escape(os.path.basename(path))
+            parts.append(f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>')
+    joined = "\n".join(parts + _sections(after))
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+<style>{STYLE}</style>
+</head><body><h1>{html.escape(title)}</h1>
+<p>{html.escape(intro)}</p>
+{joined}
+<p>{html.escape(files_note)}</p>
+</body></html>
+"""
 
 
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
-    rows = "\n".join(f"<tr><td>{html.escape(label)}</td><td>{fmt(result.summary[key])}</td>"
-                     f"<td>{unit}</td></tr>" for label, key, unit in SUMMARY_ROWS)
-    images = ""
-    for name in ("map.png", "timeseries.png"):
-        if name in paths and os.path.isfile(paths[name]):
-            with open(paths[name], "rb") as fh:
-                data = base64.b64encode(fh.read()).decode()
-            images += f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
-    title = html.escape(f"vrsim run: {result.summary['scenario']}")
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{title}</title>
-<style>body{{font-family:sans-serif;margin:2em;max-width:1500px}}table{{border-collapse:collapse}}
-td{{padding:2px 10px;border-bottom:1px solid #ddd}}td:nth-child(2){{text-align:right}}
-img{{max-width:100%}}</style>
-</head><body><h1>{title}</h1>
-<p>{html.escape(result.world.scenario.description)}</p>
-<table>{rows}</table>
-{images}
-<p>Files beside this page: summary.json, track.csv, as_applied.tif, error.tif (GeoTIFF, kg/ha).</p>
-</body></html>
-"""
+    """report.html of a run: summary, settings as run, versions and seed, pictures, definitions."""
+    from services.outputs.summary import SUMMARY_ROWS
+
+    summary = result.summary
+    config = config_as_run(result.world.scenario)
+    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{key_values(config[key])}</div>"
+                       for key, label in SETTINGS)
+    run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
+                "ticks": summary["ticks"]}
+    images = [paths[name] for name in ("map.png", "timeseries.png") if name in paths]
+    sections = [("Figures", figures_table(SUMMARY_ROWS, summary)),
+                ("Settings as run", f'<div class="cols">{settings}</div>'),
+                ("Versions and seed", key_values(run_info))]
+    text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
+                [("What the figures mean", definitions(METRICS))], FILES_NOTE)
     with open(paths["report.html"], "w") as fh:
-        fh.write(page)
+        fh.write(text)
+
+
+FILES_NOTE = ("Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
+              "(GeoTIFF, kg/ha; nodata outside the field), taskdata/ (ISO 11783 TimeLog), "
+              "as_applied_points.gpkg (or .zip).")

@@ -1,4 +1,11 @@
-"""track.csv: one row per tick (time, position, speed, shaft, current, rates, sections)."""
+"""track.csv: one row per tick (time, position, speed, shaft, current, rates, sections).
+
+Written column by column through pyarrow's CSV writer (177,000 rows in a fraction of a second, where a
+row-by-row writer takes most of a second). A value that does not exist (a rate outside the map, the
+applied rate at a standstill) is an empty field, so GIS tools and spreadsheets type the column as a
+number. Each column is rounded to its resolution first, so the shortest text that reads back the same
+number is short.
+"""
 
 from __future__ import annotations
 
@@ -6,15 +13,22 @@ import numpy as np
 
 from services.sim.run import RunResult
 
-TRACK_COLUMNS = ("time_s", "lat", "lon", "speed_m_s", "target_shaft_rpm", "shaft_rpm", "current_a",
-                 "prescribed_kg_ha", "applied_kg_ha", "implement_on")
+# (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha
+TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),
+                 ("shaft_rpm", 3), ("current_a", 5), ("prescribed_kg_ha", 2), ("applied_kg_ha", 2),
+                 ("implement_on", None))
 
 
 def write_track_csv(result: RunResult, path: str) -> None:
+    import pyarrow as pa
+    import pyarrow.csv as pa_csv
+
     track, control, landing = result.track, result.control, result.landing
     lon, lat = result.world.field.to_wgs84(track["x_m"], track["y_m"])
-    columns = np.column_stack([track["time_s"], lat, lon, track["speed_m_s"], control["target_shaft_rpm"],
-                               control["shaft_rpm"], control["current_a"], landing.prescribed_kg_ha,
-                               landing.applied_kg_ha, np.asarray(track["implement_on"], float)])
-    fmt = ["%.3f", "%.8f", "%.8f", "%.3f", "%.3f", "%.3f", "%.5f", "%.2f", "%.2f", "%d"]
-    np.savetxt(path, columns, fmt=fmt, delimiter=",", header=",".join(TRACK_COLUMNS), comments="")
+    values = (track["time_s"], lat, lon, track["speed_m_s"], control["target_shaft_rpm"],
+              control["shaft_rpm"], control["current_a"], landing.prescribed_kg_ha, landing.applied_kg_ha,
+              np.asarray(track["implement_on"], np.int8))
+    columns = {name: pa.array(v if decimals is None else np.round(np.asarray(v, float), decimals),
+                              from_pandas=True)  # from_pandas: NaN becomes null, written as ""
+               for (name, decimals), v in zip(TRACK_COLUMNS, values, strict=True)}
+    pa_csv.write_csv(pa.table(columns), path, pa_csv.WriteOptions(quoting_header="none"))

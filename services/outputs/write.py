@@ -1,36 +1,68 @@
-"""Every file a run writes, in one call: summary.json, as_applied.tif, error.tif, track.csv, map.png,
-timeseries.png and report.html."""
+"""Every file a run writes, in one call: summary.json, prescription.tif, as_applied.tif, error.tif,
+track.csv, taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg, map.png, timeseries.png and
+report.html."""
 
 from __future__ import annotations
 
 import os
 
-from services.outputs.plots import plot_maps, plot_timeseries
+from services.outputs.aslog import write_as_applied
 from services.outputs.rasters import write_rasters
-from services.outputs.report import write_html
 from services.outputs.summary import summary_json
 from services.outputs.track_csv import write_track_csv
+from services.sim.core import config_as_run
 from services.sim.run import RunResult
-from services.sim.scenario import as_dict
+
+FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.csv", "map.png",
+         "timeseries.png", "report.html")
 
 
-def write_outputs(result: RunResult, out_dir: str) -> dict[str, str]:
-    """Write every output file into `out_dir`; returns {name: path}."""
+def outputs_line(out_dir: str) -> str:
+    """The line `vrsim run` and `vrsim report` print after the summary."""
+    return (f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, prescription.tif, "
+            "as_applied.tif, error.tif, taskdata/, as_applied_points, summary.json)")
+
+
+def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, str]:
+    """Write every output file into `out_dir`; returns {name: path}.
+
+    Parameters
+    ----------
+    result : RunResult
+    out_dir : str
+        Created if missing. A taskdata/ in it that holds anything but an earlier run's log is refused
+        (`common.MapError`): a TASKDATA's files belong together and are never overwritten.
+    plotter : services.outputs.plot_worker.PlotWorker, optional
+        A started worker that draws the pictures while the other files are written; without one they
+        are drawn here.
+    """
+    from services.outputs import plots
+
     os.makedirs(out_dir, exist_ok=True)
-    paths = {name: os.path.join(out_dir, name) for name in
-             ("summary.json", "as_applied.tif", "error.tif", "track.csv", "map.png", "timeseries.png",
-              "report.html")}
-    doc = dict(result.summary, scenario_config=as_dict(result.world.scenario))
-    with open(paths["summary.json"], "w") as fh:
-        fh.write(summary_json(doc) + "\n")
-    write_rasters(result, paths["as_applied.tif"], paths["error.tif"])
-    write_track_csv(result, paths["track.csv"])
-    if result.world.scenario.output.plots:
-        plot_maps(result, paths["map.png"])
-        plot_timeseries(result, paths["timeseries.png"])
+    paths = {name: os.path.join(out_dir, name) for name in FILES}
+    output = result.world.scenario.output
+    paths.update(write_as_applied(result, out_dir))  # first: it refuses a folder with an earlier run's log
+    jobs = []
+    if output.plots:
+        jobs = [("draw_maps", plots.map_picture(result), paths["map.png"]),
+                ("draw_timeseries", plots.series_picture(result), paths["timeseries.png"])]
+        for job in jobs if plotter is not None else ():
+            plotter.submit(*job)
     else:
         del paths["map.png"], paths["timeseries.png"]
-    if result.world.scenario.output.html:
+    doc = dict(result.summary, scenario_config=config_as_run(result.world.scenario))
+    with open(paths["summary.json"], "w") as fh:
+        fh.write(summary_json(doc) + "\n")
+    write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"])
+    write_track_csv(result, paths["track.csv"])
+    for drawing, picture, path in jobs:
+        if plotter is not None:
+            plotter.result()  # waits; what went wrong in the worker is raised here
+        else:
+            getattr(plots, drawing)(picture, path)
+    if output.html:
+        from services.outputs.report import write_html
+
         write_html(result, paths)
     else:
         del paths["report.html"]

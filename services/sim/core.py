@@ -12,7 +12,7 @@ import numpy as np
 
 from controller import PlantParams, build_loop
 from maps import Grid, RatePolicy
-from services.sim.scenario import Scenario
+from services.sim.scenario import Scenario, as_dict
 
 
 def plant_for(scenario: Scenario) -> PlantParams:
@@ -21,6 +21,13 @@ def plant_for(scenario: Scenario) -> PlantParams:
     imp = scenario.implement
     return dataclasses.replace(scenario.plant, transmission_ratio=imp.transmission_ratio,
                                shaft_rpm_max=imp.shaft_rpm_max)
+
+
+def config_as_run(scenario: Scenario) -> dict:
+    """The scenario as plain data with the parameters as the run used them (the plant with the
+    implement's transmission ratio and shaft-speed limit, `plant_for`): summary.json's
+    ``scenario_config`` and the report's settings."""
+    return dict(as_dict(scenario), plant=dataclasses.asdict(plant_for(scenario)))
 
 
 class ControlCore:

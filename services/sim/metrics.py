@@ -143,6 +143,41 @@ def _pct(part: float, whole: float) -> float:
     return float(100.0 * part / whole) if whole > 0 else float("nan")
 
 
+@dataclass(frozen=True)
+class Errors:
+    """Applied against target over paired values (map cells or logged points)."""
+
+    mean_target: float
+    mae: float
+    rmse: float
+    bias: float
+    within_5pct_pct: float
+    within_10pct_pct: float
+
+
+def errors(applied, target) -> Errors:
+    """``e = applied - target``: mean |e|, sqrt(mean e^2), mean e, and the share of the values with a
+    positive target where |e| <= 5 % (10 %) of it; NaN for no values.
+
+    Parameters
+    ----------
+    applied, target : ndarray, shape (n,)
+        Paired values, finite.
+    """
+    err = applied - target
+    nan = float("nan")
+    positive = target > 0
+    rel = np.abs(err[positive]) / target[positive]
+    return Errors(
+        mean_target=float(target.mean()) if err.size else nan,
+        mae=float(np.abs(err).mean()) if err.size else nan,
+        rmse=float(np.sqrt((err**2).mean())) if err.size else nan,
+        bias=float(err.mean()) if err.size else nan,
+        within_5pct_pct=_pct(np.count_nonzero(rel <= 0.05), rel.size),
+        within_10pct_pct=_pct(np.count_nonzero(rel <= 0.10), rel.size),
+    )
+
+
 def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, cell_area_ha,
                 applied_total_kg, off_grid_kg=0.0) -> MapMetrics:
     """Applied-versus-prescribed figures over a grid.
@@ -168,13 +203,7 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
         raise ValueError("prescribed, applied, coverage and in_field must have the same shape")
     rx0 = np.nan_to_num(rx, nan=0.0)
     covered = field & (cover >= COVERED_FRACTION) & np.isfinite(rx)
-    err = applied[covered] - rx[covered]
-    mean_rx = float(rx[covered].mean()) if err.size else float("nan")
-    mae = float(np.abs(err).mean()) if err.size else float("nan")
-    rmse = float(np.sqrt((err**2).mean())) if err.size else float("nan")
-    bias = float(err.mean()) if err.size else float("nan")
-    positive = rx[covered] > 0
-    rel = np.abs(err[positive]) / rx[covered][positive]
+    e = errors(applied[covered], rx[covered])
     prescribed_kg = float((rx0[field] * np.minimum(cover[field], 1.0)).sum() * cell_area_ha)
     applied_kg_cells = applied * cell_area_ha
     off_target = float(applied_kg_cells[~field].sum() + applied_kg_cells[field & (rx0 <= 0)].sum()
@@ -183,14 +212,14 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
         prescribed_kg=prescribed_kg,
         applied_kg=float(applied_total_kg),
         mass_balance_pct=_pct(applied_total_kg - prescribed_kg, prescribed_kg),
-        mae_kg_ha=mae,
-        rmse_kg_ha=rmse,
-        bias_kg_ha=bias,
-        mae_pct=_pct(mae, mean_rx),
-        rmse_pct=_pct(rmse, mean_rx),
-        bias_pct=_pct(bias, mean_rx),
-        within_5pct_area_pct=_pct(np.count_nonzero(rel <= 0.05), rel.size),
-        within_10pct_area_pct=_pct(np.count_nonzero(rel <= 0.10), rel.size),
+        mae_kg_ha=e.mae,
+        rmse_kg_ha=e.rmse,
+        bias_kg_ha=e.bias,
+        mae_pct=_pct(e.mae, e.mean_target),
+        rmse_pct=_pct(e.rmse, e.mean_target),
+        bias_pct=_pct(e.bias, e.mean_target),
+        within_5pct_area_pct=e.within_5pct_pct,
+        within_10pct_area_pct=e.within_10pct_pct,
         off_target_kg=off_target,
         coverage_pct=_pct(np.count_nonzero(covered), np.count_nonzero(field)),
         covered_cells=int(np.count_nonzero(covered)),
@@ -252,4 +281,89 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> 
         transition_time_s_p95=float(np.percentile(times, 95)),
         transition_distance_m_mean=float(dists.mean()),
         transition_distance_m_p95=float(np.percentile(dists, 95)),
+    )
+
+
+# ------------------------------------------------------------------------------ per point (a log)
+LOG_UNIT = "(log unit)"  # a figure in the unit of the log's rates (`vrsim evaluate`)
+
+# The figures of `vrsim evaluate` over the points of an as-applied log, in the order it prints them.
+# The run's figures above are over map cells (area-weighted, covered cells only); these are over
+# logged points, each of the same weight, so mass balance and the within-shares differ in definition
+# from the run's. The transitions are the run's own (`transitions`), over the points.
+POINT_METRICS = (
+    Metric("points", "", "Points compared",
+           "records with the implement on (and a section on, where the log has section states) and both "
+           "rates (with a prescription or a field: a position on the map, inside the field)"),
+    Metric("applied_mean", LOG_UNIT, "Applied rate, mean", "mean applied rate over the points compared"),
+    Metric("target_mean", LOG_UNIT, "Target rate, mean",
+           "mean target over the points compared: the logged target, or the prescription at the point"),
+    Metric("mae", LOG_UNIT, "Mean absolute error", "mean |applied - target|"),
+    Metric("rmse", LOG_UNIT, "RMSE", "root mean square of applied - target"),
+    Metric("bias", LOG_UNIT, "Bias", "mean applied - target"),
+    Metric("mass_balance_pct", "%", "Mass balance",
+           "100 (sum of applied - sum of target) / sum of target over the points, each point of the same "
+           "weight (a log at a fixed rate weighs each second alike, not each hectare)"),
+    Metric("within_5pct_pct", "%", "Points within +-5 %",
+           "share of the points with a positive target where |applied - target| <= 5 % of it"),
+    Metric("within_10pct_pct", "%", "Points within +-10 %",
+           "share of the points with a positive target where |applied - target| <= 10 % of it"),
+    Metric("transitions", "", "Rate steps settled",
+           "steps of the target between consecutive points compared (more than 10 % and 5 kg/ha, or 5 L/ha "
+           "for a volume rate) after which the applied rate came within 10 % before the next step"),
+    Metric("transition_time_s_mean", "s", "Transition time, mean",
+           "from a step until the applied rate is within 10 % of the new target (to the log's interval)"),
+    Metric("transition_distance_m_mean", "m", "Transition distance, mean",
+           "distance along the logged positions over the transition"),
+)
+
+
+@dataclass(frozen=True)
+class PointMetrics:
+    points: int
+    applied_mean: float
+    target_mean: float
+    mae: float
+    rmse: float
+    bias: float
+    mass_balance_pct: float
+    within_5pct_pct: float
+    within_10pct_pct: float
+    transitions: int
+    transition_time_s_mean: float
+    transition_distance_m_mean: float
+
+
+def point_metrics(applied, target, time_s, distance_m, compared, step_scale: float = 1.0) -> PointMetrics:
+    """Applied-versus-target figures over the points of a log (`POINT_METRICS` says what each is).
+
+    Parameters
+    ----------
+    applied, target : ndarray, shape (n,)
+        Applied rate and what it is compared with, per point, in one unit.
+    time_s, distance_m : ndarray, shape (n,)
+        Time of each point and distance travelled up to it (monotone), for the transitions.
+    compared : ndarray of bool, shape (n,)
+        The points to compare (implement on, both rates finite, ...).
+    step_scale : float
+        Factor from the rates' unit to kg/ha (or L/ha), so a rate step means the same in any unit.
+    """
+    a = np.asarray(applied, dtype=float)
+    t = np.asarray(target, dtype=float)
+    use = np.asarray(compared, dtype=bool) & np.isfinite(a) & np.isfinite(t)
+    e = errors(a[use], t[use])
+    tm = transitions(time_s, distance_m, t * step_scale, a * step_scale, use)
+    return PointMetrics(
+        points=int(np.count_nonzero(use)),
+        applied_mean=float(a[use].mean()) if use.any() else float("nan"),
+        target_mean=e.mean_target,
+        mae=e.mae,
+        rmse=e.rmse,
+        bias=e.bias,
+        mass_balance_pct=_pct(a[use].sum() - t[use].sum(), t[use].sum()),
+        within_5pct_pct=e.within_5pct_pct,
+        within_10pct_pct=e.within_10pct_pct,
+        transitions=tm.transitions,
+        transition_time_s_mean=tm.transition_time_s_mean,
+        transition_distance_m_mean=tm.transition_distance_m_mean,
     )

@@ -58,6 +58,7 @@ class RunResult:
     transition_metrics: TransitionMetrics
     stage_s: dict
     summary: dict
+    started_unix: float  # when the run (or the services run it was rebuilt from) started, Unix time
 
 
 @contextmanager
@@ -80,6 +81,7 @@ def driving(world: World):
 def run(scenario: Scenario, progress=None) -> RunResult:
     """Run a scenario in process and return everything it measured."""
     stage = {}
+    started = time.time()
     wall0 = clock = time.perf_counter()
 
     def lap(name):
@@ -104,7 +106,8 @@ def run(scenario: Scenario, progress=None) -> RunResult:
     summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
     summary["stage_s"] = stage
     return RunResult(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas,
-                     measured_speed_m_s=v_meas, control=control, stage_s=stage, summary=summary, **rest)
+                     measured_speed_m_s=v_meas, control=control, stage_s=stage, summary=summary,
+                     started_unix=started, **rest)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

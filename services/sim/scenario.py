@@ -71,10 +71,29 @@ class TimingSpec:
     max_sim_time_s: float | None = None
 
 
+POINT_FORMATS = ("gpkg", "shp", "none")
+
+
 @dataclass(frozen=True)
 class OutputSpec:
+    """What a run writes beside summary.json, track.csv, the GeoTIFFs and the TASKDATA.
+
+    Attributes
+    ----------
+    plots, html : bool
+        map.png and timeseries.png; report.html.
+    log_rate_hz : float
+        Records per second of the as-applied log (taskdata/ and the points file); 1 Hz, as terminals
+        log. At most the control rate (1 / control_period_s).
+    points : {"gpkg", "shp", "none"}
+        The as-applied points file: as_applied_points.gpkg, as_applied_points.zip (a zipped
+        shapefile), or none.
+    """
+
     plots: bool = True
     html: bool = True
+    log_rate_hz: float = 1.0
+    points: str = "gpkg"
 
 
 @dataclass(frozen=True)
@@ -237,6 +256,7 @@ def _check(scenario: Scenario) -> None:
     _check_field(scenario.field, source)
     _check_map(scenario.map, source)
     _check_timing(scenario.timing, source)
+    _check_output(scenario.output, scenario.timing, source)
 
 
 def _no_unknown(table: dict, known, source: str, section: str) -> None:
@@ -354,6 +374,16 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
     if spec.max_sim_time_s is not None and not 0 < spec.max_sim_time_s:
         raise ScenarioError(f"{source}: [timing] max_sim_time_s must be > 0, got {spec.max_sim_time_s}")
+
+
+def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:
+    control_hz = 1.0 / timing.control_period_s
+    if not 0 < spec.log_rate_hz <= control_hz * (1 + 1e-9):
+        raise ScenarioError(f"{source}: [output] log_rate_hz must be > 0 and <= the control rate "
+                            f"({control_hz:g} Hz), got {spec.log_rate_hz}")
+    if spec.points not in POINT_FORMATS:
+        raise ScenarioError(f"{source}: [output] points must be one of {', '.join(POINT_FORMATS)}, "
+                            f"got {spec.points!r}")
 
 
 def as_dict(scenario: Scenario) -> dict[str, Any]:

@@ -56,6 +56,10 @@ def build_prescription(scenario: Scenario, field: Field) -> Grid:
                                 f"synthetic {spec.synthetic!r}: {exc}") from None
     grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
                     crs=spec.crs)
+    if grid.quantity != "rate" or grid.unit != "kg/ha":
+        what = "differences of rates" if grid.quantity != "rate" else "rates"
+        raise MapError(f"{grid.source}: holds {what} in {grid.unit} (e.g. a run's error.tif), not a "
+                       "prescription in kg/ha")
     grid.check_overlap(field.polygon, field.crs)
     if not grid.crs.equals(field.crs):
         grid = grid.reproject(field.crs, cell_size_m=spec.cell_size_m)

@@ -245,6 +245,37 @@ def test_lockstep_run_matches_vrsim_run(net, files, tmp_path):
             assert got == want, key
 
 
+def test_vrsim_report_from_the_monitor_database(net, tmp_path):
+    """`vrsim report --db` writes `vrsim run`'s files for a services run, with the monitor's summary."""
+    status = net.wait_status(lambda s: s["state"] in ("finished", "failed") and
+                             s["monitor_ticks"] == s["ticks"])
+    run_id = status["run_id"]
+    ok, report = net.query(f"vrsim/tractor1/report?run_id={run_id}")
+    assert ok, report
+    out = tmp_path / "report"
+    p = subprocess.run([VRSIM, "report", "--db", net.db, "--run", run_id, "--out", str(out), "--json"],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    summary = json.loads(p.stdout)
+    assert set(summary) == set(report)
+    for key, want in report.items():
+        if key not in WALL_KEYS - {"wall_time_s", "realtime_factor"}:  # both from the run's records
+            assert summary[key] == want or (isinstance(want, float) and math.isnan(want)), key
+    for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.csv", "map.png",
+                 "timeseries.png", "report.html", "as_applied_points.gpkg"):
+        assert (out / name).is_file(), name
+    import maps
+
+    (timelog,) = maps.read_timelogs(out / "taskdata")
+    assert timelog.records == math.floor(status["sim_time_s"]) + 1  # 1 Hz, from t = 0.05 s
+    assert len((out / "track.csv").read_text().splitlines()) == status["ticks"] + 1
+    for args, needle in (((tmp_path / "none.sqlite",), "none.sqlite: no such file"),
+                         ((net.db, "--run", "nope"), "no run 'nope'")):
+        p = subprocess.run([VRSIM, "report", "--db", str(args[0]), *args[1:], "--out", str(tmp_path / "x")],
+                           capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and needle in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
 def test_published_streams_can_be_watched(net, files):
     """A second run in real time; `vrsim query --watch` sees its poses while it drives."""
     net.wait_status(lambda s: s["state"] in ("finished", "failed"))

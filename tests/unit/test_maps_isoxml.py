@@ -4,6 +4,7 @@ import os
 import shutil
 import warnings
 import zipfile
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -128,6 +129,11 @@ def test_write_never_overwrites_and_needs_a_folder(tmp_path):
     with pytest.raises(MapError, match="written as a TASKDATA folder: .* not a.xml"):
         write_map(g, tmp_path / "a.xml")
     assert not (tmp_path / "GRD00001.BIN").exists()
+    # An error map (differences) or a map in another unit is no prescription.
+    for other, needle in ((replace(g, quantity="difference"), "differences of rates in kg/ha"),
+                          (replace(g, unit="gal/ac"), "holds rates in gal/ac")):
+        with pytest.raises(MapError, match=f"ISOXML prescription holds rates in kg/ha; .*{needle}"):
+            write_map(other, tmp_path / "d")
 
 
 def test_write_utm_grid_reprojects_to_wgs84(tmp_path):

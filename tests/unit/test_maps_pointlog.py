@@ -140,5 +140,8 @@ def test_thin_to_one_hertz():
     one = log.thin(1.0)
     np.testing.assert_allclose(one.time_s, np.arange(10.0), atol=1e-9)
     assert one.points == 10 and one.sections_on.shape == (10, 3) and one.applied[3] == one.time_s[3]
+    ticks = np.arange(1, 201) * 0.05  # as a run's ticks: 0.15 / 0.05 rounds below 3
+    run = PointLog(ticks, ticks, "EPSG:32632", applied=ticks, target=ticks, time_s=ticks)
+    assert run.thin(0.05).points == ticks.size  # at the ticks' own rate: every tick
     with pytest.raises(MapError, match="period_s=0 must be a positive number"):
         log.thin(0)

@@ -1,0 +1,68 @@
+"""`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--field BOUNDARY]
+[--delay-s S] [--unit UNIT] [--crs CRS] [--json] [--out DIR]`: the accuracy of a machine's as-applied
+log (`services.sim.evaluate`)."""
+
+from __future__ import annotations
+
+HELP = "accuracy of an as-applied log (TASKDATA TimeLogs, point shapefile or GeoPackage)"
+
+
+def configure(parser) -> None:
+    parser.add_argument("log", help="the log: a TASKDATA (folder, TASKDATA.XML or .zip) with TimeLogs, a "
+                                    "point shapefile (.shp or zipped, e.g. a John Deere export) or a "
+                                    "GeoPackage")
+    parser.add_argument("--prescription", metavar="RX",
+                        help="compare with this map at each point (any map vrsim reads) instead of the "
+                             "logged target")
+    parser.add_argument("--rate-field", metavar="NAME",
+                        help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
+                             "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
+    parser.add_argument("--target-field", metavar="NAME",
+                        help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
+                             "DDI 6, else 1)")
+    parser.add_argument("--field", metavar="BOUNDARY",
+                        help="field boundary (GeoJSON or shapefile): only points inside it are compared")
+    parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
+                        help="delivery delay: product metered at a record's time lands S s later, where the "
+                             "machine is then; compared with the prescription there (default 0)")
+    parser.add_argument("--unit", help="unit of the rates when the log does not say (kg/ha, t/ha, lb/ac, "
+                                       "L/ha, gal/ac, floz/ac)")
+    parser.add_argument("--crs", help="CRS of a shapefile without .prj")
+    parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    parser.add_argument("--out", metavar="DIR",
+                        help="also write evaluation.json, error.tif, error_map.png, timeseries.png and "
+                             "report.html into DIR")
+
+
+def run(args) -> int:
+    from dataclasses import replace
+
+    import maps
+    from services.outputs.encode import dumps_text
+    from services.outputs.evaluation import text_evaluation, write_evaluation
+    from services.sim.evaluate import error_grid, evaluate
+
+    log = maps.read_point_log(args.log, rate_field=args.rate_field, target_field=args.target_field,
+                              unit=args.unit, crs=args.crs)
+    if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
+        log = replace(log, unit=args.unit)
+    rx = maps.read_map(args.prescription) if args.prescription else None
+    field = _field(args.field) if args.field else None
+    ev = evaluate(log, rx, field=field, delay_s=args.delay_s)
+    if args.out:
+        write_evaluation(ev, error_grid(ev, rx), args.out)
+    print(dumps_text(ev.summary(), indent=True) if args.json else text_evaluation(ev))
+    if args.out and not args.json:
+        print(f"  outputs in {args.out}/ (report.html, error_map.png, timeseries.png, error.tif, "
+              f"evaluation.json)")
+    return 0
+
+
+def _field(path: str):
+    from common import MapError, VehicleError
+    from vehicle import Field
+
+    try:
+        return Field.from_file(path)
+    except VehicleError as exc:
+        raise MapError(f"--field {exc}") from None

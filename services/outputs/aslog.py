@@ -1,0 +1,46 @@
+"""The run's as-applied log in farm formats: taskdata/ (ISO 11783-10 TASKDATA with one TimeLog) and
+as_applied_points.gpkg (or .zip, a zipped shapefile): one record per ``[output] log_rate_hz``."""
+
+from __future__ import annotations
+
+import os
+
+from maps import PointLog, write_points, write_taskdata
+from maps.taskdata import TLG_NAME
+from services.sim.aslog import run_point_log
+from services.sim.run import RunResult
+
+POINT_FILES = {"gpkg": "as_applied_points.gpkg", "shp": "as_applied_points.zip"}
+
+
+def run_log(result: RunResult) -> PointLog:
+    """The run's as-applied log (see `services.sim.aslog`)."""
+    return run_point_log(result.world, result.track, result.control, result.landing.applied_kg_ha,
+                         result.started_unix, result.world.scenario.output.log_rate_hz)
+
+
+def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
+    """Write taskdata/ and the points file (``[output] points``) into `out_dir`; {name: path}.
+
+    A run into the same folder again replaces the earlier run's taskdata/, as it does every other
+    file; a taskdata/ that holds anything else is refused (`maps.write_taskdata` never overwrites).
+    """
+    log = run_log(result)
+    implement = result.world.scenario.implement
+    folder = os.path.join(out_dir, "taskdata")
+    _remove_earlier_run(folder)
+    paths = {"taskdata": write_taskdata(log, folder,
+                                        [implement.section_width_m] * implement.sections,
+                                        task=result.world.scenario.name, device="vrsim implement")}
+    name = POINT_FILES.get(result.world.scenario.output.points)
+    if name:
+        paths[name] = os.path.join(out_dir, name)
+        write_points(log, paths[name])
+    return paths
+
+
+def _remove_earlier_run(folder: str) -> None:
+    own = {"TASKDATA.XML", f"{TLG_NAME}.xml", f"{TLG_NAME}.bin"}
+    if os.path.isdir(folder) and set(os.listdir(folder)) == own:
+        for name in own:
+            os.remove(os.path.join(folder, name))

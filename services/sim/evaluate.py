@@ -1,0 +1,193 @@
+"""How far a machine's as-applied log is from what it should have applied: `vrsim evaluate`'s pure core.
+
+A log (`maps.PointLog`: a TASKDATA's TimeLogs, a John Deere point export, a run's own taskdata/) is
+compared point by point either with the target rate it logged or with a prescription map looked up at
+each point. With ``delay_s``, the product metered at a record's time lands ``delay_s`` later, where
+the machine is then (its position interpolated along the log at ``time_s + delay_s``): the applied
+rate of the record is compared with the prescription there. The figures are `metrics.point_metrics`
+(what each means: `metrics.POINT_METRICS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import MapError
+from maps import Grid, PointLog, grid_from_bounds, utm_crs_for
+from maps.crs import WGS84, transform_xy
+from maps.units import RATE_UNITS, base_unit, convert_rate
+from services.sim.metrics import POINT_METRICS, PointMetrics, point_metrics
+
+ERROR_CELL_M = 5.0  # cell of the error map without a prescription: about a point's spacing at 1 Hz
+MAX_DELAY_S = 30.0  # as `vehicle.Implement.delivery_delay_s`
+
+
+@dataclass
+class Evaluation:
+    """A log compared with its targets.
+
+    Attributes
+    ----------
+    log : maps.PointLog
+        The log, its rates in `unit`.
+    unit : str
+        Unit of every rate figure.
+    against : str
+        ``"logged target"`` or the prescription's source.
+    target : ndarray, shape (n,)
+        What each point's applied rate is compared with.
+    compared : ndarray of bool, shape (n,)
+        The points the figures are over.
+    x_m, y_m : ndarray, shape (n,)
+        Where each point is compared, in `crs` (metres; with a delay, where its product landed; NaN
+        without a position).
+    distance_m : ndarray, shape (n,)
+        Distance travelled along the logged positions up to each point.
+    delay_s : float
+    metrics : PointMetrics
+    """
+
+    log: PointLog
+    unit: str
+    against: str
+    target: np.ndarray
+    compared: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    crs: object
+    distance_m: np.ndarray
+    delay_s: float
+    metrics: PointMetrics
+
+    def summary(self) -> dict:
+        """``points``, ``unit``, then the other `POINT_METRICS` figures (the JSON `vrsim evaluate` prints)."""
+        figures = dataclasses.asdict(self.metrics)
+        return {"points": figures["points"], "unit": self.unit,
+                **{m.key: figures[m.key] for m in POINT_METRICS if m.key != "points"}}
+
+
+def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_s: float = 0.0) -> Evaluation:
+    """Compare a log's applied rates with its logged targets, or with `prescription` at each point.
+
+    Parameters
+    ----------
+    log : maps.PointLog
+        Its `unit` must be one of `maps.units.RATE_UNITS`; with a prescription (kg/ha), a mass rate.
+    prescription : maps.Grid, optional
+        Looked up at each point (at the point ``delay_s`` later).
+    field : vehicle.Field, optional
+        Only points inside its boundary are compared.
+    delay_s : float
+        Delivery delay from meter to ground, s (>= 0): see the module docstring.
+
+    Raises
+    ------
+    MapError
+        Naming the log: a unit it does not say or that does not convert, a delay without times, no
+        point to compare.
+    """
+    where = log.source or "log"
+    if log.unit not in RATE_UNITS:
+        raise MapError(f"{where}: the unit of its rates is {log.unit or 'not stated'!r}; name it (--unit), "
+                       f"one of {', '.join(RATE_UNITS)}")
+    if not (isinstance(delay_s, (int, float)) and math.isfinite(delay_s) and 0 <= delay_s <= MAX_DELAY_S):
+        raise MapError(f"--delay-s {delay_s!r}: must be a number from 0 to {MAX_DELAY_S:g} s")
+    if prescription is not None:
+        try:
+            log = log.in_unit(prescription.unit)
+        except MapError as exc:
+            raise MapError(f"{where}: cannot compare with the prescription {prescription.source} "
+                           f"({prescription.unit}): {exc}") from None
+    x_m, y_m, crs = _metric_positions(log)
+    lx, ly = _delayed(log, x_m, y_m, delay_s, where)
+    compared = applying(log) & np.isfinite(log.applied)
+    if prescription is not None:
+        target = prescription.lookup(lx, ly, crs=crs).rate_kg_ha
+        against = prescription.source or "prescription"
+    else:
+        target = log.target
+        against = "logged target"
+    if field is not None:
+        fx, fy = transform_xy(lx, ly, crs, field.crs)
+        import shapely
+
+        compared &= shapely.contains_xy(field.polygon, fx, fy)
+    compared &= np.isfinite(target)
+    if not compared.any():
+        raise MapError(f"{where}: no point to compare ({log.points} records; none with the implement on, "
+                       f"an applied rate and a target{' on the map' if prescription is not None else ''}"
+                       f"{' inside the field' if field is not None else ''})")
+    distance = _distance_m(x_m, y_m)
+    time_s = np.where(np.isfinite(log.time_s), log.time_s, np.arange(log.points, dtype=float))
+    scale = float(convert_rate(1.0, log.unit, base_unit(log.unit)))
+    figures = point_metrics(log.applied, target, time_s, distance, compared, step_scale=scale)
+    return Evaluation(log, log.unit, against, np.asarray(target, float), compared, lx, ly, crs, distance,
+                      float(delay_s), figures)
+
+
+def applying(log: PointLog) -> np.ndarray:
+    """Records where the machine applied: work state on and, where the log has section states, a
+    section on."""
+    sections = log.sections_on
+    return log.work_on & (sections.any(axis=1) if sections.shape[1] else True)
+
+
+def _metric_positions(log: PointLog):
+    """Positions in the UTM zone of the log's median point (metres), and that CRS."""
+    lon, lat = log.lonlat()
+    ok = np.isfinite(lon) & np.isfinite(lat)
+    if not ok.any():
+        raise MapError(f"{log.source or 'log'}: no record has a position")
+    crs = utm_crs_for(float(np.median(lon[ok])), float(np.median(lat[ok])))
+    x, y = transform_xy(lon, lat, WGS84, crs)
+    return np.where(ok, x, np.nan), np.where(ok, y, np.nan), crs
+
+
+def _delayed(log: PointLog, x_m, y_m, delay_s: float, where: str):
+    """Where each record's product lands: the position `delay_s` later along the log (NaN past its end)."""
+    if delay_s == 0:
+        return x_m, y_m
+    ok = np.isfinite(log.time_s) & np.isfinite(x_m)
+    if ok.sum() < 2:
+        raise MapError(f"{where}: --delay-s needs the records' times and positions; the log has "
+                       f"{int(ok.sum())} record(s) with both")
+    t = log.time_s[ok]
+    at = log.time_s + delay_s
+    return (np.interp(at, t, x_m[ok], left=np.nan, right=np.nan),
+            np.interp(at, t, y_m[ok], left=np.nan, right=np.nan))
+
+
+def _distance_m(x_m, y_m) -> np.ndarray:
+    """Distance travelled up to each point along the logged positions (a gap adds nothing)."""
+    step = np.hypot(np.diff(x_m), np.diff(y_m))
+    return np.concatenate(([0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))))
+
+
+def error_grid(ev: Evaluation, prescription: Grid | None = None, cell_m: float = ERROR_CELL_M) -> Grid:
+    """Applied minus target per cell, the mean over the points compared in it (cells without one:
+    nodata), on the prescription's grid, else on a grid of `cell_m` over the points (UTM)."""
+    if prescription is not None:
+        geometry = prescription
+        found = prescription.lookup(ev.x_m, ev.y_m, crs=ev.crs)
+        row, col = found.row, found.col
+    else:
+        x, y = ev.x_m[ev.compared], ev.y_m[ev.compared]
+        pad = cell_m / 2
+        geometry = grid_from_bounds((x.min() - pad, y.min() - pad, x.max() + pad, y.max() + pad), cell_m,
+                                    ev.crs)
+        col = np.floor((ev.x_m - geometry.transform.c) / cell_m)
+        row = np.floor((geometry.transform.f - ev.y_m) / cell_m)
+        row, col = (np.where(np.isfinite(v), v, -1).astype(np.int64) for v in (row, col))
+    use = ev.compared & (row >= 0) & (col >= 0) & (row < geometry.rows) & (col < geometry.cols)
+    cell = row[use] * geometry.cols + col[use]
+    size = geometry.rows * geometry.cols
+    total = np.bincount(cell, weights=ev.log.applied[use] - ev.target[use], minlength=size)
+    count = np.bincount(cell, minlength=size)
+    mean = np.divide(total, count, out=np.full(size, np.nan), where=count > 0)
+    return Grid(mean.reshape(geometry.rows, geometry.cols), geometry.transform, geometry.crs,
+                product=f"applied minus {ev.against if ev.against == 'logged target' else 'prescribed'}",
+                source=ev.log.source, format="evaluation", unit=ev.unit, quantity="difference")
