@@ -12,10 +12,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from controller import liang2013
-from controller.gains import KINDS, PidGains, paper_gains, ziegler_nichols
+from controller.gains import TERMS, PidGains, paper_gains, ziegler_nichols
 from controller.metrics import step_metrics
-from controller.plant import PlantParams, assumptions
-from controller.simulate import simulate, unlimited
+from controller.plant import PlantParams, assumptions, unlimited
+from controller.simulate import simulate
 from controller.tuning import fit_sensor, relay_autotune, ultimate_gain_experiment
 
 STEP_RPM = 100.0
@@ -92,7 +92,7 @@ def _findings(summary: dict) -> list[str]:
         f"(vrsim: {pi['overshoot_pct']:.4g}% vs {pid['overshoot_pct']:.4g}%); the paper's 53.21% vs 27.92% "
         f"cannot come from its printed gains. Its Ki is also applied with Kp twice (A = Kp(1 + Ki + Kd) with "
         f"Ki = Kp T/(0.5 Tu)).")
-    for kind in KINDS:
+    for kind in TERMS:
         e = summary[kind]
         got = [name for name, ok in (("overshoot", e["overshoot_reproduced"]),
                                      ("settling time", e["settling_reproduced"])) if ok]
@@ -121,15 +121,15 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
     relay = relay_autotune(plant, T, h)
     no_delay = ultimate_gain_experiment(replace(plant, sensor_delay_s=0.0), T, h)
     fit = fit_sensor(plant, liang2013.KU, liang2013.TU_S, T)
-    literal = [paper_gains(k) for k in KINDS]
-    textbook = [ziegler_nichols(k, liang2013.KU, liang2013.TU_S) for k in KINDS]
+    literal = [paper_gains(k) for k in TERMS]
+    textbook = [ziegler_nichols(k, liang2013.KU, liang2013.TU_S) for k in TERMS]
     res = simulate(unlimited(plant), literal + textbook, step_rpm, duration_s, T, h)
     metrics = step_metrics(res.t_s, res.shaft_rpm, step_rpm)
     mean_rpm = np.hstack([np.zeros((len(literal) * 2, 1)), (res.shaft_rev * 60.0 / T).T])
     mean_metrics = step_metrics(np.arange(mean_rpm.shape[1]) * T, mean_rpm, step_rpm)
     ran = {"step_rpm": step_rpm, "duration_s": duration_s}  # the values used, not the defaults
     entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i])
-               for i, (k, g) in enumerate(zip(KINDS * 2, literal + textbook, strict=True))]
+               for i, (k, g) in enumerate(zip(TERMS * 2, literal + textbook, strict=True))]
     summary = {
         "ultimate": {
             "Ku": ult.ku, "Tu_s": ult.tu_s, "paper_Ku": liang2013.KU, "paper_Tu_s": liang2013.TU_S,
@@ -140,14 +140,14 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
             "without_delay_Ku": no_delay.ku, "without_delay_Tu_s": no_delay.tu_s,
             "relay_Ku": relay.ku, "relay_Tu_s": relay.tu_s,
         },
-        **{k: e for k, e in zip(KINDS, entries[:3], strict=True)},
-        "textbook": {k: e for k, e in zip(KINDS, entries[3:], strict=True)},
+        **{k: e for k, e in zip(TERMS, entries[:3], strict=True)},
+        "textbook": {k: e for k, e in zip(TERMS, entries[3:], strict=True)},
         "paper_formulas": liang2013.formula_coefficients(),
         "assumptions": {**assumptions(plant), **{k: {"value": ran.get(k, v), "unit": u, "why": w}
                                                    for k, (v, u, w) in EXPERIMENT_ASSUMPTIONS.items()}},
     }
     summary["findings"] = _findings(summary)
-    names = [*KINDS, *(f"textbook {k}" for k in KINDS)]
+    names = [*TERMS, *(f"textbook {k}" for k in TERMS)]
     return PaperRun(summary=summary, t_s=res.t_s, responses=dict(zip(names, res.shaft_rpm, strict=True)))
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from common import ControllerError
 from controller.discretize import Lifted, delay_split, lift
-from controller.gains import FORMS, ControllerConfig, PidGains, resolve_gains
+from controller.gains import FORMS, PidGains
 from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
 N_PID = 5
@@ -369,42 +369,36 @@ class ClosedLoop:
         return self._v
 
     def _targets(self, target) -> np.ndarray:
-        """Targets as shape (n,), clipped to [0, shaft_rpm_max]; NaN is an error."""
-        if isinstance(target, np.ndarray) and target.shape == (self.n,):
-            r = target.astype(float, copy=False)
-        else:
-            try:
-                r = np.broadcast_to(np.asarray(target, dtype=float), (self.n,))
-            except (TypeError, ValueError):
-                raise ControllerError(f"target_shaft_rpm must be a number or shape ({self.n},), "
-                                      f"got {target!r}") from None
-        r = np.minimum(np.maximum(r, 0.0), self._rmax)
-        total = r.sum()
-        if total != total:
-            raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
-        return r
+        return clip_targets(target, self.n, self._rmax)
 
 
-def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05,
-               plant_step_s: float = 0.001, n: int = 1, record_fine: bool = False) -> ClosedLoop:
-    """The loop the field run drives: `n` copies of `plant` under the controller `cfg`.
+def clip_targets(target, n: int, rpm_max) -> np.ndarray:
+    """Targets as shape (n,), clipped to [0, `rpm_max`]; NaN or a wrong shape is a `ControllerError`."""
+    if isinstance(target, np.ndarray) and target.shape == (n,):
+        r = target.astype(float, copy=False)
+    else:
+        try:
+            r = np.broadcast_to(np.asarray(target, dtype=float), (n,))
+        except (TypeError, ValueError):
+            raise ControllerError(f"target_shaft_rpm must be a number or shape ({n},), "
+                                  f"got {target!r}") from None
+    r = np.minimum(np.maximum(r, 0.0), rpm_max)
+    total = r.sum()
+    if total != total:
+        raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
+    return r
 
-    Parameters
-    ----------
-    plant : PlantParams
-    cfg : ControllerConfig
-    control_period_s : float
-        PID period T [s] (the paper: 0.05).
-    plant_step_s : float
-        Plant discretization step h [s] (the paper's bench: 0.001); T must be a multiple of h.
-    n : int
-        Number of identical loops (e.g. one per section).
-    """
-    if not isinstance(plant, PlantParams):
-        raise ControllerError(f"plant must be PlantParams, got {type(plant).__name__}")
-    if not isinstance(cfg, ControllerConfig):
-        raise ControllerError(f"cfg must be ControllerConfig, got {type(cfg).__name__}")
-    gains = resolve_gains(cfg, plant, control_period_s)
-    return ClosedLoop(plant, gains, form=cfg.form, derivative_on_measurement=cfg.derivative_on_measurement,
-                      control_period_s=control_period_s, plant_step_s=plant_step_s, n=n,
-                      record_fine=record_fine)
+
+def run_records(loop, targets_rpm, load_torque_nm=0.0) -> StepOutput:
+    """`loop.step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n)."""
+    t = np.asarray(targets_rpm, dtype=float)
+    if t.ndim == 1 and loop.n == 1:
+        t = t[:, None]
+    if t.ndim != 2 or t.shape[1] != loop.n:
+        raise ControllerError(f"targets_rpm must have shape (K, {loop.n}), got {np.shape(targets_rpm)}")
+    rec = np.empty((4, t.shape[0], loop.n))
+    for k in range(t.shape[0]):
+        out = loop.step(t[k], load_torque_nm)
+        rec[0, k], rec[1, k], rec[2, k], rec[3, k] = (out.shaft_rpm, out.shaft_rev, out.current_a,
+                                                      out.measured_rpm)
+    return StepOutput(rec[0], rec[1], rec[2], rec[3])
