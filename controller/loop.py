@@ -232,19 +232,25 @@ class ClosedLoop:
 
     @property
     def state(self) -> np.ndarray:
-        """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory."""
-        return np.atleast_2d(self._v)[:, :self._ns].copy()
+        """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory; with one
+        plant and gain set also the cached PID term (shape (n, ns + 1)), so a restore is bitwise exact."""
+        v = np.atleast_2d(self._v)
+        if self._cached_u:
+            return np.column_stack([v[:, :self._ns], v[:, self._iu]])
+        return v[:, :self._ns].copy()
 
-    def set_state(self, state: np.ndarray) -> None:
-        """Restore a state obtained from `state`."""
+    def set_state(self, state) -> None:
+        """Restore a state obtained from `state` (also as nested lists, as after JSON); without the
+        cached PID term (shape (n, ns)) it is recomputed, equal to rounding."""
         state = np.asarray(state, dtype=float)
-        if state.shape != (self.n, self._ns):
-            raise ControllerError(f"state must have shape {(self.n, self._ns)}, got {state.shape}")
+        shapes = [(self.n, self._ns)] + ([(self.n, self._ns + 1)] if self._cached_u else [])
+        if state.shape not in shapes:
+            raise ControllerError(f"state must have shape {' or '.join(map(str, shapes))}, got {state.shape}")
         self.reset()
         v = np.atleast_2d(self._v)    # a view of the 1-D vector of a single loop
-        v[:, :self._ns] = state
+        v[:, :self._ns] = state[:, :self._ns]
         if self._cached_u:
-            v[:, self._iu] = state @ self._g[0]
+            v[:, self._iu] = state[:, self._ns] if state.shape[1] > self._ns else state @ self._g[0]
 
     @property
     def motor_angle_rad(self) -> np.ndarray:
@@ -291,11 +297,7 @@ class ClosedLoop:
         StepOutput
             Arrays of shape (K, n): the per-period outputs, recorded without a Python object per tick.
         """
-        t = np.asarray(targets_rpm, dtype=float)
-        if t.ndim == 1 and self.n == 1:
-            t = t[:, None]
-        if t.ndim != 2 or t.shape[1] != self.n:
-            raise ControllerError(f"targets_rpm must have shape (K, {self.n}), got {np.shape(targets_rpm)}")
+        t = targets_matrix(targets_rpm, self.n)
         o = self._ns + 3
         rec = np.empty((t.shape[0], self.n, 4))
         if self._scalar:
@@ -389,16 +391,11 @@ def clip_targets(target, n: int, rpm_max) -> np.ndarray:
     return r
 
 
-def run_records(loop, targets_rpm, load_torque_nm=0.0) -> StepOutput:
-    """`loop.step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n)."""
+def targets_matrix(targets_rpm, n: int) -> np.ndarray:
+    """Targets of a run as shape (K, n) ((K,) is accepted for n = 1); `ControllerError` otherwise."""
     t = np.asarray(targets_rpm, dtype=float)
-    if t.ndim == 1 and loop.n == 1:
+    if t.ndim == 1 and n == 1:
         t = t[:, None]
-    if t.ndim != 2 or t.shape[1] != loop.n:
-        raise ControllerError(f"targets_rpm must have shape (K, {loop.n}), got {np.shape(targets_rpm)}")
-    rec = np.empty((4, t.shape[0], loop.n))
-    for k in range(t.shape[0]):
-        out = loop.step(t[k], load_torque_nm)
-        rec[0, k], rec[1, k], rec[2, k], rec[3, k] = (out.shaft_rpm, out.shaft_rev, out.current_a,
-                                                      out.measured_rpm)
-    return StepOutput(rec[0], rec[1], rec[2], rec[3])
+    if t.ndim != 2 or t.shape[1] != n:
+        raise ControllerError(f"targets_rpm must have shape (K, {n}), got {np.shape(targets_rpm)}")
+    return t

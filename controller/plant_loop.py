@@ -18,7 +18,7 @@ import numpy as np
 from common import ControllerError
 from controller.discretize import lift
 from controller.interface import LoopInfo, state_arrays
-from controller.loop import StepOutput, clip_targets, run_records
+from controller.loop import StepOutput, clip_targets, targets_matrix
 from controller.plant import IX_ANGLE, N_STATES, shaft_rev_row, shaft_rpm_row, state_space
 
 # Columns of the lifted product's output after the next state (rows of `Lifted.step`).
@@ -94,12 +94,20 @@ class PlantLoop:
     # -- stepping ----------------------------------------------------------------------------------------
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
         """Advance one control period; arguments and result as `controller.ClosedLoop.step`."""
-        out, cur, measured = self._advance(target_shaft_rpm, load_torque_nm)
+        r = clip_targets(target_shaft_rpm, self.n, self._rmax)
+        out, cur, measured = self._advance(r, load_torque_nm)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
     def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
         """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n)."""
-        return run_records(self, targets_rpm, load_torque_nm)
+        t = targets_matrix(targets_rpm, self.n)
+        r_all = clip_targets(t.ravel(), t.size, self._rmax).reshape(t.shape)
+        rec = np.empty((4, t.shape[0], self.n))
+        advance = self._advance
+        for k in range(t.shape[0]):
+            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm)
+            rec[0, k], rec[1, k] = out[:, OUT_RPM], out[:, OUT_REV]
+        return StepOutput(rec[0], rec[1], rec[2], rec[3])
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm]."""
@@ -110,8 +118,8 @@ class PlantLoop:
         z0[:, N_STATES:] = self._z[:, N_STATES:]   # this period's current and load
         return so, z0 @ self._FT
 
-    def _advance(self, target, load):
-        r = clip_targets(target, self.n, self._rmax)
+    def _advance(self, r, load):
+        """One period with clipped targets `r`: (product output, applied current, reading used)."""
         measured = self._ring[:, 0].copy()
         cur = self.controller.step(r, measured)
         if not (isinstance(cur, np.ndarray) and cur.shape == (self.n,)):

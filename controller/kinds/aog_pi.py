@@ -120,16 +120,19 @@ class AogPi(Controller):
     def step(self, target_rpm, measured_rpm):
         m, p = self.mem, self.params
         enabled = target_rpm > 0.0
-        m["since_run_s"] = m["since_run_s"] + self.loop.control_period_s
-        due = enabled & (m["since_run_s"] >= p.pid_period_s - 1e-9)
-        m["integral_pwm"] = np.where(enabled, m["integral_pwm"], 0.0)
-        m["reference_rpm"] = np.where(enabled, m["reference_rpm"], 0.0)
+        all_on = enabled.all()
+        since = m["since_run_s"]
+        since += self.loop.control_period_s
+        if not all_on:     # PID disabled: integral and reference rate cleared, last PWM kept
+            m["integral_pwm"][~enabled] = 0.0
+            m["reference_rpm"][~enabled] = 0.0
+        due = enabled & (since >= p.pid_period_s - 1e-9)
         if due.any():
             self._run(due, target_rpm, measured_rpm)
-            m["since_run_s"] = np.where(due, 0.0, m["since_run_s"])
-        pwm = np.where(enabled, m["pwm"], 0.0)
+            since[due] = 0.0
+        pwm = m["pwm"] if all_on else np.where(enabled, m["pwm"], 0.0)
         lo, hi = self.loop.current_min_a, self.loop.current_max_a
-        return lo + (hi - lo) * pwm / PWM_FULL
+        return lo + (hi - lo) / PWM_FULL * pwm
 
     def _run(self, due, target, measured):
         """One PID run on the loops in `due` (PID.ino's PIDmotor body)."""

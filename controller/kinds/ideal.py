@@ -16,7 +16,7 @@ import numpy as np
 
 from common import ControllerError
 from controller.interface import LoopInfo, state_arrays
-from controller.loop import StepOutput, clip_targets, run_records
+from controller.loop import StepOutput, clip_targets, targets_matrix
 from controller.params import KindParams
 from controller.registry import register
 
@@ -62,16 +62,21 @@ class IdealLoop:
 
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
         """One period at exactly the target (load torque has no effect)."""
-        p = self.info.plant
-        r = clip_targets(target_shaft_rpm, self.n, p.shaft_rpm_max)
-        rev = r * self.control_period_s / 60.0
-        self._rev = self._rev + rev
-        current = np.clip(r / p.shaft_rpm_per_a, p.current_min_a, p.current_max_a)
-        return StepOutput(r.copy(), rev, current, r.copy())
+        return self._periods(clip_targets(target_shaft_rpm, self.n, self.info.plant.shaft_rpm_max))
 
     def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
-        """`step` once per row of `targets_rpm`; outputs of shape (K, n)."""
-        return run_records(self, targets_rpm, load_torque_nm)
+        """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n),
+        computed at once (nothing feeds back)."""
+        t = targets_matrix(targets_rpm, self.n)
+        return self._periods(clip_targets(t.ravel(), t.size, self.info.plant.shaft_rpm_max).reshape(t.shape))
+
+    def _periods(self, r: np.ndarray) -> StepOutput:
+        """Outputs of periods with clipped targets `r` (shape (n,) or (K, n)); advances the revolutions."""
+        p = self.info.plant
+        rev = r * self.control_period_s / 60.0
+        self._rev = self._rev + (rev if rev.ndim == 1 else rev.sum(axis=0))
+        current = np.clip(r / p.shaft_rpm_per_a, p.current_min_a, p.current_max_a)
+        return StepOutput(r.copy(), rev, current, r.copy())
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the (constant) shaft speed at each plant step of the period, shape (n, N)."""
