@@ -12,7 +12,8 @@ The sensor reports the shaft speed `reference_delay_s` late, so after a target s
 the old speed while the shaft already turns at the new one. The PI therefore compares the reading
 with the target as it was that many whole control periods ago (the reference the reading can already
 show), not with today's target: otherwise it would fight the feed-forward through every delay
-(assumption of vrsim; without it the step response settles some four times slower).
+(assumption of vrsim; with ``reference_delay_s = 0``, the target of one period ago, a 100 rpm step
+settles in 1.09 s instead of 0.38 s).
 """
 
 from __future__ import annotations
@@ -48,9 +49,10 @@ class FfPiParams(KindParams):
     ki : float
         PI integral gain [1/s] (2.0).
     reference_delay_s : float or None
-        How late the reading is [s]; None: the plant's sensor delay (what a valve calibration's step
-        would show). The PI's reference is the target of d periods ago, d as in the loop's delay line
-        (`controller.discretize.delay_split`: 3 for the default 0.104 s at 50 ms).
+        How late the reading is [s]; None: the plant's sensor delay (a terminal would measure it as the
+        time from a current step to the reading's change). The PI's reference is the target of d
+        periods ago, d as in the loop's delay line (`controller.discretize.delay_split`: 3 for the
+        default 0.104 s at 50 ms).
     """
 
     KIND = "ff_pi"
