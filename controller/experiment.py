@@ -1,5 +1,6 @@
 """The paper's experiment on vrsim's model: ultimate gain, then P, PI and PID step responses with the
-paper's literal gains and with textbook Ziegler-Nichols gains, side by side with the paper's figures.
+paper's literal gains and with textbook Ziegler-Nichols gains, side by side with the paper's figures,
+and each loop's margins, crossover and bandwidth (`controller.analysis`, key ``loop``).
 
 `run_paper` returns the summary (the dict `vrsim paper --json` prints) and the responses to plot.
 """
@@ -12,6 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from controller import liang2013
+from controller.analysis import analyze_loop
+from controller.config import ControllerConfig
 from controller.gains import TERMS, PidGains, paper_gains, ziegler_nichols
 from controller.metrics import step_metrics
 from controller.plant import PlantParams, assumptions, unlimited
@@ -57,7 +60,13 @@ def _close(ours, paper) -> bool:
     return ours is not None and paper is not None and abs(ours - paper) <= MATCH_REL * abs(paper)
 
 
-def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float) -> dict:
+def _loop_figures(plant: PlantParams, terms: str, gains: PidGains) -> dict:
+    """Margins, crossover and bandwidth of the PID loop with these gains (`analysis.LoopAnalysis`)."""
+    cfg = ControllerConfig(kind=terms, gains="manual", kp=gains.kp, ki=gains.ki or None, kd=gains.kd or None)
+    return analyze_loop(plant, cfg, liang2013.SAMPLE_S).to_dict()
+
+
+def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float, plant: PlantParams) -> dict:
     paper = liang2013.STEP[kind]
     a, b, c = gains.incremental(liang2013.SAMPLE_S)
     row = metrics.row(i)
@@ -72,6 +81,7 @@ def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float) -
         "steady_state_error_rpm": _finite(row["steady_state_error"]),
         "iae_rpm_s": _finite(row["iae"]), "itae_rpm_s2": _finite(row["itae"]),
         "gains": {"kp": gains.kp, "ki_per_s": gains.ki, "kd_s": gains.kd, "A": a, "B": b, "C": c},
+        "loop": _loop_figures(plant, kind, gains),
     }
 
 
@@ -128,7 +138,7 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
     mean_rpm = np.hstack([np.zeros((len(literal) * 2, 1)), (res.shaft_rev * 60.0 / T).T])
     mean_metrics = step_metrics(np.arange(mean_rpm.shape[1]) * T, mean_rpm, step_rpm)
     ran = {"step_rpm": step_rpm, "duration_s": duration_s}  # the values used, not the defaults
-    entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i])
+    entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i], plant)
                for i, (k, g) in enumerate(zip(TERMS * 2, literal + textbook, strict=True))]
     summary = {
         "ultimate": {
