@@ -3,9 +3,10 @@
 Each period the error ``e = r - y_m`` [rpm] and its change ``ec = e - e(k-1)`` are scaled onto the
 universe [-3, 3] (``3 e / error_span_rpm``, ``3 ec / error_change_span_rpm``, saturating) and
 fuzzified on seven evenly spaced triangular terms NB, NM, NS, ZO, PS, PM, PB (NB and PB saturate at
-the ends). Each of the 49 rules "if e is A and ec is B then dKp is C" fires with strength
-``min(mu_A(e), mu_B(ec))``; each correction is the strength-weighted mean of its consequents' centres
-(zero-order Sugeno inference, the weighted-average form of Mamdani inference with symmetric output
+the ends; with unit spacing at most two terms per input, so at most four rules fire). Each of the
+49 rules "if e is A and ec is B then dKp is C" fires with strength ``min(mu_A(e), mu_B(ec))``;
+each correction is the strength-weighted mean of its consequents' centres (zero-order Sugeno
+inference, the weighted-average form of Mamdani inference with symmetric output
 terms), scaled by its span: ``Kp = kp + dkp_span x dKp / 3`` (likewise Ki, Kd; gains stay >= 0). The
 PID runs in the paper's incremental form with these gains, ``du = Kp (e - e1) + Ki T e +
 Kd/T (e - 2 e1 + e2)`` on sensor volts, holding the saturated output (anti-windup).
@@ -36,6 +37,7 @@ from controller.tuning import gains_from_source
 TERMS = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
 TABLES = ("delta_kp", "delta_ki", "delta_kd")
 DEFAULT_RULES = "fuzzy_pid_rules.toml"
+FOUR_RULES = np.array([0, 1, 7, 8])    # offsets in a flattened 7 x 7 table: e lower/upper x ec lower/upper
 
 
 def load_rules(path: str | None = None) -> np.ndarray:
@@ -69,11 +71,13 @@ def load_rules(path: str | None = None) -> np.ndarray:
     return np.array(tables)
 
 
-def memberships(x: np.ndarray) -> np.ndarray:
-    """Membership of each x (already on [-3, 3]) in the seven terms, shape (n, 7); the end terms
-    saturate, so every x belongs with total degree 1."""
-    x = np.clip(x, -3.0, 3.0)
-    return np.maximum(0.0, 1.0 - np.abs(x[:, None] - np.arange(-3.0, 4.0)[None, :]))
+def fuzzify(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two terms each x (on [-3, 3], saturating) belongs to: index i of the lower one (0 = NB) and
+    membership w of the upper one (the lower has 1 - w). Seven unit-spaced triangles overlap only
+    pairwise, so these two are all of x's memberships."""
+    u = np.clip(x, -3.0, 3.0) + 3.0
+    i = np.minimum(u.astype(int), 5)
+    return i, u - i
 
 
 @dataclass(frozen=True)
@@ -135,6 +139,7 @@ class FuzzyPid(Controller):
         self.base = gains_from_source(params.gains, "PID", loop.plant, loop.control_period_s,
                                       params.kp, params.ki, params.kd)
         self.rules = load_rules(params.rules_file)
+        self._flat_rules = self.rules.reshape(3, 49)
         self.spans = np.array([params.dkp_span, params.dki_span_per_s, params.dkd_span_s]) / 3.0
         self.reset()
 
@@ -150,10 +155,14 @@ class FuzzyPid(Controller):
     def tuned_gains(self, error_rpm: np.ndarray, change_rpm: np.ndarray) -> PidGains:
         """The gains the rules give for these errors and changes (arrays (n,) of kp, ki, kd)."""
         p = self.params
-        mu_e = memberships(3.0 * error_rpm / p.error_span_rpm)
-        mu_ec = memberships(3.0 * change_rpm / p.error_change_span_rpm)
-        strength = np.minimum(mu_e[:, :, None], mu_ec[:, None, :])           # (n, 7, 7)
-        delta = np.einsum("nij,gij->gn", strength, self.rules) / strength.sum(axis=(1, 2))
+        ie, we = fuzzify(3.0 * error_rpm / p.error_span_rpm)
+        ic, wc = fuzzify(3.0 * change_rpm / p.error_change_span_rpm)
+        # the (at most) four rules that fire: (lower, lower), (lower, upper), (upper, lower), (upper, upper)
+        rule = (ie * 7 + ic)[:, None] + FOUR_RULES                             # (n, 4) into the 7 x 7
+        mu_e = np.column_stack([1.0 - we, 1.0 - we, we, we])
+        mu_c = np.column_stack([1.0 - wc, wc, 1.0 - wc, wc])
+        strength = np.minimum(mu_e, mu_c)                                      # (n, 4)
+        delta = (self._flat_rules[:, rule] * strength).sum(axis=2) / strength.sum(axis=1)
         base = np.array([self.base.kp, self.base.ki, self.base.kd])[:, None]
         kp, ki, kd = np.maximum(base + self.spans[:, None] * delta, 0.0)
         return PidGains(kp, ki, kd)

@@ -20,7 +20,7 @@ from controller import (
 from controller.calibration import valve_calibration
 from controller.factory import loop_info
 from controller.kinds.aog_pi import AogPiParams
-from controller.kinds.fuzzy_pid import load_rules, memberships
+from controller.kinds.fuzzy_pid import load_rules
 from controller.plant_loop import PlantLoop
 
 P = PlantParams()
@@ -112,9 +112,28 @@ def test_fuzzy_rules_come_from_the_data_file():
     assert rules.shape == (3, 7, 7)
     assert rules[0, 0, 0] == 3 and rules[0, 6, 6] == -3     # Kp: PB for e NB/ec NB, NB for e PB/ec PB
     assert rules[2, 4].tolist() == [0.0] * 7                 # Kd: ZO all along e = PS
-    mu = memberships(np.array([-5.0, -1.5, 0.0, 2.25]))
-    np.testing.assert_allclose(mu.sum(axis=1), 1.0)
-    assert mu[1, 1] == mu[1, 2] == 0.5
+
+
+
+def test_fuzzy_inference_equals_the_weighted_mean_over_all_49_rules():
+    ctrl = build_controller(ControllerConfig(kind="fuzzy_pid"), P, n=6)
+    p, rules = ctrl.params, load_rules()
+    error = np.array([-80.0, -7.5, 0.0, 3.3, 15.0, 200.0])
+    change = np.array([10.0, -60.0, 0.0, 12.5, -20.0, 1.0])
+
+    def mu(x):      # seven triangles at -3..3, the ends saturating
+        x = np.clip(x, -3.0, 3.0)
+        return np.maximum(0.0, 1.0 - np.abs(x[:, None] - np.arange(-3.0, 4.0)))
+
+    strength = np.minimum(mu(3 * error / p.error_span_rpm)[:, :, None],
+                          mu(3 * change / p.error_change_span_rpm)[:, None, :])
+    delta = np.einsum("nij,gij->gn", strength, rules) / strength.sum(axis=(1, 2))
+    g = ctrl.tuned_gains(error, change)
+    base = ctrl.base
+    np.testing.assert_allclose(g.kp, np.maximum(base.kp + p.dkp_span / 3 * delta[0], 0), rtol=1e-12)
+    np.testing.assert_allclose(g.ki, np.maximum(base.ki + p.dki_span_per_s / 3 * delta[1], 0), rtol=1e-12)
+    np.testing.assert_allclose(g.kd, np.maximum(base.kd + p.dkd_span_s / 3 * delta[2], 0), rtol=1e-12,
+                               atol=1e-15)
 
 
 def test_fuzzy_rules_file_errors_name_the_file_and_entry(tmp_path):
