@@ -24,6 +24,7 @@ import os
 from dataclasses import dataclass, field
 
 from common import ControllerError
+from controller import registry
 from controller.config import ControllerConfig
 from controller.discretize import delay_split
 from controller.factory import build_controller
@@ -92,8 +93,8 @@ def open_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float
     """
     import control
 
-    if cfg.registry_kind == "ideal":
-        raise ControllerError("controller kind 'ideal' has no loop to analyse (the shaft follows the target)")
+    if registry.get(cfg.registry_kind).controller is None:
+        raise ControllerError(f"controller kind {cfg.kind!r} has no controller, so no loop to analyse")
     ctrl = build_controller(cfg, plant, control_period_s, control_period_s)
     model = getattr(ctrl, "linear_model", None) or getattr(getattr(ctrl, "impl", None), "linear_model", None)
     if model is None:

@@ -90,7 +90,8 @@ class ControllerConfig:
         return "pid" if self.kind in PID_KINDS else self.kind
 
     def kind_params(self):
-        """The kind's checked parameters: its params dataclass, or the plain dict for kind "python"."""
+        """The kind's checked parameters, an instance of its params dataclass (`PidParams` for P, PI,
+        PID; `PythonParams` with file, class and the user's unchecked dict for kind "python")."""
         kind = registry.get(self.registry_kind)
         if self.kind in PID_KINDS:
             return kind.params(terms=PID_KINDS[self.kind], **{k: getattr(self, k) for k in PID_KEYS})

@@ -5,9 +5,10 @@ A kind registers itself with the `register` decorator on its controller class::
     @register("aog_pi", AogPiParams, "AgOpenGPS RateController's normalised PI")
     class AogPi(Controller): ...
 
-A kind may also bring its own loop (``loop=``): the linear PID's lifted-matrix fast path, or the
-`ideal` meter, which has no plant at all. `controller.factory` looks kinds up here; nothing else
-branches on the kind's name.
+A kind may also bring its own loop (``loop=``): the linear PID's lifted-matrix fast path; the
+`ideal` meter, which has no plant at all, is only a loop (`register_loop`). `controller.factory`
+looks kinds up here to build them; a new kind needs no change anywhere else (only the PID family's
+flat keys and the ``python`` kind's file and class are known to `ControllerConfig` by name).
 """
 
 from __future__ import annotations
@@ -49,13 +50,22 @@ KINDS: dict[str, Kind] = {}
 
 
 def register(name: str, params: type | None, summary: str, loop: Callable | None = None):
-    """Class decorator: register the decorated controller class (or None-returning factory) as `name`."""
+    """Class decorator: register the decorated controller class as kind `name` (see `Kind`)."""
     def decorate(impl):
-        if name in KINDS:
-            raise ValueError(f"controller kind {name!r} is registered twice")
-        KINDS[name] = Kind(name=name, params=params, controller=impl, summary=summary, loop=loop)
+        _add(Kind(name=name, params=params, controller=impl, summary=summary, loop=loop))
         return impl
     return decorate
+
+
+def register_loop(name: str, params: type | None, summary: str, loop: Callable) -> None:
+    """Register kind `name` that is a loop of its own, with no controller (the `ideal` meter)."""
+    _add(Kind(name=name, params=params, controller=None, summary=summary, loop=loop))
+
+
+def _add(kind: Kind) -> None:
+    if kind.name in KINDS:
+        raise ValueError(f"controller kind {kind.name!r} is registered twice")
+    KINDS[kind.name] = kind
 
 
 def get(name: str) -> Kind:

@@ -18,7 +18,7 @@ from common import ControllerError
 from controller.interface import LoopInfo, state_arrays
 from controller.loop import StepOutput, clip_targets, targets_matrix
 from controller.params import KindParams
-from controller.registry import register
+from controller.registry import register_loop
 
 
 @dataclass(frozen=True)
@@ -86,5 +86,5 @@ class IdealLoop:
         return out, np.repeat(out.shaft_rpm[:, None], self.n_fine, axis=1)
 
 
-register("ideal", IdealParams, "reference meter: the shaft follows the target exactly, no plant, no delay",
-         loop=lambda params, info, n, record_fine: IdealLoop(info, n, record_fine))(None)
+register_loop("ideal", IdealParams, "reference meter: the shaft follows the target exactly, no plant, "
+              "no delay", loop=lambda params, info, n, record_fine: IdealLoop(info, n, record_fine))

@@ -75,7 +75,7 @@ def test_every_linear_kind_has_margins_and_the_others_say_why_not():
         assert set(a.to_dict()) >= {"gain_margin", "phase_margin_deg", "crossover_rad_s", "bandwidth_rad_s"}
     with pytest.raises(ControllerError, match="'aog_pi' is not linear"):
         analyze_loop(P, ControllerConfig(kind="aog_pi"))
-    with pytest.raises(ControllerError, match="'ideal' has no loop"):
+    with pytest.raises(ControllerError, match="'ideal' has no controller, so no loop"):
         analyze_loop(P, ControllerConfig(kind="ideal"))
 
 
