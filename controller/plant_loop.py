@@ -9,6 +9,12 @@ called once per period with arrays of all n loops. One period is
 2. ``I = clip(controller.step(clip(r), y_m))``,
 3. ``[x', rev, sample, rpm] = L [x, I, T_L]`` (one product for all loops), and the new sensor sample
    (taken inside this period, at the delay's offset) enters the delay line's tail.
+
+One loop (n = 1, the field run) takes a leaner path with the same arithmetic: per period only the
+state and the sensor sample are computed (one product of six), the controller gets floats when it
+offers ``step_one`` (the built-in kinds, `controller.interface.LawController`), and the outputs
+(speed, revolutions) are computed for the whole run afterwards in one product, from the recorded
+states and currents. It agrees with the n-loop path to rounding (1e-12).
 """
 
 from __future__ import annotations
@@ -59,6 +65,11 @@ class PlantLoop:
         self.plant_step_s = info.plant_step_s
         self.n_fine = lifted.fine.shape[0]
         self._LT = np.ascontiguousarray(lifted.step.T)          # (nx + 2, nx + 3)
+        # one loop: [x, I] -> [x', sample] per period (the load's share added per run); the outputs
+        # [rev, rpm] from [x, I, load] once per run
+        self._next_T = np.ascontiguousarray(self._LT[:N_STATES + 1, [*range(N_STATES), OUT_SAMPLE]])
+        self._next_load = self._LT[N_STATES + 1, [*range(N_STATES), OUT_SAMPLE]]
+        self._outputs_T = np.ascontiguousarray(self._LT[:, [OUT_RPM, OUT_REV]])
         self._FT = np.ascontiguousarray(lifted.fine.T) if record_fine else None
         self._z = np.zeros((n, N_STATES + 2))                   # [x, current, load] of this period
         self._ring = np.zeros((n, lifted.delay_periods))        # sensor readings, oldest first
@@ -95,6 +106,9 @@ class PlantLoop:
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
         """Advance one control period; arguments and result as `controller.ClosedLoop.step`."""
         r = clip_targets(target_shaft_rpm, self.n, self._rmax)
+        if self.n == 1:
+            one = self._run_one(r, float(np.broadcast_to(load_torque_nm, (1,))[0]))
+            return StepOutput(one.shaft_rpm[0], one.shaft_rev[0], one.current_a[0], one.measured_rpm[0])
         out, cur, measured = self._advance(r, load_torque_nm)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
@@ -102,12 +116,51 @@ class PlantLoop:
         """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n)."""
         t = targets_matrix(targets_rpm, self.n)
         r_all = clip_targets(t.ravel(), t.size, self._rmax).reshape(t.shape)
+        if self.n == 1:
+            return self._run_one(r_all[:, 0], float(np.broadcast_to(load_torque_nm, (1,))[0]))
         rec = np.empty((4, t.shape[0], self.n))
         advance = self._advance
         for k in range(t.shape[0]):
             out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm)
             rec[0, k], rec[1, k] = out[:, OUT_RPM], out[:, OUT_REV]
         return StepOutput(rec[0], rec[1], rec[2], rec[3])
+
+    def _run_one(self, r_all: np.ndarray, load: float) -> StepOutput:
+        """`run` for one loop: per period the controller and ``[x', sample] = [x, I] N`` only."""
+        k_all = len(r_all)
+        xi = np.empty((k_all, N_STATES + 2))           # [x, I, load] at the start of each period
+        xi[:, N_STATES + 1] = load
+        measured = np.empty(k_all)
+        ring = self._ring[0].tolist()
+        depth = len(ring)
+        head = 0                                       # ring[head] is the oldest reading
+        z = self._z[0, :N_STATES + 1].copy()           # [x, I]
+        next_t, load_term = self._next_T, self._next_load * load
+        ilo, ihi = self._ilo, self._ihi
+        ctrl = self.controller
+        one = getattr(ctrl, "step_one", None)
+        for k, r in enumerate(r_all.tolist()):
+            m = ring[head]
+            if one is not None:
+                cur = one(r, m)
+            else:
+                out = ctrl.step(np.array((r,)), np.array((m,)))
+                if not (isinstance(out, np.ndarray) and out.shape == (1,)):
+                    out = as_loop_currents(out, 1, ctrl)
+                cur = float(out[0])
+            cur = ilo if cur < ilo else (ihi if cur > ihi else cur)
+            z[N_STATES] = cur
+            xi[k, :N_STATES + 1] = z
+            measured[k] = m
+            new = z @ next_t + load_term
+            z[:N_STATES] = new[:N_STATES]
+            ring[head] = float(new[N_STATES])
+            head = head + 1 if head + 1 < depth else 0
+        self._z[0, :N_STATES + 1] = z
+        self._z[0, N_STATES + 1] = load
+        self._ring[0] = ring[head:] + ring[:head]
+        outputs = xi @ self._outputs_T
+        return StepOutput(outputs[:, :1], outputs[:, 1:], xi[:, N_STATES:N_STATES + 1], measured[:, None])
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm]."""

@@ -33,10 +33,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from common import ControllerError
-from controller.interface import Controller, LoopInfo, state_arrays
+from controller import ops
+from controller.interface import LawController, LoopInfo, state_arrays
 from controller.params import KindParams, param
 from controller.registry import register
 
@@ -92,71 +91,77 @@ class AogPiParams(KindParams):
 
 @register("aog_pi", AogPiParams, "AgOpenGPS RateController's normalised PI with deadband, slow band, "
           "slew and integral limits (SK21/AOG_RC PID.ino)")
-class AogPi(Controller):
+class AogPi(LawController):
     """AgOpenGPS RateController's motor PI (``PIDmotor``), see the module docstring and `AogPiParams`."""
 
     STATE = ("pwm", "integral_pwm", "reference_rpm", "error_positive", "since_run_s")
 
     def __init__(self, params: AogPiParams, loop: LoopInfo, n: int):
         super().__init__(params, loop, n)
-        self.min_pwm = PWM_FULL * params.min_pwm_pct / 100.0
-        self.max_pwm = PWM_FULL * params.max_pwm_pct / 100.0
+        p = params
+        self.min_pwm = PWM_FULL * p.min_pwm_pct / 100.0
+        self.max_pwm = PWM_FULL * p.max_pwm_pct / 100.0
         self.authority = max(self.max_pwm - self.min_pwm, 1.0)
+        # per-run constants of PIDmotor, in PWM counts per unit of the error fraction
+        self.kp_pwm = p.kp_slider_pct / 100.0 * KP_SCALE * self.authority
+        self.ki_pwm = p.ki_slider_pct / 100.0 * KI_SCALE * self.authority
+        self.slow = p.slow_adjust_pct / 100.0
+        self.brake = p.brake_point_pct / 100.0
+        self.deadband = p.deadband_pct / 100.0
+        self.due_s = p.pid_period_s - 1e-9
+        self.amps_per_pwm = (loop.current_max_a - loop.current_min_a) / PWM_FULL
         self.reset()
 
     def reset(self):
         # since_run_s starts "long ago", so the first enabled period runs the PI at once (as millis()
         # - LastCheck does on the module); error_positive starts true, as in PID.ino.
-        self.mem = {"pwm": np.zeros(self.n), "integral_pwm": np.zeros(self.n),
-                    "reference_rpm": np.zeros(self.n), "error_positive": np.ones(self.n),
-                    "since_run_s": np.full(self.n, self.params.pid_period_s)}
+        self.pwm = self.integral_pwm = self.reference_rpm = ops.zeros(self.n)
+        self.error_positive = ops.full(self.n, 1.0)
+        self.since_run_s = ops.full(self.n, self.params.pid_period_s)
 
     def state(self):
-        return {k: v.copy() for k, v in self.mem.items()}
+        return {k: ops.as_array(getattr(self, k), self.n) for k in self.STATE}
 
     def set_state(self, state):
-        self.mem = state_arrays(state, {k: (self.n,) for k in self.STATE}, "aog_pi")
+        got = state_arrays(state, {k: (self.n,) for k in self.STATE}, "aog_pi")
+        for k in self.STATE:
+            setattr(self, k, ops.from_array(got[k], self.n))
 
-    def step(self, target_rpm, measured_rpm):
-        m, p = self.mem, self.params
+    def law(self, target_rpm, measured_rpm):
         enabled = target_rpm > 0.0
-        all_on = enabled.all()
-        since = m["since_run_s"]
-        since += self.loop.control_period_s
-        if not all_on:     # PID disabled: integral and reference rate cleared, last PWM kept
-            m["integral_pwm"][~enabled] = 0.0
-            m["reference_rpm"][~enabled] = 0.0
-        due = enabled & (since >= p.pid_period_s - 1e-9)
-        if due.any():
+        since = self.since_run_s + self.loop.control_period_s
+        if not ops.all_(enabled):     # PID disabled: integral and reference rate cleared, last PWM kept
+            self.integral_pwm = ops.where(enabled, self.integral_pwm, 0.0)
+            self.reference_rpm = ops.where(enabled, self.reference_rpm, 0.0)
+        due = enabled & (since >= self.due_s)
+        if ops.any_(due):
             self._run(due, target_rpm, measured_rpm)
-            since[due] = 0.0
-        pwm = m["pwm"] if all_on else np.where(enabled, m["pwm"], 0.0)
-        lo, hi = self.loop.current_min_a, self.loop.current_max_a
-        return lo + (hi - lo) / PWM_FULL * pwm
+            since = ops.where(due, 0.0, since)
+        self.since_run_s = since
+        pwm = ops.where(enabled, self.pwm, 0.0)
+        return self.loop.current_min_a + self.amps_per_pwm * pwm
 
     def _run(self, due, target, measured):
         """One PID run on the loops in `due` (PID.ino's PIDmotor body)."""
-        m, p = self.mem, self.params
-        ref = np.where(due, np.maximum(m["reference_rpm"], target), m["reference_rpm"])
+        p = self.params
+        ref = ops.where(due, ops.maximum(self.reference_rpm, target), self.reference_rpm)
         error = target - measured
-        band = p.deadband_pct / 100.0 * target
-        positive = m["error_positive"] > 0.5
-        flip = due & (((error > band) & ~positive) | ((error < -band) & positive))
-        positive = np.where(flip, ~positive, positive)
-        integral = np.where(flip, 0.0, m["integral_pwm"])
-        active = due & (np.abs(error) > band)
-        frac = np.clip(error, -target, target) / np.where(ref > 0.0, ref, 1.0)
-        near = np.abs(frac) <= p.brake_point_pct / 100.0
-        ki, kp = p.ki_slider_pct / 100.0, p.kp_slider_pct / 100.0
-        grown = integral + np.clip(frac * ki * KI_SCALE * self.authority, -p.max_integral_pwm_per_run,
-                                   p.max_integral_pwm_per_run)
-        grown = np.where(near, grown, integral) if ki > 0.0 else np.zeros(self.n)
-        grown = np.clip(grown, -self.authority, self.authority)
-        brake = np.where(near, p.slow_adjust_pct / 100.0, 1.0)
-        change = np.clip(frac * kp * KP_SCALE * brake * self.authority + grown,
-                         -p.slew_rate_pwm_per_run, p.slew_rate_pwm_per_run)
-        moved = np.clip(m["pwm"] + change, self.min_pwm, self.max_pwm)
-        m["pwm"] = np.where(active, moved, m["pwm"])
-        m["integral_pwm"] = np.where(active, grown, np.where(due, 0.0, integral))
-        m["reference_rpm"] = ref
-        m["error_positive"] = positive.astype(float)
+        band = self.deadband * target
+        positive = self.error_positive > 0.5
+        flip = due & (((error > band) & ops.not_(positive)) | ((error < -band) & positive))
+        positive = positive ^ flip
+        integral = ops.where(flip, 0.0, self.integral_pwm)
+        active = due & (ops.absolute(error) > band)
+        frac = ops.clip(error, -target, target) / ops.where(ref > 0.0, ref, 1.0)
+        near = ops.absolute(frac) <= self.brake
+        grown = integral + ops.clip(frac * self.ki_pwm, -p.max_integral_pwm_per_run,
+                                    p.max_integral_pwm_per_run)
+        grown = ops.where(near, grown, integral) if self.ki_pwm > 0.0 else ops.zeros(self.n)
+        grown = ops.clip(grown, -self.authority, self.authority)
+        change = ops.clip(frac * self.kp_pwm * ops.where(near, self.slow, 1.0) + grown,
+                          -p.slew_rate_pwm_per_run, p.slew_rate_pwm_per_run)
+        moved = ops.clip(self.pwm + change, self.min_pwm, self.max_pwm)
+        self.pwm = ops.where(active, moved, self.pwm)
+        self.integral_pwm = ops.where(active, grown, ops.where(due, 0.0, integral))
+        self.reference_rpm = ref
+        self.error_positive = ops.where(positive, 1.0, 0.0)

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller import ops
 from controller.calibration import valve_calibration
 from controller.discretize import delay_split
 from controller.gains import PidGains
-from controller.interface import Controller, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo, state_arrays
 from controller.lti import pid_lti
 from controller.params import KindParams, param
 from controller.registry import register
@@ -65,7 +66,7 @@ class FfPiParams(KindParams):
 
 @register("ff_pi", FfPiParams, "feed-forward from the static inverse (model or valve cal) plus a PI "
           "(Astrom and Murray 2021, 8.5)")
-class FfPi(Controller):
+class FfPi(LawController):
     """Feed-forward plus PI; see the module docstring and `FfPiParams`."""
 
     def __init__(self, params: FfPiParams, loop: LoopInfo, n: int):
@@ -83,31 +84,43 @@ class FfPi(Controller):
         self.reset()
 
     def reset(self):
-        self.mem = {"error_sum_v": np.zeros(self.n),
-                    "target_history_rpm": np.zeros((self.n, self.delay_periods))}
+        self.error_sum_v = ops.zeros(self.n)
+        # targets of the last d periods, oldest first (a list for one loop)
+        self.target_history_rpm = [0.0] * self.delay_periods if self.n == 1 else \
+            np.zeros((self.n, self.delay_periods))
 
     def state(self):
-        return {k: v.copy() for k, v in self.mem.items()}
+        return {"error_sum_v": ops.as_array(self.error_sum_v, self.n),
+                "target_history_rpm": np.array(self.target_history_rpm, dtype=float).reshape(
+                    self.n, self.delay_periods)}
 
     def set_state(self, state):
-        self.mem = state_arrays(state, {"error_sum_v": (self.n,),
-                                        "target_history_rpm": (self.n, self.delay_periods)}, "ff_pi")
+        got = state_arrays(state, {"error_sum_v": (self.n,),
+                                   "target_history_rpm": (self.n, self.delay_periods)}, "ff_pi")
+        self.error_sum_v = ops.from_array(got["error_sum_v"], self.n)
+        history = got["target_history_rpm"]
+        self.target_history_rpm = history[0].tolist() if self.n == 1 else history
 
     def linear_model(self):
         """The PI from error volts to output volts; the feed-forward and the delayed reference shape the
         response to targets but are outside the feedback loop."""
         return pid_lti(PidGains(self.params.kp, self.params.ki), self.loop.control_period_s)
 
-    def step(self, target_rpm, measured_rpm):
-        history = self.mem["target_history_rpm"]
-        reference = history[:, 0].copy()
-        history[:, :-1] = history[:, 1:]
-        history[:, -1] = target_rpm
+    def law(self, target_rpm, measured_rpm):
+        history = self.target_history_rpm
+        if self.n == 1:
+            reference = history[0]
+            history.append(target_rpm)
+            del history[0]
+        else:
+            reference = history[:, 0].copy()
+            history[:, :-1] = history[:, 1:]
+            history[:, -1] = target_rpm
         p, info = self.params, self.loop
         e = info.sensor_gain_v_per_rpm * (reference - measured_rpm)
-        total = self.mem["error_sum_v"] + e
+        total = self.error_sum_v + e
         unsat = self.feedforward_a(target_rpm) + info.amplifier_gain_a_per_v * (
             p.kp * e + p.ki * info.control_period_s * total)
         frozen = ((unsat > info.current_max_a) & (e > 0)) | ((unsat < info.current_min_a) & (e < 0))
-        self.mem["error_sum_v"] = np.where(frozen, total - e, total)
-        return self.clip_current(unsat)
+        self.error_sum_v = ops.where(frozen, total - e, total)
+        return ops.clip(unsat, info.current_min_a, info.current_max_a)

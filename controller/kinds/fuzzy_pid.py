@@ -27,8 +27,9 @@ from importlib import resources
 import numpy as np
 
 from common import ControllerError
+from controller import ops
 from controller.gains import GAIN_SOURCES, PidGains
-from controller.interface import Controller, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo, state_arrays
 from controller.lti import pid_lti
 from controller.params import KindParams, param
 from controller.registry import register
@@ -37,7 +38,6 @@ from controller.tuning import gains_from_source
 TERMS = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
 TABLES = ("delta_kp", "delta_ki", "delta_kd")
 DEFAULT_RULES = "fuzzy_pid_rules.toml"
-FOUR_RULES = np.array([0, 1, 7, 8])    # offsets in a flattened 7 x 7 table: e lower/upper x ec lower/upper
 
 
 def load_rules(path: str | None = None) -> np.ndarray:
@@ -71,12 +71,12 @@ def load_rules(path: str | None = None) -> np.ndarray:
     return np.array(tables)
 
 
-def fuzzify(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The two terms each x (on [-3, 3], saturating) belongs to: index i of the lower one (0 = NB) and
+def fuzzify(x):
+    """The two terms x (on [-3, 3], saturating) belongs to: index i of the lower one (0 = NB) and
     membership w of the upper one (the lower has 1 - w). Seven unit-spaced triangles overlap only
-    pairwise, so these two are all of x's memberships."""
-    u = np.clip(x, -3.0, 3.0) + 3.0
-    i = np.minimum(u.astype(int), 5)
+    pairwise, so these two are all of x's memberships. Floats or arrays."""
+    u = ops.clip(x, -3.0, 3.0) + 3.0
+    i = np.minimum(u.astype(int), 5) if isinstance(u, np.ndarray) else min(int(u), 5)
     return i, u - i
 
 
@@ -131,55 +131,78 @@ class FuzzyPidParams(KindParams):
 
 
 @register("fuzzy_pid", FuzzyPidParams, "fuzzy self-tuning PID, rule tables in data (Liu Jinkun 2004)")
-class FuzzyPid(Controller):
+class FuzzyPid(LawController):
     """Fuzzy self-tuning incremental PID; see the module docstring and `FuzzyPidParams`."""
+
+    MEMORY = ("u_v", "e1_v", "e2_v")
 
     def __init__(self, params: FuzzyPidParams, loop: LoopInfo, n: int):
         super().__init__(params, loop, n)
         self.base = gains_from_source(params.gains, "PID", loop.plant, loop.control_period_s,
                                       params.kp, params.ki, params.kd)
         self.rules = load_rules(params.rules_file)
-        self._flat_rules = self.rules.reshape(3, 49)
-        self.spans = np.array([params.dkp_span, params.dki_span_per_s, params.dkd_span_s]) / 3.0
+        # consequent centres times the gain's span / 3: the rules' correction of (kp, ki, kd) directly
+        spans = np.array([params.dkp_span, params.dki_span_per_s, params.dkd_span_s]) / 3.0
+        self._scaled = self.rules * spans[:, None, None]
+        self._scaled_lists = self._scaled.tolist()
+        self._base = (self.base.kp, self.base.ki, self.base.kd)
+        self._e_scale = 3.0 / params.error_span_rpm
+        self._ec_scale = 3.0 / params.error_change_span_rpm
         self.reset()
 
     def reset(self):
-        self.mem = {"u_v": np.zeros(self.n), "e1_v": np.zeros(self.n), "e2_v": np.zeros(self.n)}
+        self.u_v = self.e1_v = self.e2_v = ops.zeros(self.n)
 
     def state(self):
-        return {k: v.copy() for k, v in self.mem.items()}
+        return {k: ops.as_array(getattr(self, k), self.n) for k in self.MEMORY}
 
     def set_state(self, state):
-        self.mem = state_arrays(state, {k: (self.n,) for k in self.mem}, "fuzzy_pid")
+        got = state_arrays(state, {k: (self.n,) for k in self.MEMORY}, "fuzzy_pid")
+        for k in self.MEMORY:
+            setattr(self, k, ops.from_array(got[k], self.n))
 
-    def tuned_gains(self, error_rpm: np.ndarray, change_rpm: np.ndarray) -> PidGains:
-        """The gains the rules give for these errors and changes (arrays (n,) of kp, ki, kd)."""
-        p = self.params
-        ie, we = fuzzify(3.0 * error_rpm / p.error_span_rpm)
-        ic, wc = fuzzify(3.0 * change_rpm / p.error_change_span_rpm)
-        # the (at most) four rules that fire: (lower, lower), (lower, upper), (upper, lower), (upper, upper)
-        rule = (ie * 7 + ic)[:, None] + FOUR_RULES                             # (n, 4) into the 7 x 7
-        mu_e = np.column_stack([1.0 - we, 1.0 - we, we, we])
-        mu_c = np.column_stack([1.0 - wc, wc, 1.0 - wc, wc])
-        strength = np.minimum(mu_e, mu_c)                                      # (n, 4)
-        delta = (self._flat_rules[:, rule] * strength).sum(axis=2) / strength.sum(axis=1)
-        base = np.array([self.base.kp, self.base.ki, self.base.kd])[:, None]
-        kp, ki, kd = np.maximum(base + self.spans[:, None] * delta, 0.0)
-        return PidGains(kp, ki, kd)
+    def tuned_gains(self, error_rpm, change_rpm) -> PidGains:
+        """The gains the rules give for these errors and changes [rpm] (floats, or arrays (n,))."""
+        return PidGains(*self._gains(error_rpm, change_rpm))
+
+    def _gains(self, error_rpm, change_rpm) -> tuple:
+        """(kp, ki, kd): each the base gain plus the strength-weighted mean of the (at most) four rules
+        that fire, e's lower/upper term with ec's lower/upper term, floored at 0."""
+        ie, we = fuzzify(self._e_scale * error_rpm)
+        ic, wc = fuzzify(self._ec_scale * change_rpm)
+        ve, vc = 1.0 - we, 1.0 - wc
+        if isinstance(ie, np.ndarray):
+            s_ll, s_lu = np.minimum(ve, vc), np.minimum(ve, wc)
+            s_ul, s_uu = np.minimum(we, vc), np.minimum(we, wc)
+            total = s_ll + s_lu + s_ul + s_uu
+            t = self._scaled
+            delta = (s_ll * t[:, ie, ic] + s_lu * t[:, ie, ic + 1] + s_ul * t[:, ie + 1, ic]
+                     + s_uu * t[:, ie + 1, ic + 1]) / total
+            return tuple(np.maximum(base + d, 0.0) for base, d in zip(self._base, delta, strict=True))
+        # one loop: the same sums with floats (a numpy call costs more than the whole inference)
+        s_ll, s_lu = (ve if ve < vc else vc), (ve if ve < wc else wc)
+        s_ul, s_uu = (we if we < vc else vc), (we if we < wc else wc)
+        total = s_ll + s_lu + s_ul + s_uu
+        out = []
+        for base, t in zip(self._base, self._scaled_lists, strict=True):
+            lo, hi = t[ie], t[ie + 1]
+            g = base + (s_ll * lo[ic] + s_lu * lo[ic + 1] + s_ul * hi[ic] + s_uu * hi[ic + 1]) / total
+            out.append(g if g > 0.0 else 0.0)
+        return tuple(out)
 
     def linear_model(self):
         """Small-signal model: the PID with the gains the rules give at zero error and zero change
         (near the target the gains vary only at second order in the error)."""
-        g = self.tuned_gains(np.zeros(1), np.zeros(1))
-        return pid_lti(PidGains(float(g.kp[0]), float(g.ki[0]), float(g.kd[0])), self.loop.control_period_s)
+        g = self.tuned_gains(0.0, 0.0)
+        return pid_lti(PidGains(float(g.kp), float(g.ki), float(g.kd)), self.loop.control_period_s)
 
-    def step(self, target_rpm, measured_rpm):
-        info, m = self.loop, self.mem
+    def law(self, target_rpm, measured_rpm):
+        info = self.loop
         ks, t = info.sensor_gain_v_per_rpm, info.control_period_s
-        e = ks * (target_rpm - measured_rpm)
-        g = self.tuned_gains(e / ks, (e - m["e1_v"]) / ks)
-        u = m["u_v"] + g.kp * (e - m["e1_v"]) + g.ki * t * e + g.kd / t * (e - 2.0 * m["e1_v"] + m["e2_v"])
-        current = self.clip_current(info.amplifier_gain_a_per_v * u)
-        m["u_v"] = current / info.amplifier_gain_a_per_v
-        m["e2_v"], m["e1_v"] = m["e1_v"], e
+        e, e1, e2 = ks * (target_rpm - measured_rpm), self.e1_v, self.e2_v
+        kp, ki, kd = self._gains(e / ks, (e - e1) / ks)
+        u = self.u_v + kp * (e - e1) + ki * t * e + kd / t * (e - 2.0 * e1 + e2)
+        current = ops.clip(info.amplifier_gain_a_per_v * u, info.current_min_a, info.current_max_a)
+        self.u_v = current / info.amplifier_gain_a_per_v
+        self.e2_v, self.e1_v = e1, e
         return current

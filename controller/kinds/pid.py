@@ -16,8 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ControllerError
+from controller import ops
 from controller.gains import FORMS, GAIN_SOURCES, TERMS, PidGains
-from controller.interface import Controller, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo, state_arrays
 from controller.loop import ClosedLoop
 from controller.lti import pid_lti
 from controller.params import KindParams, param
@@ -79,7 +80,7 @@ class PidParams(KindParams):
 
 
 class PidLaw:
-    """The discrete PID law on arrays of n loops, with the fast path's memory and anti-windup.
+    """The discrete PID law for n loops (floats when n = 1), with the fast path's memory and anti-windup.
 
     Memory (volts): ``acc`` is the previous saturated output for the incremental form and the error
     sum for the positional form; ``e1, e2`` the last two errors, ``y1, y2`` the last two readings.
@@ -99,37 +100,45 @@ class PidLaw:
         self.reset()
 
     def reset(self) -> None:
-        self.mem = np.zeros((len(self.MEMORY), self.n))
+        self.acc = self.e1 = self.e2 = self.y1 = self.y2 = ops.zeros(self.n)
 
-    def output_v(self, e: np.ndarray, y: np.ndarray) -> np.ndarray:
+    @property
+    def mem(self) -> np.ndarray:
+        """The memory as an array (5, n), rows `MEMORY` (a copy)."""
+        return np.array([ops.as_array(getattr(self, k), self.n) for k in self.MEMORY])
+
+    @mem.setter
+    def mem(self, value) -> None:
+        for k, row in zip(self.MEMORY, np.asarray(value, dtype=float), strict=True):
+            setattr(self, k, ops.from_array(row, self.n))
+
+    def output_v(self, e, y):
         """Unsaturated output u(n) [V] from this period's error and reading [V]."""
-        acc, e1, e2, y1, y2 = self.mem
-        kp, ki_t, kd_t = self.kp, self.ki_t, self.kd_t
         if self.incremental:
             if self.dom:
-                return acc + (kp + ki_t) * e - kp * e1 - kd_t * (y - 2.0 * y1 + y2)
-            return acc + self.a * e - self.b * e1 + self.c * e2
+                return self.acc + (self.kp + self.ki_t) * e - self.kp * self.e1 \
+                    - self.kd_t * (y - 2.0 * self.y1 + self.y2)
+            return self.acc + self.a * e - self.b * self.e1 + self.c * self.e2
         if self.dom:
-            return ki_t * acc + (kp + ki_t) * e - kd_t * (y - y1)
-        return ki_t * acc + (kp + ki_t + kd_t) * e - kd_t * e1
+            return self.ki_t * self.acc + (self.kp + self.ki_t) * e - self.kd_t * (y - self.y1)
+        return self.ki_t * self.acc + (self.kp + self.ki_t + self.kd_t) * e - self.kd_t * self.e1
 
-    def commit(self, e: np.ndarray, y: np.ndarray, unsat_a: np.ndarray, current_a: np.ndarray) -> None:
+    def commit(self, e, y, unsat_a, current_a) -> None:
         """Update the memory after a period whose unsaturated and applied currents were given [A]."""
-        mem = self.mem
         if self.incremental:
-            mem[0] = current_a / self.ka
+            self.acc = current_a / self.ka
         else:
             frozen = ((unsat_a > self.ihi) & (e > 0)) | ((unsat_a < self.ilo) & (e < 0))
-            mem[0] += np.where(frozen, 0.0, e)
-        mem[2], mem[1] = mem[1], e
-        mem[4], mem[3] = mem[3], y
+            self.acc = self.acc + ops.where(frozen, 0.0, e)
+        self.e2, self.e1 = self.e1, e
+        self.y2, self.y1 = self.y1, y
 
-    def step(self, target_rpm: np.ndarray, measured_rpm: np.ndarray) -> np.ndarray:
+    def step(self, target_rpm, measured_rpm):
         """Valve current [A] for the period; updates the memory."""
         e = self.ks * (target_rpm - measured_rpm)
         y = self.ks * measured_rpm
         unsat = self.ka * self.output_v(e, y)
-        current = np.minimum(np.maximum(unsat, self.ilo), self.ihi)
+        current = ops.clip(unsat, self.ilo, self.ihi)
         self.commit(e, y, unsat, current)
         return current
 
@@ -140,7 +149,7 @@ class PidLaw:
               derivative_on_measurement=params.derivative_on_measurement,
               control_period_s=info.control_period_s, plant_step_s=info.plant_step_s, n=n,
               record_fine=record_fine))
-class PidController(Controller):
+class PidController(LawController):
     """The paper's PID through the controller interface (Liang et al. 2013, eqs. 13-17).
 
     The same law, memory and anti-windup as the fast path `controller.ClosedLoop`; see `PidParams`.
@@ -149,19 +158,19 @@ class PidController(Controller):
     def __init__(self, params: PidParams, loop: LoopInfo, n: int):
         super().__init__(params, loop, n)
         self.gains = params.resolve(loop.plant, loop.control_period_s)
-        self.law = PidLaw(self.gains, params.form, params.derivative_on_measurement, loop, n)
+        self.pid = PidLaw(self.gains, params.form, params.derivative_on_measurement, loop, n)
 
-    def step(self, target_rpm, measured_rpm):
-        return self.law.step(target_rpm, measured_rpm)
+    def law(self, target_rpm, measured_rpm):
+        return self.pid.step(target_rpm, measured_rpm)
 
     def reset(self):
-        self.law.reset()
+        self.pid.reset()
 
     def state(self):
-        return {"pid_v": self.law.mem.copy()}
+        return {"pid_v": self.pid.mem}
 
     def set_state(self, state):
-        self.law.mem = state_arrays(state, {"pid_v": self.law.mem.shape}, "pid")["pid_v"]
+        self.pid.mem = state_arrays(state, {"pid_v": (len(PidLaw.MEMORY), self.n)}, "pid")["pid_v"]
 
     def linear_model(self):
         """The PID from error volts to output volts (`controller.lti.pid_lti`), for loop analysis."""

@@ -20,7 +20,7 @@ import numpy as np
 
 from controller.discretize import lift
 from controller.gains import FORMS, PidGains
-from controller.interface import Controller, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo, state_arrays
 from controller.kinds.pid import PidLaw
 from controller.lti import pid_lti, plant_lti, undelayed_lti
 from controller.params import KindParams, param
@@ -65,7 +65,7 @@ class SmithParams(KindParams):
 
 @register("smith", SmithParams, "Smith predictor around a PID for the shaft/sensor transport delay "
           "(Smith 1957)")
-class Smith(Controller):
+class Smith(LawController):
     """A PID on the Smith-predicted shaft speed; see the module docstring and `SmithParams`."""
 
     def __init__(self, params: SmithParams, loop: LoopInfo, n: int):
@@ -74,27 +74,33 @@ class Smith(Controller):
         A, B = state_space(model)
         lifted = lift(A, B, shaft_rpm_row(model), shaft_rev_row(model), loop.control_period_s,
                       loop.control_period_s, model.sensor_delay_s)
-        self._phi_t = np.ascontiguousarray(lifted.step[:N_STATES + 2, :N_STATES + 1].T)  # x, sample <- x, I
+        # [x, I] -> [x', sample]: the model's next state and its delayed sensor sample of this period
+        self._next_t = np.ascontiguousarray(lifted.step[[*range(N_STATES), N_STATES + 1], :N_STATES + 1].T)
         self._c_rpm = shaft_rpm_row(model)
         self.delay_periods = lifted.delay_periods
         self.gains = PidGains(params.kp, params.ki, params.kd)
-        self.law = PidLaw(self.gains, params.form, False, loop, n)
+        self.pid = PidLaw(self.gains, params.form, False, loop, n)
         self.reset()
 
     def reset(self):
-        self.law.reset()
-        self.model_x = np.zeros((self.n, N_STATES))
-        self.model_delay_rpm = np.zeros((self.n, self.delay_periods))
+        self.pid.reset()
+        # the model's [x, I] per loop, and its sensor delay line (oldest first)
+        self.model_z = np.zeros(N_STATES + 1) if self.n == 1 else np.zeros((self.n, N_STATES + 1))
+        self.model_delay_rpm = [0.0] * self.delay_periods if self.n == 1 else \
+            np.zeros((self.n, self.delay_periods))
 
     def state(self):
-        return {"pid_v": self.law.mem.copy(), "model_x": self.model_x.copy(),
-                "model_delay_rpm": self.model_delay_rpm.copy()}
+        return {"pid_v": self.pid.mem,
+                "model_x": self.model_z[..., :N_STATES].reshape(self.n, N_STATES).copy(),
+                "model_delay_rpm": np.array(self.model_delay_rpm, dtype=float).reshape(
+                    self.n, self.delay_periods)}
 
     def set_state(self, state):
-        got = state_arrays(state, {"pid_v": self.law.mem.shape, "model_x": self.model_x.shape,
-                                   "model_delay_rpm": self.model_delay_rpm.shape}, "smith")
-        self.law.mem, self.model_x = got["pid_v"], got["model_x"]
-        self.model_delay_rpm = got["model_delay_rpm"]
+        got = state_arrays(state, {"pid_v": (len(PidLaw.MEMORY), self.n), "model_x": (self.n, N_STATES),
+                                   "model_delay_rpm": (self.n, self.delay_periods)}, "smith")
+        self.pid.mem = got["pid_v"]
+        self.model_z[..., :N_STATES] = got["model_x"][0] if self.n == 1 else got["model_x"]
+        self.model_delay_rpm = got["model_delay_rpm"][0].tolist() if self.n == 1 else got["model_delay_rpm"]
 
     def linear_model(self):
         """The PID with its predictor as one controller from the measured error volts to output volts:
@@ -107,12 +113,22 @@ class Smith(Controller):
         k = info.amplifier_gain_a_per_v * info.sensor_gain_v_per_rpm
         return control.feedback(pid_lti(self.gains, t), k * inner)
 
-    def step(self, target_rpm, measured_rpm):
-        predicted = measured_rpm + self.model_x @ self._c_rpm - self.model_delay_rpm[:, 0]
-        current = self.law.step(target_rpm, predicted)
-        out = np.column_stack([self.model_x, current]) @ self._phi_t
-        self.model_x = out[:, :N_STATES]
-        ring = self.model_delay_rpm
+    def law(self, target_rpm, measured_rpm):
+        z, ring = self.model_z, self.model_delay_rpm
+        if self.n == 1:
+            predicted = measured_rpm + float(z[:N_STATES] @ self._c_rpm) - ring[0]
+            current = self.pid.step(target_rpm, predicted)
+            z[N_STATES] = current
+            new = z @ self._next_t
+            z[:N_STATES] = new[:N_STATES]
+            ring.append(float(new[N_STATES]))
+            del ring[0]
+            return current
+        predicted = measured_rpm + z[:, :N_STATES] @ self._c_rpm - ring[:, 0]
+        current = self.pid.step(target_rpm, predicted)
+        z[:, N_STATES] = current
+        new = z @ self._next_t
+        z[:, :N_STATES] = new[:, :N_STATES]
         ring[:, :-1] = ring[:, 1:]
-        ring[:, -1] = out[:, N_STATES + 1]
+        ring[:, -1] = new[:, N_STATES]
         return current
