@@ -11,16 +11,15 @@ function current -> sensor reading of the 1 ms ZOH plant held over T, sensor del
 (`controller.lti.plant_lti`). `analyze_loop` returns its gain and phase margins
 (`control.stability_margins`), the gain-crossover ("crossover") and phase-crossover frequencies,
 and the -3 dB bandwidth of the closed loop ``L / (1 + L)`` from target to reading
-(`closed_loop_bandwidth`). `plot_analysis` writes the Bode plot and step responses.
+(`closed_loop_bandwidth`). `services.outputs.loop_analysis` draws the Bode plot and step responses.
 
 The saturation of the valve current is outside this small-signal view: a loop with good margins can
-still wind up on large steps (see the simulated step in `plot_analysis`).
+still wind up on large steps (``vrsim controller analyze`` plots the simulated step beside the linear one).
 """
 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 from common import ControllerError
@@ -30,6 +29,11 @@ from controller.discretize import delay_split
 from controller.factory import build_controller
 from controller.lti import plant_lti
 from controller.plant import PlantParams
+
+
+class NotLinear(ControllerError):
+    """The configuration's controller has no linear model to analyse (a nonlinear kind, the ideal
+    meter, a user's class without ``linear_model``)."""
 
 
 @dataclass(frozen=True)
@@ -88,18 +92,17 @@ class LoopAnalysis:
 def open_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05):
     """``L(z) = Ka Ks C(z) G(z)`` of `cfg` on `plant` (a python-control system, dt = T).
 
-    Raises `ControllerError` for a kind without a linear model (``aog_pi``: deadband and slew limit;
-    ``ideal``: no loop; a user's class without ``linear_model``).
+    Raises `NotLinear` (a `ControllerError`) for a kind without a linear model (``aog_pi``: deadband
+    and slew limit; ``ideal``: no loop; a user's class without ``linear_model``).
     """
     import control
 
     if registry.get(cfg.registry_kind).controller is None:
-        raise ControllerError(f"controller kind {cfg.kind!r} has no controller, so no loop to analyse")
+        raise NotLinear(f"controller kind {cfg.kind!r} has no controller, so no loop to analyse")
     ctrl = build_controller(cfg, plant, control_period_s, control_period_s)
     model = getattr(ctrl, "linear_model", None) or getattr(getattr(ctrl, "impl", None), "linear_model", None)
     if model is None:
-        raise ControllerError(f"controller kind {cfg.kind!r} is not linear (no linear_model()): "
-                              f"no loop analysis")
+        raise NotLinear(f"controller kind {cfg.kind!r} is not linear (no linear_model()): no loop analysis")
     k = plant.amplifier_gain_a_per_v * plant.sensor_gain_v_per_rpm
     return control.series(model(), k * plant_lti(plant, control_period_s))
 
@@ -146,61 +149,3 @@ def analyze_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: fl
         bandwidth_rad_s=bandwidth, closed_loop_stable=stable,
         delay_periods=delay_split(plant.sensor_delay_s, control_period_s)[0],
         control_period_s=control_period_s, open_loop=loop, closed_loop=closed)
-
-
-def plot_analysis(analysis: LoopAnalysis, out_dir: str, plant: PlantParams | None = None,
-                  cfg: ControllerConfig | None = None, step_rpm: float = 100.0, duration_s: float = 5.0,
-                  plant_step_s: float = 0.001) -> list[str]:
-    """Write ``bode.png`` (open loop with its margins) and ``step.png`` (closed-loop step responses)
-    into `out_dir` (created if missing); return their paths.
-
-    The step plot shows the linear closed loop from target to reading at the control period and, if
-    `plant` and `cfg` are given, the simulated step of the full loop (1 ms, with current saturation).
-    """
-    import control
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    os.makedirs(out_dir, exist_ok=True)
-    t = analysis.control_period_s
-    w = np.geomspace(0.1, math.pi / t, 600)
-    resp = control.frequency_response(analysis.open_loop, w)
-    mag_db = 20 * np.log10(np.abs(resp.complex).ravel())
-    phase_deg = np.degrees(np.unwrap(np.angle(resp.complex).ravel()))
-    fig, (ax_m, ax_p) = plt.subplots(2, 1, sharex=True, figsize=(7, 6))
-    ax_m.semilogx(w, mag_db)
-    ax_m.axhline(0, color="grey", lw=0.8)
-    ax_m.set_ylabel("|L| [dB]")
-    ax_p.semilogx(w, phase_deg)
-    ax_p.axhline(-180, color="grey", lw=0.8)
-    ax_p.set_ylabel("phase of L [deg]")
-    ax_p.set_xlabel("frequency [rad/s]")
-    for ax, x in ((ax_m, analysis.phase_crossover_rad_s), (ax_p, analysis.crossover_rad_s)):
-        if math.isfinite(x):
-            ax.axvline(x, color="tab:red", ls="--", lw=0.8)
-    ax_m.set_title(f"{analysis.kind}: gain margin {analysis.gain_margin_db:.1f} dB, phase margin "
-                   f"{analysis.phase_margin_deg:.0f} deg, crossover {analysis.crossover_rad_s:.1f} rad/s")
-    bode = os.path.join(out_dir, "bode.png")
-    fig.savefig(bode, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(7, 4))
-    lin = control.step_response(analysis.closed_loop, T=np.arange(0.0, duration_s, t))
-    ax.step(lin.time, step_rpm * np.ravel(lin.outputs), where="post", label="linear loop, reading")
-    if plant is not None and cfg is not None:
-        from controller.simulate import simulate
-
-        sim = simulate(plant, cfg, step_rpm, duration_s, t, plant_step_s)
-        ax.plot(sim.t_s, sim.shaft_rpm[0], lw=0.8, label="simulated shaft, 1 ms, saturating")
-    ax.axhline(step_rpm, color="grey", lw=0.8)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("shaft speed [rpm]")
-    ax.set_title(f"{analysis.kind}: {step_rpm:g} rpm step, bandwidth {analysis.bandwidth_rad_s:.1f} rad/s")
-    ax.legend()
-    step = os.path.join(out_dir, "step.png")
-    fig.savefig(step, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return [bode, step]

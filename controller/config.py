@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, fields, replace
 
-from common import ControllerError
+from common import ControllerError, in_range
 from controller import registry
 from controller.gains import TERMS
 
@@ -25,6 +25,8 @@ PID_KINDS = {"P": "P", "PI": "PI", "PID": "PID", "pid": "PID"}    # config kind 
 PID_KEYS = ("form", "gains", "kp", "ki", "kd", "derivative_on_measurement")
 PID_DEFAULTS = {"form": "incremental", "gains": "paper", "derivative_on_measurement": False}
 USER_KIND = "python"
+LOOK_AHEAD_AUTO = "auto"
+LOOK_AHEAD_MAX_S = 30.0     # a look-ahead beyond this is a typo, not a machine
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,14 @@ class ControllerConfig:
     file, class_name : str or None
         Kind "python" only: the user's Python file (an absolute path by the time a loop is built; see
         `resolved`) and the controller class in it.
+    look_ahead_s : float, "auto" or None
+        How far ahead in time the rate is looked up [s] (any kind; used by the field run, not by the
+        loop): None (default) the implement's delivery delay, as before this key existed; a number of
+        seconds; or "auto": the delivery delay plus this loop's measured mean lag
+        (`controller.response.response_time`). See ``docs/controllers.md``, "Look-ahead".
+    look_ahead_tune : float
+        Auto-tune gain in [0, 1]: after each clean rate step the look-ahead moves by this fraction of
+        the step's measured early/late error (0, the default: fixed look-ahead).
     """
 
     kind: str = "PID"
@@ -55,6 +65,8 @@ class ControllerConfig:
     params: dict = field(default_factory=dict, hash=False)
     file: str | None = None
     class_name: str | None = None
+    look_ahead_s: float | str | None = None
+    look_ahead_tune: float = 0.0
 
     def __post_init__(self):
         if not isinstance(self.kind, str) or (self.kind not in PID_KINDS and self.kind not in registry.KINDS):
@@ -77,7 +89,17 @@ class ControllerConfig:
             if self.kind == USER_KIND and (not isinstance(value, str) or not value):
                 raise ControllerError(f"controller {key.replace('_name', '')} is required with kind "
                                       f"'python' (a string), got {value!r}")
+        self._check_look_ahead()
         self.kind_params()   # checks the kind's parameters now, not when the run starts
+
+    def _check_look_ahead(self) -> None:
+        value = self.look_ahead_s
+        if not (value is None or value == LOOK_AHEAD_AUTO or in_range(value, 0.0, LOOK_AHEAD_MAX_S)):
+            raise ControllerError(f"controller look_ahead_s must be \"{LOOK_AHEAD_AUTO}\" or a number in "
+                                  f"[0, {LOOK_AHEAD_MAX_S:g}] s, got {value!r}")
+        if not in_range(self.look_ahead_tune, 0.0, 1.0):
+            raise ControllerError(f"controller look_ahead_tune must be a number in [0, 1], "
+                                  f"got {self.look_ahead_tune!r}")
 
     def _only_for(self, key: str, given: bool, why: str) -> None:
         if given:

@@ -10,15 +10,19 @@ from services.outputs.summary import SUMMARY_ROWS, fmt
 from services.sim.run import RunResult
 
 
+def embedded_png(path: str) -> str:
+    """A ``<figure>`` holding the PNG file `path` inline (the page stays one self-contained file)."""
+    with open(path, "rb") as fh:
+        data = base64.b64encode(fh.read()).decode()
+    name = html.escape(os.path.basename(path))
+    return f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
+
+
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     rows = "\n".join(f"<tr><td>{html.escape(label)}</td><td>{fmt(result.summary[key])}</td>"
                      f"<td>{unit}</td></tr>" for label, key, unit in SUMMARY_ROWS)
-    images = ""
-    for name in ("map.png", "timeseries.png"):
-        if name in paths and os.path.isfile(paths[name]):
-            with open(paths[name], "rb") as fh:
-                data = base64.b64encode(fh.read()).decode()
-            images += f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
+    images = "".join(embedded_png(paths[name]) for name in ("map.png", "timeseries.png")
+                     if name in paths and os.path.isfile(paths[name]))
     title = html.escape(f"vrsim run: {result.summary['scenario']}")
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
