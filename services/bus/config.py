@@ -266,3 +266,6 @@ class ServiceConfig:
     cell_size_m: float | None = None
     crs: str | None = None
     db: str | None = None  # monitor: its SQLite file (None: runs/monitor-<prefix>-<machine>.sqlite)
+    # controller: folders whose Python files a scenario's [controller] kind = "python" may run (a
+    # scenario comes over the bus, so by default no user code runs; absolute paths)
+    user_code_dirs: tuple[str, ...] = ()

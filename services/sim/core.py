@@ -68,6 +68,21 @@ class ControlCore:
         """How far ahead in time the rate is looked up now [s] (`services.sim.look_ahead`)."""
         return self._look_ahead_s if self.tuner is None else self.tuner.look_ahead_s
 
+    def state(self) -> dict:
+        """What the core carries from one batch of ticks to the next, as plain data (numpy arrays, NaN
+        where no rate was commanded yet): the loop's state (plant, sensor delay line, controller), the
+        rate policy's last rate, and the look-ahead tuner's state (None without the tune)."""
+        return {"loop": self.loop.state, "last_rate_kg_ha": self.last_rate_kg_ha,
+                "tuner": None if self.tuner is None else self.tuner.state()}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
+        self.loop.set_state(state["loop"])
+        last = state["last_rate_kg_ha"]
+        self.last_rate_kg_ha = float("nan") if last is None else float(last)
+        if self.tuner is not None:
+            self.tuner.set_state(state["tuner"])
+
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
         lead_m = np.asarray(speed_m_s) * self.look_ahead_s
