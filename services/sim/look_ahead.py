@@ -102,13 +102,15 @@ class LookAheadTuner:
         self.look_ahead_s = float(look_ahead_s)
         self.updates = 0
         self.prev = {"rate": math.nan, "target": 0.0, "width": 0.0, "on": False}
-        self.pending = None   # {"done": ticks measured, "y0", "width", "sum_target", "sum_metered"}
+        self.pending = None   # {"y0", "width", "target": [rpm per tick so far], "metered": [...]}
 
     # -- state -------------------------------------------------------------------------------------------
     def state(self) -> dict:
         """Plain data (JSON-ready except NaN)."""
+        pending = self.pending
         return {"look_ahead_s": self.look_ahead_s, "updates": self.updates, "prev": dict(self.prev),
-                "pending": None if self.pending is None else dict(self.pending)}
+                "pending": None if pending is None else {**pending, "target": list(pending["target"]),
+                                                         "metered": list(pending["metered"])}}
 
     def set_state(self, state: dict) -> None:
         """Restore what `state` returned."""
@@ -118,7 +120,10 @@ class LookAheadTuner:
         self.prev = {"rate": float("nan") if prev["rate"] is None else float(prev["rate"]),
                      "target": float(prev["target"]), "width": float(prev["width"]), "on": bool(prev["on"])}
         pending = state["pending"]
-        self.pending = None if pending is None else {k: float(v) for k, v in pending.items()}
+        self.pending = None if pending is None else {
+            "y0": float(pending["y0"]), "width": float(pending["width"]),
+            "target": [float(v) for v in pending["target"]],
+            "metered": [float(v) for v in pending["metered"]]}
 
     # -- the rule ----------------------------------------------------------------------------------------
     def plan(self, rate, target, width, on) -> int | None:
@@ -163,20 +168,19 @@ class LookAheadTuner:
                 if width[start] != width_before[start]:
                     continue   # the width changed with the step: the level before is not comparable
                 y0 = target[start - 1] if start > 0 else self.prev["target"]
-                pending = {"done": 0.0, "y0": float(y0), "width": float(width[start]), "sum_target": 0.0,
-                           "sum_metered": 0.0}
-            end = start + self.window - int(pending["done"])
+                pending = {"y0": float(y0), "width": float(width[start]), "target": [], "metered": []}
+            done = len(pending["target"])
+            end = start + self.window - done
             next_step = int(steps[si]) if si < len(steps) else m
-            b = np.searchsorted(breaks, start, side="right" if pending["done"] == 0 else "left")
+            b = np.searchsorted(breaks, start, side="right" if done == 0 else "left")
             next_break = int(breaks[b]) if b < len(breaks) else m
             if next_break < min(end, next_step, m) or next_step < min(end, m):
                 pending = None     # interrupted: a break or another step comes before the window ends
                 continue
             stop = min(end, m)
-            if metered is not None:
-                pending["done"] += stop - start
-                pending["sum_target"] += float(np.sum(target[start:stop]))
-                pending["sum_metered"] += float(np.sum(metered[start:stop]))
+            if metered is not None:   # kept per tick, so the sums do not depend on the batches
+                pending["target"] += np.asarray(target[start:stop], dtype=float).tolist()
+                pending["metered"] += metered[start:stop].tolist()
             if end <= m:
                 if metered is not None:
                     self._update(pending)
@@ -189,11 +193,12 @@ class LookAheadTuner:
 
     def _update(self, pending: dict) -> None:
         """Move the look-ahead by the completed measurement (rule 4 of the class docstring)."""
-        n, y0 = pending["done"], pending["y0"]
-        y1 = pending["sum_target"] / n
+        n, y0 = len(pending["target"]), pending["y0"]
+        y1 = float(np.sum(pending["target"])) / n
         if abs(y1 - y0) < max(TUNE_MIN_CHANGE_RPM, TUNE_MIN_CHANGE * max(abs(y0), abs(y1))):
             return
-        lag_s = self.control_period_s * (n - (pending["sum_metered"] - n * y0) / (y1 - y0))
+        progress = (np.asarray(pending["metered"]) - y0) / (y1 - y0)
+        lag_s = self.control_period_s * float(np.sum(1.0 - progress))
         error_s = self.known_delay_s + lag_s - self.look_ahead_s
         self.look_ahead_s = min(max(self.look_ahead_s + self.gain * error_s, 0.0), LOOK_AHEAD_MAX_S)
         self.updates += 1
