@@ -12,8 +12,9 @@ vrsim calls ``MyController(params, loop, n)`` once, then ``step`` once per contr
 targets and the speed sensor's readings of n loops (numpy arrays of shape (n,), rpm) and expects the
 valve currents (A, shape (n,)). This one is a PI on the shaft speed in amperes per rpm, with clamping
 anti-windup: the integral stops while the valve is saturated and the error would push it further.
-Only numpy is needed; a controller must not read clocks or draw unseeded random numbers, so that a
-run is reproducible and can be saved and resumed (``state``/``set_state``).
+Only numpy is needed (python-control for the optional ``linear_model``, which lets ``vrsim controller
+analyze`` compute the loop's margins); a controller must not read clocks or draw unseeded random
+numbers, so that a run is reproducible and can be saved and resumed (``state``/``set_state``).
 """
 
 import numpy as np
@@ -32,6 +33,8 @@ class MyController:
             raise ValueError(f"gains must be >= 0, got kp_a_per_rpm={self.kp}, ki_a_per_rpm_s={self.ki}")
         self.period_s = loop.control_period_s
         self.low_a, self.high_a = loop.current_min_a, loop.current_max_a
+        # amperes per rpm of error for 1 V/V: what turns these gains into the paper's volt units
+        self.a_per_rpm = loop.amplifier_gain_a_per_v * loop.sensor_gain_v_per_rpm
         self.n = n
         self.reset()
 
@@ -52,3 +55,12 @@ class MyController:
 
     def set_state(self, state):
         self.error_sum_rpm = np.array(state["error_sum_rpm"], dtype=float)
+
+    def linear_model(self):
+        """Optional, for `vrsim controller analyze`: the PI while unsaturated, from the error in sensor
+        volts to the output in amplifier volts, C(z) = kp + ki T z / (z - 1) (a python-control system
+        with dt = T)."""
+        import control
+
+        kp, ki_t = self.kp / self.a_per_rpm, self.ki * self.period_s / self.a_per_rpm
+        return control.tf([kp + ki_t, -kp], [1.0, -1.0], self.period_s)

@@ -123,3 +123,16 @@ def test_missing_file_and_relative_path_are_reported(tmp_path):
         build_loop(P, user(tmp_path / "nowhere.py", "X"))
     with pytest.raises(ControllerError, match=r"must be an absolute path"):
         build_loop(P, user("relative.py", "X"))
+
+
+def test_example_controllers_linear_model_gives_the_built_in_pis_margins():
+    from controller.analysis import analyze_loop
+
+    kp_a, ki_a = 0.0015, 0.008
+    volts = P.amplifier_gain_a_per_v * P.sensor_gain_v_per_rpm
+    built_in = ControllerConfig(kind="PI", form="positional", gains="manual", kp=kp_a / volts,
+                                ki=ki_a / volts)
+    mine = analyze_loop(P, user(EXAMPLE, kp_a_per_rpm=kp_a, ki_a_per_rpm_s=ki_a))
+    theirs = analyze_loop(P, built_in)
+    for name in ("gain_margin", "phase_margin_deg", "crossover_rad_s", "bandwidth_rad_s"):
+        assert getattr(mine, name) == pytest.approx(getattr(theirs, name), rel=1e-9), name
