@@ -12,6 +12,7 @@ controller_step_us                    ClosedLoop.step with n = 1 and a float tar
 controller_generic_step_us_n1         PlantLoop.step (the interface loop) with kind PID, n = 1, us per period
 controller_generic_step_us_n1000      the same with n = 1000 loops, us per period (all loops)
 controller_run_us_per_period_<kind>   loop.run over 20,000 periods of a stepping target, n = 1, per kind
+                                      (python: the example user class scenarios/my_controller.py)
 
 The loop: saturating valve (0-1 A), the paper's incremental PID at 50 ms, the plant at 1 ms, the sensor
 delay rounded to 104 ms so python-control's 1 ms delay line is exactly the same loop; the setpoint
@@ -153,8 +154,13 @@ def run() -> dict[str, float]:
             loop.step(targets)
         figures[f"controller_generic_step_us_n{n}"] = (time.perf_counter() - t0) / calls * 1e6
     series = np.repeat(np.random.default_rng(0).uniform(50.0, 150.0, RUN_PERIODS // 50), 50)
-    for kind in ("PID", "aog_pi", "ff_pi", "smith", "fuzzy_pid", "ideal"):
-        loop = build_loop(PlantParams(), ControllerConfig(kind=kind))
+    example = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios",
+                           "my_controller.py")
+    configs = {kind: ControllerConfig(kind=kind) for kind in ("PID", "aog_pi", "ff_pi", "smith", "fuzzy_pid",
+                                                              "ideal")}
+    configs["python"] = ControllerConfig(kind="python", file=example, class_name="MyController")
+    for kind, cfg in configs.items():
+        loop = build_loop(PlantParams(), cfg)
         t0 = time.perf_counter()
         loop.run(series)
         figures[f"controller_run_us_per_period_{kind}"] = (time.perf_counter() - t0) / len(series) * 1e6

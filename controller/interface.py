@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ControllerError
+from controller import ops
 from controller.plant import PlantParams
 
 METHODS = ("step", "reset", "state", "set_state")
@@ -128,8 +129,19 @@ class LawController(Controller):
     loops' arrays (`controller.ops`), memory kept as floats when n = 1.
 
     `step` (arrays, the interface) and `step_one` (floats, what `PlantLoop` calls for one loop) both
-    run `law`; subclasses implement `law`, `reset`, `state`, `set_state`.
+    run `law`; subclasses implement `law` and `reset`. A kind whose memory is one value per loop in
+    each attribute named in `MEMORY` gets `state`/`set_state` from here; others override them.
     """
+
+    MEMORY: tuple[str, ...] = ()
+
+    def state(self) -> dict:
+        return {k: ops.as_array(getattr(self, k), self.n) for k in self.MEMORY}
+
+    def set_state(self, state: dict) -> None:
+        got = state_arrays(state, {k: (self.n,) for k in self.MEMORY}, self.params.KIND)
+        for k in self.MEMORY:
+            setattr(self, k, ops.from_array(got[k], self.n))
 
     @abc.abstractmethod
     def law(self, target_rpm, measured_rpm):

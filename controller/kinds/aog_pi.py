@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 from common import ControllerError
 from controller import ops
-from controller.interface import LawController, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo
 from controller.params import KindParams, param
 from controller.registry import register
 
@@ -94,7 +94,7 @@ class AogPiParams(KindParams):
 class AogPi(LawController):
     """AgOpenGPS RateController's motor PI (``PIDmotor``), see the module docstring and `AogPiParams`."""
 
-    STATE = ("pwm", "integral_pwm", "reference_rpm", "error_positive", "since_run_s")
+    MEMORY = ("pwm", "integral_pwm", "reference_rpm", "error_positive", "since_run_s")
 
     def __init__(self, params: AogPiParams, loop: LoopInfo, n: int):
         super().__init__(params, loop, n)
@@ -118,14 +118,6 @@ class AogPi(LawController):
         self.pwm = self.integral_pwm = self.reference_rpm = ops.zeros(self.n)
         self.error_positive = ops.full(self.n, 1.0)
         self.since_run_s = ops.full(self.n, self.params.pid_period_s)
-
-    def state(self):
-        return {k: ops.as_array(getattr(self, k), self.n) for k in self.STATE}
-
-    def set_state(self, state):
-        got = state_arrays(state, {k: (self.n,) for k in self.STATE}, "aog_pi")
-        for k in self.STATE:
-            setattr(self, k, ops.from_array(got[k], self.n))
 
     def law(self, target_rpm, measured_rpm):
         enabled = target_rpm > 0.0

@@ -29,7 +29,7 @@ import numpy as np
 from common import ControllerError
 from controller import ops
 from controller.gains import GAIN_SOURCES, PidGains
-from controller.interface import LawController, LoopInfo, state_arrays
+from controller.interface import LawController, LoopInfo
 from controller.lti import pid_lti
 from controller.params import KindParams, param
 from controller.registry import register
@@ -152,14 +152,6 @@ class FuzzyPid(LawController):
 
     def reset(self):
         self.u_v = self.e1_v = self.e2_v = ops.zeros(self.n)
-
-    def state(self):
-        return {k: ops.as_array(getattr(self, k), self.n) for k in self.MEMORY}
-
-    def set_state(self, state):
-        got = state_arrays(state, {k: (self.n,) for k in self.MEMORY}, "fuzzy_pid")
-        for k in self.MEMORY:
-            setattr(self, k, ops.from_array(got[k], self.n))
 
     def tuned_gains(self, error_rpm, change_rpm) -> PidGains:
         """The gains the rules give for these errors and changes [rpm] (floats, or arrays (n,))."""

@@ -6,7 +6,6 @@ the folders the controller service allows is refused."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -14,9 +13,8 @@ import subprocess
 import pytest
 
 from tests.conftest import ROOT, VRSIM
-from tests.integration.test_services_support import ServeAll, write_field_files
+from tests.integration.test_services_support import ServeAll, assert_same_summary, write_field_files
 
-WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
 CONTROLLERS = {
     "smith": '[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n',
     "user": '[controller]\nkind = "python"\nfile = "my_controller.py"\nclass = "MyController"\n'
@@ -77,13 +75,7 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert cli.returncode == 0, cli.stderr
     expected = json.loads(cli.stdout)
     assert report["ticks"] == expected["ticks"] > 1000 and report["scenario"] == f"svc-{name}"
-    for key, want in expected.items():
-        if key in WALL_KEYS:
-            continue
-        if isinstance(want, float) and not math.isnan(want):
-            assert report[key] == pytest.approx(want, rel=1e-9, abs=1e-12), key
-        else:
-            assert report[key] == want, key
+    assert_same_summary(report, expected)
 
 
 def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):
