@@ -89,3 +89,15 @@ def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path)
     assert not ok
     assert f"{elsewhere}/my_controller.py" in reply["error"] and "--allow-user-code" in reply["error"]
     assert folder in reply["error"]
+
+
+def test_serve_all_with_a_user_controller_scenario_allows_its_folder(folder):
+    """`vrsim serve all SCENARIO`: the user named the scenario, so its controller file may run."""
+    server = ServeAll(folder, "user.toml")
+    try:
+        server.wait_ready()
+        status = server.wait_status(lambda s: s["state"] in ("finished", "failed")
+                                    and s["monitor_ticks"] == s["ticks"])
+        assert status["state"] == "finished" and status["scenario"] == "svc-user", status
+    finally:
+        assert server.stop() == 0, server.output()
