@@ -10,12 +10,15 @@ import os
 import numpy as np
 
 from common import VrsimError
-from services.outputs.plots import _pyplot, _window
+from services.outputs.plots import _pyplot
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
+from services.sim.metrics import rate_steps
 
 BEST = "*"
 DECIMALS = 3    # figures shown, and compared for "best", to three decimals
+STEP_PANELS = 4             # rate steps shown in compare_timeseries.png
+STEP_WINDOW_S = (-2.0, 5.0)  # shown around each, s
 
 
 def _cell(value) -> str:
@@ -105,27 +108,51 @@ def table_html(comparison: Comparison) -> str:
     return f"<table><tr><th>controller</th>{head}</tr>\n" + "\n".join(rows) + "\n</table>"
 
 
+def step_windows(result, count: int = STEP_PANELS) -> list[int]:
+    """Ticks of up to `count` rate steps (on the true landing path) whose window around them holds no
+    other step, spread over the run: the steps every controller's time series are shown at."""
+    t = result.track["time_s"]
+    steps = rate_steps(result.landing.prescribed_kg_ha, np.asarray(result.track["implement_on"], bool))
+    before, after = STEP_WINDOW_S
+    gaps = np.diff(t[steps]) if len(steps) else np.zeros(0)
+    alone = np.r_[True, gaps > after] & np.r_[gaps > after, True]   # no other step within `after` s
+    clean = [int(k) for k, ok in zip(steps, alone, strict=True) if ok and t[k] + before >= t[0]]
+    if len(clean) <= count:
+        return clean
+    return [clean[i] for i in np.linspace(0, len(clean) - 1, count).round().astype(int)]
+
+
 def plot_timeseries(comparison: Comparison, path: str) -> None:
-    """Target and shaft speed, prescribed and applied rate of every controller over the same minute
-    around the first rate steps (the window `vrsim run`'s timeseries.png shows)."""
+    """Shaft speed and applied rate of every controller around the same rate steps (the drive is
+    shared, so the steps are the same for all), time from each step; target and prescription in black."""
     plt = _pyplot()
     first = comparison.results[0]
-    w = _window(first)
-    t = first.track["time_s"][w]
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(12, 7), sharex=True, constrained_layout=True)
-    ax1.plot(t, first.control["target_shaft_rpm"][w], color="k", lw=1.4,
-             label=f"target ({comparison.specs[0].label})")
-    ax2.plot(t, first.landing.prescribed_kg_ha[w], color="k", lw=1.4, label="prescribed (where it lands)")
-    for spec, result in zip(comparison.specs, comparison.results, strict=True):
-        ax1.plot(t, result.control["shaft_rpm"][w], lw=0.9, label=spec.label)
-        ax2.plot(t, result.landing.applied_kg_ha[w], lw=0.9, label=spec.label)
-    ax1.set_ylabel("metering shaft (rpm)")
-    ax2.set_ylabel("rate (kg/ha)")
-    ax2.set_xlabel("time (s)")
-    for ax in (ax1, ax2):
-        ax.legend(loc="upper right", fontsize=8)
-        ax.grid(alpha=0.3)
-    fig.suptitle(f"{comparison.scenario.name}: every controller on the same drive")
+    steps = step_windows(first)
+    t = first.track["time_s"]
+    cols = max(1, len(steps))
+    fig, axes = plt.subplots(2, cols, figsize=(4.2 * cols + 1.5, 7), squeeze=False, constrained_layout=True)
+    before, after = STEP_WINDOW_S
+    for col, k in enumerate(steps):
+        w = slice(int(np.searchsorted(t, t[k] + before)), int(np.searchsorted(t, t[k] + after)))
+        rel = t[w] - t[k]
+        ax1, ax2 = axes[0, col], axes[1, col]
+        ax1.plot(rel, first.control["target_shaft_rpm"][w], color="k", lw=1.4,
+                 label=f"target of {comparison.specs[0].label}")
+        ax2.plot(rel, first.landing.prescribed_kg_ha[w], color="k", lw=1.4, label="prescribed where it lands")
+        for spec, result in zip(comparison.specs, comparison.results, strict=True):
+            ax1.plot(rel, result.control["shaft_rpm"][w], lw=0.9, label=spec.label)
+            ax2.plot(rel, result.landing.applied_kg_ha[w], lw=0.9, label=spec.label)
+        ax1.set_title(f"rate step at {t[k]:.0f} s")
+        ax2.set_xlabel("time from the step (s)")
+        for ax in (ax1, ax2):
+            ax.axvline(0.0, color="grey", lw=0.6, ls="--")
+            ax.grid(alpha=0.3)
+    axes[0, 0].set_ylabel("metering shaft (rpm)")
+    axes[1, 0].set_ylabel("rate (kg/ha)")
+    axes[1, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
+    axes[0, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
+    fig.suptitle(f"{comparison.scenario.name}: every controller on the same drive, at the same rate steps"
+                 + ("" if steps else " (no rate step crossed)"))
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
