@@ -106,9 +106,6 @@ class PlantLoop:
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
         """Advance one control period; arguments and result as `controller.ClosedLoop.step`."""
         r = clip_targets(target_shaft_rpm, self.n, self._rmax)
-        if self.n == 1:
-            one = self._run_one(r, float(np.broadcast_to(load_torque_nm, (1,))[0]))
-            return StepOutput(one.shaft_rpm[0], one.shaft_rev[0], one.current_a[0], one.measured_rpm[0])
         out, cur, measured = self._advance(r, load_torque_nm)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
