@@ -19,9 +19,9 @@ middle of each rate transition to land on the boundary (`ControlCore.targets` pr
   default scenario its mean transition distance is 0.38 m with the delivery delay alone, 0 m with
   the fix's age added).
 
-``[controller] look_ahead_tune = g`` (0 < g <= 1) adds an auto-tune in the spirit of AgOpenGPS
-RateController's settings that terminals adjust in the field: after each clean rate step the
-look-ahead moves by g times the step's measured early/late error (`LookAheadTuner`).
+``[controller] look_ahead_tune = g`` (0 < g <= 1) adds the auto-tune issue #13 asks for: after each
+clean rate step the look-ahead moves by g times the step's measured early/late error
+(`LookAheadTuner`; the rule is vrsim's, written down there, not taken from a terminal's source).
 """
 
 from __future__ import annotations
