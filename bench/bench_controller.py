@@ -9,6 +9,10 @@ controller_vrsim_s_per_sim_s          vrsim ClosedLoop.step, wall s per simulate
 controller_pc_vs_vrsim_max_rel_diff   largest difference of the two shaft-speed records / peak speed
 controller_batch_loops_per_s          10,000 loops (different gains) of 10 s simulated, loop-runs per s
 controller_step_us                    ClosedLoop.step with n = 1 and a float target, us per call
+controller_generic_step_us_n1         PlantLoop.step (the interface loop) with kind PID, n = 1, us per period
+controller_generic_step_us_n1000      the same with n = 1000 loops, us per period (all loops)
+controller_run_us_per_period_<kind>   loop.run over 20,000 periods of a stepping target, n = 1, per kind
+                                      (python: the example user class scenarios/my_controller.py)
 
 The loop: saturating valve (0-1 A), the paper's incremental PID at 50 ms, the plant at 1 ms, the sensor
 delay rounded to 104 ms so python-control's 1 ms delay line is exactly the same loop; the setpoint
@@ -35,6 +39,8 @@ VRSIM_SIM_S = 2000.0
 BATCH_LOOPS = 10_000
 BATCH_SIM_S = 10.0
 STEP_CALLS = 100_000
+GENERIC_CALLS_N1000 = 2_000
+RUN_PERIODS = 20_000
 
 
 def _setpoint(t_s):
@@ -138,6 +144,26 @@ def run() -> dict[str, float]:
     for k in range(STEP_CALLS):
         step(100.0 + (k & 63))
     figures["controller_step_us"] = (time.perf_counter() - t0) / STEP_CALLS * 1e6
+
+    # the controller-interface loop: per-period cost at n = 1 and n = 1000, then a run per kind
+    for n, calls in ((1, STEP_CALLS // 5), (1000, GENERIC_CALLS_N1000)):
+        loop = build_loop(PlantParams(), ControllerConfig(), n=n, fast=False)
+        targets = np.full(n, 100.0)
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            loop.step(targets)
+        figures[f"controller_generic_step_us_n{n}"] = (time.perf_counter() - t0) / calls * 1e6
+    series = np.repeat(np.random.default_rng(0).uniform(50.0, 150.0, RUN_PERIODS // 50), 50)
+    example = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "scenarios",
+                           "my_controller.py")
+    configs = {kind: ControllerConfig(kind=kind) for kind in ("PID", "aog_pi", "ff_pi", "smith", "fuzzy_pid",
+                                                              "ideal")}
+    configs["python"] = ControllerConfig(kind="python", file=example, class_name="MyController")
+    for kind, cfg in configs.items():
+        loop = build_loop(PlantParams(), cfg)
+        t0 = time.perf_counter()
+        loop.run(series)
+        figures[f"controller_run_us_per_period_{kind}"] = (time.perf_counter() - t0) / len(series) * 1e6
     return figures
 
 

@@ -4,7 +4,7 @@
 here, and only that.
 """
 
-from common.checks import check_number, check_positive, is_number
+from common.checks import check_number, check_positive, in_range, is_number
 from common.errors import (
     ClusterError,
     ControllerError,
@@ -26,6 +26,7 @@ __all__ = [
     "ServiceError",
     "check_number",
     "check_positive",
+    "in_range",
     "is_number",
     "ClusterError",
     "__version__",

@@ -17,6 +17,12 @@ def is_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def in_range(value, lo=None, hi=None, lo_open: bool = False) -> bool:
+    """`value` is a finite number (`is_number`) within ``[lo, hi]`` (``(lo, hi]`` with `lo_open`)."""
+    return is_number(value) and (lo is None or (value > lo if lo_open else value >= lo)) \
+        and (hi is None or value <= hi)
+
+
 def number_rule(lo=None, hi=None, lo_open: bool = False, unit: str = "") -> str:
     """The rule `check_number` enforces, in words: ``a number > 0``, ``a number in [0, 50]`` ..."""
     if lo is None and hi is None:
@@ -55,9 +61,7 @@ def check_number(value, what: str, error: type[VrsimError] = VrsimError, *, lo=N
         ``"<what> must be <rule>, got <value!r>"``, e.g. ``Implement: width_m must be a number > 0,
         got -1.0``.
     """
-    ok = is_number(value) and (lo is None or (value > lo if lo_open else value >= lo)) \
-        and (hi is None or value <= hi)
-    if not ok:
+    if not in_range(value, lo, hi, lo_open):
         raise error(f"{what} must be {number_rule(lo, hi, lo_open, unit)}, got {value!r}")
     return float(value)
 

@@ -1,19 +1,29 @@
-"""vrsim controller package: the paper's valve-controlled hydraulic motor, PID variants, tuning, metrics.
+"""vrsim controller package: the paper's valve-controlled hydraulic motor, the rate controllers that
+drive it (a registry of kinds behind one interface), tuning, loop analysis and step metrics.
 
-Pure: numpy and scipy only, no I/O, no clock; knows nothing of maps, SUMO or Zenoh.
+Pure: numpy, scipy and python-control only, no I/O beyond reading a user's controller file and the
+package's data; knows nothing of maps, SUMO or Zenoh.
 """
 
+from controller.config import ControllerConfig
 from controller.experiment import PaperRun, paper_experiment, run_paper
-from controller.gains import ControllerConfig, PidGains, paper_gains, resolve_gains, ziegler_nichols
-from controller.loop import ClosedLoop, StepOutput, build_loop
+from controller.factory import build_controller, build_loop, loop_info, resolve_gains
+from controller.gains import PidGains, paper_gains, ziegler_nichols
+from controller.interface import Controller, LoopInfo
+from controller.kinds.ideal import IdealLoop
+from controller.kinds.python import UserCodeError
+from controller.loop import ClosedLoop, StepOutput
 from controller.metrics import StepMetrics, step_metrics
-from controller.plant import PlantParams, assumptions, state_space
-from controller.simulate import SimResult, simulate, unlimited
+from controller.plant import PlantParams, assumptions, state_space, unlimited
+from controller.plant_loop import PlantLoop
+from controller.registry import KINDS
+from controller.simulate import SimResult, simulate
 from controller.tuning import (
     RelayResult,
     SensorFit,
     UltimateResult,
     fit_sensor,
+    gains_from_source,
     pulse_response,
     relay_autotune,
     ultimate_from_pulse,
@@ -21,9 +31,10 @@ from controller.tuning import (
 )
 
 __all__ = [
-    "ClosedLoop", "ControllerConfig", "PaperRun", "PidGains", "PlantParams", "RelayResult", "SensorFit",
-    "SimResult", "StepMetrics", "StepOutput", "UltimateResult", "assumptions", "build_loop", "fit_sensor",
-    "paper_experiment", "paper_gains", "pulse_response", "relay_autotune", "resolve_gains", "run_paper",
-    "simulate", "state_space", "step_metrics", "ultimate_from_pulse", "ultimate_gain_experiment",
-    "unlimited", "ziegler_nichols",
+    "KINDS", "ClosedLoop", "Controller", "ControllerConfig", "IdealLoop", "LoopInfo", "PaperRun", "PidGains",
+    "PlantLoop", "PlantParams", "RelayResult", "SensorFit", "SimResult", "StepMetrics", "StepOutput",
+    "UltimateResult", "UserCodeError", "assumptions", "build_controller", "build_loop", "fit_sensor",
+    "gains_from_source", "loop_info", "paper_experiment", "paper_gains", "pulse_response", "relay_autotune",
+    "resolve_gains", "run_paper", "simulate", "state_space", "step_metrics", "ultimate_from_pulse",
+    "ultimate_gain_experiment", "unlimited", "ziegler_nichols",
 ]

@@ -1,5 +1,6 @@
 """The paper's experiment on vrsim's model: ultimate gain, then P, PI and PID step responses with the
-paper's literal gains and with textbook Ziegler-Nichols gains, side by side with the paper's figures.
+paper's literal gains and with textbook Ziegler-Nichols gains, side by side with the paper's figures,
+and each loop's margins, crossover and bandwidth (`controller.analysis`, key ``loop``).
 
 `run_paper` returns the summary (the dict `vrsim paper --json` prints) and the responses to plot.
 """
@@ -12,10 +13,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from controller import liang2013
-from controller.gains import KINDS, PidGains, paper_gains, ziegler_nichols
+from controller.analysis import analyze_loop
+from controller.config import ControllerConfig
+from controller.gains import TERMS, PidGains, paper_gains, ziegler_nichols
 from controller.metrics import step_metrics
-from controller.plant import PlantParams, assumptions
-from controller.simulate import simulate, unlimited
+from controller.plant import PlantParams, assumptions, unlimited
+from controller.simulate import simulate
 from controller.tuning import fit_sensor, relay_autotune, ultimate_gain_experiment
 
 STEP_RPM = 100.0
@@ -57,7 +60,13 @@ def _close(ours, paper) -> bool:
     return ours is not None and paper is not None and abs(ours - paper) <= MATCH_REL * abs(paper)
 
 
-def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float) -> dict:
+def _loop_figures(plant: PlantParams, terms: str, gains: PidGains) -> dict:
+    """Margins, crossover and bandwidth of the PID loop with these gains (`analysis.LoopAnalysis`)."""
+    cfg = ControllerConfig(kind=terms, gains="manual", kp=gains.kp, ki=gains.ki or None, kd=gains.kd or None)
+    return analyze_loop(plant, cfg, liang2013.SAMPLE_S).to_dict()
+
+
+def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float, plant: PlantParams) -> dict:
     paper = liang2013.STEP[kind]
     a, b, c = gains.incremental(liang2013.SAMPLE_S)
     row = metrics.row(i)
@@ -72,6 +81,7 @@ def _entry(kind: str, gains: PidGains, metrics, i: int, mean_overshoot: float) -
         "steady_state_error_rpm": _finite(row["steady_state_error"]),
         "iae_rpm_s": _finite(row["iae"]), "itae_rpm_s2": _finite(row["itae"]),
         "gains": {"kp": gains.kp, "ki_per_s": gains.ki, "kd_s": gains.kd, "A": a, "B": b, "C": c},
+        "loop": _loop_figures(plant, kind, gains),
     }
 
 
@@ -92,7 +102,7 @@ def _findings(summary: dict) -> list[str]:
         f"(vrsim: {pi['overshoot_pct']:.4g}% vs {pid['overshoot_pct']:.4g}%); the paper's 53.21% vs 27.92% "
         f"cannot come from its printed gains. Its Ki is also applied with Kp twice (A = Kp(1 + Ki + Kd) with "
         f"Ki = Kp T/(0.5 Tu)).")
-    for kind in KINDS:
+    for kind in TERMS:
         e = summary[kind]
         got = [name for name, ok in (("overshoot", e["overshoot_reproduced"]),
                                      ("settling time", e["settling_reproduced"])) if ok]
@@ -121,15 +131,15 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
     relay = relay_autotune(plant, T, h)
     no_delay = ultimate_gain_experiment(replace(plant, sensor_delay_s=0.0), T, h)
     fit = fit_sensor(plant, liang2013.KU, liang2013.TU_S, T)
-    literal = [paper_gains(k) for k in KINDS]
-    textbook = [ziegler_nichols(k, liang2013.KU, liang2013.TU_S) for k in KINDS]
+    literal = [paper_gains(k) for k in TERMS]
+    textbook = [ziegler_nichols(k, liang2013.KU, liang2013.TU_S) for k in TERMS]
     res = simulate(unlimited(plant), literal + textbook, step_rpm, duration_s, T, h)
     metrics = step_metrics(res.t_s, res.shaft_rpm, step_rpm)
     mean_rpm = np.hstack([np.zeros((len(literal) * 2, 1)), (res.shaft_rev * 60.0 / T).T])
     mean_metrics = step_metrics(np.arange(mean_rpm.shape[1]) * T, mean_rpm, step_rpm)
     ran = {"step_rpm": step_rpm, "duration_s": duration_s}  # the values used, not the defaults
-    entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i])
-               for i, (k, g) in enumerate(zip(KINDS * 2, literal + textbook, strict=True))]
+    entries = [_entry(k, g, metrics, i, mean_metrics.overshoot_pct[i], plant)
+               for i, (k, g) in enumerate(zip(TERMS * 2, literal + textbook, strict=True))]
     summary = {
         "ultimate": {
             "Ku": ult.ku, "Tu_s": ult.tu_s, "paper_Ku": liang2013.KU, "paper_Tu_s": liang2013.TU_S,
@@ -140,14 +150,14 @@ def run_paper(plant: PlantParams | None = None, step_rpm: float = STEP_RPM,
             "without_delay_Ku": no_delay.ku, "without_delay_Tu_s": no_delay.tu_s,
             "relay_Ku": relay.ku, "relay_Tu_s": relay.tu_s,
         },
-        **{k: e for k, e in zip(KINDS, entries[:3], strict=True)},
-        "textbook": {k: e for k, e in zip(KINDS, entries[3:], strict=True)},
+        **{k: e for k, e in zip(TERMS, entries[:3], strict=True)},
+        "textbook": {k: e for k, e in zip(TERMS, entries[3:], strict=True)},
         "paper_formulas": liang2013.formula_coefficients(),
         "assumptions": {**assumptions(plant), **{k: {"value": ran.get(k, v), "unit": u, "why": w}
                                                    for k, (v, u, w) in EXPERIMENT_ASSUMPTIONS.items()}},
     }
     summary["findings"] = _findings(summary)
-    names = [*KINDS, *(f"textbook {k}" for k in KINDS)]
+    names = [*TERMS, *(f"textbook {k}" for k in TERMS)]
     return PaperRun(summary=summary, t_s=res.t_s, responses=dict(zip(names, res.shaft_rpm, strict=True)))
 
 

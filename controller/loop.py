@@ -21,7 +21,7 @@ import numpy as np
 
 from common import ControllerError
 from controller.discretize import Lifted, delay_split, lift
-from controller.gains import FORMS, ControllerConfig, PidGains, resolve_gains
+from controller.gains import FORMS, PidGains
 from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
 N_PID = 5
@@ -232,19 +232,25 @@ class ClosedLoop:
 
     @property
     def state(self) -> np.ndarray:
-        """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory."""
-        return np.atleast_2d(self._v)[:, :self._ns].copy()
+        """A copy of the augmented state, shape (n, ns): plant, sensor delay line, PID memory; with one
+        plant and gain set also the cached PID term (shape (n, ns + 1)), so a restore is bitwise exact."""
+        v = np.atleast_2d(self._v)
+        if self._cached_u:
+            return np.column_stack([v[:, :self._ns], v[:, self._iu]])
+        return v[:, :self._ns].copy()
 
-    def set_state(self, state: np.ndarray) -> None:
-        """Restore a state obtained from `state`."""
+    def set_state(self, state) -> None:
+        """Restore a state obtained from `state` (also as nested lists, as after JSON); without the
+        cached PID term (shape (n, ns)) it is recomputed, equal to rounding."""
         state = np.asarray(state, dtype=float)
-        if state.shape != (self.n, self._ns):
-            raise ControllerError(f"state must have shape {(self.n, self._ns)}, got {state.shape}")
+        shapes = [(self.n, self._ns)] + ([(self.n, self._ns + 1)] if self._cached_u else [])
+        if state.shape not in shapes:
+            raise ControllerError(f"state must have shape {' or '.join(map(str, shapes))}, got {state.shape}")
         self.reset()
         v = np.atleast_2d(self._v)    # a view of the 1-D vector of a single loop
-        v[:, :self._ns] = state
+        v[:, :self._ns] = state[:, :self._ns]
         if self._cached_u:
-            v[:, self._iu] = state @ self._g[0]
+            v[:, self._iu] = state[:, self._ns] if state.shape[1] > self._ns else state @ self._g[0]
 
     @property
     def motor_angle_rad(self) -> np.ndarray:
@@ -291,11 +297,7 @@ class ClosedLoop:
         StepOutput
             Arrays of shape (K, n): the per-period outputs, recorded without a Python object per tick.
         """
-        t = np.asarray(targets_rpm, dtype=float)
-        if t.ndim == 1 and self.n == 1:
-            t = t[:, None]
-        if t.ndim != 2 or t.shape[1] != self.n:
-            raise ControllerError(f"targets_rpm must have shape (K, {self.n}), got {np.shape(targets_rpm)}")
+        t = targets_matrix(targets_rpm, self.n)
         o = self._ns + 3
         rec = np.empty((t.shape[0], self.n, 4))
         if self._scalar:
@@ -369,42 +371,31 @@ class ClosedLoop:
         return self._v
 
     def _targets(self, target) -> np.ndarray:
-        """Targets as shape (n,), clipped to [0, shaft_rpm_max]; NaN is an error."""
-        if isinstance(target, np.ndarray) and target.shape == (self.n,):
-            r = target.astype(float, copy=False)
-        else:
-            try:
-                r = np.broadcast_to(np.asarray(target, dtype=float), (self.n,))
-            except (TypeError, ValueError):
-                raise ControllerError(f"target_shaft_rpm must be a number or shape ({self.n},), "
-                                      f"got {target!r}") from None
-        r = np.minimum(np.maximum(r, 0.0), self._rmax)
-        total = r.sum()
-        if total != total:
-            raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
-        return r
+        return clip_targets(target, self.n, self._rmax)
 
 
-def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05,
-               plant_step_s: float = 0.001, n: int = 1, record_fine: bool = False) -> ClosedLoop:
-    """The loop the field run drives: `n` copies of `plant` under the controller `cfg`.
+def clip_targets(target, n: int, rpm_max) -> np.ndarray:
+    """Targets as shape (n,), clipped to [0, `rpm_max`]; NaN or a wrong shape is a `ControllerError`."""
+    if isinstance(target, np.ndarray) and target.shape == (n,):
+        r = target.astype(float, copy=False)
+    else:
+        try:
+            r = np.broadcast_to(np.asarray(target, dtype=float), (n,))
+        except (TypeError, ValueError):
+            raise ControllerError(f"target_shaft_rpm must be a number or shape ({n},), "
+                                  f"got {target!r}") from None
+    r = np.minimum(np.maximum(r, 0.0), rpm_max)
+    total = r.sum()
+    if total != total:
+        raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
+    return r
 
-    Parameters
-    ----------
-    plant : PlantParams
-    cfg : ControllerConfig
-    control_period_s : float
-        PID period T [s] (the paper: 0.05).
-    plant_step_s : float
-        Plant discretization step h [s] (the paper's bench: 0.001); T must be a multiple of h.
-    n : int
-        Number of identical loops (e.g. one per section).
-    """
-    if not isinstance(plant, PlantParams):
-        raise ControllerError(f"plant must be PlantParams, got {type(plant).__name__}")
-    if not isinstance(cfg, ControllerConfig):
-        raise ControllerError(f"cfg must be ControllerConfig, got {type(cfg).__name__}")
-    gains = resolve_gains(cfg, plant, control_period_s)
-    return ClosedLoop(plant, gains, form=cfg.form, derivative_on_measurement=cfg.derivative_on_measurement,
-                      control_period_s=control_period_s, plant_step_s=plant_step_s, n=n,
-                      record_fine=record_fine)
+
+def targets_matrix(targets_rpm, n: int) -> np.ndarray:
+    """Targets of a run as shape (K, n) ((K,) is accepted for n = 1); `ControllerError` otherwise."""
+    t = np.asarray(targets_rpm, dtype=float)
+    if t.ndim == 1 and n == 1:
+        t = t[:, None]
+    if t.ndim != 2 or t.shape[1] != n:
+        raise ControllerError(f"targets_rpm must have shape (K, {n}), got {np.shape(targets_rpm)}")
+    return t

@@ -18,7 +18,7 @@ value, unit and reason; `docs/model.md` lists them with the measurements they ar
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -34,6 +34,7 @@ INPUT_NAMES = ("current_a", "load_torque_nm")
 N_STATES = len(STATE_NAMES)
 IX_SPEED = 2
 IX_ANGLE = 4
+UNLIMITED_A = 1e9   # "no saturation": far beyond any current the linear loop asks for
 
 
 @dataclass(frozen=True)
@@ -199,3 +200,9 @@ def shaft_rev_row(p: PlantParams) -> np.ndarray:
     c = np.zeros(N_STATES)
     c[IX_ANGLE] = p.transmission_ratio / (2.0 * math.pi)
     return c
+
+
+def unlimited(plant: PlantParams) -> PlantParams:
+    """The same plant without current saturation: the linear model the paper simulates."""
+    rpm_max = max(plant.shaft_rpm_max, plant.shaft_rpm_per_a * UNLIMITED_A / 2)
+    return replace(plant, current_min_a=-UNLIMITED_A, current_max_a=UNLIMITED_A, shaft_rpm_max=rpm_max)

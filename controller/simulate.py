@@ -7,16 +7,16 @@ own row of the matrices (tests check it).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from common import ControllerError
-from controller.gains import ControllerConfig, PidGains, resolve_gains
+from controller.config import ControllerConfig
+from controller.factory import build_loop, resolve_gains
+from controller.gains import PidGains
 from controller.loop import ClosedLoop
 from controller.plant import PlantParams
-
-UNLIMITED_A = 1e9   # "no saturation": far beyond any current the linear loop asks for
 
 
 @dataclass(frozen=True)
@@ -44,12 +44,6 @@ class SimResult:
     target_rpm: np.ndarray
 
 
-def unlimited(plant: PlantParams) -> PlantParams:
-    """The same plant without current saturation: the linear model the paper simulates."""
-    rpm_max = max(plant.shaft_rpm_max, plant.shaft_rpm_per_a * UNLIMITED_A / 2)
-    return replace(plant, current_min_a=-UNLIMITED_A, current_max_a=UNLIMITED_A, shaft_rpm_max=rpm_max)
-
-
 def _gains_for(controllers, plants, n, control_period_s):
     """(list of n PidGains, form, derivative_on_measurement) from configs or gains."""
     items = list(controllers) if isinstance(controllers, Sequence) else [controllers] * n
@@ -58,8 +52,9 @@ def _gains_for(controllers, plants, n, control_period_s):
     plant_list = list(plants) if isinstance(plants, Sequence) else [plants] * n
     if all(isinstance(c, PidGains) for c in items):
         return items, None, None
-    if not all(isinstance(c, ControllerConfig) for c in items):
-        raise ControllerError("controllers must be ControllerConfig or PidGains items")
+    if not all(isinstance(c, ControllerConfig) and c.registry_kind == "pid" for c in items):
+        raise ControllerError("a batch of controllers must be PidGains or P/PI/PID ControllerConfig items "
+                              "(other kinds: one ControllerConfig for all n loops)")
     forms = {(c.form, c.derivative_on_measurement) for c in items}
     if len(forms) != 1:
         raise ControllerError(f"one batch needs one form and derivative_on_measurement, got {sorted(forms)}")
@@ -84,7 +79,9 @@ def simulate(plants, controllers, setpoint_rpm, duration_s: float, control_perio
     ----------
     plants : PlantParams or sequence of n
     controllers : ControllerConfig, PidGains, or a sequence of n of either
-        With PidGains, `form` and `derivative_on_measurement` apply; configs carry their own.
+        With PidGains, `form` and `derivative_on_measurement` apply; configs carry their own. A
+        sequence must be PID gains or P/PI/PID configs (one lifted matrix); any other kind runs as one
+        ControllerConfig for all n loops, on one plant.
     setpoint_rpm : float, ndarray (n,) or ndarray (K, n)
         Shaft-speed setpoint [rpm]: constant, per loop, or per control period and loop.
     duration_s : float
@@ -105,10 +102,16 @@ def simulate(plants, controllers, setpoint_rpm, duration_s: float, control_perio
         raise ControllerError(f"plants, controllers and setpoint_rpm disagree on the batch size: {sizes}")
     if not (np.isfinite(duration_s) and duration_s > 0):
         raise ControllerError(f"duration_s must be a positive number, got {duration_s!r}")
-    gains, cfg_form, cfg_dom = _gains_for(controllers, plants, n, control_period_s)
-    loop = ClosedLoop(plants, gains, form=cfg_form or form,
-                      derivative_on_measurement=derivative_on_measurement if cfg_dom is None else cfg_dom,
-                      control_period_s=control_period_s, plant_step_s=plant_step_s, n=n, record_fine=fine)
+    if isinstance(controllers, ControllerConfig) and controllers.registry_kind != "pid":
+        if not isinstance(plants, PlantParams):
+            raise ControllerError(f"kind {controllers.kind!r} runs its n loops on one plant, got {plants!r}")
+        loop = build_loop(plants, controllers, control_period_s, plant_step_s, n, record_fine=fine)
+    else:
+        gains, cfg_form, cfg_dom = _gains_for(controllers, plants, n, control_period_s)
+        loop = ClosedLoop(plants, gains, form=cfg_form or form,
+                          derivative_on_measurement=derivative_on_measurement if cfg_dom is None else cfg_dom,
+                          control_period_s=control_period_s, plant_step_s=plant_step_s, n=n,
+                          record_fine=fine)
     K = int(np.ceil(duration_s / control_period_s - 1e-9))
     if sp.ndim == 2 and sp.shape[0] < K:
         raise ControllerError(f"setpoint_rpm has {sp.shape[0]} rows, the run needs {K} control periods")

@@ -16,10 +16,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from common import ControllerError
+from controller import liang2013
 from controller.discretize import Lifted, delay_split, lift
-from controller.gains import PidGains
-from controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space
-from controller.simulate import simulate, unlimited
+from controller.gains import GAIN_SOURCES, PidGains, paper_gains, ziegler_nichols
+from controller.loop import ClosedLoop, StepOutput
+from controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space, unlimited
 
 
 def pulse_response(plant: PlantParams, theta: np.ndarray, control_period_s: float = 0.05,
@@ -134,7 +135,17 @@ class UltimateResult:
     growth_per_s: np.ndarray
 
 
-def _mean_speed(res, control_period_s):
+def _run_from_rest(plant: PlantParams, kps, setpoint_rpm: float, duration_s: float, control_period_s: float,
+                   plant_step_s: float) -> StepOutput:
+    """P loops with gains `kps` (one loop each) stepped from rest to `setpoint_rpm`; per-period records."""
+    gains = [PidGains(kp=float(k)) for k in np.atleast_1d(kps)]
+    loop = ClosedLoop(plant, gains, control_period_s=control_period_s, plant_step_s=plant_step_s,
+                      n=len(gains))
+    periods = int(np.ceil(duration_s / control_period_s - 1e-9))
+    return loop.run(np.full((periods, len(gains)), setpoint_rpm))
+
+
+def _mean_speed(res: StepOutput, control_period_s):
     """Shaft speed averaged over each control period [rpm], shape (n, K): exact, free of ringing."""
     return (res.shaft_rev * 60.0 / control_period_s).T
 
@@ -177,8 +188,7 @@ def ultimate_gain_experiment(plant: PlantParams, control_period_s: float = 0.05,
     lo, hi = kp_range
     gains = np.geomspace(lo, hi, batch)
     for _ in range(sweeps):
-        res = simulate(linear, [PidGains(kp=float(k)) for k in gains], setpoint_rpm, duration_s,
-                       control_period_s, plant_step_s, fine=False)
+        res = _run_from_rest(linear, gains, setpoint_rpm, duration_s, control_period_s, plant_step_s)
         growth = _growth_rate(_mean_speed(res, control_period_s), control_period_s)
         unstable = np.nonzero(growth > 0)[0]
         if len(unstable) == 0 or unstable[0] == 0:
@@ -189,8 +199,7 @@ def ultimate_gain_experiment(plant: PlantParams, control_period_s: float = 0.05,
         ku = lo + (hi - lo) * (-growth[i - 1]) / (growth[i] - growth[i - 1])
         gains_tried, growth_tried = gains, growth
         gains = np.linspace(lo, hi, batch)
-    res = simulate(linear, PidGains(kp=float(ku)), setpoint_rpm, 3 * duration_s, control_period_s,
-                   plant_step_s, fine=False)
+    res = _run_from_rest(linear, ku, setpoint_rpm, 3 * duration_s, control_period_s, plant_step_s)
     y = _mean_speed(res, control_period_s)[0]
     tu = _period(y[len(y) // 3:], control_period_s)
     return UltimateResult(ku=float(ku), tu_s=tu, gains_tried=gains_tried, growth_per_s=growth_tried)
@@ -231,8 +240,7 @@ def relay_autotune(plant: PlantParams, control_period_s: float = 0.05, plant_ste
                               f"got {relay_amplitude_a!r}")
     relay_plant = replace(plant, current_min_a=bias - relay_amplitude_a,
                           current_max_a=bias + relay_amplitude_a, shaft_rpm_max=setpoint_rpm)
-    res = simulate(relay_plant, PidGains(kp=1e9), setpoint_rpm, duration_s, control_period_s, plant_step_s,
-                   fine=False)
+    res = _run_from_rest(relay_plant, 1e9, setpoint_rpm, duration_s, control_period_s, plant_step_s)
     seen = res.measured_rpm[len(res.measured_rpm) // 2:, 0]
     amplitude_rpm = 0.5 * float(seen.max() - seen.min())
     tu = _period(_mean_speed(res, control_period_s)[0][len(seen):], control_period_s)
@@ -240,3 +248,24 @@ def relay_autotune(plant: PlantParams, control_period_s: float = 0.05, plant_ste
     a_volts = amplitude_rpm * plant.sensor_gain_v_per_rpm
     return RelayResult(ku=4 * d_volts / (math.pi * a_volts), tu_s=tu, relay_amplitude_a=relay_amplitude_a,
                        oscillation_amplitude_rpm=amplitude_rpm)
+
+
+def gains_from_source(source: str, terms: str, plant: PlantParams | None = None,
+                      control_period_s: float = liang2013.SAMPLE_S, kp: float | None = None,
+                      ki: float | None = None, kd: float | None = None) -> PidGains:
+    """PID gains from `source` for a controller with `terms` ("P", "PI" or "PID").
+
+    "paper": the paper's printed numbers; "textbook": Ziegler-Nichols from the paper's Ku and Tu;
+    "relay": Ziegler-Nichols from `relay_autotune` on `plant`; "manual": `kp` [V/V], `ki` [1/s],
+    `kd` [s] as given (missing ones are 0).
+    """
+    if source == "paper":
+        return paper_gains(terms)
+    if source == "textbook":
+        return ziegler_nichols(terms, liang2013.KU, liang2013.TU_S)
+    if source == "relay":
+        result = relay_autotune(plant, control_period_s=control_period_s)
+        return ziegler_nichols(terms, result.ku, result.tu_s)
+    if source == "manual":
+        return PidGains(kp=float(kp or 0.0), ki=float(ki or 0.0), kd=float(kd or 0.0))
+    raise ControllerError(f"gains must be one of {', '.join(GAIN_SOURCES)}, got {source!r}")

@@ -276,3 +276,6 @@ class ServiceConfig:
     db: str | None = None  # monitor: its SQLite file (None: runs/monitor-<prefix>-<machine>.sqlite)
     web_listen: str | None = None  # web: HOST:PORT of the page (None: 127.0.0.1:8448)
     operator: ZenohOptions | None = None  # web: the session that may start and stop runs (None: viewer)
+    # controller: folders whose Python files a scenario's [controller] kind = "python" may run (a
+    # scenario comes over the bus, so by default no user code runs; absolute paths)
+    user_code_dirs: tuple[str, ...] = ()

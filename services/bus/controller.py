@@ -1,17 +1,23 @@
-"""The controller service: poses in, PID + hydraulic plant, shaft state and rate samples out
-(``vrsim serve controller``).
+"""The controller service: poses in, rate controller + hydraulic plant, shaft state and rate samples
+out (``vrsim serve controller``).
 
 ``<prefix>/<machine>/control/step`` takes a JSON array of `messages.Pose` (the ticks since the last
 step, in order), runs `services.sim.core.ControlCore.run_track` on their measured positions (the core
 ``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
 ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
 what keeps a lockstep run in step: the vehicle is never more than one batch ahead of the replies.
-``.../control/load`` (from scenario control) builds a fresh core for a new run.
+``.../control/load`` (from scenario control) builds a fresh core for a new run: any controller kind,
+its state (loop, look-ahead tuner, rate policy) carried from batch to batch by the core.
+``.../control/state`` replies with that state as JSON (`ControlCore.state`), to save or inspect it.
+
+A scenario arrives over the bus, so a ``kind = "python"`` controller runs only from a file inside a
+folder the service was started with (``--allow-user-code DIR``); anything else is refused.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import threading
 
 import numpy as np
@@ -27,9 +33,10 @@ from services.sim.landing import applied_rate_kg_ha
 class ControllerService:
     """The handlers of the controller service; publishes through ``publish(key, payload)``."""
 
-    def __init__(self, keys, publish):
+    def __init__(self, keys, publish, user_code_dirs: tuple[str, ...] = ()):
         self.keys = keys
         self.publish = publish
+        self.user_code_dirs = tuple(os.path.realpath(d) for d in user_code_dirs)
         self.lock = threading.Lock()
         self.run_id = ""
         self.core = None
@@ -44,12 +51,30 @@ class ControllerService:
         from services.sim.world import field_and_grid
 
         sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
+        self._check_user_code(params.key, sc.controller.file)
         field, grid = field_and_grid(sc)
         core = ControlCore(grid, sc, field.polygon)
         with self.lock:
             self.run_id, self.core, self.next_tick = start.run_id, core, 0
             self.period_s = sc.timing.control_period_s
         return dumps({"loaded": True, "run_id": start.run_id})
+
+    def _check_user_code(self, key: str, file: str | None) -> None:
+        """Refuse a user's controller file outside the allowed folders (it would run as this service)."""
+        if file is None:
+            return
+        real = os.path.realpath(file)
+        if not any(os.path.commonpath([real, d]) == d for d in self.user_code_dirs):
+            allowed = ", ".join(self.user_code_dirs) or "none"
+            raise ServiceError(f"{key}: [controller] file {file}: user code runs only from the folders this "
+                               f"controller service allows (--allow-user-code DIR; allowed: {allowed})")
+
+    def state(self, params: Params, payload: bytes | None) -> bytes:
+        params.only()
+        with self.lock:
+            if self.core is None:
+                raise ServiceError(f"{params.key}: no run loaded (start one with scenario/start)")
+            return dumps({"run_id": self.run_id, "next_tick": self.next_tick, "core": self.core.state()})
 
     def step(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
@@ -94,7 +119,7 @@ class ControllerService:
         return shafts, rates
 
     def handlers(self) -> dict:
-        return {"step": self.step, "load": self.load}
+        return {"step": self.step, "load": self.load, "state": self.state}
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
@@ -107,7 +132,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
         # BLOCK: a slow subscriber (the monitor) slows the run down instead of losing records.
         pubs = {k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
                 for k in (keys.shaft, keys.rate)}
-        svc = ControllerService(keys, lambda key, payload: pubs[key].put(payload))
+        svc = ControllerService(keys, lambda key, payload: pubs[key].put(payload), config.user_code_dirs)
         queryable = serve(session, keys.control_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/control/",
                           "controller")
         return [queryable, *pubs.values()]

@@ -4,7 +4,8 @@ A command module defines ``HELP`` (one line), ``configure(parser)`` (adds its ar
 module-level imports light, since ``vrsim --help`` imports every command module) and ``run(args) -> int``.
 
 Exit codes: 0 done, 2 bad input (a `common.VrsimError` or an argparse error: one line on stderr, no
-traceback), 1 internal error (a bug; set ``VRSIM_DEBUG=1`` to see the traceback).
+traceback), 1 internal error (a bug; set ``VRSIM_DEBUG=1`` to see the traceback) or a crash inside a
+user-defined controller (one line with its file and line; the traceback under ``VRSIM_DEBUG=1``).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import traceback
 from common import VrsimError, __version__
 
 # Order is the order `vrsim --help` lists them in.
-COMMANDS = ("run", "sweep", "evaluate", "report", "paper", "map", "serve", "query", "accuracy")
+COMMANDS = ("run", "compare", "sweep", "evaluate", "report", "controller", "paper", "map", "serve",
+            "query", "accuracy")
 
 
 def _available_commands():
@@ -76,11 +78,24 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except Exception as exc:  # noqa: BLE001 - the last line of defence: a bug, not bad input
+        if _user_code_error(exc):
+            if os.environ.get("VRSIM_DEBUG"):
+                print(exc.user_traceback, file=sys.stderr, end="")
+            print(f"vrsim {args.command}: error in a user-defined controller: {exc} "
+                  "(VRSIM_DEBUG=1 shows the traceback)", file=sys.stderr)
+            return 1
         if os.environ.get("VRSIM_DEBUG"):
             traceback.print_exc()
         print(f"vrsim {args.command}: internal error: {type(exc).__name__}: {exc} "
               "(this is a bug; VRSIM_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+
+
+def _user_code_error(exc: BaseException) -> bool:
+    """A crash inside a user's controller class (`controller.UserCodeError`: exit 1 with its file and
+    line). Looked up only if that module was loaded, so ``vrsim --help`` stays light."""
+    module = sys.modules.get("controller.kinds.python")
+    return module is not None and isinstance(exc, module.UserCodeError)
 
 
 if __name__ == "__main__":

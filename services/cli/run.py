@@ -22,6 +22,13 @@ def configure(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
 
 
+def default_out_dir(name: str, command: str = "") -> str:
+    """``runs/[<command>-]<name>-<time>/``, the scenario's name made safe for a path (it may hold "/")."""
+    safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+    prefix = f"{command}-" if command else ""
+    return os.path.join("runs", f"{prefix}{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
 class Progress:
     """A one-line progress bar on stderr, shown once a run has taken more than a second, and only on a
     terminal (a log file gets no carriage-return noise)."""
@@ -63,8 +70,7 @@ def run(args) -> int:
             result = field_run.run(sc, progress=progress)
         finally:
             progress.close()
-        safe_name = "".join(c if c.isalnum() or c in "-_." else "_" for c in sc.name)  # a name may hold "/"
-        out_dir = args.out or os.path.join("runs", f"{safe_name}-{time.strftime('%Y%m%d-%H%M%S')}")
+        out_dir = args.out or default_out_dir(sc.name)
         t0 = time.perf_counter()
         write_outputs(result, out_dir, plotter)
     finally:

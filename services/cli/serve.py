@@ -49,6 +49,10 @@ def configure(parser) -> None:
     parser.add_argument("--crs", default=None, help="map file: its CRS when the file does not say")
     parser.add_argument("--db", metavar="FILE", default=None,
                         help="monitor: SQLite database (default runs/monitor-<prefix>-<machine>.sqlite)")
+    parser.add_argument("--allow-user-code", metavar="DIR", action="append", default=[],
+                        help="controller: run user-defined controllers (kind = \"python\") from Python files "
+                             "in this folder (repeatable; default none; `all SCENARIO` allows the folder of "
+                             "that scenario's controller file)")
     parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                         help="all: clock of the run it starts (default lockstep)")
     parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
@@ -84,10 +88,11 @@ def service_config(args) -> ServiceConfig:
     return ServiceConfig(zenoh=options, scenario=args.scenario, map_file=args.map,
                          rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db,
                          web_listen=web_listen or args.web_listen,
+                         user_code_dirs=tuple(os.path.abspath(d) for d in args.allow_user_code),
                          operator=options if args.operator else None)  # the bus has no roles yet
 
 
-def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
+def _child_argv(args, options: ZenohOptions, name: str, user_code_dirs: tuple[str, ...] = ()) -> list[str]:
     argv = [sys.executable, "-m", "services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
@@ -103,6 +108,9 @@ def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
         argv += ["--db", os.path.abspath(args.db)]
     if name == "web":
         argv += ["--operator"] + (["--listen", args.web_listen] if args.web_listen else [])
+    if name == "controller":
+        for folder in user_code_dirs:
+            argv += ["--allow-user-code", folder]
     return argv
 
 
@@ -117,6 +125,7 @@ def serve_all(args, options: ZenohOptions) -> int:
         from services.bus.web import DEFAULT_LISTEN, parse_listen
 
         parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen")  # before anything starts
+    user_code_dirs = tuple(os.path.abspath(d) for d in args.allow_user_code)
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
         from services.bus import messages
         from services.sim import scenario
@@ -128,6 +137,8 @@ def serve_all(args, options: ZenohOptions) -> int:
                 raise ServiceError(f"{flag} {value:g}: must be within [{lo:g}, {hi:g}]")
         sc = scenario.load(args.scenario)
         start_payload, start_selector = _start_request(options.keys, sc, args)
+        if sc.controller.file is not None:   # the user named this scenario, and so its controller
+            user_code_dirs += (os.path.dirname(sc.controller.file),)
     # SIGTERM before the serving loop takes over must still stop the children (via `finally`).
     signal.signal(signal.SIGTERM, _interrupt)
     stop = threading.Event()
@@ -137,7 +148,7 @@ def serve_all(args, options: ZenohOptions) -> int:
         token = declare_alive(session, options.keys, "router")
         try:
             for name in SERVICES + (("web",) if args.web else ()):
-                procs[name] = subprocess.Popen(_child_argv(args, options, name), env=env)
+                procs[name] = subprocess.Popen(_child_argv(args, options, name, user_code_dirs), env=env)
             _wait_ready(session, options.keys, procs)
             if start_payload is not None:
                 reply = request_json(session, start_selector, start_payload, timeout_s=120.0,

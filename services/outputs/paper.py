@@ -30,12 +30,30 @@ def table(summary: dict) -> str:
             lines.append(f"  {label + ' ' + kind:<26}{_fmt(e['paper_overshoot_pct'], '.2f'):>8}"
                          f"{_fmt(e['overshoot_pct'], '.2f'):>8}{_fmt(e['overshoot_pct_50ms_mean'], '.2f'):>8}"
                          f"{_fmt(e['paper_settling_s'], '.3f'):>12}{_fmt(e['settling_s'], '.3f'):>12}")
-    lines += ["", "(50ms: overshoot of the speed averaged over each control period)", "", "Findings:"]
+    lines += ["", "(50ms: overshoot of the speed averaged over each control period)", ""]
+    lines += loop_table(summary)
+    lines += ["", "Findings:"]
     lines += [f"- {f}" for f in summary["findings"]]
     lines += ["", "Assumptions (value, unit):"]
     lines += [f"- {name} = {a['value']} {a['unit']}: {a['why']}"
               for name, a in summary["assumptions"].items()]
     return "\n".join(lines)
+
+
+def loop_table(summary: dict) -> list[str]:
+    """Each controller's loop margins, crossover and bandwidth (``summary[kind]["loop"]``)."""
+    lines = [f"{'loop margins (T = 50 ms)':<28}{'gain margin':>16}{'phase margin':>14}"
+             f"{'crossover':>12}{'bandwidth':>12}",
+             f"{'':<28}{'x (dB)':>16}{'deg':>14}{'rad/s':>12}{'rad/s':>12}"]
+    for label, group in (("paper gains", summary), ("textbook Z-N", summary["textbook"])):
+        for kind in ("P", "PI", "PID"):
+            loop = group[kind]["loop"]
+            margin = f"{_fmt(loop['gain_margin'], '.3f')} ({_fmt(loop['gain_margin_db'], '.1f')})"
+            phase, cross = _fmt(loop["phase_margin_deg"], ".1f"), _fmt(loop["crossover_rad_s"], ".3f")
+            lines.append(f"  {label + ' ' + kind:<26}{margin:>16}{phase:>14}{cross:>12}"
+                         f"{_fmt(loop['bandwidth_rad_s'], '.3f'):>12}"
+                         + ("" if loop["closed_loop_stable"] else "  unstable"))
+    return lines
 
 
 def plot(run, path: str) -> None:

@@ -86,6 +86,14 @@ def page(title: str, intro: str, sections, images, after, files_note: str) -> st
 """
 
 
+def embedded_png(path: str) -> str:
+    """A ``<figure>`` holding the PNG file `path` inline (the page stays one self-contained file)."""
+    with open(path, "rb") as fh:
+        data = base64.b64encode(fh.read()).decode()
+    name = html.escape(os.path.basename(path))
+    return f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
+
+
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: summary, settings as run, versions and seed, pictures, definitions."""
     from services.outputs.summary import SUMMARY_ROWS

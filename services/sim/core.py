@@ -10,9 +10,14 @@ import dataclasses
 
 import numpy as np
 
+from common import ControllerError, ScenarioError
 from controller import PlantParams, build_loop
 from maps import Grid, RatePolicy
+from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.scenario import Scenario, as_dict
+
+RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
+TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
 
 
 def plant_for(scenario: Scenario) -> PlantParams:
@@ -40,7 +45,8 @@ class ControlCore:
     1. `targets`: where product metered now will land, the prescription there (with the map's
        policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
        landing point is predicted by dead reckoning from the fix: product metered now lands
-       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
+       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading;
+       the look-ahead adds the loop's lag if asked to (`services.sim.look_ahead`).
     2. the closed loop (PID, valve, motor): `controller.ClosedLoop.run` over the targets, one
        control period per tick (sequential by nature: one lifted matrix product per period).
     """
@@ -51,15 +57,42 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
-        timing = scenario.timing
-        self.loop = build_loop(plant_for(scenario), scenario.controller,
-                               control_period_s=timing.control_period_s, plant_step_s=timing.plant_step_s,
-                               n=1)
+        timing, cfg, plant = scenario.timing, scenario.controller, plant_for(scenario)
+        try:
+            self.loop = build_loop(plant, cfg, control_period_s=timing.control_period_s,
+                                   plant_step_s=timing.plant_step_s, n=1)
+            look_ahead_s = initial_look_ahead_s(scenario, plant)
+        except ControllerError as exc:   # a user's class that does not load, a bad valve calibration
+            raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
+        self.period_s = timing.control_period_s
+        self.tuner = None if cfg.look_ahead_tune == 0 else LookAheadTuner(
+            look_ahead_s, known_delay_s(scenario), cfg.look_ahead_tune, self.period_s)
+        self._look_ahead_s = look_ahead_s
         self.last_rate_kg_ha = float("nan")
+
+    @property
+    def look_ahead_s(self) -> float:
+        """How far ahead in time the rate is looked up now [s] (`services.sim.look_ahead`)."""
+        return self._look_ahead_s if self.tuner is None else self.tuner.look_ahead_s
+
+    def state(self) -> dict:
+        """What the core carries from one batch of ticks to the next, as plain data (numpy arrays, NaN
+        where no rate was commanded yet): the loop's state (plant, sensor delay line, controller), the
+        rate policy's last rate, and the look-ahead tuner's state (None without the tune)."""
+        return {"loop": self.loop.state, "last_rate_kg_ha": self.last_rate_kg_ha,
+                "tuner": None if self.tuner is None else self.tuner.state()}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
+        self.loop.set_state(state["loop"])
+        last = state["last_rate_kg_ha"]
+        self.last_rate_kg_ha = float("nan") if last is None else float(last)
+        if self.tuner is not None:
+            self.tuner.set_state(state["tuner"])
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
-        lead_m = np.asarray(speed_m_s) * self.implement.delivery_delay_s
+        lead_m = np.asarray(speed_m_s) * self.look_ahead_s
         lx = x_m + lead_m * np.cos(heading_rad)
         ly = y_m + lead_m * np.sin(heading_rad)
         found = self.grid.lookup(lx, ly)
@@ -92,19 +125,38 @@ class ControlCore:
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
                   progress=None) -> dict[str, np.ndarray]:
-        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`."""
-        rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on)
-        targets, n = rec["target_shaft_rpm"], len(x_m)
-        rpm, rev, cur = np.empty(n), np.empty(n), np.empty(n)
-        chunk = 20000
-        for start in range(0, n, chunk):
+        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`.
+
+        The track goes through in chunks: stage 1 on a chunk, then the loop over it. With the
+        look-ahead tune on, a chunk ends where the tuner moves the look-ahead, and the ticks after it
+        are looked up again with the new one, so any split into batches gives the same numbers.
+        """
+        n = len(x_m)
+        track = (x_m, y_m, heading_rad, speed_m_s, implement_on)
+        chunk = RUN_CHUNK if self.tuner is None else TUNE_CHUNK
+        parts, start = [], 0
+        while not parts or start < n:   # once at least, so that an empty track gives empty arrays
             part = slice(start, min(n, start + chunk))
-            out = self.loop.run(targets[part])
-            rpm[part], rev[part], cur[part] = out.shaft_rpm[:, 0], out.shaft_rev[:, 0], out.current_a[:, 0]
+            rec = self.targets(*(np.asarray(a)[part] for a in track))
+            if self.tuner is not None:
+                args = (rec["prescribed_kg_ha"], rec["target_shaft_rpm"], rec["width_on_m"],
+                        np.asarray(implement_on, bool)[part])
+                keep = self.tuner.plan(*args)
+                if keep is not None:     # the look-ahead moves there: look the rest up again
+                    rec = {k: v[:keep] for k, v in rec.items()}
+                    args = tuple(a[:keep] for a in args)
+                    self.last_rate_kg_ha = float(rec["prescribed_kg_ha"][-1])
+            out = self.loop.run(rec["target_shaft_rpm"])
+            rec.update(shaft_rpm=out.shaft_rpm[:, 0], shaft_rev=out.shaft_rev[:, 0],
+                       current_a=out.current_a[:, 0])
+            if self.tuner is not None and len(rec["shaft_rev"]):
+                self.tuner.observe(*args, rec["shaft_rev"] * 60.0 / self.period_s)
+            parts.append(rec)
+            start += len(rec["shaft_rev"])
             if progress is not None:
-                progress(part.stop, n)
-        rec.update(shaft_rpm=rpm, shaft_rev=rev, current_a=cur,
-                   metered_kg=self._metered_kg(rev, rec["width_on_m"] > 0))
+                progress(start, n)
+        rec = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        rec["metered_kg"] = self._metered_kg(rec["shaft_rev"], rec["width_on_m"] > 0)
         return {key: rec[key] for key in CONTROL_KEYS}
 
     def _metered_kg(self, shaft_rev, applying) -> np.ndarray:

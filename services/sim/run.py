@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ScenarioError, VehicleError
+from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
 from services.sim.core import ControlCore
@@ -78,16 +79,47 @@ def driving(world: World):
         raise ScenarioError(f"{sc.source}: {exc}") from None
 
 
+@dataclass
+class Drive:
+    """What a run measures before any controller acts: the world, the true track SUMO drove and what
+    the sensors read on it. The tractor's path does not depend on the metering, so one drive serves
+    any number of controllers (`vrsim compare`: same seed, same track, same sensor noise).
+
+    Attributes
+    ----------
+    world : World
+    track : dict
+        The true path (`vehicle.SumoDriver.run_all`).
+    measured_x_m, measured_y_m, measured_speed_m_s : ndarray
+        GNSS fix and ground-speed sensor reading per tick.
+    stage_s : dict
+        Wall time of ``build_s``, ``sumo_s`` and ``sensors_s`` [s].
+    """
+
+    world: World
+    track: dict
+    measured_x_m: np.ndarray
+    measured_y_m: np.ndarray
+    measured_speed_m_s: np.ndarray
+    stage_s: dict
+    started_unix: float  # when the drive began (the TimeLog's clock)
+
+
 def run(scenario: Scenario, progress=None) -> RunResult:
     """Run a scenario in process and return everything it measured."""
+    return control_and_account(drive(scenario), progress=progress)
+
+
+def drive(scenario: Scenario) -> Drive:
+    """Build the world, drive SUMO over the whole path and read the sensors (the controller-free part)."""
     stage = {}
     started = time.time()
-    wall0 = clock = time.perf_counter()
+    clock = time.perf_counter()
 
     def lap(name):
         nonlocal clock
         now = time.perf_counter()
-        stage[name] = stage.get(name, 0.0) + now - clock
+        stage[name] = now - clock
         clock = now
 
     world = build_world(scenario)
@@ -97,17 +129,53 @@ def run(scenario: Scenario, progress=None) -> RunResult:
     lap("sumo_s")
     x_meas, y_meas, v_meas = measure(scenario, track)
     lap("sensors_s")
+    return Drive(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas,
+                 measured_speed_m_s=v_meas, stage_s=stage, started_unix=started)
+
+
+def control_and_account(drive: Drive, controller: ControllerConfig | None = None,
+                        progress=None) -> RunResult:
+    """Run the control core over a drive and account for the product: the rest of `run`.
+
+    Parameters
+    ----------
+    drive : Drive
+        From `drive` (not changed: several controllers can share it).
+    controller : ControllerConfig, optional
+        Run this controller instead of the scenario's (the result's ``world.scenario`` carries it).
+    progress : callable, optional
+        ``progress(done_ticks, total_ticks)`` during the control loop.
+
+    The summary's ``wall_time_s`` and ``stage_s`` count the drive's stages and this call's.
+    """
+    world, track = drive.world, drive.track
+    if controller is not None:
+        scenario = dataclasses.replace(world.scenario, controller=controller)
+        world = dataclasses.replace(world, scenario=scenario)
+    scenario = world.scenario
+    stage = dict(drive.stage_s)
+    clock = time.perf_counter()
+    wall0 = clock - sum(stage.values())   # as if the drive had run just now
+
+    def lap(name):
+        nonlocal clock
+        now = time.perf_counter()
+        stage[name] = now - clock
+        clock = now
+
     core = ControlCore(world.grid, scenario, world.field.polygon)
-    control = core.run_track(x_meas, y_meas, track["heading_rad"], v_meas, track["implement_on"], progress)
+    control = core.run_track(drive.measured_x_m, drive.measured_y_m, track["heading_rad"],
+                             drive.measured_speed_m_s, track["implement_on"], progress)
     lap("control_s")
     summary, rest = account(world, track, control, wall0)
     lap("metrics_s")
     summary["wall_time_s"] = time.perf_counter() - wall0
     summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
     summary["stage_s"] = stage
-    return RunResult(world=world, track=track, measured_x_m=x_meas, measured_y_m=y_meas,
-                     measured_speed_m_s=v_meas, control=control, stage_s=stage, summary=summary,
-                     started_unix=started, **rest)
+    return RunResult(world=world, track=track, measured_x_m=drive.measured_x_m,
+                     measured_y_m=drive.measured_y_m, measured_speed_m_s=drive.measured_speed_m_s,
+                     control=control, stage_s=stage, summary=summary, started_unix=drive.started_unix,
+                     **rest)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

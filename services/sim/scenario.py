@@ -24,6 +24,7 @@ from typing import Any
 
 from common import ScenarioError, VrsimError, is_number
 from controller import ControllerConfig, PlantParams
+from controller.config import PID_KINDS
 from maps import synthetic
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
@@ -186,7 +187,7 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".",
         tractor=_build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=_build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=_build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
-        controller=_build(ControllerConfig, doc.get("controller", {}), source, "controller"),
+        controller=controller_from_table(doc.get("controller", {}), source, base_dir),
         plant=_build(PlantParams, doc.get("plant", {}), source, "plant"),
         timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=_build(OutputSpec, doc.get("output", {}), source, "output"),
@@ -230,6 +231,9 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
                 raise ScenarioError(f"{source}: [{key}] changes must be a dict of its keys, got {value!r}")
             current = getattr(scenario, key)
             kept = {f.name: getattr(current, f.name) for f in dataclasses.fields(current) if f.init}
+            if key == "controller":
+                top[key] = _changed_controller(current, kept, value, scenario)
+                continue
             _no_unknown(value, kept, source, key)
             if key == "plant":
                 _machine_once(value, source)
@@ -239,6 +243,43 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
     changed = dataclasses.replace(scenario, **top)
     _check(changed)
     return changed
+
+
+CONTROLLER_KEYS = {f.name for f in dataclasses.fields(ControllerConfig)} - {"class_name"} | {"class"}
+# What a controller's configuration keeps when its kind changes: the rest belongs to the old kind.
+KIND_INDEPENDENT_KEYS = ("look_ahead_s", "look_ahead_tune")
+
+
+def controller_from_table(table: dict, source: str, base_dir: str) -> ControllerConfig:
+    """A ``[controller]`` table -> `ControllerConfig` (a `ScenarioError` naming `source`, the key and
+    the value if it is bad): the TOML key ``class`` is its `class_name` (a Python
+    keyword cannot be a field); ``file`` (kind "python") is taken relative to the scenario's folder
+    and must exist (its class is loaded when a run builds the loop, not here: parsing never runs
+    user code)."""
+    _no_unknown(table, CONTROLLER_KEYS, source, "controller")
+    renamed = {("class_name" if k == "class" else k): v for k, v in table.items()}
+    cfg = _build(ControllerConfig, renamed, source, "controller").resolved(base_dir)
+    if cfg.file is not None and not os.path.isfile(cfg.file):
+        raise ScenarioError(f"{source}: [controller] file {table.get('file', cfg.file)!r}: no such file "
+                            f"({cfg.file})")
+    return cfg
+
+
+def _changed_controller(current: ControllerConfig, kept: dict, changes: dict, scenario: Scenario):
+    """`with_changes` of ``[controller]``: keys as in a file (``class``); a change of kind starts from
+    that kind's defaults and keeps only the look-ahead (`KIND_INDEPENDENT_KEYS`)."""
+    _no_unknown(changes, CONTROLLER_KEYS, scenario.source, "controller")
+    new_kind = changes.get("kind", current.kind)
+    if new_kind != current.kind and not (isinstance(new_kind, str) and _same_family(new_kind, current.kind)):
+        kept = {k: kept[k] for k in KIND_INDEPENDENT_KEYS}
+    merged = {**kept, **changes}
+    table = {("class" if k == "class_name" else k): v for k, v in merged.items() if v is not None}
+    return controller_from_table(table, scenario.source, scenario.base_dir)
+
+
+def _same_family(kind: str, other: str) -> bool:
+    """P, PI, PID (and "pid") share their keys: a change among them keeps gains and form."""
+    return kind in PID_KINDS and other in PID_KINDS
 
 
 def _machine_once(plant_table: dict, source: str) -> None:
@@ -289,6 +330,8 @@ def _expected_type(f: dataclasses.Field):
     if isinstance(default, (str, dict, list)):
         return type(default)
     text = str(f.type)
+    if len([t for t in text.split("|") if t.strip() != "None"]) > 1:
+        return None     # a union such as "float | str": the dataclass checks it
     for name, kind in (("float", (int, float)), ("int", int), ("str", str), ("bool", bool),
                        ("dict", dict), ("list", list)):
         if text.startswith(name):

@@ -43,11 +43,19 @@ def test_ultimate_point_is_reproduced_and_the_rest_is_reported_honestly(paper_js
     assert any("cannot come from its printed gains" in f for f in d["findings"])
 
 
-def test_table_without_json_into_the_default_out_dir(tmp_path):
+def test_table_without_json_into_the_default_out_dir(tmp_path, paper_json):
     p = _vrsim("paper", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert "paper vs vrsim" in p.stdout and "textbook Z-N PID" in p.stdout and "Findings:" in p.stdout
     assert (tmp_path / "runs" / "paper" / "step_responses.png").is_file()
+    # each controller's loop margins, as --json gives them under "loop"
+    margins = p.stdout.split("loop margins")[1].split("Findings:")[0]
+    for label, group in (("paper gains", paper_json[0]), ("textbook Z-N", paper_json[0]["textbook"])):
+        for kind in ("PI", "PID"):
+            loop = group[kind]["loop"]
+            row = next(line for line in margins.splitlines() if line.strip().startswith(f"{label} {kind} "))
+            assert f"{loop['gain_margin']:.3f} ({loop['gain_margin_db']:.1f})" in row, row
+            assert f"{loop['phase_margin_deg']:.1f}" in row and f"{loop['bandwidth_rad_s']:.3f}" in row, row
 
 
 def test_unusable_out_dir_exits_2_without_traceback(tmp_path):

@@ -12,6 +12,7 @@ import rasterio
 from PIL import Image
 
 from maps import write_map
+from services.outputs.encode import dumps_text
 from services.sim import run as field_run
 from services.sim import scenario
 from services.sim.core import ControlCore
@@ -115,12 +116,23 @@ def with_nodata_hole(tmp_path) -> str:
     return str(path)
 
 
-@pytest.mark.parametrize("policy", ["off", "hold"])
+def with_tuned_smith(tmp_path) -> str:
+    """The quick scenario with a Smith predictor, the auto look-ahead and its auto-tune."""
+    path = quick(tmp_path, plots=False)
+    with open(path, "a") as fh:
+        fh.write('[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n')
+    return path
+
+
+@pytest.mark.parametrize("policy", ["off", "hold", "tuned"])
 def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     """The controller service calls ControlCore.run_track on each lockstep batch (one tick in real-time
-    mode), carrying its state over; vrsim run calls it once on the whole track: same numbers."""
-    sc = scenario.load(quick(tmp_path, plots=False) if policy == "off" else with_nodata_hole(tmp_path))
-    assert sc.map.policy == policy
+    mode), carrying its state over; vrsim run calls it once on the whole track: same numbers (also
+    with the look-ahead tune, whose updates must fall on the same ticks however the track is cut)."""
+    path = {"off": quick(tmp_path, plots=False), "hold": with_nodata_hole(tmp_path),
+            "tuned": with_tuned_smith(tmp_path)}[policy]
+    sc = scenario.load(path)
+    assert sc.map.policy == ("hold" if policy == "hold" else "off")
     result = field_run.run(sc)
     core = ControlCore(result.world.grid, sc, result.world.field.polygon)
     t = result.track
@@ -130,12 +142,18 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     cuts = np.cumsum(sizes)
     cuts = np.append(cuts[cuts < n], np.arange(cuts[-1], n, 50)[1:])
     parts = []
-    for part in np.split(np.arange(n), cuts):
+    for i, part in enumerate(np.split(np.arange(n), cuts)):
         if part.size:
             parts.append(core.run_track(result.measured_x_m[part], result.measured_y_m[part],
                                         t["heading_rad"][part], result.measured_speed_m_s[part],
                                         t["implement_on"][part]))
+        if i % 97 == 0:   # now and then a fresh core that resumes from the state (after JSON)
+            saved = json.loads(dumps_text(core.state()))
+            core = ControlCore(result.world.grid, sc, result.world.field.polygon)
+            core.set_state(saved)
     batched = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    if policy == "tuned":
+        assert core.tuner.updates > 3 and core.look_ahead_s != core.tuner.known_delay_s
     np.testing.assert_allclose(batched["shaft_rpm"], result.control["shaft_rpm"], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(batched["metered_kg"], result.control["metered_kg"], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(batched["prescribed_kg_ha"], result.control["prescribed_kg_ha"])

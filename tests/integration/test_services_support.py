@@ -15,6 +15,8 @@ from affine import Affine
 
 from tests.conftest import VRSIM
 
+# Keys of a summary whose values depend on the wall clock, not on the simulation.
+WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
 CELL_M = 2.0
 MARGIN_M = 30.0
 FIELD = dict(width_m=36.0, length_m=60.0, lat=52.1, lon=11.6)
@@ -168,3 +170,20 @@ def pid_alive(pid: int) -> bool:
             return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def assert_same_summary(got: dict, expected: dict) -> None:
+    """`got` (the monitor's report, compare's run) has `expected`'s keys (`vrsim run --json`) and its
+    figures to 1e-9 relative, all but the wall-clock ones."""
+    import math
+
+    import pytest
+
+    assert set(got) == set(expected)
+    for key, want in expected.items():
+        if key in WALL_KEYS:
+            continue
+        if isinstance(want, float) and not math.isnan(want):
+            assert got[key] == pytest.approx(want, rel=1e-9, abs=1e-12), key
+        else:
+            assert got[key] == want, key

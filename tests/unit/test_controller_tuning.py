@@ -51,3 +51,8 @@ def test_paper_run_reports_the_step_and_duration_it_used():
     assumed = run.summary["assumptions"]
     assert assumed["step_rpm"]["value"] == 50.0 and assumed["duration_s"]["value"] == 10.0
     assert run.t_s[-1] == pytest.approx(10.0)
+    # each controller's loop figures: for P the gain margin is the ultimate gain over its kp
+    p_loop = run.summary["P"]["loop"]
+    assert p_loop["gain_margin"] == pytest.approx(run.summary["ultimate"]["Ku"] / 0.573, rel=1e-3)
+    assert p_loop["phase_margin_deg"] is None        # |L| < 1 everywhere: no crossover
+    assert run.summary["textbook"]["PI"]["loop"]["phase_margin_deg"] > 60

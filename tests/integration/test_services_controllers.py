@@ -1,0 +1,103 @@
+"""Controller kinds other than the PID through the services in lockstep: a Smith predictor with the
+look-ahead auto-tune, and a user's controller class from a file, each give the same metrics as
+`vrsim run` to 1e-9 relative (every service a separate process, on loopback). A user's file outside
+the folders the controller service allows is refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+
+import pytest
+
+from tests.conftest import ROOT, VRSIM
+from tests.integration.test_services_support import ServeAll, assert_same_summary, write_field_files
+
+CONTROLLERS = {
+    "smith": '[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n',
+    "user": '[controller]\nkind = "python"\nfile = "my_controller.py"\nclass = "MyController"\n'
+            'params = { kp_a_per_rpm = 0.002, ki_a_per_rpm_s = 0.01 }\n',
+}
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """The services' small field and map, one scenario per controller, and the example user class."""
+    path = str(tmp_path_factory.mktemp("svc-ctl"))
+    files = write_field_files(path)
+    with open(files["scenario"]) as fh:
+        base = fh.read()
+    for name, table in CONTROLLERS.items():
+        with open(os.path.join(path, f"{name}.toml"), "w") as fh:
+            fh.write(base.replace('name = "svc-small"', f'name = "svc-{name}"') + table)
+    shutil.copy(os.path.join(ROOT, "scenarios", "my_controller.py"), path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def net(folder):
+    server = ServeAll(folder, "--allow-user-code", folder)
+    try:
+        server.wait_ready()
+        yield server
+    finally:
+        assert server.stop() == 0, server.output()
+
+
+def start(net, folder, name):
+    path = os.path.join(folder, f"{name}.toml")
+    with open(path, "rb") as fh:
+        return net.query(f"vrsim/scenario/start?source={path};base_dir={folder}", fh.read())
+
+
+@pytest.mark.parametrize("name", list(CONTROLLERS))
+def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, name):
+    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
+    ok, started = start(net, folder, name)
+    assert ok, started
+    status = net.wait_status(lambda s: s["run_id"] == started["run_id"] and s["monitor_ticks"] == s["ticks"]
+                             and s["state"] in ("finished", "failed"))
+    assert status["state"] == "finished", status
+    ok, report = net.query("vrsim/tractor1/report")
+    assert ok, report
+    ok, state = net.query("vrsim/tractor1/control/state")
+    assert ok and state["run_id"] == started["run_id"] and state["next_tick"] == status["ticks"], state
+    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner"}
+    if name == "smith":   # the tuner moved the look-ahead, batch after batch
+        assert state["core"]["tuner"]["updates"] > 0
+        assert set(state["core"]["loop"]["controller"]) == {"pid_v", "model_x", "model_delay_rpm"}
+    else:
+        assert state["core"]["loop"]["controller"]["error_sum_rpm"][0] != 0.0
+    cli = subprocess.run([VRSIM, "run", os.path.join(folder, f"{name}.toml"), "--json", "--quiet", "--out",
+                          os.path.join(folder, f"run-{name}")], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    expected = json.loads(cli.stdout)
+    assert report["ticks"] == expected["ticks"] > 1000 and report["scenario"] == f"svc-{name}"
+    assert_same_summary(report, expected)
+
+
+def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.copy(os.path.join(folder, "map.tif"), elsewhere)
+    shutil.copy(os.path.join(folder, "my_controller.py"), elsewhere)
+    shutil.copy(os.path.join(folder, "user.toml"), elsewhere)
+    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
+    ok, reply = start(net, str(elsewhere), "user")
+    assert not ok
+    assert f"{elsewhere}/my_controller.py" in reply["error"] and "--allow-user-code" in reply["error"]
+    assert folder in reply["error"]
+
+
+def test_serve_all_with_a_user_controller_scenario_allows_its_folder(folder):
+    """`vrsim serve all SCENARIO`: the user named the scenario, so its controller file may run."""
+    server = ServeAll(folder, "user.toml")
+    try:
+        server.wait_ready()
+        status = server.wait_status(lambda s: s["state"] in ("finished", "failed")
+                                    and s["monitor_ticks"] == s["ticks"])
+        assert status["state"] == "finished" and status["scenario"] == "svc-user", status
+    finally:
+        assert server.stop() == 0, server.output()
