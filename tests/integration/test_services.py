@@ -5,6 +5,7 @@ matches `vrsim run`, bad input of every kind, a bad scenario, and clean shutdown
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -16,6 +17,7 @@ import pytest
 
 from tests.conftest import VRSIM
 from tests.integration.test_services_support import (
+    WALL_KEYS,
     ServeAll,
     assert_same_summary,
     child_services,
