@@ -10,7 +10,7 @@ import os
 import numpy as np
 
 from common import VrsimError
-from services.outputs.plots import _pyplot
+from services.outputs.plots import figure
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
 from services.sim.metrics import rate_steps
@@ -125,12 +125,12 @@ def step_windows(result, count: int = STEP_PANELS) -> list[int]:
 def plot_timeseries(comparison: Comparison, path: str) -> None:
     """Shaft speed and applied rate of every controller around the same rate steps (the drive is
     shared, so the steps are the same for all), time from each step; target and prescription in black."""
-    plt = _pyplot()
     first = comparison.results[0]
     steps = step_windows(first)
     t = first.track["time_s"]
     cols = max(1, len(steps))
-    fig, axes = plt.subplots(2, cols, figsize=(4.2 * cols + 1.5, 7), squeeze=False, constrained_layout=True)
+    fig = figure(4.2 * cols + 1.5, 7, layout="constrained")
+    axes = fig.subplots(2, cols, squeeze=False)
     before, after = STEP_WINDOW_S
     for col, k in enumerate(steps):
         w = slice(int(np.searchsorted(t, t[k] + before)), int(np.searchsorted(t, t[k] + after)))
@@ -154,12 +154,10 @@ def plot_timeseries(comparison: Comparison, path: str) -> None:
     fig.suptitle(f"{comparison.scenario.name}: every controller on the same drive, at the same rate steps"
                  + ("" if steps else " (no rate step crossed)"))
     fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def plot_errors(comparison: Comparison, path: str) -> None:
     """Applied minus prescribed (kg/ha) inside the field, one map per controller, one colour scale."""
-    plt = _pyplot()
     grid = comparison.results[0].world.grid
     west, south, east, north = grid.bounds
     extent = (0.0, east - west, 0.0, north - south)
@@ -169,8 +167,8 @@ def plot_errors(comparison: Comparison, path: str) -> None:
     emax = max(float(np.percentile(finite, 98)) if finite.size else 1.0, 1.0)
     cols = min(3, len(errors))
     rows = math.ceil(len(errors) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(5.5 * cols, 4.8 * rows), squeeze=False,
-                             constrained_layout=True)
+    fig = figure(5.5 * cols, 4.8 * rows, layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False)
     fx, fy = comparison.results[0].world.field.polygon.exterior.xy
     for ax, spec, err, result in zip(axes.flat, comparison.specs, errors, comparison.results, strict=False):
         im = ax.imshow(err, extent=extent, origin="upper", cmap="RdBu_r", vmin=-emax, vmax=emax,
@@ -183,4 +181,3 @@ def plot_errors(comparison: Comparison, path: str) -> None:
     fig.colorbar(im, ax=axes, label="applied - prescribed (kg/ha)", shrink=0.8)
     fig.suptitle(f"{comparison.scenario.name}: error maps (same colour scale)")
     fig.savefig(path, dpi=80)
-    plt.close(fig)

@@ -20,12 +20,14 @@ TIMESERIES_WINDOW_S = 60.0
 MAX_TRACK_POINTS = 20_000  # the path over the prescription: more points draw the same line
 
 
-def figure(width_in: float, height_in: float, **margins):
-    """A Figure on the Agg canvas with fixed margins (fractions of the figure)."""
+def figure(width_in: float, height_in: float, layout: str | None = None, **margins):
+    """A Figure on the Agg canvas (no pyplot): fixed margins (fractions of the figure), or a layout
+    engine by name (``"constrained"``) where the number of panels varies."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width_in, height_in))
-    fig.subplots_adjust(**margins)
+    fig = Figure(figsize=(width_in, height_in), layout=layout)
+    if margins:
+        fig.subplots_adjust(**margins)
     return fig
 
 

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from matplotlib.ticker import NullFormatter
 
-from services.outputs.plots import _pyplot
+from services.outputs.plots import figure
 from services.outputs.summary import SUMMARY_ROWS
 from services.sim.sweep import (
     METRIC_SENSE,
@@ -39,7 +39,6 @@ def _png(fig) -> str:
     """A figure as an <img> with the PNG inline."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
-    _pyplot().close(fig)
     data = base64.b64encode(buf.getvalue()).decode()
     return f'<img alt="plot" src="data:image/png;base64,{data}">'
 
@@ -62,12 +61,12 @@ def _positions(values: list) -> tuple[np.ndarray, list | None]:
 def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
     """One figure: every ranked metric against one axis, a point per configuration (mean over seeds,
     bar: 95 % interval) and a line through the mean per axis value, a colour per scenario."""
-    plt = _pyplot()
     metrics = list(METRIC_SENSE)
     ncols = 4
     nrows = math.ceil(len(metrics) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.0 * nrows))
-    fig.subplots_adjust(left=0.05, right=0.98, bottom=0.05, top=0.93, hspace=0.55, wspace=0.25)
+    fig = figure(4.2 * ncols, 3.0 * nrows, left=0.05, right=0.98, bottom=0.05, top=0.93, hspace=0.55,
+                 wspace=0.25)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
     scenarios = list(dict.fromkeys(c.scenario for c in configs))
     shown = sorted({v for c in configs for v in _positions([dict(c.axes)[axis_key]])[0]})
     for ax, metric in zip(axes.flat, metrics, strict=False):
@@ -109,12 +108,12 @@ def plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
     """The two metrics of each configuration (means over seeds, bars: 95 % intervals), the Pareto
     front highlighted and numbered; returns the figure and the front's configurations in that
     numbering (along the first metric)."""
-    plt = _pyplot()
     mx, my = pair
     sx = np.array([mean_ci95(c.values(mx)) for c in configs]).reshape(-1, 2)
     sy = np.array([mean_ci95(c.values(my)) for c in configs]).reshape(-1, 2)
     front = pareto_front(sx[:, 0], sy[:, 0], mx, my)
-    fig, ax = plt.subplots(figsize=(9, 6.5), constrained_layout=True)
+    fig = figure(9, 6.5, left=0.09, right=0.97, bottom=0.09, top=0.96)
+    ax = fig.subplots()
     ax.errorbar(sx[:, 0], sy[:, 0], xerr=np.nan_to_num(sx[:, 1]), yerr=np.nan_to_num(sy[:, 1]), fmt="o",
                 ms=4, color="0.6", alpha=0.7, label="configurations")
     on_front = np.flatnonzero(front)[np.argsort(sx[front, 0])]
