@@ -7,8 +7,9 @@ import functools
 import numpy as np
 import pytest
 import shapely
+from affine import Affine
 
-from maps import AsApplied, synthetic
+from maps import AsApplied, Grid, synthetic
 from services.sim.section_landing import overlap_metrics, section_strips, worked_fraction
 from services.sim.sections import (
     SWITCHING,
@@ -270,3 +271,16 @@ def test_landing_follows_the_delay_and_passes():
     # Strips join up to half a cell of travel.
     length = np.hypot(strips.x1_m - strips.x0_m, strips.y1_m - strips.y0_m)
     assert np.median(length) == pytest.approx(0.5 * MAP_CELL_M, rel=0.1) and length.max() < 2 * MAP_CELL_M
+
+
+def test_worked_fraction_is_the_working_width_along_working_stretches():
+    track = dict(straight_track())  # x 500 010 -> ~500 260 at y 5 300 050, width 12: rows 44-55
+    track["implement_on"] = track["time_s"] < 40.0  # working for the first 100 m only
+    worked = worked_fraction(track, 12.0, grid_1m())
+    assert (worked[44:56, 10:110] == 1.0).all()
+    assert worked[:44].max() == 0.0 and worked[56:].max() == 0.0 and worked[:, 111:].max() == 0.0
+    assert worked.sum() == pytest.approx(12 * 100, rel=1e-3)
+    # Cells 2 m tall and 1 m wide: the same area, counted on a grid stretched to square cells.
+    tall = Grid(np.zeros((50, 300)), Affine(1.0, 0, 500_000.0, 0, -2.0, 5_300_100.0), "EPSG:32632")
+    worked_tall = worked_fraction(track, 12.0, tall)
+    assert (worked_tall[22:28, 10:110] == 1.0).all() and worked_tall.sum() * 2 == pytest.approx(1200, rel=1e-3)
