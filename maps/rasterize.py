@@ -6,8 +6,8 @@ special treatment: under the even-odd rule a point is inside a feature when a ra
 the feature's rings an odd number of times.
 
 A cell belongs to a feature when its centre is inside (the rule GDAL's rasterizer uses); where
-features overlap, the later one wins (`rasterize_rings`), or the union is marked (`fill_rings`). Cost: ~O(edges x rows they span + covered cells), all in numpy;
-no per-polygon Python.
+features overlap, the later one wins (`rasterize_rings`), or the union is marked (`fill_rings`).
+Cost: ~O(edges x rows they span + covered cells), all in numpy; no per-polygon Python.
 """
 
 from __future__ import annotations

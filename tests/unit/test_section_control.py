@@ -283,4 +283,5 @@ def test_worked_fraction_is_the_working_width_along_working_stretches():
     # Cells 2 m tall and 1 m wide: the same area, counted on a grid stretched to square cells.
     tall = Grid(np.zeros((50, 300)), Affine(1.0, 0, 500_000.0, 0, -2.0, 5_300_100.0), "EPSG:32632")
     worked_tall = worked_fraction(track, 12.0, tall)
-    assert (worked_tall[22:28, 10:110] == 1.0).all() and worked_tall.sum() * 2 == pytest.approx(1200, rel=1e-3)
+    assert (worked_tall[22:28, 10:110] == 1.0).all()
+    assert worked_tall.sum() * 2 == pytest.approx(1200, rel=1e-3)
