@@ -58,7 +58,8 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
     track : dict of ndarray, shape (n,)
         The true track (``time_s``, ``x_m``, ``y_m``, ``heading_rad``).
     metered_kg : ndarray, shape (n,)
-        Product through the meter in each tick (0 with all gates closed).
+        Product through the meter in each tick; 0 where all gates are closed (it stays in the
+        hopper), else a `ValueError` (it would be lost).
     states : SectionStates
         Gate states per tick and section, section widths and offsets.
     delay_s, period_s : float
@@ -70,6 +71,9 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
     n, sections = states.actual.shape
     x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s)
     width_on = states.width_on_m
+    lost = (np.asarray(metered_kg) > 0) & (width_on <= 0)
+    if lost.any():
+        raise ValueError(f"section_strips: tick {int(np.argmax(lost))} meters product with every gate closed")
     share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
                       where=states.actual & (width_on[:, None] > 0))
     mass = np.asarray(metered_kg, float)[:, None] * share

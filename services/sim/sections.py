@@ -262,7 +262,8 @@ def command(wanted_on, wanted_off, on_first: bool, before) -> np.ndarray:
     agree the command follows them. When only the longer look-ahead wants product, the section
     switches (or stays) on; when only the shorter one does, it keeps its state (on: product still
     lands on wanted ground until it could stop; off: starting now would land on unwanted ground).
-    The result: product starts and stops landing exactly where wanted starts and stops, except
+    The result: product starts and stops landing where wanted starts and stops (as far as the
+    look-aheads predicted it), except
     that a gap shorter than the two delays' difference is bridged (overlap) and an island that
     short is skipped: the section cannot stop and restart, or start and stop, in time.
 

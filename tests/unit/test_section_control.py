@@ -285,3 +285,12 @@ def test_worked_fraction_is_the_working_width_along_working_stretches():
     worked_tall = worked_fraction(track, 12.0, tall)
     assert (worked_tall[22:28, 10:110] == 1.0).all()
     assert worked_tall.sum() * 2 == pytest.approx(1200, rel=1e-3)
+
+
+def test_product_with_every_gate_closed_is_refused():
+    imp = Implement(section_control="off")
+    track = dict(straight_track(100))
+    track["implement_on"] = np.arange(100) < 50
+    states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), 1.0)
+    with pytest.raises(ValueError, match="tick 50 meters product with every gate closed"):
+        section_strips(track, np.full(100, 0.01), states, imp.delivery_delay_s, PERIOD_S, 1.0)
