@@ -14,18 +14,10 @@ single_strip_landing_default_s the landing it replaces: one strip of the width o
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 
-
-def _best(fn, repeat=3) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+from bench.bench_maps import _best  # best of 3 wall times
 
 
 def run() -> dict:
