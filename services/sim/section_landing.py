@@ -1,0 +1,175 @@
+"""Where each section's product lands, and the overlap and skip figures that follow.
+
+Product metered during tick [t, t + period] is shared between the sections whose gates are open
+(`SectionStates.actual`) in proportion to their widths, and each share lands on its own section's
+strip on the true path ``delivery_delay_s`` later: between where the section is at the start and
+the end of that span. Consecutive ticks of one section are joined into strips up to half a map
+cell long (as for the whole implement before); a strip ends where the section switches or the
+pass changes, so every strip has one section, one pass and product all along.
+
+Figures (over the field's cells, from `maps.AsApplied`'s pass accounting):
+
+- ``overlap_area_pct``: share of the covered field area that more than one pass put product on;
+- ``skip_area_pct``: share of the worked field area (swept by the whole working width wherever the
+  path is a working stretch) that received no product;
+- ``overlap_kg``: product applied beyond the first pass.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from maps import AsApplied, Grid
+from services.sim.metrics import _pct
+from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
+
+WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
+MAX_WORKED_CELLS = 16_000_000  # ... on at most this many fine cells (16 MB)
+
+
+@dataclass(frozen=True)
+class SectionStrips:
+    """Strips of product, one entry per strip; arrays of shape (k,), in `AsApplied.add_strips`' terms."""
+
+    x0_m: np.ndarray
+    y0_m: np.ndarray
+    x1_m: np.ndarray
+    y1_m: np.ndarray
+    width_m: np.ndarray
+    mass_kg: np.ndarray
+    pass_index: np.ndarray
+    section: np.ndarray
+
+    def add_to(self, as_applied: AsApplied) -> None:
+        """Accumulate the strips onto an as-applied raster, with their passes."""
+        as_applied.add_strips(self.x0_m, self.y0_m, self.x1_m, self.y1_m, self.width_m, self.mass_kg,
+                              pass_index=self.pass_index)
+
+
+def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: float, period_s: float,
+                   cell_m: float) -> SectionStrips:
+    """Each section's product as strips on its own path, ordered by pass.
+
+    Parameters
+    ----------
+    track : dict of ndarray, shape (n,)
+        The true track (``time_s``, ``x_m``, ``y_m``, ``heading_rad``).
+    metered_kg : ndarray, shape (n,)
+        Product through the meter in each tick; 0 where all gates are closed (it stays in the
+        hopper), else a `ValueError` (it would be lost).
+    states : SectionStates
+        Gate states per tick and section, section widths and offsets.
+    delay_s, period_s : float
+        Delivery delay and tick length, s.
+    cell_m : float
+        Map cell size: ticks are joined into strips up to half of it long.
+    """
+    time_s = np.asarray(track["time_s"], float)
+    n, sections = states.actual.shape
+    x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s)
+    width_on = states.width_on_m
+    lost = (np.asarray(metered_kg) > 0) & (width_on <= 0)
+    if lost.any():
+        raise ValueError(f"section_strips: tick {int(np.argmax(lost))} meters product with every gate closed")
+    share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
+                      where=states.actual & (width_on[:, None] > 0))
+    mass = np.asarray(metered_kg, float)[:, None] * share
+    passes = landing_pass(time_s, states.pass_index, delay_s)
+    typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
+    join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
+    # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
+    # section's gate changes and where the pass changes.
+    on = states.actual.T
+    brk = np.zeros((sections, n), bool)
+    brk[:, ::join] = True
+    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | (passes[1:] != passes[:-1])[None, :]
+    starts = np.flatnonzero(brk.ravel())
+    ends = np.append(starts[1:], sections * n) - 1
+    keep = on.ravel()[starts]
+    starts, ends = starts[keep], ends[keep]
+    kg = np.add.reduceat(mass.T.ravel(), np.flatnonzero(brk.ravel()))[keep] if n else np.zeros(0)
+    sec, first, last = starts // n, starts % n, ends % n
+    off = states.offsets_m[sec]
+    order = np.argsort(passes[first], kind="stable")  # by pass, each section's strips in time order
+    strips = SectionStrips(x0[first] + nx[first] * off, y0[first] + ny[first] * off,
+                           x1[last] + nx[last] * off, y1[last] + ny[last] * off,
+                           states.widths_m[sec], kg, passes[first], sec)
+    return SectionStrips(*(getattr(strips, f)[order] for f in SectionStrips.__dataclass_fields__))
+
+
+def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
+    """Share of each cell of `grid` that the whole working width sweeps along the working
+    stretches of the true path: the ground the plan means to treat; shape (rows, cols).
+
+    Counted on a raster `WORKED_SUPERSAMPLE` times finer (fewer on very large grids): the share of
+    its cells whose centre lies inside the outlines.
+    """
+    dx, dy = grid.cell_size
+    fine = max(1, min(WORKED_SUPERSAMPLE, int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))))
+    mask = np.zeros((grid.rows * fine, grid.cols * fine), bool)
+    pose = Poses.of(track)
+    rings = []
+    for a, b in runs_of(np.asarray(track["implement_on"], bool)):
+        rings += pose.outlines(a, b, width_m / 2, -width_m / 2, pose.vertex_step(a, b))
+    # Stretched north-south so the cells are square, as the scan lines need.
+    stretch = dx / dy
+    west, _, _, north = grid.bounds
+    fill_outlines(mask, [r * (1.0, stretch) for r in rings], west, north * stretch, dx / fine)
+    return mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
+
+
+def landing_pass(time_s, pass_index, delay_s: float) -> np.ndarray:
+    """The pass of the product metered in each tick: that of the pose where it starts landing,
+    a turn counting with the pass before it (the first pass for anything before it)."""
+    time_s = np.asarray(time_s, float)
+    filled = np.maximum.accumulate(np.asarray(pass_index, np.int64)) if time_s.size else np.zeros(0, np.int64)
+    pose = np.clip(np.searchsorted(time_s, time_s + delay_s, side="right") - 1, 0, max(time_s.size - 1, 0))
+    return np.maximum(filled[pose], 0) if time_s.size else filled
+
+
+def _landing_frame(track: dict, delay_s: float, period_s: float):
+    """Start and end of each tick's landing span on the true path and the unit left normal there."""
+    time_s = np.asarray(track["time_s"], float)
+    t0 = time_s + delay_s
+    x, y = track["x_m"], track["y_m"]
+    hx = np.interp(t0, time_s, np.cos(track["heading_rad"]))
+    hy = np.interp(t0, time_s, np.sin(track["heading_rad"]))
+    norm = np.hypot(hx, hy)
+    nx = np.divide(-hy, norm, out=np.zeros(norm.shape), where=norm > 0)
+    ny = np.divide(hx, norm, out=np.zeros(norm.shape), where=norm > 0)
+    return (np.interp(t0, time_s, x), np.interp(t0, time_s, y), np.interp(t0 + period_s, time_s, x),
+            np.interp(t0 + period_s, time_s, y), nx, ny)
+
+
+@dataclass(frozen=True)
+class OverlapMetrics:
+    overlap_area_pct: float
+    skip_area_pct: float
+    overlap_kg: float
+
+
+def overlap_metrics(applied: AsApplied, worked_fraction, in_field) -> OverlapMetrics:
+    """Overlap and skips over the field's cells.
+
+    Parameters
+    ----------
+    applied : maps.AsApplied
+        The as-applied raster, strips added with their passes.
+    worked_fraction : ndarray, shape (rows, cols)
+        Share of each cell the working width swept along the working stretches (`worked_fraction`).
+    in_field : ndarray of bool, shape (rows, cols)
+        Cells whose centre lies inside the field.
+    """
+    field = np.asarray(in_field, bool)
+    covered = applied.coverage_fraction[field]
+    worked = np.minimum(np.asarray(worked_fraction, float)[field], 1.0)
+    overlap = applied.overlap_fraction[field]
+    skipped = np.maximum(worked - covered, 0.0)
+    return OverlapMetrics(
+        overlap_area_pct=_pct(overlap.sum(), covered.sum()),
+        skip_area_pct=_pct(skipped.sum(), worked.sum()),
+        overlap_kg=float(applied.overlap_kg[field].sum()),
+    )
