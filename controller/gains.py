@@ -15,6 +15,9 @@ from common import ControllerError, check_number
 from controller import liang2013
 
 KINDS = ("P", "PI", "PID")
+# Kinds that are a meter of their own, not a PID: the run core supplies them (`services.sim.core`),
+# until the controller registry (branch `ctl`) registers them.
+REFERENCE_KINDS = ("ideal",)
 FORMS = ("incremental", "positional")
 GAIN_SOURCES = ("paper", "textbook", "relay", "manual")
 
@@ -44,7 +47,8 @@ class ControllerConfig:
 
     Parameters
     ----------
-    kind : {"P", "PI", "PID"}
+    kind : {"P", "PI", "PID", "ideal"}
+        "ideal": a reference meter whose shaft follows the target exactly (no PID, no plant).
     form : {"incremental", "positional"}
         Incremental: the paper's velocity form, anti-windup by holding the saturated output.
         Positional: integral sum with conditional integration (clamping) when saturated.
@@ -68,7 +72,7 @@ class ControllerConfig:
     derivative_on_measurement: bool = False
 
     def __post_init__(self):
-        for name, allowed in (("kind", KINDS), ("form", FORMS), ("gains", GAIN_SOURCES)):
+        for name, allowed in (("kind", KINDS + REFERENCE_KINDS), ("form", FORMS), ("gains", GAIN_SOURCES)):
             value = getattr(self, name)
             if value not in allowed:
                 raise ControllerError(f"controller {name} must be one of {', '.join(allowed)}, got {value!r}")

@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 
 from controller import PlantParams, build_loop
+from controller.loop import StepOutput
 from maps import Grid, RatePolicy
 from services.sim.scenario import Scenario
 
@@ -21,6 +22,44 @@ def plant_for(scenario: Scenario) -> PlantParams:
     imp = scenario.implement
     return dataclasses.replace(scenario.plant, transmission_ratio=imp.transmission_ratio,
                                shaft_rpm_max=imp.shaft_rpm_max)
+
+
+class IdealMeter:
+    """``[controller] kind = "ideal"``: a reference meter whose shaft turns at exactly the target each
+    control period (no PID, no plant, no delay), so what it meters is exactly what the target asks.
+
+    Runs with it measure the error left when metering is perfect: the geometry of landing, section
+    control and machine limits. The reported current is the static current that would hold the target
+    on the real plant (``target / shaft_rpm_per_a`` within the valve's range), for plots only.
+
+    A seam, not a registry kind: the controller registry of branch ``ctl`` brings the same meter
+    (``controller.kinds.ideal.IdealLoop``, same numbers); once it is on main, `meter_loop` is
+    `controller.build_loop` and this class goes.
+    """
+
+    def __init__(self, plant: PlantParams, control_period_s: float):
+        self.plant = plant
+        self.control_period_s = control_period_s
+
+    def run(self, targets_rpm) -> StepOutput:
+        """One period per target (shape (K,)); outputs of shape (K, 1)."""
+        r = np.minimum(np.maximum(np.asarray(targets_rpm, float), 0.0), self.plant.shaft_rpm_max)[:, None]
+        current = np.clip(r / self.plant.shaft_rpm_per_a, self.plant.current_min_a, self.plant.current_max_a)
+        return StepOutput(r, r * self.control_period_s / 60.0, current, r.copy())
+
+
+REFERENCE_METERS = {"ideal": IdealMeter}  # controller.gains.REFERENCE_KINDS, built here
+
+
+def meter_loop(scenario: Scenario):
+    """The metering loop of the scenario's ``[controller]``: the PID with the paper's plant
+    (`controller.build_loop`), or a reference meter (`REFERENCE_METERS`)."""
+    timing = scenario.timing
+    reference = REFERENCE_METERS.get(scenario.controller.kind)
+    if reference is not None:
+        return reference(plant_for(scenario), timing.control_period_s)
+    return build_loop(plant_for(scenario), scenario.controller, control_period_s=timing.control_period_s,
+                      plant_step_s=timing.plant_step_s, n=1)
 
 
 class ControlCore:
@@ -44,10 +83,7 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
-        timing = scenario.timing
-        self.loop = build_loop(plant_for(scenario), scenario.controller,
-                               control_period_s=timing.control_period_s, plant_step_s=timing.plant_step_s,
-                               n=1)
+        self.loop = meter_loop(scenario)
         self.last_rate_kg_ha = float("nan")
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
