@@ -114,6 +114,12 @@ class Implement:
         rpm = np.asarray(shaft_rpm, dtype=float)
         return np.where(rpm > 0, np.clip(rpm, self.shaft_rpm_min, self.shaft_rpm_max), 0.0)
 
+    def shaft_limited(self, target_shaft_rpm):
+        """Where a target from `clip_shaft_rpm` sits on a bound of the shaft's range while applying:
+        the map asked for a speed the shaft cannot turn at (or exactly its bound)."""
+        rpm = np.asarray(target_shaft_rpm, dtype=float)
+        return (rpm > 0) & ((rpm <= self.shaft_rpm_min) | (rpm >= self.shaft_rpm_max))
+
     def mass_kg(self, shaft_rev):
         """Product metered by ``shaft_rev`` shaft revolutions, kg."""
         return np.asarray(shaft_rev, dtype=float) * self.kg_per_rev

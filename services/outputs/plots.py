@@ -1,5 +1,5 @@
-"""map.png (prescribed, applied and error maps) and timeseries.png (shaft speed and rate around
-rate steps)."""
+"""map.png (prescribed, applied and error maps), sections.png (overlap, skips and machine-limited
+areas) and timeseries.png (shaft speed and rate around rate steps)."""
 
 from __future__ import annotations
 
@@ -20,12 +20,19 @@ def _pyplot():
     return plt
 
 
+def _frame(result: RunResult):
+    """Extent in metres from the map's south-west corner (UTM eastings of six digits crowd the axis),
+    that corner, and the field's outline in those metres."""
+    west, south, east, north = result.world.grid.bounds
+    fx, fy = result.world.field.polygon.exterior.xy
+    outline = (np.asarray(fx) - west, np.asarray(fy) - south)
+    return (0.0, east - west, 0.0, north - south), (west, south), outline
+
+
 def plot_maps(result: RunResult, path: str) -> None:
     plt = _pyplot()
     grid = result.world.grid
-    # Metres from the map's south-west corner: UTM eastings of six digits crowd the axis.
-    west, south, east, north = grid.bounds
-    extent = (0.0, east - west, 0.0, north - south)
+    extent, (west, south), (fx, fy) = _frame(result)
     rx, applied = grid.rates_kg_ha, result.as_applied.applied_kg_ha
     shown = np.where(result.in_field, 1.0, np.nan)
     vmax = float(np.nanmax(rx)) * 1.2 if np.isfinite(np.nanmax(rx)) else 1.0
@@ -35,8 +42,6 @@ def plot_maps(result: RunResult, path: str) -> None:
     panels = ((rx * shown, "Prescribed", "viridis", 0, vmax),
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
-    fx, fy = result.world.field.polygon.exterior.xy
-    fx, fy = np.asarray(fx) - west, np.asarray(fy) - south
     for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
         im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
                        interpolation="nearest")
@@ -49,6 +54,38 @@ def plot_maps(result: RunResult, path: str) -> None:
     axes[0].set_ylabel("north (m) of the map's south-west corner")
     fig.suptitle(f"{result.world.scenario.name}: MAE {result.summary['mae_kg_ha']:.1f} kg/ha, "
                  f"within 10 %: {result.summary['within_10pct_area_pct']:.1f} % of covered area")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_sections(result: RunResult, path: str) -> None:
+    """Three maps of where the run went wrong for reasons other than the rate: ground more than one
+    pass treated, worked ground no product reached, and ground the meter could not treat at the rate
+    asked (its shaft at a limit of its speed range); each as the share of the cell's area."""
+    plt = _pyplot()
+    extent, _, (fx, fy) = _frame(result)
+    shown = np.where(result.in_field, 1.0, np.nan)
+    cover = result.as_applied.coverage_fraction
+    s = result.summary
+    panels = ((result.as_applied.overlap_fraction, f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, "
+               f"{s['overlap_kg']:.1f} kg", "Reds"),
+              (np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0),
+               f"Skipped: {s['skip_area_pct']:.2f} % of worked area", "Blues"),
+              (np.minimum(result.limited_fraction, 1.0),
+               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area", "Purples"))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 5.5), constrained_layout=True)
+    for ax, (data, title, cmap) in zip(axes, panels, strict=True):
+        im = ax.imshow(data * shown, extent=extent, origin="upper", cmap=cmap, vmin=0.0, vmax=1.0,
+                       interpolation="nearest")
+        ax.plot(fx, fy, color="k", lw=0.8)
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        fig.colorbar(im, ax=ax, label="share of the cell", shrink=0.85)
+    axes[0].set_ylabel("north (m) of the map's south-west corner")
+    widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
+    fig.suptitle(f"{result.world.scenario.name}: {s['sections']} sections ({widths} m), section control "
+                 f"{result.world.scenario.implement.section_control!r}")
     fig.savefig(path, dpi=90)
     plt.close(fig)
 

@@ -1,18 +1,42 @@
-"""as_applied.tif and error.tif: applied kg/ha and applied minus prescribed, GeoTIFF on the
-prescription's grid."""
+"""as_applied.tif, error.tif and passes.tif: applied kg/ha, applied minus prescribed, and the number of
+passes that put product on each cell, GeoTIFF on the prescription's grid."""
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
+from common import MapError
 from maps import write_map
 from services.sim.run import RunResult
 
 
-def write_rasters(result: RunResult, as_applied_path: str, error_path: str) -> None:
-    """Write the applied rate and its error against the prescription (kg/ha) as GeoTIFFs."""
+def write_rasters(result: RunResult, as_applied_path: str, error_path: str, passes_path: str) -> None:
+    """Write the applied rate and its error against the prescription (kg/ha) and the pass counts."""
     grid = result.world.grid
     applied = result.as_applied.applied_kg_ha
     write_map(replace(grid, rates_kg_ha=applied, product="as-applied"), as_applied_path)
     write_map(replace(grid, rates_kg_ha=applied - grid.rates_kg_ha, product="applied minus prescribed"),
               error_path)
+    write_passes(result, passes_path)
+
+
+def write_passes(result: RunResult, path: str) -> None:
+    """passes.tif: per cell, how many passes put product on at least half of it
+    (`maps.AsApplied.pass_count`), uint16 on the prescription's grid (0: no product); tagged
+    ``unit=passes`` (a count, not a rate: not a `maps.Grid`)."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    grid = result.world.grid
+    count = np.minimum(result.as_applied.pass_count, np.iinfo(np.uint16).max).astype(np.uint16)
+    profile = dict(driver="GTiff", width=grid.cols, height=grid.rows, count=1, dtype="uint16",
+                   crs=grid.crs.to_wkt(), transform=grid.transform, compress="deflate")
+    try:
+        with rasterio.open(path, "w", **profile) as dst:
+            dst.write(count, 1)
+            dst.update_tags(unit="passes", quantity="count")
+            dst.set_band_description(1, "passes that put product on at least half of the cell")
+    except RasterioError as exc:
+        raise MapError(f"{path}: cannot write GeoTIFF: {exc}") from None

@@ -14,6 +14,7 @@ from controller import PlantParams, build_loop
 from controller.loop import StepOutput
 from maps import Grid, RatePolicy
 from services.sim.scenario import Scenario
+from services.sim.sections import SectionSwitch
 
 
 def plant_for(scenario: Scenario) -> PlantParams:
@@ -63,31 +64,46 @@ def meter_loop(scenario: Scenario):
 
 
 class ControlCore:
-    """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+    """Control ticks: fix -> landing point -> rate -> sections -> target rpm -> PID + plant -> product.
 
     Deterministic and free of I/O; `vrsim run` (the whole track in one `run_track`) and the
     controller service (`run_track` on each lockstep batch, the state carried over) run the same
-    two stages:
+    stages:
 
     1. `targets`: where product metered now will land, the prescription there (with the map's
-       policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
-       landing point is predicted by dead reckoning from the fix: product metered now lands
-       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading.
-    2. the closed loop (PID, valve, motor): `controller.ClosedLoop.run` over the targets, one
+       policy off the map), which sections apply (`services.sim.sections.SectionSwitch`, stateful:
+       coverage control remembers where product landed) and the target shaft speed for the width
+       whose gates are open. No feedback, so vectorized over ticks. The landing point is predicted
+       by dead reckoning from the fix: product metered now lands `delivery_delay_s` later, when the
+       implement has moved ``speed * delay`` along its heading.
+    2. the closed loop (PID, valve, motor; or a reference meter, `meter_loop`) over the targets, one
        control period per tick (sequential by nature: one lifted matrix product per period).
+
+    Parameters
+    ----------
+    grid : maps.Grid
+        The prescription in the field's metric CRS.
+    scenario : Scenario
+    field_polygon : shapely geometry
+        The field boundary (section control switches sections off outside it).
+    path : vehicle.CoveragePath, optional
+        The planned path (coverage section control reads off it where the path works).
     """
 
-    def __init__(self, grid: Grid, scenario: Scenario, field_polygon=None):
+    def __init__(self, grid: Grid, scenario: Scenario, field_polygon, path=None):
         self.grid = grid
-        self.field_polygon = field_polygon  # sections whose centre would land outside it switch off
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
         self.loop = meter_loop(scenario)
+        self.switch = SectionSwitch(self.implement, field_polygon, path, scenario.timing.control_period_s,
+                                    min(grid.cell_size))
         self.last_rate_kg_ha = float("nan")
 
-    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
-        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
+    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
+        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
+
+        `s_m` is the distance along the planned path (coverage section control needs it)."""
         lead_m = np.asarray(speed_m_s) * self.implement.delivery_delay_s
         lx = x_m + lead_m * np.cos(heading_rad)
         ly = y_m + lead_m * np.sin(heading_rad)
@@ -95,34 +111,18 @@ class ControlCore:
         rate = self.policy.apply(found.rate_kg_ha, found.inside, self.last_rate_kg_ha)
         if rate.size:
             self.last_rate_kg_ha = float(rate[-1])
-        width_on, offset = self.sections(lx, ly, heading_rad, implement_on)
+        states = self.switch.step(x_m, y_m, heading_rad, speed_m_s, implement_on, s_m)
+        width_on = states.width_on_m
         # Within the meter's speed range while applying; a zero rate or all sections off stop the shaft.
         wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
         target = np.where(width_on > 0, wanted, 0.0)
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
-                "width_on_m": width_on, "offset_m": offset}
+                "width_on_m": width_on, "sections_on": states.actual}
 
-    def sections(self, x_m, y_m, heading_rad, implement_on):
-        """Working width of the sections that are on (m) and its centre's offset to the left (m).
-
-        Section control as terminals do it: with the implement on, a section applies when its centre
-        lands inside the field. The sections that are on are taken as one strip (they are contiguous
-        on convex edges; on a notch this spreads a little product over the gap).
-        """
-        imp = self.implement
-        on = np.asarray(implement_on, bool)
-        if self.field_polygon is None:
-            return np.where(on, imp.width_m, 0.0), np.zeros(on.shape)
-        sec = imp.sections_on(self.field_polygon, x_m, y_m, heading_rad, on)
-        count = sec.sum(axis=1)
-        offsets = np.where(sec, imp.section_offsets_m, 0.0).sum(axis=1)
-        return count * imp.section_width_m, np.divide(offsets, count, out=np.zeros(count.shape),
-                                                      where=count > 0)
-
-    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
+    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
-        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`."""
-        rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on)
+        """All stages over the next ticks of a measured track; arrays keyed as `CONTROL_KEYS`."""
+        rec = self.targets(x_m, y_m, heading_rad, speed_m_s, implement_on, s_m)
         targets, n = rec["target_shaft_rpm"], len(x_m)
         rpm, rev, cur = np.empty(n), np.empty(n), np.empty(n)
         chunk = 20000
@@ -144,5 +144,6 @@ class ControlCore:
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
 
 
+# Per tick, shape (n,); ``sections_on`` is (n, sections): each section's gate (`SectionStates.actual`).
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
-                "shaft_rev", "current_a", "metered_kg", "width_on_m", "offset_m")
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on")

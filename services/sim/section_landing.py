@@ -7,12 +7,8 @@ the end of that span. Consecutive ticks of one section are joined into strips up
 cell long (as for the whole implement before); a strip ends where the section switches or the
 pass changes, so every strip has one section, one pass and product all along.
 
-Figures (over the field's cells, from `maps.AsApplied`'s pass accounting):
-
-- ``overlap_area_pct``: share of the covered field area that more than one pass put product on;
-- ``skip_area_pct``: share of the worked field area (swept by the whole working width wherever the
-  path is a working stretch) that received no product;
-- ``overlap_kg``: product applied beyond the first pass.
+With `maps.AsApplied`'s pass accounting and the plan's worked area (`worked_fraction`) this gives
+the overlap and skip figures (`services.sim.metrics.overlap_metrics`).
 """
 
 from __future__ import annotations
@@ -23,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from maps import AsApplied, Grid
-from services.sim.metrics import _pct
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
@@ -142,34 +137,3 @@ def _landing_frame(track: dict, delay_s: float, period_s: float):
     ny = np.divide(hx, norm, out=np.zeros(norm.shape), where=norm > 0)
     return (np.interp(t0, time_s, x), np.interp(t0, time_s, y), np.interp(t0 + period_s, time_s, x),
             np.interp(t0 + period_s, time_s, y), nx, ny)
-
-
-@dataclass(frozen=True)
-class OverlapMetrics:
-    overlap_area_pct: float
-    skip_area_pct: float
-    overlap_kg: float
-
-
-def overlap_metrics(applied: AsApplied, worked_fraction, in_field) -> OverlapMetrics:
-    """Overlap and skips over the field's cells.
-
-    Parameters
-    ----------
-    applied : maps.AsApplied
-        The as-applied raster, strips added with their passes.
-    worked_fraction : ndarray, shape (rows, cols)
-        Share of each cell the working width swept along the working stretches (`worked_fraction`).
-    in_field : ndarray of bool, shape (rows, cols)
-        Cells whose centre lies inside the field.
-    """
-    field = np.asarray(in_field, bool)
-    covered = applied.coverage_fraction[field]
-    worked = np.minimum(np.asarray(worked_fraction, float)[field], 1.0)
-    overlap = applied.overlap_fraction[field]
-    skipped = np.maximum(worked - covered, 0.0)
-    return OverlapMetrics(
-        overlap_area_pct=_pct(overlap.sum(), covered.sum()),
-        skip_area_pct=_pct(skipped.sum(), worked.sum()),
-        overlap_kg=float(applied.overlap_kg[field].sum()),
-    )

@@ -4,39 +4,43 @@ Three ways of switching, chosen by ``[implement] section_control`` (a registry, 
 
 - ``"coverage"``, as terminals do it: a section switches off when more than
   ``section_overlap_pct`` of its strip would land on ground already treated, or more than
-  ``boundary_overlap_pct`` outside the field, and on again over untreated ground in the field.
-  It decides ahead by its own latency plus the delivery delay (see `command`), predicting where
-  it will be by dead reckoning from the sensed position, speed and heading as the control core
-  does, and its gate follows the command after ``section_on_delay_s`` / ``section_off_delay_s``
-  (see `gate`). Product is only wanted where the path is a working stretch (``implement_on`` at
-  the pose where it would land: the terminal knows the planned path). At constant speed on
-  straight lines the prediction is exact and latency costs nothing; where speed or heading
-  change within the look-ahead (turns, speed variation) longer latencies leave more skips and
-  overlap, as the terminals' manuals warn.
+  ``boundary_overlap_pct`` outside the field, or beyond the working stretch of the planned path
+  (in a turn), and on again over untreated ground in the field. It decides ahead by its own
+  latency plus the delivery delay (see `command`): where its strip will be is dead-reckoned from
+  the sensed position, speed and heading as the control core does, and whether the path works
+  there is read off the planned path at the distance travelled by then (the terminal follows the
+  plan; its position along the plan is taken as the true one). The gate follows the command
+  after ``section_on_delay_s`` / ``section_off_delay_s`` (see `gate`). At constant speed on
+  straight lines the prediction is exact and latency costs nothing; where speed or heading change
+  within the look-ahead (turns, speed variation) longer latencies leave more skips and overlap, as
+  the terminals' manuals warn.
 - ``"boundary"``: the behaviour before coverage control: a section applies while the implement is
   on and its centre, at the control core's predicted landing point, lies inside the field; no
   section latency.
 - ``"off"``: all sections apply while the implement is on.
 
 The time base: ``actual[t, s]`` says whether the gate of section s is open during tick t, i.e.
-whether product metered in tick t passes it; that product lands on the true path
-``delivery_delay_s`` later. ``commanded[t, s]`` is the terminal's command at tick t.
+whether product metered in tick t passes it; that product lands ``delivery_delay_s`` later.
+``commanded[t, s]`` is the terminal's command at tick t.
 
-How coverage switching stays vectorized. Where a section's product is wanted depends only on
-where product landed before, and within one pass (a stretch of working path between turns) a
-section's strip never lands on its own earlier strip, except where the path turns back on
-itself. So the track is cut into passes (`pass_index`: runs of ``implement_on``, cut again
-wherever the heading has turned by half a circle, so a closing headland loop or a spiral is
-several passes), and pass by pass: (1) for every decision whose product would land in the pass,
-the share of each section's strip on treated ground and outside the field is read off a fine
-coverage raster (`CoverageRaster`) holding everything earlier passes landed; (2) commands and
-gate states follow by shifts and running maxima, no loop over ticks; (3) the strips the pass
-actually landed are rasterized (scan lines) into the coverage raster. Approximations: ground a
-pass treated itself counts as treated only for later passes, so within one pass the inner
-sections of a turn tighter than half the working width keep applying where they pivot; the
-coverage a decision sees is that of all earlier passes, not of the ticks just before it in
-the same pass; and at a cut inside a working stretch the tick or two at the cut read the
-previous pass's last strip at raster resolution.
+Causal, so it can run batch by batch. `SectionSwitch.step` takes the next ticks and carries
+everything over (the coverage raster, the last commands, the gates' state, the open pass), so
+stepping a track in batches of any size gives exactly the states of one step over the whole
+track: `vrsim run` steps once, the Zenoh controller service once per lockstep batch.
+
+How coverage switching stays vectorized. The coverage raster (`CoverageRaster`) is the terminal's
+coverage map: it records where product landed, at the sensed positions, pass by pass. A pass is a
+run of ``implement_on`` cut again wherever the heading has turned by half a circle (`PassTracker`:
+a closing headland loop or a spiral is several passes); within a pass a section's strip never
+lands on its own earlier strip (except where the path turns back on itself), so the raster needs
+updating only where a pass ends: there, everything that landed since the previous pass ended (the
+turn before it included) is rasterized (scan lines). Between two pass ends the raster is fixed, so
+the decisions of all ticks between them are read off it at once and their commands and gates
+follow by shifts and running maxima, no loop over ticks. Approximations: ground a pass treated
+itself counts as treated only once it ends, so within one pass the inner sections of a turn
+tighter than half the working width keep applying where they pivot, and a decision looking
+across the end of a pass (within the look-ahead of a cut inside a working stretch) does not see
+that pass's own strips yet.
 """
 
 from __future__ import annotations
@@ -48,7 +52,7 @@ import numpy as np
 import shapely
 
 from maps.rasterize import fill_rings
-from vehicle import Implement
+from vehicle import CoveragePath, Implement
 from vehicle.implement import SECTION_CONTROL_MODES
 
 TREATED, OUTSIDE = np.uint8(1), np.uint8(2)  # bits of the coverage raster
@@ -59,16 +63,15 @@ MIN_COVERAGE_CELL_M = 0.05
 RING_VERTEX_SPACING_M = 1.0  # landed strips are outlined with a vertex every metre (chord error
 #                              below 2 cm on a 6 m turning radius) ...
 PIECE_VERTICES = 16  # ... in pieces of 15 m
+MAX_WANTED_TICKS = 20_000  # decisions read off the raster in chunks of this many ticks (memory)
 
 
 @dataclass(frozen=True)
 class SectionStates:
-    """Per-tick section states of a run.
+    """Per-tick section states of a run (or of one batch of ticks).
 
     Attributes
     ----------
-    commanded : ndarray of bool, shape (n, sections)
-        The terminal's command at each tick.
     actual : ndarray of bool, shape (n, sections)
         Whether the section's gate is open during the tick: product metered in tick t passes it
         and lands ``delivery_delay_s`` later on the section's own strip.
@@ -76,13 +79,16 @@ class SectionStates:
         Width of each section and its centre's offset left of the implement's centre, m, left to right.
     pass_index : ndarray of int, shape (n,)
         The pass each tick's pose belongs to (-1 in turns); see `pass_index`.
+    commanded : ndarray of bool, shape (n, sections), or None
+        The terminal's command at each tick; None where only the gates are known (a run's records
+        rebuilt by the monitor).
     """
 
-    commanded: np.ndarray
     actual: np.ndarray
     widths_m: np.ndarray
     offsets_m: np.ndarray
     pass_index: np.ndarray
+    commanded: np.ndarray | None = None
 
     @property
     def width_on_m(self) -> np.ndarray:
@@ -96,105 +102,235 @@ class SectionStates:
         return self.actual.sum(axis=1)
 
 
-def switch_sections(track: dict, implement: Implement, field_polygon, map_cell_m: float | None = None,
-                    measured=None) -> SectionStates:
-    """Section states over a whole run, by the implement's ``section_control``.
+class SectionSwitch:
+    """Section states tick by tick, by the implement's ``section_control``, carried across `step` calls.
+
+    Parameters
+    ----------
+    implement : vehicle.Implement
+    field_polygon : shapely Polygon or MultiPolygon
+        The field boundary in the metric CRS of the positions.
+    path : vehicle.CoveragePath, optional
+        The planned path (coverage control reads off it where the path works; required there).
+    period_s : float
+        Control period (one tick), s.
+    map_cell_m : float, optional
+        The prescription's cell size; the coverage raster is at least this fine.
+    """
+
+    def __init__(self, implement: Implement, field_polygon, path: CoveragePath | None = None,
+                 period_s: float = 0.05, map_cell_m: float | None = None):
+        self.implement = implement
+        self.passes = PassTracker()
+        self.engine = SWITCHING[implement.section_control](implement, field_polygon, path, period_s,
+                                                           map_cell_m)
+        self.tick = 0
+
+    def step(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> SectionStates:
+        """The states of the next ticks.
+
+        Parameters
+        ----------
+        x_m, y_m, speed_m_s : array_like, shape (m,)
+            What the terminal knows: the GNSS position (field CRS, m) and the sensed ground speed.
+        heading_rad : array_like, shape (m,)
+            Heading, math convention.
+        implement_on : array_like of bool, shape (m,)
+            The path is a working stretch here.
+        s_m : array_like, shape (m,), optional
+            Distance along the planned path (coverage control needs it).
+        """
+        on = np.asarray(implement_on, bool)
+        passes = self.passes.step(heading_rad, on)
+        sensed = _Sensed.of(x_m, y_m, speed_m_s, heading_rad)
+        commanded, actual = self.engine.step(sensed, on, s_m, passes, self.tick)
+        self.tick += on.size
+        imp = self.implement
+        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded)
+
+
+def switch_sections(track: dict, implement: Implement, field_polygon, path: CoveragePath | None = None,
+                    map_cell_m: float | None = None, measured=None, period_s: float | None = None
+                    ) -> SectionStates:
+    """Section states over a whole run: one `SectionSwitch.step` over the track.
 
     Parameters
     ----------
     track : dict of ndarray, shape (n,)
-        The true track: ``time_s`` (evenly spaced), ``x_m``, ``y_m`` (field CRS, metres),
-        ``heading_rad`` (math convention), ``speed_m_s``, ``implement_on`` (bool: the path is a
-        working stretch). Product lands on it.
-    implement : vehicle.Implement
-    field_polygon : shapely Polygon or MultiPolygon
-        The field boundary in the track's CRS.
-    map_cell_m : float, optional
-        The prescription's cell size; the coverage raster is at least this fine.
+        ``time_s`` (evenly spaced), ``x_m``, ``y_m`` (field CRS, metres), ``heading_rad`` (math
+        convention), ``speed_m_s``, ``implement_on`` (bool: the path is a working stretch) and, for
+        coverage control, ``s_m`` (distance along `path`).
+    implement, field_polygon, path, map_cell_m
+        As for `SectionSwitch`.
     measured : (x_m, y_m, speed_m_s), optional
-        What the terminal knows (GNSS position, sensed ground speed), arrays of shape (n,); it
-        predicts where product will land from them and the heading by dead reckoning, as the
-        control core does. Default: the true ones.
+        What the terminal knows (GNSS position, sensed ground speed), arrays of shape (n,). Default:
+        the true ones.
+    period_s : float, optional
+        Tick length; default: the track's median time step.
     """
-    mode = implement.section_control
-    n = len(track["time_s"])
-    passes = pass_index(track["heading_rad"], track["implement_on"])
-    if n == 0:
-        empty = np.zeros((0, implement.sections), bool)
-        return SectionStates(empty, empty, implement.section_widths, implement.section_offsets_m, passes)
+    if period_s is None:
+        period_s = _period_s(np.asarray(track["time_s"], float))
     if measured is None:
         measured = (track["x_m"], track["y_m"], track["speed_m_s"])
-    sensed = _Sensed.of(track, measured)
-    commanded, actual = SWITCHING[mode](track, implement, field_polygon, map_cell_m, sensed, passes)
-    return SectionStates(commanded, actual, implement.section_widths, implement.section_offsets_m, passes)
+    switch = SectionSwitch(implement, field_polygon, path, period_s, map_cell_m)
+    x, y, v = measured
+    return switch.step(x, y, track["heading_rad"], v, track["implement_on"], track.get("s_m"))
 
 
 # --- the three ways of switching ----------------------------------------------------------------
-def _all_on(track, implement, polygon, map_cell_m, sensed, passes):
-    on = np.repeat(np.asarray(track["implement_on"], bool)[:, None], implement.sections, axis=1)
-    return on, on
+class _AllOn:
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        self.sections = implement.sections
+
+    def step(self, sensed, on, s_m, passes, tick):
+        actual = np.repeat(on[:, None], self.sections, axis=1)
+        return actual, actual
 
 
-def _boundary(track, implement, polygon, map_cell_m, sensed, passes):
-    lx, ly = sensed.ahead(implement.delivery_delay_s)
-    on = implement.sections_on(polygon, lx, ly, track["heading_rad"], track["implement_on"])
-    return on, on
+class _Boundary:
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        self.implement, self.polygon = implement, polygon
+
+    def step(self, sensed, on, s_m, passes, tick):
+        lx, ly = sensed.ahead(self.implement.delivery_delay_s)
+        actual = self.implement.sections_on(self.polygon, lx, ly, sensed.heading_rad, on)
+        return actual, actual
 
 
-def _coverage(track, implement, polygon, map_cell_m, sensed, passes):
-    time_s = np.asarray(track["time_s"], float)
-    n, sections = time_s.size, implement.sections
-    period_s = _period_s(time_s)
-    lag = _Lags.of(implement, period_s)
-    raster = CoverageRaster(polygon, coverage_cell_m(implement, map_cell_m), margin_m=implement.width_m)
-    strip = _Strip.across(implement, raster.cell_m)
-    # The strip a tick's product covers is read at its middle, half a tick's travel further on.
-    ahead_on = sensed.ahead(implement.delivery_delay_s + implement.section_on_delay_s + period_s / 2)
-    ahead_off = sensed.ahead(implement.delivery_delay_s + implement.section_off_delay_s + period_s / 2)
-    wanted_on, wanted_off = np.zeros((n, sections), bool), np.zeros((n, sections), bool)
-    commanded = np.zeros((n, sections), bool)
-    limits = (implement.section_overlap_pct, implement.boundary_overlap_pct)
-    pose = Poses.of(track)
-    for a, b in pass_bounds(passes):
-        # The decisions whose product would land in this pass, on the true timeline.
-        for wanted, (x, y), k in ((wanted_on, ahead_on, lag.on), (wanted_off, ahead_off, lag.off)):
-            lo, hi = max(0, a - lag.delivery - k), max(0, b - lag.delivery - k)
-            wanted[lo:hi] = raster.wanted(strip, x[lo:hi], y[lo:hi], sensed.cos[lo:hi], sensed.sin[lo:hi],
-                                          *limits)
-        landed = _landed_in_pass(wanted_on, wanted_off, commanded, lag, a, b,
-                                 continues=b < n and passes[b] >= 0)
-        raster.mark(strip, pose, a, landed)
-    commanded = command(wanted_on, wanted_off, lag.on_first, np.zeros(sections, bool))
-    return commanded, gate(commanded, lag.on, lag.off)
+class _Coverage:
+    """Coverage-based switching, stateful across `step` calls (see the module's docstring)."""
+
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        if path is None:
+            raise ValueError("coverage section control needs the planned path")
+        self.implement, self.path, self.period_s = implement, path, period_s
+        self.lag = _Lags.of(implement, period_s)
+        self.raster = CoverageRaster(polygon, coverage_cell_m(implement, map_cell_m),
+                                     margin_m=implement.width_m)
+        self.strip = _Strip.across(implement, self.raster.cell_m)
+        self.limits = (implement.section_overlap_pct, implement.boundary_overlap_pct)
+        # The strip a tick's product covers is read at its middle, half a tick's travel further on.
+        self.lead_on_s = implement.delivery_delay_s + implement.section_on_delay_s + period_s / 2
+        self.lead_off_s = implement.delivery_delay_s + implement.section_off_delay_s + period_s / 2
+        sections = implement.sections
+        self.last_command = np.zeros(sections, bool)
+        self.gates = GateLine(self.lag.on, self.lag.off, sections)
+        self.last_pass = -1
+        # Since the last pass ended (tick `mark_from`): the sensed poses, and the gates from
+        # `mark_from - delivery` (whose product lands at those poses), in chunks.
+        self.mark_from, self.gate_from = 0, 0
+        self.poses: list[np.ndarray] = []
+        self.gate_rows: list[np.ndarray] = [np.zeros((0, sections), bool)]
+
+    def step(self, sensed, on, s_m, passes, tick):
+        m, sections = on.size, self.implement.sections
+        if s_m is None:
+            raise ValueError("coverage section control needs s_m, the distance along the planned path")
+        s_m = np.asarray(s_m, float)
+        self.poses.append(np.stack([sensed.x_m, sensed.y_m, sensed.cos, sensed.sin]))
+        ahead = [(sensed.ahead(lead), self._working(s_m + sensed.speed_m_s * lead))
+                 for lead in (self.lead_on_s, self.lead_off_s)]
+        before = np.concatenate(([self.last_pass], passes[:-1]))
+        ends = np.flatnonzero((before >= 0) & (passes != before))
+        commanded, actual = np.zeros((m, sections), bool), np.zeros((m, sections), bool)
+        for a, b in zip(np.concatenate(([0], ends)), np.concatenate((ends, [m])), strict=True):
+            if a in ends:  # a pass ended here: what landed up to now is treated for what follows
+                self._mark(tick + int(a))
+            if b <= a:
+                continue
+            won, woff = (self._wanted(xy, work, sensed, a, b) for xy, work in ahead)
+            commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
+            self.last_command = commanded[b - 1]
+            actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
+            self.gate_rows.append(actual[a:b])
+        if m:
+            self.last_pass = int(passes[-1])
+        return commanded, actual
+
+    def _working(self, s_m):
+        """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
+        return self.path.locate(s_m)[4] & (s_m < self.path.length_m)
+
+    def _wanted(self, xy, working, sensed, a, b):
+        out = np.zeros((b - a, self.implement.sections), bool)
+        for lo in range(a, b, MAX_WANTED_TICKS):
+            hi = min(b, lo + MAX_WANTED_TICKS)
+            out[lo - a:hi - a] = self.raster.wanted(self.strip, xy[0][lo:hi], xy[1][lo:hi], sensed.cos[lo:hi],
+                                                    sensed.sin[lo:hi], *self.limits) & working[lo:hi, None]
+        return out
+
+    def _mark(self, end: int) -> None:
+        """Mark as treated what landed at the poses [mark_from, end), and start again from `end`."""
+        poses = np.concatenate(self.poses, axis=1)  # poses from tick mark_from on
+        gates = np.concatenate(self.gate_rows)  # gates from tick gate_from on
+        # Product landing at pose q left the meter at tick q - delivery; gates before tick 0 were closed.
+        metered = np.arange(self.mark_from, end) - self.lag.delivery
+        landed = gates[np.maximum(metered - self.gate_from, 0)] & (metered >= 0)[:, None]
+        if landed.any():
+            self.raster.mark(self.strip, Poses(*poses[:, :end - self.mark_from + 1]), 0, landed)
+        keep = max(end - self.lag.delivery, self.gate_from)
+        self.poses, self.gate_rows = [poses[:, end - self.mark_from:]], [gates[keep - self.gate_from:]]
+        self.mark_from, self.gate_from = end, keep
 
 
-SWITCHING = {"coverage": _coverage, "boundary": _boundary, "off": _all_on}
+SWITCHING = {"coverage": _Coverage, "boundary": _Boundary, "off": _AllOn}
 assert set(SWITCHING) == set(SECTION_CONTROL_MODES)
 
 
 # --- passes ----------------------------------------------------------------------------------------
-def pass_index(heading_rad, implement_on) -> np.ndarray:
-    """Pass of each tick: runs of ``implement_on`` numbered in order, a run cut again each time its
-    heading has turned by half a circle since the piece began (-1 where the implement is off).
+class PassTracker:
+    """Pass of each tick, tick by tick: runs of ``implement_on`` numbered in order, a run cut again
+    each time its heading has turned by half a circle since the piece began (-1 where the implement
+    is off). Carried across `step` calls, so batches give the numbers of one call.
 
-    A piece turning less than half a circle cannot lay its strip on its own earlier strip
-    (except where the inner end of the implement pivots in a tight turn); the cut is greedy, so
-    heading noise around a multiple of 180 degrees does not cut a straight stretch into many.
+    A piece turning less than half a circle cannot lay its strip on its own earlier strip (except
+    where the inner end of the implement pivots in a tight turn); the cut is greedy, so heading
+    noise around a multiple of 180 degrees does not cut a straight stretch into many. The heading
+    is unwrapped by whole turns counted in integers, so the turned angle is the same however the
+    ticks come in batches.
     """
-    on = np.asarray(implement_on, bool)
-    heading = np.unwrap(np.asarray(heading_rad, float)) if on.size else np.zeros(0)
-    starts = []
-    for a, b in runs_of(on):
-        cut = a
-        while cut < b:
-            starts.append(cut)
-            turned = np.abs(heading[cut:b] - heading[cut]) >= math.pi
-            cut = cut + int(np.argmax(turned)) if turned.any() else b
-    begin = np.zeros(on.size, np.int64)
-    begin[starts] = 1
-    out = np.cumsum(begin) - 1
-    out[~on] = -1
-    return out
+
+    def __init__(self):
+        self.next_id = 0
+        self.current = -1  # the open pass, -1 if none
+        self.reference = 0.0  # unwrapped heading where the open piece began
+        self.turns = 0  # whole turns unwrapped so far
+        self.last_heading = None
+
+    def step(self, heading_rad, implement_on) -> np.ndarray:
+        on = np.asarray(implement_on, bool)
+        h = np.asarray(heading_rad, float)
+        out = np.full(on.size, -1, np.int64)
+        if not on.size:
+            return out
+        prev = h[0] if self.last_heading is None else self.last_heading
+        jumps = np.rint(np.diff(h, prepend=prev) / (2 * math.pi)).astype(np.int64)
+        turns = self.turns - np.cumsum(jumps)
+        unwrapped = h + 2 * math.pi * turns
+        self.turns, self.last_heading = int(turns[-1]), float(h[-1])
+        for a, b in runs_of(on):
+            if a > 0 or self.current < 0:  # a new run of work: a new pass
+                self._begin(unwrapped[a])
+            pos = a
+            while pos < b:
+                turned = np.abs(unwrapped[pos:b] - self.reference) >= math.pi
+                cut = pos + int(np.argmax(turned)) if turned.any() else b
+                out[pos:cut] = self.current
+                if cut < b:
+                    self._begin(unwrapped[cut])
+                pos = cut
+        if not on[-1]:
+            self.current = -1
+        return out
+
+    def _begin(self, heading: float) -> None:
+        self.current, self.next_id = self.next_id, self.next_id + 1
+        self.reference = float(heading)
+
+
+def pass_index(heading_rad, implement_on) -> np.ndarray:
+    """Pass of each tick of a whole track (see `PassTracker`): -1 where the implement is off."""
+    return PassTracker().step(heading_rad, implement_on)
 
 
 def pass_bounds(passes) -> list[tuple[int, int]]:
@@ -234,25 +370,6 @@ class _Lags:
     def on_first(self) -> bool:
         return self.on >= self.off
 
-    @property
-    def longest(self) -> int:
-        return max(self.on, self.off)
-
-    def decided_until(self, b: int) -> tuple[int, int]:
-        """The first command tick whose on (off) look-ahead lands beyond pose `b`."""
-        return max(0, b - self.delivery - self.on), max(0, b - self.delivery - self.off)
-
-
-def _rows(a, lo, hi, end, continues):
-    """Rows [lo, hi) of `a`; rows from `end` on are row ``end - 1`` (`continues`) or False."""
-    out = np.zeros((max(hi - lo, 0), a.shape[1]), bool)
-    take_hi = min(hi, end)
-    if take_hi > lo:
-        out[: take_hi - lo] = a[lo:take_hi]
-    if continues and hi > end and end > 0:
-        out[max(end - lo, 0):] = a[end - 1]
-    return out
-
 
 def command(wanted_on, wanted_off, on_first: bool, before) -> np.ndarray:
     """The terminal's command per tick from the two look-aheads; shape (m, sections).
@@ -263,11 +380,12 @@ def command(wanted_on, wanted_off, on_first: bool, before) -> np.ndarray:
     switches (or stays) on; when only the shorter one does, it keeps its state (on: product still
     lands on wanted ground until it could stop; off: starting now would land on unwanted ground).
     The result: product starts and stops landing where wanted starts and stops (as far as the
-    look-aheads predicted it), except
-    that a gap shorter than the two delays' difference is bridged (overlap) and an island that
-    short is skipped: the section cannot stop and restart, or start and stop, in time.
+    look-aheads predicted it), except that a gap shorter than the two delays' difference is
+    bridged (overlap) and an island that short is skipped: the section cannot stop and restart, or
+    start and stop, in time.
 
-    ``before`` (sections,) is the command before the first tick.
+    ``before`` (sections,) is the command before the first tick (causal: a tick's command depends
+    on that and the ticks up to it only).
     """
     decided = wanted_on | ~wanted_off
     value = wanted_on if on_first else wanted_off
@@ -277,49 +395,44 @@ def command(wanted_on, wanted_off, on_first: bool, before) -> np.ndarray:
     return np.where(last >= 0, held, np.asarray(before, bool)[None, :])
 
 
-def gate(commanded, on_ticks: int, off_ticks: int) -> np.ndarray:
-    """Gate state per tick: each command takes effect `on_ticks` (switching on) or `off_ticks`
-    (switching off) after it is given, and the gate follows the most recent command that has
-    taken effect, so an on command cancelled before it took effect never opens the gate.
-    All gates are closed before the first tick; shape as `commanded`."""
-    m = commanded.shape[0]
-    t = np.arange(m, dtype=np.int32)[:, None]
-    arrived = np.full(commanded.shape, -1, np.int32)
-    if on_ticks < m:
-        src = commanded[: m - on_ticks]
-        arrived[on_ticks:] = np.where(src, t[: m - on_ticks], -1)
-    if off_ticks < m:
-        src = ~commanded[: m - off_ticks]
-        arrived[off_ticks:] = np.maximum(arrived[off_ticks:], np.where(src, t[: m - off_ticks], -1))
-    np.maximum.accumulate(arrived, axis=0, out=arrived)
-    return np.where(arrived >= 0, np.take_along_axis(commanded, np.maximum(arrived, 0), axis=0), False)
+class GateLine:
+    """Gates following commands after their latencies, tick by tick across `push` calls.
 
-
-def _landed_in_pass(wanted_on, wanted_off, commanded, lag: _Lags, a: int, b: int,
-                    continues: bool) -> np.ndarray:
-    """Which sections' product lands at the poses [a, b) of one pass, shape (b - a, sections).
-
-    Commands are worked out over a window reaching back far enough that every gate state it needs
-    is decided inside it; the commands before it are final (their look-aheads land before the
-    pass). Look-aheads landing beyond the pass are not decided yet: taken as the last decided one
-    if the work `continues` into the next pass, else as not wanted. `commanded` is updated in
-    place over the window.
+    Each command takes effect `on_ticks` (switching on) or `off_ticks` (switching off) after it is
+    given, and a gate follows the most recent command that has taken effect, so an on command
+    cancelled before it took effect never opens the gate. All gates are closed before tick 0.
     """
-    sections = wanted_on.shape[1]
-    lo = max(0, a - lag.delivery - lag.longest)
-    hi = max(lo, b - lag.delivery)
-    end_on, end_off = lag.decided_until(b)
-    before = commanded[lo - 1] if lo > 0 else np.zeros(sections, bool)
-    window = command(_rows(wanted_on, lo, hi, end_on, continues),
-                     _rows(wanted_off, lo, hi, end_off, continues), lag.on_first, before)
-    commanded[lo:hi] = window
-    gates = gate(window, lag.on, lag.off)
-    # Product landing at pose p left the meter at p - delivery.
-    landed = np.zeros((b - a, sections), bool)
-    first = a - lag.delivery
-    src_lo = max(first, lo)
-    landed[src_lo - first:] = gates[src_lo - lo: hi - lo]
-    return landed
+
+    def __init__(self, on_ticks: int, off_ticks: int, sections: int):
+        self.on, self.off = on_ticks, off_ticks
+        self.span = max(on_ticks, off_ticks)
+        self.history = np.zeros((self.span, sections), bool)  # the last `span` commands
+        self.arrived = np.full(sections, -1, np.int64)  # tick of the command each gate follows
+        self.value = np.zeros(sections, bool)  # each gate's state
+
+    def push(self, commanded, tick: int) -> np.ndarray:
+        """Gate states of the ticks `tick`, `tick` + 1, ... whose commands are `commanded` (m, sections)."""
+        m = commanded.shape[0]
+        if m == 0:
+            return np.zeros(commanded.shape, bool)
+        ext = np.concatenate((self.history, commanded))  # from tick - span
+        t = tick + np.arange(m, dtype=np.int64)[:, None]
+        rows = np.arange(m)
+        src_on, src_off = ext[self.span - self.on + rows], ext[self.span - self.off + rows]
+        events = np.maximum(np.where(src_on & (t - self.on >= 0), t - self.on, -1),
+                            np.where(~src_off & (t - self.off >= 0), t - self.off, -1))
+        arrived = np.maximum.accumulate(np.maximum(events, self.arrived[None, :]), axis=0)
+        fresh = arrived > self.arrived[None, :]
+        index = np.clip(arrived - (tick - self.span), 0, ext.shape[0] - 1)
+        gates = np.where(fresh, np.take_along_axis(ext, index, axis=0), self.value[None, :])
+        self.arrived, self.value = arrived[-1], gates[-1]
+        self.history = ext[ext.shape[0] - self.span:]
+        return gates
+
+
+def gate(commanded, on_ticks: int, off_ticks: int) -> np.ndarray:
+    """Gate state per tick of a whole run (see `GateLine`); shape as `commanded`."""
+    return GateLine(on_ticks, off_ticks, commanded.shape[1]).push(commanded, 0)
 
 
 # --- geometry ----------------------------------------------------------------------------------------
@@ -338,14 +451,14 @@ class _Sensed:
     x_m: np.ndarray
     y_m: np.ndarray
     speed_m_s: np.ndarray
+    heading_rad: np.ndarray
     cos: np.ndarray
     sin: np.ndarray
 
     @classmethod
-    def of(cls, track: dict, measured) -> _Sensed:
-        x, y, v = (np.asarray(a, float) for a in measured)
-        h = np.asarray(track["heading_rad"], float)
-        return cls(x, y, v, np.cos(h), np.sin(h))
+    def of(cls, x_m, y_m, speed_m_s, heading_rad) -> _Sensed:
+        x, y, v, h = (np.asarray(a, float) for a in (x_m, y_m, speed_m_s, heading_rad))
+        return cls(x, y, v, h, np.cos(h), np.sin(h))
 
     def ahead(self, delay_s: float):
         """Where the implement will be `delay_s` later, straight ahead at the sensed speed: (x, y).
@@ -360,7 +473,8 @@ def _period_s(time_s: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class Poses:
-    """The true poses, along which landed strips are outlined."""
+    """Poses along which strips are outlined: the true ones (the worked area), the sensed ones (the
+    terminal's coverage map)."""
 
     x_m: np.ndarray
     y_m: np.ndarray
@@ -493,3 +607,35 @@ def _polygon_rings(polygon):
     xy = np.concatenate(rings)
     start = np.concatenate(([0], np.cumsum([len(r) for r in rings])))
     return xy[:, 0], xy[:, 1], start, np.asarray(owners)
+
+
+# --- the sections-on bitmask of the outputs (track.csv, the Zenoh rate stream) ---------------------
+def section_masks(actual) -> list[str]:
+    """Each tick's open gates as a bitmask in hexadecimal, ``"0x..."``: bit k is section k counted
+    from the left (``"0x3f"``: six sections all on; ``"0x0"``: none). Shape (n, sections) -> n strings."""
+    actual = np.asarray(actual, bool)
+    if actual.shape[1] <= 63:
+        bits = actual.astype(np.int64) @ (np.int64(1) << np.arange(actual.shape[1], dtype=np.int64))
+        return [f"0x{b:x}" for b in bits.tolist()]
+    packed = np.packbits(actual[:, ::-1], axis=1)  # the leftmost section in the lowest bit
+    shift = packed.shape[1] * 8 - actual.shape[1]
+    return [f"0x{int.from_bytes(row.tobytes(), 'big') >> shift:x}" for row in packed]
+
+
+def sections_from_masks(masks, sections: int) -> np.ndarray:
+    """The gates of `section_masks` back, shape (n, sections); ValueError names a mask that is not one."""
+    values = [_mask_bits(mask, sections) for mask in masks]
+    if sections <= 63:
+        bits = np.array(values, dtype=np.int64).reshape(-1, 1)
+        return ((bits >> np.arange(sections, dtype=np.int64)) & 1).astype(bool)
+    return np.array([[(v >> k) & 1 for k in range(sections)] for v in values], bool).reshape(-1, sections)
+
+
+def _mask_bits(mask, sections: int) -> int:
+    try:
+        bits = int(mask, 16) if isinstance(mask, str) and mask.startswith("0x") else -1
+    except ValueError:
+        bits = -1
+    if not 0 <= bits < 1 << sections:
+        raise ValueError(f"section mask {mask!r} is not a bitmask of {sections} sections (\"0x...\")")
+    return bits

@@ -10,10 +10,12 @@ import shapely
 from affine import Affine
 
 from maps import AsApplied, Grid, synthetic
-from services.sim.section_landing import overlap_metrics, section_strips, worked_fraction
+from services.sim.metrics import overlap_metrics
+from services.sim.section_landing import section_strips, worked_fraction
 from services.sim.sections import (
     SWITCHING,
     SectionStates,
+    SectionSwitch,
     command,
     gate,
     pass_index,
@@ -35,21 +37,28 @@ def rectangle():
 
 
 @functools.cache
+def planned_path(field, width_m=12.0, heading_deg=None):
+    return plan_coverage(field, width_m, headland_passes=1, heading_deg=heading_deg)
+
+
+@functools.cache
 def planned_track(field, width_m=12.0, heading_deg=None, speed_m_s=2.5, speed_wave=0.0):
     """The planner's path driven at `speed_m_s`, varied by +-`speed_wave` over a 15 s period."""
-    path = plan_coverage(field, width_m, headland_passes=1, heading_deg=heading_deg)
+    path = planned_path(field, width_m, heading_deg)
     t = np.arange(0.0, 2.0 * path.length_m / speed_m_s, PERIOD_S)
     v = speed_m_s * (1.0 + speed_wave * np.sin(2.0 * np.pi * t / 15.0))
     s = np.concatenate(([0.0], np.cumsum(v[:-1] * PERIOD_S)))
     keep = s < path.length_m
     x, y, h, _, on = path.locate(s[keep])
-    return {"time_s": t[keep], "x_m": x, "y_m": y, "heading_rad": h, "speed_m_s": v[keep], "implement_on": on}
+    return {"time_s": t[keep], "x_m": x, "y_m": y, "heading_rad": h, "speed_m_s": v[keep], "implement_on": on,
+            "s_m": s[keep]}
 
 
-def apply(field, track, implement):
+def apply(field, track, implement, heading_deg=None):
     """Switch, meter ideally (the target rate exactly for the width on) and land: the as-applied
     raster, the overlap figures and the states."""
-    states = switch_sections(track, implement, field.polygon, MAP_CELL_M)
+    states = switch_sections(track, implement, field.polygon, planned_path(field, implement.width_m, heading_deg),
+                             MAP_CELL_M)
     metered = RATE_KG_HA * track["speed_m_s"] * states.width_on_m * PERIOD_S / 1e4
     minx, miny, maxx, maxy = field.polygon.bounds
     grid = synthetic.uniform((minx - 20, miny - 20, maxx + 20, maxy + 20), field.crs, cell_size_m=MAP_CELL_M,
@@ -59,7 +68,9 @@ def apply(field, track, implement):
     worked = worked_fraction(track, implement.width_m, grid)
     xs, ys = grid.cell_centres()
     in_field = shapely.contains_xy(field.polygon, *np.meshgrid(xs, ys))
-    return applied, overlap_metrics(applied, worked, in_field), states, in_field
+    figures = overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg, worked,
+                              in_field)
+    return applied, figures, states, in_field
 
 
 def test_registry_covers_the_modes():
@@ -77,7 +88,7 @@ def test_boundary_mode_is_the_centre_in_field_rule():
     imp = Implement(section_control="boundary")
     # GNSS 3 m off to the east (and noisy): the outer sections seem outside on the east edges.
     measured = (measured[0] + 3.0, measured[1], measured[2])
-    states = switch_sections(track, imp, field.polygon, MAP_CELL_M, measured)
+    states = switch_sections(track, imp, field.polygon, None, MAP_CELL_M, measured)
     # Before coverage control: the landing point dead-reckoned from the measured fix, and a section
     # on while the implement is on and its centre there lies inside the field.
     lead = measured[2] * imp.delivery_delay_s
@@ -93,7 +104,7 @@ def test_boundary_mode_is_the_centre_in_field_rule():
 
 def test_off_mode_keeps_all_sections_on_while_working():
     track = planned_track(rectangle())
-    states = switch_sections(track, Implement(section_control="off"), rectangle().polygon, MAP_CELL_M)
+    states = switch_sections(track, Implement(section_control="off"), rectangle().polygon, None, MAP_CELL_M)
     assert np.array_equal(states.actual, np.repeat(track["implement_on"][:, None], 6, axis=1))
 
 
@@ -102,8 +113,8 @@ def test_off_mode_keeps_all_sections_on_while_working():
 def test_coverage_mode_switches_sections_off_over_the_headland(heading_deg):
     field = rectangle()
     track = planned_track(field, heading_deg=heading_deg)
-    applied, cover, states, in_field = apply(field, track, Implement(section_control="coverage"))
-    _, bound, bstates, _ = apply(field, track, Implement(section_control="boundary"))
+    applied, cover, states, in_field = apply(field, track, Implement(section_control="coverage"), heading_deg)
+    _, bound, bstates, _ = apply(field, track, Implement(section_control="boundary"), heading_deg)
     assert cover.overlap_area_pct < 1.0 and cover.overlap_area_pct < 0.1 * bound.overlap_area_pct
     assert cover.overlap_kg < 0.1 * bound.overlap_kg
     assert cover.skip_area_pct < 1.0
@@ -125,7 +136,7 @@ def test_longer_latencies_give_more_overlap_and_skips():
     figures = []
     for delay_s in (0.5, 1.0, 2.0, 4.0):
         imp = Implement(section_on_delay_s=delay_s, section_off_delay_s=delay_s)
-        figures.append(apply(field, track, imp)[1])
+        figures.append(apply(field, track, imp, 35.0)[1])
     overlap = [f.overlap_area_pct for f in figures]
     skip = [f.skip_area_pct for f in figures]
     assert np.all(np.diff(overlap) > 0), overlap
@@ -137,7 +148,7 @@ def test_gates_follow_commands_after_the_latencies(on_s, off_s):
     field = rectangle()
     track = planned_track(field, heading_deg=35.0)
     imp = Implement(section_on_delay_s=on_s, section_off_delay_s=off_s)
-    states = switch_sections(track, imp, field.polygon, MAP_CELL_M)
+    states = switch_sections(track, imp, field.polygon, planned_path(field, 12.0, 35.0), MAP_CELL_M)
     # Changes per tick (+1 on, -1 off), everything off before the first tick.
     dc = np.diff(states.commanded.astype(np.int8), axis=0, prepend=0)
     dg = np.diff(states.actual.astype(np.int8), axis=0, prepend=0)
@@ -188,9 +199,34 @@ def test_passes_cut_turns_and_half_circles():
 def test_no_work_no_sections():
     track = dict(planned_track(rectangle()))
     track["implement_on"] = np.zeros(track["time_s"].size, bool)
+    track["s_m"] = np.full(track["time_s"].size, planned_path(rectangle()).length_m)  # coverage reads the plan
     for mode in SECTION_CONTROL_MODES:
-        states = switch_sections(track, Implement(section_control=mode), rectangle().polygon, MAP_CELL_M)
+        states = switch_sections(track, Implement(section_control=mode), rectangle().polygon,
+                                 planned_path(rectangle()), MAP_CELL_M)
         assert not states.actual.any() and not states.commanded.any()
+
+
+@pytest.mark.parametrize("mode", SECTION_CONTROL_MODES)
+def test_batches_give_the_states_of_one_step(mode):
+    """The controller service steps the switch once per lockstep batch (one tick in real-time mode);
+    `vrsim run` once over the whole track: the same states, exactly."""
+    field = rectangle()
+    track = planned_track(field, heading_deg=35.0, speed_wave=0.2)
+    path = planned_path(field, 12.0, 35.0)
+    imp = Implement(section_control=mode, section_on_delay_s=0.7, section_off_delay_s=1.3)
+    whole = switch_sections(track, imp, field.polygon, path, MAP_CELL_M, period_s=PERIOD_S)
+    switch = SectionSwitch(imp, field.polygon, path, PERIOD_S, MAP_CELL_M)
+    n = track["time_s"].size
+    sizes = np.random.default_rng(4).integers(1, 700, n)
+    sizes[:300] = 1
+    cuts = np.cumsum(sizes)
+    parts = [switch.step(*(track[k][part] for k in ("x_m", "y_m", "heading_rad", "speed_m_s", "implement_on",
+                                                   "s_m")))
+             for part in np.split(np.arange(n), cuts[cuts < n])]
+    assert len(parts) > 300
+    for name in ("actual", "commanded", "pass_index"):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(whole, name))
+    assert whole.actual.any() and not whole.actual.all()
 
 
 # ---------------------------------------------------------------------- per-section landing
@@ -211,7 +247,7 @@ def test_unequal_sections_land_their_share_on_their_own_strip():
     track = straight_track()
     n = track["time_s"].size
     actual = np.repeat(np.array([[True, False, True]]), n, axis=0)
-    states = SectionStates(actual, actual, imp.section_widths, imp.section_offsets_m, np.zeros(n, np.int64))
+    states = SectionStates(actual, imp.section_widths, imp.section_offsets_m, np.zeros(n, np.int64))
     metered = np.full(n, 0.01)
     strips = section_strips(track, metered, states, imp.delivery_delay_s, PERIOD_S, 1.0)
     acc = AsApplied(grid_1m())
@@ -232,7 +268,7 @@ def test_unequal_sections_land_their_share_on_their_own_strip():
 def test_sections_all_on_land_as_one_full_width_strip():
     imp = Implement(width_m=12.0, sections=6, section_control="off")
     track = straight_track()
-    states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), 1.0)
+    states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), None, 1.0)
     metered = np.random.default_rng(2).uniform(0.005, 0.015, track["time_s"].size)
     metered[-20:] = 0.0  # would land beyond the track's end
     per_section = AsApplied(grid_1m())
@@ -253,7 +289,8 @@ def test_overlap_and_skip_figures():
     applied.add_strips(20.0, 0.0, 20.0, 100.0, 40.0, 40.0, pass_index=0)
     applied.add_strips(50.0, 0.0, 50.0, 100.0, 40.0, 40.0, pass_index=1)
     worked.add_strips(40.0, 0.0, 40.0, 100.0, 80.0, 1.0)
-    figures = overlap_metrics(applied, worked.coverage_fraction, np.ones((20, 20), bool))
+    figures = overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg,
+                              worked.coverage_fraction, np.ones((20, 20), bool))
     assert figures.overlap_area_pct == pytest.approx(100 * 10 / 70)  # of the 70 m covered, 10 m twice
     assert figures.skip_area_pct == pytest.approx(100 * 10 / 80)  # x 70-80 worked but bare
     assert figures.overlap_kg == pytest.approx(10.0)  # 10 m x 100 m at 100 kg/ha from the second pass
@@ -263,7 +300,7 @@ def test_landing_follows_the_delay_and_passes():
     field = rectangle()
     track = planned_track(field)
     imp = dataclasses.replace(Implement(), section_control="off")
-    states = switch_sections(track, imp, field.polygon, MAP_CELL_M)
+    states = switch_sections(track, imp, field.polygon, None, MAP_CELL_M)
     metered = np.where(states.width_on_m > 0, 0.01, 0.0)
     strips = section_strips(track, metered, states, imp.delivery_delay_s, PERIOD_S, MAP_CELL_M)
     assert strips.mass_kg.sum() == pytest.approx(metered.sum())
@@ -291,6 +328,6 @@ def test_product_with_every_gate_closed_is_refused():
     imp = Implement(section_control="off")
     track = dict(straight_track(100))
     track["implement_on"] = np.arange(100) < 50
-    states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), 1.0)
+    states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), None, 1.0)
     with pytest.raises(ValueError, match="tick 50 meters product with every gate closed"):
         section_strips(track, np.full(100, 0.01), states, imp.delivery_delay_s, PERIOD_S, 1.0)
