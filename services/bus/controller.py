@@ -86,6 +86,7 @@ class ControllerService:
         # really lands, `vrsim run` and the monitor's report work out from the true path).
         applied = applied_rate_kg_ha(rec["metered_kg"], rec["width_on_m"], speed * self.period_s).tolist()
         masks = section_masks(rec.pop("sections_on"))
+        del rec["sections_commanded"]  # not published: the gates are what lands
         out = {k: v.tolist() for k, v in rec.items()}
         shafts, rates = [], []
         for i, p in enumerate(poses):

@@ -1,4 +1,4 @@
-"""`vrsim run [SCENARIO] [--out DIR] [--json] [--quiet]`: one field scenario, in process."""
+"""`vrsim run [SCENARIO] [--out DIR] [--json] [--quiet] [--check]`: one field scenario, in process."""
 
 from __future__ import annotations
 
@@ -16,6 +16,9 @@ def configure(parser) -> None:
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--check", action="store_true",
+                        help="only say whether the machine can apply the map at the working speeds, and the "
+                             "highest speed at which it can; then exit (nothing is driven)")
 
 
 class Progress:
@@ -49,6 +52,8 @@ def run(args) -> int:
     from services.sim import scenario
 
     sc = scenario.load(args.scenario)
+    if args.check:
+        return check(sc, args.json)
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
         result = field_run.run(sc, progress=progress)
@@ -63,7 +68,25 @@ def run(args) -> int:
     if args.json:
         print(summary_json(result.summary))
     else:
+        print(result.machine_check.text())
         print(text_summary(result.summary))
-        print(f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, "
-              f"as_applied.tif, error.tif, summary.json)")
+        print(f"  outputs in {out_dir}/ (report.html, map.png, sections.png, timeseries.png, track.csv, "
+              f"as_applied.tif, error.tif, passes.tif, summary.json)")
+    return 0
+
+
+def check(sc, as_json: bool) -> int:
+    """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving)."""
+    import dataclasses
+
+    from services.outputs.summary import summary_json
+    from services.sim.run import check_world
+    from services.sim.world import build_world
+
+    result = check_world(build_world(sc))
+    if as_json:
+        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply}
+        print(summary_json(doc))
+    else:
+        print(result.text())
     return 0

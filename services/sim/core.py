@@ -117,7 +117,7 @@ class ControlCore:
         wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
         target = np.where(width_on > 0, wanted, 0.0)
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
-                "width_on_m": width_on, "sections_on": states.actual}
+                "width_on_m": width_on, "sections_on": states.actual, "sections_commanded": states.commanded}
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
@@ -144,6 +144,7 @@ class ControlCore:
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
 
 
-# Per tick, shape (n,); ``sections_on`` is (n, sections): each section's gate (`SectionStates.actual`).
+# Per tick, shape (n,); ``sections_on`` and ``sections_commanded`` are (n, sections): each section's gate
+# and the terminal's command to it (`services.sim.sections.SectionStates`).
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
-                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on")
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on", "sections_commanded")

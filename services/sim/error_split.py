@@ -62,7 +62,8 @@ def reference_metered_kg(result: RunResult, clipped: bool) -> np.ndarray:
         rpm = c["target_shaft_rpm"]
     else:
         width_on = c["width_on_m"]
-        wanted = imp.target_shaft_rpm(np.nan_to_num(c["prescribed_kg_ha"]), result.measured_speed_m_s, width_on)
+        rate = np.nan_to_num(c["prescribed_kg_ha"])
+        wanted = imp.target_shaft_rpm(rate, result.measured_speed_m_s, width_on)
         rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
     return imp.mass_kg(rpm * period_s / 60.0)
 

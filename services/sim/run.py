@@ -153,8 +153,8 @@ def account(world: World, track: dict, control: dict, wall0: float):
     """Land each section's product, build the as-applied raster and compute the summary.
 
     `control` holds at least ``metered_kg``, ``width_on_m``, ``target_shaft_rpm`` and ``sections_on``
-    (`services.sim.core.CONTROL_KEYS`): what `vrsim run` computes and what the monitor rebuilds from
-    its records.
+    (`services.sim.core.CONTROL_KEYS`; ``sections_commanded`` too from `vrsim run`): what `vrsim run`
+    computes and what the monitor rebuilds from its records.
     """
     scenario, grid = world.scenario, world.grid
     implement, timing = scenario.implement, scenario.timing
@@ -162,7 +162,7 @@ def account(world: World, track: dict, control: dict, wall0: float):
     metered, width_on = control["metered_kg"], control["width_on_m"]
     passes = pass_index(track["heading_rad"], track["implement_on"])
     states = SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
-                           implement.section_offsets_m, passes)
+                           implement.section_offsets_m, passes, control.get("sections_commanded"))
     landing = land(grid, track, metered, width_on, delay_s, period_s)
     cell_m = min(grid.cell_size)
     acc = AsApplied(grid)

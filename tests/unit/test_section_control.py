@@ -57,8 +57,8 @@ def planned_track(field, width_m=12.0, heading_deg=None, speed_m_s=2.5, speed_wa
 def apply(field, track, implement, heading_deg=None):
     """Switch, meter ideally (the target rate exactly for the width on) and land: the as-applied
     raster, the overlap figures and the states."""
-    states = switch_sections(track, implement, field.polygon, planned_path(field, implement.width_m, heading_deg),
-                             MAP_CELL_M)
+    path = planned_path(field, implement.width_m, heading_deg)
+    states = switch_sections(track, implement, field.polygon, path, MAP_CELL_M)
     metered = RATE_KG_HA * track["speed_m_s"] * states.width_on_m * PERIOD_S / 1e4
     minx, miny, maxx, maxy = field.polygon.bounds
     grid = synthetic.uniform((minx - 20, miny - 20, maxx + 20, maxy + 20), field.crs, cell_size_m=MAP_CELL_M,
@@ -199,7 +199,8 @@ def test_passes_cut_turns_and_half_circles():
 def test_no_work_no_sections():
     track = dict(planned_track(rectangle()))
     track["implement_on"] = np.zeros(track["time_s"].size, bool)
-    track["s_m"] = np.full(track["time_s"].size, planned_path(rectangle()).length_m)  # coverage reads the plan
+    # Coverage control reads the plan: beyond its end nothing is to be worked.
+    track["s_m"] = np.full(track["time_s"].size, planned_path(rectangle()).length_m)
     for mode in SECTION_CONTROL_MODES:
         states = switch_sections(track, Implement(section_control=mode), rectangle().polygon,
                                  planned_path(rectangle()), MAP_CELL_M)
