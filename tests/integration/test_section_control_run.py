@@ -164,9 +164,11 @@ def test_machine_check_before_the_run_and_the_limited_figures(tmp_path):
     ("section_on_delay_s = 31.0", "section_on_delay_s must be a number in [0, 30] s, got 31.0"),
     ("section_overlap_pct = 101.0", "section_overlap_pct must be a number in [0, 100] %, got 101.0"),
     ("boundary_overlap_pct = -1.0", "boundary_overlap_pct must be a number in [0, 100] %, got -1.0"),
-    ("section_widths_m = [2.0, 4.0, 4.0]", "section_widths_m [2.0, 4.0, 4.0] add up to 10 m, not width_m=12.0"),
+    ("section_widths_m = [2.0, 4.0, 4.0]",
+     "section_widths_m [2.0, 4.0, 4.0] add up to 10 m, not width_m=12.0"),
     ("sections = 129", "sections must be an integer in [1, 128], got 129"),
-    ("section_control = \"sometimes\"", "section_control must be one of coverage, boundary, off, got 'sometimes'"),
+    ("section_control = \"sometimes\"",
+     "section_control must be one of coverage, boundary, off, got 'sometimes'"),
 ])
 def test_bad_section_settings_exit_2_naming_file_table_key_and_value(tmp_path, line, message):
     path = tmp_path / "bad.toml"
