@@ -7,8 +7,6 @@ sections_coverage_default_s    switch_sections, coverage mode (6 sections, 1.0 s
 sections_boundary_default_s    the same in boundary mode (the rule the run used before), s
 sections_landing_default_s     per-section landing: section_strips, AsApplied.add_strips with
                                passes, the worked-area raster and overlap_metrics (best of 3), s
-single_strip_landing_default_s the landing it replaces: one strip of the width on per tick
-                               (services.sim.landing.land, merged_strips, add_strips; best of 3), s
 """
 
 from __future__ import annotations
@@ -22,10 +20,10 @@ from bench.bench_maps import _best  # best of 3 wall times
 
 def run() -> dict:
     from maps import AsApplied
-    from services.sim.landing import land, merged_strips
+    from services.sim.metrics import overlap_metrics
     from services.sim.run import cells_in_field, driving, measure
     from services.sim.scenario import load
-    from services.sim.section_landing import overlap_metrics, section_strips, worked_fraction
+    from services.sim.section_landing import section_strips, worked_fraction
     from services.sim.sections import switch_sections
     from services.sim.world import build_world
 
@@ -41,8 +39,9 @@ def run() -> dict:
     for mode in ("coverage", "boundary"):
         implement = dataclasses.replace(imp, section_control=mode)
         figures[f"sections_{mode}_default_s"] = _best(
-            lambda implement=implement: switch_sections(track, implement, polygon, cell_m, measured))
-    states = switch_sections(track, imp, polygon, cell_m, measured)
+            lambda implement=implement: switch_sections(track, implement, polygon, world.path, cell_m,
+                                                        measured, period_s))
+    states = switch_sections(track, imp, polygon, world.path, cell_m, measured, period_s)
     rate = grid.lookup(track["x_m"], track["y_m"]).rate_kg_ha
     metered = np.nan_to_num(rate) * track["speed_m_s"] * states.width_on_m * period_s / 1e4
     in_field = cells_in_field(grid, polygon)
@@ -50,16 +49,10 @@ def run() -> dict:
     def per_section():
         applied = AsApplied(grid)
         section_strips(track, metered, states, imp.delivery_delay_s, period_s, cell_m).add_to(applied)
-        overlap_metrics(applied, worked_fraction(track, imp.width_m, grid), in_field)
-
-    def single_strip():
-        width_on = states.width_on_m
-        offset = np.zeros(width_on.size)
-        landing = land(grid, track, metered, width_on, offset, imp.delivery_delay_s, period_s)
-        AsApplied(grid).add_strips(*merged_strips(landing, metered, width_on, offset, cell_m))
+        overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg,
+                        worked_fraction(track, imp.width_m, grid), in_field)
 
     figures["sections_landing_default_s"] = _best(per_section)
-    figures["single_strip_landing_default_s"] = _best(single_strip)
     return figures
 
 
