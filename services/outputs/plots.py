@@ -29,6 +29,19 @@ def _frame(result: RunResult):
     return (0.0, east - west, 0.0, north - south), (west, south), outline
 
 
+def _draw(fig, axes, panels, extent, outline, unit: str) -> None:
+    """One map per axis: panels of (data, title, colour map, low, high), the field's outline on each."""
+    for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
+        im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
+                       interpolation="nearest")
+        ax.plot(*outline, color="k", lw=0.8)
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        fig.colorbar(im, ax=ax, label=unit, shrink=0.85)
+    axes[0].set_ylabel("north (m) of the map's south-west corner")
+
+
 def plot_maps(result: RunResult, path: str) -> None:
     plt = _pyplot()
     grid = result.world.grid
@@ -42,16 +55,8 @@ def plot_maps(result: RunResult, path: str) -> None:
     panels = ((rx * shown, "Prescribed", "viridis", 0, vmax),
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
-    for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
-        im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
-                       interpolation="nearest")
-        ax.plot(fx, fy, color="k", lw=0.8)
-        ax.set_title(title)
-        ax.set_aspect("equal")
-        ax.set_xlabel("east (m)")
-        fig.colorbar(im, ax=ax, label="kg/ha", shrink=0.85)
+    _draw(fig, axes, panels, extent, (fx, fy), "kg/ha")
     axes[0].plot(result.track["x_m"] - west, result.track["y_m"] - south, color="w", lw=0.3, alpha=0.6)
-    axes[0].set_ylabel("north (m) of the map's south-west corner")
     fig.suptitle(f"{result.world.scenario.name}: MAE {result.summary['mae_kg_ha']:.1f} kg/ha, "
                  f"within 10 %: {result.summary['within_10pct_area_pct']:.1f} % of covered area")
     fig.savefig(path, dpi=90)
@@ -67,22 +72,14 @@ def plot_sections(result: RunResult, path: str) -> None:
     shown = np.where(result.in_field, 1.0, np.nan)
     cover = result.as_applied.coverage_fraction
     s = result.summary
-    panels = ((result.as_applied.overlap_fraction, f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, "
-               f"{s['overlap_kg']:.1f} kg", "Reds"),
-              (np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0),
-               f"Skipped: {s['skip_area_pct']:.2f} % of worked area", "Blues"),
-              (np.minimum(result.limited_fraction, 1.0),
-               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area", "Purples"))
+    overlap = f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg"
+    panels = ((result.as_applied.overlap_fraction * shown, overlap, "Reds", 0.0, 1.0),
+              (np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0) * shown,
+               f"Skipped: {s['skip_area_pct']:.2f} % of worked area", "Blues", 0.0, 1.0),
+              (np.minimum(result.limited_fraction, 1.0) * shown,
+               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area", "Purples", 0.0, 1.0))
     fig, axes = plt.subplots(1, 3, figsize=(17, 5.5), constrained_layout=True)
-    for ax, (data, title, cmap) in zip(axes, panels, strict=True):
-        im = ax.imshow(data * shown, extent=extent, origin="upper", cmap=cmap, vmin=0.0, vmax=1.0,
-                       interpolation="nearest")
-        ax.plot(fx, fy, color="k", lw=0.8)
-        ax.set_title(title)
-        ax.set_aspect("equal")
-        ax.set_xlabel("east (m)")
-        fig.colorbar(im, ax=ax, label="share of the cell", shrink=0.85)
-    axes[0].set_ylabel("north (m) of the map's south-west corner")
+    _draw(fig, axes, panels, extent, (fx, fy), "share of the cell")
     widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
     fig.suptitle(f"{result.world.scenario.name}: {s['sections']} sections ({widths} m), section control "
                  f"{result.world.scenario.implement.section_control!r}")
