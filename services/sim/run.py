@@ -169,15 +169,16 @@ def account(world: World, track: dict, control: dict, wall0: float):
     section_strips(track, metered, states, delay_s, period_s, cell_m).add_to(acc)
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
-    mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, in_field,
+    cover = acc.coverage_fraction
+    mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, cover, in_field,
                      abs(cell_w * cell_h) / 1e4, float(metered.sum()), acc.outside_kg)
     tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, landing.applied_kg_ha,
                      np.asarray(track["implement_on"], bool))
     worked = worked_fraction(track, implement.width_m, grid)
-    om = overlap_metrics(acc.coverage_fraction, acc.overlap_fraction, acc.overlap_kg, worked, in_field)
+    om = overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field)
     limited = implement.shaft_limited(control["target_shaft_rpm"]) & (width_on > 0)
     limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
-    lm = limit_metrics(limited, width_on > 0, limited_cover, acc.coverage_fraction, in_field)
+    lm = limit_metrics(limited, width_on > 0, limited_cover, cover, in_field)
     check = check_world(world, in_field)
     n = len(track["time_s"])
     figures = {

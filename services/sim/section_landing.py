@@ -4,8 +4,9 @@ Product metered during tick [t, t + period] is shared between the sections whose
 (`SectionStates.actual`) in proportion to their widths, and each share lands on its own section's
 strip on the true path ``delivery_delay_s`` later: between where the section is at the start and
 the end of that span. Consecutive ticks of one section are joined into strips up to half a map
-cell long (as for the whole implement before); a strip ends where the section switches or the
-pass changes, so every strip has one section, one pass and product all along.
+cell long (their ends meet exactly; this blurs per-cell figures far below the cell size and cuts
+the raster work many-fold); a strip ends where the section switches or the pass changes, so every
+strip has one section, one pass and product all along.
 
 With `maps.AsApplied`'s pass accounting and the plan's worked area (`worked_fraction`) this gives
 the overlap and skip figures (`services.sim.metrics.overlap_metrics`).

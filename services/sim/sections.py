@@ -179,6 +179,8 @@ def switch_sections(track: dict, implement: Implement, field_polygon, path: Cove
 
 # --- the three ways of switching ----------------------------------------------------------------
 class _AllOn:
+    """``"off"``: every section applies while the implement is on."""
+
     def __init__(self, implement, polygon, path, period_s, map_cell_m):
         self.sections = implement.sections
 
@@ -188,6 +190,9 @@ class _AllOn:
 
 
 class _Boundary:
+    """``"boundary"``: a section applies while the implement is on and its centre, at the control
+    core's predicted landing point, lies inside the field (no latency)."""
+
     def __init__(self, implement, polygon, path, period_s, map_cell_m):
         self.implement, self.polygon = implement, polygon
 
@@ -204,6 +209,7 @@ class _Coverage:
         if path is None:
             raise ValueError("coverage section control needs the planned path")
         self.implement, self.path, self.period_s = implement, path, period_s
+        self.segment_works = np.array([seg.implement_on for seg in path.segments], bool)
         self.lag = _Lags.of(implement, period_s)
         self.raster = CoverageRaster(polygon, coverage_cell_m(implement, map_cell_m),
                                      margin_m=implement.width_m)
@@ -249,7 +255,7 @@ class _Coverage:
 
     def _working(self, s_m):
         """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
-        return self.path.locate(s_m)[4] & (s_m < self.path.length_m)
+        return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
 
     def _wanted(self, xy, working, sensed, a, b):
         out = np.zeros((b - a, self.implement.sections), bool)
@@ -331,16 +337,6 @@ class PassTracker:
 def pass_index(heading_rad, implement_on) -> np.ndarray:
     """Pass of each tick of a whole track (see `PassTracker`): -1 where the implement is off."""
     return PassTracker().step(heading_rad, implement_on)
-
-
-def pass_bounds(passes) -> list[tuple[int, int]]:
-    """(first tick, end tick) of each pass numbered in `passes`, in order."""
-    passes = np.asarray(passes)
-    change = np.flatnonzero(np.diff(passes) != 0) + 1
-    starts = np.concatenate(([0], change))
-    ends = np.concatenate((change, [passes.size]))
-    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True) if passes[a] >= 0] \
-        if passes.size else []
 
 
 def runs_of(on: np.ndarray) -> list[tuple[int, int]]:
