@@ -205,7 +205,7 @@ def _limited_coverage(track, metered, states: SectionStates, limited, delay_s, p
     """Share of each cell that product metered in `limited` ticks landed on, shape (rows, cols)."""
     if not limited.any():
         return np.zeros((grid.rows, grid.cols))
-    only = dataclasses.replace(states, actual=states.actual & limited[:, None])
     acc = AsApplied(grid)
-    section_strips(track, np.where(limited, metered, 0.0), only, delay_s, period_s, cell_m).add_to(acc)
+    strips = section_strips(track, metered, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+    strips.add_to(acc)
     return acc.coverage_fraction

@@ -46,7 +46,7 @@ class SectionStrips:
 
 
 def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float) -> SectionStrips:
+                   cell_m: float, ticks=None) -> SectionStrips:
     """Each section's product as strips on its own path, ordered by pass.
 
     Parameters
@@ -62,32 +62,38 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
         Delivery delay and tick length, s.
     cell_m : float
         Map cell size: ticks are joined into strips up to half of it long.
+    ticks : ndarray of int, optional
+        Only these ticks (ascending indices), e.g. those metered at a clipped target; default all.
     """
     time_s = np.asarray(track["time_s"], float)
-    n, sections = states.actual.shape
-    x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s)
-    width_on = states.width_on_m
-    lost = (np.asarray(metered_kg) > 0) & (width_on <= 0)
+    idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
+    n, sections = idx.size, states.actual.shape[1]
+    actual, metered = states.actual[idx], np.asarray(metered_kg, float)[idx]
+    x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s, idx)
+    width_on = actual @ states.widths_m
+    lost = (metered > 0) & (width_on <= 0)
     if lost.any():
-        raise ValueError(f"section_strips: tick {int(np.argmax(lost))} meters product with every gate closed")
+        raise ValueError(f"section_strips: tick {int(idx[np.argmax(lost)])} meters product with every gate "
+                         "closed")
     share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
-                      where=states.actual & (width_on[:, None] > 0))
-    mass = np.asarray(metered_kg, float)[:, None] * share
-    passes = landing_pass(time_s, states.pass_index, delay_s)
+                      where=actual & (width_on[:, None] > 0))
+    mass = metered[:, None] * share
+    passes = landing_pass(time_s, states.pass_index, delay_s, idx)
     typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
     join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
     # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
-    # section's gate changes and where the pass changes.
-    on = states.actual.T
+    # section's gate changes, where the pass changes and where ticks are left out.
+    on = actual.T
     brk = np.zeros((sections, n), bool)
     brk[:, ::join] = True
-    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | (passes[1:] != passes[:-1])[None, :]
+    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | ((passes[1:] != passes[:-1]) | (np.diff(idx) > 1))[None, :]
     starts = np.flatnonzero(brk.ravel())
     ends = np.append(starts[1:], sections * n) - 1
     keep = on.ravel()[starts]
     starts, ends = starts[keep], ends[keep]
     kg = np.add.reduceat(mass.T.ravel(), np.flatnonzero(brk.ravel()))[keep] if n else np.zeros(0)
-    sec, first, last = starts // n, starts % n, ends % n
+    per_section = max(n, 1)
+    sec, first, last = starts // per_section, starts % per_section, ends % per_section
     off = states.offsets_m[sec]
     order = np.argsort(passes[first], kind="stable")  # by pass, each section's strips in time order
     strips = SectionStrips(x0[first] + nx[first] * off, y0[first] + ny[first] * off,
@@ -117,19 +123,23 @@ def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
     return mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
 
 
-def landing_pass(time_s, pass_index, delay_s: float) -> np.ndarray:
-    """The pass of the product metered in each tick: that of the pose where it starts landing,
-    a turn counting with the pass before it (the first pass for anything before it)."""
+def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
+    """The pass of the product metered in each tick (of `ticks`, default all): that of the pose where
+    it starts landing, a turn counting with the pass before it (the first pass for anything before it)."""
     time_s = np.asarray(time_s, float)
-    filled = np.maximum.accumulate(np.asarray(pass_index, np.int64)) if time_s.size else np.zeros(0, np.int64)
-    pose = np.clip(np.searchsorted(time_s, time_s + delay_s, side="right") - 1, 0, max(time_s.size - 1, 0))
-    return np.maximum(filled[pose], 0) if time_s.size else filled
+    if not time_s.size:
+        return np.zeros(0, np.int64)
+    idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
+    filled = np.maximum.accumulate(np.asarray(pass_index, np.int64))
+    pose = np.clip(np.searchsorted(time_s, time_s[idx] + delay_s, side="right") - 1, 0, time_s.size - 1)
+    return np.maximum(filled[pose], 0)
 
 
-def _landing_frame(track: dict, delay_s: float, period_s: float):
-    """Start and end of each tick's landing span on the true path and the unit left normal there."""
+def _landing_frame(track: dict, delay_s: float, period_s: float, ticks):
+    """Start and end of the landing span of each of `ticks` on the true path and the unit left normal
+    there."""
     time_s = np.asarray(track["time_s"], float)
-    t0 = time_s + delay_s
+    t0 = time_s[ticks] + delay_s
     x, y = track["x_m"], track["y_m"]
     hx = np.interp(t0, time_s, np.cos(track["heading_rad"]))
     hy = np.interp(t0, time_s, np.sin(track["heading_rad"]))

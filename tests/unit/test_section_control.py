@@ -60,9 +60,7 @@ def apply(field, track, implement, heading_deg=None):
     path = planned_path(field, implement.width_m, heading_deg)
     states = switch_sections(track, implement, field.polygon, path, MAP_CELL_M)
     metered = RATE_KG_HA * track["speed_m_s"] * states.width_on_m * PERIOD_S / 1e4
-    minx, miny, maxx, maxy = field.polygon.bounds
-    grid = synthetic.uniform((minx - 20, miny - 20, maxx + 20, maxy + 20), field.crs, cell_size_m=MAP_CELL_M,
-                             rate_kg_ha=RATE_KG_HA)
+    grid = grid_for(field)
     applied = AsApplied(grid)
     section_strips(track, metered, states, implement.delivery_delay_s, PERIOD_S, MAP_CELL_M).add_to(applied)
     worked = worked_fraction(track, implement.width_m, grid)
@@ -323,6 +321,33 @@ def test_worked_fraction_is_the_working_width_along_working_stretches():
     worked_tall = worked_fraction(track, 12.0, tall)
     assert (worked_tall[22:28, 10:110] == 1.0).all()
     assert worked_tall.sum() * 2 == pytest.approx(1200, rel=1e-3)
+
+
+def test_strips_of_some_ticks_only():
+    """`ticks` lands only those ticks (the machine-limited ones, say), each section's share as before."""
+    field = rectangle()
+    track = planned_track(field)
+    imp = Implement(section_control="boundary")
+    states = switch_sections(track, imp, field.polygon, None, MAP_CELL_M)
+    metered = np.where(states.width_on_m > 0, 0.01, 0.0)
+    every = section_strips(track, metered, states, imp.delivery_delay_s, PERIOD_S, MAP_CELL_M)
+    same = section_strips(track, metered, states, imp.delivery_delay_s, PERIOD_S, MAP_CELL_M,
+                          ticks=np.arange(track["time_s"].size))
+    for name in ("x0_m", "y0_m", "x1_m", "y1_m", "mass_kg", "pass_index", "section"):
+        np.testing.assert_array_equal(getattr(same, name), getattr(every, name))
+    ticks = np.flatnonzero((np.arange(track["time_s"].size) // 500) % 3 == 0)
+    some = section_strips(track, metered, states, imp.delivery_delay_s, PERIOD_S, MAP_CELL_M, ticks=ticks)
+    assert some.mass_kg.sum() == pytest.approx(metered[ticks].sum(), rel=1e-12)
+    alone, rest = AsApplied(grid_for(field)), AsApplied(grid_for(field))
+    some.add_to(alone)
+    every.add_to(rest)
+    assert 0.25 < alone.coverage_fraction.sum() / rest.coverage_fraction.sum() < 0.42
+
+
+def grid_for(field):
+    minx, miny, maxx, maxy = field.polygon.bounds
+    return synthetic.uniform((minx - 20, miny - 20, maxx + 20, maxy + 20), field.crs, cell_size_m=MAP_CELL_M,
+                             rate_kg_ha=RATE_KG_HA)
 
 
 def test_product_with_every_gate_closed_is_refused():
