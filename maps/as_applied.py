@@ -20,6 +20,12 @@ swept area into neighbours, and the clip at 1 drops the excess); where two passe
 inside one sub-cell it can be over-counted (the overlap counts twice before the clip), an error of
 at most one sub-cell along the overlap's edge. A zero-length strip (standing still while applying)
 puts its mass at its point and covers no area.
+
+Passes: strips may carry the pass they belong to (a stretch of path between turns). Each pass is
+accumulated on its own raster over the window of sub-cells it touches, then added to the rest,
+which gives, per cell, how many passes put product on it (`pass_count`), the area more than one
+pass swept (`overlap_fraction`) and the product beyond the first pass (`overlap_kg`), at a cost
+that grows with the passes' area, not with the grid's.
 """
 
 from __future__ import annotations
@@ -60,6 +66,18 @@ class AsApplied:
         self._acc = np.zeros(self._shape[0] * self._shape[1], dtype=np.complex128)
         self.total_kg = 0.0
         self.strips = 0
+        # Pass accounting (see `add_strips`' pass_index). The open pass deposits into its own raster
+        # (`_pass_acc`, made on first use, like `_acc`), over a window of sub-cells `_window`; when
+        # it closes, that window is added to `_acc`, and to the capped swept-area sum (`_capped`,
+        # per interior sub-cell) and the pass count (`_count`, per cell) of the closed passes.
+        dx, dy = grid.cell_size
+        self._sub_area = dx * dy / subcells**2  # CRS units^2, like the swept area
+        self._pass = None
+        self._pass_acc = None
+        self._window = None  # [row_min, row_max, col_min, col_max] touched, ring coordinates
+        self._capped = np.zeros((grid.rows * subcells, grid.cols * subcells))
+        self._count = np.zeros((grid.rows, grid.cols), dtype=np.int64)
+        self._target = self._acc  # where `_spread` deposits
 
     def _interior(self, part: np.ndarray) -> np.ndarray:
         """The grid's sub-cells of `part` (flat, ring included) as (rows, s, cols, s) blocks."""
@@ -67,10 +85,14 @@ class AsApplied:
         inner = part.reshape(self._shape)[1:-1, 1:-1]
         return inner.reshape(self.grid.rows, s, self.grid.cols, s)
 
+    def _all(self) -> np.ndarray:
+        """The accumulator with the open pass's deposits (flat, ring included)."""
+        return self._acc if self._pass is None else self._acc + self._pass_acc
+
     @property
     def applied_kg(self) -> np.ndarray:
         """Applied product per cell, kg, shape (rows, cols)."""
-        return self._interior(self._acc.real).sum(axis=(1, 3))
+        return self._interior(self._all().real).sum(axis=(1, 3))
 
     @property
     def applied_kg_ha(self) -> np.ndarray:
@@ -80,14 +102,13 @@ class AsApplied:
     @property
     def outside_kg(self) -> float:
         """Product that fell outside the grid, kg."""
-        return float(self._acc.real.sum() - self._interior(self._acc.real).sum())
+        acc = self._all()
+        return float(acc.real.sum() - self._interior(acc.real).sum())
 
     @property
     def coverage_fraction(self) -> np.ndarray:
         """Share of each cell's area that product was applied to, in [0, 1], shape (rows, cols)."""
-        dx, dy = self.grid.cell_size
-        sub_area = dx * dy / self._subcells**2
-        return np.minimum(self._interior(self._acc.imag) / sub_area, 1.0).mean(axis=(1, 3))
+        return np.minimum(self._interior(self._all().imag) / self._sub_area, 1.0).mean(axis=(1, 3))
 
     def as_grid(self) -> Grid:
         """The applied rates as a `Grid` on the prescription's geometry (cells never covered: NaN)."""
@@ -95,7 +116,7 @@ class AsApplied:
         g = self.grid
         return Grid(rates, g.transform, g.crs, product=g.product, source="as-applied", format="as-applied")
 
-    def add_strips(self, x0, y0, x1, y1, width_m, mass_kg) -> None:
+    def add_strips(self, x0, y0, x1, y1, width_m, mass_kg, pass_index=None) -> None:
         """Add strips of product.
 
         Parameters
@@ -106,6 +127,10 @@ class AsApplied:
             Working width across the direction of travel, m.
         mass_kg : array_like, shape (k,)
             Product in each strip, kg (>= 0).
+        pass_index : int or array_like of int, shape (k,), optional
+            The pass each strip belongs to, for `pass_count` and the overlap figures. Strips of
+            one pass come together, passes one after another (across calls too); a pass ends
+            where the index changes.
         """
         x0, y0, x1, y1, width, mass = np.broadcast_arrays(*(np.asarray(v, dtype=np.float64).ravel()
                                                           for v in (x0, y0, x1, y1, width_m, mass_kg)))
@@ -117,6 +142,22 @@ class AsApplied:
                 i = int(np.argmax(~(np.isfinite(v) & (v >= 0))))
                 raise MapError(f"add_strips: {name}[{i}]={v[i]!r} must be finite and >= 0")
         width = width / metres_per_unit(self.grid.crs)  # in CRS units, like the coordinates
+        if pass_index is None:
+            self._target = self._acc
+            self._add(x0, y0, x1, y1, width, mass)
+            return
+        passes = np.broadcast_to(np.asarray(pass_index, dtype=np.int64).ravel(), x0.shape)
+        cuts = np.concatenate(([0], np.flatnonzero(np.diff(passes)) + 1, [passes.size]))
+        for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
+            if hi > lo:
+                self._begin_pass(int(passes[lo]))
+                part = slice(lo, hi)
+                self._add(x0[part], y0[part], x1[part], y1[part], width[part], mass[part])
+
+    def _add(self, x0, y0, x1, y1, width, mass) -> None:
+        """Deposit checked strips (width in CRS units)."""
+        if x0.size == 0:
+            return
         dx, dy = x1 - x0, y1 - y0
         length = np.hypot(dx, dy)
         h = min(self.grid.cell_size) / (2 * self._subcells)
@@ -132,13 +173,102 @@ class AsApplied:
         for g, k in enumerate(patterns):
             idx = np.arange(key.size) if group is None else np.flatnonzero(group == g)
             nal, nac = divmod(int(k), int(n_ac.max()) + 1)
-            per_pass = max(1, MAX_SAMPLES_PER_PASS // int(nal * nac))
-            for lo in range(0, idx.size, per_pass):
-                sel = idx[lo:lo + per_pass]
+            per_chunk = max(1, MAX_SAMPLES_PER_PASS // int(nal * nac))
+            for lo in range(0, idx.size, per_chunk):
+                sel = idx[lo:lo + per_chunk]
                 self._deposit(x0[sel], y0[sel], dx[sel], dy[sel], length[sel], width[sel], mass[sel],
                               int(nal), int(nac))
         self.total_kg += float(mass.sum())
         self.strips += int(mass.size)
+
+    # --- passes --------------------------------------------------------------------------------
+    def _begin_pass(self, index: int) -> None:
+        """Close the open pass if it is another, and deposit into pass `index`'s own raster."""
+        if index != self._pass:
+            if self._pass is not None:
+                self._close_pass()
+            if self._pass_acc is None:
+                self._pass_acc = np.zeros_like(self._acc)
+            self._pass = index
+        self._target = self._pass_acc
+
+    def _close_pass(self) -> None:
+        capped, count, window = self._open_pass_terms()
+        if window is not None:
+            rows, cols = window
+            self._capped[rows, cols] += capped
+            self._count[rows.start // self._subcells: rows.stop // self._subcells,
+                        cols.start // self._subcells: cols.stop // self._subcells] += count
+            touched = self._touched()
+            self._acc.reshape(self._shape)[touched] += self._pass_acc.reshape(self._shape)[touched]
+            self._pass_acc.reshape(self._shape)[touched] = 0.0
+        self._pass, self._window = None, None
+
+    def _touched(self):
+        r0, r1, c0, c1 = self._window
+        return slice(r0, r1 + 1), slice(c0, c1 + 1)
+
+    def _open_pass_terms(self):
+        """The open pass's capped swept area per sub-cell and whether it put product on each cell,
+        over the interior window (whole cells) it touched: (capped, count, (row slice, col slice))."""
+        if self._pass is None or self._window is None:
+            return None, None, None
+        s = self._subcells
+        r0, r1, c0, c1 = self._window
+        # Interior sub-cells (ring coordinates less one), widened to whole cells.
+        i0, i1 = max(r0 - 1, 0) // s * s, -(-min(r1, self._shape[0] - 2) // s) * s
+        j0, j1 = max(c0 - 1, 0) // s * s, -(-min(c1, self._shape[1] - 2) // s) * s
+        if i1 <= i0 or j1 <= j0:
+            return None, None, None
+        swept = self._pass_acc.reshape(self._shape)[1 + i0: 1 + i1, 1 + j0: 1 + j1].imag
+        blocks = swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s).sum(axis=(1, 3))
+        count = blocks >= 0.5 * self._sub_area * s * s
+        return np.minimum(swept, self._sub_area), count, (slice(i0, i1), slice(j0, j1))
+
+    def _with_open_pass(self):
+        """Per interior sub-cell the sum over passes of each pass's swept area (capped at the
+        sub-cell's area), and per cell the number of passes that swept at least half of it, the
+        open pass included."""
+        capped, count, window = self._open_pass_terms()
+        if window is None:
+            return self._capped, self._count
+        rows, cols = window
+        all_capped, all_count = self._capped.copy(), self._count.copy()
+        all_capped[rows, cols] += capped
+        s = self._subcells
+        all_count[rows.start // s: rows.stop // s, cols.start // s: cols.stop // s] += count
+        return all_capped, all_count
+
+    @property
+    def pass_count(self) -> np.ndarray:
+        """Number of passes that put product on at least half of each cell, shape (rows, cols) (strips
+        added without a pass index count for none)."""
+        return self._with_open_pass()[1]
+
+    @property
+    def overlap_fraction(self) -> np.ndarray:
+        """Share of each cell's area swept by more than one pass, in [0, 1], shape (rows, cols).
+
+        Per sub-cell: the passes' swept areas (each capped at the sub-cell's area) summed, less the
+        sub-cell's area; a lower bound of the area two passes share, exact when each covers whole
+        sub-cells. A pass that sweeps the same ground twice (a turn) does not overlap itself.
+        """
+        capped = self._blocks(self._with_open_pass()[0])
+        return (np.maximum(capped - self._sub_area, 0.0) / self._sub_area).mean(axis=(1, 3))
+
+    @property
+    def overlap_kg(self) -> np.ndarray:
+        """Product applied beyond the first pass on each cell, kg, shape (rows, cols): per sub-cell,
+        its product times the share of its passes' swept area that overlaps."""
+        capped = self._blocks(self._with_open_pass()[0])
+        extra = np.divide(np.maximum(capped - self._sub_area, 0.0), capped, out=np.zeros(capped.shape),
+                          where=capped > 0)
+        return (self._interior(self._all().real) * extra).sum(axis=(1, 3))
+
+    def _blocks(self, sub: np.ndarray) -> np.ndarray:
+        """Interior sub-cell values (rows * s, cols * s) as (rows, s, cols, s) blocks."""
+        s = self._subcells
+        return sub.reshape(self.grid.rows, s, self.grid.cols, s)
 
     def _deposit(self, x0, y0, dx, dy, length, width, mass, nal: int, nac: int):
         col = (slice(None), None, None)  # per-strip values broadcast over (n_al, n_ac)
@@ -167,14 +297,31 @@ class AsApplied:
         kx, ky = g._inv_dx * s, g._inv_dy * s
         c0, c1, wc = _split((x - g._x0) * kx, 0.5 * kx * ext_x, cols)
         r0, r1, wr = _split((g._y0 - y) * ky, 0.5 * ky * ext_y, rows)
+        if self._target is not self._acc:
+            self._widen_window(r0, c0)
         r0 *= cols
         r1 *= cols
         lc = load * (1.0 - wc)
         hc = load * wc
-        np.add.at(self._acc, r0 + c0, lc * (1.0 - wr))
-        np.add.at(self._acc, r0 + c1, hc * (1.0 - wr))
-        np.add.at(self._acc, r1 + c0, lc * wr)
-        np.add.at(self._acc, r1 + c1, hc * wr)
+        acc = self._target
+        np.add.at(acc, r0 + c0, lc * (1.0 - wr))
+        np.add.at(acc, r0 + c1, hc * (1.0 - wr))
+        np.add.at(acc, r1 + c0, lc * wr)
+        np.add.at(acc, r1 + c1, hc * wr)
+
+    def _widen_window(self, row, col) -> None:
+        """Grow the open pass's window to the sub-cells of samples at `row`, `col` (ring coordinates)
+        and their neighbours (a sample spills into one)."""
+        if row.size == 0:
+            return
+        r0, r1 = int(row.min()) - 1, int(row.max()) + 1
+        c0, c1 = int(col.min()) - 1, int(col.max()) + 1
+        rows, cols = self._shape
+        new = [max(r0, 0), min(r1, rows - 1), max(c0, 0), min(c1, cols - 1)]
+        if self._window is not None:
+            w = self._window
+            new = [min(new[0], w[0]), max(new[1], w[1]), min(new[2], w[2]), max(new[3], w[3])]
+        self._window = new
 
 
 def _split(f: np.ndarray, half: np.ndarray, n: int):

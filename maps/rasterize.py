@@ -6,8 +6,8 @@ special treatment: under the even-odd rule a point is inside a feature when a ra
 the feature's rings an odd number of times.
 
 A cell belongs to a feature when its centre is inside (the rule GDAL's rasterizer uses); where
-features overlap, the later one wins. Cost: ~O(edges x rows they span + covered cells), all in numpy;
-no per-polygon Python.
+features overlap, the later one wins (`rasterize_rings`), or the union is marked (`fill_rings`).
+Cost: ~O(edges x rows they span + covered cells), all in numpy; no per-polygon Python.
 """
 
 from __future__ import annotations
@@ -35,10 +35,34 @@ def rasterize_rings(x: np.ndarray, y: np.ndarray, ring_start: np.ndarray, ring_o
         Grid shape.
     """
     out = np.full((rows, cols), -1, dtype=np.int32)
+    srow, c0, c1, sown = ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
+    if srow.size:
+        _fill(out, srow, c0, c1, sown, _overlapping(srow, c0, c1))
+    return out
+
+
+def fill_rings(out: np.ndarray, x: np.ndarray, y: np.ndarray, ring_start: np.ndarray,
+               ring_owner: np.ndarray, west: float, north: float, size: float, value=True) -> None:
+    """OR `value` into the cells of `out` (rows, cols; bool or integer, contiguous) whose centre is
+    inside any feature, in place; the other arguments are those of `rasterize_rings`."""
+    rows, cols = out.shape
+    srow, c0, c1, _ = ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
+    flat = out.reshape(-1)  # a view
+    for idx, _ in _span_cells(srow, c0, c1, cols):
+        flat[idx] |= value
+
+
+def ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols):
+    """Row spans of cells whose centre lies inside each feature (even-odd rule over its rings).
+
+    Arguments as `rasterize_rings`. Returns ``(row, c0, c1, owner)``, int arrays of one entry per
+    span: cells ``c0 <= col < c1`` of ``row`` belong to feature ``owner``; empty spans are left out.
+    """
     xa, ya, xb, yb, owner = _edges(x, y, ring_start, ring_owner)
     row, xc, owner = _crossings(xa, ya, xb, yb, owner, north, size, rows)
     if row.size == 0:
-        return out
+        empty = np.empty(0, dtype=np.int64)
+        return empty, empty, empty, empty
     # Sort crossings by (feature, row, x); inside each (feature, row) they pair up as spans.
     order = np.lexsort((xc, row, owner))
     row, xc, owner = row[order], xc[order], owner[order]
@@ -47,9 +71,7 @@ def rasterize_rings(x: np.ndarray, y: np.ndarray, ring_start: np.ndarray, ring_o
     c0 = np.clip(np.ceil((x0 - west) / size - 0.5), 0, cols).astype(np.int64)
     c1 = np.clip(np.ceil((x1 - west) / size - 0.5), 0, cols).astype(np.int64)
     keep = c1 > c0
-    srow, c0, c1, sown = srow[keep], c0[keep], c1[keep], sown[keep]
-    _fill(out, srow, c0, c1, sown, _overlapping(srow, c0, c1))
-    return out
+    return srow[keep], c0[keep], c1[keep], sown[keep]
 
 
 def _overlapping(row, c0, c1) -> bool:
@@ -93,10 +115,9 @@ def _crossings(xa, ya, xb, yb, owner, north, size, rows):
     return row, xc, owner[edge]
 
 
-def _fill(out: np.ndarray, row, c0, c1, owner, overlapping: bool) -> None:
-    """Write spans [c0, c1) of `row` with their feature (later features win)."""
-    cols = out.shape[1]
-    flat = out.ravel()
+def _span_cells(row, c0, c1, cols):
+    """Flat cell indices of spans [c0, c1) of `row`, in chunks of at most ~`FILL_CHUNK` cells:
+    yields (indices, span of each index)."""
     length = c1 - c0
     ends = np.cumsum(length)
     lo = 0
@@ -106,7 +127,14 @@ def _fill(out: np.ndarray, row, c0, c1, owner, overlapping: bool) -> None:
         ln = length[lo:hi]
         span = np.repeat(np.arange(lo, hi), ln)
         offset = np.arange(span.size) - np.repeat(np.cumsum(ln) - ln, ln)
-        idx = row[span] * cols + c0[span] + offset
+        yield row[span] * cols + c0[span] + offset, span
+        lo = hi
+
+
+def _fill(out: np.ndarray, row, c0, c1, owner, overlapping: bool) -> None:
+    """Write spans [c0, c1) of `row` with their feature (later features win)."""
+    flat = out.ravel()
+    for idx, span in _span_cells(row, c0, c1, out.shape[1]):
         value = owner[span].astype(np.int32)
         # Later features have higher indices. Overlaps are rare: only then pay for maximum.at, which
         # makes "later wins" exact whatever order numpy would write duplicates in.
@@ -114,4 +142,3 @@ def _fill(out: np.ndarray, row, c0, c1, owner, overlapping: bool) -> None:
             np.maximum.at(flat, idx, value)
         else:
             flat[idx] = value
-        lo = hi

@@ -9,6 +9,7 @@ apply ``rate`` kg/ha over ``width`` m at ``speed`` m/s the shaft must turn at
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +19,10 @@ from common.checks import check_number, check_positive
 from common.errors import VehicleError
 
 M2_PER_HA = 10_000.0
+SECTION_CONTROL_MODES = ("coverage", "boundary", "off")  # the switching engines' registry keys
+DEFAULT_SECTIONS = 6
+MAX_SECTIONS = 128  # ISOBUS task controllers address at most this many sections per boom
+MAX_SECTION_DELAY_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -28,8 +33,14 @@ class Implement:
     ----------
     width_m : float
         Working width, m.
-    sections : int
-        Number of equal sections across the width, switched on/off independently.
+    sections : int or None
+        Number of sections across the width, switched on/off independently (1 to 128). None: one
+        per entry of `section_widths_m`, or 6 equal sections if that is not given either; filled in
+        on construction, so it is always the count.
+    section_widths_m : tuple of float or None
+        Width of each section from left to right, m; they must add up to `width_m`. None: the
+        width split into `sections` equal sections (it stays None then, so a changed `width_m`
+        keeps equal sections; `section_widths` gives the widths either way).
     kg_per_rev : float
         Metering constant: product per metering-shaft revolution, kg/rev.
     transmission_ratio : float
@@ -38,24 +49,49 @@ class Implement:
         Speed range of the metering shaft while applying, rpm.
     delivery_delay_s : float
         Time from the metering shaft to the ground, s.
+    section_control : str
+        How sections switch while the implement works (`SECTION_CONTROL_MODES`): "coverage" (off
+        over ground already treated or outside the field, as terminals do), "boundary" (a section
+        applies while its centre lands inside the field, with no latency) or "off" (all sections on).
+    section_overlap_pct : float
+        Coverage control: a section switches off when more than this share of its strip would land
+        on ground already treated, %, in [0, 100] (0: no overlap, skips instead; 100: no skips).
+    boundary_overlap_pct : float
+        Coverage control: ... or when more than this share would land outside the field, %.
+    section_on_delay_s, section_off_delay_s : float
+        Coverage control: time from a section's on (off) command until product starts (stops)
+        leaving the meter at that section, s, in [0, 30]; the controller looks ahead by it plus
+        the delivery delay. Defaults as John Deere's terminals (1.0 s on, 0.6 s off).
     """
 
     width_m: float = 12.0
-    sections: int = 6
+    sections: int | None = None
     kg_per_rev: float = 0.5
     transmission_ratio: float = 0.2
     shaft_rpm_min: float = 5.0
     shaft_rpm_max: float = 150.0
     delivery_delay_s: float = 0.8
+    section_widths_m: tuple[float, ...] | None = None
+    section_control: str = "coverage"
+    section_overlap_pct: float = 50.0
+    boundary_overlap_pct: float = 50.0
+    section_on_delay_s: float = 1.0
+    section_off_delay_s: float = 0.6
 
     def __post_init__(self):
         for name in ("width_m", "kg_per_rev", "transmission_ratio", "shaft_rpm_max"):
             check_positive(getattr(self, name), f"Implement: {name}", VehicleError)
         for name in ("shaft_rpm_min", "delivery_delay_s"):
             check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0)
-        if not isinstance(self.sections, (int, np.integer)) or isinstance(self.sections, bool) \
-                or not 1 <= self.sections <= 128:
-            raise VehicleError(f"Implement: sections must be an integer in [1, 128], got {self.sections!r}")
+        self._resolve_sections()
+        if self.section_control not in SECTION_CONTROL_MODES:
+            raise VehicleError("Implement: section_control must be one of "
+                               f"{', '.join(SECTION_CONTROL_MODES)}, got {self.section_control!r}")
+        for name in ("section_overlap_pct", "boundary_overlap_pct"):
+            check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0, hi=100.0, unit="%")
+        for name in ("section_on_delay_s", "section_off_delay_s"):
+            check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0,
+                         hi=MAX_SECTION_DELAY_S, unit="s")
         if self.shaft_rpm_min >= self.shaft_rpm_max:
             raise VehicleError(f"Implement: shaft_rpm_min={self.shaft_rpm_min} must be below "
                                f"shaft_rpm_max={self.shaft_rpm_max}")
@@ -78,21 +114,56 @@ class Implement:
         rpm = np.asarray(shaft_rpm, dtype=float)
         return np.where(rpm > 0, np.clip(rpm, self.shaft_rpm_min, self.shaft_rpm_max), 0.0)
 
+    def shaft_limited(self, target_shaft_rpm):
+        """Where a target from `clip_shaft_rpm` sits on a bound of the shaft's range while applying:
+        the map asked for a speed the shaft cannot turn at (or exactly its bound)."""
+        rpm = np.asarray(target_shaft_rpm, dtype=float)
+        return (rpm > 0) & ((rpm <= self.shaft_rpm_min) | (rpm >= self.shaft_rpm_max))
+
     def mass_kg(self, shaft_rev):
         """Product metered by ``shaft_rev`` shaft revolutions, kg."""
         return np.asarray(shaft_rev, dtype=float) * self.kg_per_rev
 
     # --- sections --------------------------------------------------------------------------------
+    def _resolve_sections(self):
+        """Fill in `sections` from whichever of it and `section_widths_m` was given, and check them."""
+        count, widths = self.sections, self.section_widths_m
+        if count is not None and (not isinstance(count, (int, np.integer)) or isinstance(count, bool)
+                                  or not 1 <= count <= MAX_SECTIONS):
+            raise VehicleError(f"Implement: sections must be an integer in [1, {MAX_SECTIONS}], "
+                               f"got {count!r}")
+        if widths is None:
+            object.__setattr__(self, "sections", DEFAULT_SECTIONS if count is None else int(count))
+        else:
+            widths = _section_widths(widths)
+            if count is not None and count != len(widths):
+                raise VehicleError(f"Implement: sections={count} but section_widths_m has {len(widths)} "
+                                   f"widths {list(widths)!r}")
+            if not math.isclose(sum(widths), self.width_m, rel_tol=1e-9, abs_tol=1e-6):
+                raise VehicleError(f"Implement: section_widths_m {list(widths)!r} add up to "
+                                   f"{sum(widths):g} m, not width_m={self.width_m!r}")
+            # Frozen: the resolved values are set once here, so both fields always agree.
+            object.__setattr__(self, "sections", len(widths))
+            object.__setattr__(self, "section_widths_m", widths)
+
+    @property
+    def section_widths(self) -> np.ndarray:
+        """Width of each section, m, left to right; shape (sections,)."""
+        if self.section_widths_m is None:
+            return np.full(self.sections, self.width_m / self.sections)
+        return np.array(self.section_widths_m, dtype=float)
+
     @property
     def section_width_m(self) -> float:
+        """Mean section width, m (the width of each when they are equal)."""
         return self.width_m / self.sections
 
     @property
     def section_offsets_m(self) -> np.ndarray:
         """Lateral offset of each section's centre from the implement's centre, m, left positive,
         ordered left to right; shape (sections,)."""
-        k = np.arange(self.sections)
-        return self.width_m / 2 - self.section_width_m * (k + 0.5)
+        w = self.section_widths
+        return self.width_m / 2 - (np.cumsum(w) - w / 2)
 
     def sections_on(self, polygon, x_m, y_m, heading_rad, implement_on=True):
         """Which sections apply: implement on and the section centre inside ``polygon``.
@@ -116,3 +187,13 @@ class Implement:
         sy = y[:, None] + np.cos(h)[:, None] * off
         inside = shapely.contains_xy(polygon, sx, sy)
         return inside & np.atleast_1d(np.asarray(implement_on, dtype=bool))[:, None]
+
+
+def _section_widths(widths) -> tuple[float, ...]:
+    """`widths` as a tuple of positive finite floats (at most `MAX_SECTIONS`), or a `VehicleError`."""
+    if not isinstance(widths, (list, tuple, np.ndarray)) or not 1 <= len(widths) <= MAX_SECTIONS:
+        raise VehicleError(f"Implement: section_widths_m must be a list of 1 to {MAX_SECTIONS} widths, "
+                           f"got {widths!r}")
+    for i, w in enumerate(widths):
+        check_positive(w, f"Implement: section_widths_m[{i}]", VehicleError)
+    return tuple(float(w) for w in widths)

@@ -3,7 +3,9 @@ out (``vrsim serve controller``).
 
 ``<prefix>/<machine>/control/step`` takes a JSON array of `messages.Pose` (the ticks since the last
 step, in order), runs `services.sim.core.ControlCore.run_track` on their measured positions (the core
-``vrsim run`` runs over the whole track, here continued batch after batch), publishes the results on
+``vrsim run`` runs over the whole track, here continued batch after batch: the PID and plant, the
+map policy's memory and section control's coverage map, commands and gates carry over, so the
+numbers are those of one run over the whole track), publishes the results on
 ``<prefix>/<machine>/shaft`` and ``.../rate`` and replies with a `messages.StepAck`. The reply is
 what keeps a lockstep run in step: the vehicle is never more than one batch ahead of the replies.
 ``.../control/load`` (from scenario control) builds a fresh core for a new run: any controller kind,
@@ -28,6 +30,7 @@ from services.bus.config import ServiceConfig
 from services.bus.serving import Params, run_service, serve
 from services.outputs.encode import dumps
 from services.sim.landing import applied_rate_kg_ha
+from services.sim.sections import section_masks
 
 
 class ControllerService:
@@ -48,12 +51,12 @@ class ControllerService:
         start = messages.RunStart.from_json(payload)
         from services.sim import scenario
         from services.sim.core import ControlCore
-        from services.sim.world import field_and_grid
+        from services.sim.world import build_world
 
         sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
         self._check_user_code(params.key, sc.controller.file)
-        field, grid = field_and_grid(sc)
-        core = ControlCore(grid, sc, field.polygon)
+        world = build_world(sc)  # section control reads the planned path ahead
+        core = ControlCore(world.grid, sc, world.field.polygon, world.path)
         with self.lock:
             self.run_id, self.core, self.next_tick = start.run_id, core, 0
             self.period_s = sc.timing.control_period_s
@@ -100,13 +103,15 @@ class ControllerService:
     def _tick_all(self, poses):
         """`ControlCore.run_track` over this batch: the track's next ticks, so the loop's and the
         policy's state carry over from the previous batch exactly as within one `vrsim run`."""
-        cols = ("measured_x_m", "measured_y_m", "heading_rad", "measured_speed_m_s")
-        mx, my, heading, speed = (np.array([getattr(p, c) for p in poses]) for c in cols)
+        cols = ("measured_x_m", "measured_y_m", "heading_rad", "measured_speed_m_s", "s_m")
+        mx, my, heading, speed, s_m = (np.array([getattr(p, c) for p in poses]) for c in cols)
         on = np.array([p.implement_on for p in poses])
-        rec = self.core.run_track(mx, my, heading, speed, on)
+        rec = self.core.run_track(mx, my, heading, speed, on, s_m)
         # The tick's strip as the controller sees it: measured speed x period (where the product
         # really lands, `vrsim run` and the monitor's report work out from the true path).
         applied = applied_rate_kg_ha(rec["metered_kg"], rec["width_on_m"], speed * self.period_s).tolist()
+        masks = section_masks(rec.pop("sections_on"))
+        del rec["sections_commanded"]  # not published: the gates are what lands
         out = {k: v.tolist() for k, v in rec.items()}
         shafts, rates = [], []
         for i, p in enumerate(poses):
@@ -114,7 +119,7 @@ class ControllerService:
                                               out["shaft_rpm"][i], out["shaft_rev"][i], out["current_a"][i]))
             rates.append(messages.RateSample(p.run_id, p.tick, p.time_s, out["landing_x_m"][i],
                                              out["landing_y_m"][i], out["prescribed_kg_ha"][i], applied[i],
-                                             out["metered_kg"][i], out["width_on_m"][i], out["offset_m"][i],
+                                             out["metered_kg"][i], out["width_on_m"][i], masks[i],
                                              p.implement_on))
         return shafts, rates
 

@@ -198,6 +198,7 @@ class Pose(Message):
     speed_m_s: float  # true ground speed
     measured_speed_m_s: float  # what the ground-speed sensor reads (the controller uses this)
     implement_on: bool
+    s_m: float  # distance along the planned path (section control reads the plan ahead of it)
 
 
 @_message
@@ -219,8 +220,9 @@ class RateSample(Message):
 
     ``applied_kg_ha`` is this period's metered mass over the area the sections that are on cover in
     the period (null at standstill or with all sections off); ``prescribed_kg_ha`` is null outside the
-    map (policy "off"); ``width_on_m`` and ``offset_m`` are the working width of the sections that are
-    on and its centre's offset to the left of the heading (section control).
+    map (policy "off"); ``width_on_m`` is the working width of the sections whose gates are open and
+    ``section_mask`` which ones: a bitmask in hexadecimal, bit k the k-th section from the left
+    (``"0x3f"``: six sections all on; `services.sim.sections.section_masks`).
     """
 
     run_id: str
@@ -232,7 +234,7 @@ class RateSample(Message):
     applied_kg_ha: float
     metered_kg: float
     width_on_m: float
-    offset_m: float
+    section_mask: str
     implement_on: bool
 
 

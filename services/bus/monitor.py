@@ -27,12 +27,18 @@ from services.outputs.encode import dumps
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
-SCHEMA_VERSION = 2  # 2: measured speed in pose, section width and offset in rate
+SCHEMA_VERSION = 3  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
+#                     pose, section mask for the offset in rate
 MEASURED = ("measured_x_m", "measured_y_m", "measured_speed_m_s")  # what the controller read, per tick
 
 
 def _columns(cls) -> list[str]:
     return [name for name, _, _ in cls._spec if name not in ("run_id", "tick")]
+
+
+def _sql_types(cls) -> list[str]:
+    return [f"{name} {'TEXT' if kind is str else 'REAL'}" for name, kind, _ in cls._spec
+            if name not in ("run_id", "tick")]
 
 
 class MonitorStore:
@@ -73,7 +79,7 @@ class MonitorStore:
                    "run_id TEXT UNIQUE, scenario_text TEXT, source TEXT, base_dir TEXT, clock TEXT, "
                    "started_unix REAL, last_unix REAL)")
         for table, cls in STREAMS.items():
-            cols = ", ".join(f"{c} REAL" for c in _columns(cls))
+            cols = ", ".join(_sql_types(cls))
             db.execute(f"CREATE TABLE IF NOT EXISTS {table} (run_id TEXT, tick INTEGER, {cols}, "
                        "PRIMARY KEY (run_id, tick)) WITHOUT ROWID")
 
@@ -149,20 +155,24 @@ class MonitorStore:
         return [cls(run_id, tick, *(NAN if v is None else kind(v)
                                     for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
 
-    def arrays(self, run_id: str) -> tuple[dict, dict]:
+    def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.account` takes; the track also holds
-        the `MEASURED` arrays) over the complete ticks: 0..n-1 with pose, shaft and rate all stored."""
+        the `MEASURED` arrays) over the complete ticks: 0..n-1 with pose, shaft and rate all stored;
+        `sections`: the implement's (for the masks)."""
+        from services.sim.sections import sections_from_masks
+
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
-        rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m", "offset_m")
+        rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")
         select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
                            + [f"r.{c}" for c in rate_cols])
         with self.lock:
             rows = self.db.execute(
-                f"SELECT p.tick, {select} FROM pose p JOIN shaft s USING (run_id, tick) "
+                f"SELECT p.tick, {select}, r.section_mask FROM pose p JOIN shaft s USING (run_id, tick) "
                 "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
-        table = np.array(rows, dtype=np.float64).reshape(len(rows), 1 + len(pose_cols) + len(shaft_cols)
-                                                         + len(rate_cols))
+        masks = [row[-1] for row in rows]
+        table = np.array([row[:-1] for row in rows], dtype=np.float64).reshape(
+            len(rows), 1 + len(pose_cols) + len(shaft_cols) + len(rate_cols))
         ticks = table[:, 0]
         # The complete prefix 0..n-1: a tick still in flight on one stream ends it.
         gaps = np.flatnonzero(ticks != np.arange(len(ticks)))
@@ -172,6 +182,10 @@ class MonitorStore:
         track["implement_on"] = track["implement_on"].astype(bool)
         k = len(pose_cols)
         control = {c: cols[:, k + i] for i, c in enumerate(shaft_cols + rate_cols)}
+        try:
+            control["sections_on"] = sections_from_masks(masks[:n], sections)
+        except ValueError as exc:
+            raise ServiceError(f"{run_id}: rate records: {exc}") from None
         return track, control
 
 
@@ -270,19 +284,19 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     from services.sim.run import RunResult, account
 
     t0 = time.perf_counter()
-    track, control = store.arrays(run["run_id"])
+    world = world_of(run)  # first: the records' section masks need the implement's sections
+    t1 = time.perf_counter()
+    track, control = store.arrays(run["run_id"], world.scenario.implement.sections)
     n = len(track["time_s"])
     if n < 2:
         raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
     measured = {key: track.pop(key) for key in MEASURED}
-    t1 = time.perf_counter()
-    world = world_of(run)
     t2 = time.perf_counter()
     summary, rest = account(world, track, control, t2)
     wall = max(run["last_unix"] - run["started_unix"], 1e-9)
     summary["wall_time_s"] = wall
     summary["realtime_factor"] = summary["sim_time_s"] / wall
-    stage = {"read_s": t1 - t0, "build_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
+    stage = {"build_s": t1 - t0, "read_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
     summary["stage_s"] = stage
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)

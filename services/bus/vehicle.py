@@ -132,7 +132,7 @@ class VehicleService:
                     mx, my = gnss.fix(p.time_s, p.x_m, p.y_m)
                     mv = speed_sensor.read(p.time_s, p.speed_m_s)
                     batch.append(messages.Pose(start.run_id, tick, p.time_s, p.x_m, p.y_m, mx, my,
-                                               p.heading_rad, p.speed_m_s, mv, bool(p.implement_on)))
+                                               p.heading_rad, p.speed_m_s, mv, bool(p.implement_on), p.s_m))
                     tick += 1
                     if realtime:
                         delay = wall0 + p.time_s / start.speed - time.monotonic()

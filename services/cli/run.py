@@ -1,5 +1,5 @@
-"""`vrsim run [SCENARIO] [--set KEY=VALUE ...] [--out DIR] [--json] [--quiet]`: one field scenario, in
-process."""
+"""`vrsim run [SCENARIO] [--set KEY=VALUE ...] [--out DIR] [--json] [--quiet] [--check]`: one field
+scenario, in process."""
 
 from __future__ import annotations
 
@@ -20,6 +20,9 @@ def configure(parser) -> None:
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--check", action="store_true",
+                        help="only say whether the machine can apply the map at the working speeds, and the "
+                             "highest speed at which it can; then exit (nothing is driven)")
 
 
 def default_out_dir(name: str, command: str = "") -> str:
@@ -62,6 +65,8 @@ def run(args) -> int:
     from services.sim.overrides import parse_assignment
 
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+    if args.check:
+        return check(sc, args.json)
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     # The pictures are drawn in a second process, which imports matplotlib while the run simulates.
     plotter = PlotWorker().start() if sc.output.plots else None
@@ -81,6 +86,24 @@ def run(args) -> int:
     if args.json:
         print(summary_json(result.summary))
     else:
+        print(result.machine_check.text())
         print(text_summary(result.summary))
         print(outputs_line(out_dir))
+    return 0
+
+
+def check(sc, as_json: bool) -> int:
+    """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving)."""
+    import dataclasses
+
+    from services.outputs.summary import summary_json
+    from services.sim.run import check_world
+    from services.sim.world import build_world
+
+    result = check_world(build_world(sc))
+    if as_json:
+        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply}
+        print(summary_json(doc))
+    else:
+        print(result.text())
     return 0

@@ -17,7 +17,8 @@ import pickle
 import subprocess
 import sys
 
-DRAWINGS = ("draw_maps", "draw_timeseries")  # what a job may ask for, from services.outputs.plots
+# What a job may ask for, from services.outputs.plots.
+DRAWINGS = ("draw_maps", "draw_sections", "draw_timeseries")
 
 
 class PlotWorker:

@@ -1,11 +1,12 @@
-"""map.png (prescribed, applied and error maps) and timeseries.png (shaft speed and rate around
-rate steps).
+"""map.png (prescribed, applied and error maps), sections.png (overlap, skips and machine-limited
+areas) and timeseries.png (shaft speed and rate around rate steps).
 
-The pictures are drawn from plain arrays (`MapPicture`, `SeriesPicture`, taken from a run by
-`map_picture` and `series_picture`), so they can be drawn in another process
-(`services.outputs.plot_worker`). Drawn on bare `matplotlib.figure.Figure`s with the Agg canvas (no
-pyplot: its import and global state cost more than the drawing) and a fixed layout (a layout engine
-measures every label, twice). This module imports only numpy at the top, so the worker starts light.
+The pictures are drawn from plain arrays (`MapPicture`, `SectionsPicture`, `SeriesPicture`, taken
+from a run by `map_picture`, `sections_picture` and `series_picture`), so they can be drawn in another
+process (`services.outputs.plot_worker`). Drawn on bare `matplotlib.figure.Figure`s with the Agg
+canvas (no pyplot: its import and global state cost more than the drawing) and a fixed layout (a
+layout engine measures every label, twice). This module imports only numpy at the top, so the worker
+starts light.
 """
 
 from __future__ import annotations
@@ -46,6 +47,22 @@ class MapPicture:
 
 
 @dataclass
+class SectionsPicture:
+    """What sections.png shows: per cell (rows, cols), the share of its area that more than one pass
+    treated, that was worked but no product reached, and that product metered at a clipped target
+    (the shaft at a limit of its speed range) covered; panel titles with the summary's figures."""
+
+    overlap: np.ndarray
+    skipped: np.ndarray
+    limited: np.ndarray
+    in_field: np.ndarray
+    extent_m: tuple
+    field_xy: tuple
+    titles: tuple
+    title: str
+
+
+@dataclass
 class SeriesPicture:
     """What timeseries.png shows: a window of the run, per tick."""
 
@@ -57,19 +74,41 @@ class SeriesPicture:
     title: str
 
 
+def _frame(result):
+    """Extent in metres from the map's south-west corner (UTM eastings of six digits crowd the axis),
+    that corner, and the field's outline in those metres."""
+    west, south, east, north = result.world.grid.bounds
+    fx, fy = result.world.field.polygon.exterior.xy
+    outline = (np.asarray(fx) - west, np.asarray(fy) - south)
+    return (0.0, east - west, 0.0, north - south), (west, south), outline
+
+
 def map_picture(result) -> MapPicture:
     """map.png's content of a `services.sim.run.RunResult`."""
     grid = result.world.grid
-    # Metres from the map's south-west corner: UTM eastings of six digits crowd the axis.
-    west, south, east, north = grid.bounds
-    fx, fy = result.world.field.polygon.exterior.xy
+    extent, (west, south), outline = _frame(result)
     step = max(1, len(result.track["x_m"]) // MAX_TRACK_POINTS)
     s = result.summary
-    return MapPicture(grid.rates_kg_ha, result.as_applied.applied_kg_ha, result.in_field,
-                      (0.0, east - west, 0.0, north - south), (np.asarray(fx) - west, np.asarray(fy) - south),
+    return MapPicture(grid.rates_kg_ha, result.as_applied.applied_kg_ha, result.in_field, extent, outline,
                       (result.track["x_m"][::step] - west, result.track["y_m"][::step] - south),
                       f"{result.world.scenario.name}: MAE {s['mae_kg_ha']:.1f} kg/ha, "
                       f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area")
+
+
+def sections_picture(result) -> SectionsPicture:
+    """sections.png's content of a `services.sim.run.RunResult`."""
+    extent, _, outline = _frame(result)
+    cover = result.as_applied.coverage_fraction
+    s = result.summary
+    titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg",
+              f"Skipped: {s['skip_area_pct']:.2f} % of worked area",
+              f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area")
+    widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
+    return SectionsPicture(result.as_applied.overlap_fraction,
+                           np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0),
+                           np.minimum(result.limited_fraction, 1.0), result.in_field, extent, outline, titles,
+                           f"{result.world.scenario.name}: {s['sections']} sections ({widths} m), section "
+                           f"control {result.world.scenario.implement.section_control!r}")
 
 
 def series_picture(result) -> SeriesPicture:
@@ -86,27 +125,50 @@ def series_picture(result) -> SeriesPicture:
                          f"{result.world.scenario.name}: shaft speed and rate around rate steps")
 
 
+def _draw_panels(fig, panels, extent, outline, unit: str):
+    """Three maps side by side: panels of (data, title, colour map, low, high), the field's outline
+    on each; returns the axes."""
+    axes = fig.subplots(1, 3)
+    for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
+        im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
+                       interpolation="nearest")
+        ax.plot(*outline, color="k", lw=0.8)
+        ax.set_title(title)
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        fig.colorbar(im, ax=ax, label=unit, shrink=0.85)
+    axes[0].set_ylabel("north (m) of the map's south-west corner")
+    return axes
+
+
+def _three_maps() -> object:
+    return figure(17, 4.8, left=0.05, right=0.97, bottom=0.11, top=0.87, wspace=0.25)
+
+
 def draw_maps(pic: MapPicture, path: str) -> None:
     shown = np.where(pic.in_field, 1.0, np.nan)
     rx, applied = pic.prescribed, pic.applied
     vmax = float(np.nanmax(rx)) * 1.2 if np.isfinite(np.nanmax(rx)) else 1.0
     err = (applied - rx) * shown
     emax = max(float(np.nanpercentile(np.abs(err), 98)) if np.isfinite(err).any() else 1.0, 1.0)
-    fig = figure(17, 4.8, left=0.05, right=0.97, bottom=0.11, top=0.87, wspace=0.25)
-    axes = fig.subplots(1, 3)
+    fig = _three_maps()
     panels = ((rx * shown, "Prescribed", "viridis", 0, vmax),
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
-    for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
-        im = ax.imshow(data, extent=pic.extent_m, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
-                       interpolation="nearest")
-        ax.plot(*pic.field_xy, color="k", lw=0.8)
-        ax.set_title(title)
-        ax.set_aspect("equal")
-        ax.set_xlabel("east (m)")
-        fig.colorbar(im, ax=ax, label="kg/ha", shrink=0.85)
+    axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "kg/ha")
     axes[0].plot(*pic.path_xy, color="w", lw=0.3, alpha=0.6)
-    axes[0].set_ylabel("north (m) of the map's south-west corner")
+    fig.suptitle(pic.title)
+    fig.savefig(path, dpi=90)
+
+
+def draw_sections(pic: SectionsPicture, path: str) -> None:
+    """Where the run went wrong for reasons other than the rate, each as the share of the cell's area."""
+    shown = np.where(pic.in_field, 1.0, np.nan)
+    fig = _three_maps()
+    panels = tuple((data * shown, title, cmap, 0.0, 1.0) for data, title, cmap in
+                   zip((pic.overlap, pic.skipped, pic.limited), pic.titles, ("Reds", "Blues", "Purples"),
+                       strict=True))
+    _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "share of the cell")
     fig.suptitle(pic.title)
     fig.savefig(path, dpi=90)
 

@@ -1,7 +1,8 @@
 """The run's GeoTIFFs on the prescription's grid (in the field's UTM zone): prescription.tif, the map
 as run; as_applied.tif, applied kg/ha; error.tif, applied minus prescribed (a signed difference,
-tagged so, which `vrsim map` reads as such). Cells outside the field are nodata in the last two: what
-lands there is off-target product (summary.json's off_target_kg), not a rate of the field."""
+tagged so, which `vrsim map` reads as such); passes.tif, the number of passes that put product on
+each cell. Cells outside the field are nodata in as_applied.tif and error.tif: what lands there is
+off-target product (summary.json's off_target_kg), not a rate of the field."""
 
 from __future__ import annotations
 
@@ -9,15 +10,39 @@ from dataclasses import replace
 
 import numpy as np
 
+from common import MapError
 from maps import write_map
 from services.sim.run import RunResult
 
 
-def write_rasters(result: RunResult, prescription_path: str, as_applied_path: str, error_path: str) -> None:
-    """Write the prescription, the applied rate and its error against the prescription (kg/ha)."""
+def write_rasters(result: RunResult, prescription_path: str, as_applied_path: str, error_path: str,
+                  passes_path: str) -> None:
+    """Write the prescription, the applied rate and its error against the prescription (kg/ha), and
+    the pass counts."""
     grid = result.world.grid
     applied = np.where(result.in_field, result.as_applied.applied_kg_ha, np.nan)
     write_map(grid, prescription_path)
     write_map(replace(grid, rates_kg_ha=applied, product="as-applied"), as_applied_path)
     write_map(replace(grid, rates_kg_ha=applied - grid.rates_kg_ha, product="applied minus prescribed",
                       quantity="difference"), error_path)
+    write_passes(result, passes_path)
+
+
+def write_passes(result: RunResult, path: str) -> None:
+    """passes.tif: per cell, how many passes put product on at least half of it
+    (`maps.AsApplied.pass_count`), uint16 on the prescription's grid (0: no product); tagged
+    ``unit=passes`` (a count, not a rate: not a `maps.Grid`)."""
+    import rasterio
+    from rasterio.errors import RasterioError
+
+    grid = result.world.grid
+    count = np.minimum(result.as_applied.pass_count, np.iinfo(np.uint16).max).astype(np.uint16)
+    profile = dict(driver="GTiff", width=grid.cols, height=grid.rows, count=1, dtype="uint16",
+                   crs=grid.crs.to_wkt(), transform=grid.transform, compress="deflate")
+    try:
+        with rasterio.open(path, "w", **profile) as dst:
+            dst.write(count, 1)
+            dst.update_tags(unit="passes", quantity="count")
+            dst.set_band_description(1, "passes that put product on at least half of the cell")
+    except RasterioError as exc:
+        raise MapError(f"{path}: cannot write GeoTIFF: {exc}") from None

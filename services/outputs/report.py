@@ -1,6 +1,7 @@
-"""report.html: one self-contained page (the pictures are embedded): the figures, the settings the
-run used, the versions, and what each figure means (from `services.sim.metrics.METRICS`). `vrsim run`,
-`vrsim report` and `vrsim evaluate` write it with `page`."""
+"""report.html: one self-contained page (the pictures are embedded): the machine check, the figures,
+the error split into its causes, the settings the run used, the versions, the pictures and what each
+figure means (from `services.sim.metrics.METRICS`). `vrsim run`, `vrsim report` and `vrsim evaluate`
+write it with `page`."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import os
 from common import __version__
 from services.outputs.summary import fmt
 from services.sim.core import config_as_run
+from services.sim.error_split import error_split
 from services.sim.metrics import LOG_UNIT, METRICS
 from services.sim.run import RunResult
 
@@ -94,8 +96,24 @@ def embedded_png(path: str) -> str:
     return f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
 
 
+def split_table(result: RunResult) -> str:
+    """The error split into its causes (`services.sim.error_split`) as an HTML table and what it means."""
+    rows = "\n".join(f"<tr><td>{html.escape(p.cause)}</td><td>{p.mass_balance_pct:+.2f}</td>"
+                     f"<td>{p.mae_kg_ha:+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
+                     for p in error_split(result))
+    s = result.summary
+    return (f"<table><tr><th>cause</th><th>mass balance (pp)</th>"
+            f"<th>mean absolute error (kg/ha)</th><th>share of the error (%)</th></tr>\n{rows}\n"
+            f"<tr><td>the run</td><td>{s['mass_balance_pct']:+.2f}</td><td>{s['mae_kg_ha']:.2f}</td>"
+            "<td>100</td></tr></table>\n<p>Geometry and section control: the same run with a meter whose "
+            "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
+            "to the shaft's range adds (the <code>ideal</code> controller); metering: what the "
+            "controller and plant add. See the README's accuracy section.</p>")
+
+
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
-    """report.html of a run: summary, settings as run, versions and seed, pictures, definitions."""
+    """report.html of a run: machine check, figures, the error split, settings as run, versions and
+    seed, pictures, definitions."""
     from services.outputs.summary import SUMMARY_ROWS
 
     summary = result.summary
@@ -104,8 +122,11 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                        for key, label in SETTINGS)
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
                 "ticks": summary["ticks"]}
-    images = [paths[name] for name in ("map.png", "timeseries.png") if name in paths]
-    sections = [("Figures", figures_table(SUMMARY_ROWS, summary)),
+    check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
+    images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
+    sections = [("Machine check", f"<p>{check}</p>"),
+                ("Figures", figures_table(SUMMARY_ROWS, summary)),
+                ("Where the error comes from", split_table(result)),
                 ("Settings as run", f'<div class="cols">{settings}</div>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
@@ -115,5 +136,5 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
 
 
 FILES_NOTE = ("Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
-              "(GeoTIFF, kg/ha; nodata outside the field), taskdata/ (ISO 11783 TimeLog), "
-              "as_applied_points.gpkg (or .zip).")
+              "(GeoTIFF, kg/ha; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "
+              "taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg (or .zip).")

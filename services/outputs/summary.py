@@ -21,6 +21,8 @@ SUMMARY_ROWS = tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
 def fmt(value) -> str:
     if isinstance(value, float):
         return "n/a" if not math.isfinite(value) else f"{value:,.2f}"
+    if isinstance(value, list):  # section widths
+        return ", ".join(f"{v:g}" for v in value)
     return str(value)
 
 

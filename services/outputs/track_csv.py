@@ -12,23 +12,30 @@ from __future__ import annotations
 import numpy as np
 
 from services.sim.run import RunResult
+from services.sim.sections import section_masks
 
-# (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha
+# (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha; None: as is
 TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),
                  ("shaft_rpm", 3), ("current_a", 5), ("prescribed_kg_ha", 2), ("applied_kg_ha", 2),
-                 ("implement_on", None))
+                 ("implement_on", None), ("sections_on", None), ("section_mask", None))
 
 
 def write_track_csv(result: RunResult, path: str) -> None:
+    """``sections_on`` counts the sections whose gates are open in the tick, ``section_mask`` says which
+    (hexadecimal bitmask, bit k the k-th section from the left: `services.sim.sections.section_masks`)."""
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 
     track, control, landing = result.track, result.control, result.landing
     lon, lat = result.world.field.to_wgs84(track["x_m"], track["y_m"])
+    gates = np.asarray(control["sections_on"], bool)
     values = (track["time_s"], lat, lon, track["speed_m_s"], control["target_shaft_rpm"],
               control["shaft_rpm"], control["current_a"], landing.prescribed_kg_ha, landing.applied_kg_ha,
-              np.asarray(track["implement_on"], np.int8))
+              np.asarray(track["implement_on"], np.int8), gates.sum(axis=1, dtype=np.int16),
+              section_masks(gates))
     columns = {name: pa.array(v if decimals is None else np.round(np.asarray(v, float), decimals),
                               from_pandas=True)  # from_pandas: NaN becomes null, written as ""
                for (name, decimals), v in zip(TRACK_COLUMNS, values, strict=True)}
-    pa_csv.write_csv(pa.table(columns), path, pa_csv.WriteOptions(quoting_header="none"))
+    # Nothing here holds a comma or a quote: no quotes (the masks would get them by default).
+    options = pa_csv.WriteOptions(quoting_header="none", quoting_style="none")
+    pa_csv.write_csv(pa.table(columns), path, options)

@@ -1,6 +1,6 @@
 """Every file a run writes, in one call: summary.json, prescription.tif, as_applied.tif, error.tif,
-track.csv, taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg, map.png, timeseries.png and
-report.html."""
+passes.tif, track.csv, taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg, map.png, sections.png,
+timeseries.png and report.html."""
 
 from __future__ import annotations
 
@@ -13,14 +13,16 @@ from services.outputs.track_csv import write_track_csv
 from services.sim.core import config_as_run
 from services.sim.run import RunResult
 
-FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.csv", "map.png",
-         "timeseries.png", "report.html")
+FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "track.csv",
+         "map.png", "sections.png", "timeseries.png", "report.html")
+PICTURES = ("map.png", "sections.png", "timeseries.png")
 
 
 def outputs_line(out_dir: str) -> str:
     """The line `vrsim run` and `vrsim report` print after the summary."""
-    return (f"  outputs in {out_dir}/ (report.html, map.png, timeseries.png, track.csv, prescription.tif, "
-            "as_applied.tif, error.tif, taskdata/, as_applied_points, summary.json)")
+    return (f"  outputs in {out_dir}/ (report.html, map.png, sections.png, timeseries.png, track.csv, "
+            "prescription.tif, as_applied.tif, error.tif, passes.tif, taskdata/, as_applied_points, "
+            "summary.json)")
 
 
 def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, str]:
@@ -45,15 +47,18 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
     jobs = []
     if output.plots:
         jobs = [("draw_maps", plots.map_picture(result), paths["map.png"]),
+                ("draw_sections", plots.sections_picture(result), paths["sections.png"]),
                 ("draw_timeseries", plots.series_picture(result), paths["timeseries.png"])]
         for job in jobs if plotter is not None else ():
             plotter.submit(*job)
     else:
-        del paths["map.png"], paths["timeseries.png"]
+        for name in PICTURES:
+            del paths[name]
     doc = dict(result.summary, scenario_config=config_as_run(result.world.scenario))
     with open(paths["summary.json"], "w") as fh:
         fh.write(summary_json(doc) + "\n")
-    write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"])
+    write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"],
+                  paths["passes.tif"])
     write_track_csv(result, paths["track.csv"])
     for drawing, picture, path in jobs:
         if plotter is not None:

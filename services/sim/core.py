@@ -15,6 +15,7 @@ from controller import PlantParams, build_loop
 from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.scenario import Scenario, as_dict
+from services.sim.sections import SectionStates, SectionSwitch
 
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
@@ -36,24 +37,36 @@ def config_as_run(scenario: Scenario) -> dict:
 
 
 class ControlCore:
-    """Control ticks: fix -> landing point -> rate -> target rpm -> PID + plant -> product.
+    """Control ticks: fix -> landing point -> rate -> sections -> target rpm -> PID + plant -> product.
 
     Deterministic and free of I/O; `vrsim run` (the whole track in one `run_track`) and the
     controller service (`run_track` on each lockstep batch, the state carried over) run the same
-    two stages:
+    stages:
 
     1. `targets`: where product metered now will land, the prescription there (with the map's
-       policy off the map), and the target shaft speed. No feedback, so vectorized over ticks. The
-       landing point is predicted by dead reckoning from the fix: product metered now lands
-       `delivery_delay_s` later, when the implement has moved ``speed * delay`` along its heading;
-       the look-ahead adds the loop's lag if asked to (`services.sim.look_ahead`).
-    2. the closed loop (PID, valve, motor): `controller.ClosedLoop.run` over the targets, one
-       control period per tick (sequential by nature: one lifted matrix product per period).
+       policy off the map), which sections apply (`services.sim.sections.SectionSwitch`, stateful:
+       coverage control remembers where product landed) and the target shaft speed for the width
+       whose gates are open. No feedback, so vectorized over ticks. The landing point is predicted
+       by dead reckoning from the fix: product metered now lands `delivery_delay_s` later, when the
+       implement has moved ``speed * delay`` along its heading; the look-ahead adds the loop's lag
+       if asked to (`services.sim.look_ahead`). The sections decide on their own look-ahead (their
+       latencies and the delivery delay), so they do not depend on the rate's look-ahead.
+    2. the closed loop (PID, valve, motor; or any controller kind, `controller.build_loop`) over the
+       targets, one control period per tick (sequential by nature: one lifted matrix product per period).
+
+    Parameters
+    ----------
+    grid : maps.Grid
+        The prescription in the field's metric CRS.
+    scenario : Scenario
+    field_polygon : shapely geometry
+        The field boundary (section control switches sections off outside it).
+    path : vehicle.CoveragePath, optional
+        The planned path (coverage section control reads off it where the path works).
     """
 
-    def __init__(self, grid: Grid, scenario: Scenario, field_polygon=None):
+    def __init__(self, grid: Grid, scenario: Scenario, field_polygon, path=None):
         self.grid = grid
-        self.field_polygon = field_polygon  # sections whose centre would land outside it switch off
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
@@ -68,6 +81,7 @@ class ControlCore:
         self.tuner = None if cfg.look_ahead_tune == 0 else LookAheadTuner(
             look_ahead_s, known_delay_s(scenario), cfg.look_ahead_tune, self.period_s)
         self._look_ahead_s = look_ahead_s
+        self.switch = SectionSwitch(self.implement, field_polygon, path, self.period_s, min(grid.cell_size))
         self.last_rate_kg_ha = float("nan")
 
     @property
@@ -78,9 +92,12 @@ class ControlCore:
     def state(self) -> dict:
         """What the core carries from one batch of ticks to the next, as plain data (numpy arrays, NaN
         where no rate was commanded yet): the loop's state (plant, sensor delay line, controller), the
-        rate policy's last rate, and the look-ahead tuner's state (None without the tune)."""
+        rate policy's last rate, the look-ahead tuner's state (None without the tune) and the section
+        switch's (`services.sim.sections.SectionSwitch.state`: with coverage control its coverage
+        map, commands and gates)."""
         return {"loop": self.loop.state, "last_rate_kg_ha": self.last_rate_kg_ha,
-                "tuner": None if self.tuner is None else self.tuner.state()}
+                "tuner": None if self.tuner is None else self.tuner.state(),
+                "sections": self.switch.state()}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
@@ -89,9 +106,17 @@ class ControlCore:
         self.last_rate_kg_ha = float("nan") if last is None else float(last)
         if self.tuner is not None:
             self.tuner.set_state(state["tuner"])
+        self.switch.set_state(state["sections"])
 
-    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on) -> dict[str, np.ndarray]:
-        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's memory."""
+    def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
+        """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
+
+        `s_m` is the distance along the planned path (coverage section control needs it)."""
+        states = self.switch.step(x_m, y_m, heading_rad, speed_m_s, implement_on, s_m)
+        return self._targets(x_m, y_m, heading_rad, speed_m_s, states)
+
+    def _targets(self, x_m, y_m, heading_rad, speed_m_s, states: SectionStates) -> dict[str, np.ndarray]:
+        """Stage 1 with the sections' states of these ticks known; advances the policy's memory."""
         lead_m = np.asarray(speed_m_s) * self.look_ahead_s
         lx = x_m + lead_m * np.cos(heading_rad)
         ly = y_m + lead_m * np.sin(heading_rad)
@@ -99,45 +124,31 @@ class ControlCore:
         rate = self.policy.apply(found.rate_kg_ha, found.inside, self.last_rate_kg_ha)
         if rate.size:
             self.last_rate_kg_ha = float(rate[-1])
-        width_on, offset = self.sections(lx, ly, heading_rad, implement_on)
+        width_on = states.width_on_m
         # Within the meter's speed range while applying; a zero rate or all sections off stop the shaft.
         wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
         target = np.where(width_on > 0, wanted, 0.0)
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
-                "width_on_m": width_on, "offset_m": offset}
+                "width_on_m": width_on, "sections_on": states.actual, "sections_commanded": states.commanded}
 
-    def sections(self, x_m, y_m, heading_rad, implement_on):
-        """Working width of the sections that are on (m) and its centre's offset to the left (m).
-
-        Section control as terminals do it: with the implement on, a section applies when its centre
-        lands inside the field. The sections that are on are taken as one strip (they are contiguous
-        on convex edges; on a notch this spreads a little product over the gap).
-        """
-        imp = self.implement
-        on = np.asarray(implement_on, bool)
-        if self.field_polygon is None:
-            return np.where(on, imp.width_m, 0.0), np.zeros(on.shape)
-        sec = imp.sections_on(self.field_polygon, x_m, y_m, heading_rad, on)
-        count = sec.sum(axis=1)
-        offsets = np.where(sec, imp.section_offsets_m, 0.0).sum(axis=1)
-        return count * imp.section_width_m, np.divide(offsets, count, out=np.zeros(count.shape),
-                                                      where=count > 0)
-
-    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on,
+    def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
-        """Both stages over a whole measured track; arrays of shape (n,) keyed as `CONTROL_KEYS`.
+        """Both stages over the next ticks of a measured track; arrays keyed as `CONTROL_KEYS`.
 
         The track goes through in chunks: stage 1 on a chunk, then the loop over it. With the
         look-ahead tune on, a chunk ends where the tuner moves the look-ahead, and the ticks after it
-        are looked up again with the new one, so any split into batches gives the same numbers.
+        are looked up again with the new one, so any split into batches gives the same numbers. The
+        sections do not depend on the look-ahead: the switch steps once over each tick (`_SectionsAhead`),
+        however often the rate is looked up again.
         """
         n = len(x_m)
-        track = (x_m, y_m, heading_rad, speed_m_s, implement_on)
+        track = tuple(np.asarray(a) for a in (x_m, y_m, heading_rad, speed_m_s))
+        sections = _SectionsAhead(self.switch, (*track, implement_on, s_m))
         chunk = RUN_CHUNK if self.tuner is None else TUNE_CHUNK
         parts, start = [], 0
         while not parts or start < n:   # once at least, so that an empty track gives empty arrays
             part = slice(start, min(n, start + chunk))
-            rec = self.targets(*(np.asarray(a)[part] for a in track))
+            rec = self._targets(*(a[part] for a in track), sections.states(part))
             if self.tuner is not None:
                 args = (rec["prescribed_kg_ha"], rec["target_shaft_rpm"], rec["width_on_m"],
                         np.asarray(implement_on, bool)[part])
@@ -167,5 +178,43 @@ class ControlCore:
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
 
 
+class _SectionsAhead:
+    """The section states of a batch's ticks, switched as far as asked for and kept: the look-ahead
+    tune looks ticks up again, but the switch is stateful and must step over each tick once."""
+
+    def __init__(self, switch: SectionSwitch, track: tuple):
+        self.switch, self.track = switch, track
+        self.kept: SectionStates | None = None   # the states of ticks [first, switched)
+        self.first = self.switched = 0
+
+    def states(self, part: slice) -> SectionStates:
+        """The states of ticks `part` (never reaching back before the ticks asked for last)."""
+        if self.kept is not None:   # what lies before `part` is not asked for again
+            self.kept = _slice(self.kept, slice(part.start - self.first, None))
+            self.first = part.start
+        if part.stop > self.switched:
+            ahead = slice(self.switched, part.stop)
+            x, y, h, v, on, s_m = self.track
+            new = self.switch.step(x[ahead], y[ahead], h[ahead], v[ahead], np.asarray(on)[ahead],
+                                   None if s_m is None else np.asarray(s_m)[ahead])
+            self.kept = new if self.kept is None else _join([self.kept, new])
+            self.switched = part.stop
+        return _slice(self.kept, slice(part.start - self.first, part.stop - self.first))
+
+
+def _join(states: list[SectionStates]) -> SectionStates:
+    known = all(s.commanded is not None for s in states)
+    commanded = np.concatenate([s.commanded for s in states]) if known else None
+    return SectionStates(np.concatenate([s.actual for s in states]), states[0].widths_m, states[0].offsets_m,
+                         np.concatenate([s.pass_index for s in states]), commanded)
+
+
+def _slice(states: SectionStates, part: slice) -> SectionStates:
+    return SectionStates(states.actual[part], states.widths_m, states.offsets_m, states.pass_index[part],
+                         None if states.commanded is None else states.commanded[part])
+
+
+# Per tick, shape (n,); ``sections_on`` and ``sections_commanded`` are (n, sections): each section's gate
+# and the terminal's command to it (`services.sim.sections.SectionStates`).
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
-                "shaft_rev", "current_a", "metered_kg", "width_on_m", "offset_m")
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on", "sections_commanded")

@@ -1,5 +1,6 @@
-"""Landing: where the product metered in each tick lands on the true path, as strips of the width on,
-and those strips merged for the as-applied raster."""
+"""Landing along the track: where the product metered in each tick lands on the true path, and the
+applied rate of each tick there (for the transition figures and the time series). Each section's
+own strip, for the as-applied raster, is `services.sim.section_landing`."""
 
 from __future__ import annotations
 
@@ -48,37 +49,14 @@ class Landing:
     applied_kg_ha: np.ndarray  # metered kg over the strip's area (NaN: shorter than 1 cm, or sections off)
 
 
-def land(grid: Grid, track: dict, metered_kg, width_on_m, offset_m, delay_s, period_s) -> Landing:
-    """Product metered during [t, t + period] lands on the true path during the same span + delay,
-    over the width of the sections that were on, shifted by their offset to the left."""
+def land(grid: Grid, track: dict, metered_kg, width_on_m, delay_s, period_s) -> Landing:
+    """Product metered during [t, t + period] lands on the true path during the same span + delay;
+    its rate is taken over the width of the sections that were on, centred on the path."""
     time_s, x_m, y_m = track["time_s"], track["x_m"], track["y_m"]
     t0 = np.asarray(time_s) + delay_s
-    hx = np.interp(t0, time_s, np.cos(track["heading_rad"]))
-    hy = np.interp(t0, time_s, np.sin(track["heading_rad"]))
-    norm = np.hypot(hx, hy)
-    shift = np.divide(offset_m, norm, out=np.zeros(norm.shape), where=norm > 0)
-    sx, sy = -hy * shift, hx * shift  # along the left normal
-    x0, y0 = np.interp(t0, time_s, x_m) + sx, np.interp(t0, time_s, y_m) + sy
-    x1, y1 = np.interp(t0 + period_s, time_s, x_m) + sx, np.interp(t0 + period_s, time_s, y_m) + sy
+    x0, y0 = np.interp(t0, time_s, x_m), np.interp(t0, time_s, y_m)
+    x1, y1 = np.interp(t0 + period_s, time_s, x_m), np.interp(t0 + period_s, time_s, y_m)
     length = np.hypot(x1 - x0, y1 - y0)
     applied = applied_rate_kg_ha(metered_kg, width_on_m, length)
     rx = grid.lookup(0.5 * (x0 + x1), 0.5 * (y0 + y1)).rate_kg_ha
     return Landing(x0, y0, x1, y1, length, np.cumsum(length), rx, applied)
-
-
-def merged_strips(landing: Landing, metered_kg, width_m, offset_m, cell_m: float):
-    """Consecutive ticks' strips joined into strips up to half a cell long: (x0, y0, x1, y1, width, kg).
-
-    A tick's strip (0.125 m at 9 km/h and 50 ms) is far shorter than a map cell; joining k of them
-    (their ends meet exactly) spreads each group's product evenly over at most half a cell, which
-    changes per-cell figures by a blur far below the cell size and cuts the raster work k-fold. A
-    group also ends where the sections change, so a joined strip has one width and offset.
-    """
-    n = len(metered_kg)
-    typical = float(np.median(landing.strip_length_m)) if n else 0.0
-    k = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
-    change = np.flatnonzero((np.diff(width_m) != 0) | (np.diff(offset_m) != 0)) + 1
-    starts = np.union1d(np.arange(0, n, k), change).astype(np.int64)
-    ends = np.append(starts[1:], n) - 1
-    return (landing.x0_m[starts], landing.y0_m[starts], landing.x1_m[ends], landing.y1_m[ends],
-            np.asarray(width_m)[starts], np.add.reduceat(metered_kg, starts) if n else metered_kg)

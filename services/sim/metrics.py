@@ -16,6 +16,10 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 - off_target_kg: product landing outside the field or off the grid, plus product on zero-rate cells;
 - coverage_pct: share of the field's cells that are covered.
 
+Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap and skipped area,
+product beyond the first pass, and the share of working time and covered area where the meter could
+not turn at the speed the map asked for.
+
 In time (per tick, along the track), see `transitions`.
 
 `METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, and the
@@ -95,6 +99,22 @@ METRICS = (
     Metric("off_target_kg", "kg", "Off-target product",
            "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03)),
     Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0)),
+    Metric("overlap_area_pct", "%", "Overlap area",
+           "share of the covered field area that received product from more than one pass", (0.3, 0.03)),
+    Metric("skip_area_pct", "%", "Skipped area",
+           "share of the worked field area (swept by the working width along working stretches) that "
+           "received no product", (0.3, 0.03)),
+    Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
+           (0.2, 0.03)),
+    Metric("limited_time_pct", "%", "Machine-limited time",
+           "share of applying time with the target shaft speed clipped to [shaft_rpm_min, shaft_rpm_max]",
+           (0.3, 0.03)),
+    Metric("limited_area_pct", "%", "Machine-limited area",
+           "share of the covered field area where product was metered with the target clipped", (0.3, 0.03)),
+    Metric("sections", "", "Sections", "number of sections of the implement"),
+    Metric("section_widths_m", "m", "Section widths", "width of each section, left to right"),
+    Metric("max_speed_m_s", "m/s", "Highest speed for the map",
+           "highest working speed at which the meter can apply the map's highest rate over the full width"),
     Metric("mae_pct", "%", "", "mean absolute error over the mean prescription of the covered cells"),
     Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells"),
     Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells"),
@@ -223,6 +243,71 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
         off_target_kg=off_target,
         coverage_pct=_pct(np.count_nonzero(covered), np.count_nonzero(field)),
         covered_cells=int(np.count_nonzero(covered)),
+    )
+
+
+@dataclass(frozen=True)
+class OverlapMetrics:
+    overlap_area_pct: float
+    skip_area_pct: float
+    overlap_kg: float
+
+
+def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_fraction,
+                    in_field) -> OverlapMetrics:
+    """Overlap and skips over the field's cells.
+
+    Parameters
+    ----------
+    coverage_fraction, overlap_fraction : ndarray, shape (rows, cols)
+        Share of each cell's area that product landed on, and that more than one pass put product
+        on (`maps.AsApplied`, strips added with their passes).
+    overlap_kg : ndarray, shape (rows, cols)
+        Product beyond the first pass in each cell, kg.
+    worked_fraction : ndarray, shape (rows, cols)
+        Share of each cell the working width swept along the working stretches (the plan's worked
+        area, `services.sim.section_landing.worked_fraction`).
+    in_field : ndarray of bool, shape (rows, cols)
+        Cells whose centre lies inside the field.
+
+    ``overlap_area_pct`` is over the covered area, ``skip_area_pct`` over the worked area: the
+    worked share of a cell that product did not cover.
+    """
+    field = np.asarray(in_field, bool)
+    covered = np.asarray(coverage_fraction, float)[field]
+    worked = np.minimum(np.asarray(worked_fraction, float)[field], 1.0)
+    skipped = np.maximum(worked - covered, 0.0)
+    return OverlapMetrics(
+        overlap_area_pct=_pct(np.asarray(overlap_fraction, float)[field].sum(), covered.sum()),
+        skip_area_pct=_pct(skipped.sum(), worked.sum()),
+        overlap_kg=float(np.asarray(overlap_kg, float)[field].sum()),
+    )
+
+
+@dataclass(frozen=True)
+class LimitMetrics:
+    limited_time_pct: float
+    limited_area_pct: float
+
+
+def limit_metrics(limited, applying, limited_coverage, coverage_fraction, in_field) -> LimitMetrics:
+    """Where the machine could not apply the map: its shaft's speed range clipped the target.
+
+    Parameters
+    ----------
+    limited, applying : ndarray of bool, shape (n,)
+        Ticks whose target shaft speed was clipped to the shaft's range, and ticks with a gate open.
+    limited_coverage, coverage_fraction : ndarray, shape (rows, cols)
+        Share of each cell's area that product metered in limited ticks landed on, and that any
+        product landed on.
+    in_field : ndarray of bool, shape (rows, cols)
+    """
+    on = np.asarray(applying, bool)
+    field = np.asarray(in_field, bool)
+    return LimitMetrics(
+        limited_time_pct=_pct(np.count_nonzero(np.asarray(limited, bool) & on), np.count_nonzero(on)),
+        limited_area_pct=_pct(np.minimum(np.asarray(limited_coverage, float)[field], 1.0).sum(),
+                              np.asarray(coverage_fraction, float)[field].sum()),
     )
 
 

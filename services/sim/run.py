@@ -27,9 +27,21 @@ from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
 from services.sim.core import ControlCore
-from services.sim.landing import Landing, land, merged_strips
-from services.sim.metrics import MapMetrics, TransitionMetrics, map_metrics, transitions
+from services.sim.landing import Landing, land
+from services.sim.limits import MachineCheck, machine_check, working_speeds
+from services.sim.metrics import (
+    LimitMetrics,
+    MapMetrics,
+    OverlapMetrics,
+    TransitionMetrics,
+    limit_metrics,
+    map_metrics,
+    overlap_metrics,
+    transitions,
+)
 from services.sim.scenario import Scenario
+from services.sim.section_landing import section_strips, worked_fraction
+from services.sim.sections import SectionStates, pass_index
 from services.sim.world import World, build_world
 from vehicle import Gnss, SpeedSensor, SumoDriver
 
@@ -42,6 +54,15 @@ def cells_in_field(grid: Grid, polygon) -> np.ndarray:
 
     x, y = grid.cell_centres()
     return shapely.contains_xy(polygon, x[None, :], y[:, None])
+
+
+def check_world(world: World, in_field: np.ndarray | None = None) -> MachineCheck:
+    """Whether the scenario's machine can apply its map at its working speeds (`limits.machine_check`
+    over the prescription's cells inside the field)."""
+    sc = world.scenario
+    if in_field is None:
+        in_field = cells_in_field(world.grid, world.field.polygon)
+    return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement)
 
 
 @dataclass
@@ -60,6 +81,13 @@ class RunResult:
     stage_s: dict
     summary: dict
     started_unix: float  # when the run (or the services run it was rebuilt from) started, Unix time
+    sections: SectionStates  # gates per tick and section, section widths and offsets, passes
+    worked_fraction: np.ndarray  # (rows, cols): share of each cell the plan's working width swept
+    limited_fraction: np.ndarray  # (rows, cols): share of each cell covered by product metered at a
+    #                               clipped target
+    overlap_metrics: OverlapMetrics
+    limit_metrics: LimitMetrics
+    machine_check: MachineCheck
 
 
 @contextmanager
@@ -163,9 +191,9 @@ def control_and_account(drive: Drive, controller: ControllerConfig | None = None
         stage[name] = now - clock
         clock = now
 
-    core = ControlCore(world.grid, scenario, world.field.polygon)
+    core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
     control = core.run_track(drive.measured_x_m, drive.measured_y_m, track["heading_rad"],
-                             drive.measured_speed_m_s, track["implement_on"], progress)
+                             drive.measured_speed_m_s, track["implement_on"], track["s_m"], progress)
     lap("control_s")
     summary, rest = account(world, track, control, wall0)
     lap("metrics_s")
@@ -192,31 +220,62 @@ def measure(scenario: Scenario, track: dict):
 
 
 def account(world: World, track: dict, control: dict, wall0: float):
-    """Land the metered product, build the as-applied raster and compute the summary."""
+    """Land each section's product, build the as-applied raster and compute the summary.
+
+    `control` holds at least ``metered_kg``, ``width_on_m``, ``target_shaft_rpm`` and ``sections_on``
+    (`services.sim.core.CONTROL_KEYS`; ``sections_commanded`` too from `vrsim run`): what `vrsim run`
+    computes and what the monitor rebuilds from its records.
+    """
     scenario, grid = world.scenario, world.grid
     implement, timing = scenario.implement, scenario.timing
-    width_on = control.get("width_on_m", np.where(track["implement_on"], implement.width_m, 0.0))
-    offset = control.get("offset_m", np.zeros(len(width_on)))
-    landing = land(grid, track, control["metered_kg"], width_on, offset, implement.delivery_delay_s,
-                   timing.control_period_s)
+    delay_s, period_s = implement.delivery_delay_s, timing.control_period_s
+    metered, width_on = control["metered_kg"], control["width_on_m"]
+    passes = pass_index(track["heading_rad"], track["implement_on"])
+    states = SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
+                           implement.section_offsets_m, passes, control.get("sections_commanded"))
+    landing = land(grid, track, metered, width_on, delay_s, period_s)
+    cell_m = min(grid.cell_size)
     acc = AsApplied(grid)
-    acc.add_strips(*merged_strips(landing, control["metered_kg"], width_on, offset, min(grid.cell_size)))
+    section_strips(track, metered, states, delay_s, period_s, cell_m).add_to(acc)
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
-    mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, in_field,
-                     abs(cell_w * cell_h) / 1e4, float(control["metered_kg"].sum()), acc.outside_kg)
+    cover = acc.coverage_fraction
+    mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, cover, in_field,
+                     abs(cell_w * cell_h) / 1e4, float(metered.sum()), acc.outside_kg)
     tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, landing.applied_kg_ha,
                      np.asarray(track["implement_on"], bool))
+    worked = worked_fraction(track, implement.width_m, grid)
+    om = overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field)
+    limited = implement.shaft_limited(control["target_shaft_rpm"]) & (width_on > 0)
+    limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
+    lm = limit_metrics(limited, width_on > 0, limited_cover, cover, in_field)
+    check = check_world(world, in_field)
     n = len(track["time_s"])
     figures = {
         **dataclasses.asdict(mm), **dataclasses.asdict(tm),
+        **dataclasses.asdict(om), **dataclasses.asdict(lm),
         "field_area_ha": world.field.area_ha,
-        "sim_time_s": n * timing.control_period_s,
+        "sim_time_s": n * period_s,
         "wall_time_s": time.perf_counter() - wall0,
         "ticks": n,
         "realtime_factor": 0.0,  # the caller knows its wall time
         "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
+        "sections": implement.sections,
+        "section_widths_m": [float(w) for w in implement.section_widths],
+        "max_speed_m_s": check.max_speed_m_s,
     }
     summary = metrics.summary(scenario.name, scenario.seed, figures)
-    rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm)
+    rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm,
+                sections=states, worked_fraction=worked, limited_fraction=limited_cover, overlap_metrics=om,
+                limit_metrics=lm, machine_check=check)
     return summary, rest
+
+
+def _limited_coverage(track, metered, states: SectionStates, limited, delay_s, period_s, cell_m, grid):
+    """Share of each cell that product metered in `limited` ticks landed on, shape (rows, cols)."""
+    if not limited.any():
+        return np.zeros((grid.rows, grid.cols))
+    acc = AsApplied(grid)
+    strips = section_strips(track, metered, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+    strips.add_to(acc)
+    return acc.coverage_fraction

@@ -89,6 +89,8 @@ def test_timelog_holds_the_runs_time_span_and_rates(farm_run):
     log = maps.read_point_log(out / "taskdata")
     assert log.sections_on.shape == (keep.size, 4)
     np.testing.assert_allclose(log.sections_on.sum(axis=1) * 3.0, width)
+    # DDI 161: each section's gate as section control switched it, not a strip rebuilt from the width
+    np.testing.assert_array_equal(log.sections_on, result.control["sections_on"][keep])
     lon, lat = result.world.field.to_wgs84(result.track["x_m"][keep], result.track["y_m"][keep])
     np.testing.assert_allclose(log.x, lon, atol=1.5e-7)
     np.testing.assert_allclose(log.y, lat, atol=1.5e-7)

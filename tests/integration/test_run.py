@@ -134,7 +134,7 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     sc = scenario.load(path)
     assert sc.map.policy == ("hold" if policy == "hold" else "off")
     result = field_run.run(sc)
-    core = ControlCore(result.world.grid, sc, result.world.field.polygon)
+    core = ControlCore(result.world.grid, sc, result.world.field.polygon, result.world.path)
     t = result.track
     n = len(t["time_s"])
     # Single ticks first (real-time mode), then lockstep batches of uneven sizes.
@@ -146,10 +146,10 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
         if part.size:
             parts.append(core.run_track(result.measured_x_m[part], result.measured_y_m[part],
                                         t["heading_rad"][part], result.measured_speed_m_s[part],
-                                        t["implement_on"][part]))
+                                        t["implement_on"][part], t["s_m"][part]))
         if i % 97 == 0:   # now and then a fresh core that resumes from the state (after JSON)
             saved = json.loads(dumps_text(core.state()))
-            core = ControlCore(result.world.grid, sc, result.world.field.polygon)
+            core = ControlCore(result.world.grid, sc, result.world.field.polygon, result.world.path)
             core.set_state(saved)
     batched = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     if policy == "tuned":
@@ -157,6 +157,8 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     np.testing.assert_allclose(batched["shaft_rpm"], result.control["shaft_rpm"], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(batched["metered_kg"], result.control["metered_kg"], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(batched["prescribed_kg_ha"], result.control["prescribed_kg_ha"])
+    np.testing.assert_array_equal(batched["sections_on"], result.control["sections_on"])
+    assert result.control["sections_on"].any() and not result.control["sections_on"].all()
     assert len(parts) > 200 and batched["metered_kg"].sum() > 0
     if policy == "hold":  # the hole was crossed, and held rates filled it
         looked_up = result.world.grid.lookup(batched["landing_x_m"], batched["landing_y_m"]).rate_kg_ha

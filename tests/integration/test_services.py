@@ -387,7 +387,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
             if self.tick == 7 + 3:
                 svc.stop_flag.set()
             return types.SimpleNamespace(time_s=0.05 * self.tick, x_m=1.0, y_m=2.0, heading_rad=0.0,
-                                         speed_m_s=2.0, implement_on=True)
+                                         speed_m_s=2.0, implement_on=True, s_m=2.0 * self.tick)
 
     ok = types.SimpleNamespace(ok=object())
     querier = types.SimpleNamespace(get=lambda payload: sent.append(len(json.loads(payload))) or [ok],

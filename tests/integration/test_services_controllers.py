@@ -64,7 +64,11 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert ok, report
     ok, state = net.query("vrsim/tractor1/control/state")
     assert ok and state["run_id"] == started["run_id"] and state["next_tick"] == status["ticks"], state
-    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner"}
+    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections"}
+    # Section control's memory came along, batch after batch: its ticks, and the coverage map, packed.
+    sections = state["core"]["sections"]
+    assert sections["tick"] == status["ticks"] and sections["passes"]["next_id"] > 1
+    assert set(sections["engine"]) >= {"treated", "gates", "last_command"}
     if name == "smith":   # the tuner moved the look-ahead, batch after batch
         assert state["core"]["tuner"]["updates"] > 0
         assert set(state["core"]["loop"]["controller"]) == {"pid_v", "model_x", "model_delay_rpm"}

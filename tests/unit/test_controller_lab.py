@@ -104,7 +104,7 @@ def test_a_user_class_that_does_not_load_is_a_scenario_error_at_build(folder):
     world = build_world(sc)
     with pytest.raises(ScenarioError, match=r"lab.toml: \[controller\] controller file .*broken.py: class "
                                             r"Broken has no method step\(\)"):
-        ControlCore(world.grid, sc, world.field.polygon)
+        ControlCore(world.grid, sc, world.field.polygon, world.path)
 
 
 def test_changing_the_kind_starts_from_its_defaults_and_keeps_the_look_ahead(folder):

@@ -9,10 +9,10 @@ from affine import Affine
 
 from common import MapError
 from maps import Grid, PointLog
-from services.sim.aslog import compass_deg, section_states
+from services.sim.aslog import compass_deg
 from services.sim.evaluate import error_grid, evaluate
 from services.sim.metrics import POINT_METRICS, point_metrics
-from vehicle import Field, Implement
+from vehicle import Field
 
 FIELD = Field.rectangle(200.0, 100.0, lat=52.0, lon=10.0)
 
@@ -120,14 +120,6 @@ def test_error_grid_on_the_prescription_and_without():
     g = error_grid(evaluate(log))
     assert g.cell_size == (5.0, 5.0) and g.rates_kg_ha.shape == (1, 5)  # 19 m of points, half a cell round
     assert np.all(g.rates_kg_ha == pytest.approx(10.0))
-
-
-def test_section_states_from_width_and_offset():
-    imp = Implement(width_m=12.0, sections=6)
-    width = np.array([12.0, 0.0, 4.0, 6.0])
-    offset = np.array([0.0, 0.0, 4.0, -3.0])  # left positive: two leftmost; three rightmost
-    states = section_states(imp, width, offset)
-    assert states.tolist() == [[True] * 6, [False] * 6, [True, True] + [False] * 4, [False] * 3 + [True] * 3]
 
 
 def test_compass_heading():

@@ -132,3 +132,37 @@ def test_as_applied_validation():
         acc.add_strips([np.nan], [0.0], [1.0], [1.0], 3.0, [1.0])
     with pytest.raises(MapError, match="subcells"):
         AsApplied(field(), subcells=0)
+
+
+# ---------------------------------------------------------------------- passes and overlap
+def test_pass_counts_overlap_area_and_kg():
+    # Two 20 m wide passes northwards over 5 m cells, overlapping by 10 m (x 500 025-500 035,
+    # columns 5 and 6), each 100 kg/ha; the second in two calls (still one pass).
+    acc = AsApplied(field())
+    acc.add_strips(500_025.0, 5_300_000.0, 500_025.0, 5_300_100.0, 20.0, 20.0, pass_index=0)
+    acc.add_strips(500_035.0, 5_300_000.0, 500_035.0, 5_300_050.0, 20.0, 10.0, pass_index=1)
+    acc.add_strips(500_035.0, 5_300_050.0, 500_035.0, 5_300_100.0, 20.0, 10.0, pass_index=[1])
+    counts = acc.pass_count
+    assert (counts[:, 3:5] == 1).all() and (counts[:, 5:7] == 2).all() and (counts[:, 7:9] == 1).all()
+    assert (counts[:, :3] == 0).all() and (counts[:, 9:] == 0).all()
+    overlap = acc.overlap_fraction
+    np.testing.assert_allclose(overlap[:, 5:7], 1.0)
+    assert overlap[:, :5].max() == 0.0 and overlap[:, 7:].max() == 0.0
+    # Beyond the first pass: the second pass's product on the overlap, 10 m x 100 m at 100 kg/ha.
+    assert acc.overlap_kg.sum() == pytest.approx(10.0)
+    np.testing.assert_allclose(acc.applied_kg_ha[:, 5:7], 200.0)
+
+
+def test_pass_overlapping_itself_and_strips_without_pass():
+    acc = AsApplied(field())
+    # One pass sweeping the same 10 m twice (a turn) does not overlap itself.
+    acc.add_strips([500_050.0, 500_050.0], [5_300_000.0, 5_300_100.0], [500_050.0, 500_050.0],
+                   [5_300_100.0, 5_300_000.0], 10.0, [10.0, 10.0], pass_index=[4, 4])
+    assert acc.overlap_fraction.max() == 0.0 and acc.overlap_kg.sum() == 0.0
+    assert acc.pass_count.max() == 1
+    acc.add_strips(500_050.0, 5_300_000.0, 500_050.0, 5_300_100.0, 10.0, 10.0)  # no pass: counts for none
+    assert acc.pass_count.max() == 1 and acc.applied_kg_ha.max() == pytest.approx(300.0)
+    # A partly swept cell (a quarter) is not put on by that pass.
+    part = AsApplied(field(cell=10.0))
+    part.add_strips(500_001.25, 5_300_100.0, 500_001.25, 5_300_000.0, 2.5, 1.0, pass_index=0)
+    assert part.pass_count.max() == 0 and part.coverage_fraction[:, 0] == pytest.approx(0.25)

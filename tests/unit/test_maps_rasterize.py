@@ -6,7 +6,7 @@ import shapely
 from affine import Affine
 from rasterio.features import rasterize
 
-from maps.rasterize import rasterize_rings
+from maps.rasterize import fill_rings, rasterize_rings
 from maps.zones import Rings
 
 
@@ -74,3 +74,17 @@ def test_polygon_outside_or_partly_outside_grid():
     far = np.array([(50, 50), (60, 50), (60, 60)], float)
     out = rasterize_rings(*_args(Rings.from_lists([far], [0])), 0.0, 6.0, 1.0, 6, 6)
     assert (out == -1).all()
+
+
+def test_fill_rings_is_the_union_and_ors_a_value():
+    rng = np.random.default_rng(5)
+    geoms = [star(rng, *rng.uniform(10, 90, 2), rng.uniform(3, 15)) for _ in range(20)]
+    rings = rings_of(geoms)
+    owners = rasterize_rings(*_args(rings), 0.0, 100.0, 0.5, 200, 200)
+    mask = np.zeros((200, 200), bool)
+    fill_rings(mask, *_args(rings), 0.0, 100.0, 0.5)
+    # Later features win in `rasterize_rings`, so every covered cell has some owner there too.
+    assert mask.any() and np.array_equal(mask, owners >= 0)
+    bits = np.full((200, 200), 2, np.uint8)
+    fill_rings(bits, *_args(rings), 0.0, 100.0, 0.5, value=1)
+    assert np.array_equal(bits, np.where(mask, 3, 2))

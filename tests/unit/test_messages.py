@@ -14,7 +14,7 @@ from services.bus.messages import MapRate, Pose, RateSample, RunStart, ShaftStat
 def pose(tick=0, **changes):
     fields = dict(run_id="r1", tick=tick, time_s=0.05 * (tick + 1), x_m=678001.25, y_m=5775002.5,
                   measured_x_m=678001.3, measured_y_m=5775002.4, heading_rad=1.5707963267948966,
-                  speed_m_s=2.2222222222222223, measured_speed_m_s=2.25, implement_on=True)
+                  speed_m_s=2.2222222222222223, measured_speed_m_s=2.25, implement_on=True, s_m=103.75)
     fields.update(changes)
     return Pose(**fields)
 
@@ -27,12 +27,12 @@ def test_pose_round_trip_is_exact():
 
 
 def test_nan_travels_as_null_and_comes_back_as_nan():
-    r = RateSample("r1", 3, 0.2, 1.0, 2.0, math.nan, math.inf, 0.01, 12.0, 0.0, False)
+    r = RateSample("r1", 3, 0.2, 1.0, 2.0, math.nan, math.inf, 0.01, 12.0, "0x3f", False)
     doc = json.loads(r.to_json())
     assert doc["prescribed_kg_ha"] is None and doc["applied_kg_ha"] is None
     back = RateSample.from_json(r.to_json())
     assert math.isnan(back.prescribed_kg_ha) and math.isnan(back.applied_kg_ha)
-    assert back.metered_kg == 0.01
+    assert back.metered_kg == 0.01 and back.section_mask == "0x3f"
 
 
 def test_optional_fields_stay_none():

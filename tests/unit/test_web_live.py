@@ -13,18 +13,26 @@ from common import ServiceError
 from services.bus import messages
 from services.bus.web import parse_listen, picture
 from services.bus.web.bridge import decode
-from services.bus.web.live import FIELDS, RECORD_FIELDS, AppliedLayer, Batch, LiveView, ViewGrid
+from services.bus.web.live import (
+    FIELDS,
+    RECORD_FIELDS,
+    AppliedLayer,
+    Batch,
+    LiveView,
+    SectionGeometry,
+    ViewGrid,
+)
 
 INFO = {"bounds": [1000.0, 5000.0, 1100.0, 5060.0], "cell_size": [2.0, 2.0], "rows": 30, "cols": 50,
         "min_rate_kg_ha": 100.0, "max_rate_kg_ha": 200.0}
 
 
 def pose(run, tick, x, y=5030.0, heading=0.0):
-    return messages.Pose(run, tick, tick * 0.05, x, y, x, y, heading, 2.5, 2.5, True)
+    return messages.Pose(run, tick, tick * 0.05, x, y, x, y, heading, 2.5, 2.5, True, x - 1000.0)
 
 
-def rate(run, tick, x, y=5030.0, applied=160.0, width=12.0, on=True):
-    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, 0.0, on)
+def rate(run, tick, x, y=5030.0, applied=160.0, width=12.0, on=True, mask="0x3f"):
+    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, mask, on)
 
 
 def shaft(run, tick):
@@ -35,6 +43,14 @@ def batch(records, fields=FIELDS) -> Batch:
     """Records as the bridge decodes them off the bus."""
     stream = {messages.Pose: "pose", messages.ShaftState: "shaft", messages.RateSample: "rate"}
     return decode(stream[type(records[0])], messages.encode_batch(records), fields[stream[type(records[0])]])
+
+
+SIX = SectionGeometry(np.full(6, 2.0), np.arange(5.0, -6.0, -2.0))  # six 2 m sections, left to right
+
+
+def known(view: LiveView, run: str) -> None:
+    """The run's scenario read (as the bridge does from monitor/run): its six sections."""
+    view.set_run_info(run, {"scenario": "s"}, SIX)
 
 
 def view_with_map() -> LiveView:
@@ -105,12 +121,34 @@ def test_cells_show_the_mean_of_their_samples_and_unusable_samples_are_left_out(
     assert touched == 0 and layer.since(1) == {"i": [], "v": []}
 
 
+def test_section_masks_paint_the_open_sections_once_the_implement_is_known():
+    view = view_with_map()
+    view.on_pose(batch([pose("r", 0, 1051.0, 5031.0)]))
+    # Heading east, six 2 m sections: the leftmost (bit 0, y 5035..5037: rows 11, 12) and the
+    # rightmost (bit 5, y 5025..5027: rows 16, 17) open; the four between (rows 13..15) closed.
+    view.on_rate(batch([rate("r", 0, 1051.0, 5031.0, width=4.0, mask="0x21")]))
+    view.frame()
+    assert view.layer.painted == 0  # waits for the run's implement
+    known(view, "r")
+    view.frame()
+    rows, cols = np.divmod(np.flatnonzero(view.layer.samples), 50)
+    assert sorted(set(rows.tolist())) == [11, 12, 16, 17] and set(cols.tolist()) == {25}
+    # A mask that is not one of six sections paints nothing; all gates closed neither.
+    view.on_pose(batch([pose("r", t, 1071.0, 5031.0) for t in (1, 2)]))
+    view.on_rate(batch([rate("r", 1, 1071.0, 5031.0, mask="0x40"),
+                        rate("r", 2, 1071.0, 5031.0, mask="0x3f")]))
+    view.on_rate(batch([rate("r", 3, 1081.0, 5031.0, mask="0x0", width=0.0)]))
+    view.frame()
+    assert (np.flatnonzero(view.layer.samples) % 50 == 25).all()
+
+
 # ---------------------------------------------------------------------------------------- view
 def test_frames_only_when_something_changed_and_deltas_carry_what_changed_since():
     view = view_with_map()
     hello_seq = view.frame()
     assert view.frame() is None  # nothing new
     view.on_pose(batch([pose("r", t, 1010.0 + t) for t in range(5)]))
+    known(view, "r")
     view.on_rate(batch([rate("r", t, 1010.0 + t) for t in range(5)]))
     seq = view.frame()
     assert seq == hello_seq + 1
@@ -143,6 +181,7 @@ def test_a_run_left_behind_is_not_shown_again():
 def test_a_rate_sample_that_comes_before_its_pose_is_painted_when_the_pose_comes():
     view = view_with_map()
     view.on_pose(batch([pose("r", 0, 1010.0)]))
+    known(view, "r")
     view.on_rate(batch([rate("r", t, 1010.0 + t) for t in range(3)]))
     view.frame()  # a frame paints what came since the last
     assert view.layer.painted > 0 and view.waiting.tick.tolist() == [1, 2]

@@ -25,7 +25,15 @@ from services.bus import client, messages
 from services.bus.config import Keys, ZenohOptions, open_session
 from services.bus.serving import guarded
 from services.bus.web import picture
-from services.bus.web.live import FIELDS, HISTORY_POINTS, RECORD_FIELDS, Batch, LiveView, ViewGrid
+from services.bus.web.live import (
+    FIELDS,
+    HISTORY_POINTS,
+    RECORD_FIELDS,
+    Batch,
+    LiveView,
+    SectionGeometry,
+    ViewGrid,
+)
 
 DECODERS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 RECORDS_PAGE = 20_000  # ticks per monitor/records query (the monitor's cap)
@@ -198,8 +206,10 @@ class Bridge:
         if not all(isinstance(v, str) for v in (text, source, base_dir)):
             raise ServiceError(f"monitor/run {run_id}: scenario_text, source and base_dir must be strings")
         world = build_world(scenario.parse(text, source, base_dir))
+        implement = world.scenario.implement
         self.view.set_run_info(run_id, {"scenario": world.scenario.name, "clock": run.get("clock"),
-                                        "field": field_geometry(world)})
+                                        "field": field_geometry(world)},
+                               SectionGeometry(implement.section_widths, implement.section_offsets_m))
 
     def catch_up(self, run_id: str) -> None:
         """Paint the run's ticks from before the view saw it live, from the monitor's records."""

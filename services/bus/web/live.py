@@ -9,10 +9,12 @@ one (the cells painted since, the latest pose/shaft/rate, the chart points still
 The as-applied layer is accumulated here, server side, because the browser gets at most 20 frames a
 second while a lockstep run carries some 15,000 rate samples a second: only the server sees them all.
 It is the live view's layer, not the report's: each rate sample's applied rate (metered kg over the
-area its sections covered in the period) is spread across the working width that was on, at the
-landing point the controller predicted, and a cell shows the mean of the samples that touched it. The
-report's raster (product put where it really landed on the true path, area-weighted) is what the
-monitor computes the metrics on; the two agree to within the GNSS error and a cell's edge.
+area its sections covered in the period) is spread across each section whose gate was open (the
+sample's ``section_mask``, placed with the implement's section widths: samples wait until the run's
+scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, and a
+cell shows the mean of the samples that touched it. The report's raster (product put where it really
+landed on the true path, area-weighted) is what the monitor computes the metrics on; the two agree
+to within the GNSS error and a cell's edge.
 """
 
 from __future__ import annotations
@@ -30,13 +32,14 @@ FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
 MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
 HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second
 HEADING_RING = 8192  # ticks of pose heading kept to orient the rate samples that follow them
+UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
 MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m cells needs 12)
 STREAMS = ("pose", "shaft", "rate")
 
 
 # The fields of each stream the view reads: live, and from the monitor's records (for the charts too).
 FIELDS = {"pose": ("tick", "heading_rad"), "shaft": ("tick",),
-          "rate": ("tick", "landing_x_m", "landing_y_m", "width_on_m", "offset_m", "applied_kg_ha",
+          "rate": ("tick", "landing_x_m", "landing_y_m", "width_on_m", "section_mask", "applied_kg_ha",
                    "implement_on")}
 RECORD_FIELDS = {"pose": FIELDS["pose"], "shaft": ("tick", "target_shaft_rpm", "shaft_rpm"),
                  "rate": (*FIELDS["rate"], "time_s", "prescribed_kg_ha")}
@@ -57,7 +60,7 @@ class Batch:
         return self.cols["tick"]
 
     def take(self, which) -> Batch:
-        return Batch(self.run_id, {k: v[which] for k, v in self.cols.items()}, self.last)
+        return Batch(self.run_id, {k: _take(v, which) for k, v in self.cols.items()}, self.last)
 
     def extend(self, other: Batch) -> Batch:
         return Batch(self.run_id, {k: np.concatenate([v, other.cols[k]]) for k, v in self.cols.items()},
@@ -120,6 +123,36 @@ class ViewGrid:
 def _numbers(value, n: int) -> bool:
     return (isinstance(value, list) and len(value) == n
             and all(type(v) in (int, float) and math.isfinite(v) for v in value))
+
+
+def _take(column, which):
+    """``column[which]`` for an array or a list (str fields come as lists, `messages.decode_columns`)."""
+    if isinstance(column, list):
+        return np.asarray(column, dtype=object)[which].tolist()
+    return column[which]
+
+
+@dataclass(frozen=True)
+class SectionGeometry:
+    """The implement's sections, left to right: each one's width and its centre's offset to the left
+    of the implement's centre, m (`vehicle.Implement.section_widths`, ``section_offsets_m``)."""
+
+    widths_m: np.ndarray
+    offsets_m: np.ndarray
+
+    def strips(self, masks, width_on_m):
+        """Per open section of each sample: (sample index, strip width, strip offset), arrays of one
+        length. A batch holding a mask that is not one of these sections' is left out whole (the
+        bus is untrusted; `services.sim.sections.sections_from_masks` checks the masks)."""
+        from services.sim.sections import sections_from_masks
+
+        try:
+            on = sections_from_masks(masks, self.widths_m.size)
+        except ValueError:
+            on = np.zeros((len(masks), self.widths_m.size), bool)
+        on &= (np.asarray(width_on_m, dtype=np.float64) > 0)[:, None]
+        sample, section = np.nonzero(on)
+        return sample, self.widths_m[section], self.offsets_m[section]
 
 
 class AppliedLayer:
@@ -199,6 +232,8 @@ class LiveView:
             self.left.append(self.run_id)
         self.run_id = run_id
         self.run: dict = {"run_id": run_id}  # scenario, clock, field boundary and path, once known
+        self.sections: SectionGeometry | None = None  # the implement's sections, once known
+        self.unsectioned: list = []  # (rates, heading) oriented, waiting for the sections
         self.latest: dict = {s: None for s in STREAMS}
         self.first_tick: dict = {s: None for s in STREAMS}  # first tick seen live, per stream
         self.backfilled_to = 0  # rate ticks below this were painted from the monitor's records
@@ -280,8 +315,14 @@ class LiveView:
         if self.layer is not None and len(rates.tick):
             c = rates.cols
             width = np.where(c["implement_on"], c["width_on_m"], 0.0)
-            self.unpainted.append((c["landing_x_m"], c["landing_y_m"], heading, width, c["offset_m"],
-                                   c["applied_kg_ha"]))
+            x, y, rate = c["landing_x_m"], c["landing_y_m"], c["applied_kg_ha"]
+            if self.sections is None:   # the run's implement not known yet: wait for it
+                self.unsectioned.append((rates, heading))
+                while sum(len(r.tick) for r, _ in self.unsectioned) > UNSECTIONED_TICKS:
+                    self.unoriented += len(self.unsectioned.pop(0)[0].tick)
+                return
+            i, strip_w, strip_off = self.sections.strips(c["section_mask"], width)
+            self.unpainted.append((x[i], y[i], heading[i], strip_w, strip_off, rate[i]))
 
     def _flush(self, seq: int) -> None:
         if self.unpainted and self.layer is not None:
@@ -334,10 +375,17 @@ class LiveView:
             self.dirty = True
             return True
 
-    def set_run_info(self, run_id: str, info: dict) -> None:
+    def set_run_info(self, run_id: str, info: dict, sections: SectionGeometry | None = None) -> None:
+        """What the run's scenario says (shown on the page), and its implement's sections (where the
+        rate samples' section masks paint from now on)."""
         with self.lock:
             if run_id == self.run_id:
                 self.run.update(info)
+                if sections is not None and self.sections is None:
+                    self.sections = sections
+                    waiting, self.unsectioned = self.unsectioned, []
+                    for rates, heading in waiting:
+                        self._paint(rates, heading)
                 self.epoch += 1
                 self.dirty = True
 

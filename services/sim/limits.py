@@ -1,0 +1,131 @@
+"""Machine limits: can the meter apply the map at the working speeds, before anything moves?
+
+The metering shaft must turn at ``rate * speed * width / 10 000 / kg_per_rev * 60`` rpm
+(`vehicle.Implement.target_shaft_rpm`) and can only turn within ``[shaft_rpm_min, shaft_rpm_max]``
+while applying. So the map's highest rate over the full width at the highest working speed must need
+no more than ``shaft_rpm_max``, and its lowest positive rate at the lowest working speed no less than
+``shaft_rpm_min``. Where it does not, the run clips the target and applies less (or more) than the
+map asks; `services.sim.metrics.limit_metrics` measures how much of the run that was.
+
+Speeds are the working speed with its slow variation (``[tractor] speed_variation_pct`` either way)
+and the headland speed if one is set; turns, starts and stops are not working speeds. With sections
+off the width is narrower and the shaft slower: `min_width_m` says below which width on the lowest
+rate needs less than ``shaft_rpm_min`` at the lowest speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vehicle import DriveConfig, Implement
+
+
+@dataclass(frozen=True)
+class MachineCheck:
+    """Whether the machine can apply a map, and at which working speeds.
+
+    Attributes
+    ----------
+    rate_min_kg_ha, rate_max_kg_ha : float
+        Lowest positive and highest rate the map asks for inside the field (NaN: none positive).
+    speed_min_m_s, speed_max_m_s : float
+        Lowest and highest working speed.
+    rpm_min, rpm_max : float
+        Shaft speed the lowest rate needs at the lowest speed and the highest rate at the highest
+        speed, over the full width.
+    shaft_rpm_min, shaft_rpm_max : float
+        The shaft's range.
+    min_speed_m_s, max_speed_m_s : float
+        Lowest and highest working speed at which the full width applies the whole map.
+    min_width_m : float
+        Narrowest width on with which the lowest rate at the lowest speed still needs at least
+        ``shaft_rpm_min`` (sections switched off narrow it).
+    narrowest_section_m : float
+        The implement's narrowest section.
+    """
+
+    rate_min_kg_ha: float
+    rate_max_kg_ha: float
+    speed_min_m_s: float
+    speed_max_m_s: float
+    rpm_min: float
+    rpm_max: float
+    shaft_rpm_min: float
+    shaft_rpm_max: float
+    min_speed_m_s: float
+    max_speed_m_s: float
+    min_width_m: float
+    narrowest_section_m: float
+
+    @property
+    def can_apply(self) -> bool:
+        """The full width applies the whole map at every working speed (vacuously true for a map with
+        no positive rate)."""
+        if not math.isfinite(self.rate_max_kg_ha):
+            return True
+        return self.shaft_rpm_min <= self.rpm_min and self.rpm_max <= self.shaft_rpm_max
+
+    def text(self) -> str:
+        """Two or three lines for the run's printout."""
+        if not math.isfinite(self.rate_max_kg_ha):
+            return "Machine check: the map asks for no product inside the field."
+        verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
+        lines = [f"Machine check: the meter {verdict}: {self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} "
+                 f"kg/ha at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
+                 f"{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-{self.shaft_rpm_max:g} rpm shaft.",
+                 f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
+                 f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
+        if self.rpm_max > self.shaft_rpm_max:
+            lines.append(f"  Above {self.max_speed_m_s:.2f} m/s the highest rates are under-applied.")
+        if self.rpm_min < self.shaft_rpm_min:
+            lines.append(f"  Below {self.min_speed_m_s:.2f} m/s the lowest rates are over-applied.")
+        elif self.min_width_m > self.narrowest_section_m:
+            lines.append(f"  With less than {self.min_width_m:.1f} m of sections on, the lowest rate at the "
+                         "lowest speed is over-applied.")
+        return "\n".join(lines)
+
+
+def working_speeds(drive: DriveConfig) -> tuple[float, float]:
+    """Lowest and highest working speed, m/s: the working speed with its variation, and the headland
+    speed if one is set."""
+    share = drive.speed_variation_pct / 100.0
+    speeds = [drive.working_speed_m_s * (1.0 - share), drive.working_speed_m_s * (1.0 + share)]
+    if drive.headland_speed_m_s is not None:
+        speeds.append(drive.headland_speed_m_s)
+    return min(speeds), max(speeds)
+
+
+def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: Implement) -> MachineCheck:
+    """Whether `implement` can apply `rates_kg_ha` at speeds within `speed_range_m_s`.
+
+    Parameters
+    ----------
+    rates_kg_ha : array_like
+        The map's rates inside the field (NaN and zero are left out: nothing to meter there).
+    speed_range_m_s : (float, float)
+        Lowest and highest working speed (`working_speeds`).
+    implement : vehicle.Implement
+    """
+    rates = np.asarray(rates_kg_ha, float).ravel()
+    rates = rates[np.isfinite(rates) & (rates > 0)]
+    lo_rate, hi_rate = (float(rates.min()), float(rates.max())) if rates.size else (math.nan, math.nan)
+    v_lo, v_hi = speed_range_m_s
+    width = implement.width_m
+    rpm_min = float(implement.target_shaft_rpm(lo_rate, v_lo, width))
+    rpm_max = float(implement.target_shaft_rpm(hi_rate, v_hi, width))
+    # rpm is proportional to rate x speed x width: the speed (width) where the bound is reached.
+    per_m_s = float(implement.target_shaft_rpm(hi_rate, 1.0, width))
+    per_m_s_lo = float(implement.target_shaft_rpm(lo_rate, 1.0, width))
+    per_m = float(implement.target_shaft_rpm(lo_rate, v_lo, 1.0))
+    return MachineCheck(
+        rate_min_kg_ha=lo_rate, rate_max_kg_ha=hi_rate, speed_min_m_s=v_lo, speed_max_m_s=v_hi,
+        rpm_min=rpm_min, rpm_max=rpm_max,
+        shaft_rpm_min=implement.shaft_rpm_min, shaft_rpm_max=implement.shaft_rpm_max,
+        min_speed_m_s=implement.shaft_rpm_min / per_m_s_lo if per_m_s_lo > 0 else math.nan,
+        max_speed_m_s=implement.shaft_rpm_max / per_m_s if per_m_s > 0 else math.nan,
+        min_width_m=implement.shaft_rpm_min / per_m if per_m > 0 else math.nan,
+        narrowest_section_m=float(implement.section_widths.min()),
+    )

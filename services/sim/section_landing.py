@@ -1,0 +1,150 @@
+"""Where each section's product lands, and the overlap and skip figures that follow.
+
+Product metered during tick [t, t + period] is shared between the sections whose gates are open
+(`SectionStates.actual`) in proportion to their widths, and each share lands on its own section's
+strip on the true path ``delivery_delay_s`` later: between where the section is at the start and
+the end of that span. Consecutive ticks of one section are joined into strips up to half a map
+cell long (their ends meet exactly; this blurs per-cell figures far below the cell size and cuts
+the raster work many-fold); a strip ends where the section switches or the pass changes, so every
+strip has one section, one pass and product all along.
+
+With `maps.AsApplied`'s pass accounting and the plan's worked area (`worked_fraction`) this gives
+the overlap and skip figures (`services.sim.metrics.overlap_metrics`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from maps import AsApplied, Grid
+from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
+
+WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
+MAX_WORKED_CELLS = 16_000_000  # ... on at most this many fine cells (16 MB)
+
+
+@dataclass(frozen=True)
+class SectionStrips:
+    """Strips of product, one entry per strip; arrays of shape (k,), in `AsApplied.add_strips`' terms."""
+
+    x0_m: np.ndarray
+    y0_m: np.ndarray
+    x1_m: np.ndarray
+    y1_m: np.ndarray
+    width_m: np.ndarray
+    mass_kg: np.ndarray
+    pass_index: np.ndarray
+    section: np.ndarray
+
+    def add_to(self, as_applied: AsApplied) -> None:
+        """Accumulate the strips onto an as-applied raster, with their passes."""
+        as_applied.add_strips(self.x0_m, self.y0_m, self.x1_m, self.y1_m, self.width_m, self.mass_kg,
+                              pass_index=self.pass_index)
+
+
+def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: float, period_s: float,
+                   cell_m: float, ticks=None) -> SectionStrips:
+    """Each section's product as strips on its own path, ordered by pass.
+
+    Parameters
+    ----------
+    track : dict of ndarray, shape (n,)
+        The true track (``time_s``, ``x_m``, ``y_m``, ``heading_rad``).
+    metered_kg : ndarray, shape (n,)
+        Product through the meter in each tick; 0 where all gates are closed (it stays in the
+        hopper), else a `ValueError` (it would be lost).
+    states : SectionStates
+        Gate states per tick and section, section widths and offsets.
+    delay_s, period_s : float
+        Delivery delay and tick length, s.
+    cell_m : float
+        Map cell size: ticks are joined into strips up to half of it long.
+    ticks : ndarray of int, optional
+        Only these ticks (ascending indices), e.g. those metered at a clipped target; default all.
+    """
+    time_s = np.asarray(track["time_s"], float)
+    idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
+    n, sections = idx.size, states.actual.shape[1]
+    actual, metered = states.actual[idx], np.asarray(metered_kg, float)[idx]
+    x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s, idx)
+    width_on = actual @ states.widths_m
+    lost = (metered > 0) & (width_on <= 0)
+    if lost.any():
+        raise ValueError(f"section_strips: tick {int(idx[np.argmax(lost)])} meters product with every gate "
+                         "closed")
+    share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
+                      where=actual & (width_on[:, None] > 0))
+    mass = metered[:, None] * share
+    passes = landing_pass(time_s, states.pass_index, delay_s, idx)
+    typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
+    join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
+    # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
+    # section's gate changes, where the pass changes and where ticks are left out.
+    on = actual.T
+    brk = np.zeros((sections, n), bool)
+    brk[:, ::join] = True
+    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | ((passes[1:] != passes[:-1]) | (np.diff(idx) > 1))[None, :]
+    starts = np.flatnonzero(brk.ravel())
+    ends = np.append(starts[1:], sections * n) - 1
+    keep = on.ravel()[starts]
+    starts, ends = starts[keep], ends[keep]
+    kg = np.add.reduceat(mass.T.ravel(), np.flatnonzero(brk.ravel()))[keep] if n else np.zeros(0)
+    per_section = max(n, 1)
+    sec, first, last = starts // per_section, starts % per_section, ends % per_section
+    off = states.offsets_m[sec]
+    order = np.argsort(passes[first], kind="stable")  # by pass, each section's strips in time order
+    strips = SectionStrips(x0[first] + nx[first] * off, y0[first] + ny[first] * off,
+                           x1[last] + nx[last] * off, y1[last] + ny[last] * off,
+                           states.widths_m[sec], kg, passes[first], sec)
+    return SectionStrips(*(getattr(strips, f)[order] for f in SectionStrips.__dataclass_fields__))
+
+
+def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
+    """Share of each cell of `grid` that the whole working width sweeps along the working
+    stretches of the true path: the ground the plan means to treat; shape (rows, cols).
+
+    Counted on a raster `WORKED_SUPERSAMPLE` times finer (fewer on very large grids): the share of
+    its cells whose centre lies inside the outlines.
+    """
+    dx, dy = grid.cell_size
+    fine = max(1, min(WORKED_SUPERSAMPLE, int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))))
+    mask = np.zeros((grid.rows * fine, grid.cols * fine), bool)
+    pose = Poses.of(track)
+    rings = []
+    for a, b in runs_of(np.asarray(track["implement_on"], bool)):
+        rings += pose.outlines(a, b, width_m / 2, -width_m / 2, pose.vertex_step(a, b))
+    # Stretched north-south so the cells are square, as the scan lines need.
+    stretch = dx / dy
+    west, _, _, north = grid.bounds
+    fill_outlines(mask, [r * (1.0, stretch) for r in rings], west, north * stretch, dx / fine)
+    return mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
+
+
+def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
+    """The pass of the product metered in each tick (of `ticks`, default all): that of the pose where
+    it starts landing, a turn counting with the pass before it (the first pass for anything before it)."""
+    time_s = np.asarray(time_s, float)
+    if not time_s.size:
+        return np.zeros(0, np.int64)
+    idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
+    filled = np.maximum.accumulate(np.asarray(pass_index, np.int64))
+    pose = np.clip(np.searchsorted(time_s, time_s[idx] + delay_s, side="right") - 1, 0, time_s.size - 1)
+    return np.maximum(filled[pose], 0)
+
+
+def _landing_frame(track: dict, delay_s: float, period_s: float, ticks):
+    """Start and end of the landing span of each of `ticks` on the true path and the unit left normal
+    there."""
+    time_s = np.asarray(track["time_s"], float)
+    t0 = time_s[ticks] + delay_s
+    x, y = track["x_m"], track["y_m"]
+    hx = np.interp(t0, time_s, np.cos(track["heading_rad"]))
+    hy = np.interp(t0, time_s, np.sin(track["heading_rad"]))
+    norm = np.hypot(hx, hy)
+    nx = np.divide(-hy, norm, out=np.zeros(norm.shape), where=norm > 0)
+    ny = np.divide(hx, norm, out=np.zeros(norm.shape), where=norm > 0)
+    return (np.interp(t0, time_s, x), np.interp(t0, time_s, y), np.interp(t0 + period_s, time_s, x),
+            np.interp(t0 + period_s, time_s, y), nx, ny)

@@ -1,0 +1,180 @@
+"""Section control through whole runs (real SUMO): coverage switching, latencies, per-section landing,
+the error split, the machine check, and the outputs and refusals of `vrsim run`."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+import rasterio
+
+from services.outputs.write import write_outputs
+from services.sim.error_split import error_split
+from services.sim.run import run
+from services.sim.scenario import parse, with_changes
+from services.sim.sections import sections_from_masks
+from tests.conftest import VRSIM
+
+FIELD = """
+name = "{name}"
+seed = 13
+[field]
+rectangle = {{ width_m = {width}, length_m = {length}, lat = 52.0, lon = 10.0 }}
+headland_passes = 1
+{heading}
+[map]
+cell_size_m = 2.0
+{map}
+[gnss]
+kind = "rtk"
+[output]
+plots = {plots}
+html = {plots}
+"""
+UNIFORM = 'synthetic = "uniform"\nparams = { rate_kg_ha = 180.0 }'
+CHECKERS = 'synthetic = "checkerboard"\nparams = { square_m = 48.0, low_kg_ha = 120.0, high_kg_ha = 220.0 }'
+
+
+def field(name="f", width=120.0, length=250.0, heading=None, rx=CHECKERS, plots=False):
+    text = FIELD.format(name=name, width=width, length=length, map=rx, plots="true" if plots else "false",
+                        heading="" if heading is None else f"heading_deg = {heading}")
+    return parse(text, f"{name}.toml")
+
+
+def oblique(**implement):
+    return with_changes(field("oblique", heading=35.0), implement=implement) if implement \
+        else field("oblique", heading=35.0)
+
+
+def vrsim(*args):
+    return subprocess.run([VRSIM, *args], capture_output=True, text=True, timeout=300)
+
+
+def test_uniform_map_with_the_ideal_meter_lands_the_map():
+    """Geometry and section control alone (the ideal meter, no speed change at swath ends: turns at
+    the working speed) leave under 1 % overlap and at least 99 % of the covered area within 10 %."""
+    sc = with_changes(field("uniform", 160.0, 400.0, rx=UNIFORM), controller={"kind": "ideal"},
+                      tractor={"turn_speed_m_s": 2.5})
+    s = run(sc).summary
+    assert s["overlap_area_pct"] < 1.0, s
+    assert s["within_10pct_area_pct"] >= 99.0, s
+    assert s["skip_area_pct"] < 1.0 and abs(s["mass_balance_pct"]) < 1.0, s
+
+
+def test_oblique_headland_needs_coverage_control():
+    """Swaths at 35 degrees to the headland, 6 sections, the paper's PID: coverage control keeps the
+    mass balance within 3 %; the boundary rule (a section on while its centre is in the field)
+    over-applies where swath ends cross the treated headland."""
+    coverage = run(oblique(sections=6)).summary
+    boundary = run(oblique(sections=6, section_control="boundary")).summary
+    assert abs(coverage["mass_balance_pct"]) <= 3.0, coverage
+    assert boundary["mass_balance_pct"] > abs(coverage["mass_balance_pct"]) + 5.0, boundary
+    assert boundary["overlap_area_pct"] > 5 * coverage["overlap_area_pct"]
+    assert coverage["within_10pct_area_pct"] > boundary["within_10pct_area_pct"]
+
+
+def test_longer_latencies_give_more_overlap_and_skips():
+    figures = [run(with_changes(oblique(section_on_delay_s=d, section_off_delay_s=d),
+                                controller={"kind": "ideal"})).summary for d in (0.3, 1.0, 3.0, 8.0)]
+    for key in ("overlap_area_pct", "skip_area_pct", "overlap_kg"):
+        values = [f[key] for f in figures]
+        assert np.all(np.diff(values) > 0), (key, values)
+
+
+@pytest.mark.parametrize("on_s, off_s", [(1.0, 0.6), (0.93, 0.37)])
+def test_gates_switch_the_configured_latency_after_the_commands(on_s, off_s):
+    result = run(oblique(section_on_delay_s=on_s, section_off_delay_s=off_s))
+    period = result.world.scenario.timing.control_period_s
+    commanded, gates = result.sections.commanded, result.sections.actual
+    dc = np.diff(commanded.astype(np.int8), axis=0, prepend=0)
+    dg = np.diff(gates.astype(np.int8), axis=0, prepend=0)
+    switched = 0
+    for s in range(gates.shape[1]):
+        for delay_s, edge in ((on_s, 1), (off_s, -1)):
+            ticks = np.flatnonzero(dg[:, s] == edge)
+            k = round(delay_s / period)
+            assert abs(k * period - delay_s) <= period  # within one tick of the configured latency
+            assert (dc[ticks - k, s] == edge).all()  # the command changed exactly k ticks before
+            switched += ticks.size
+    assert switched > 100
+
+
+def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
+    result = run(with_changes(oblique(), output={"plots": True, "html": True}))
+    paths = write_outputs(result, str(tmp_path))
+    lines = open(paths["track.csv"]).read().splitlines()
+    header = lines[0].split(",")
+    assert header[-2:] == ["sections_on", "section_mask"]
+    rows = [line.split(",") for line in lines[1:]]
+    gates = sections_from_masks([r[-1] for r in rows], 6)
+    np.testing.assert_array_equal(gates, result.control["sections_on"])
+    np.testing.assert_array_equal([int(r[-2]) for r in rows], gates.sum(axis=1))
+    assert 0 < gates.sum(axis=1).mean() < 6
+    with rasterio.open(paths["passes.tif"]) as ds:
+        passes = ds.read(1)
+        assert ds.tags()["unit"] == "passes" and ds.crs is not None
+    np.testing.assert_array_equal(passes, result.as_applied.pass_count)
+    assert passes.max() >= 2 and (passes[result.in_field] == 1).mean() > 0.9
+    page = open(paths["report.html"]).read()
+    for text in ("Where the error comes from", "machine limits", "metering", "sections.png", "Machine check",
+                 "Overlap area", "Section widths"):
+        assert text in page, text
+    summary = json.load(open(paths["summary.json"]))
+    assert summary["sections"] == 6 and summary["section_widths_m"] == [2.0] * 6
+    parts = error_split(result)
+    assert sum(p.mass_balance_pct for p in parts) == pytest.approx(summary["mass_balance_pct"], abs=1e-9)
+    assert sum(p.mae_kg_ha for p in parts) == pytest.approx(summary["mae_kg_ha"], abs=1e-9)
+    assert parts[0].share_pct > 50  # obliquely crossed squares: most of the error is geometry
+    ideal = error_split(run(with_changes(oblique(), controller={"kind": "ideal"})))
+    assert ideal[2].mass_balance_pct == 0.0 and ideal[2].mae_kg_ha == 0.0  # the ideal meter meters exactly
+
+
+def test_unequal_sections_are_named_and_land_their_share():
+    s = run(oblique(sections=5, section_widths_m=[3.0, 2.0, 2.0, 2.0, 3.0])).summary
+    assert s["sections"] == 5 and s["section_widths_m"] == [3.0, 2.0, 2.0, 2.0, 3.0]
+    assert abs(s["mass_balance_pct"]) <= 3.0
+
+
+def test_machine_check_before_the_run_and_the_limited_figures(tmp_path):
+    """An 18 m boom at 3.6 m/s on a map up to 260 kg/ha asks 202 rpm of a 150 rpm shaft."""
+    text = FIELD.format(name="too_fast", width=144.0, length=250.0, heading="", plots="false",
+                        map=CHECKERS.replace("120.0", "140.0").replace("220.0", "260.0"))
+    text += "[implement]\nwidth_m = 18.0\n[tractor]\nworking_speed_m_s = 3.6\nspeed_variation_pct = 0.0\n"
+    path = tmp_path / "too_fast.toml"
+    path.write_text(text)
+    p = vrsim("run", str(path), "--check")
+    assert p.returncode == 0, p.stderr
+    assert "CANNOT apply the whole map" in p.stdout and "202.2 rpm of a 5-150 rpm shaft" in p.stdout
+    assert "Above 2.67 m/s" in p.stdout
+    assert not (tmp_path / "runs").exists()
+    p = vrsim("run", str(path), "--check", "--json")
+    check = json.loads(p.stdout)
+    assert check["can_apply"] is False and check["max_speed_m_s"] == pytest.approx(2.67, abs=0.01)
+    p = vrsim("run", str(path), "--quiet", "--json", "--out", str(tmp_path / "o"))
+    s = json.loads(p.stdout)
+    assert s["limited_time_pct"] > 20 and s["limited_area_pct"] > 20 and s["mass_balance_pct"] < -5
+    assert s["max_speed_m_s"] == pytest.approx(check["max_speed_m_s"])
+    p = vrsim("run", str(path), "--quiet", "--out", str(tmp_path / "o2"))
+    assert "CANNOT apply the whole map" in p.stdout  # in every run's printout
+
+
+@pytest.mark.parametrize("line, message", [
+    ("section_on_delay_s = -0.5", "section_on_delay_s must be a number in [0, 30] s, got -0.5"),
+    ("section_off_delay_s = nan", "section_off_delay_s must be finite, got nan"),
+    ("section_on_delay_s = 31.0", "section_on_delay_s must be a number in [0, 30] s, got 31.0"),
+    ("section_overlap_pct = 101.0", "section_overlap_pct must be a number in [0, 100] %, got 101.0"),
+    ("boundary_overlap_pct = -1.0", "boundary_overlap_pct must be a number in [0, 100] %, got -1.0"),
+    ("section_widths_m = [2.0, 4.0, 4.0]",
+     "section_widths_m [2.0, 4.0, 4.0] add up to 10 m, not width_m=12.0"),
+    ("sections = 129", "sections must be an integer in [1, 128], got 129"),
+    ("section_control = \"sometimes\"",
+     "section_control must be one of coverage, boundary, off, got 'sometimes'"),
+])
+def test_bad_section_settings_exit_2_naming_file_table_key_and_value(tmp_path, line, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(FIELD.format(name="bad", width=72.0, length=150.0, heading="", map=UNIFORM, plots="false")
+                    + f"[implement]\n{line}\n")
+    p = vrsim("run", str(path), "--quiet", "--out", str(tmp_path / "o"))
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert str(path) in p.stderr and "[implement]" in p.stderr and message in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1
