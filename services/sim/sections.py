@@ -192,7 +192,17 @@ def switch_sections(track: dict, implement: Implement, field_polygon, path: Cove
 
 
 # --- the three ways of switching ----------------------------------------------------------------
-class _AllOn:
+class _Memoryless:
+    """A way of switching that carries nothing from one `step` to the next."""
+
+    def state(self) -> None:
+        return None
+
+    def set_state(self, state) -> None:
+        pass
+
+
+class _AllOn(_Memoryless):
     """``"off"``: every section applies while the implement is on."""
 
     def __init__(self, implement, polygon, path, period_s, map_cell_m):
@@ -202,14 +212,8 @@ class _AllOn:
         actual = np.repeat(on[:, None], self.sections, axis=1)
         return actual, actual
 
-    def state(self) -> None:
-        return None  # memoryless
 
-    def set_state(self, state) -> None:
-        pass
-
-
-class _Boundary:
+class _Boundary(_Memoryless):
     """``"boundary"``: a section applies while the implement is on and its centre, at the control
     core's predicted landing point, lies inside the field (no latency)."""
 
@@ -220,12 +224,6 @@ class _Boundary:
         lx, ly = sensed.ahead(self.implement.delivery_delay_s)
         actual = self.implement.sections_on(self.polygon, lx, ly, sensed.heading_rad, on)
         return actual, actual
-
-    def state(self) -> None:
-        return None  # memoryless
-
-    def set_state(self, state) -> None:
-        pass
 
 
 class _Coverage:
