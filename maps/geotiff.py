@@ -11,7 +11,7 @@ import rasterio
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
-from common import MapError
+from common import MapError, files
 from maps.crs import as_crs
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
@@ -39,8 +39,11 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
     The band is read by GDAL directly into a float64 array (no intermediate copy), in bands of
     rows on up to 4 threads; the nodata value becomes NaN. NaN cells are nodata when the file
     declares no nodata value or NaN; with another nodata value they are refused, as are negative
-    rates.
+    rates. The file and the files GDAL may open beside it must be regular files within their byte
+    caps (`common.files`).
     """
+    files.check_file(path, "geotiff", MapError)
+    files.check_siblings(path, MapError)
     try:
         with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
             check_size(src.height, src.width, max_cells, path)

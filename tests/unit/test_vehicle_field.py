@@ -70,7 +70,7 @@ def test_bad_files_name_the_file(name, match):
 def test_damaged_shapefile_is_a_vehicle_error(tmp_path, name):
     p = tmp_path / name
     p.write_text("garbage")
-    with pytest.raises(VehicleError, match="not a readable shapefile"):
+    with pytest.raises(VehicleError, match="not a readable shapefile|not a zip archive"):
         Field.from_file(str(p))
 
 
