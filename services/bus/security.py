@@ -48,6 +48,10 @@ TLS_FILES = ("ca.pem", "router.pem", "router-key.pem")
 TLS_HOSTS = ("localhost", "127.0.0.1", "::1")
 TLS_VALID_DAYS = 825  # the longest validity common TLS clients accept for a server certificate
 PASSWORD_BYTES = 24  # secrets.token_urlsafe: 32 characters of [A-Za-z0-9_-], never ':' or a newline
+# Largest put or query body the router passes on (zenoh's low_pass_filter drops bigger ones before any
+# service sees them): a lockstep pose batch is ~300 kB, a scenario ~1 MB; map/rate batches are the
+# big ones.
+MAX_BODY_BYTES = 64 * 1024 * 1024
 
 
 # ------------------------------------------------------------------------------------------ grants
@@ -363,10 +367,12 @@ def _write_tls(folder: str) -> None:
 
 # ------------------------------------------------------------------------------------ zenoh configs
 def router_settings(state: SecurityState, keys: Keys, listen: list[str],
-                    user_roles: Mapping[str, str] | None = None) -> dict[str, object]:
+                    user_roles: Mapping[str, str] | None = None,
+                    max_body_bytes: int = MAX_BODY_BYTES) -> dict[str, object]:
     """Configuration entries (path -> JSON value) that make a zenoh router enforce the security model.
 
-    ``listen`` are the router's endpoints; with TLS each must be a ``tls/`` endpoint.
+    ``listen`` are the router's endpoints; with TLS each must be a ``tls/`` endpoint. Puts and
+    queries under the prefix whose payload exceeds ``max_body_bytes`` are dropped by the router.
     Apply them with `apply_settings` over the router's other configuration.
     """
     _check_endpoints(state, listen, "listen")
@@ -375,6 +381,8 @@ def router_settings(state: SecurityState, keys: Keys, listen: list[str],
         "listen/endpoints": list(listen),
         "transport/auth/usrpwd/dictionary_file": state.dictionary_file,
         "access_control": acl_config(keys, user_roles),
+        "low_pass_filter": [{"id": "vrsim-bodies", "messages": ["put", "query"],
+                             "key_exprs": [everything(keys)], "size_limit": max_body_bytes}],
     }
     if state.tls:
         out["transport/link/tls/listen_certificate"] = state.tls_file("router.pem")
