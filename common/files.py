@@ -42,6 +42,7 @@ KIND_BY_EXTENSION = {
     ".geojson": "geojson", ".json": "geojson", ".csv": "csv", ".xml": "xml", ".bin": "binary",
     ".zip": "zip", ".toml": "toml",
 }
+SIDECARS_READ_WHOLE = ("xml", "prj")  # formats of side files a library parses whole when it opens them
 MAX_ZIP_MEMBERS = 10_000  # an ISOXML TASKDATA or a zipped shapefile holds a handful
 MAX_GRID_BYTES = 4 * GiB  # memory the arrays of one grid may take (estimate, before allocating)
 
@@ -144,19 +145,18 @@ def read_bytes(path: str, kind: str | None = None, error=VrsimError, limit: int 
 
 def check_siblings(path: str, error=VrsimError) -> None:
     """Check the files a library may open beside ``path`` (GDAL's ``x.tif.aux.xml``, ``x.tfw``,
-    ``x_rpc.txt``; a shapefile's ``.dbf``/``.shx``/``.prj``): every entry of the folder whose name starts
-    with the file's stem is a folder or a regular file within its format's cap (a FIFO ``x.tif.aux.xml``
-    would hang GDAL)."""
+    ``x_rpc.txt``; a shapefile's ``.dbf``/``.shx``/``.prj``): every entry of the folder named ``x.*`` or
+    ``x_rpc.txt`` is a folder or a regular file (a FIFO ``x.tif.aux.xml`` would hang GDAL), and the
+    ones parsed whole (XML, ``.prj``) are within their caps."""
     folder = os.path.dirname(os.path.abspath(path))
     stem = os.path.splitext(os.path.basename(path))[0].lower()
-    main_kind = kind_of(path)
     try:
         names = os.listdir(folder)
         main = os.stat(path)
     except OSError as exc:
         raise error(f"{path}: cannot read its folder: {exc.strerror}") from None
     for name in names:
-        if not name.lower().startswith(stem):
+        if not (name.lower().startswith(stem + ".") or name.lower() == stem + "_rpc.txt"):
             continue
         sibling = os.path.join(folder, name)
         try:
@@ -167,8 +167,8 @@ def check_siblings(path: str, error=VrsimError) -> None:
             raise error(f"{sibling}: cannot stat: {exc.strerror}") from None
         if stat.S_ISDIR(st.st_mode) or (st.st_dev, st.st_ino) == (main.st_dev, main.st_ino):
             continue
-        kind = kind_of(sibling, main_kind)
-        _check_stat(sibling, st, kind, cap_for(kind), error)
+        kind = kind_of(sibling)
+        _check_stat(sibling, st, kind, cap_for(kind) if kind in SIDECARS_READ_WHOLE else float("inf"), error)
 
 
 # -------------------------------------------------------------------------------------- zip archives

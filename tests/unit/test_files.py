@@ -93,7 +93,16 @@ def test_siblings_a_library_may_open_must_be_regular(tmp_path):
     (tmp_path / "rx.tfw").write_text("1\n0\n0\n-1\n0\n0\n")
     (tmp_path / "other.tif.aux.xml").write_text("")
     os.mkfifo(tmp_path / "other_fifo")
+    for other in ("rx.tif.bak", "rx.zip", "rx_big.tif"):  # beside it, not parsed whole: type only, no size
+        with open(tmp_path / other, "wb") as fh:
+            fh.truncate(2 * files.GiB)
+    os.mkfifo(tmp_path / "rx_other_fifo")
     files.check_siblings(str(tif), MapError)
+    with open(tmp_path / "rx.tif.aux.xml", "wb") as fh:
+        fh.truncate(files.BYTE_CAPS["xml"] + 1)
+    with pytest.raises(MapError, match=r"rx.tif.aux.xml: 67,108,865 bytes is over the 64 MB cap for xml"):
+        files.check_siblings(str(tif), MapError)
+    os.unlink(tmp_path / "rx.tif.aux.xml")
     os.mkfifo(tmp_path / "rx.tif.aux.xml")
     with pytest.raises(MapError, match=r"rx.tif.aux.xml: is a FIFO"):
         files.check_siblings(str(tif), MapError)
