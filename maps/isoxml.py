@@ -36,14 +36,12 @@ import numpy as np
 from affine import Affine
 from defusedxml import DefusedXmlException
 
-from common import MapError, __version__
+from common import MapError, __version__, files
 from maps.crs import WGS84
 from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
 from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
-
-MAX_XML_BYTES = 64 * 1024 * 1024
 
 
 class _Folder:
@@ -51,8 +49,11 @@ class _Folder:
 
     def __init__(self, path: str):
         self.path = path
-        if zipfile.is_zipfile(path):
-            self._zip = zipfile.ZipFile(path)
+        is_dir = os.path.isdir(path)
+        if not is_dir:
+            files.check_file(path, error=MapError)  # before is_zipfile opens it: a FIFO would block
+        if not is_dir and zipfile.is_zipfile(path):
+            self._zip = files.open_zip(path, MapError)
             names = [n for n in self._zip.namelist() if not n.endswith("/")]
             xmls = [n for n in names if posixpath.basename(n).upper() == "TASKDATA.XML"]
             if not xmls:
@@ -65,7 +66,7 @@ class _Folder:
         else:
             self._zip = None
             self.xml_name = path
-            if os.path.isdir(path):
+            if is_dir:
                 found = [os.path.join(d, n) for d in (path, os.path.join(path, "TASKDATA"))
                          if os.path.isdir(d) for n in os.listdir(d) if n.upper() == "TASKDATA.XML"]
                 if not found:
@@ -86,7 +87,7 @@ class _Folder:
             self._zip.close()
 
     def read_xml(self) -> bytes:
-        return self._read(self.xml_name, MAX_XML_BYTES, "TASKDATA.XML")
+        return self._read(self.xml_name, files.cap_for("xml"))
 
     def size(self, name: str) -> int | None:
         member = self._names.get(name.upper())
@@ -95,21 +96,13 @@ class _Folder:
         return self._zip.getinfo(member).file_size if self._zip else os.path.getsize(member)
 
     def read(self, name: str, limit: int) -> bytes:
-        return self._read(self._names[name.upper()], limit, name)
+        return self._read(self._names[name.upper()], limit)
 
-    def _read(self, member: str, limit: int, label: str) -> bytes:
-        try:
-            if self._zip:
-                with self._zip.open(member) as f:
-                    data = f.read(limit + 1)
-            else:
-                with open(member, "rb") as f:
-                    data = f.read(limit + 1)
-        except (OSError, zipfile.BadZipFile) as exc:
-            raise MapError(f"{self.path}: cannot read {label}: {exc}") from None
-        if len(data) > limit:
-            raise MapError(f"{self.path}: {label} is larger than {limit:,} bytes")
-        return data
+    def _read(self, member: str, limit: int) -> bytes:
+        """A member of the archive or a file of the folder, regular and within ``limit`` bytes."""
+        if self._zip:
+            return files.read_member(self._zip, member, self.path, MapError, limit)
+        return files.read_bytes(member, error=MapError, limit=limit)
 
 
 def _attr(el, key: str, kind, where: str, required: bool = True):

@@ -12,6 +12,7 @@ its CRS in a ``.prj`` file beside it (WKT, as for a shapefile), and also has lon
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -19,7 +20,7 @@ import os
 import numpy as np
 from affine import Affine
 
-from common import MapError
+from common import MapError, files
 from maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.zones import RATE_NAMES, geojson_crs, geojson_features
@@ -112,14 +113,14 @@ def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
 def read_csv(path: str, rate_field: str | None = None, crs=None,
              max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read a CSV point table (x/y with a .prj or `crs`, or lon/lat) into a grid."""
+    data = files.read_bytes(path, "csv", MapError)
     try:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            table = {name: [] for name in reader.fieldnames or []}
-            for rec in reader:
-                for name in table:
-                    table[name].append(rec.get(name))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        reader = csv.DictReader(io.StringIO(data.decode("utf-8"), newline=""))
+        table = {name: [] for name in reader.fieldnames or []}
+        for rec in reader:
+            for name in table:
+                table[name].append(rec.get(name))
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise MapError(f"{path}: cannot read as CSV: {exc}") from None
     lower = {k.strip().lower(): k for k in table}
     xk = next((lower[n] for n in X_NAMES if n in lower), None)
@@ -127,11 +128,8 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
     if xk and yk:
         prj = os.path.splitext(path)[0] + ".prj"
         if os.path.exists(prj):
-            try:
-                with open(prj, encoding="utf-8", errors="replace") as f:  # as for a shapefile's .prj
-                    text = f.read()
-            except OSError as exc:
-                raise MapError(f"{prj}: cannot read: {exc.strerror}") from None
+            # decoded as a shapefile's .prj is
+            text = files.read_bytes(prj, "prj", MapError).decode("utf-8", "replace")
             src_crs = crs_from_prj(text, prj)
         elif crs is not None:
             src_crs = as_crs(crs, "crs")
