@@ -76,7 +76,7 @@ def _mb(n: int) -> str:
 
 def _too_large(path: str, size: int, kind: str | None, cap: int, error) -> VrsimError:
     return error(f"{path}: {size:,} bytes is over the {_mb(cap)} cap for {kind or 'such'} files "
-                 "(raise the cap with common.files.set_byte_caps if the file is real)")
+                 "(raise it with --max-input-mb, or common.files.set_byte_caps, if the file is real)")
 
 
 def _check_stat(path: str, st: os.stat_result, kind: str | None, cap: int, error) -> int:
@@ -172,6 +172,73 @@ def check_siblings(path: str, error=VrsimError) -> None:
         _check_stat(sibling, st, kind, cap_for(kind) if kind in SIDECARS_READ_WHOLE else float("inf"), error)
 
 
+# -------------------------------------------------------------------------------------- confinement
+def _inside(path: str, folder: str) -> bool:
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...] = (),
+                 label: str | None = None) -> str:
+    """Refuse ``path`` unless it lies under ``root`` and outside every ``private`` folder, symlinks
+    resolved, before anything opens it; returns the resolved path.
+
+    What a reader may open along with it is checked too: a folder's entries (and those of its
+    ``TASKDATA`` subfolder, as an ISOXML reader looks there) and a file's siblings ``x.*`` (a
+    shapefile's ``.dbf``, GDAL's ``.aux.xml``). The message names the path as given (``label``) and
+    says nothing of whether it exists or what it holds.
+    """
+    label = label or path
+    root = os.path.realpath(root)
+    hidden = tuple(os.path.realpath(p) for p in private)
+
+    def refuse_outside(candidate: str) -> str:
+        real = os.path.realpath(candidate)
+        if not _inside(real, root) or any(_inside(real, h) for h in hidden):
+            raise error(f"{label}: outside the data root {root} (or in its private state folder); "
+                        "refused without reading it")
+        return real
+
+    real = refuse_outside(path)
+    if os.path.isdir(real):
+        folders = [real] + [os.path.join(real, n) for n in _names(real) if n.upper() == "TASKDATA"]
+        for folder in folders:
+            for name in _names(folder):
+                refuse_outside(os.path.join(folder, name))
+    else:
+        folder, stem = os.path.dirname(real), os.path.splitext(os.path.basename(real))[0].lower()
+        for name in _names(folder):
+            if name.lower().startswith(stem + "."):
+                refuse_outside(os.path.join(folder, name))
+    return real
+
+
+def _names(folder: str) -> list[str]:
+    try:
+        return os.listdir(folder)
+    except OSError:
+        return []
+
+
+# What a reader may quote from a file in an error message (a header, a cell value, a root tag). A
+# service that reads files named by others over the bus turns this off: then messages name the file
+# and the place in it, never what it holds.
+_SHOW_CONTENT = [True]
+
+
+def show_content(on: bool) -> None:
+    """Let readers quote file content in error messages (the default) or not (`vrsim serve`)."""
+    _SHOW_CONTENT[0] = bool(on)
+
+
+def shown(value, limit: int = 60) -> str:
+    """``repr(value)`` shortened to ``limit`` characters for an error message, or ``(not shown)`` when
+    `show_content` is off."""
+    if not _SHOW_CONTENT[0]:
+        return "(not shown)"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 # -------------------------------------------------------------------------------------- zip archives
 _EOCD = b"PK\x05\x06"
 _ZIP64_LOCATOR = b"PK\x06\x07"
@@ -264,12 +331,19 @@ def check_grid_memory(rows: int, cols: int, bytes_per_cell: int, where: str, err
                       max_bytes: int | None = None) -> None:
     """Refuse a grid whose arrays (``bytes_per_cell`` over all of them) would exceed `MAX_GRID_BYTES`
     (or ``max_bytes``) or the memory available right now, before allocating anything."""
-    need = rows * cols * bytes_per_cell
+    check_memory(rows * cols * bytes_per_cell, f"a grid of {rows:,} rows x {cols:,} columns "
+                 f"({bytes_per_cell} bytes per cell)", where, error, max_bytes)
+
+
+def check_memory(need_bytes: float, what: str, where: str, error=VrsimError,
+                 max_bytes: int | None = None) -> None:
+    """Refuse ``what`` when the ``need_bytes`` it would allocate exceed `MAX_GRID_BYTES` (or
+    ``max_bytes``) or the memory available right now."""
     cap = MAX_GRID_BYTES if max_bytes is None else max_bytes
-    if need > cap:
-        raise error(f"{where}: a grid of {rows:,} rows x {cols:,} columns needs about {need / GiB:,.1f} GB "
-                    f"({bytes_per_cell} bytes per cell), over the {cap / GiB:,.1f} GB cap")
+    if need_bytes > cap:
+        raise error(f"{where}: {what} needs about {need_bytes / GiB:,.1f} GB, over the "
+                    f"{cap / GiB:,.1f} GB cap")
     available = available_memory_bytes()
-    if available is not None and need > available:
-        raise error(f"{where}: a grid of {rows:,} rows x {cols:,} columns needs about {need / GiB:,.1f} GB, "
-                    f"more than the {available / GiB:,.1f} GB of memory available")
+    if available is not None and need_bytes > available:
+        raise error(f"{where}: {what} needs about {need_bytes / GiB:,.1f} GB, more than the "
+                    f"{available / GiB:,.1f} GB of memory available")

@@ -17,6 +17,9 @@ from controller import liang2013
 KINDS = ("P", "PI", "PID")
 FORMS = ("incremental", "positional")
 GAIN_SOURCES = ("paper", "textbook", "relay", "manual")
+# Far above any useful gain (the paper's PID: kp 0.57 V/V, ki 2.1 /s), and far below where
+# kp * error overflows a float64 in the loop (1e308 turns the valve current into NaN).
+MAX_GAIN = 1e6
 
 
 @dataclass(frozen=True)
@@ -85,7 +88,7 @@ class ControllerConfig:
         if "kp" not in given:
             raise ControllerError("controller kp is required with gains='manual', got None")
         for name, value in given.items():
-            check_number(value, f"controller {name}", ControllerError, lo=0.0)
+            check_number(value, f"controller {name}", ControllerError, lo=0.0, hi=MAX_GAIN)
         if given.get("ki") and "I" not in self.kind:
             raise ControllerError(f"controller ki needs kind PI or PID (kind is {self.kind!r}), "
                                   f"got {self.ki!r}")

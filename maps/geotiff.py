@@ -71,7 +71,8 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
                            f"from row {r0}")
         if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
-            raise MapError(f"{path}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
+            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} kg/ha at row {row}, "
+                           f"column {col}")
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
                 quantity=quantity)
 

@@ -114,7 +114,7 @@ def _attr(el, key: str, kind, where: str, required: bool = True):
     try:
         return int(raw, 16) if kind == "hex" else kind(raw)
     except ValueError:
-        raise MapError(f"{where}: {el.tag} attribute {key}={raw!r} is not a valid "
+        raise MapError(f"{where}: {el.tag} attribute {key}={files.shown(raw)} is not a valid "
                        f"{'hexadecimal DDI' if kind == 'hex' else kind.__name__}") from None
 
 
@@ -142,7 +142,7 @@ def parse_xml(data: bytes, where: str, name: str, root_tag: str):
     except ParseError as exc:
         raise MapError(f"{where}: {name} is not well-formed XML: {exc}") from None
     if root.tag != root_tag:
-        raise MapError(f"{where}: {name}: root element is <{root.tag}>, not <{root_tag}>")
+        raise MapError(f"{where}: {name}: root element is {files.shown(root.tag)}, not <{root_tag}>")
     return root
 
 
@@ -197,8 +197,8 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
         raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., ddis.index(6)]
         if (raw < 0).any():
             r, c = np.argwhere(raw < 0)[0]
-            raise MapError(f"{where}: negative rate {int(raw[r, c])} mg/m^2 in {name} at row {r} "
-                           f"(from south), column {c}")
+            raise MapError(f"{where}: negative rate {files.shown(int(raw[r, c]))} mg/m^2 in {name} at "
+                           f"row {r} (from south), column {c}")
         rates = raw.astype(np.float64) * KG_HA_PER_MG_M2
         product_ref = layers[ddis.index(6)][2]
     else:
@@ -229,7 +229,8 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
         for ddi, value, product in values:
             if ddi == DDI_MASS_PER_AREA and 0 <= code <= 255:
                 if value < 0:
-                    raise MapError(f"{where}: treatment zone {code} has a negative rate {value} mg/m^2")
+                    raise MapError(f"{where}: treatment zone {code} has a negative rate "
+                                   f"{files.shown(value)} mg/m^2")
                 table[code] = value * KG_HA_PER_MG_M2
                 product_ref = product_ref or product
     if np.isnan(table).all():

@@ -139,7 +139,7 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
         xk = next((lower[n] for n in LON_NAMES if n in lower), None)
         yk = next((lower[n] for n in LAT_NAMES if n in lower), None)
         if not (xk and yk):
-            raise MapError(f"{path}: needs x,y or lon,lat columns; has {list(table)}")
+            raise MapError(f"{path}: needs x,y or lon,lat columns; has {files.shown(list(table), 200)}")
         src_crs = WGS84
     x, y = (_numbers(path, table.pop(k), k) for k in (xk, yk))
     for k in list(table):  # coordinates of the other kind (lon/lat beside x/y) are not attributes
@@ -157,9 +157,9 @@ def _numbers(path: str, values: list, name: str, allow_empty: bool = False) -> n
         try:
             out[i] = float(v)
         except (TypeError, ValueError):
-            raise MapError(f"{path}: record {i}: {name}={v!r} is not a number") from None
+            raise MapError(f"{path}: record {i}: {name}={files.shown(v)} is not a number") from None
         if not math.isfinite(out[i]):
-            raise MapError(f"{path}: record {i}: {name}={v!r} is not finite")
+            raise MapError(f"{path}: record {i}: {name}={files.shown(v)} is not finite")
     return out
 
 
@@ -169,17 +169,18 @@ def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid
     lower = {k.lower(): k for k in table}
     if rate_field is not None:
         if rate_field not in table:
-            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: {sorted(table)}")
+            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: "
+                           f"{files.shown(sorted(table), 200)}")
         rk = rate_field
     else:
         rk = next((lower[n] for n in RATE_NAMES if n in lower), None)
         if rk is None:
-            raise MapError(f"{path}: no rate attribute among {sorted(table)}; name one with rate_field= / "
-                           "--rate-field")
+            raise MapError(f"{path}: no rate attribute among {files.shown(sorted(table), 200)}; name one "
+                           "with rate_field= / --rate-field")
     rate = _numbers(path, table[rk], rk, allow_empty=True)
     if (rate < 0).any():
         i = int(np.argmax(rate < 0))
-        raise MapError(f"{path}: record {i}: negative rate {rk}={rate[i]}")
+        raise MapError(f"{path}: record {i}: negative rate {rk}={files.shown(float(rate[i]))}")
     if "row" in lower and "col" in lower:
         row = _numbers(path, table[lower["row"]], "row").astype(np.int64)
         col = _numbers(path, table[lower["col"]], "col").astype(np.int64)

@@ -123,7 +123,8 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
     """The rate attribute: the user's, else a known name, else the only numeric one."""
     if rate_field is not None:
         if rate_field not in fields:
-            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: {sorted(fields)}")
+            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: "
+                           f"{files.shown(sorted(fields), 200)}")
         return rate_field
     lower = {name.lower(): name for name in fields}
     for candidate in RATE_NAMES:
@@ -135,7 +136,8 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
                       MapWarning, stacklevel=3)
         return numeric[0]
     raise MapError(f"{path}: cannot tell which attribute is the rate; numeric attributes: "
-                   f"{numeric or 'none'}; name one with rate_field= / --rate-field")
+                   f"{files.shown(numeric, 200) if numeric else 'none'}; name one with rate_field= / "
+                   "--rate-field")
 
 
 def _rates(path: str, values: list, name: str) -> np.ndarray:
@@ -144,11 +146,11 @@ def _rates(path: str, values: list, name: str) -> np.ndarray:
         try:
             out[i] = float(value)
         except (TypeError, ValueError):
-            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r} is not a number") \
-                from None
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {files.shown(value)} is not a "
+                           "number") from None
         if not math.isfinite(out[i]) or out[i] < 0:
-            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r}: rates must be "
-                           "finite and not negative")
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {files.shown(value)}: rates must "
+                           "be finite and not negative")
     return out
 
 
@@ -282,7 +284,7 @@ def geojson_crs(doc: dict, path: str):
     try:
         return as_crs(member["properties"]["name"], f"{path}: crs")
     except (KeyError, TypeError):
-        raise MapError(f"{path}: crs member {member!r} is not "
+        raise MapError(f"{path}: crs member {files.shown(member)} is not "
                        "{'type': 'name', 'properties': {'name': ...}}") from None
 
 

@@ -219,13 +219,13 @@ def _read_geojson(path: str):
     props = member.get("properties") if isinstance(member, dict) else None
     name = props.get("name") if isinstance(props, dict) else None
     if member and not name:
-        raise VehicleError(f"field file {path}: crs member {member!r} is not "
+        raise VehicleError(f"field file {path}: crs member {files.shown(member)} is not "
                            "{'type': 'name', 'properties': {'name': ...}}")
     if name:
         try:
             crs = pyproj.CRS.from_user_input(name)
         except (pyproj.exceptions.CRSError, TypeError):
-            raise VehicleError(f"field file {path}: crs name {name!r} is not a CRS") from None
+            raise VehicleError(f"field file {path}: crs name {files.shown(name)} is not a CRS") from None
     geoms = _geojson_geometries(doc)
     polys = [g for g in geoms if isinstance(g, dict) and g.get("type") in ("Polygon", "MultiPolygon")]
     if not polys:

@@ -91,9 +91,20 @@ def _short(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _loads(data, what: str):
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # one message or batch of records (a pose batch is ~0.3 MB)
+MAX_BATCH_RECORDS = 10_000  # records in one batch (ticks_per_message is at most 1000)
+MAX_POINTS = 1_000_000  # points in one map/rate body: its reply takes ~0.3 GB while it is built
+# A map/rate body: two arrays of full-precision coordinates take ~40 bytes a point. The cap keeps the
+# parsed lists (a float is 32 bytes, and "1.0," packs one into 4 bytes) under ~0.4 GB.
+MAX_POINTS_BYTES = 48 * 1024 * 1024
+
+
+def _loads(data, what: str, max_bytes: int = MAX_MESSAGE_BYTES):
+    """Parse JSON bytes, refusing an empty or oversize payload before parsing."""
     if data is None or len(data) == 0:
         raise ServiceError(f"{what}: empty payload, expected JSON")
+    if len(data) > max_bytes:
+        raise ServiceError(f"{what}: a payload of {len(data):,} bytes is over the {max_bytes:,}-byte limit")
     try:
         return orjson.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:  # orjson.JSONDecodeError is a ValueError
@@ -123,9 +134,10 @@ def encode_batch(records) -> bytes:
     return dumps(list(records))
 
 
-def decode_batch(cls, data, max_len: int = 100_000) -> list:
-    """Decode a JSON array of ``cls`` messages (a single object is accepted as a batch of one)."""
-    doc = _loads(data, f"{cls.__name__} batch")
+def decode_batch(cls, data, max_len: int = MAX_BATCH_RECORDS, max_bytes: int = MAX_MESSAGE_BYTES) -> list:
+    """Decode a JSON array of ``cls`` messages (a single object is accepted as a batch of one); at most
+    ``max_bytes`` of JSON (checked before parsing) and ``max_len`` records."""
+    doc = _loads(data, f"{cls.__name__} batch", max_bytes)
     if isinstance(doc, dict):
         doc = [doc]
     if not isinstance(doc, list) or not doc:
@@ -205,16 +217,18 @@ class MapRate(Message):
     col: int | None
 
 
-def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.ndarray, bool]:
+def decode_points(data, max_points: int = MAX_POINTS,
+                  max_bytes: int = MAX_POINTS_BYTES) -> tuple[np.ndarray, np.ndarray, bool]:
     """The batch body of ``<prefix>/map/rate``: ``{"x": [...], "y": [...]}`` (map CRS) or
-    ``{"lat": [...], "lon": [...]}`` (WGS84 degrees).
+    ``{"lat": [...], "lon": [...]}`` (WGS84 degrees); at most ``max_bytes`` (checked before parsing)
+    and ``max_points`` points (checked before converting).
 
     Returns
     -------
     (first, second, geographic) : (ndarray (n,), ndarray (n,), bool)
         x, y in the map's CRS, or lon, lat with ``geographic`` True.
     """
-    doc = _loads(data, "map/rate batch")
+    doc = _loads(data, "map/rate batch", max_bytes)
     if not isinstance(doc, dict) or set(doc) not in ({"x", "y"}, {"lat", "lon"}):
         keys = sorted(doc) if isinstance(doc, dict) else _short(doc)
         raise ServiceError(f"map/rate batch: body must be {{\"x\": [...], \"y\": [...]}} or "
@@ -226,6 +240,8 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
         values = doc[name]
         if not isinstance(values, list):
             raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {_short(values)}")
+        if len(values) > max_points:
+            raise ServiceError(f"map/rate batch: {len(values):,} points, at most {max_points:,} per query")
         # type() rather than isinstance: bools (an int subclass) and numeric strings are refused.
         if not set(map(type, values)) <= {float, int}:
             bad = next(v for v in values if type(v) is not float and type(v) is not int)
@@ -235,8 +251,6 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
     first, second = arrays
     if len(first) != len(second):
         raise ServiceError(f"map/rate batch: {names[0]} has {len(first)} values, {names[1]} {len(second)}")
-    if len(first) > max_points:
-        raise ServiceError(f"map/rate batch: {len(first)} points, at most {max_points} per query")
     bad = ~np.isfinite(first) | ~np.isfinite(second)
     if geo:
         bad |= (np.abs(second) > 90.0) | (np.abs(first) > 180.0)

@@ -52,6 +52,7 @@ PASSWORD_BYTES = 24  # secrets.token_urlsafe: 32 characters of [A-Za-z0-9_-], ne
 # service sees them): a lockstep pose batch is ~300 kB, a scenario ~1 MB; map/rate batches are the
 # big ones.
 MAX_BODY_BYTES = 64 * 1024 * 1024
+MESSAGE_OVERHEAD_BYTES = 1024 * 1024  # a message's key expression, parameters and headers
 
 
 # ------------------------------------------------------------------------------------------ grants
@@ -383,6 +384,9 @@ def router_settings(state: SecurityState, keys: Keys, listen: list[str],
         "access_control": acl_config(keys, user_roles),
         "low_pass_filter": [{"id": "vrsim-bodies", "messages": ["put", "query"],
                              "key_exprs": [everything(keys)], "size_limit": max_body_bytes}],
+        # A message is reassembled from its fragments before any filter sees it: past this size the
+        # router drops the fragments instead of buffering them (zenoh's default is 1 GiB).
+        "transport/link/rx/max_message_size": max_body_bytes + MESSAGE_OVERHEAD_BYTES,
     }
     if state.tls:
         out["transport/link/tls/listen_certificate"] = state.tls_file("router.pem")
@@ -391,17 +395,32 @@ def router_settings(state: SecurityState, keys: Keys, listen: list[str],
 
 
 def client_settings(state: SecurityState, user: str, connect: list[str]) -> dict[str, object]:
-    """Configuration entries (path -> JSON value) that log a zenoh client in as ``user``."""
+    """Configuration entries (path -> JSON value) that make a zenoh client of ``connect`` logged in
+    as ``user``."""
     _check_endpoints(state, connect, "connect")
-    out: dict[str, object] = {
-        "mode": "client",
-        "connect/endpoints": list(connect),
-        "transport/auth/usrpwd/user": user,
-        "transport/auth/usrpwd/password": state.password(user),
-    }
+    return {"mode": "client", "connect/endpoints": list(connect), **credential_settings(state, user)}
+
+
+def credential_settings(state: SecurityState, user: str) -> dict[str, object]:
+    """The entries that log a session in as ``user``: user, password and, with TLS, the CA to trust."""
+    out: dict[str, object] = {"transport/auth/usrpwd/user": user,
+                              "transport/auth/usrpwd/password": state.password(user)}
     if state.tls:
         out["transport/link/tls/root_ca_certificate"] = state.tls_file("ca.pem")
     return out
+
+
+def recorded_endpoints(state: SecurityState, user: str) -> list[str]:
+    """The endpoints ``<folder>/<user>.json5`` connects to: where the router that wrote the state
+    folder listens (empty when there is no such file)."""
+    data = _read_private(state.config_file(user))
+    if data is None:
+        return []
+    try:
+        endpoints = json.loads(data)["connect"]["endpoints"]
+    except (ValueError, KeyError, TypeError):
+        raise ServiceError(f"{state.config_file(user)}: not a client configuration vrsim wrote") from None
+    return [e for e in endpoints if isinstance(e, str)]
 
 
 def _check_endpoints(state: SecurityState, endpoints: list[str], what: str) -> None:

@@ -6,6 +6,8 @@ import os
 import sys
 import time
 
+from services.cli.options import add_input_cap, apply_input_cap
+
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
 
 
@@ -16,6 +18,7 @@ def configure(parser) -> None:
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    add_input_cap(parser)
 
 
 class Progress:
@@ -48,6 +51,7 @@ def run(args) -> int:
     from services.sim import run as field_run
     from services.sim import scenario
 
+    apply_input_cap(args)
     sc = scenario.load(args.scenario)
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:

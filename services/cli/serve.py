@@ -4,6 +4,11 @@
 map, vehicle, controller, monitor and scenario as child processes connected to it; Ctrl-C or SIGTERM
 stops them all. A single service is a client of a router (``--connect``, default 127.0.0.1:7448), or
 a router itself with ``--listen``. See docs/api.md for the keys.
+
+Secure by default (docs/api.md, "Security"): the router generates credentials into the private
+``--state-dir`` and enforces who may do what, every child logs in as its own user, files named by
+scenarios from the bus must lie under ``--data-root`` and error messages quote no file content.
+``--insecure`` opens the bus, with a warning.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ import sys
 import threading
 import time
 
-from common import ServiceError
+from common import ServiceError, files
 from services.bus.client import alive_services, request_json
 from services.bus.config import (
     SERVICES,
@@ -28,6 +33,7 @@ from services.bus.config import (
     options_from_args,
 )
 from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
+from services.cli.options import add_input_cap, apply_input_cap
 
 HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, or all"
 CHOICES = (*SERVICES, "router", "all")
@@ -54,10 +60,24 @@ def configure(parser) -> None:
     parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
     parser.add_argument("--ticks-per-message", type=int, default=None, metavar="N",
                         help="all: lockstep ticks per message (default 50)")
+    parser.add_argument("--data-root", metavar="DIR", default=".",
+                        help="files named by scenarios received over the bus must lie under DIR "
+                             "(default: the folder serve runs in)")
+    add_input_cap(parser)
+
+
+INSECURE_WARNING = ("vrsim serve {name}: WARNING: --insecure: no authentication and no access control; any "
+                    "process that reaches {where} can read every stream, start and stop runs, load maps and "
+                    "forge records")
 
 
 def run(args) -> int:
     config = service_config(args)
+    apply_input_cap(args)
+    files.show_content(False)  # files are named by others over the bus: messages never quote them
+    if config.zenoh.insecure:
+        where = ", ".join(config.zenoh.local_endpoints())
+        print(INSECURE_WARNING.format(name=args.service, where=where), file=sys.stderr, flush=True)
     if args.scenario is not None and args.service not in ("all", "map"):
         raise ServiceError(f"serve {args.service}: takes no SCENARIO ({args.scenario!r}); scenario control "
                            "sends each service the run's scenario (give it to `vrsim serve all` or "
@@ -68,15 +88,21 @@ def run(args) -> int:
 
 
 def service_config(args) -> ServiceConfig:
+    if not os.path.isdir(args.data_root):
+        raise ServiceError(f"--data-root {args.data_root}: not a folder")
     return ServiceConfig(zenoh=options_from_args(args), scenario=args.scenario, map_file=args.map,
-                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db)
+                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db,
+                         data_root=args.data_root)
 
 
 def _child_argv(args, options: ZenohOptions, name: str) -> list[str]:
     argv = [sys.executable, "-m", "services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
-    argv += options.child_args()
+    argv += options.child_args(name)
+    argv += ["--data-root", os.path.abspath(args.data_root)]
+    if args.max_input_mb is not None:
+        argv += ["--max-input-mb", repr(args.max_input_mb)]
     if name == "map":
         if args.map is not None:
             argv += ["--map", os.path.abspath(args.map)]
@@ -122,8 +148,10 @@ def serve_all(args, options: ZenohOptions) -> int:
                 reply = request_json(session, start_selector, start_payload, timeout_s=120.0,
                                         what="vrsim serve all: starting the scenario")
                 print(f"vrsim serve all: started run {reply['run_id']}", file=sys.stderr, flush=True)
+            login = "" if options.insecure else \
+                f", log in with {os.path.join(options.state_dir, '<user>.json5')} (operator, viewer)"
             print(f"vrsim serve all: ready ({options.describe('router')}, prefix {options.prefix}, "
-                  f"machine {options.machine}); Ctrl-C stops", file=sys.stderr, flush=True)
+                  f"machine {options.machine}{login}); Ctrl-C stops", file=sys.stderr, flush=True)
             reported: set[str] = set()
 
             def watch() -> bool:

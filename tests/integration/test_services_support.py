@@ -1,5 +1,6 @@
 """Helpers for the services' integration tests: a field and map with known cells, a `vrsim serve all`
-on a free loopback port, a zenoh client session in the test process, and child-process lookup."""
+on a free loopback port (secure: its state folder in the folder it runs in), a zenoh client session in
+the test process logged in as the operator, and child-process lookup."""
 
 from __future__ import annotations
 
@@ -64,11 +65,14 @@ width_m = 12.0
 
 
 class ServeAll:
-    """`vrsim serve all [SCENARIO]` as a real process group member on a free port."""
+    """`vrsim serve all [SCENARIO]` in ``folder`` (its data root, with its state folder ``.vrsim``) on a
+    free port."""
 
     def __init__(self, folder: str, *extra: str):
         self.port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.folder = folder
+        self.state = os.path.join(folder, ".vrsim")
         self.db = os.path.join(folder, f"monitor-{self.port}.sqlite")
         self.log = open(os.path.join(folder, f"serve-{self.port}.log"), "w+")
         argv = [VRSIM, "serve", "all", *extra, "--listen", self.endpoint, "--db", self.db]
@@ -83,7 +87,7 @@ class ServeAll:
             if time.monotonic() > deadline:
                 raise AssertionError(f"vrsim serve all not ready after {timeout_s} s:\n{self.output()}")
             time.sleep(0.1)
-        self.session = open_client(self.endpoint)
+        self.session = open_client(self.endpoint, self.state)
 
     def output(self) -> str:
         self.log.flush()
@@ -106,8 +110,14 @@ class ServeAll:
         return False, json.loads(reply.err.payload.to_bytes())
 
     def cli(self, *args: str, stdin: bytes | None = None) -> subprocess.CompletedProcess:
-        return subprocess.run([VRSIM, *args, "--connect", self.endpoint], input=stdin, capture_output=True,
-                              timeout=60)
+        """`vrsim ARGS` as the operator (``--state-dir`` of this serve all)."""
+        return subprocess.run([VRSIM, *args, "--connect", self.endpoint, "--state-dir", self.state],
+                              input=stdin, capture_output=True, timeout=60)
+
+    def serve(self, name: str, *extra: str) -> subprocess.Popen:
+        """`vrsim serve NAME` started by hand as a client of this router, logged in as NAME."""
+        return subprocess.Popen([VRSIM, "serve", name, "--connect", self.endpoint, "--state-dir", self.state,
+                                 *extra], cwd=self.folder, stderr=subprocess.DEVNULL)
 
     def wait_status(self, predicate, timeout_s: float = 120.0) -> dict:
         deadline = time.monotonic() + timeout_s
@@ -131,10 +141,12 @@ class ServeAll:
             self.log.close()
 
 
-def open_client(endpoint: str):
+def open_client(endpoint: str, state: str | None = None, user: str = "operator"):
+    """A plain zenoh client of ``endpoint``: logged in as ``user`` with the configuration file the state
+    folder ``state`` holds for it, or anonymous (``state`` None: an insecure bus)."""
     import zenoh
 
-    conf = zenoh.Config()
+    conf = zenoh.Config.from_file(os.path.join(state, f"{user}.json5")) if state else zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")

@@ -110,7 +110,8 @@ def test_siblings_a_library_may_open_must_be_regular(tmp_path):
 
 def test_grid_memory_is_estimated_before_allocating(tmp_path):
     files.check_grid_memory(1000, 1000, 16, "small", MapError)
-    with pytest.raises(MapError, match=r"huge: a grid of 100,000 rows x 100,000 columns needs about 149"):
+    with pytest.raises(MapError, match=r"huge: a grid of 100,000 rows x 100,000 columns "
+                                       r"\(16 bytes per cell\) needs about 149"):
         files.check_grid_memory(100_000, 100_000, 16, "huge", MapError)
     meminfo = tmp_path / "meminfo"
     meminfo.write_text("MemTotal:       24684816 kB\nMemAvailable:   1048576 kB\n")
