@@ -75,7 +75,7 @@ def run(args) -> int:
     config = service_config(args)
     apply_input_cap(args)
     files.show_content(False)  # files are named by others over the bus: messages never quote them
-    if config.zenoh.insecure:
+    if config.zenoh.insecure and not os.environ.get(PARENT_ENV):  # serve all warns for its children
         where = ", ".join(config.zenoh.local_endpoints())
         print(INSECURE_WARNING.format(name=args.service, where=where), file=sys.stderr, flush=True)
     if args.scenario is not None and args.service not in ("all", "map"):

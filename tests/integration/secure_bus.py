@@ -1,5 +1,5 @@
-"""Helpers for the security tests: a router enforcing `services.bus.security` in its own process, and
-sessions logged in as any user from the state folder's client configurations."""
+"""Helpers for the security tests: `vrsim serve router` (a router enforcing `services.bus.security`) in
+its own process, and sessions logged in as any user from the state folder's client configurations."""
 
 from __future__ import annotations
 
@@ -7,30 +7,28 @@ import json
 import os
 import select
 import subprocess
-import sys
 import time
 
-from tests.conftest import ROOT
+from tests.conftest import VRSIM
 from tests.integration.test_services_support import free_port
 
 P, K = "vrsim", "vrsim/tractor1"
 
 
 class SecureRouter:
-    """``python -m tests.integration.secure_router`` on a free loopback port."""
+    """``vrsim serve router --listen ENDPOINT --state-dir FOLDER/state [--tls]`` on a free loopback port."""
 
     def __init__(self, folder: str, tls: bool = False, timeout_s: float = 30.0):
         self.state = os.path.join(folder, "state")
         self.endpoint = f"{'tls' if tls else 'tcp'}/127.0.0.1:{free_port()}"
-        argv = [sys.executable, "-m", "tests.integration.secure_router", self.state, self.endpoint]
-        self.proc = subprocess.Popen(argv + (["--tls"] if tls else []), cwd=ROOT, stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE)
-        ready, _, _ = select.select([self.proc.stdout], [], [], timeout_s)
-        line = self.proc.stdout.readline() if ready else b""
-        if line.strip() != b"ready":
+        argv = [VRSIM, "serve", "router", "--listen", self.endpoint, "--state-dir", self.state]
+        self.proc = subprocess.Popen(argv + (["--tls"] if tls else []), cwd=folder, stderr=subprocess.PIPE)
+        self.sessions = []
+        ready, _, _ = select.select([self.proc.stderr], [], [], timeout_s)
+        line = self.proc.stderr.readline() if ready else b""
+        if b"ready" not in line:
             self.stop()
             raise AssertionError(f"secure router not ready within {timeout_s} s: {line!r}")
-        self.sessions = []
 
     def config_file(self, user: str) -> str:
         return os.path.join(self.state, f"{user}.json5")
@@ -47,9 +45,9 @@ class SecureRouter:
         return session
 
     def stop(self) -> None:
-        for session in getattr(self, "sessions", []):
+        for session in self.sessions:
             session.close()
-        self.proc.stdin.close()
+        self.proc.terminate()
         try:
             self.proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
