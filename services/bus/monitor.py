@@ -101,9 +101,10 @@ class MonitorStore:
         with self.lock:
             self.db.execute("BEGIN")
             try:
-                self.db.executemany(f"INSERT OR IGNORE INTO {table} VALUES ({marks})", rows)
-                self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
-                                (time.time(), records[0].run_id))
+                insert = f"INSERT OR IGNORE INTO {table} VALUES ({marks})"
+                if self.db.executemany(insert, rows).rowcount > 0:  # ticks already stored change nothing
+                    self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
+                                    (time.time(), records[0].run_id))
                 self.db.execute("COMMIT")
             except BaseException:
                 self.db.execute("ROLLBACK")

@@ -72,7 +72,7 @@ def _body(path: str | None) -> bytes | None:
     if path is None:
         return None
     if path != "-":
-        return files.read_bytes(path, error=ServiceError, limit=MAX_BODY_BYTES)
+        return files.read_bytes(path, "query body", ServiceError, limit=MAX_BODY_BYTES)
     data = sys.stdin.buffer.read(MAX_BODY_BYTES + 1)
     if len(data) > MAX_BODY_BYTES:
         raise ServiceError(f"--body -: standard input holds more than the {MAX_BODY_BYTES:,} bytes a body "

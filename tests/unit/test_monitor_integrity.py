@@ -37,8 +37,10 @@ def test_a_second_record_of_a_tick_never_replaces_the_first(tmp_path):
     store.add_run(start("r"))
     for table, recs in records("r", range(10)).items():
         store.add(table, recs)
+    last = store.run("r")["last_unix"]
     for table, recs in records("r", range(10), x_m=999.0).items():  # forged: same ticks, other values
         store.add(table, recs)
+    assert store.run("r")["last_unix"] == last
     track, _ = store.arrays("r")
     assert track["x_m"].tolist() == [1.0] * 10
     assert store.counts("r") == {"pose": 10, "shaft": 10, "rate": 10, "complete": 10}
