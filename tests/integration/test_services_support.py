@@ -68,9 +68,9 @@ class ServeAll:
     """`vrsim serve all [SCENARIO]` in ``folder`` (its data root, with its state folder ``.vrsim``) on a
     free port."""
 
-    def __init__(self, folder: str, *extra: str):
+    def __init__(self, folder: str, *extra: str, scheme: str = "tcp"):
         self.port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.endpoint = f"{scheme}/127.0.0.1:{self.port}"
         self.folder = folder
         self.state = os.path.join(folder, ".vrsim")
         self.db = os.path.join(folder, f"monitor-{self.port}.sqlite")
@@ -87,7 +87,7 @@ class ServeAll:
             if time.monotonic() > deadline:
                 raise AssertionError(f"vrsim serve all not ready after {timeout_s} s:\n{self.output()}")
             time.sleep(0.1)
-        self.session = open_client(self.endpoint, self.state)
+        self.session = open_client(self.endpoint, None if "--insecure" in self.proc.args else self.state)
 
     def output(self) -> str:
         self.log.flush()
