@@ -65,10 +65,14 @@ def test_insecure_is_an_open_bus_with_a_warning_and_the_services_still_bound_the
     folder = str(tmp_path)
     files = write_field_files(folder)
     # data root "/": the readers, not the root, meet the devices
-    server = ServeAll(folder, "--insecure", "--data-root", "/")
+    server = ServeAll(folder, "--insecure", "--data-root", "/", "--max-input-mb", "100")
     try:
         server.wait_ready()
         assert server.output().count("WARNING: --insecure: no authentication and no access control") == 1
+        for pid in server.children().values():  # every child gets the options that bound its input
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                argv = fh.read().split(b"\0")
+            assert argv[argv.index(b"--data-root") + 1] == b"/" and b"--max-input-mb" in argv
         assert not os.path.exists(server.state)  # no credentials made
         anonymous = server.session
         ok, _ = one_reply(anonymous, "vrsim/map/info")
