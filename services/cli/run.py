@@ -7,6 +7,8 @@ import os
 import sys
 import time
 
+from services.cli.options import add_input_cap, apply_input_cap
+
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
 
 
@@ -20,6 +22,7 @@ def configure(parser) -> None:
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    add_input_cap(parser)
 
 
 def default_out_dir(name: str, command: str = "") -> str:
@@ -61,6 +64,7 @@ def run(args) -> int:
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
 
+    apply_input_cap(args)
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     # The pictures are drawn in a second process, which imports matplotlib while the run simulates.

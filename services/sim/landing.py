@@ -66,19 +66,20 @@ def land(grid: Grid, track: dict, metered_kg, width_on_m, offset_m, delay_s, per
     return Landing(x0, y0, x1, y1, length, np.cumsum(length), rx, applied)
 
 
-def merged_strips(landing: Landing, metered_kg, width_m, offset_m, cell_m: float):
+def merged_strips(landing: Landing, metered_kg, width_m, offset_m, cell_m: float, breaks=()):
     """Consecutive ticks' strips joined into strips up to half a cell long: (x0, y0, x1, y1, width, kg).
 
     A tick's strip (0.125 m at 9 km/h and 50 ms) is far shorter than a map cell; joining k of them
     (their ends meet exactly) spreads each group's product evenly over at most half a cell, which
     changes per-cell figures by a blur far below the cell size and cuts the raster work k-fold. A
-    group also ends where the sections change, so a joined strip has one width and offset.
+    group also ends where the sections change, so a joined strip has one width and offset, and at
+    ``breaks`` (indices where a group must start: ticks missing before them).
     """
     n = len(metered_kg)
     typical = float(np.median(landing.strip_length_m)) if n else 0.0
     k = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
     change = np.flatnonzero((np.diff(width_m) != 0) | (np.diff(offset_m) != 0)) + 1
-    starts = np.union1d(np.arange(0, n, k), change).astype(np.int64)
+    starts = np.union1d(np.union1d(np.arange(0, n, k), change), np.asarray(breaks, np.int64)).astype(np.int64)
     ends = np.append(starts[1:], n) - 1
     return (landing.x0_m[starts], landing.y0_m[starts], landing.x1_m[ends], landing.y1_m[ends],
             np.asarray(width_m)[starts], np.add.reduceat(metered_kg, starts) if n else metered_kg)

@@ -192,7 +192,11 @@ def measure(scenario: Scenario, track: dict):
 
 
 def account(world: World, track: dict, control: dict, wall0: float):
-    """Land the metered product, build the as-applied raster and compute the summary."""
+    """Land the metered product, build the as-applied raster and compute the summary.
+
+    ``track["tick"]``, when given, numbers the ticks the arrays hold: a record with gaps (the monitor's
+    after it was down) lands each stretch on its own; ``ticks`` and ``sim_time_s`` count what is there.
+    """
     scenario, grid = world.scenario, world.grid
     implement, timing = scenario.implement, scenario.timing
     width_on = control.get("width_on_m", np.where(track["implement_on"], implement.width_m, 0.0))
@@ -200,7 +204,10 @@ def account(world: World, track: dict, control: dict, wall0: float):
     landing = land(grid, track, control["metered_kg"], width_on, offset, implement.delivery_delay_s,
                    timing.control_period_s)
     acc = AsApplied(grid)
-    acc.add_strips(*merged_strips(landing, control["metered_kg"], width_on, offset, min(grid.cell_size)))
+    # A record of some ticks only (a monitor that was down for a while): no strip joins across a gap.
+    breaks = np.flatnonzero(np.diff(track["tick"]) != 1) + 1 if "tick" in track else ()
+    acc.add_strips(*merged_strips(landing, control["metered_kg"], width_on, offset, min(grid.cell_size),
+                                  breaks))
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
     mm = map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, in_field,
