@@ -87,9 +87,10 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
 def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    shutil.copy(os.path.join(folder, "map.tif"), elsewhere)
     shutil.copy(os.path.join(folder, "my_controller.py"), elsewhere)
-    shutil.copy(os.path.join(folder, "user.toml"), elsewhere)
+    with open(os.path.join(folder, "user.toml")) as fh:  # its map stays in the data root (`folder`)
+        text = fh.read().replace('file = "map.tif"', f'file = "{os.path.join(folder, "map.tif")}"')
+    (elsewhere / "user.toml").write_text(text)
     net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
     ok, reply = start(net, str(elsewhere), "user")
     assert not ok

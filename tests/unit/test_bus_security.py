@@ -84,6 +84,25 @@ def test_acl_gives_each_user_its_own_subject_and_denies_by_default():
         security.acl_config(Keys(), {"eve": "root"})
 
 
+def test_the_web_user_gets_exactly_what_its_page_shows():
+    k = Keys("vrsim", "tractor1")
+    acl = security.acl_config(k)
+    rules = {r["id"]: r for r in acl["rules"]}
+    web = [rules[i] for p in acl["policies"] if p["subjects"] == ["web"] for i in p["rules"]]
+
+    def keys(message, flow):
+        return {e for r in web if message in r["messages"] and flow in r["flows"] for e in r["key_exprs"]}
+
+    assert keys("query", "ingress") == set(security.web_keys(k)) == {
+        "vrsim/map/info", "vrsim/map/rate", "vrsim/tractor1/report", "vrsim/tractor1/monitor/status",
+        "vrsim/tractor1/monitor/run", "vrsim/tractor1/monitor/records", "vrsim/scenario/status"}
+    assert keys("declare_subscriber", "ingress") == {"vrsim/tractor1/pose", "vrsim/tractor1/shaft",
+                                                     "vrsim/tractor1/rate"}
+    assert keys("liveliness_token", "ingress") == {"vrsim/alive/web"}
+    assert not keys("put", "ingress") and not keys("declare_queryable", "ingress")
+    assert {k.monitor_run, k.monitor_records} <= set(security.read_only_keys(k))
+
+
 def test_router_and_client_settings_with_tls(tmp_path):
     from cryptography import x509
 
