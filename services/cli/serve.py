@@ -71,7 +71,8 @@ def configure(parser) -> None:
                         help="all --web: where the page listens (default 127.0.0.1:8448); "
                              "`serve web` takes it as --listen HOST:PORT")
     parser.add_argument("--operator", action="store_true",
-                        help="web: allow starting and stopping runs from the page (default: a viewer)")
+                        help="web: allow starting and stopping runs from the page, through a session "
+                             "logged in as `operator` from the state folder (default: a viewer)")
     parser.add_argument("--data-root", metavar="DIR", default=".",
                         help="files named by scenarios received over the bus must lie under DIR "
                              "(default: the folder serve runs in)")
