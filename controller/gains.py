@@ -17,6 +17,9 @@ from controller import liang2013
 TERMS = ("P", "PI", "PID")   # which terms a PID uses
 FORMS = ("incremental", "positional")
 GAIN_SOURCES = ("paper", "textbook", "relay", "manual")
+# Far above any useful gain (the paper's PID: kp 0.57 V/V, ki 2.1 /s), and far below where
+# kp * error overflows a float64 in the loop (1e308 turns the valve current into NaN).
+MAX_GAIN = 1e6
 
 
 @dataclass(frozen=True)

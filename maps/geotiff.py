@@ -11,7 +11,7 @@ import rasterio
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
-from common import MapError
+from common import MapError, files
 from maps.crs import as_crs
 from maps.grid import DEFAULT_MAX_CELLS, UNIT, Grid, check_size
 from maps.units import RATE_UNITS
@@ -42,8 +42,11 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
     declares no nodata value or NaN; with another nodata value they are refused, as are negative
     rates, unless the raster says it holds differences of rates (tag ``quantity=difference``, as
     vrsim writes ``error.tif``, or a band description with "difference" in it): then the grid's
-    `quantity` is ``"difference"``.
+    `quantity` is ``"difference"``. The file and the files GDAL may open beside it must be regular
+    files within their byte caps (`common.files`).
     """
+    files.check_file(path, "geotiff", MapError)
+    files.check_siblings(path, MapError)
     try:
         with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
             check_size(src.height, src.width, max_cells, path)
@@ -69,7 +72,8 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
                            f"from row {r0}")
         if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
-            raise MapError(f"{path}: negative rate {rates[row, col]} kg/ha at row {row}, column {col}")
+            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} kg/ha at row {row}, "
+                           f"column {col}")
     unit = tags.get("unit") if tags.get("unit") in RATE_UNITS else UNIT  # vrsim's own maps say theirs
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
                 quantity=quantity, unit=unit)

@@ -14,7 +14,7 @@ import numpy as np
 import pyproj
 from affine import Affine
 
-from common import MapError, check_number, check_positive
+from common import MapError, check_number, check_positive, files
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
 from maps.units import RATE_UNITS
 
@@ -359,15 +359,21 @@ class Grid:
 
 
 DEFAULT_MAX_CELLS = 200_000_000
+# Peak bytes per cell while a map is read or built: the float64 rates plus one temporary of the same
+# size (a flipped, converted or rasterized copy).
+READ_BYTES_PER_CELL = 16
 
 
 def check_size(rows: int, cols: int, max_cells: int | None, where: str) -> None:
-    """Refuse absurd grid sizes before allocating them (`max_cells` None: no cap)."""
+    """Refuse absurd grid sizes before allocating them: more than `max_cells` cells (None: no cap on
+    cells, nor on bytes), or more memory than `common.files.check_grid_memory` allows."""
     if rows <= 0 or cols <= 0:
         raise MapError(f"{where}: grid size {rows} rows x {cols} columns is empty")
     if max_cells is not None and rows * cols > max_cells:
         raise MapError(f"{where}: grid of {rows} rows x {cols} columns = {rows * cols:,} cells exceeds "
                        f"the cap of {max_cells:,} cells (raise it with max_cells= / --max-cells if real)")
+    files.check_grid_memory(rows, cols, READ_BYTES_PER_CELL, where, MapError,
+                            max_bytes=None if max_cells is not None else math.inf)
 
 
 def grid_from_bounds(bounds, cell_size, crs, rates=None, max_cells: int | None = DEFAULT_MAX_CELLS,

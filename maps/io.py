@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import os
-import zipfile
 
-from common import MapError
+from common import MapError, files
 from maps.grid import DEFAULT_MAX_CELLS, Grid
 
 READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
@@ -73,11 +72,8 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
 
 def _read_zip(path, rate_field, cell_size_m, crs, max_cells) -> Grid:
     """A .zip is an ISOXML TASKDATA or a zipped shapefile: tell by what it holds."""
-    try:
-        with zipfile.ZipFile(path) as z:
-            names = [n.lower() for n in z.namelist()]
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise MapError(f"{path}: not a readable zip archive: {exc}") from None
+    with files.open_zip(path, MapError) as z:
+        names = [n.lower() for n in z.namelist()]
     if any(os.path.basename(n) == "taskdata.xml" for n in names):
         from maps.isoxml import read_isoxml
 

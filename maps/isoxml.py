@@ -36,14 +36,12 @@ import numpy as np
 from affine import Affine
 from defusedxml import DefusedXmlException
 
-from common import MapError, __version__
+from common import MapError, __version__, files
 from maps.crs import WGS84
 from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
 from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
-
-MAX_XML_BYTES = 64 * 1024 * 1024
 
 
 class _Folder:
@@ -51,8 +49,11 @@ class _Folder:
 
     def __init__(self, path: str):
         self.path = path
-        if zipfile.is_zipfile(path):
-            self._zip = zipfile.ZipFile(path)
+        is_dir = os.path.isdir(path)
+        if not is_dir:
+            files.check_file(path, error=MapError)  # before is_zipfile opens it: a FIFO would block
+        if not is_dir and zipfile.is_zipfile(path):
+            self._zip = files.open_zip(path, MapError)
             names = [n for n in self._zip.namelist() if not n.endswith("/")]
             xmls = [n for n in names if posixpath.basename(n).upper() == "TASKDATA.XML"]
             if not xmls:
@@ -65,7 +66,7 @@ class _Folder:
         else:
             self._zip = None
             self.xml_name = path
-            if os.path.isdir(path):
+            if is_dir:
                 found = [os.path.join(d, n) for d in (path, os.path.join(path, "TASKDATA"))
                          if os.path.isdir(d) for n in os.listdir(d) if n.upper() == "TASKDATA.XML"]
                 if not found:
@@ -86,7 +87,7 @@ class _Folder:
             self._zip.close()
 
     def read_xml(self) -> bytes:
-        return self._read(self.xml_name, MAX_XML_BYTES, "TASKDATA.XML")
+        return self._read(self.xml_name, files.cap_for("xml"))
 
     def size(self, name: str) -> int | None:
         member = self._names.get(name.upper())
@@ -95,21 +96,13 @@ class _Folder:
         return self._zip.getinfo(member).file_size if self._zip else os.path.getsize(member)
 
     def read(self, name: str, limit: int) -> bytes:
-        return self._read(self._names[name.upper()], limit, name)
+        return self._read(self._names[name.upper()], limit)
 
-    def _read(self, member: str, limit: int, label: str) -> bytes:
-        try:
-            if self._zip:
-                with self._zip.open(member) as f:
-                    data = f.read(limit + 1)
-            else:
-                with open(member, "rb") as f:
-                    data = f.read(limit + 1)
-        except (OSError, zipfile.BadZipFile) as exc:
-            raise MapError(f"{self.path}: cannot read {label}: {exc}") from None
-        if len(data) > limit:
-            raise MapError(f"{self.path}: {label} is larger than {limit:,} bytes")
-        return data
+    def _read(self, member: str, limit: int) -> bytes:
+        """A member of the archive or a file of the folder, regular and within ``limit`` bytes."""
+        if self._zip:
+            return files.read_member(self._zip, member, self.path, MapError, limit)
+        return files.read_bytes(member, error=MapError, limit=limit)
 
 
 def _attr(el, key: str, kind, where: str, required: bool = True):
@@ -121,7 +114,7 @@ def _attr(el, key: str, kind, where: str, required: bool = True):
     try:
         return int(raw, 16) if kind == "hex" else kind(raw)
     except ValueError:
-        raise MapError(f"{where}: {el.tag} attribute {key}={raw!r} is not a valid "
+        raise MapError(f"{where}: {el.tag} attribute {key}={files.shown(raw)} is not a valid "
                        f"{'hexadecimal DDI' if kind == 'hex' else kind.__name__}") from None
 
 
@@ -149,7 +142,7 @@ def parse_xml(data: bytes, where: str, name: str, root_tag: str):
     except ParseError as exc:
         raise MapError(f"{where}: {name} is not well-formed XML: {exc}") from None
     if root.tag != root_tag:
-        raise MapError(f"{where}: {name}: root element is <{root.tag}>, not <{root_tag}>")
+        raise MapError(f"{where}: {name}: root element is {files.shown(root.tag)}, not <{root_tag}>")
     return root
 
 
@@ -204,8 +197,8 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
         raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., ddis.index(6)]
         if (raw < 0).any():
             r, c = np.argwhere(raw < 0)[0]
-            raise MapError(f"{where}: negative rate {int(raw[r, c])} mg/m^2 in {name} at row {r} "
-                           f"(from south), column {c}")
+            raise MapError(f"{where}: negative rate {files.shown(int(raw[r, c]))} mg/m^2 in {name} at "
+                           f"row {r} (from south), column {c}")
         rates = raw.astype(np.float64) * KG_HA_PER_MG_M2
         product_ref = layers[ddis.index(6)][2]
     else:
@@ -236,7 +229,8 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
         for ddi, value, product in values:
             if ddi == DDI_MASS_PER_AREA and 0 <= code <= 255:
                 if value < 0:
-                    raise MapError(f"{where}: treatment zone {code} has a negative rate {value} mg/m^2")
+                    raise MapError(f"{where}: treatment zone {code} has a negative rate "
+                                   f"{files.shown(value)} mg/m^2")
                 table[code] = value * KG_HA_PER_MG_M2
                 product_ref = product_ref or product
     if np.isnan(table).all():

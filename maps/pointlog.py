@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pyproj
 
-from common import MapError
+from common import MapError, files
 from maps.crs import WGS84, as_crs, transform_xy
 from maps.units import RATE_UNITS, convert_rate
 from maps.warn import MapWarning
@@ -223,6 +223,8 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs) -> Point
     import shapely
     from pyogrio.errors import DataLayerError, DataSourceError
 
+    files.check_file(path, error=MapError)  # GDAL opens by name: a FIFO or a device would hang it
+    files.check_siblings(path, MapError)
     try:
         meta, _, geometry, columns = pyogrio.raw.read(path)
     except (DataSourceError, DataLayerError, OSError) as exc:
@@ -357,15 +359,17 @@ def _deere_units(path: str) -> dict[str, str]:
 def _metadata_text(path: str) -> str | None:
     suffix = "-deere-metadata.json"
     if path.lower().endswith(".zip"):
-        with zipfile.ZipFile(path) as z:
+        with files.open_zip(path, MapError) as z:
             names = [n for n in z.namelist() if n.lower().endswith(suffix)]
-            return z.read(names[0]).decode("utf-8", "replace") if len(names) == 1 else None
+            if len(names) != 1:
+                return None
+            return files.read_member(z, names[0], path, MapError).decode("utf-8", "replace")
     folder = os.path.dirname(os.path.abspath(path))
     stem = os.path.splitext(os.path.basename(path))[0].lower()
     for name in os.listdir(folder):
         if name.lower() == stem + suffix:
-            with open(os.path.join(folder, name), encoding="utf-8", errors="replace") as f:
-                return f.read()
+            data = files.read_bytes(os.path.join(folder, name), "geojson", MapError)
+            return data.decode("utf-8", "replace")
     return None
 
 

@@ -12,6 +12,7 @@ its CRS in a ``.prj`` file beside it (WKT, as for a shapefile), and also has lon
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -19,7 +20,7 @@ import os
 import numpy as np
 from affine import Affine
 
-from common import MapError
+from common import MapError, files
 from maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.zones import RATE_NAMES, geojson_crs, geojson_features
@@ -112,14 +113,14 @@ def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
 def read_csv(path: str, rate_field: str | None = None, crs=None,
              max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read a CSV point table (x/y with a .prj or `crs`, or lon/lat) into a grid."""
+    data = files.read_bytes(path, "csv", MapError)
     try:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            table = {name: [] for name in reader.fieldnames or []}
-            for rec in reader:
-                for name in table:
-                    table[name].append(rec.get(name))
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        reader = csv.DictReader(io.StringIO(data.decode("utf-8"), newline=""))
+        table = {name: [] for name in reader.fieldnames or []}
+        for rec in reader:
+            for name in table:
+                table[name].append(rec.get(name))
+    except (UnicodeDecodeError, csv.Error) as exc:
         raise MapError(f"{path}: cannot read as CSV: {exc}") from None
     lower = {k.strip().lower(): k for k in table}
     xk = next((lower[n] for n in X_NAMES if n in lower), None)
@@ -127,11 +128,8 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
     if xk and yk:
         prj = os.path.splitext(path)[0] + ".prj"
         if os.path.exists(prj):
-            try:
-                with open(prj, encoding="utf-8", errors="replace") as f:  # as for a shapefile's .prj
-                    text = f.read()
-            except OSError as exc:
-                raise MapError(f"{prj}: cannot read: {exc.strerror}") from None
+            # decoded as a shapefile's .prj is
+            text = files.read_bytes(prj, "prj", MapError).decode("utf-8", "replace")
             src_crs = crs_from_prj(text, prj)
         elif crs is not None:
             src_crs = as_crs(crs, "crs")
@@ -141,7 +139,7 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
         xk = next((lower[n] for n in LON_NAMES if n in lower), None)
         yk = next((lower[n] for n in LAT_NAMES if n in lower), None)
         if not (xk and yk):
-            raise MapError(f"{path}: needs x,y or lon,lat columns; has {list(table)}")
+            raise MapError(f"{path}: needs x,y or lon,lat columns; has {files.shown(list(table), 200)}")
         src_crs = WGS84
     x, y = (_numbers(path, table.pop(k), k) for k in (xk, yk))
     for k in list(table):  # coordinates of the other kind (lon/lat beside x/y) are not attributes
@@ -159,9 +157,9 @@ def _numbers(path: str, values: list, name: str, allow_empty: bool = False) -> n
         try:
             out[i] = float(v)
         except (TypeError, ValueError):
-            raise MapError(f"{path}: record {i}: {name}={v!r} is not a number") from None
+            raise MapError(f"{path}: record {i}: {name}={files.shown(v)} is not a number") from None
         if not math.isfinite(out[i]):
-            raise MapError(f"{path}: record {i}: {name}={v!r} is not finite")
+            raise MapError(f"{path}: record {i}: {name}={files.shown(v)} is not finite")
     return out
 
 
@@ -171,17 +169,18 @@ def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid
     lower = {k.lower(): k for k in table}
     if rate_field is not None:
         if rate_field not in table:
-            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: {sorted(table)}")
+            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: "
+                           f"{files.shown(sorted(table), 200)}")
         rk = rate_field
     else:
         rk = next((lower[n] for n in RATE_NAMES if n in lower), None)
         if rk is None:
-            raise MapError(f"{path}: no rate attribute among {sorted(table)}; name one with rate_field= / "
-                           "--rate-field")
+            raise MapError(f"{path}: no rate attribute among {files.shown(sorted(table), 200)}; name one "
+                           "with rate_field= / --rate-field")
     rate = _numbers(path, table[rk], rk, allow_empty=True)
     if (rate < 0).any():
         i = int(np.argmax(rate < 0))
-        raise MapError(f"{path}: record {i}: negative rate {rk}={rate[i]}")
+        raise MapError(f"{path}: record {i}: negative rate {rk}={files.shown(float(rate[i]))}")
     if "row" in lower and "col" in lower:
         row = _numbers(path, table[lower["row"]], "row").astype(np.int64)
         col = _numbers(path, table[lower["col"]], "col").astype(np.int64)

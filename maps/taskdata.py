@@ -27,11 +27,10 @@ import io
 import itertools
 import os
 import xml.etree.ElementTree as ET
-import zipfile
 
 import numpy as np
 
-from common import MapError, __version__
+from common import MapError, __version__, files
 from maps import ddi as DDI
 from maps.crs import WGS84
 from maps.pointlog import NOT_AVAILABLE, PointLog
@@ -46,8 +45,8 @@ def is_taskdata(path: str) -> bool:
     """True for a folder, a ``.xml`` file, or a zip archive holding a TASKDATA.XML."""
     if os.path.isdir(path) or path.lower().endswith(".xml"):
         return True
-    if path.lower().endswith(".zip") and zipfile.is_zipfile(path):
-        with zipfile.ZipFile(path) as z:
+    if path.lower().endswith(".zip"):
+        with files.open_zip(path, MapError) as z:  # a regular file, members counted and sized first
             return any(os.path.basename(n).lower() == "taskdata.xml" for n in z.namelist())
     return False
 

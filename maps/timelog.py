@@ -45,9 +45,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError
+from common import MapError, files
 from maps.ddi import ddi_list
-from maps.isoxml import MAX_XML_BYTES, _attr, _Folder, parse_xml
+from maps.isoxml import _attr, _Folder, parse_xml
 
 MAX_TLG_BYTES = 256 * 1024 * 1024  # default cap on one binary: ~3 M records of 20 values
 EPOCH = np.datetime64("1980-01-01T00:00:00", "ms")
@@ -198,7 +198,7 @@ def _read_one(folder: _Folder, path: str, task: str, tlg, max_bytes: int) -> Tim
             raise MapError(f"{path}: the TimeLog file {name}{ext} (task {task}) is missing beside "
                            "TASKDATA.XML")
     where = f"{path}: {name}"
-    header = parse_xml(folder.read(name + ".XML", MAX_XML_BYTES), path, f"{name}.XML", "TIM")
+    header = parse_xml(folder.read(name + ".XML", files.cap_for("xml")), path, f"{name}.XML", "TIM")
     ptn, dlvs = _header(header, where)
     data = folder.read(name + ".BIN", max_bytes)
     time, columns, values, logged = _parse_records(data, ptn, len(dlvs), f"{where}.BIN")

@@ -17,14 +17,13 @@ import math
 import os
 import struct
 import warnings
-import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 import shapefile
 from affine import Affine
 
-from common import MapError, check_positive
+from common import MapError, check_positive, files
 from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.rasterize import rasterize_rings
@@ -124,7 +123,8 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
     """The rate attribute: the user's, else a known name, else the only numeric one."""
     if rate_field is not None:
         if rate_field not in fields:
-            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: {sorted(fields)}")
+            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: "
+                           f"{files.shown(sorted(fields), 200)}")
         return rate_field
     lower = {name.lower(): name for name in fields}
     for candidate in RATE_NAMES:
@@ -136,7 +136,8 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
                       MapWarning, stacklevel=3)
         return numeric[0]
     raise MapError(f"{path}: cannot tell which attribute is the rate; numeric attributes: "
-                   f"{numeric or 'none'}; name one with rate_field= / --rate-field")
+                   f"{files.shown(numeric, 200) if numeric else 'none'}; name one with rate_field= / "
+                   "--rate-field")
 
 
 def _rates(path: str, values: list, name: str) -> np.ndarray:
@@ -145,11 +146,11 @@ def _rates(path: str, values: list, name: str) -> np.ndarray:
         try:
             out[i] = float(value)
         except (TypeError, ValueError):
-            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r} is not a number") \
-                from None
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {files.shown(value)} is not a "
+                           "number") from None
         if not math.isfinite(out[i]) or out[i] < 0:
-            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {value!r}: rates must be "
-                           "finite and not negative")
+            raise MapError(f"{path}: feature {i}: rate attribute {name!r} = {files.shown(value)}: rates must "
+                           "be finite and not negative")
     return out
 
 
@@ -158,19 +159,19 @@ POLYGON_TYPES = (shapefile.POLYGON, shapefile.POLYGONZ, shapefile.POLYGONM)
 
 
 def _shapefile_rings(path: str, crs):
-    files = _shapefile_parts(path)
-    if crs is None and files["prj"] is None:
+    parts = _shapefile_parts(path)
+    if crs is None and parts["prj"] is None:
         raise MapError(f"{path}: the shapefile has no .prj, so its CRS is unknown; give one (crs= / --crs)")
-    src_crs = as_crs(crs, "crs") if files["prj"] is None else \
-        crs_from_prj(files["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
+    src_crs = as_crs(crs, "crs") if parts["prj"] is None else \
+        crs_from_prj(parts["prj"].read().decode("utf-8", "replace"), f"{path}: .prj")
     dbf_errors = (shapefile.ShapefileException, ValueError, struct.error, EOFError, UnicodeDecodeError)
     try:
-        reader = shapefile.Reader(dbf=files["dbf"])
+        reader = shapefile.Reader(dbf=parts["dbf"])
         fields = {f[0]: f[1] in ("N", "F") for f in reader.fields[1:]}
         n_records = reader.numRecords
     except dbf_errors as exc:
         raise MapError(f"{path}: damaged .dbf: {exc}") from None
-    rings, owners, keep = _parse_shp(files["shp"].read(), path)
+    rings, owners, keep = _parse_shp(parts["shp"].read(), path)
     if len(keep) and keep[-1] >= n_records:
         raise MapError(f"{path}: the .shp has more features than the .dbf has records ({n_records})")
 
@@ -237,11 +238,7 @@ def _shapefile_parts(path: str) -> dict:
         raise MapError(f"{path}: no such file")
     exts = (".shp", ".dbf", ".shx", ".prj")
     if path.lower().endswith(".zip"):
-        try:
-            z = zipfile.ZipFile(path)
-        except zipfile.BadZipFile as exc:
-            raise MapError(f"{path}: not a zip archive: {exc}") from None
-        with z:
+        with files.open_zip(path, MapError) as z:
             shps = [n for n in z.namelist() if n.lower().endswith(".shp") and not n.startswith("__MACOSX")]
             if not shps:
                 raise MapError(f"{path}: the zip archive holds no .shp file")
@@ -251,37 +248,27 @@ def _shapefile_parts(path: str) -> dict:
             stem = shps[0][:-4]
             members = {n.lower(): n for n in z.namelist()}
             names = {ext: members.get((stem + ext).lower()) for ext in exts}
-            files = {ext[1:]: io.BytesIO(z.read(name)) if name else None for ext, name in names.items()}
+            parts = {ext[1:]: io.BytesIO(files.read_member(z, name, path, MapError)) if name else None
+                     for ext, name in names.items()}
     else:
         stem = path[:-4] if path.lower().endswith(".shp") else path
         folder = os.path.dirname(os.path.abspath(stem))
         members = {n.lower(): os.path.join(folder, n) for n in os.listdir(folder)}
         base = os.path.basename(stem)
-        files = {}
-        for ext in exts:
-            name = members.get((base + ext).lower())
-            if name is None:
-                files[ext[1:]] = None
-                continue
-            try:
-                with open(name, "rb") as f:
-                    files[ext[1:]] = io.BytesIO(f.read())
-            except OSError as exc:
-                raise MapError(f"{path}: cannot read {name}: {exc.strerror}") from None
+        parts = {ext[1:]: io.BytesIO(files.read_bytes(members[(base + ext).lower()], error=MapError))
+                 if (base + ext).lower() in members else None for ext in exts}
     for ext, what in (("shp", "geometry"), ("dbf", "attributes, including the rate")):
-        if files[ext] is None:
+        if parts[ext] is None:
             raise MapError(f"{path}: the shapefile's .{ext} ({what}) is missing")
-    return files
+    return parts
 
 
 # ---------------------------------------------------------------------- GeoJSON
 def load_geojson(path: str) -> dict:
     """Parse a GeoJSON file into a dict, MapError on anything but a JSON object."""
+    data = files.read_bytes(path, "geojson", MapError)
     try:
-        with open(path, "rb") as f:
-            doc = json.load(f)
-    except OSError as exc:
-        raise MapError(f"{path}: cannot read: {exc.strerror}") from None
+        doc = json.loads(data)
     except (ValueError, RecursionError) as exc:
         raise MapError(f"{path}: not valid JSON: {exc}") from None
     if not isinstance(doc, dict) or doc.get("type") not in ("FeatureCollection", "Feature"):
@@ -297,7 +284,7 @@ def geojson_crs(doc: dict, path: str):
     try:
         return as_crs(member["properties"]["name"], f"{path}: crs")
     except (KeyError, TypeError):
-        raise MapError(f"{path}: crs member {member!r} is not "
+        raise MapError(f"{path}: crs member {files.shown(member)} is not "
                        "{'type': 'name', 'properties': {'name': ...}}") from None
 
 

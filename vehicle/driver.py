@@ -27,6 +27,8 @@ from vehicle.coverage import CoveragePath
 from vehicle.network import Network, build_network
 
 _VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
+STEP_RANGE_S = (0.001, 1.0)  # SUMO's simulation step: the control period, s
+MAX_SEED = 2**31 - 1  # SUMO takes its --seed as a C int
 
 
 @dataclass(frozen=True)
@@ -180,9 +182,10 @@ class SumoDriver:
         drive = drive or DriveConfig()
         if not isinstance(drive, DriveConfig):
             raise VehicleError(f"SumoDriver: drive must be a DriveConfig, got {type(drive).__name__}")
-        check_number(step_s, "SumoDriver: step_s", VehicleError, lo=0.001, hi=1.0, unit="s")
-        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-            raise VehicleError(f"SumoDriver: seed must be an integer >= 0, got {seed!r}")
+        check_number(step_s, "SumoDriver: step_s", VehicleError, lo=STEP_RANGE_S[0], hi=STEP_RANGE_S[1],
+                     unit="s")
+        if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+            raise VehicleError(f"SumoDriver: seed must be an integer in [0, {MAX_SEED}], got {seed!r}")
         if max_time_s is None:
             slowest = min(drive.turn_speed_m_s, drive.working_speed_m_s, drive.headland_speed_m_s or math.inf)
             max_time_s = 10 * path.length_m / slowest + 60.0

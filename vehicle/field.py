@@ -19,10 +19,15 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
+from common import files
 from common.checks import check_positive
 from common.errors import VehicleError
 
 WGS84 = pyproj.CRS.from_epsg(4326)
+# Larger than any field farmed as one: a bigger boundary is a unit or CRS mistake, and its coverage
+# path and grid would not fit in memory (a 1e9 m square would need ~1e8 swaths).
+MAX_FIELD_AREA_HA = 10_000.0
+MAX_FIELD_SIDE_M = 50_000.0  # bounding-box side; UTM's scale error also grows past a few tens of km
 
 
 def utm_crs(lon: float, lat: float) -> pyproj.CRS:
@@ -76,6 +81,9 @@ class Field:
         at (lon, lat) in degrees."""
         for arg, value in (("width_m", width_m), ("length_m", length_m)):
             check_positive(value, f"field rectangle: {arg}", VehicleError, unit="m")
+            if value > MAX_FIELD_SIDE_M:
+                raise VehicleError(f"field rectangle: {arg} = {value:g} m is over the cap of "
+                                   f"{MAX_FIELD_SIDE_M:g} m (vehicle.field.MAX_FIELD_SIDE_M)")
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (lat, lon)) \
                 or not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
             raise VehicleError(f"field rectangle: lat={lat!r}, lon={lon!r} is outside UTM coverage")
@@ -96,9 +104,10 @@ class Field:
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
             WGS84 if the coordinates look like degrees.
         """
-        if not isinstance(path, (str, os.PathLike)) or not os.path.isfile(path):
+        if not isinstance(path, (str, os.PathLike)) or not os.path.exists(path):
             raise VehicleError(f"field file {path}: not found")
         path = os.fspath(path)
+        files.check_file(path, error=VehicleError)  # a regular file within its byte cap, or refused
         ext = os.path.splitext(path)[1].lower()
         if ext in (".geojson", ".json"):
             geom, file_crs = _read_geojson(path)
@@ -138,6 +147,7 @@ class Field:
             raise VehicleError(f"{where}: boundary is invalid: {explain_validity(geom)}")
         to_utm = pyproj.Transformer.from_crs(src_crs, crs, always_xy=True)
         projected = shapely.transform(geom, lambda xy: np.column_stack(to_utm.transform(xy[:, 0], xy[:, 1])))
+        _check_extent(projected, where)
         return cls(projected, crs, name)
 
     # --- properties and conversions --------------------------------------------------------------
@@ -167,9 +177,24 @@ def _validated(polygon, name: str) -> Polygon:
     polygon = _single_polygon(polygon, where)
     if polygon.is_empty or polygon.area <= 0:
         raise VehicleError(f"{where}: boundary is empty (area 0)")
+    _check_extent(polygon, where)
     if not polygon.is_valid:
         raise VehicleError(f"{where}: boundary is invalid: {explain_validity(polygon)}")
     return shapely.normalize(polygon)
+
+
+def _check_extent(polygon, where: str) -> None:
+    """Refuse a boundary (in metres) larger than `MAX_FIELD_AREA_HA` or wider than `MAX_FIELD_SIDE_M`,
+    before anything is planned or allocated over it."""
+    minx, miny, maxx, maxy = polygon.bounds
+    area_ha, width_m, height_m = polygon.area / 1e4, maxx - minx, maxy - miny
+    if not all(map(math.isfinite, (area_ha, width_m, height_m))):
+        raise VehicleError(f"{where}: boundary does not project to finite metres (bounds {polygon.bounds})")
+    if area_ha > MAX_FIELD_AREA_HA or max(width_m, height_m) > MAX_FIELD_SIDE_M:
+        raise VehicleError(f"{where}: boundary of {area_ha:,.0f} ha in a {width_m:,.0f} m x "
+                           f"{height_m:,.0f} m box is over the caps of {MAX_FIELD_AREA_HA:,.0f} ha and "
+                           f"{MAX_FIELD_SIDE_M:,.0f} m per side (vehicle.field.MAX_FIELD_AREA_HA / "
+                           "MAX_FIELD_SIDE_M); wrong units or CRS?")
 
 
 def _single_polygon(geom, where: str) -> Polygon:
@@ -184,23 +209,23 @@ def _single_polygon(geom, where: str) -> Polygon:
 
 
 def _read_geojson(path: str):
+    data = files.read_bytes(path, "geojson", VehicleError)
     try:
-        with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise VehicleError(f"field file {path}: not readable GeoJSON: {exc}") from None
     crs = None
     member = doc.get("crs") if isinstance(doc, dict) else None
     props = member.get("properties") if isinstance(member, dict) else None
     name = props.get("name") if isinstance(props, dict) else None
     if member and not name:
-        raise VehicleError(f"field file {path}: crs member {member!r} is not "
+        raise VehicleError(f"field file {path}: crs member {files.shown(member)} is not "
                            "{'type': 'name', 'properties': {'name': ...}}")
     if name:
         try:
             crs = pyproj.CRS.from_user_input(name)
         except (pyproj.exceptions.CRSError, TypeError):
-            raise VehicleError(f"field file {path}: crs name {name!r} is not a CRS") from None
+            raise VehicleError(f"field file {path}: crs name {files.shown(name)} is not a CRS") from None
     geoms = _geojson_geometries(doc)
     polys = [g for g in geoms if isinstance(g, dict) and g.get("type") in ("Polygon", "MultiPolygon")]
     if not polys:
@@ -234,6 +259,10 @@ def _read_shapefile(path: str):
 
     # What pyshp lets through on a damaged file: a bad zip, a short or garbled header or record.
     damaged = (shapefile.ShapefileException, zipfile.BadZipFile, struct.error, EOFError, ValueError, OSError)
+    if path.lower().endswith(".zip"):
+        files.open_zip(path, VehicleError).close()  # member count and sizes, before pyshp inflates them
+    else:
+        files.check_siblings(path, VehicleError)  # the .shx, .dbf and .prj pyshp and we open by name
     try:
         with shapefile.Reader(path) as reader:
             shapes = [s for s in reader.shapes() if s.shapeType in (shapefile.POLYGON, shapefile.POLYGONZ,
@@ -250,17 +279,14 @@ def _read_prj(path: str):
     """The CRS from the ``.prj`` beside a ``.shp`` or inside a ``.zip``, else None."""
     wkt = None
     if path.lower().endswith(".zip"):
-        import zipfile
-
-        with zipfile.ZipFile(path) as z:
+        with files.open_zip(path, VehicleError) as z:
             prj = [n for n in z.namelist() if n.lower().endswith(".prj")]
             if prj:
-                wkt = z.read(prj[0]).decode("utf-8", "replace")
+                wkt = files.read_member(z, prj[0], path, VehicleError).decode("utf-8", "replace")
     else:
         prj = os.path.splitext(path)[0] + ".prj"
-        if os.path.isfile(prj):
-            with open(prj, encoding="utf-8", errors="replace") as f:
-                wkt = f.read()
+        if os.path.exists(prj):
+            wkt = files.read_bytes(prj, "prj", VehicleError).decode("utf-8", "replace")
     if not wkt:
         return None
     try:

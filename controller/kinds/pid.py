@@ -17,7 +17,7 @@ import numpy as np
 
 from common import ControllerError
 from controller import ops
-from controller.gains import FORMS, GAIN_SOURCES, TERMS, PidGains
+from controller.gains import FORMS, GAIN_SOURCES, MAX_GAIN, TERMS, PidGains
 from controller.interface import LawController, LoopInfo, state_arrays
 from controller.loop import ClosedLoop
 from controller.lti import pid_lti
@@ -53,9 +53,9 @@ class PidParams(KindParams):
     terms: str = param("PID", choices=TERMS)
     form: str = param("incremental", choices=FORMS)
     gains: str = param("paper", choices=GAIN_SOURCES)
-    kp: float | None = param(None, number=True, lo=0.0)
-    ki: float | None = param(None, number=True, lo=0.0)
-    kd: float | None = param(None, number=True, lo=0.0)
+    kp: float | None = param(None, number=True, lo=0.0, hi=MAX_GAIN)
+    ki: float | None = param(None, number=True, lo=0.0, hi=MAX_GAIN)
+    kd: float | None = param(None, number=True, lo=0.0, hi=MAX_GAIN)
     derivative_on_measurement: bool = param(False)
 
     def check(self) -> None:

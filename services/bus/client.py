@@ -11,10 +11,11 @@ from services.bus.serving import error_message
 
 # ---------------------------------------------------------------------------------------- client
 def request(session, selector: str, payload: bytes | None = None, timeout_s: float = QUERY_TIMEOUT_S,
-            what: str | None = None) -> bytes:
+            what: str | None = None, user: str | None = None) -> bytes:
     """One query, one reply: the reply's payload, or a `ServiceError` that says what was waited for.
 
-    Raises when no service serves the key (zenoh answers at once with no reply), when the reply does
+    Raises when no service serves the key (zenoh answers at once with no reply; also when the router's
+    access rules do not let ``user`` ask it: zenoh does not tell the two apart), when the reply does
     not come within ``timeout_s``, or when the service replied with an error (its message).
     """
     import zenoh
@@ -31,7 +32,8 @@ def request(session, selector: str, payload: bytes | None = None, timeout_s: flo
         if reply.ok is not None:
             return reply.ok.payload.to_bytes()
     if not replies:
-        raise ServiceError(f"{what}: no reply: no service serves this key (is it running? "
+        denied = f", or the user {user} is not allowed to ask it" if user else ""
+        raise ServiceError(f"{what}: no reply: no service serves this key{denied} (is it running? "
                            "`vrsim query <prefix>/scenario/status` lists the services alive)")
     message = error_message(replies[0].err.payload.to_bytes())
     if message.lower().startswith("timeout"):

@@ -8,12 +8,15 @@ a router is what lets any process reach any other). ``vrsim serve all`` is the r
 
 Safe defaults: loopback only, multicast scouting off, shared memory off (under CPU load it can drop a
 query), a fixed default port that ``--listen`` / ``--connect`` change, and ``--zenoh-config FILE`` for
-anything else. Imports of zenoh happen inside functions so that ``vrsim --help`` stays light.
+anything else. Secure by default: a router enforces `services.bus.security` and a client logs in with
+the credentials of the private state folder; ``--insecure`` opens the bus on purpose. Imports of
+zenoh happen inside functions so that ``vrsim --help`` stays light.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 from dataclasses import dataclass
 
@@ -28,15 +31,28 @@ SERVICES = ("map", "vehicle", "controller", "monitor", "scenario")
 _BAD_KEY_CHARS = set("*$?#[] \t\r\n")
 
 
+DEFAULT_STATE_DIR = ".vrsim"
+
+
 @dataclass(frozen=True)
 class ZenohOptions:
-    """How a process joins the vrsim Zenoh network (the ``--listen`` ... options)."""
+    """How a process joins the vrsim Zenoh network (the ``--listen`` ... options).
+
+    Secure unless ``insecure``: a router enforces `services.bus.security` (credentials and access
+    rules from the private ``state_dir``, TLS with ``tls``), a client logs in as ``user`` (None: the
+    caller's default, the service's own name or ``operator``). ``ZenohOptions(user="web")`` is all a
+    program beside ``vrsim serve all`` needs to log in as ``web``.
+    """
 
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
     config_file: str | None = None
     prefix: str = DEFAULT_PREFIX
     machine: str = DEFAULT_MACHINE
+    state_dir: str = DEFAULT_STATE_DIR
+    user: str | None = None
+    insecure: bool = False
+    tls: bool = False
 
     def __post_init__(self):
         for name in ("prefix", "machine"):
@@ -56,92 +72,154 @@ class ZenohOptions:
     def keys(self) -> Keys:
         return Keys(self.prefix, self.machine)
 
-    def config(self, default_mode: str):
+    @property
+    def default_endpoint(self) -> str:
+        return DEFAULT_ENDPOINT.replace("tcp/", "tls/") if self.tls else DEFAULT_ENDPOINT
+
+    def config(self, default_mode: str, default_user: str = "operator"):
         """A `zenoh.Config`: ``default_mode`` ("router" or "client") unless the flags say otherwise.
 
         ``--listen`` makes a router that listens there, ``--connect`` a client of that router;
-        neither: a router on, or a client of, `DEFAULT_ENDPOINT`. A ``--zenoh-config`` file is the
-        starting point and only the flags given explicitly override it.
+        neither: a router on, or a client of, `DEFAULT_ENDPOINT` (a secure client: of the router
+        that wrote the state folder). A ``--zenoh-config`` file is the starting point and only the
+        flags given explicitly override it. Then, unless ``insecure``, a router enforces the
+        security model and a client logs in as ``user`` (default ``default_user``); a client
+        configuration file that already logs in (``.vrsim/viewer.json5``) is used as it is.
         """
-        import zenoh
+        from services.bus import security
 
-        if self.config_file is not None:
-            try:
-                conf = zenoh.Config.from_file(self.config_file)
-            except (zenoh.ZError, OSError, ValueError) as exc:
-                raise ServiceError(f"--zenoh-config {self.config_file}: {zenoh_reason(exc)}") from None
-        else:
-            conf = zenoh.Config()
-            conf.insert_json5("scouting/multicast/enabled", "false")
-            conf.insert_json5("transport/shared_memory/enabled", "false")
+        conf = self._base()
         if self.listen:
             mode, listen, connect = "router", list(self.listen), list(self.connect)
         elif self.connect:
             mode, listen, connect = "client", [], list(self.connect)
-        elif self.config_file is not None:
-            return conf
+        elif self.config_file is not None:  # as the file says
+            mode, listen, connect = json.loads(conf.get_json("mode")) or default_mode, None, None
+        elif default_mode == "router":
+            mode, listen, connect = "router", [self.default_endpoint], []
         else:
-            mode = default_mode
-            listen, connect = ([DEFAULT_ENDPOINT], []) if mode == "router" else ([], [DEFAULT_ENDPOINT])
-        conf.insert_json5("mode", json.dumps(mode))
-        conf.insert_json5("listen/endpoints", json.dumps(listen))
-        conf.insert_json5("connect/endpoints", json.dumps(connect))
+            mode, listen, connect = "client", [], self._default_connect(default_user)
+        if listen is not None:
+            conf.insert_json5("mode", json.dumps(mode))
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+            conf.insert_json5("connect/endpoints", json.dumps(connect))
+        if self.insecure:
+            return conf
+        if mode == "router":
+            state = security.prepare_state(self.state_dir, tls=self.tls)
+            listen = self._router_listen(conf)
+            security.apply_settings(conf, security.router_settings(state, self.keys, listen))
+            security.write_client_configs(state, list(self.local_endpoints()))
+            return conf
+        if self.user is None and json.loads(conf.get_json("transport/auth/usrpwd/user")):
+            return conf  # a complete client configuration that logs in by itself
+        state = security.load_state(self.state_dir)
+        return security.apply_settings(conf, security.credential_settings(state, self.user or default_user))
+
+    def _default_connect(self, user: str) -> list[str]:
+        """A client's router when no option names one: where the router that wrote the state folder
+        listens (its ``<user>.json5``), else `DEFAULT_ENDPOINT`."""
+        if self.insecure:
+            return [DEFAULT_ENDPOINT]
+        from services.bus import security
+
+        return security.recorded_endpoints(security.load_state(self.state_dir), user) or [DEFAULT_ENDPOINT]
+
+    def _base(self):
+        """The ``--zenoh-config`` file, or vrsim's defaults: no multicast scouting, no shared memory."""
+        import zenoh
+
+        if self.config_file is not None:
+            try:
+                return zenoh.Config.from_file(self.config_file)
+            except (zenoh.ZError, OSError, ValueError) as exc:
+                raise ServiceError(f"--zenoh-config {self.config_file}: {zenoh_reason(exc)}") from None
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        conf.insert_json5("transport/shared_memory/enabled", "false")
         return conf
+
+    @staticmethod
+    def _router_listen(conf) -> list[str]:
+        endpoints = json.loads(conf.get_json("listen/endpoints"))
+        if isinstance(endpoints, dict):  # zenoh's per-mode form {"router": [...], "peer": [...]}
+            endpoints = endpoints.get("router", [])
+        return list(endpoints)
 
     def describe(self, default_mode: str) -> str:
         if self.listen:
-            return f"router on {', '.join(self.listen)}"
-        if self.connect:
-            return f"client of {', '.join(self.connect)}"
-        if self.config_file:
-            return f"as configured in {self.config_file}"
-        role = "router on" if default_mode == "router" else "client of"
-        return f"{role} {DEFAULT_ENDPOINT}"
+            where = f"router on {', '.join(self.listen)}"
+        elif self.connect:
+            where = f"client of {', '.join(self.connect)}"
+        elif self.config_file:
+            where = f"as configured in {self.config_file}"
+        else:
+            role = "router on" if default_mode == "router" else "client of"
+            where = f"{role} {self.default_endpoint if default_mode == 'router' else 'the router'}"
+        return where + (", INSECURE: an open bus" if self.insecure else "")
 
-    def child_args(self) -> list[str]:
-        """Command-line options that make a child service a client of this process's router."""
-        connect = self.connect or self.listen or self._config_listen() or (DEFAULT_ENDPOINT,)
-        local = [ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in connect]
-        args = [a for ep in local for a in ("--connect", ep)]
-        return args + ["--prefix", self.prefix, "--machine", self.machine]
+    def local_endpoints(self) -> tuple[str, ...]:
+        """Where a process on this machine reaches this process's router (its listen endpoints, with
+        the any-address replaced by loopback)."""
+        connect = self.connect or self.listen or self._config_listen() or (self.default_endpoint,)
+        return tuple(ep.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]") for ep in connect)
+
+    def child_args(self, user: str) -> list[str]:
+        """Command-line options that make a child service a client of this process's router, logged in
+        as ``user`` (with the same ``--zenoh-config`` as the parent)."""
+        args = [a for ep in self.local_endpoints() for a in ("--connect", ep)]
+        args += ["--prefix", self.prefix, "--machine", self.machine]
+        if self.config_file is not None:
+            args += ["--zenoh-config", os.path.abspath(self.config_file)]
+        if self.insecure:
+            return args + ["--insecure"]
+        return args + ["--state-dir", os.path.abspath(self.state_dir), "--user", user]
 
     def _config_listen(self) -> tuple[str, ...]:
         """The router's listen endpoints in the ``--zenoh-config`` file, if it has one."""
         if self.config_file is None:
             return ()
-        endpoints = json.loads(self.config("router").get_json("listen/endpoints"))
-        if isinstance(endpoints, dict):  # zenoh's per-mode form {"router": [...], "peer": [...]}
-            endpoints = endpoints.get("router", [])
-        return tuple(endpoints)
+        return tuple(self._router_listen(self._base()))
 
 
-def add_arguments(parser) -> None:
+def add_arguments(parser, user_help: str = "log in as this user (default: the service's own)") -> None:
     """The Zenoh options every serving or querying command takes."""
     parser.add_argument("--listen", metavar="ENDPOINT", action="append", default=[],
                         help=f"be a router listening here (repeatable; e.g. {DEFAULT_ENDPOINT})")
     parser.add_argument("--connect", metavar="ENDPOINT", action="append", default=[],
-                        help=f"connect to a router here (repeatable; default {DEFAULT_ENDPOINT})")
+                        help=f"connect to a router here (repeatable; default {DEFAULT_ENDPOINT}, or where "
+                             "the state folder says)")
     parser.add_argument("--zenoh-config", metavar="FILE", default=None,
                         help="zenoh JSON5 configuration file (routers, other hosts, ...)")
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--machine", default=DEFAULT_MACHINE,
                         help=f"machine name in the keys (default {DEFAULT_MACHINE})")
+    parser.add_argument("--state-dir", metavar="DIR", default=DEFAULT_STATE_DIR,
+                        help=f"private folder of the bus's credentials (default {DEFAULT_STATE_DIR})")
+    parser.add_argument("--user", default=None, help=user_help)
+    parser.add_argument("--insecure", action="store_true",
+                        help="no authentication or access control: an open bus (experiments only)")
+    parser.add_argument("--tls", action="store_true",
+                        help="a router: TLS on its links, with a private CA in the state folder")
 
 
 def options_from_args(args) -> ZenohOptions:
     return ZenohOptions(listen=tuple(args.listen), connect=tuple(args.connect),
-                        config_file=args.zenoh_config, prefix=args.prefix, machine=args.machine)
+                        config_file=args.zenoh_config, prefix=args.prefix, machine=args.machine,
+                        state_dir=args.state_dir, user=args.user, insecure=args.insecure, tls=args.tls)
 
 
-def open_session(options: ZenohOptions, default_mode: str = "client"):
+def open_session(options: ZenohOptions, default_mode: str = "client", default_user: str = "operator"):
     """`zenoh.open` with a message that says where it tried to connect."""
     import zenoh
 
+    conf = options.config(default_mode, default_user)
     try:
-        return zenoh.open(options.config(default_mode))
+        return zenoh.open(conf)
     except zenoh.ZError as exc:
         where = options.describe(default_mode)
-        raise ServiceError(f"cannot open a zenoh session ({where}): {zenoh_reason(exc)}; "
+        login = "" if options.insecure else f" as user {options.user or default_user}"
+        raise ServiceError(f"cannot open a zenoh session ({where}{login}): {zenoh_reason(exc)}; "
                            "is `vrsim serve all` running, or is the port taken?") from None
 
 
@@ -279,3 +357,4 @@ class ServiceConfig:
     # controller: folders whose Python files a scenario's [controller] kind = "python" may run (a
     # scenario comes over the bus, so by default no user code runs; absolute paths)
     user_code_dirs: tuple[str, ...] = ()
+    data_root: str = "."  # files named by scenarios received over the bus must lie under this folder

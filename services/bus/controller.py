@@ -27,6 +27,7 @@ import numpy as np
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
+from services.bus.dataroot import DataRoot
 from services.bus.serving import Params, run_service, serve
 from services.outputs.encode import dumps
 from services.sim.landing import applied_rate_kg_ha
@@ -36,9 +37,10 @@ from services.sim.sections import section_masks
 class ControllerService:
     """The handlers of the controller service; publishes through ``publish(key, payload)``."""
 
-    def __init__(self, keys, publish, user_code_dirs: tuple[str, ...] = ()):
+    def __init__(self, keys, publish, data: DataRoot, user_code_dirs: tuple[str, ...] = ()):
         self.keys = keys
         self.publish = publish
+        self.data = data
         self.user_code_dirs = tuple(os.path.realpath(d) for d in user_code_dirs)
         self.lock = threading.Lock()
         self.run_id = ""
@@ -49,11 +51,10 @@ class ControllerService:
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         start = messages.RunStart.from_json(payload)
-        from services.sim import scenario
         from services.sim.core import ControlCore
         from services.sim.world import build_world
 
-        sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
+        sc = self.data.scenario(start.scenario_text, start.source, start.base_dir)
         self._check_user_code(params.key, sc.controller.file)
         world = build_world(sc)  # section control reads the planned path ahead
         core = ControlCore(world.grid, sc, world.field.polygon, world.path)
@@ -137,7 +138,8 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
         # BLOCK: a slow subscriber (the monitor) slows the run down instead of losing records.
         pubs = {k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
                 for k in (keys.shaft, keys.rate)}
-        svc = ControllerService(keys, lambda key, payload: pubs[key].put(payload), config.user_code_dirs)
+        svc = ControllerService(keys, lambda key, payload: pubs[key].put(payload), DataRoot.of(config),
+                                config.user_code_dirs)
         queryable = serve(session, keys.control_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/control/",
                           "controller")
         return [queryable, *pubs.values()]

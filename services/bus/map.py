@@ -14,29 +14,30 @@ import threading
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
-from services.bus.serving import Params, run_service, serve
+from services.bus.dataroot import DataRoot
+from services.bus.serving import Params, body_limit, run_service, serve
 from services.outputs.encode import dumps
-
-MAX_BATCH_POINTS = 10_000_000
 
 
 class MapService:
     """The handlers of the map service over one `maps.Grid` (swapped whole on `load`)."""
 
-    def __init__(self, grid, fixed: bool):
+    def __init__(self, grid, fixed: bool, data: DataRoot):
         self.grid = grid  # a load rebinds it whole; a query reads it once
         self.fixed = fixed
+        self.data = data
 
     def info(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         _no_body(params, payload)
         return dumps(self.grid.info())
 
+    @body_limit(messages.MAX_POINTS_BYTES)
     def rate(self, params: Params, payload: bytes | None) -> bytes:
         grid = self.grid
         if payload:
             params.only()
-            first, second, geo = messages.decode_points(payload, MAX_BATCH_POINTS)
+            first, second, geo = messages.decode_points(payload)
             res = grid.lookup(first, second, crs="EPSG:4326" if geo else None)
             return messages.encode_rates(res.rate_kg_ha, res.inside, res.row, res.col)
         params.only("lat", "lon", "x", "y")
@@ -58,9 +59,7 @@ class MapService:
         start = messages.RunStart.from_json(payload)
         if self.fixed:
             return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
-        from services.sim import scenario
-
-        grid = scenario_grid(scenario.parse(start.scenario_text, start.source, start.base_dir))
+        grid = scenario_grid(self.data.scenario(start.scenario_text, start.source, start.base_dir))
         self.grid = grid
         return dumps({"loaded": True, "source": grid.source, "rows": grid.rows, "cols": grid.cols})
 
@@ -95,7 +94,7 @@ def configured_grid(config: ServiceConfig):
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the configured map until SIGINT/SIGTERM (or ``stop``)."""
-    svc = MapService(*configured_grid(config))
+    svc = MapService(*configured_grid(config), DataRoot.of(config))
     keys = config.zenoh.keys
 
     def declare(session):

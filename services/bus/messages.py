@@ -91,9 +91,24 @@ def _short(value) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _loads(data, what: str):
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # one message or batch of records (a pose batch is ~0.3 MB)
+MAX_BATCH_RECORDS = 10_000  # records in one batch (ticks_per_message is at most 1000)
+MAX_POINTS = 1_000_000  # points in one map/rate body: its reply takes ~0.3 GB while it is built
+# A map/rate body: two arrays of full-precision coordinates take ~40 bytes a point. The cap keeps the
+# parsed lists (a float is 32 bytes, and "1.0," packs one into 4 bytes) under ~0.4 GB.
+MAX_POINTS_BYTES = 48 * 1024 * 1024
+
+
+def _loads(data, what: str, max_bytes: int = MAX_MESSAGE_BYTES, most: tuple | None = None):
+    """Parse JSON bytes, refusing an empty or oversize payload before parsing, and with ``most`` =
+    (token, limit, reason) one that holds ``token`` more than ``limit`` times: counted in C (~10 ms for
+    50 MB), since parsing builds a Python object per value, 10-30 times the bytes."""
     if data is None or len(data) == 0:
         raise ServiceError(f"{what}: empty payload, expected JSON")
+    if len(data) > max_bytes:
+        raise ServiceError(f"{what}: a payload of {len(data):,} bytes is over the {max_bytes:,}-byte limit")
+    if most is not None and len(data) > most[1] and data.count(most[0]) > most[1]:
+        raise ServiceError(f"{what}: {most[2]}, refused before parsing")
     try:
         return orjson.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:  # orjson.JSONDecodeError is a ValueError
@@ -123,9 +138,10 @@ def encode_batch(records) -> bytes:
     return dumps(list(records))
 
 
-def decode_batch(cls, data, max_len: int = 100_000) -> list:
-    """Decode a JSON array of ``cls`` messages (a single object is accepted as a batch of one)."""
-    doc = _loads(data, f"{cls.__name__} batch")
+def decode_batch(cls, data, max_len: int = MAX_BATCH_RECORDS, max_bytes: int = MAX_MESSAGE_BYTES) -> list:
+    """Decode a JSON array of ``cls`` messages (a single object is accepted as a batch of one); at most
+    ``max_bytes`` of JSON (checked before parsing) and ``max_len`` records."""
+    doc = _loads(data, f"{cls.__name__} batch", max_bytes, (b"{", max_len, f"more than {max_len:,} records"))
     if isinstance(doc, dict):
         doc = [doc]
     if not isinstance(doc, list) or not doc:
@@ -249,16 +265,21 @@ class MapRate(Message):
     col: int | None
 
 
-def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.ndarray, bool]:
+def decode_points(data, max_points: int = MAX_POINTS,
+                  max_bytes: int = MAX_POINTS_BYTES) -> tuple[np.ndarray, np.ndarray, bool]:
     """The batch body of ``<prefix>/map/rate``: ``{"x": [...], "y": [...]}`` (map CRS) or
-    ``{"lat": [...], "lon": [...]}`` (WGS84 degrees).
+    ``{"lat": [...], "lon": [...]}`` (WGS84 degrees); at most ``max_bytes`` (checked before parsing)
+    and ``max_points`` points (checked before converting).
 
     Returns
     -------
     (first, second, geographic) : (ndarray (n,), ndarray (n,), bool)
         x, y in the map's CRS, or lon, lat with ``geographic`` True.
     """
-    doc = _loads(data, "map/rate batch")
+    # A valid body has 2n - 1 commas for n points: more, and it holds too many points (or is not a
+    # body), refused before orjson turns millions of values into Python floats.
+    most = (b",", 2 * max_points, f"more than {max_points:,} points")
+    doc = _loads(data, "map/rate batch", max_bytes, most)
     if not isinstance(doc, dict) or set(doc) not in ({"x", "y"}, {"lat", "lon"}):
         keys = sorted(doc) if isinstance(doc, dict) else _short(doc)
         raise ServiceError(f"map/rate batch: body must be {{\"x\": [...], \"y\": [...]}} or "
@@ -270,6 +291,8 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
         values = doc[name]
         if not isinstance(values, list):
             raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {_short(values)}")
+        if len(values) > max_points:
+            raise ServiceError(f"map/rate batch: {len(values):,} points, at most {max_points:,} per query")
         # type() rather than isinstance: bools (an int subclass) and numeric strings are refused.
         if not set(map(type, values)) <= {float, int}:
             bad = next(v for v in values if type(v) is not float and type(v) is not int)
@@ -279,8 +302,6 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
     first, second = arrays
     if len(first) != len(second):
         raise ServiceError(f"map/rate batch: {names[0]} has {len(first)} values, {names[1]} {len(second)}")
-    if len(first) > max_points:
-        raise ServiceError(f"map/rate batch: {len(first)} points, at most {max_points} per query")
     bad = ~np.isfinite(first) | ~np.isfinite(second)
     if geo:
         bad |= (np.abs(second) > 90.0) | (np.abs(first) > 180.0)
@@ -295,18 +316,27 @@ def decode_points(data, max_points: int = 10_000_000) -> tuple[np.ndarray, np.nd
 _OUTSIDE = {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
 
 
+ENCODE_CHUNK = 100_000  # points encoded at a time: their dicts take ~25 MB, not ~250 MB for a million
+
+
 def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, col: np.ndarray) -> bytes:
     """The batch reply of ``<prefix>/map/rate``: a JSON array of `MapRate` objects.
 
     orjson writes NaN rates (nodata) as null and floats as their shortest round-trip text, as
-    json.dumps would: ~1 us per point, a dict each; outside points share one dict.
+    json.dumps would: ~1 us per point, a dict each (outside points share one dict), `ENCODE_CHUNK`
+    points at a time so that memory holds the reply's bytes and one chunk's dicts.
     """
-    rates, rows, cols = rate_kg_ha.tolist(), row.tolist(), col.tolist()
-    docs = [{"rate_kg_ha": r, "inside": True, "row": i, "col": j}
-            for r, i, j in zip(rates, rows, cols, strict=True)]
-    for k in np.flatnonzero(~np.asarray(inside, bool)).tolist():
-        docs[k] = _OUTSIDE
-    return dumps(docs)
+    outside = ~np.asarray(inside, bool)
+    parts = []
+    for a in range(0, len(rate_kg_ha), ENCODE_CHUNK):
+        b = a + ENCODE_CHUNK
+        rates, rows, cols = rate_kg_ha[a:b].tolist(), row[a:b].tolist(), col[a:b].tolist()
+        docs = [{"rate_kg_ha": r, "inside": True, "row": i, "col": j}
+                for r, i, j in zip(rates, rows, cols, strict=True)]
+        for k in np.flatnonzero(outside[a:b]).tolist():
+            docs[k] = _OUTSIDE
+        parts.append(dumps(docs)[1:-1])  # the objects, without the array's brackets
+    return b"[" + b",".join(parts) + b"]"
 
 
 # ------------------------------------------------------------------------------------- run control

@@ -5,8 +5,13 @@ Every message it receives is committed to a local SQLite database (WAL) before t
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
 ``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
 `services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
-as ``vrsim run --json`` (for the ticks received so far: pose, shaft and rate all stored). That rebuild
-is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
+as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
+``missing_ticks`` and ``complete``: the ticks it did not get (a monitor that was down for a while).
+That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
+
+Integrity: a record is stored only for a run announced by ``monitor/load`` (scenario control; the
+access rules let no one else load a run) and only once per tick: a second record for a stored tick is
+ignored, never written over the first.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ import numpy as np
 from common import ServiceError
 from services.bus import messages
 from services.bus.config import ServiceConfig
-from services.bus.serving import Params, guarded, run_service, serve
+from services.bus.dataroot import DataRoot
+from services.bus.serving import Params, guarded, payload_bytes, run_service, serve
 from services.outputs.encode import dumps
 
 NAN = float("nan")
@@ -84,23 +90,30 @@ class MonitorStore:
                        "PRIMARY KEY (run_id, tick)) WITHOUT ROWID")
 
     def add_run(self, start: messages.RunStart) -> None:
+        """Announce a run (a second announcement of the same run id changes nothing)."""
         with self.lock:
-            self.db.execute("INSERT OR REPLACE INTO runs (run_id, scenario_text, source, base_dir, clock, "
+            self.db.execute("INSERT OR IGNORE INTO runs (run_id, scenario_text, source, base_dir, clock, "
                             "started_unix, last_unix) VALUES (?, ?, ?, ?, ?, ?, ?)",
                             (start.run_id, start.scenario_text, start.source, start.base_dir, start.clock,
                              time.time(), time.time()))
 
+    def run_ids(self) -> set[str]:
+        """Every run announced so far."""
+        with self.lock:
+            return {row[0] for row in self.db.execute("SELECT run_id FROM runs")}
+
     def add(self, table: str, records: list) -> None:
-        """Store one message's records in one transaction (duplicates replace: idempotent)."""
+        """Store one message's records in one transaction; a tick already stored keeps its first record."""
         cols = _columns(STREAMS[table])
         rows = [(r.run_id, r.tick, *(getattr(r, c) for c in cols)) for r in records]
         marks = ", ".join("?" * (len(cols) + 2))
         with self.lock:
             self.db.execute("BEGIN")
             try:
-                self.db.executemany(f"INSERT OR REPLACE INTO {table} VALUES ({marks})", rows)
-                self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
-                                (time.time(), records[0].run_id))
+                insert = f"INSERT OR IGNORE INTO {table} VALUES ({marks})"
+                if self.db.executemany(insert, rows).rowcount > 0:  # ticks already stored change nothing
+                    self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
+                                    (time.time(), records[0].run_id))
                 self.db.execute("COMMIT")
             except BaseException:
                 self.db.execute("ROLLBACK")
@@ -157,8 +170,9 @@ class MonitorStore:
 
     def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.account` takes; the track also holds
-        the `MEASURED` arrays) over the complete ticks: 0..n-1 with pose, shaft and rate all stored;
-        `sections`: the implement's (for the masks)."""
+        the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
+        ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`: the
+        implement's (for the masks)."""
         from services.sim.sections import sections_from_masks
 
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
@@ -173,35 +187,52 @@ class MonitorStore:
         masks = [row[-1] for row in rows]
         table = np.array([row[:-1] for row in rows], dtype=np.float64).reshape(
             len(rows), 1 + len(pose_cols) + len(shaft_cols) + len(rate_cols))
-        ticks = table[:, 0]
-        # The complete prefix 0..n-1: a tick still in flight on one stream ends it.
-        gaps = np.flatnonzero(ticks != np.arange(len(ticks)))
-        n = int(gaps[0]) if len(gaps) else len(ticks)
-        cols = table[:n, 1:]
+        cols = table[:, 1:]
         track = {c: cols[:, i] for i, c in enumerate(pose_cols)}
         track["implement_on"] = track["implement_on"].astype(bool)
+        track["tick"] = table[:, 0].astype(np.int64)
         k = len(pose_cols)
         control = {c: cols[:, k + i] for i, c in enumerate(shaft_cols + rate_cols)}
         try:
-            control["sections_on"] = sections_from_masks(masks[:n], sections)
+            control["sections_on"] = sections_from_masks(masks, sections)
         except ValueError as exc:
             raise ServiceError(f"{run_id}: rate records: {exc}") from None
         return track, control
 
 
+def missing_ticks(ticks: np.ndarray) -> list[list[int]]:
+    """The ticks in 0..max(ticks) that ``ticks`` (sorted, unique) lacks, as [first, last] ranges."""
+    ticks = np.asarray(ticks, dtype=np.int64)
+    if len(ticks) == 0:
+        return []
+    before = np.concatenate(([-1], ticks[:-1]))
+    gaps = np.flatnonzero(ticks - before > 1)
+    return [[int(before[i]) + 1, int(ticks[i]) - 1] for i in gaps]
+
+
 class MonitorService:
     """Handlers of the monitor: ingest the streams, report, status, load a run."""
 
-    def __init__(self, store: MonitorStore):
+    def __init__(self, store: MonitorStore, data: DataRoot):
         self.store = store
+        self.data = data
         self.worlds: dict[str, object] = {}  # run_id -> World, rebuilt once per run from its text
         self.report_lock = threading.Lock()
+        self.runs = store.run_ids()  # the runs announced by monitor/load: records of others are dropped
 
     def ingest(self, table: str):
         cls = STREAMS[table]
 
         def on_sample(sample) -> None:
-            self.store.add(table, messages.decode_batch(cls, sample.payload.to_bytes()))
+            data = payload_bytes(sample.payload, str(sample.key_expr), messages.MAX_MESSAGE_BYTES)
+            records = messages.decode_batch(cls, data)
+            known = [r for r in records if r.run_id in self.runs]
+            if known:
+                self.store.add(table, known)
+            if len(known) < len(records):
+                unknown = next(r.run_id for r in records if r.run_id not in self.runs)
+                raise ServiceError(f"{len(records) - len(known)} record(s) of run {unknown!r}, which no "
+                                   "monitor/load announced")
 
         return on_sample
 
@@ -209,6 +240,7 @@ class MonitorService:
         params.only()
         start = messages.RunStart.from_json(payload)
         self.store.add_run(start)
+        self.runs.add(start.run_id)
         return dumps({"loaded": True, "run_id": start.run_id})
 
     def status(self, params: Params, payload: bytes | None) -> bytes:
@@ -249,7 +281,7 @@ class MonitorService:
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
         if world is None:
-            world = run_world(run)
+            world = run_world(run, self.data)
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
         return world
 
@@ -260,12 +292,15 @@ class MonitorService:
         return {"load": self.load, "status": self.status, "run": self.run_info, "records": self.records}
 
 
-def run_world(run: dict):
-    """The world of a recorded run, rebuilt from the scenario text the run was started with."""
+def run_world(run: dict, data: DataRoot | None = None):
+    """The world of a recorded run, rebuilt from the scenario text the run was started with (its files
+    confined to `data`'s root when given: the monitor's scenarios came over the bus; ``vrsim report``
+    reads local files as ``vrsim run`` does)."""
     from services.sim import scenario
     from services.sim.world import build_world
 
-    return build_world(scenario.parse(run["scenario_text"], run["source"], run["base_dir"]))
+    parse = scenario.parse if data is None else data.scenario
+    return build_world(parse(run["scenario_text"], run["source"], run["base_dir"]))
 
 
 def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
@@ -300,6 +335,8 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     summary["stage_s"] = stage
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
+    summary["missing_ticks"] = missing_ticks(track["tick"])
+    summary["complete"] = not summary["missing_ticks"]
     return RunResult(world=world, track=track, control=control, stage_s=stage, summary=summary,
                      started_unix=run["started_unix"], **measured, **rest)
 
@@ -314,7 +351,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
     store = MonitorStore(config.db or default_db(config.zenoh))
-    svc = MonitorService(store)
+    svc = MonitorService(store, DataRoot.of(config))
     keys = config.zenoh.keys
     base = f"{keys.prefix}/{keys.machine}/"
 

@@ -2,15 +2,18 @@
 
 ``<prefix>/scenario/start`` (body: a scenario file's TOML text, or empty for the built-in default)
 parses and builds the scenario exactly as ``vrsim run`` does, so a bad one is refused with the same
-message the CLI prints; then it loads the run into the map, controller and monitor services and
-starts the vehicle. ``<prefix>/scenario/status`` says how far the run is, what the monitor has
-stored, and which services are alive (liveliness tokens, so a killed service shows within
-milliseconds); ``<prefix>/scenario/stop`` stops the vehicle. ``<prefix>/<anything>`` else at the top
-level gets an error reply naming the keys that exist.
+message the CLI prints (files it names must lie under the data root, `services.bus.dataroot`); then
+it loads the run into the map, controller and monitor services and starts the vehicle. The building
+runs in a thread of its own, at most `BUILD_TIMEOUT_S`, so ``status`` and ``stop`` answer meanwhile.
+``<prefix>/scenario/status`` says how far the run is, what the monitor has stored, and which
+services are alive (liveliness tokens, so a killed service shows within milliseconds);
+``<prefix>/scenario/stop`` stops the vehicle. ``<prefix>/<anything>`` else at the top level gets an
+error reply naming the keys that exist.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import threading
@@ -19,10 +22,12 @@ import time
 from common import ServiceError
 from services.bus import client, messages
 from services.bus.config import SERVICES, Keys, ServiceConfig
-from services.bus.serving import Params, run_service, serve
+from services.bus.dataroot import DataRoot
+from services.bus.serving import Later, Params, run_service, serve, within
 from services.outputs.encode import dumps
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
+BUILD_TIMEOUT_S = 60.0  # building the world of a scenario (the caps make a real one take seconds)
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
 DEFAULT_TICKS_PER_MESSAGE = 50
 
@@ -37,16 +42,14 @@ def new_run_id(name: str, counter: int) -> str:
 class ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
-    def __init__(self, session, keys: Keys):
-        self.session, self.keys = session, keys
+    def __init__(self, session, keys: Keys, data: DataRoot):
+        self.session, self.keys, self.data = session, keys, data
         self.lock = threading.Lock()  # one start or stop at a time
+        self.building = threading.Lock()  # one world being built at a time (held until it is done)
         self.counter = 0
 
-    def start(self, params: Params, payload: bytes | None) -> bytes:
+    def start(self, params: Params, payload: bytes | None) -> Later:
         params.only("source", "base_dir", "clock", "speed", "ticks_per_message")
-        from services.sim import scenario
-        from services.sim.world import build_world
-
         clock = params.text("clock", "lockstep")
         if clock not in messages.CLOCKS:
             raise ServiceError(f"{params.key}: parameter clock={clock!r} must be one of "
@@ -55,28 +58,46 @@ class ScenarioService:
         per_message = params.integer("ticks_per_message", *messages.TICKS_PER_MESSAGE_RANGE,
                                      default=DEFAULT_TICKS_PER_MESSAGE)
         text, source, base_dir = self._scenario_text(params, payload)
-        sc = scenario.parse(text, source, base_dir)
-        build_world(sc)  # refuses what `vrsim run` refuses (a missing map file, a map off the field...)
+        sc = self.data.scenario(text, source, base_dir)
+        start = messages.RunStart("", text, source, base_dir, clock, speed, per_message)
+        return Later(lambda: self._start(params.key, sc, start))
+
+    def _build(self, key: str, sc) -> None:
+        """`build_world(sc)` in its own thread, at most `BUILD_TIMEOUT_S`: it refuses what `vrsim run`
+        refuses (a missing map file, a map off the field...)."""
+        from services.sim.world import build_world
+
+        if not self.building.acquire(blocking=False):
+            raise ServiceError(f"{key}: still building the world of an earlier start; try again later")
+
+        def build():
+            try:
+                build_world(sc)
+            finally:
+                self.building.release()
+
+        within(BUILD_TIMEOUT_S, build, f"{key}: building the world of {sc.source}")
+
+    def _start(self, key: str, sc, start: messages.RunStart) -> bytes:
+        self._build(key, sc)
         with self.lock:
             # Check first, so that no service loads a run that cannot start.
             alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
             missing = [s for s in SERVICES if s != "scenario" and s not in alive]
             if missing:
-                raise ServiceError(f"{params.key}: cannot start, service(s) not alive: {', '.join(missing)} "
+                raise ServiceError(f"{key}: cannot start, service(s) not alive: {', '.join(missing)} "
                                    f"(liveliness {self.keys.alive('*')})")
             state = self._vehicle_status()
             if state is not None and state["state"] in ("starting", "running"):
-                raise ServiceError(f"{params.key}: run {state['run_id']} is {state['state']}; "
+                raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
                                    f"stop it first ({self.keys.scenario('stop')})")
             self.counter += 1
-            run_id = new_run_id(sc.name, self.counter)
-            start = messages.RunStart(run_id, text, source, base_dir, clock, speed, per_message)
+            start = dataclasses.replace(start, run_id=new_run_id(sc.name, self.counter))
             body = start.to_json()
-            for key, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
-                              (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
-                client.request(self.session, key, body, LOAD_TIMEOUT_S,
-                               what=f"{params.key}: the {name} service")
-        return dumps({"run_id": run_id, "state": "running", "scenario": sc.name, "clock": clock})
+            for load, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
+                               (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
+                client.request(self.session, load, body, LOAD_TIMEOUT_S, what=f"{key}: the {name} service")
+        return dumps({"run_id": start.run_id, "state": "running", "scenario": sc.name, "clock": start.clock})
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
         from services.sim import scenario
@@ -90,7 +111,7 @@ class ScenarioService:
         except UnicodeDecodeError:
             raise ServiceError(f"{params.key}: the body is not UTF-8 text (send a scenario TOML file)") \
                 from None
-        return text, params.text("source", "<scenario>"), params.text("base_dir", os.getcwd())
+        return text, params.text("source", "<scenario>"), params.text("base_dir", self.data.root)
 
     def _vehicle_status(self) -> dict | None:
         try:
@@ -146,7 +167,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
             "see docs/api.md")
 
     def declare(session):
-        svc = ScenarioService(session, keys)
+        svc = ScenarioService(session, keys, DataRoot.of(config))
         return [serve(session, keys.scenario_ns, svc.handlers(), f"{keys.prefix}/scenario/", "scenario"),
                 # <prefix>/<one chunk> is no vrsim key: answer so, rather than leave the caller in silence
                 serve(session, keys.top_ns, {}, f"{keys.prefix}/", "scenario", hint=hint)]

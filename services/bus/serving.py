@@ -12,6 +12,7 @@ import sys
 import threading
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from common import ServiceError, VrsimError
 from services.bus.config import Keys, ZenohOptions, open_session
@@ -82,37 +83,106 @@ class Params:
         return int(value)
 
 
-Handler = Callable[[Params, bytes | None], bytes]
+DEFAULT_MAX_BODY_BYTES = 8 * 1024 * 1024  # a lockstep pose batch is ~0.3 MB, a scenario at most 1 MB
+
+
+def body_limit(max_bytes: int):
+    """Decorate a handler whose key takes bodies larger than `DEFAULT_MAX_BODY_BYTES` (map/rate)."""
+
+    def mark(fn):
+        fn.max_body_bytes = max_bytes
+        return fn
+
+    return mark
+
+
+@dataclass(frozen=True)
+class Later:
+    """What a handler returns when its reply takes long (building a world): `serve` runs ``work`` in a
+    thread of its own and replies with its result (or its error) when done, so the queryable's other
+    keys (``status``, ``stop``) keep answering meanwhile."""
+
+    work: Callable[[], bytes]
+
+
+Handler = Callable[[Params, bytes | None], "bytes | Later"]
+
+
+def within(timeout_s: float, fn: Callable, what: str):
+    """``fn()`` in a daemon thread; its result, or a `ServiceError` when it takes longer than ``timeout_s``
+    (the thread cannot be killed: it finishes on its own and its result is dropped)."""
+    done: list = []
+
+    def run():
+        try:
+            done.append((True, fn()))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            done.append((False, exc))
+
+    worker = threading.Thread(target=run, name="vrsim-within", daemon=True)
+    worker.start()
+    worker.join(timeout_s)
+    if not done:
+        raise ServiceError(f"{what}: took longer than {timeout_s:g} s; refused")
+    ok, value = done[0]
+    if not ok:
+        raise value
+    return value
 
 
 def serve(session, namespace: str, handlers: dict[str, Handler], strip: str, service: str,
           hint: str | None = None):
     """Declare one queryable over ``namespace`` that dispatches on the key's tail after ``strip``.
 
-    A handler takes (params, payload bytes or None) and returns the reply payload. A `VrsimError`
-    (bad input) becomes an error reply ``{"error": message}``; any other exception also becomes one
-    (prefixed "internal error", traceback on stderr) so no query is left unanswered and the service
-    keeps serving. ``hint`` replaces the list of keys in the unknown-key message.
+    A handler takes (params, payload bytes or None) and returns the reply payload, or a `Later`. A
+    body larger than the handler's limit (`body_limit`, default `DEFAULT_MAX_BODY_BYTES`) is refused
+    before the handler sees it. A `VrsimError` (bad input) becomes an error reply
+    ``{"error": message}``; any other exception also becomes one (prefixed "internal error",
+    traceback on stderr) so no query is left unanswered and the service keeps serving. ``hint``
+    replaces the list of keys in the unknown-key message.
     """
 
-    def on_query(query) -> None:
-        key = str(query.key_expr)
+    def answer(query, key: str, work: Callable[[], "bytes | Later"]) -> None:
         try:
-            tail = key[len(strip):] if key.startswith(strip) else key
-            handler = handlers.get(tail)
-            if handler is None:
-                known = ", ".join(strip + t for t in sorted(handlers))
-                raise ServiceError(f"{key}: unknown key ({hint or f'the {service} service serves {known}'})")
-            payload = query.payload.to_bytes() if query.payload is not None else None
-            reply = handler(Params(key, query.parameters), payload)
+            reply = work()
+            if isinstance(reply, Later):
+                threading.Thread(target=answer, args=(query, key, reply.work), name=f"vrsim-{service}-later",
+                                 daemon=True).start()
+                return
             query.reply(query.key_expr, reply)
         except VrsimError as exc:
             _reply_err(query, str(exc))
         except Exception as exc:  # noqa: BLE001 - a bug must still answer, or the caller waits for nothing
             traceback.print_exc(file=sys.stderr)
             _reply_err(query, f"{key}: internal error in the {service} service: {type(exc).__name__}: {exc}")
+        query.drop()  # answered: the querier's "no more replies" goes out now, not when Python collects it
+
+    def on_query(query) -> None:
+        key = str(query.key_expr)
+
+        def work():
+            tail = key[len(strip):] if key.startswith(strip) else key
+            handler = handlers.get(tail)
+            if handler is None:
+                known = ", ".join(strip + t for t in sorted(handlers))
+                raise ServiceError(f"{key}: unknown key ({hint or f'the {service} service serves {known}'})")
+            limit = getattr(handler, "max_body_bytes", DEFAULT_MAX_BODY_BYTES)
+            return handler(Params(key, query.parameters), payload_bytes(query.payload, key, limit))
+
+        answer(query, key, work)
 
     return session.declare_queryable(namespace, on_query)
+
+
+def payload_bytes(payload, key: str, max_bytes: int) -> bytes | None:
+    """The body's bytes, refused by its size before it is copied or parsed."""
+    if payload is None:
+        return None
+    size = len(payload)
+    if size > max_bytes:
+        raise ServiceError(f"{key}: a body of {size:,} bytes is over the {max_bytes:,}-byte limit of this "
+                           "key")
+    return payload.to_bytes()
 
 
 def _reply_err(query, message: str) -> None:
@@ -172,10 +242,11 @@ def _parent_gone() -> Callable[[], bool] | None:
 
 def run_service(name: str, options: ZenohOptions, declare: Callable, default_mode: str = "client",
                 stop: threading.Event | None = None) -> None:
-    """The life of one service: open a session, ``declare(session)``, announce liveliness, serve until
-    SIGINT/SIGTERM (or ``stop``), close. ``declare`` returns what to keep alive (queryables, ...)."""
+    """The life of one service: open a session (logged in as the user ``name`` unless ``--user`` says
+    otherwise), ``declare(session)``, announce liveliness, serve until SIGINT/SIGTERM (or ``stop``),
+    close. ``declare`` returns what to keep alive (queryables, ...)."""
     stop = stop or threading.Event()
-    with open_session(options, default_mode) as session:
+    with open_session(options, default_mode, default_user=name) as session:
         keep = declare(session)
         token = declare_alive(session, options.keys, name)
         print(f"vrsim serve {name}: ready ({options.describe(default_mode)}, prefix {options.prefix})",

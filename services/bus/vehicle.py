@@ -21,6 +21,7 @@ import traceback
 from common import ServiceError, VrsimError
 from services.bus import messages
 from services.bus.config import ServiceConfig
+from services.bus.dataroot import DataRoot
 from services.bus.serving import Params, error_message, run_service, serve
 
 STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
@@ -29,8 +30,9 @@ STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fa
 class VehicleService:
     """Run state and handlers of the vehicle service; the drive loop runs in a worker thread."""
 
-    def __init__(self, session, keys, publish_pose):
+    def __init__(self, session, keys, publish_pose, data: DataRoot | None = None):
         self.session, self.keys, self.publish_pose = session, keys, publish_pose
+        self.data = data
         self.lock = threading.Lock()
         self.status = messages.RunStatus("idle", "", "", "", 0, 0.0, 0.0, 0.0, "")
         self.stop_flag = threading.Event()
@@ -46,16 +48,13 @@ class VehicleService:
             if self.status.state in ("starting", "running"):
                 raise ServiceError(f"{params.key}: run {self.status.run_id} is {self.status.state}; "
                                    "stop it first")
-            from services.sim import scenario
-            from services.sim.world import build_world
-
-            sc = scenario.parse(start.scenario_text, start.source, start.base_dir)
-            world = build_world(sc)
+            sc = self.data.scenario(start.scenario_text, start.source, start.base_dir)
             self.stop_flag.clear()
             self.wall0, self.drive0 = time.monotonic(), None
             self.status = messages.RunStatus("starting", start.run_id, sc.name, start.clock, 0, 0.0, 0.0, 0.0,
                                              "")
-            self.worker = threading.Thread(target=self._run, args=(start, world), name="vrsim-drive",
+            # The world is built in the worker, so that status and stop answer while it is built.
+            self.worker = threading.Thread(target=self._run, args=(start, sc), name="vrsim-drive",
                                            daemon=True)
             self.worker.start()
             return self.status.to_json()
@@ -99,9 +98,11 @@ class VehicleService:
         st.wall_s = now - self.wall0
         st.drive_s = now - self.drive0 if self.drive0 is not None else 0.0
 
-    def _run(self, start: messages.RunStart, world) -> None:
+    def _run(self, start: messages.RunStart, sc) -> None:
+        from services.sim.world import build_world
+
         try:
-            state = self._drive(start, world)
+            state = self._drive(start, build_world(sc))
             self._set(state=state)
         except VrsimError as exc:
             self._set(state="failed", error=str(exc))
@@ -197,7 +198,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
 
     def declare(session):
         pub = session.declare_publisher(keys.pose, congestion_control=zenoh.CongestionControl.BLOCK)
-        svc = VehicleService(session, keys, pub.put)
+        svc = VehicleService(session, keys, pub.put, DataRoot.of(config))
         queryable = serve(session, keys.vehicle_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/vehicle/",
                           "vehicle")
         return [queryable, svc, pub]

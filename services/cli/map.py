@@ -7,6 +7,7 @@ import math
 import sys
 
 from common import MapError
+from services.cli.options import add_input_cap, apply_input_cap
 from services.outputs.encode import dumps_text
 
 HELP = "prescription maps: info, sample, convert, plot"
@@ -23,6 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
         p.add_argument("--crs", help="CRS of a file that does not state one (e.g. a shapefile without .prj)")
         p.add_argument("--max-cells", type=int, default=200_000_000, metavar="N",
                        help="refuse grids with more cells (default 200,000,000; 0: no cap)")
+        add_input_cap(p)
 
     p = sub.add_parser("info", help="format, CRS, bounds, cell size, size, rate statistics")
     reading(p)
@@ -69,6 +71,7 @@ def run(args) -> int:
     _warnings_as_lines()
     if args.max_cells < 0:
         raise MapError(f"--max-cells {args.max_cells}: must be >= 0")
+    apply_input_cap(args)
     return {"info": _info, "sample": _sample, "convert": _convert, "plot": _plot}[args.map_command](args)
 
 

@@ -4,6 +4,9 @@ KEY may leave out the prefix (``map/rate`` means ``vrsim/map/rate``) and the mac
 means ``vrsim/tractor1/report``). The reply is printed as the service sent it (one JSON document); an
 error reply prints ``vrsim query: error: MESSAGE`` on stderr and exits 2. ``--watch`` subscribes to a
 published key (pose, shaft, rate) instead and prints ``--count`` samples, one per line.
+
+It logs in as ``operator`` (``--user``) with the credentials of the state folder (``--state-dir``,
+default ``.vrsim``) that ``vrsim serve all`` wrote, and connects where that router listens.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from __future__ import annotations
 import math
 import sys
 
-from common import ServiceError
+from common import ServiceError, files
 from services.bus.client import request
 from services.bus.config import (
     QUERY_TIMEOUT_S,
@@ -36,7 +39,7 @@ def configure(parser) -> None:
     parser.add_argument("--watch", action="store_true", help="subscribe to KEY and print samples")
     parser.add_argument("--count", type=int, default=1, metavar="N",
                         help="--watch: samples to print (default 1)")
-    add_arguments(parser)
+    add_arguments(parser, user_help="log in as this user: operator (default), viewer, ...")
 
 
 def full_key(key: str, keys: Keys) -> str:
@@ -63,15 +66,18 @@ def selector(key: str, params: list[str]) -> str:
 
 
 def _body(path: str | None) -> bytes | None:
+    """The body: a regular file or standard input, at most `MAX_BODY_BYTES` (what the router passes)."""
+    from services.bus.security import MAX_BODY_BYTES
+
     if path is None:
         return None
-    if path == "-":
-        return sys.stdin.buffer.read()
-    try:
-        with open(path, "rb") as fh:
-            return fh.read()
-    except OSError as exc:
-        raise ServiceError(f"--body {path}: cannot read: {exc.strerror}") from None
+    if path != "-":
+        return files.read_bytes(path, "query body", ServiceError, limit=MAX_BODY_BYTES)
+    data = sys.stdin.buffer.read(MAX_BODY_BYTES + 1)
+    if len(data) > MAX_BODY_BYTES:
+        raise ServiceError(f"--body -: standard input holds more than the {MAX_BODY_BYTES:,} bytes a body "
+                           "may have")
+    return data
 
 
 def run(args) -> int:
@@ -84,10 +90,11 @@ def run(args) -> int:
     options = options_from_args(args)
     key = full_key(args.key, options.keys)
     body = _body(args.body)
-    with open_session(options, "client") as session:
+    user = None if options.insecure else options.user or "operator"
+    with open_session(options, "client", default_user="operator") as session:
         if args.watch:
             return _watch(session, key, args.count, args.timeout)
-        reply = request(session, selector(key, args.params), body, args.timeout, what=key)
+        reply = request(session, selector(key, args.params), body, args.timeout, what=key, user=user)
     sys.stdout.write(reply.decode("utf-8", "replace").rstrip("\n") + "\n")
     return 0
 

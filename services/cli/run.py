@@ -7,6 +7,8 @@ import os
 import sys
 import time
 
+from services.cli.options import add_input_cap, apply_input_cap
+
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
 
 
@@ -23,6 +25,7 @@ def configure(parser) -> None:
     parser.add_argument("--check", action="store_true",
                         help="only say whether the machine can apply the map at the working speeds, and the "
                              "highest speed at which it can; then exit (nothing is driven)")
+    add_input_cap(parser)
 
 
 def default_out_dir(name: str, command: str = "") -> str:
@@ -64,6 +67,7 @@ def run(args) -> int:
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
 
+    apply_input_cap(args)
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     if args.check:
         return check(sc, args.json)

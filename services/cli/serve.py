@@ -4,10 +4,16 @@
 map, vehicle, controller, monitor and scenario as child processes connected to it; Ctrl-C or SIGTERM
 stops them all. A single service is a client of a router (``--connect``, default 127.0.0.1:7448), or
 a router itself with ``--listen``. See docs/api.md for the keys.
+
+Secure by default (docs/api.md, "Security"): the router generates credentials into the private
+``--state-dir`` and enforces who may do what, every child logs in as its own user, files named by
+scenarios from the bus must lie under ``--data-root`` and error messages quote no file content.
+``--insecure`` opens the bus, with a warning.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import signal
@@ -16,7 +22,7 @@ import sys
 import threading
 import time
 
-from common import ServiceError
+from common import ServiceError, files
 from services.bus.client import alive_services, request_json
 from services.bus.config import (
     SERVICES,
@@ -28,6 +34,7 @@ from services.bus.config import (
     options_from_args,
 )
 from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
+from services.cli.options import add_input_cap, apply_input_cap
 
 HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, web, or all"
 CHOICES = (*SERVICES, "router", "web", "all")
@@ -64,11 +71,26 @@ def configure(parser) -> None:
                         help="all --web: where the page listens (default 127.0.0.1:8448); "
                              "`serve web` takes it as --listen HOST:PORT")
     parser.add_argument("--operator", action="store_true",
-                        help="web: allow starting and stopping runs from the page (default: a viewer)")
+                        help="web: allow starting and stopping runs from the page, through a session "
+                             "logged in as `operator` from the state folder (default: a viewer)")
+    parser.add_argument("--data-root", metavar="DIR", default=".",
+                        help="files named by scenarios received over the bus must lie under DIR "
+                             "(default: the folder serve runs in)")
+    add_input_cap(parser)
+
+
+INSECURE_WARNING = ("vrsim serve {name}: WARNING: --insecure: no authentication and no access control; any "
+                    "process that reaches {where} can read every stream, start and stop runs, load maps and "
+                    "forge records")
 
 
 def run(args) -> int:
     config = service_config(args)
+    apply_input_cap(args)
+    files.show_content(False)  # files are named by others over the bus: messages never quote them
+    if config.zenoh.insecure and not os.environ.get(PARENT_ENV):  # serve all warns for its children
+        where = ", ".join(config.zenoh.local_endpoints())
+        print(INSECURE_WARNING.format(name=args.service, where=where), file=sys.stderr, flush=True)
     if args.scenario is not None and args.service not in ("all", "map"):
         raise ServiceError(f"serve {args.service}: takes no SCENARIO ({args.scenario!r}); scenario control "
                            "sends each service the run's scenario (give it to `vrsim serve all` or "
@@ -79,24 +101,32 @@ def run(args) -> int:
 
 
 def service_config(args) -> ServiceConfig:
+    if not os.path.isdir(args.data_root):
+        raise ServiceError(f"--data-root {args.data_root}: not a folder")
     web_listen = None
     if args.service == "web":  # its --listen is the page's HOST:PORT: it is a zenoh client only
         if len(args.listen) > 1:
             raise ServiceError("serve web: give --listen HOST:PORT once")
         web_listen, args.listen = (args.listen or [None])[0], []
     options = options_from_args(args)
+    # web --operator: start and stop go through a second session, logged in with the operator's
+    # credential from the state folder (the web user itself is a viewer).
+    operator = dataclasses.replace(options, user="operator") if args.operator else None
     return ServiceConfig(zenoh=options, scenario=args.scenario, map_file=args.map,
                          rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db,
                          web_listen=web_listen or args.web_listen,
                          user_code_dirs=tuple(os.path.abspath(d) for d in args.allow_user_code),
-                         operator=options if args.operator else None)  # the bus has no roles yet
+                         operator=operator, data_root=args.data_root)
 
 
 def _child_argv(args, options: ZenohOptions, name: str, user_code_dirs: tuple[str, ...] = ()) -> list[str]:
     argv = [sys.executable, "-m", "services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
-    argv += options.child_args()
+    argv += options.child_args(name)
+    argv += ["--data-root", os.path.abspath(args.data_root)]
+    if args.max_input_mb is not None:
+        argv += ["--max-input-mb", repr(args.max_input_mb)]
     if name == "map":
         if args.map is not None:
             argv += ["--map", os.path.abspath(args.map)]
@@ -154,8 +184,10 @@ def serve_all(args, options: ZenohOptions) -> int:
                 reply = request_json(session, start_selector, start_payload, timeout_s=120.0,
                                         what="vrsim serve all: starting the scenario")
                 print(f"vrsim serve all: started run {reply['run_id']}", file=sys.stderr, flush=True)
+            login = "" if options.insecure else \
+                f", log in with {os.path.join(options.state_dir, '<user>.json5')} (operator, viewer)"
             print(f"vrsim serve all: ready ({options.describe('router')}, prefix {options.prefix}, "
-                  f"machine {options.machine}); Ctrl-C stops", file=sys.stderr, flush=True)
+                  f"machine {options.machine}{login}); Ctrl-C stops", file=sys.stderr, flush=True)
             reported: set[str] = set()
 
             def watch() -> bool:

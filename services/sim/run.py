@@ -224,7 +224,9 @@ def account(world: World, track: dict, control: dict, wall0: float):
 
     `control` holds at least ``metered_kg``, ``width_on_m``, ``target_shaft_rpm`` and ``sections_on``
     (`services.sim.core.CONTROL_KEYS`; ``sections_commanded`` too from `vrsim run`): what `vrsim run`
-    computes and what the monitor rebuilds from its records.
+    computes and what the monitor rebuilds from its records. ``track["tick"]``, when given, numbers
+    the ticks the arrays hold: a record with gaps (the monitor's after it was down) lands each stretch
+    on its own (no strip joins across a gap); ``ticks`` and ``sim_time_s`` count what is there.
     """
     scenario, grid = world.scenario, world.grid
     implement, timing = scenario.implement, scenario.timing

@@ -22,17 +22,19 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, VrsimError, is_number
+from common import ScenarioError, VrsimError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
+from vehicle.driver import MAX_SEED, STEP_RANGE_S
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
 POLICIES = ("off", "hold", "default")
+MAX_SIM_TIME_S = 1e6  # an explicit time limit above ~11.6 days of driving is a typo, not a field
 
 
 @dataclass(frozen=True)
@@ -148,13 +150,13 @@ def read(spec: str | None) -> tuple[str, str, str]:
     if not os.path.exists(spec) and spec in builtin_names():
         with open(os.path.join(BUILTIN_DIR, spec + ".toml"), "rb") as fh:
             return fh.read().decode(), f"builtin:{spec}", BUILTIN_DIR
-    if not os.path.isfile(spec):
+    if not os.path.exists(spec):
         raise ScenarioError(f"{spec}: no such scenario file (built-in scenarios: "
                             f"{', '.join(builtin_names())})")
+    data = files.read_bytes(spec, "toml", ScenarioError)  # a regular file within the TOML cap
     try:
-        with open(spec, "rb") as fh:
-            text = fh.read().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
         raise ScenarioError(f"{spec}: cannot read: {exc}") from None
     return text, spec, os.path.dirname(os.path.abspath(spec))
 
@@ -164,6 +166,17 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".",
     """Parse and check a scenario's TOML text; `source` names it in error messages. `overrides`
     (dotted key, value) are set in the document first (`services.sim.overrides`), so they are
     checked like the file's own keys."""
+    cap = files.cap_for("toml")
+    if len(text) > cap:
+        raise ScenarioError(f"{source}: {len(text):,} characters is over the {cap:,}-byte cap for "
+                            "scenario files")
+    try:
+        return _parse(text, source, base_dir, overrides)
+    except RecursionError:  # arrays or tables nested thousands deep
+        raise ScenarioError(f"{source}: not a scenario: values nested too deeply") from None
+
+
+def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override]) -> Scenario:
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -292,8 +305,8 @@ def _machine_once(plant_table: dict, source: str) -> None:
 def _check(scenario: Scenario) -> None:
     """What a scenario checks across its tables (each table's dataclass checks its own values)."""
     source = scenario.source
-    if scenario.seed < 0:
-        raise ScenarioError(f"{source}: seed must be >= 0, got {scenario.seed}")
+    if not 0 <= scenario.seed <= MAX_SEED:
+        raise ScenarioError(f"{source}: seed must be in [0, {MAX_SEED}], got {scenario.seed}")
     _check_field(scenario.field, source)
     _check_map(scenario.map, source)
     _check_timing(scenario.timing, source)
@@ -408,6 +421,10 @@ def synthetic_params(kind: str) -> set[str]:
 
 
 def _check_timing(spec: TimingSpec, source: str) -> None:
+    lo, hi = STEP_RANGE_S
+    if not lo <= spec.control_period_s <= hi:
+        raise ScenarioError(f"{source}: [timing] control_period_s must be in [{lo:g}, {hi:g}] s (SUMO's "
+                            f"step), got {spec.control_period_s!r}")
     if not 0 < spec.plant_step_s <= spec.control_period_s:
         raise ScenarioError(f"{source}: [timing] plant_step_s must be > 0 and <= control_period_s, "
                             f"got {spec.plant_step_s}")
@@ -415,8 +432,16 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
-    if spec.max_sim_time_s is not None and not 0 < spec.max_sim_time_s:
-        raise ScenarioError(f"{source}: [timing] max_sim_time_s must be > 0, got {spec.max_sim_time_s}")
+    limit = spec.max_sim_time_s
+    if limit is not None and not spec.control_period_s <= limit <= MAX_SIM_TIME_S:
+        raise ScenarioError(f"{source}: [timing] max_sim_time_s must be in [control_period_s, "
+                            f"{MAX_SIM_TIME_S:g}] s, got {limit!r}")
+
+
+def files_named(scenario: Scenario) -> list[tuple[str, str]]:
+    """The files the scenario reads, as (``[table] key``, path resolved against its folder)."""
+    return [(f"[{table}] file", scenario.path(spec.file)) for table, spec in
+            (("field", scenario.field), ("map", scenario.map)) if spec.file is not None]
 
 
 def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:

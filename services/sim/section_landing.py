@@ -86,7 +86,9 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
     on = actual.T
     brk = np.zeros((sections, n), bool)
     brk[:, ::join] = True
-    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | ((passes[1:] != passes[:-1]) | (np.diff(idx) > 1))[None, :]
+    # Tick numbers: a record with gaps (``track["tick"]``, the monitor's after it was down) breaks there.
+    numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
+    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | ((passes[1:] != passes[:-1]) | (np.diff(numbers) > 1))[None, :]
     starts = np.flatnonzero(brk.ravel())
     ends = np.append(starts[1:], sections * n) - 1
     keep = on.ravel()[starts]

@@ -11,12 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError, ScenarioError, VehicleError
+from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
 from services.sim.scenario import Scenario
 from vehicle import CoveragePath, Field, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
+# Memory a run keeps per control tick: ~35 float64 arrays (the track, the sensors, the targets, the
+# loop's outputs, the landing) plus temporaries of the vectorized stages.
+RUN_BYTES_PER_TICK = 400
 
 
 @dataclass
@@ -82,19 +85,45 @@ def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
 
 
 def build_world(scenario: Scenario) -> World:
-    """Field, prescription and coverage path; errors name the scenario file and its table."""
+    """Field, prescription and coverage path; errors name the scenario file and its table.
+
+    Refused before the path is planned: a run whose arrays would not fit in memory (`check_run_size`);
+    after: a time limit the tractor cannot meet even at its top speed."""
     spec = scenario.field
     try:
         field = build_field(scenario)
+        check_run_size(scenario, field)
         path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
                              heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
     except VehicleError as exc:
         raise ScenarioError(f"{scenario.source}: [field] {exc}") from None
+    _check_time_limit(scenario, path)
     try:
         grid = build_prescription(scenario, field)
     except MapError as exc:
         raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
     return World(scenario=scenario, field=field, path=path, grid=grid)
+
+
+def check_run_size(scenario: Scenario, field: Field) -> None:
+    """Refuse a run whose per-tick arrays would not fit in memory, from the path length a field of
+    this area and perimeter needs at this working width (swaths plus headland passes)."""
+    drive, period = scenario.tractor, scenario.timing.control_period_s
+    path_m = field.polygon.area / scenario.implement.width_m \
+        + field.polygon.length * (scenario.field.headland_passes + 1)
+    ticks = path_m / (drive.working_speed_m_s * period)
+    files.check_memory(2 * ticks * RUN_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
+                       f"a run of about {ticks:,.0f} ticks ({path_m / 1000:,.0f} km at "
+                       f"{drive.working_speed_m_s:g} m/s, {period:g} s per tick)",
+                       f"{scenario.source}: [field]", ScenarioError)
+
+
+def _check_time_limit(scenario: Scenario, path: CoveragePath) -> None:
+    limit, top = scenario.timing.max_sim_time_s, scenario.tractor.max_speed_m_s
+    if limit is not None and limit < path.length_m / top:
+        raise ScenarioError(f"{scenario.source}: [timing] max_sim_time_s = {limit:g} s cannot be met: the "
+                            f"{path.length_m:,.0f} m path takes at least {path.length_m / top:,.1f} s at the "
+                            f"tractor's top speed of {top:g} m/s")
 
 
 def field_and_grid(scenario: Scenario) -> tuple[Field, Grid]:

@@ -13,7 +13,12 @@ import subprocess
 import pytest
 
 from tests.conftest import ROOT, VRSIM
-from tests.integration.test_services_support import ServeAll, assert_same_summary, write_field_files
+from tests.integration.test_services_support import (
+    MONITOR_KEYS,
+    ServeAll,
+    assert_same_summary,
+    write_field_files,
+)
 
 CONTROLLERS = {
     "smith": '[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n',
@@ -79,15 +84,17 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert cli.returncode == 0, cli.stderr
     expected = json.loads(cli.stdout)
     assert report["ticks"] == expected["ticks"] > 1000 and report["scenario"] == f"svc-{name}"
-    assert_same_summary(report, expected)
+    assert report["missing_ticks"] == [] and report["complete"] is True
+    assert_same_summary(report, expected, MONITOR_KEYS)
 
 
 def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    shutil.copy(os.path.join(folder, "map.tif"), elsewhere)
     shutil.copy(os.path.join(folder, "my_controller.py"), elsewhere)
-    shutil.copy(os.path.join(folder, "user.toml"), elsewhere)
+    with open(os.path.join(folder, "user.toml")) as fh:  # its map stays in the data root (`folder`)
+        text = fh.read().replace('file = "map.tif"', f'file = "{os.path.join(folder, "map.tif")}"')
+    (elsewhere / "user.toml").write_text(text)
     net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
     ok, reply = start(net, str(elsewhere), "user")
     assert not ok

@@ -6,12 +6,10 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import time
 
 import pytest
 
-from tests.conftest import VRSIM
 from tests.integration.test_services_support import ServeAll, pid_alive, write_field_files
 
 WALL_KEYS = {"stage_s"}  # the only keys a report recomputes from the clock (wall time is stored)
@@ -69,9 +67,7 @@ def test_restarted_monitor_lost_nothing(net):
     monitor = net.children()["monitor"]
     os.kill(monitor, signal.SIGKILL)
     wait_missing(net, "monitor", 10)
-    restarted = subprocess.Popen([VRSIM, "serve", "monitor", "--connect", net.endpoint, "--db", net.db],
-                                 stderr=subprocess.DEVNULL)
-    net.extra.append(restarted)
+    net.extra.append(net.serve("monitor", "--db", net.db))
     net.wait_status(lambda s: "monitor" in s["alive"], timeout_s=30)
     assert report_without_clock(net) == before
     assert before["ticks"] > 1000

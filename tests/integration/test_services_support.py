@@ -1,5 +1,6 @@
 """Helpers for the services' integration tests: a field and map with known cells, a `vrsim serve all`
-on a free loopback port, a zenoh client session in the test process, and child-process lookup."""
+on a free loopback port (secure: its state folder in the folder it runs in), a zenoh client session in
+the test process logged in as the operator, and child-process lookup."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from tests.conftest import VRSIM
 
 # Keys of a summary whose values depend on the wall clock, not on the simulation.
 WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
+MONITOR_KEYS = frozenset({"missing_ticks", "complete"})  # a monitor's report says which ticks it lacks
 CELL_M = 2.0
 MARGIN_M = 30.0
 FIELD = dict(width_m=36.0, length_m=60.0, lat=52.1, lon=11.6)
@@ -66,11 +68,14 @@ width_m = 12.0
 
 
 class ServeAll:
-    """`vrsim serve all [SCENARIO]` as a real process group member on a free port."""
+    """`vrsim serve all [SCENARIO]` in ``folder`` (its data root, with its state folder ``.vrsim``) on a
+    free port."""
 
-    def __init__(self, folder: str, *extra: str):
+    def __init__(self, folder: str, *extra: str, scheme: str = "tcp"):
         self.port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.port}"
+        self.endpoint = f"{scheme}/127.0.0.1:{self.port}"
+        self.folder = folder
+        self.state = os.path.join(folder, ".vrsim")
         self.db = os.path.join(folder, f"monitor-{self.port}.sqlite")
         self.log = open(os.path.join(folder, f"serve-{self.port}.log"), "w+")
         argv = [VRSIM, "serve", "all", *extra, "--listen", self.endpoint, "--db", self.db]
@@ -85,7 +90,7 @@ class ServeAll:
             if time.monotonic() > deadline:
                 raise AssertionError(f"vrsim serve all not ready after {timeout_s} s:\n{self.output()}")
             time.sleep(0.1)
-        self.session = open_client(self.endpoint)
+        self.session = open_client(self.endpoint, None if "--insecure" in self.proc.args else self.state)
 
     def output(self) -> str:
         self.log.flush()
@@ -108,8 +113,14 @@ class ServeAll:
         return False, json.loads(reply.err.payload.to_bytes())
 
     def cli(self, *args: str, stdin: bytes | None = None) -> subprocess.CompletedProcess:
-        return subprocess.run([VRSIM, *args, "--connect", self.endpoint], input=stdin, capture_output=True,
-                              timeout=60)
+        """`vrsim ARGS` as the operator (``--state-dir`` of this serve all)."""
+        return subprocess.run([VRSIM, *args, "--connect", self.endpoint, "--state-dir", self.state],
+                              input=stdin, capture_output=True, timeout=60)
+
+    def serve(self, name: str, *extra: str) -> subprocess.Popen:
+        """`vrsim serve NAME` started by hand as a client of this router, logged in as NAME."""
+        return subprocess.Popen([VRSIM, "serve", name, "--connect", self.endpoint, "--state-dir", self.state,
+                                 *extra], cwd=self.folder, stderr=subprocess.DEVNULL)
 
     def wait_status(self, predicate, timeout_s: float = 120.0) -> dict:
         deadline = time.monotonic() + timeout_s
@@ -133,10 +144,12 @@ class ServeAll:
             self.log.close()
 
 
-def open_client(endpoint: str):
+def open_client(endpoint: str, state: str | None = None, user: str = "operator"):
+    """A plain zenoh client of ``endpoint``: logged in as ``user`` with the configuration file the state
+    folder ``state`` holds for it, or anonymous (``state`` None: an insecure bus)."""
     import zenoh
 
-    conf = zenoh.Config()
+    conf = zenoh.Config.from_file(os.path.join(state, f"{user}.json5")) if state else zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -172,14 +185,15 @@ def pid_alive(pid: int) -> bool:
         return False
 
 
-def assert_same_summary(got: dict, expected: dict) -> None:
-    """`got` (the monitor's report, compare's run) has `expected`'s keys (`vrsim run --json`) and its
-    figures to 1e-9 relative, all but the wall-clock ones."""
+def assert_same_summary(got: dict, expected: dict, extra: frozenset = frozenset()) -> None:
+    """`got` (the monitor's report, compare's run) has `expected`'s keys (`vrsim run --json`) plus
+    `extra` (`MONITOR_KEYS` for a monitor's report) and its figures to 1e-9 relative, all but the
+    wall-clock ones."""
     import math
 
     import pytest
 
-    assert set(got) == set(expected)
+    assert set(got) == set(expected) | set(extra)
     for key, want in expected.items():
         if key in WALL_KEYS:
             continue

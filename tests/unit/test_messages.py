@@ -137,5 +137,5 @@ def test_columns_are_the_batch_fields_and_refusals_are_decode_batchs():
         with pytest.raises(ServiceError) as err:
             messages.decode_columns(Pose, json.dumps(doc).encode(), ("tick", "x_m"))
         assert needle in str(err.value)
-    with pytest.raises(ServiceError, match="3 records, at most 2"):
+    with pytest.raises(ServiceError, match="more than 2 records, refused before parsing"):
         messages.decode_columns(Pose, messages.encode_batch(batch[:3]), ("tick",), max_len=2)

@@ -25,7 +25,7 @@ def test_with_changes_changes_only_what_it_names():
     (dict(map={"policy": "sometimes"}), "[map] policy must be one of"),
     (dict(timing={"plant_step_s": 0.003}), "must be a whole multiple of plant_step_s"),
     (dict(plant={"transmission_ratio": 0.3}), "[plant] transmission_ratio: set it in [implement]"),
-    (dict(seed=-1), "seed must be >= 0, got -1"),
+    (dict(seed=-1), "seed must be in [0, 2147483647], got -1"),
     (dict(seed=1.5), "seed must be int, got 1.5"),
     (dict(implement=18.0), "[implement] changes must be a dict"),
     (dict(wheels=4), "unknown key 'wheels'"),

@@ -70,7 +70,7 @@ def test_bad_files_name_the_file(name, match):
 def test_damaged_shapefile_is_a_vehicle_error(tmp_path, name):
     p = tmp_path / name
     p.write_text("garbage")
-    with pytest.raises(VehicleError, match="not a readable shapefile"):
+    with pytest.raises(VehicleError, match="not a readable shapefile|not a zip archive"):
         Field.from_file(str(p))
 
 
@@ -111,3 +111,13 @@ def test_degenerate_and_empty_boundaries(tmp_path):
 def test_longest_edge_heading():
     assert Field.rectangle(100, 400).longest_edge_heading_deg() == pytest.approx(0.0, abs=1e-6)
     assert Field.rectangle(400, 100).longest_edge_heading_deg() == pytest.approx(90.0, abs=1e-6)
+
+
+def test_fields_beyond_the_area_or_side_cap_are_refused_before_planning():
+    with pytest.raises(VehicleError, match=r"'rectangle': boundary of 202,500 ha .* caps of 10,000 ha"):
+        Field.rectangle(45_000.0, 45_000.0)
+    with pytest.raises(VehicleError, match=r"rectangle: length_m = 1e\+09 m is over the cap of 50000 m"):
+        Field.rectangle(12.0, 1e9)
+    with pytest.raises(VehicleError, match=r"field 'wide': boundary of .* ha in a .* m x .* m box is over"):
+        Field.from_lonlat([(10.0, 52.0), (11.0, 52.0), (11.0, 52.01), (10.0, 52.01)], name="wide")
+    assert Field.rectangle(3_000.0, 3_000.0).area_ha == pytest.approx(900.0)

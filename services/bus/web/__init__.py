@@ -78,6 +78,7 @@ class HttpServer:
 def main(config, stop: threading.Event | None = None) -> int:
     """Serve the page until SIGINT/SIGTERM (or ``stop``): ``config.web_listen`` (default
     `DEFAULT_LISTEN`), a viewer on ``config.zenoh``, start/stop with ``config.operator``."""
+    from services.bus.dataroot import DataRoot
     from services.bus.serving import run_service
     from services.bus.web.app import LOOPBACK_HOSTS, create_app
     from services.bus.web.bridge import Bridge, Operator
@@ -93,7 +94,7 @@ def main(config, stop: threading.Event | None = None) -> int:
 
     def declare(session):
         view = LiveView()
-        bridge = Bridge(session, config.zenoh.keys, view)
+        bridge = Bridge(session, config.zenoh.keys, view, data=DataRoot.of(config))
         subscribers = bridge.declare()
         operator = Operator(config.operator) if config.operator is not None else None
         allowed = [*LOOPBACK_HOSTS, f"[{host}]" if ":" in host else host] if loopback else None

@@ -23,6 +23,7 @@ import orjson
 from common import ServiceError, VrsimError
 from services.bus import client, messages
 from services.bus.config import Keys, ZenohOptions, open_session
+from services.bus.dataroot import DataRoot
 from services.bus.serving import guarded
 from services.bus.web import picture
 from services.bus.web.live import (
@@ -56,8 +57,10 @@ class Bridge:
     is open.
     """
 
-    def __init__(self, session, keys: Keys, view: LiveView, report_every_s: float = REPORT_EVERY_S):
+    def __init__(self, session, keys: Keys, view: LiveView, report_every_s: float = REPORT_EVERY_S,
+                 data: DataRoot | None = None):
         self.session, self.keys, self.view = session, keys, view
+        self.data = data  # the run's scenario came over the bus: its files only under the data root
         self.report_every_s = report_every_s
         self.viewers = 0  # open /events streams (the report is only fetched for someone)
         self.map_png: bytes | None = None
@@ -205,7 +208,8 @@ class Bridge:
         text, source, base_dir = (run.get(k) for k in ("scenario_text", "source", "base_dir"))
         if not all(isinstance(v, str) for v in (text, source, base_dir)):
             raise ServiceError(f"monitor/run {run_id}: scenario_text, source and base_dir must be strings")
-        world = build_world(scenario.parse(text, source, base_dir))
+        parse = scenario.parse if self.data is None else self.data.scenario
+        world = build_world(parse(text, source, base_dir))
         implement = world.scenario.implement
         self.view.set_run_info(run_id, {"scenario": world.scenario.name, "clock": run.get("clock"),
                                         "field": field_geometry(world)},
@@ -262,8 +266,9 @@ class Bridge:
 class Operator:
     """The web service's only writes to the bus: start and stop a run through scenario control.
 
-    It has a session of its own, opened with ``options``: today the same open bus as the viewer's;
-    once the bus has roles, the operator's credential (the viewer session cannot start or stop).
+    It has a session of its own, opened with ``options``: logged in with the operator's credential from
+    the state folder (``serve web --operator``; the web user, a viewer, cannot start or stop), or the
+    same open bus as the viewer's with ``--insecure``.
     """
 
     PARAMS = ("clock", "speed", "ticks_per_message")

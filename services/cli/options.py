@@ -1,0 +1,24 @@
+"""Options that several `vrsim` commands share (not a command itself)."""
+
+from __future__ import annotations
+
+from common import VrsimError, files
+
+
+def add_input_cap(parser) -> None:
+    """``--max-input-mb MB``: raise the byte cap of every input format (`common.files.BYTE_CAPS`)."""
+    parser.add_argument("--max-input-mb", type=float, default=None, metavar="MB",
+                        help="read input files up to this size in any format (default caps: 1 MB for "
+                             "TOML, 64 MB for GeoJSON/CSV/XML, 256 MB for shapefile parts, 1 GB for "
+                             "GeoTIFF and zip)")
+
+
+def apply_input_cap(args) -> None:
+    """Raise every format's byte cap to at least ``args.max_input_mb`` (a lower one stays as it is)."""
+    mb = getattr(args, "max_input_mb", None)
+    if mb is None:
+        return
+    if not 0 < mb < 1e6:
+        raise VrsimError(f"--max-input-mb {mb:g}: must be a number of megabytes in (0, 1e6)")
+    floor = int(mb * files.MiB)
+    files.set_byte_caps(**{kind: max(cap, floor) for kind, cap in files.BYTE_CAPS.items()})
