@@ -14,7 +14,8 @@ from common import MapError, ScenarioError, ServiceError, files
 from services.bus import messages
 from services.bus.serving import within
 from services.sim import scenario
-from services.sim.landing import Landing, merged_strips
+from services.sim.section_landing import section_strips
+from services.sim.sections import SectionStates
 from services.sim.world import build_world
 
 FIELD = '[field]\nrectangle = { width_m = 36.0, length_m = 60.0, lat = 52.1, lon = 11.6 }\n'
@@ -130,16 +131,19 @@ def test_file_content_is_quoted_only_when_allowed():
 
 
 # ------------------------------------------------------------------------------------- the rest
-def test_merged_strips_never_join_across_a_gap():
+def test_landing_strips_never_join_across_a_gap():
+    """A record with a gap (the monitor's after it was down, ``track["tick"]``) lands each stretch on
+    its own: no strip joins the ticks before the gap to those after it."""
     n = 10
-    x = np.arange(n + 1, dtype=float)
-    landing = Landing(x[:-1], np.zeros(n), x[1:], np.zeros(n), np.ones(n), np.cumsum(np.ones(n)),
-                      np.zeros(n), np.zeros(n))
-    kg, width, offset = np.ones(n), np.full(n, 12.0), np.zeros(n)
-    x0, _, x1, _, _, mass = merged_strips(landing, kg, width, offset, cell_m=100.0)
-    assert x0.tolist() == [0.0] and x1.tolist() == [10.0]
-    x0, _, x1, _, _, mass = merged_strips(landing, kg, width, offset, cell_m=100.0, breaks=[4])
-    assert x0.tolist() == [0.0, 4.0] and x1.tolist() == [4.0, 10.0] and mass.tolist() == [4.0, 6.0]
+    track = {"time_s": 0.05 * np.arange(n), "x_m": np.arange(n, dtype=float), "y_m": np.zeros(n),
+             "heading_rad": np.zeros(n)}
+    states = SectionStates(np.ones((n, 1), bool), np.array([12.0]), np.array([0.0]), np.zeros(n, int))
+    kg = np.ones(n)
+    whole = section_strips(track, kg, states, 0.0, 0.05, cell_m=100.0)
+    assert len(whole.mass_kg) == 1 and whole.mass_kg.tolist() == [10.0]
+    gapped = section_strips(dict(track, tick=np.r_[0:4, 9:15]), kg, states, 0.0, 0.05, cell_m=100.0)
+    assert gapped.mass_kg.tolist() == [4.0, 6.0]
+    assert gapped.x0_m.tolist()[1] == 4.0
 
 
 def test_within_refuses_work_that_takes_too_long_and_passes_errors_on():

@@ -15,9 +15,9 @@ def start(run_id: str) -> messages.RunStart:
 
 
 def records(run_id: str, ticks, x_m: float = 1.0):
-    pose = [messages.Pose(run_id, t, 0.05 * t, x_m, 2.0, x_m, 2.0, 0.0, 2.0, 2.0, True) for t in ticks]
+    pose = [messages.Pose(run_id, t, 0.05 * t, x_m, 2.0, x_m, 2.0, 0.0, 2.0, 2.0, True, 0.1 * t) for t in ticks]
     shaft = [messages.ShaftState(run_id, t, 0.05 * t, 50.0, 49.0, 0.04, 0.2) for t in ticks]
-    rate = [messages.RateSample(run_id, t, 0.05 * t, 1.0, 2.0, 200.0, 199.0, 0.04, 12.0, 0.0, True)
+    rate = [messages.RateSample(run_id, t, 0.05 * t, 1.0, 2.0, 200.0, 199.0, 0.04, 12.0, "0x1", True)
             for t in ticks]
     return {"pose": pose, "shaft": shaft, "rate": rate}
 
@@ -41,7 +41,7 @@ def test_a_second_record_of_a_tick_never_replaces_the_first(tmp_path):
     for table, recs in records("r", range(10), x_m=999.0).items():  # forged: same ticks, other values
         store.add(table, recs)
     assert store.run("r")["last_unix"] == last
-    track, _ = store.arrays("r")
+    track, _ = store.arrays("r", sections=1)
     assert track["x_m"].tolist() == [1.0] * 10
     assert store.counts("r") == {"pose": 10, "shaft": 10, "rate": 10, "complete": 10}
 
@@ -64,7 +64,7 @@ def test_arrays_hold_every_complete_tick_across_gaps(tmp_path):
     for table, recs in records("r", stored).items():
         store.add(table, recs)
     store.add("pose", records("r", [400, 401])["pose"])  # in flight: pose only
-    track, control = store.arrays("r")
+    track, control = store.arrays("r", sections=1)
     assert track["tick"].tolist() == stored
     assert len(control["metered_kg"]) == len(stored)
     assert missing_ticks(track["tick"]) == [[100, 249]]
