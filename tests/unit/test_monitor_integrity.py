@@ -15,7 +15,8 @@ def start(run_id: str) -> messages.RunStart:
 
 
 def records(run_id: str, ticks, x_m: float = 1.0):
-    pose = [messages.Pose(run_id, t, 0.05 * t, x_m, 2.0, x_m, 2.0, 0.0, 2.0, 2.0, True, 0.1 * t) for t in ticks]
+    pose = [messages.Pose(run_id, t, 0.05 * t, x_m, 2.0, x_m, 2.0, 0.0, 2.0, 2.0, True, 0.1 * t)
+            for t in ticks]
     shaft = [messages.ShaftState(run_id, t, 0.05 * t, 50.0, 49.0, 0.04, 0.2) for t in ticks]
     rate = [messages.RateSample(run_id, t, 0.05 * t, 1.0, 2.0, 200.0, 199.0, 0.04, 12.0, "0x1", True)
             for t in ticks]
