@@ -132,3 +132,34 @@ def test_as_applied_validation():
         acc.add_strips([np.nan], [0.0], [1.0], [1.0], 3.0, [1.0])
     with pytest.raises(MapError, match="subcells"):
         AsApplied(field(), subcells=0)
+
+
+# ---------------------------------------------------------------------- StripMap: many mass columns
+def test_strip_map_equals_add_strips_per_column():
+    """Oblique, axis-aligned, zero-length and off-grid strips; columns with zero-mass strips (which
+    sweep no coverage there): each column's rasters equal AsApplied.add_strips of that column."""
+    from maps import StripMap
+
+    g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
+    rng = np.random.default_rng(3)
+    k = 300
+    x0 = rng.uniform(499_990.0, 500_110.0, k)
+    y0 = rng.uniform(5_299_990.0, 5_300_110.0, k)
+    angle, length = rng.uniform(0, 2 * np.pi, k), rng.uniform(0.0, 4.0, k)
+    length[:10] = 0.0
+    angle[10:60] = 0.0
+    x1, y1 = x0 + length * np.cos(angle), y0 + length * np.sin(angle)
+    width = rng.uniform(0.5, 12.0, k)
+    mass = rng.uniform(0.0, 2.0, (k, 3))
+    mass[rng.random((k, 3)) < 0.2] = 0.0
+    strip_map = StripMap(g, x0, y0, x1, y1, width)
+    cols = strip_map.apply(mass)
+    for j in range(3):
+        acc = AsApplied(g)
+        acc.add_strips(x0, y0, x1, y1, width, mass[:, j])
+        np.testing.assert_allclose(cols.applied_kg_ha[j], acc.applied_kg_ha, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(cols.coverage_fraction[j], acc.coverage_fraction, rtol=1e-12, atol=1e-12)
+        assert cols.outside_kg[j] == pytest.approx(acc.outside_kg, rel=1e-12, abs=1e-12)
+    assert cols.applied_kg.sum(axis=(1, 2)) + cols.outside_kg == pytest.approx(mass.sum(axis=0), rel=1e-12)
+    with pytest.raises(MapError, match="shape"):
+        strip_map.apply(mass[:-1])
