@@ -75,6 +75,12 @@ class AsApplied:
         inner = parts.reshape(n, *self._shape)[:, 1:-1, 1:-1]
         return inner.reshape(n, self.grid.rows, s, self.grid.cols, s)
 
+    def _ring_sum(self, parts: np.ndarray) -> np.ndarray:
+        """Sum over the ring of each row of `parts` (n, flat sub-cells): what fell off the grid. Summed
+        directly, not as all less the interior, which would lose the small remainder to rounding."""
+        full = parts.reshape(parts.shape[0], *self._shape)
+        return full[:, [0, -1], :].sum(axis=(1, 2)) + full[:, 1:-1, [0, -1]].sum(axis=(1, 2))
+
     @property
     def _sub_cell_area(self) -> float:
         dx, dy = self.grid.cell_size
@@ -93,7 +99,7 @@ class AsApplied:
     @property
     def outside_kg(self) -> float:
         """Product that fell outside the grid, kg."""
-        return float(self._acc.real.sum() - self._interior(self._acc.real).sum())
+        return float(self._ring_sum(self._acc.real[None, :])[0])
 
     @property
     def coverage_fraction(self) -> np.ndarray:
@@ -255,7 +261,7 @@ class StripMap:
         cover = np.minimum(raster._interior_columns(sub_swept) / raster._sub_cell_area, 1.0)
         applied_kg = applied.sum(axis=(2, 4))
         return AppliedColumns(applied_kg=applied_kg, coverage_fraction=cover.mean(axis=(2, 4)),
-                              outside_kg=sub_kg.sum(axis=1) - applied_kg.sum(axis=(1, 2)),
+                              outside_kg=raster._ring_sum(sub_kg),
                               cell_area_m2=raster._cell_area_m2)
 
 

@@ -74,11 +74,27 @@ def merged_strips(landing: Landing, metered_kg, width_m, offset_m, cell_m: float
     changes per-cell figures by a blur far below the cell size and cuts the raster work k-fold. A
     group also ends where the sections change, so a joined strip has one width and offset.
     """
-    n = len(metered_kg)
+    starts = strip_starts(landing, width_m, offset_m, cell_m)
+    return (*merged_geometry(landing, width_m, starts), merged_mass(metered_kg, starts))
+
+
+def strip_starts(landing: Landing, width_m, offset_m, cell_m: float) -> np.ndarray:
+    """The first tick of each joined strip (`merged_strips`): every k ticks and where the sections
+    change; the geometry alone decides them, not the product."""
+    n = len(landing.strip_length_m)
     typical = float(np.median(landing.strip_length_m)) if n else 0.0
     k = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
     change = np.flatnonzero((np.diff(width_m) != 0) | (np.diff(offset_m) != 0)) + 1
-    starts = np.union1d(np.arange(0, n, k), change).astype(np.int64)
-    ends = np.append(starts[1:], n) - 1
+    return np.union1d(np.arange(0, n, k), change).astype(np.int64)
+
+
+def merged_geometry(landing: Landing, width_m, starts: np.ndarray):
+    """(x0, y0, x1, y1, width) of the strips joined from the ticks at `starts` on."""
+    ends = np.append(starts[1:], len(landing.strip_length_m)) - 1
     return (landing.x0_m[starts], landing.y0_m[starts], landing.x1_m[ends], landing.y1_m[ends],
-            np.asarray(width_m)[starts], np.add.reduceat(metered_kg, starts) if n else metered_kg)
+            np.asarray(width_m)[starts])
+
+
+def merged_mass(metered_kg, starts: np.ndarray) -> np.ndarray:
+    """Product of each joined strip, kg: `metered_kg` (ticks along axis 0, any columns) summed over it."""
+    return np.add.reduceat(metered_kg, starts, axis=0) if len(metered_kg) else metered_kg

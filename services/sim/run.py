@@ -191,6 +191,24 @@ def measure(scenario: Scenario, track: dict):
     return x, y, speed.measure(track["time_s"], track["speed_m_s"])
 
 
+def summarize(world: World, track: dict, landing: Landing, mm: MapMetrics, tm: TransitionMetrics,
+              wall0: float) -> dict:
+    """The summary of a run from its figures (`metrics.summary`); ``realtime_factor`` is left 0 for the
+    caller, who knows its wall time."""
+    scenario, timing = world.scenario, world.scenario.timing
+    n = len(track["time_s"])
+    figures = {
+        **dataclasses.asdict(mm), **dataclasses.asdict(tm),
+        "field_area_ha": world.field.area_ha,
+        "sim_time_s": n * timing.control_period_s,
+        "wall_time_s": time.perf_counter() - wall0,
+        "ticks": n,
+        "realtime_factor": 0.0,  # the caller knows its wall time
+        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
+    }
+    return metrics.summary(scenario.name, scenario.seed, figures)
+
+
 def account(world: World, track: dict, control: dict, wall0: float):
     """Land the metered product, build the as-applied raster and compute the summary."""
     scenario, grid = world.scenario, world.grid
@@ -207,16 +225,6 @@ def account(world: World, track: dict, control: dict, wall0: float):
                      abs(cell_w * cell_h) / 1e4, float(control["metered_kg"].sum()), acc.outside_kg)
     tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, landing.applied_kg_ha,
                      np.asarray(track["implement_on"], bool))
-    n = len(track["time_s"])
-    figures = {
-        **dataclasses.asdict(mm), **dataclasses.asdict(tm),
-        "field_area_ha": world.field.area_ha,
-        "sim_time_s": n * timing.control_period_s,
-        "wall_time_s": time.perf_counter() - wall0,
-        "ticks": n,
-        "realtime_factor": 0.0,  # the caller knows its wall time
-        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
-    }
-    summary = metrics.summary(scenario.name, scenario.seed, figures)
+    summary = summarize(world, track, landing, mm, tm, wall0)
     rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm)
     return summary, rest
