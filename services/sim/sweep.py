@@ -40,6 +40,7 @@ import numpy as np
 
 from common import ScenarioError, VrsimError
 from services.sim import scenario as scenario_mod
+from services.sim.metrics import METRICS
 from services.sim.overrides import key_parts
 from services.sim.scenario import _no_unknown, _typed  # the scenario loader's own checks and messages
 
@@ -49,15 +50,9 @@ REPORT_KEYS = ("pareto",)
 ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
 ROW_LAST = ("wall_s", "status", "error")
 
-# Which way is better, for the accuracy figures the report ranks: "max", "min", or "zero" (|value|
-# smallest: a bias or a mass balance is best at zero, whichever its sign).
-METRIC_SENSE = {
-    "mae_kg_ha": "min", "rmse_kg_ha": "min", "bias_kg_ha": "zero", "mae_pct": "min", "rmse_pct": "min",
-    "bias_pct": "zero", "mass_balance_pct": "zero",
-    "within_5pct_area_pct": "max", "within_10pct_area_pct": "max", "coverage_pct": "max",
-    "transition_time_s_mean": "min", "transition_time_s_p95": "min",
-    "transition_distance_m_mean": "min", "transition_distance_m_p95": "min", "off_target_kg": "min",
-}
+# Which way is better ("min", "max" or "zero"), for the accuracy figures the report ranks: the
+# METRICS table's sense.
+METRIC_SENSE = {m.key: m.sense for m in METRICS if m.sense is not None}
 
 
 @dataclass(frozen=True)
