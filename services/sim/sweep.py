@@ -442,6 +442,42 @@ def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
     return {**identity(spec), **figures, "wall_s": time.perf_counter() - t0, "status": "ok", "error": None}
 
 
+def controller_only(sweep: Sweep) -> bool:
+    """True if every axis is a ``controller.*`` key: the runs of one scenario and seed then share
+    their drive and can take the batched fast path (`run_group`)."""
+    return bool(sweep.axes) and all(a.key.startswith("controller.") for a in sweep.axes)
+
+
+def variant_groups(specs: Sequence[RunSpec]) -> list[tuple[RunSpec, ...]]:
+    """The specs grouped by base scenario and seed, in first-seen order (one drive per group)."""
+    groups: dict[tuple[str, int], list[RunSpec]] = {}
+    for spec in specs:
+        groups.setdefault((spec.scenario, spec.seed), []).append(spec)
+    return [tuple(g) for g in groups.values()]
+
+
+def run_group(specs: Sequence[RunSpec]) -> list[dict]:
+    """The rows of specs that differ only in ``controller.*`` keys (`variant_groups`), through the
+    fast path: one drive, then all controllers as one batch (`services.sim.variants.run_variants`).
+
+    Rows have the form of `run_row`'s, ``wall_s`` each run's share of the group's wall time. If the
+    batch fails (a controller the run refuses), every spec runs alone through `run_row`, so a failed
+    row is that run's own, with its own message.
+    """
+    from services.sim.run import drive
+    from services.sim.variants import run_variants
+
+    t0 = time.perf_counter()
+    try:
+        scenarios = [spec.load() for spec in specs]
+        summaries = run_variants(drive(scenarios[0]), [sc.controller for sc in scenarios])
+    except Exception:  # noqa: BLE001 - each run on its own then says which one failed, and why
+        return [run_row(spec) for spec in specs]
+    wall_s = (time.perf_counter() - t0) / len(specs)
+    return [{**identity(spec), **numeric_figures(summary), "wall_s": wall_s, "status": "ok", "error": None}
+            for spec, summary in zip(specs, summaries, strict=True)]
+
+
 # ---------------------------------------------------------------------------------------------------
 # Statistics for the report
 
