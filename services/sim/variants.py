@@ -39,7 +39,8 @@ from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.metrics import map_metrics, transitions
 from services.sim.run import Drive, cells_in_field, control_and_account, summarize
 
-VARIANT_CHUNK = 64  # variants whose rasters are held at once (n x sub-cells of floats)
+VARIANT_CHUNK = 128  # variants run as one loop batch (their ticks x variants of floats held)
+RASTER_CHUNK = 32    # variants whose rasters are held at once (n x sub-cells of floats)
 
 
 def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[dict]:
@@ -93,9 +94,12 @@ def _batch(drive: Drive, cfgs: list[ControllerConfig]) -> list[dict]:
     except ControllerError as exc:
         raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
     shaft_rev = np.empty((len(rec["target_shaft_rpm"]), len(cfgs)))
+    ticks = len(rec["target_shaft_rpm"])
     for idx, loop in loops:
-        targets = np.repeat(rec["target_shaft_rpm"][:, None], len(idx), axis=1)
-        shaft_rev[:, idx] = loop.run(targets if loop.n > 1 else targets[:, 0]).shaft_rev
+        for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
+            part = rec["target_shaft_rpm"][lo:lo + RUN_CHUNK]
+            targets = np.repeat(part[:, None], len(idx), axis=1) if loop.n > 1 else part
+            shaft_rev[lo:lo + RUN_CHUNK, idx] = loop.run(targets).shaft_rev
     metered = core._metered_kg(shaft_rev, (rec["width_on_m"] > 0)[:, None])
     control_s = time.perf_counter() - clock
     clock = time.perf_counter()
@@ -131,15 +135,20 @@ def _account(drive: Drive, scenario, rec: dict, metered: np.ndarray, cfgs) -> li
                    timing.control_period_s)
     applied_kg_ha = applied_rate_kg_ha(metered, width_on[:, None], landing.strip_length_m[:, None])
     starts = strip_starts(landing, width_on, offset, min(grid.cell_size))
-    rasters = StripMap(grid, *merged_geometry(landing, width_on, starts)).apply(merged_mass(metered, starts))
+    strip_map = StripMap(grid, *merged_geometry(landing, width_on, starts))
+    masses = merged_mass(metered, starts)
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
     on = np.asarray(track["implement_on"], bool)
     wall0 = time.perf_counter()
     summaries = []
     for j, cfg in enumerate(cfgs):
-        mm = map_metrics(grid.rates_kg_ha, rasters.applied_kg_ha[j], rasters.coverage_fraction[j], in_field,
-                         abs(cell_w * cell_h) / 1e4, float(metered[:, j].sum()), float(rasters.outside_kg[j]))
+        if j % RASTER_CHUNK == 0:
+            rasters = strip_map.apply(masses[:, j:j + RASTER_CHUNK])
+            applied = rasters.applied_kg_ha
+        c = j % RASTER_CHUNK
+        mm = map_metrics(grid.rates_kg_ha, applied[c], rasters.coverage_fraction[c], in_field,
+                         abs(cell_w * cell_h) / 1e4, float(metered[:, j].sum()), float(rasters.outside_kg[c]))
         tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, applied_kg_ha[:, j],
                          on)
         variant = dataclasses.replace(world, scenario=dataclasses.replace(scenario, controller=cfg))
