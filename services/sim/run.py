@@ -219,6 +219,28 @@ def measure(scenario: Scenario, track: dict):
     return x, y, speed.measure(track["time_s"], track["speed_m_s"])
 
 
+def summarize(world: World, track: dict, landing: Landing, parts: tuple, check: MachineCheck,
+              wall0: float) -> dict:
+    """The summary of a run from its figures (`metrics.summary`): `parts` are the figures' dataclasses
+    (`MapMetrics`, `TransitionMetrics`, `OverlapMetrics`, `LimitMetrics`), `check` the machine check;
+    ``realtime_factor`` is left 0 for the caller, who knows its wall time."""
+    scenario, implement = world.scenario, world.scenario.implement
+    n = len(track["time_s"])
+    figures = {
+        **{k: v for part in parts for k, v in dataclasses.asdict(part).items()},
+        "field_area_ha": world.field.area_ha,
+        "sim_time_s": n * scenario.timing.control_period_s,
+        "wall_time_s": time.perf_counter() - wall0,
+        "ticks": n,
+        "realtime_factor": 0.0,  # the caller knows its wall time
+        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
+        "sections": implement.sections,
+        "section_widths_m": [float(w) for w in implement.section_widths],
+        "max_speed_m_s": check.max_speed_m_s,
+    }
+    return metrics.summary(scenario.name, scenario.seed, figures)
+
+
 def account(world: World, track: dict, control: dict, wall0: float):
     """Land each section's product, build the as-applied raster and compute the summary.
 
@@ -250,21 +272,7 @@ def account(world: World, track: dict, control: dict, wall0: float):
     limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
     lm = limit_metrics(limited, width_on > 0, limited_cover, cover, in_field)
     check = check_world(world, in_field)
-    n = len(track["time_s"])
-    figures = {
-        **dataclasses.asdict(mm), **dataclasses.asdict(tm),
-        **dataclasses.asdict(om), **dataclasses.asdict(lm),
-        "field_area_ha": world.field.area_ha,
-        "sim_time_s": n * period_s,
-        "wall_time_s": time.perf_counter() - wall0,
-        "ticks": n,
-        "realtime_factor": 0.0,  # the caller knows its wall time
-        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
-        "sections": implement.sections,
-        "section_widths_m": [float(w) for w in implement.section_widths],
-        "max_speed_m_s": check.max_speed_m_s,
-    }
-    summary = metrics.summary(scenario.name, scenario.seed, figures)
+    summary = summarize(world, track, landing, (mm, tm, om, lm), check, wall0)
     rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm,
                 sections=states, worked_fraction=worked, limited_fraction=limited_cover, overlap_metrics=om,
                 limit_metrics=lm, machine_check=check)
