@@ -68,6 +68,20 @@ def test_variants_equal_one_at_a_time_runs(shared_drive):
     assert {"build_s", "sumo_s", "sensors_s", "control_s", "metrics_s"} <= stage.keys()
 
 
+def test_variants_with_a_limited_machine_and_overlap_equal_one_at_a_time_runs():
+    """Per-section landing on the fast path: a shaft too slow for the map (machine-limited ticks and
+    area) and passes that overlap; every figure, the overlap and limit ones too, equals
+    control_and_account's to 1e-9 relative."""
+    limited = drive(scenario.parse(FIELD + "shaft_rpm_max = 60.0\n", "limited.toml", "."))
+    cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PI", form="positional"),
+            ControllerConfig(kind="ideal")]
+    fast = run_variants(limited, cfgs)
+    for cfg, summary in zip(cfgs, fast, strict=True):
+        assert_same_summary(summary, control_and_account(limited, cfg).summary)
+    assert all(s["limited_time_pct"] > 0 and s["limited_area_pct"] > 0 for s in fast)
+    assert all(s["overlap_kg"] > 0 and s["overlap_area_pct"] > 0 and s["sections"] == 4 for s in fast)
+
+
 def test_a_bad_variant_is_a_scenario_error(shared_drive, tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("raise RuntimeError('no')\n")
