@@ -386,25 +386,16 @@ class StripMap:
         self.weights = sparse.csr_matrix(
             (_joined(weights, float), (_joined(cells, np.int64), _joined(strips, np.int64))),
             shape=(raster._acc.size, x0.size))
-        self._passes = None if pass_index is None else self._pass_maps(pass_index)
-
-    def _pass_maps(self, pass_index):
-        """The sparse maps of the pass figures: interior sub-cells <- strips (the weights' interior
-        rows), strips -> passes (a pass a run of one index), and cells <- interior sub-cells."""
-        from scipy import sparse
-
-        raster, k = self._raster, self.strips
-        passes = np.broadcast_to(np.asarray(pass_index, dtype=np.int64).ravel(), (k,))
-        run = np.cumsum(np.concatenate(([0], passes[1:] != passes[:-1]))) if k else np.zeros(0, np.int64)
-        to_pass = sparse.csr_matrix((np.ones(k), (np.arange(k), run)),
-                                    shape=(k, int(run.max(initial=-1)) + 1))
-        s, rows, cols = raster._subcells, raster.grid.rows, raster.grid.cols
-        sub_r, sub_c = np.divmod(np.arange(rows * s * cols * s), cols * s)
-        interior = (sub_r + 1) * raster._shape[1] + sub_c + 1   # ring coordinates of interior sub-cells
-        cell = (sub_r // s) * cols + sub_c // s
-        to_cell = sparse.csr_matrix((np.ones(sub_r.size), (cell, np.arange(sub_r.size))),
-                                    shape=(rows * cols, sub_r.size))
-        return self.weights[interior], to_pass, to_cell
+        self._to_pass = None if pass_index is None else _runs_matrix(pass_index, x0.size)
+        # The ring coordinates of each cell's s x s sub-cells, cell by cell (row-major cells), and the
+        # cell of each sub-cell of the raster (-1: the ring), to recompute the cells a strip touches.
+        s, rows, cols = subcells, grid.rows, grid.cols
+        cell_r, cell_c, i, j = np.indices((rows, cols, s, s)).reshape(4, -1)
+        ring_index = (cell_r * s + i + 1) * raster._shape[1] + cell_c * s + j + 1
+        self._cell_subs = ring_index.reshape(rows * cols, s * s)
+        self._sub_cell = np.full(raster._acc.size, -1, np.int64)
+        self._sub_cell[self._cell_subs] = np.arange(rows * cols)[:, None]
+        self._by_strip = None   # the weights by strip (CSC), made on first use
 
     @property
     def strips(self) -> int:
@@ -421,54 +412,79 @@ class StripMap:
     def apply(self, mass_kg) -> AppliedColumns:
         """The as-applied rasters of mass columns `mass_kg`, shape (k, n) (kg per strip, >= 0)."""
         mass = self._checked(mass_kg)
-        raster = self._raster
+        raster, grid = self._raster, self._raster.grid
         sub_kg = np.asarray(self.weights @ mass).T                       # (n, sub-cells with the ring)
         applied = raster._interior_columns(sub_kg)
         terms, which = self._patterns_of(mass)
-        cover = np.stack([terms[u][0] for u in which])
+        shape = (grid.rows, grid.cols)
+        cover = np.stack([terms[u][0].reshape(shape) for u in which])
         out = dict(applied_kg=applied.sum(axis=(2, 4)), coverage_fraction=cover,
                    outside_kg=raster._ring_sum(sub_kg), cell_area_m2=raster._cell_area_m2)
-        if self._passes is not None:
+        if self._to_pass is not None:
+            s = raster._subcells
             overlap_kg = np.empty_like(cover)
             for u, (_, _, _, extra) in enumerate(terms):
-                overlap_kg[which == u] = (applied[which == u] * extra).sum(axis=(2, 4))
-            out.update(pass_count=np.stack([terms[u][1] for u in which]),
-                       overlap_fraction=np.stack([terms[u][2] for u in which]), overlap_kg=overlap_kg)
+                blocks = extra.reshape(grid.rows, grid.cols, s, s).transpose(0, 2, 1, 3)
+                overlap_kg[which == u] = (applied[which == u] * blocks).sum(axis=(2, 4))
+            out.update(pass_count=np.stack([terms[u][1].reshape(shape) for u in which]),
+                       overlap_fraction=np.stack([terms[u][2].reshape(shape) for u in which]),
+                       overlap_kg=overlap_kg)
         return AppliedColumns(**out)
 
     def coverage_fraction(self, mass_kg) -> np.ndarray:
         """Only `apply`'s ``coverage_fraction``: (n, rows, cols), for mass columns (k, n)."""
         terms, which = self._patterns_of(self._checked(mass_kg))
-        return np.stack([terms[u][0] for u in which])
+        grid = self._raster.grid
+        return np.stack([terms[u][0].reshape(grid.rows, grid.cols) for u in which])
 
     def _patterns_of(self, mass: np.ndarray):
-        """The swept-area terms (`_swept_terms`) of each distinct pattern of strips carrying product
-        in the columns of `mass`, and each column's pattern."""
-        patterns, which = np.unique(mass.T > 0, axis=0, return_inverse=True)
-        return [self._swept_terms(p) for p in patterns], np.ravel(which)
+        """The swept-area terms (`_terms_at`, every cell) of each distinct pattern of strips carrying
+        product in the columns of `mass`, and each column's pattern. The first pattern's are computed
+        over the whole grid; another's are the first's with the cells recomputed that the strips
+        where the two differ touch (the columns' patterns differ in a few strips, if at all)."""
+        carries = mass.T > 0
+        packed = np.packbits(carries, axis=1)   # a column's pattern as bytes, to look it up
+        first: dict[bytes, int] = {}
+        which = np.array([first.setdefault(row.tobytes(), len(first)) for row in packed], dtype=np.int64)
+        patterns = carries[np.unique(which, return_index=True)[1]]
+        base = self._terms_at(patterns[0], np.arange(self._cell_subs.shape[0]))
+        terms = [base]
+        for pattern in patterns[1:]:
+            if self._by_strip is None:
+                self._by_strip = self.weights.tocsc()
+            touched = self._by_strip[:, np.flatnonzero(pattern != patterns[0])].indices
+            cells = np.unique(self._sub_cell[touched])
+            cells = cells[cells >= 0]
+            patched = [None if t is None else t.copy() for t in base]
+            for whole, part in zip(patched, self._terms_at(pattern, cells), strict=True):
+                if whole is not None:
+                    whole[cells] = part
+            terms.append(patched)
+        return terms, which
 
-    def _swept_terms(self, carries: np.ndarray):
-        """For strips carrying product where `carries`: per cell the coverage, the pass count and the
-        overlap share, and per interior sub-cell (as (rows, s, cols, s) blocks) the share of its
-        product beyond the first pass (`AsApplied`'s figures)."""
+    def _terms_at(self, carries: np.ndarray, cells: np.ndarray):
+        """For strips carrying product where `carries`, at `cells` (flat cell indices): the coverage,
+        and with passes the pass count and the overlap share, each shape (m,), and each sub-cell's
+        share of its product beyond the first pass, shape (m, s * s) (`AsApplied`'s figures)."""
         from scipy import sparse
 
         raster = self._raster
-        area = raster._sub_area
+        area, s2 = raster._sub_area, raster._subcells ** 2
+        rows = self.weights[self._cell_subs[cells].ravel()]               # (m * s * s, strips)
         swept = self.swept * carries
-        sub_swept = np.asarray(self.weights @ swept)[None, :]
-        cover = np.minimum(raster._interior_columns(sub_swept)[0] / area, 1.0).mean(axis=(1, 3))
-        if self._passes is None:
+        cover = np.minimum(np.asarray(rows @ swept).reshape(-1, s2) / area, 1.0).mean(axis=1)
+        if self._to_pass is None:
             return cover, None, None, None
-        interior, to_pass, to_cell = self._passes
-        per_pass = (interior @ sparse.diags(swept) @ to_pass).tocsr()   # (interior sub-cells, passes)
+        per_pass = (rows @ sparse.diags(swept) @ self._to_pass).tocsr()  # (m * s * s, passes)
+        m = len(cells)
+        to_cell = sparse.csr_matrix((np.ones(m * s2), np.arange(m * s2), np.arange(0, m * s2 + 1, s2)),
+                                    shape=(m, m * s2))
         per_cell = (to_cell @ per_pass).tocsr()
-        s = raster._subcells
-        per_cell.data = (per_cell.data >= 0.5 * area * s * s).astype(float)
-        count = np.asarray(per_cell.sum(axis=1)).reshape(raster._count.shape).astype(np.int64)
+        per_cell.data = (per_cell.data >= 0.5 * area * s2).astype(float)
+        count = np.asarray(per_cell.sum(axis=1)).ravel().astype(np.int64)
         per_pass.data = np.minimum(per_pass.data, area)
-        capped = raster._blocks(np.asarray(per_pass.sum(axis=1)).ravel())
-        overlap = (np.maximum(capped - area, 0.0) / area).mean(axis=(1, 3))
+        capped = np.asarray(per_pass.sum(axis=1)).reshape(m, s2)
+        overlap = (np.maximum(capped - area, 0.0) / area).mean(axis=1)
         extra = np.divide(np.maximum(capped - area, 0.0), capped, out=np.zeros(capped.shape),
                           where=capped > 0)
         return cover, count, overlap, extra
@@ -490,6 +506,15 @@ class AppliedColumns:
     @property
     def applied_kg_ha(self) -> np.ndarray:
         return self.applied_kg * (10_000.0 / self.cell_area_m2)
+
+
+def _runs_matrix(pass_index, k: int):
+    """Sparse (k, runs): strip i -> the run of one pass index it belongs to (a pass, `AsApplied`)."""
+    from scipy import sparse
+
+    passes = np.broadcast_to(np.asarray(pass_index, dtype=np.int64).ravel(), (k,))
+    run = np.cumsum(np.concatenate(([0], passes[1:] != passes[:-1]))) if k else np.zeros(0, np.int64)
+    return sparse.csr_matrix((np.ones(k), (np.arange(k), run)), shape=(k, int(run.max(initial=-1)) + 1))
 
 
 def _pass_runs(passes: np.ndarray):

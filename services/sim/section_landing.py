@@ -73,21 +73,21 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
 @dataclass(frozen=True)
 class StripPlan:
     """Where each section's strips lie, before any product: the gates, passes and track decide the
-    strips, the product only their masses, which are linear in the metered kg (`mass_kg`), so one
-    plan serves any number of controllers on one drive (`services.sim.variants`)."""
+    strips, the product only their masses, which are linear in the metered kg: a sparse map from ticks
+    to strips (each tick's product times its section's share), so one plan serves any number of
+    controllers on one drive (`services.sim.variants`)."""
 
     strips: SectionStrips   # the geometry, passes and sections; mass_kg empty
     ticks: np.ndarray       # the ticks planned (indices into the track)
-    share: np.ndarray       # (ticks, sections): each section's share of a tick's product
     width_on_m: np.ndarray  # (ticks,)
-    cuts: np.ndarray        # where the strips' groups start in the section-major flat ticks
-    keep: np.ndarray        # which groups are strips (their section's gate open)
-    order: np.ndarray       # the strips' order by pass
+    to_strips: object       # scipy.sparse CSR (strips, ticks): a section's share of a tick's product
 
     @classmethod
     def of(cls, track: dict, states: SectionStates, delay_s: float, period_s: float, cell_m: float,
            ticks=None) -> StripPlan:
         """The plan of `section_strips` (same parameters, less the product)."""
+        from scipy import sparse
+
         time_s = np.asarray(track["time_s"], float)
         idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
         n, sections = idx.size, states.actual.shape[1]
@@ -118,23 +118,26 @@ class StripPlan:
                                states.widths_m[sec], np.zeros(0), passes[first], sec)
         strips = SectionStrips(*(getattr(strips, f) if f == "mass_kg" else getattr(strips, f)[order]
                                  for f in SectionStrips.__dataclass_fields__))
-        return cls(strips, idx, share, width_on, cuts, keep, order)
+        # Each open (section, tick) goes to its group's strip; a group is all open or all closed.
+        flat_on = np.flatnonzero(on.ravel())
+        group = np.cumsum(brk.ravel())[flat_on] - 1
+        rank = np.empty(order.size, np.int64)
+        rank[order] = np.arange(order.size)
+        row = rank[(np.cumsum(keep) - 1)[group]]
+        tick, section = flat_on % per_section, flat_on // per_section
+        to_strips = sparse.csr_matrix((share[tick, section], (row, tick)), shape=(order.size, n))
+        return cls(strips, idx, width_on, to_strips)
 
     def mass_kg(self, metered_kg) -> np.ndarray:
         """Product in each strip, kg, shape (k,) or (k, m) for `metered_kg` of shape (track ticks,) or
         (track ticks, m) (m controllers' columns); `ValueError` if a tick meters product with every gate
         closed (it would be lost)."""
         metered = np.asarray(metered_kg, float)[self.ticks]
-        extra = metered.shape[1:]
         lost = (metered.reshape(len(self.ticks), -1) > 0).any(axis=1) & (self.width_on_m <= 0)
         if lost.any():
             raise ValueError(f"section_strips: tick {int(self.ticks[np.argmax(lost)])} meters product with "
                              "every gate closed")
-        if not self.ticks.size:
-            return np.zeros((0, *extra))
-        mass = metered[:, None, ...] * self.share.reshape(self.share.shape + (1,) * len(extra))
-        flat = np.moveaxis(mass, 1, 0).reshape(-1, *extra)   # section-major, as the groups run
-        return np.add.reduceat(flat, self.cuts, axis=0)[self.keep][self.order]
+        return np.asarray(self.to_strips @ metered)
 
 
 def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
