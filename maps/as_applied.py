@@ -91,12 +91,6 @@ class AsApplied:
         """The accumulator with the open pass's deposits (flat, ring included)."""
         return self._acc if self._pass is None else self._acc + self._pass_acc
 
-    def _interior_columns(self, parts: np.ndarray) -> np.ndarray:
-        """`_interior` of each row of `parts` (n, flat sub-cells): shape (n, rows, s, cols, s)."""
-        s, n = self._subcells, parts.shape[0]
-        inner = parts.reshape(n, *self._shape)[:, 1:-1, 1:-1]
-        return inner.reshape(n, self.grid.rows, s, self.grid.cols, s)
-
     def _ring_sum(self, parts: np.ndarray) -> np.ndarray:
         """Sum over the ring of each row of `parts` (n, flat sub-cells): what fell off the grid. Summed
         directly, not as all less the interior, which would lose the small remainder to rounding."""
@@ -396,6 +390,12 @@ class StripMap:
         self._sub_cell = np.full(raster._acc.size, -1, np.int64)
         self._sub_cell[self._cell_subs] = np.arange(rows * cols)[:, None]
         self._by_strip = None   # the weights by strip (CSC), made on first use
+        # The weights summed per cell and over the ring: applied and outside kg straight from masses.
+        sub = np.flatnonzero(self._sub_cell >= 0)
+        per_cell = sparse.csr_matrix((np.ones(sub.size), (self._sub_cell[sub], sub)),
+                                     shape=(rows * cols, raster._acc.size))
+        self._cell_weights = (per_cell @ self.weights).tocsr()
+        self._ring_weights = np.asarray(self.weights[self._sub_cell < 0].sum(axis=0)).ravel()
 
     @property
     def strips(self) -> int:
@@ -411,24 +411,27 @@ class StripMap:
 
     def apply(self, mass_kg) -> AppliedColumns:
         """The as-applied rasters of mass columns `mass_kg`, shape (k, n) (kg per strip, >= 0)."""
+        from scipy import sparse
+
         mass = self._checked(mass_kg)
         raster, grid = self._raster, self._raster.grid
-        sub_kg = np.asarray(self.weights @ mass).T                       # (n, sub-cells with the ring)
-        applied = raster._interior_columns(sub_kg)
-        terms, which = self._patterns_of(mass)
         shape = (grid.rows, grid.cols)
-        cover = np.stack([terms[u][0].reshape(shape) for u in which])
-        out = dict(applied_kg=applied.sum(axis=(2, 4)), coverage_fraction=cover,
-                   outside_kg=raster._ring_sum(sub_kg), cell_area_m2=raster._cell_area_m2)
+        terms, which = self._patterns_of(mass)
+        out = dict(applied_kg=np.asarray(self._cell_weights @ mass).T.reshape(-1, *shape),
+                   coverage_fraction=np.stack([terms[u][0].reshape(shape) for u in which]),
+                   outside_kg=self._ring_weights @ mass, cell_area_m2=raster._cell_area_m2)
         if self._to_pass is not None:
-            s = raster._subcells
-            overlap_kg = np.empty_like(cover)
+            overlap_kg = np.zeros((mass.shape[1], grid.rows * grid.cols))
             for u, (_, _, _, extra) in enumerate(terms):
-                blocks = extra.reshape(grid.rows, grid.cols, s, s).transpose(0, 2, 1, 3)
-                overlap_kg[which == u] = (applied[which == u] * blocks).sum(axis=(2, 4))
+                # Only the sub-cells more than one pass swept hold product beyond the first.
+                at = np.flatnonzero(extra)
+                beyond = sparse.csr_matrix((extra.ravel()[at], (at // extra.shape[1], np.arange(at.size))),
+                                           shape=(overlap_kg.shape[1], at.size))
+                part = beyond @ self.weights[self._cell_subs.ravel()[at]]
+                overlap_kg[which == u] = np.asarray(part @ mass[:, which == u]).T
             out.update(pass_count=np.stack([terms[u][1].reshape(shape) for u in which]),
                        overlap_fraction=np.stack([terms[u][2].reshape(shape) for u in which]),
-                       overlap_kg=overlap_kg)
+                       overlap_kg=overlap_kg.reshape(-1, *shape))
         return AppliedColumns(**out)
 
     def coverage_fraction(self, mass_kg) -> np.ndarray:

@@ -132,7 +132,10 @@ class StripPlan:
         """Product in each strip, kg, shape (k,) or (k, m) for `metered_kg` of shape (track ticks,) or
         (track ticks, m) (m controllers' columns); `ValueError` if a tick meters product with every gate
         closed (it would be lost)."""
-        metered = np.asarray(metered_kg, float)[self.ticks]
+        metered = np.asarray(metered_kg, float)
+        every = len(self.ticks) == len(metered) and (not len(metered) or self.ticks[-1] == len(metered) - 1)
+        if not every:   # (ascending ticks: as many as the track's, the last its last, are all of them)
+            metered = metered[self.ticks]
         lost = (metered.reshape(len(self.ticks), -1) > 0).any(axis=1) & (self.width_on_m <= 0)
         if lost.any():
             raise ValueError(f"section_strips: tick {int(self.ticks[np.argmax(lost)])} meters product with "
