@@ -40,7 +40,7 @@ from services.sim.metrics import (
     transitions,
 )
 from services.sim.scenario import Scenario
-from services.sim.section_landing import section_strips, worked_fraction
+from services.sim.section_landing import limited_coverage, section_strips, worked_fraction
 from services.sim.sections import SectionStates, pass_index
 from services.sim.world import World, build_world
 from vehicle import Gnss, SpeedSensor, SumoDriver
@@ -269,7 +269,8 @@ def account(world: World, track: dict, control: dict, wall0: float):
     worked = worked_fraction(track, implement.width_m, grid)
     om = overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field)
     limited = implement.shaft_limited(control["target_shaft_rpm"]) & (width_on > 0)
-    limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
+    limited_cover = limited_coverage(track, metered[:, None], states, limited, delay_s, period_s, cell_m,
+                                     grid)[0]
     lm = limit_metrics(limited, width_on > 0, limited_cover, cover, in_field)
     check = check_world(world, in_field)
     summary = summarize(world, track, landing, (mm, tm, om, lm), check, wall0)
@@ -277,13 +278,3 @@ def account(world: World, track: dict, control: dict, wall0: float):
                 sections=states, worked_fraction=worked, limited_fraction=limited_cover, overlap_metrics=om,
                 limit_metrics=lm, machine_check=check)
     return summary, rest
-
-
-def _limited_coverage(track, metered, states: SectionStates, limited, delay_s, period_s, cell_m, grid):
-    """Share of each cell that product metered in `limited` ticks landed on, shape (rows, cols)."""
-    if not limited.any():
-        return np.zeros((grid.rows, grid.cols))
-    acc = AsApplied(grid)
-    strips = section_strips(track, metered, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
-    strips.add_to(acc)
-    return acc.coverage_fraction

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AsApplied, Grid
+from maps import AsApplied, Grid, StripMap
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
@@ -141,6 +141,19 @@ class StripPlan:
             raise ValueError(f"section_strips: tick {int(self.ticks[np.argmax(lost)])} meters product with "
                              "every gate closed")
         return np.asarray(self.to_strips @ metered)
+
+
+def limited_coverage(track: dict, metered_kg: np.ndarray, states: SectionStates, limited: np.ndarray,
+                     delay_s: float, period_s: float, cell_m: float, grid: Grid) -> np.ndarray:
+    """Share of each cell that product metered in `limited` ticks (the machine-limited ones) landed on,
+    for each column of `metered_kg` (ticks, m): shape (m, rows, cols). The strips are the same for
+    every column; a column's product decides only which of them sweep (`maps.StripMap`)."""
+    if not limited.any():
+        return np.zeros((metered_kg.shape[1], grid.rows, grid.cols))
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+    s = plan.strips
+    strip_map = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m)
+    return strip_map.coverage_fraction(plan.mass_kg(metered_kg))
 
 
 def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:

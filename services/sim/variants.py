@@ -38,7 +38,7 @@ from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.metrics import limit_metrics, map_metrics, overlap_metrics, transitions
 from services.sim.run import Drive, cells_in_field, check_world, control_and_account, summarize
-from services.sim.section_landing import StripPlan, worked_fraction
+from services.sim.section_landing import StripPlan, limited_coverage, worked_fraction
 from services.sim.sections import SectionStates, pass_index
 
 VARIANT_CHUNK = 128  # variants run as one loop batch (their ticks x variants of floats held)
@@ -149,7 +149,7 @@ def _account(drive: Drive, scenario, rec: dict, metered: np.ndarray, cfgs) -> li
                          pass_index=strips.pass_index)
     masses = plan.mass_kg(metered)
     limited = implement.shaft_limited(rec["target_shaft_rpm"]) & (width_on > 0)
-    limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
+    limited_cover = limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
     in_field = cells_in_field(grid, world.field.polygon)
     worked = worked_fraction(track, implement.width_m, grid)
     check = check_world(world, in_field)
@@ -172,15 +172,3 @@ def _account(drive: Drive, scenario, rec: dict, metered: np.ndarray, cfgs) -> li
         variant = dataclasses.replace(world, scenario=dataclasses.replace(scenario, controller=cfg))
         summaries.append(summarize(variant, track, landing, (mm, tm, om, lm), check, wall0))
     return summaries
-
-
-def _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid) -> np.ndarray:
-    """`services.sim.run`'s limited coverage for each column of `metered`: (columns, rows, cols). The
-    strips are the batch's; a column's product decides only which of them sweep (`maps.StripMap`)."""
-    columns = metered.shape[1]
-    if not limited.any():
-        return np.zeros((columns, grid.rows, grid.cols))
-    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
-    s = plan.strips
-    strip_map = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m)
-    return strip_map.coverage_fraction(plan.mass_kg(metered))
