@@ -7,7 +7,7 @@ package's data; knows nothing of maps, SUMO or Zenoh.
 
 from controller.config import ControllerConfig
 from controller.experiment import PaperRun, paper_experiment, run_paper
-from controller.factory import build_controller, build_loop, loop_info, resolve_gains
+from controller.factory import build_controller, build_loop, build_variant_loops, loop_info, resolve_gains
 from controller.gains import PidGains, paper_gains, ziegler_nichols
 from controller.interface import Controller, LoopInfo
 from controller.kinds.ideal import IdealLoop
@@ -33,7 +33,8 @@ from controller.tuning import (
 __all__ = [
     "KINDS", "ClosedLoop", "Controller", "ControllerConfig", "IdealLoop", "LoopInfo", "PaperRun", "PidGains",
     "PlantLoop", "PlantParams", "RelayResult", "SensorFit", "SimResult", "StepMetrics", "StepOutput",
-    "UltimateResult", "UserCodeError", "assumptions", "build_controller", "build_loop", "fit_sensor",
+    "UltimateResult", "UserCodeError", "assumptions", "build_controller", "build_loop", "build_variant_loops",
+    "fit_sensor",
     "gains_from_source", "loop_info", "paper_experiment", "paper_gains", "pulse_response", "relay_autotune",
     "resolve_gains", "run_paper", "simulate", "state_space", "step_metrics", "ultimate_from_pulse",
     "ultimate_gain_experiment", "unlimited", "ziegler_nichols",

@@ -78,6 +78,30 @@ def build_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: floa
     return PlantLoop(info, kind.controller(params, info, n), n=n, record_fine=record_fine)
 
 
+def build_variant_loops(plant: PlantParams, cfgs, control_period_s: float = 0.05,
+                        plant_step_s: float = 0.001) -> list[tuple[list[int], object]]:
+    """Loops for the controllers `cfgs` (one loop each, on the same targets), batched where their kind
+    can: ``[(indices into cfgs, loop of len(indices) loops), ...]``, every index once.
+
+    A kind with a ``batch`` (the PID family: one lifted-matrix loop with gains per loop for each
+    form) runs its parameter sets together; every other configuration gets its own one-loop
+    `build_loop`. Loop i of a batch gives the same numbers as `build_loop` of cfg i to rounding.
+    """
+    info = loop_info(plant, control_period_s, plant_step_s)
+    by_kind: dict[str, list[int]] = {}
+    for i, cfg in enumerate(cfgs):
+        by_kind.setdefault(_config(cfg).registry_kind, []).append(i)
+    out = []
+    for name, idx in by_kind.items():
+        kind = registry.get(name)
+        if kind.batch is None:
+            out += [([i], build_loop(plant, cfgs[i], control_period_s, plant_step_s)) for i in idx]
+        else:
+            out += [([idx[j] for j in part], loop)
+                    for part, loop in kind.batch([cfgs[i].kind_params() for i in idx], info)]
+    return out
+
+
 def resolve_gains(cfg: ControllerConfig, plant: PlantParams | None = None,
                   control_period_s: float = 0.05) -> PidGains:
     """The PID gains of a P/PI/PID configuration (``gains="relay"`` runs the relay experiment on `plant`)."""

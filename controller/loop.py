@@ -306,10 +306,43 @@ class ClosedLoop:
             for k, target in enumerate(t[:, 0].tolist()):
                 flat[k] = advance(target, load_torque_nm)[o:o + 4]
         else:
-            for k in range(t.shape[0]):
-                rec[k] = self._advance(t[k], load_torque_nm)[:, o:o + 4]
+            self._run_many(t, load_torque_nm, rec)
         return StepOutput(rec[:, :, OUT_RPM], rec[:, :, OUT_REV], rec[:, :, OUT_CURRENT],
                           rec[:, :, OUT_MEASURED])
+
+    def _run_many(self, t: np.ndarray, load, rec: np.ndarray) -> None:
+        """`_advance` over the rows of `t` for n loops, its arithmetic unchanged, with the targets
+        clipped at once and the per-tick lookups hoisted (a batch of variants runs 10^5 ticks)."""
+        r_all = np.minimum(np.maximum(t, 0.0), self._rmax)
+        if np.isnan(r_all).any():
+            raise ControllerError("target_shaft_rpm must be numbers, got NaN")
+        ns, o, iu = self._ns, self._ns + 3, self._iu
+        g, gr, ka, ilo, ihi, MT = self._g, self._gr, self._ka, self._ilo, self._ihi, self._MT
+        cached, positional, shared = self._cached_u, self.form == "positional", MT.ndim == 2
+        with_load = isinstance(load, np.ndarray) or bool(load)
+        ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
+        v = np.atleast_2d(self._v)
+        for k in range(t.shape[0]):
+            r = r_all[k]
+            u = v[:, iu] if cached else np.einsum("ij,ij->i", v[:, :ns], g)
+            unsat = ka * (u + gr * r)
+            cur = np.minimum(np.maximum(unsat, ilo), ihi)
+            v[:, ns + IN_CURRENT] = cur
+            v[:, ns + IN_TARGET] = r
+            if with_load:
+                v[:, ns + IN_LOAD] = load
+            vin = v[:, :ns + 3]
+            out = vin @ MT if shared else np.matmul(vin[:, None, :], MT)[:, 0, :]
+            if positional:
+                e = self._ks * (r - v[:, ring0])
+                frozen = ((unsat > ihi) & (e > 0)) | ((unsat < ilo) & (e < 0))
+                if frozen.any():
+                    out[:, acc] -= np.where(frozen, e, 0.0)
+                    if cached:
+                        out[:, iu] -= np.where(frozen, g[0, acc] * e, 0.0)
+            rec[k] = out[:, o:o + 4]
+            v = out
+        self._v = v
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
         """`step`, plus the shaft speed at each plant step of the period, shape (n, N) [rpm].

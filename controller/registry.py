@@ -37,6 +37,10 @@ class Kind:
     loop : callable or None
         ``loop(params, loop_info, n, record_fine)`` -> a loop object (`PlantLoop`'s interface) or None
         to use `PlantLoop` around `controller`.
+    batch : callable or None
+        ``batch(params_list, loop_info)`` -> ``[(indices, loop), ...]``: loops that run several
+        parameter sets of this kind at once, one loop per parameter set (the PID's fast path with
+        gains per loop); every index of `params_list` in exactly one of them. None: one loop each.
     """
 
     name: str
@@ -44,15 +48,17 @@ class Kind:
     controller: Callable | None
     summary: str
     loop: Callable | None = None
+    batch: Callable | None = None
 
 
 KINDS: dict[str, Kind] = {}
 
 
-def register(name: str, params: type | None, summary: str, loop: Callable | None = None):
+def register(name: str, params: type | None, summary: str, loop: Callable | None = None,
+             batch: Callable | None = None):
     """Class decorator: register the decorated controller class as kind `name` (see `Kind`)."""
     def decorate(impl):
-        _add(Kind(name=name, params=params, controller=impl, summary=summary, loop=loop))
+        _add(Kind(name=name, params=params, controller=impl, summary=summary, loop=loop, batch=batch))
         return impl
     return decorate
 

@@ -9,7 +9,7 @@ TimeLogs in TASKDATA, point shapefiles and GeoPackages) in and out.
 import importlib
 
 from maps import synthetic
-from maps.as_applied import AsApplied
+from maps.as_applied import AppliedColumns, AsApplied, StripMap
 from maps.crs import utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
 from maps.io import read_map, write_map
@@ -34,6 +34,8 @@ __all__ = [
     "write_map",
     "synthetic",
     "AsApplied",
+    "AppliedColumns",
+    "StripMap",
     "RatePolicy",
     "utm_crs_for",
     "grid_from_bounds",

@@ -143,12 +143,27 @@ class PidLaw:
         return current
 
 
+def _pid_loop(params: PidParams, info: LoopInfo, n: int, record_fine: bool) -> ClosedLoop:
+    return ClosedLoop(info.plant, params.resolve(info.plant, info.control_period_s), form=params.form,
+                      derivative_on_measurement=params.derivative_on_measurement,
+                      control_period_s=info.control_period_s, plant_step_s=info.plant_step_s, n=n,
+                      record_fine=record_fine)
+
+
+def _pid_batch(params_list, info: LoopInfo) -> list[tuple[list[int], ClosedLoop]]:
+    """Parameter sets of one form and derivative placement share one fast-path loop, gains per loop."""
+    groups: dict[tuple, list[int]] = {}
+    for i, p in enumerate(params_list):
+        groups.setdefault((p.form, p.derivative_on_measurement), []).append(i)
+    return [(idx, ClosedLoop(info.plant, [params_list[i].resolve(info.plant, info.control_period_s)
+                                          for i in idx],
+                             form=form, derivative_on_measurement=dom, control_period_s=info.control_period_s,
+                             plant_step_s=info.plant_step_s, n=len(idx)))
+            for (form, dom), idx in groups.items()]
+
+
 @register("pid", PidParams, "the paper's P/PI/PID, incremental or positional (Liang et al. 2013)",
-          loop=lambda params, info, n, record_fine: ClosedLoop(
-              info.plant, params.resolve(info.plant, info.control_period_s), form=params.form,
-              derivative_on_measurement=params.derivative_on_measurement,
-              control_period_s=info.control_period_s, plant_step_s=info.plant_step_s, n=n,
-              record_fine=record_fine))
+          loop=_pid_loop, batch=_pid_batch)
 class PidController(LawController):
     """The paper's PID through the controller interface (Liang et al. 2013, eqs. 13-17).
 

@@ -19,7 +19,7 @@ import traceback
 from common import VrsimError, __version__
 
 # Order is the order `vrsim --help` lists them in.
-COMMANDS = ("run", "compare", "sweep", "evaluate", "report", "controller", "paper", "map", "serve",
+COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "report", "controller", "paper", "map", "serve",
             "query", "accuracy")
 
 

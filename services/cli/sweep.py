@@ -56,11 +56,10 @@ class SweepProgress:
             sys.stderr.write("\n")
 
 
-def _run_on_dask(args, todo, task, table, progress) -> int:
-    """Run the specs `todo` on the cluster the options name, each row into `table` as it comes;
-    returns how many workers the cluster had."""
+def _run_on_dask(args, items, task, key, rows_of, table, progress) -> int:
+    """Run ``task(item)`` for every item on the cluster the options name, its rows (``rows_of(item,
+    result, error)``) into `table` as each comes; returns how many workers the cluster had."""
     from services.batch.driver import dashboard_available, open_client, run_tasks
-    from services.sim.sweep import failed_row
 
     dashboard = dashboard_available() and not args.no_dashboard
     with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
@@ -69,17 +68,37 @@ def _run_on_dask(args, todo, task, table, progress) -> int:
         if dashboard and not args.quiet:
             print(f"vrsim sweep: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
 
-        def on_done(spec, row, error):
-            row = row if row is not None else failed_row(spec, error)
-            table.add(row)
-            progress.update(row)
+        def on_done(item, result, error):
+            for row in rows_of(item, result, error):
+                table.add(row)
+                progress.update(row)
 
         try:
-            run_tasks(client, todo, task, key=lambda s: f"vrsim-run-{s.key}", on_done=on_done)
+            run_tasks(client, items, task, key=key, on_done=on_done)
         finally:
             table.flush()
             progress.close()
     return workers
+
+
+def _tasks(sweep, todo, args, out_dir):
+    """(items, task, key, rows_of) for the runs `todo`: one task per group of controller variants
+    (the batched fast path, `services.sim.sweep.run_group`) when every axis is a ``controller.*`` key
+    and no run's own files are asked for; else one task per run (`run_row`)."""
+    from services.outputs.sweep_results import RunOutputs
+    from services.sim.sweep import controller_only, failed_row, run_group, run_row, variant_groups
+
+    if controller_only(sweep) and not args.run_outputs:
+        def group_rows(group, rows, error):
+            return rows if rows is not None else [failed_row(spec, error) for spec in group]
+
+        return (variant_groups(todo), run_group, lambda g: f"vrsim-group-{g[0].key}-{len(g)}", group_rows)
+
+    def run_rows(spec, row, error):
+        return [row if row is not None else failed_row(spec, error)]
+
+    task = functools.partial(run_row, after=RunOutputs(out_dir)) if args.run_outputs else run_row
+    return todo, task, lambda s: f"vrsim-run-{s.key}", run_rows
 
 
 def run(args) -> int:
@@ -87,8 +106,8 @@ def run(args) -> int:
     from services.batch.driver import check_workers
     from services.outputs.summary import summary_json
     from services.outputs.sweep_report import write_sweep_report
-    from services.outputs.sweep_results import ResultsTable, RunOutputs
-    from services.sim.sweep import load_sweep, plan, run_row
+    from services.outputs.sweep_results import ResultsTable
+    from services.sim.sweep import load_sweep, plan
 
     if args.resume and not args.out:
         raise ScenarioError("--resume needs --out DIR: the folder of the sweep to go on with")
@@ -101,9 +120,8 @@ def run(args) -> int:
     table = ResultsTable(out_dir, resume=args.resume)
     done = table.done
     todo = [s for s in specs if s.key not in done]
-    task = functools.partial(run_row, after=RunOutputs(out_dir)) if args.run_outputs else run_row
     progress = SweepProgress(len(todo), enabled=not args.quiet)
-    workers = _run_on_dask(args, todo, task, table, progress) if todo else 0
+    workers = _run_on_dask(args, *_tasks(sweep, todo, args, out_dir), table, progress) if todo else 0
     table.flush()
     report = os.path.join(out_dir, "report.html")
     write_sweep_report(table.rows, sweep, report)

@@ -53,6 +53,8 @@ HEADERS = {
     "within_5pct_area_pct": "in 5%", "within_10pct_area_pct": "in 10%", "transition_time_s_mean": "trans t",
     "transition_time_s_p95": "trans t95", "transition_distance_m_mean": "trans d",
     "transition_distance_m_p95": "trans d95", "off_target_kg": "off-target", "coverage_pct": "coverage",
+    "overlap_area_pct": "overlap", "skip_area_pct": "skipped", "overlap_kg": "overlap kg",
+    "limited_time_pct": "lim time", "limited_area_pct": "lim area",
 }
 
 

@@ -24,15 +24,12 @@ from services.sim.run import Drive, RunResult, control_and_account, drive
 from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario, controller_from_table
 
 USER_KIND = "python"
-# Which way is better for each compared figure: "low", "high" or "zero" (smallest magnitude). Every
-# figure of `METRICS` the accuracy library holds, except the two masses (they describe the run, the
-# mass balance judges them).
-BETTER = {
-    "mass_balance_pct": "zero", "mae_kg_ha": "low", "rmse_kg_ha": "low", "bias_kg_ha": "zero",
-    "within_5pct_area_pct": "high", "within_10pct_area_pct": "high", "transition_time_s_mean": "low",
-    "transition_time_s_p95": "low", "transition_distance_m_mean": "low", "transition_distance_m_p95": "low",
-    "off_target_kg": "low", "coverage_pct": "high",
-}
+# Which way is better for each compared figure: "low", "high" or "zero" (smallest magnitude), from the
+# METRICS table's sense. Every figure of `METRICS` the accuracy library holds, except the two masses
+# (they describe the run, the mass balance judges them).
+_WORDS = {"min": "low", "max": "high", "zero": "zero"}
+BETTER = {m.key: _WORDS[m.sense] for m in METRICS
+          if m.sense is not None and m.tolerance is not None}
 COLUMNS = tuple(m for m in METRICS if m.key in BETTER)
 
 

@@ -57,6 +57,10 @@ class Metric:
     tolerance : (float, float) or None
         What the accuracy library holds it to: (absolute floor, share of the value); None for figures
         of the machine (timings) or of the set-up, not of the model.
+    sense : {"min", "max", "zero"} or None
+        Which way is better, for the accuracy figures that sweeps rank and `vrsim tune` optimizes:
+        smaller, larger, or closest to zero (a bias or a mass balance, whichever its sign); None for a
+        figure that describes the run rather than judges it.
     """
 
     key: str
@@ -64,6 +68,7 @@ class Metric:
     label: str
     description: str
     tolerance: tuple[float, float] | None = None
+    sense: str | None = None
 
 
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
@@ -78,46 +83,53 @@ METRICS = (
     Metric("prescribed_kg", "kg", "Prescribed product",
            "what the prescription asks for on the area actually worked", (0.5, 0.005)),
     Metric("applied_kg", "kg", "Applied product", "all product metered", (0.5, 0.005)),
-    Metric("mass_balance_pct", "%", "Mass balance", "100 (applied - prescribed) / prescribed", (0.3, 0.0)),
+    Metric("mass_balance_pct", "%", "Mass balance", "100 (applied - prescribed) / prescribed", (0.3, 0.0),
+           sense="zero"),
     Metric("mae_kg_ha", "kg/ha", "Mean absolute error", "mean |applied - prescribed| over covered cells",
-           (0.3, 0.03)),
+           (0.3, 0.03), sense="min"),
     Metric("rmse_kg_ha", "kg/ha", "RMSE", "root mean square of applied - prescribed over covered cells",
-           (0.3, 0.03)),
-    Metric("bias_kg_ha", "kg/ha", "Bias", "mean applied - prescribed over covered cells", (0.3, 0.03)),
+           (0.3, 0.03), sense="min"),
+    Metric("bias_kg_ha", "kg/ha", "Bias", "mean applied - prescribed over covered cells", (0.3, 0.03),
+           sense="zero"),
     Metric("within_5pct_area_pct", "%", "Covered area within +-5 %",
-           "share of covered cells within 5 % of a positive prescription", (1.0, 0.0)),
+           "share of covered cells within 5 % of a positive prescription", (1.0, 0.0), sense="max"),
     Metric("within_10pct_area_pct", "%", "Covered area within +-10 %",
-           "share of covered cells within 10 % of a positive prescription", (1.0, 0.0)),
+           "share of covered cells within 10 % of a positive prescription", (1.0, 0.0), sense="max"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
-           "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05)),
+           "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05),
+           sense="min"),
     Metric("transition_time_s_p95", "s", "Transition time, 95th percentile", "as above, 95th percentile",
-           (0.05, 0.05)),
+           (0.05, 0.05), sense="min"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
-           "distance along the landing path over the transition", (0.1, 0.05)),
+           "distance along the landing path over the transition", (0.1, 0.05), sense="min"),
     Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
-           "as above, 95th percentile", (0.1, 0.05)),
+           "as above, 95th percentile", (0.1, 0.05), sense="min"),
     Metric("off_target_kg", "kg", "Off-target product",
-           "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03)),
-    Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0)),
+           "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min"),
+    Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0),
+           sense="max"),
     Metric("overlap_area_pct", "%", "Overlap area",
-           "share of the covered field area that received product from more than one pass", (0.3, 0.03)),
+           "share of the covered field area that received product from more than one pass", (0.3, 0.03),
+           sense="min"),
     Metric("skip_area_pct", "%", "Skipped area",
            "share of the worked field area (swept by the working width along working stretches) that "
-           "received no product", (0.3, 0.03)),
+           "received no product", (0.3, 0.03), sense="min"),
     Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
-           (0.2, 0.03)),
+           (0.2, 0.03), sense="min"),
     Metric("limited_time_pct", "%", "Machine-limited time",
            "share of applying time with the target shaft speed clipped to [shaft_rpm_min, shaft_rpm_max]",
-           (0.3, 0.03)),
+           (0.3, 0.03), sense="min"),
     Metric("limited_area_pct", "%", "Machine-limited area",
-           "share of the covered field area where product was metered with the target clipped", (0.3, 0.03)),
+           "share of the covered field area where product was metered with the target clipped", (0.3, 0.03),
+           sense="min"),
     Metric("sections", "", "Sections", "number of sections of the implement"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right"),
     Metric("max_speed_m_s", "m/s", "Highest speed for the map",
            "highest working speed at which the meter can apply the map's highest rate over the full width"),
-    Metric("mae_pct", "%", "", "mean absolute error over the mean prescription of the covered cells"),
-    Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells"),
-    Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells"),
+    Metric("mae_pct", "%", "", "mean absolute error over the mean prescription of the covered cells",
+           sense="min"),
+    Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells", sense="min"),
+    Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells", sense="zero"),
     Metric("transitions", "", "", "rate steps whose transition settled"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %"),
     Metric("path_length_m", "m", "", "length of the landing path"),

@@ -40,7 +40,7 @@ from services.sim.metrics import (
     transitions,
 )
 from services.sim.scenario import Scenario
-from services.sim.section_landing import section_strips, worked_fraction
+from services.sim.section_landing import limited_coverage, section_strips, worked_fraction
 from services.sim.sections import SectionStates, pass_index
 from services.sim.world import World, build_world
 from vehicle import Gnss, SpeedSensor, SumoDriver
@@ -219,6 +219,28 @@ def measure(scenario: Scenario, track: dict):
     return x, y, speed.measure(track["time_s"], track["speed_m_s"])
 
 
+def summarize(world: World, track: dict, landing: Landing, parts: tuple, check: MachineCheck,
+              wall0: float) -> dict:
+    """The summary of a run from its figures (`metrics.summary`): `parts` are the figures' dataclasses
+    (`MapMetrics`, `TransitionMetrics`, `OverlapMetrics`, `LimitMetrics`), `check` the machine check;
+    ``realtime_factor`` is left 0 for the caller, who knows its wall time."""
+    scenario, implement = world.scenario, world.scenario.implement
+    n = len(track["time_s"])
+    figures = {
+        **{k: v for part in parts for k, v in dataclasses.asdict(part).items()},
+        "field_area_ha": world.field.area_ha,
+        "sim_time_s": n * scenario.timing.control_period_s,
+        "wall_time_s": time.perf_counter() - wall0,
+        "ticks": n,
+        "realtime_factor": 0.0,  # the caller knows its wall time
+        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
+        "sections": implement.sections,
+        "section_widths_m": [float(w) for w in implement.section_widths],
+        "max_speed_m_s": check.max_speed_m_s,
+    }
+    return metrics.summary(scenario.name, scenario.seed, figures)
+
+
 def account(world: World, track: dict, control: dict, wall0: float):
     """Land each section's product, build the as-applied raster and compute the summary.
 
@@ -249,35 +271,12 @@ def account(world: World, track: dict, control: dict, wall0: float):
     worked = worked_fraction(track, implement.width_m, grid)
     om = overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field)
     limited = implement.shaft_limited(control["target_shaft_rpm"]) & (width_on > 0)
-    limited_cover = _limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
+    limited_cover = limited_coverage(track, metered[:, None], states, limited, delay_s, period_s, cell_m,
+                                     grid)[0]
     lm = limit_metrics(limited, width_on > 0, limited_cover, cover, in_field)
     check = check_world(world, in_field)
-    n = len(track["time_s"])
-    figures = {
-        **dataclasses.asdict(mm), **dataclasses.asdict(tm),
-        **dataclasses.asdict(om), **dataclasses.asdict(lm),
-        "field_area_ha": world.field.area_ha,
-        "sim_time_s": n * period_s,
-        "wall_time_s": time.perf_counter() - wall0,
-        "ticks": n,
-        "realtime_factor": 0.0,  # the caller knows its wall time
-        "path_length_m": float(landing.distance_m[-1]) if n else 0.0,
-        "sections": implement.sections,
-        "section_widths_m": [float(w) for w in implement.section_widths],
-        "max_speed_m_s": check.max_speed_m_s,
-    }
-    summary = metrics.summary(scenario.name, scenario.seed, figures)
+    summary = summarize(world, track, landing, (mm, tm, om, lm), check, wall0)
     rest = dict(landing=landing, as_applied=acc, in_field=in_field, map_metrics=mm, transition_metrics=tm,
                 sections=states, worked_fraction=worked, limited_fraction=limited_cover, overlap_metrics=om,
                 limit_metrics=lm, machine_check=check)
     return summary, rest
-
-
-def _limited_coverage(track, metered, states: SectionStates, limited, delay_s, period_s, cell_m, grid):
-    """Share of each cell that product metered in `limited` ticks landed on, shape (rows, cols)."""
-    if not limited.any():
-        return np.zeros((grid.rows, grid.cols))
-    acc = AsApplied(grid)
-    strips = section_strips(track, metered, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
-    strips.add_to(acc)
-    return acc.coverage_fraction

@@ -14,12 +14,13 @@ the overlap and skip figures (`services.sim.metrics.overlap_metrics`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AsApplied, Grid
+from maps import AsApplied, Grid, StripMap
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
@@ -65,43 +66,98 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
     ticks : ndarray of int, optional
         Only these ticks (ascending indices), e.g. those metered at a clipped target; default all.
     """
-    time_s = np.asarray(track["time_s"], float)
-    idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
-    n, sections = idx.size, states.actual.shape[1]
-    actual, metered = states.actual[idx], np.asarray(metered_kg, float)[idx]
-    x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s, idx)
-    width_on = actual @ states.widths_m
-    lost = (metered > 0) & (width_on <= 0)
-    if lost.any():
-        raise ValueError(f"section_strips: tick {int(idx[np.argmax(lost)])} meters product with every gate "
-                         "closed")
-    share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
-                      where=actual & (width_on[:, None] > 0))
-    mass = metered[:, None] * share
-    passes = landing_pass(time_s, states.pass_index, delay_s, idx)
-    typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
-    join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
-    # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
-    # section's gate changes, where the pass changes and where ticks are left out.
-    on = actual.T
-    brk = np.zeros((sections, n), bool)
-    brk[:, ::join] = True
-    # Tick numbers: a record with gaps (``track["tick"]``, the monitor's after it was down) breaks there.
-    numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
-    brk[:, 1:] |= (on[:, 1:] != on[:, :-1]) | ((passes[1:] != passes[:-1]) | (np.diff(numbers) > 1))[None, :]
-    starts = np.flatnonzero(brk.ravel())
-    ends = np.append(starts[1:], sections * n) - 1
-    keep = on.ravel()[starts]
-    starts, ends = starts[keep], ends[keep]
-    kg = np.add.reduceat(mass.T.ravel(), np.flatnonzero(brk.ravel()))[keep] if n else np.zeros(0)
-    per_section = max(n, 1)
-    sec, first, last = starts // per_section, starts % per_section, ends % per_section
-    off = states.offsets_m[sec]
-    order = np.argsort(passes[first], kind="stable")  # by pass, each section's strips in time order
-    strips = SectionStrips(x0[first] + nx[first] * off, y0[first] + ny[first] * off,
-                           x1[last] + nx[last] * off, y1[last] + ny[last] * off,
-                           states.widths_m[sec], kg, passes[first], sec)
-    return SectionStrips(*(getattr(strips, f)[order] for f in SectionStrips.__dataclass_fields__))
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks)
+    return dataclasses.replace(plan.strips, mass_kg=plan.mass_kg(metered_kg))
+
+
+@dataclass(frozen=True)
+class StripPlan:
+    """Where each section's strips lie, before any product: the gates, passes and track decide the
+    strips, the product only their masses, which are linear in the metered kg: a sparse map from ticks
+    to strips (each tick's product times its section's share), so one plan serves any number of
+    controllers on one drive (`services.sim.variants`)."""
+
+    strips: SectionStrips   # the geometry, passes and sections; mass_kg empty
+    ticks: np.ndarray       # the ticks planned (indices into the track)
+    width_on_m: np.ndarray  # (ticks,)
+    to_strips: object       # scipy.sparse CSR (strips, ticks): a section's share of a tick's product
+
+    @classmethod
+    def of(cls, track: dict, states: SectionStates, delay_s: float, period_s: float, cell_m: float,
+           ticks=None) -> StripPlan:
+        """The plan of `section_strips` (same parameters, less the product)."""
+        from scipy import sparse
+
+        time_s = np.asarray(track["time_s"], float)
+        idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
+        n, sections = idx.size, states.actual.shape[1]
+        actual = states.actual[idx]
+        x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s, idx)
+        width_on = actual @ states.widths_m
+        share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
+                          where=actual & (width_on[:, None] > 0))
+        passes = landing_pass(time_s, states.pass_index, delay_s, idx)
+        typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
+        join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
+        # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
+        # section's gate changes, where the pass changes and where ticks are left out.
+        on = actual.T
+        brk = np.zeros((sections, n), bool)
+        brk[:, ::join] = True
+        # Tick numbers: a record with gaps (``track["tick"]``, the monitor's after it was down) breaks
+        # there, as do ticks left out.
+        numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
+        brk[:, 1:] |= ((on[:, 1:] != on[:, :-1])
+                       | ((passes[1:] != passes[:-1]) | (np.diff(numbers) > 1))[None, :])
+        cuts = np.flatnonzero(brk.ravel())
+        ends = np.append(cuts[1:], sections * n) - 1
+        keep = on.ravel()[cuts]
+        starts, ends = cuts[keep], ends[keep]
+        per_section = max(n, 1)
+        sec, first, last = starts // per_section, starts % per_section, ends % per_section
+        off = states.offsets_m[sec]
+        order = np.argsort(passes[first], kind="stable")  # by pass, each section's strips in time order
+        strips = SectionStrips(x0[first] + nx[first] * off, y0[first] + ny[first] * off,
+                               x1[last] + nx[last] * off, y1[last] + ny[last] * off,
+                               states.widths_m[sec], np.zeros(0), passes[first], sec)
+        strips = SectionStrips(*(getattr(strips, f) if f == "mass_kg" else getattr(strips, f)[order]
+                                 for f in SectionStrips.__dataclass_fields__))
+        # Each open (section, tick) goes to its group's strip; a group is all open or all closed.
+        flat_on = np.flatnonzero(on.ravel())
+        group = np.cumsum(brk.ravel())[flat_on] - 1
+        rank = np.empty(order.size, np.int64)
+        rank[order] = np.arange(order.size)
+        row = rank[(np.cumsum(keep) - 1)[group]]
+        tick, section = flat_on % per_section, flat_on // per_section
+        to_strips = sparse.csr_matrix((share[tick, section], (row, tick)), shape=(order.size, n))
+        return cls(strips, idx, width_on, to_strips)
+
+    def mass_kg(self, metered_kg) -> np.ndarray:
+        """Product in each strip, kg, shape (k,) or (k, m) for `metered_kg` of shape (track ticks,) or
+        (track ticks, m) (m controllers' columns); `ValueError` if a tick meters product with every gate
+        closed (it would be lost)."""
+        metered = np.asarray(metered_kg, float)
+        every = len(self.ticks) == len(metered) and (not len(metered) or self.ticks[-1] == len(metered) - 1)
+        if not every:   # (ascending ticks: as many as the track's, the last its last, are all of them)
+            metered = metered[self.ticks]
+        lost = (metered.reshape(len(self.ticks), -1) > 0).any(axis=1) & (self.width_on_m <= 0)
+        if lost.any():
+            raise ValueError(f"section_strips: tick {int(self.ticks[np.argmax(lost)])} meters product with "
+                             "every gate closed")
+        return np.asarray(self.to_strips @ metered)
+
+
+def limited_coverage(track: dict, metered_kg: np.ndarray, states: SectionStates, limited: np.ndarray,
+                     delay_s: float, period_s: float, cell_m: float, grid: Grid) -> np.ndarray:
+    """Share of each cell that product metered in `limited` ticks (the machine-limited ones) landed on,
+    for each column of `metered_kg` (ticks, m): shape (m, rows, cols). The strips are the same for
+    every column; a column's product decides only which of them sweep (`maps.StripMap`)."""
+    if not limited.any():
+        return np.zeros((metered_kg.shape[1], grid.rows, grid.cols))
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+    s = plan.strips
+    strip_map = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m)
+    return strip_map.coverage_fraction(plan.mass_kg(metered_kg))
 
 
 def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:

@@ -40,6 +40,7 @@ import numpy as np
 
 from common import ScenarioError, VrsimError
 from services.sim import scenario as scenario_mod
+from services.sim.metrics import METRICS
 from services.sim.overrides import key_parts
 from services.sim.scenario import _no_unknown, _typed  # the scenario loader's own checks and messages
 
@@ -49,15 +50,9 @@ REPORT_KEYS = ("pareto",)
 ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
 ROW_LAST = ("wall_s", "status", "error")
 
-# Which way is better, for the accuracy figures the report ranks: "max", "min", or "zero" (|value|
-# smallest: a bias or a mass balance is best at zero, whichever its sign).
-METRIC_SENSE = {
-    "mae_kg_ha": "min", "rmse_kg_ha": "min", "bias_kg_ha": "zero", "mae_pct": "min", "rmse_pct": "min",
-    "bias_pct": "zero", "mass_balance_pct": "zero",
-    "within_5pct_area_pct": "max", "within_10pct_area_pct": "max", "coverage_pct": "max",
-    "transition_time_s_mean": "min", "transition_time_s_p95": "min",
-    "transition_distance_m_mean": "min", "transition_distance_m_p95": "min", "off_target_kg": "min",
-}
+# Which way is better ("min", "max" or "zero"), for the accuracy figures the report ranks: the
+# METRICS table's sense.
+METRIC_SENSE = {m.key: m.sense for m in METRICS if m.sense is not None}
 
 
 @dataclass(frozen=True)
@@ -445,6 +440,42 @@ def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
         return failed_row(spec, f"internal error: {type(exc).__name__}: {exc}", time.perf_counter() - t0)
     figures = numeric_figures(result.summary)
     return {**identity(spec), **figures, "wall_s": time.perf_counter() - t0, "status": "ok", "error": None}
+
+
+def controller_only(sweep: Sweep) -> bool:
+    """True if every axis is a ``controller.*`` key: the runs of one scenario and seed then share
+    their drive and can take the batched fast path (`run_group`)."""
+    return bool(sweep.axes) and all(a.key.startswith("controller.") for a in sweep.axes)
+
+
+def variant_groups(specs: Sequence[RunSpec]) -> list[tuple[RunSpec, ...]]:
+    """The specs grouped by base scenario and seed, in first-seen order (one drive per group)."""
+    groups: dict[tuple[str, int], list[RunSpec]] = {}
+    for spec in specs:
+        groups.setdefault((spec.scenario, spec.seed), []).append(spec)
+    return [tuple(g) for g in groups.values()]
+
+
+def run_group(specs: Sequence[RunSpec]) -> list[dict]:
+    """The rows of specs that differ only in ``controller.*`` keys (`variant_groups`), through the
+    fast path: one drive, then all controllers as one batch (`services.sim.variants.run_variants`).
+
+    Rows have the form of `run_row`'s, ``wall_s`` each run's share of the group's wall time. If the
+    batch fails (a controller the run refuses), every spec runs alone through `run_row`, so a failed
+    row is that run's own, with its own message.
+    """
+    from services.sim.run import drive
+    from services.sim.variants import run_variants
+
+    t0 = time.perf_counter()
+    try:
+        scenarios = [spec.load() for spec in specs]
+        summaries = run_variants(drive(scenarios[0]), [sc.controller for sc in scenarios])
+    except Exception:  # noqa: BLE001 - each run on its own then says which one failed, and why
+        return [run_row(spec) for spec in specs]
+    wall_s = (time.perf_counter() - t0) / len(specs)
+    return [{**identity(spec), **numeric_figures(summary), "wall_s": wall_s, "status": "ok", "error": None}
+            for spec, summary in zip(specs, summaries, strict=True)]
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -166,3 +166,67 @@ def test_pass_overlapping_itself_and_strips_without_pass():
     part = AsApplied(field(cell=10.0))
     part.add_strips(500_001.25, 5_300_100.0, 500_001.25, 5_300_000.0, 2.5, 1.0, pass_index=0)
     assert part.pass_count.max() == 0 and part.coverage_fraction[:, 0] == pytest.approx(0.25)
+
+
+# ---------------------------------------------------------------------- StripMap: many mass columns
+def test_strip_map_equals_add_strips_per_column():
+    """Oblique, axis-aligned, zero-length and off-grid strips; columns with zero-mass strips (which
+    sweep no coverage there): each column's rasters equal AsApplied.add_strips of that column."""
+    from maps import StripMap
+
+    g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
+    rng = np.random.default_rng(3)
+    k = 300
+    x0 = rng.uniform(499_990.0, 500_110.0, k)
+    y0 = rng.uniform(5_299_990.0, 5_300_110.0, k)
+    angle, length = rng.uniform(0, 2 * np.pi, k), rng.uniform(0.0, 4.0, k)
+    length[:10] = 0.0
+    angle[10:60] = 0.0
+    x1, y1 = x0 + length * np.cos(angle), y0 + length * np.sin(angle)
+    width = rng.uniform(0.5, 12.0, k)
+    mass = rng.uniform(0.0, 2.0, (k, 3))
+    mass[rng.random((k, 3)) < 0.2] = 0.0
+    strip_map = StripMap(g, x0, y0, x1, y1, width)
+    cols = strip_map.apply(mass)
+    for j in range(3):
+        acc = AsApplied(g)
+        acc.add_strips(x0, y0, x1, y1, width, mass[:, j])
+        np.testing.assert_allclose(cols.applied_kg_ha[j], acc.applied_kg_ha, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(cols.coverage_fraction[j], acc.coverage_fraction, rtol=1e-12, atol=1e-12)
+        assert cols.outside_kg[j] == pytest.approx(acc.outside_kg, rel=1e-12, abs=1e-12)
+    assert cols.applied_kg.sum(axis=(1, 2)) + cols.outside_kg == pytest.approx(mass.sum(axis=0), rel=1e-12)
+    with pytest.raises(MapError, match="shape"):
+        strip_map.apply(mass[:-1])
+
+
+def test_strip_map_pass_figures_equal_add_strips_with_passes():
+    """Strips in passes (two passes overlapping, one sweeping ground twice) carrying columns of mass,
+    some strips empty in some columns: pass count, overlap share and overlap kg, coverage and applied
+    rate equal AsApplied.add_strips of each column with the same passes."""
+    from maps import StripMap
+
+    g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
+    rng = np.random.default_rng(5)
+    ys = np.arange(5_300_000.0, 5_300_100.0, 1.3)
+    x_of_pass = (500_020.0, 500_024.0, 500_024.0, 500_060.3)
+    x0 = np.concatenate([np.full(ys.size, x) for x in x_of_pass])
+    y0 = np.concatenate([ys] * len(x_of_pass))
+    y1 = y0 + 1.3
+    x1 = x0 + rng.uniform(-0.2, 0.2, x0.size)
+    passes = np.repeat([0, 1, 1, 2], ys.size)   # pass 1 sweeps its ground twice
+    width = np.repeat([12.0, 12.0, 12.0, 7.5], ys.size)
+    mass = rng.uniform(0.1, 1.0, (x0.size, 4))
+    mass[:, 1] = mass[:, 0]                         # columns 0 and 1: one pattern; 2, 3: gaps
+    mass[rng.random(x0.size) < 0.1, 2] = 0.0
+    mass[:40, 3] = 0.0
+    cols = StripMap(g, x0, y0, x1, y1, width, pass_index=passes).apply(mass)
+    for j in range(mass.shape[1]):
+        acc = AsApplied(g)
+        acc.add_strips(x0, y0, x1, y1, width, mass[:, j], pass_index=passes)
+        np.testing.assert_array_equal(cols.pass_count[j], acc.pass_count)
+        for name in ("overlap_fraction", "overlap_kg", "coverage_fraction", "applied_kg_ha"):
+            np.testing.assert_allclose(getattr(cols, name)[j], getattr(acc, name), rtol=1e-12, atol=1e-12,
+                                       err_msg=name)
+    assert cols.overlap_kg[0].sum() > 0 and cols.pass_count.max() == 2
+    np.testing.assert_allclose(StripMap(g, x0, y0, x1, y1, width).coverage_fraction(mass),
+                               cols.coverage_fraction, rtol=0, atol=0)

@@ -1,0 +1,60 @@
+"""`vrsim tune SCENARIO --controller KIND --param NAME=LOW:HIGH ... --objective METRIC [--budget N]
+[--seed S] [--out DIR] [--json]`: search a controller's parameters for the best figure on a field."""
+
+from __future__ import annotations
+
+import sys
+
+HELP = "search a controller's parameters for the best figure on a field (differential evolution, batched)"
+
+
+def configure(parser) -> None:
+    parser.add_argument("scenario", help="scenario TOML file or built-in name (default, large)")
+    parser.add_argument("--controller", metavar="KIND", required=True,
+                        help="the kind to tune: P, PI, PID, aog_pi, ff_pi, smith, fuzzy_pid, ...")
+    parser.add_argument("--param", metavar="NAME=LOW:HIGH", action="append", required=True,
+                        help="a parameter and its range (kp, ki, kd for P/PI/PID; the kind's params "
+                             "otherwise; look_ahead_s for any); repeat for each")
+    parser.add_argument("--objective", metavar="METRIC", required=True,
+                        help="the figure to optimise, minimised, maximised or brought to zero by its "
+                             "sense (mae_kg_ha, within_10pct_area_pct, bias_kg_ha, ...)")
+    parser.add_argument("--budget", type=int, default=200, metavar="N",
+                        help="about how many candidates to evaluate (default 200)")
+    parser.add_argument("--seed", type=int, default=0, help="seeds the search (default 0)")
+    parser.add_argument("--out", metavar="DIR", default=None,
+                        help="folder for best_controller.toml and history.csv "
+                             "(default: runs/tune-<scenario>-<time>/)")
+    parser.add_argument("--json", action="store_true", help="print the outcome as one JSON object")
+    parser.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+
+
+def run(args) -> int:
+    from services.cli.run import default_out_dir
+    from services.outputs.encode import dumps_text
+    from services.outputs.tune import tune_text, write_tune
+    from services.sim import scenario
+    from services.sim.tune import check_objective, parse_param, tune
+
+    params = [parse_param(p) for p in args.param]
+    check_objective(args.objective)
+    sc = scenario.load(args.scenario)
+
+    def progress(done, best):
+        if not args.quiet and sys.stderr.isatty():
+            sys.stderr.write(f"\rvrsim tune: {done} evaluations, best {args.objective} {best}   ")
+            sys.stderr.flush()
+
+    result = tune(sc, args.controller, params, args.objective, args.budget, args.seed, progress)
+    if not args.quiet and sys.stderr.isatty():
+        sys.stderr.write("\n")
+    paths = write_tune(result, args.out or default_out_dir(sc.name, "tune"))
+    if args.json:
+        print(dumps_text({"scenario": result.scenario, "objective": result.objective, "sense": result.sense,
+                          "controller": result.best.kind, "best": result.best_values,
+                          "best_objective": result.best_objective, "evaluations": result.evaluations,
+                          "generations": result.generations, "tuned": result.tuned,
+                          "baseline": result.baseline, **paths}, indent=True))
+    else:
+        print(tune_text(result))
+        print(f"  files: {paths['best_controller']}, {paths['history']}")
+    return 0

@@ -1,0 +1,72 @@
+"""`vrsim tune`'s files and text: the best controller as a ``[controller]`` table a scenario can
+include (``best_controller.toml``), the objective's history (``history.csv``) and the side-by-side
+figures of the tuned and the scenario's own controller."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+
+from controller.config import PID_KEYS
+from services.sim.metrics import METRICS
+from services.sim.tune import TuneResult
+
+COMPARED = tuple(m for m in METRICS if m.sense is not None and m.tolerance is not None)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(float(value)) if isinstance(value, float) else str(value)
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    return json.dumps(str(value))   # a TOML basic string is a JSON string
+
+
+def controller_table(result: TuneResult) -> str:
+    """The best controller as TOML text: a comment saying where it comes from and a [controller] table."""
+    cfg = result.best
+    keys = ["kind", *PID_KEYS, "params", "file", "class_name", "look_ahead_s", "look_ahead_tune"]
+    lines = [f"# vrsim tune {result.scenario}: {result.objective} = {result.best_objective!r} after "
+             f"{result.evaluations} evaluations", "[controller]"]
+    for key in keys:
+        value = getattr(cfg, key)
+        if value is None or value == {} or (key == "look_ahead_tune" and value == 0):
+            continue
+        lines.append(f"{'class' if key == 'class_name' else key} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"
+
+
+def write_tune(result: TuneResult, out_dir: str) -> dict[str, str]:
+    """Write best_controller.toml and history.csv into `out_dir`; their paths."""
+    os.makedirs(out_dir, exist_ok=True)
+    paths = {"best_controller": os.path.join(out_dir, "best_controller.toml"),
+             "history": os.path.join(out_dir, "history.csv")}
+    with open(paths["best_controller"], "w", encoding="utf-8") as fh:
+        fh.write(controller_table(result))
+    with open(paths["history"], "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(result.history[0]) if result.history else ["evaluation"])
+        writer.writeheader()
+        writer.writerows(result.history)
+    return paths
+
+
+def _fmt(value) -> str:
+    return "-" if value is None or (isinstance(value, float) and not math.isfinite(value)) else f"{value:.4g}"
+
+
+def tune_text(result: TuneResult) -> str:
+    """The best parameters and the figures of the tuned controller beside the scenario's own."""
+    values = ", ".join(f"{k} = {v:.6g}" for k, v in result.best_values.items())
+    lines = [f"vrsim tune {result.scenario}: best {result.objective} ({result.sense}) = "
+             f"{_fmt(result.best_objective)} with {result.best.kind} {values}",
+             f"  {result.evaluations} evaluations in {result.generations} generations", "",
+             f"  {'figure':<34} {'tuned':>12} {'scenario':>12}"]
+    for m in COMPARED:
+        mark = " <" if m.key == result.objective else ""
+        lines.append(f"  {m.key + ' [' + m.unit + ']':<34} {_fmt(result.tuned.get(m.key)):>12} "
+                     f"{_fmt(result.baseline.get(m.key)):>12}{mark}")
+    return "\n".join(lines)

@@ -1,0 +1,214 @@
+"""`vrsim tune`: search a controller's parameters for the best figure on one field.
+
+scipy's `differential_evolution` with ``vectorized=True`` and ``updating="deferred"`` proposes a whole
+population at a time; every population is one batch of controller variants over one shared drive
+(`services.sim.variants.run_variants`: the PID family on its lifted-matrix fast path). The objective
+is a figure of `METRICS` with a sense (``min``, ``max`` or ``zero``: its magnitude is minimised), a
+figure that does not exist for a candidate (no rate step settled) counts as the worst.
+
+Budget: about `budget` evaluations in whole generations: a population of ``max(5, m x params)``
+candidates (m from 1 to 15, so that about six generations fit), evaluated ``budget // population``
+times (at least once); the search may stop earlier when the population has converged (scipy's
+``tol``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from common import ControllerError, ScenarioError
+from controller import ControllerConfig, resolve_gains
+from controller.config import PID_KINDS
+from services.sim.core import plant_for
+from services.sim.metrics import METRICS
+from services.sim.run import drive as drive_of
+from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario
+from services.sim.variants import run_variants
+
+PID_TUNABLE = ("kp", "ki", "kd")   # the PID family's numeric keys (its gains are then "manual")
+TOP_LEVEL = ("look_ahead_s",)      # keys of [controller] itself that any kind can tune
+SENSES = {m.key: m.sense for m in METRICS if m.sense is not None}
+GENERATIONS = 6                    # the budget is shared so that about this many generations fit
+MAX_POPSIZE = 15                   # scipy's default multiplier
+
+
+@dataclass(frozen=True)
+class TuneParam:
+    """One searched parameter: its name in ``[controller]`` (or in its ``params``) and its range."""
+
+    name: str
+    low: float
+    high: float
+
+
+@dataclass
+class TuneResult:
+    scenario: str
+    objective: str
+    sense: str
+    params: tuple[TuneParam, ...]
+    best: ControllerConfig
+    best_values: dict
+    best_objective: float
+    evaluations: int
+    generations: int
+    history: list[dict]      # one row per evaluation: evaluation, generation, params, objective, best
+    tuned: dict              # the best controller's summary
+    baseline: dict           # the scenario's own controller's summary
+
+
+def parse_param(text: str) -> TuneParam:
+    """``NAME=LOW:HIGH`` (numbers, LOW < HIGH); `ScenarioError` naming the text otherwise."""
+    name, sep, span = text.partition("=")
+    low, colon, high = span.partition(":")
+    try:
+        if not (sep and colon and name.strip()):
+            raise ValueError
+        lo, hi = float(low), float(high)
+    except ValueError:
+        raise ScenarioError(f"--param {text!r}: must be NAME=LOW:HIGH (e.g. kp=0.1:2.0)") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or lo >= hi:
+        raise ScenarioError(f"--param {text!r}: LOW must be < HIGH (finite numbers), got {lo:g} and {hi:g}")
+    return TuneParam(name.strip(), lo, hi)
+
+
+def check_objective(metric: str) -> str:
+    """The metric's sense; `ScenarioError` listing the figures that have one otherwise."""
+    if metric not in SENSES:
+        raise ScenarioError(f"--objective {metric!r}: not a figure to optimise (one of {', '.join(SENSES)})")
+    return SENSES[metric]
+
+
+def base_config(scenario: Scenario, kind: str) -> ControllerConfig:
+    """The configuration candidates start from: `kind` with its defaults and the scenario's look-ahead
+    keys; for P, PI and PID manual gains at the paper's values (so an untuned gain keeps them)."""
+    keep = {k: getattr(scenario.controller, k) for k in KIND_INDEPENDENT_KEYS}
+    try:
+        cfg = ControllerConfig(kind=kind, **keep)
+        if kind in PID_KINDS:
+            g = resolve_gains(cfg, plant_for(scenario), scenario.timing.control_period_s)
+            terms = PID_KINDS[kind]
+            cfg = dataclasses.replace(cfg, gains="manual", kp=g.kp, ki=g.ki if "I" in terms else None,
+                                      kd=g.kd if "D" in terms else None)
+    except ControllerError as exc:
+        raise ScenarioError(f"--controller {kind!r}: {exc}") from None
+    return cfg
+
+
+def config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> ControllerConfig:
+    """`base` with each parameter set to its value (`ControllerError` if the kind refuses one)."""
+    top, inner = {}, {}
+    for p, v in zip(params, values, strict=True):
+        (top if p.name in TOP_LEVEL or base.kind in PID_KINDS else inner)[p.name] = float(v)
+    if inner:
+        top["params"] = {**base.params, **inner}
+    return dataclasses.replace(base, **top)
+
+
+def check_params(base: ControllerConfig, params: Sequence[TuneParam]) -> None:
+    """Each parameter is a number the kind takes, at both ends of its range; `ScenarioError` otherwise."""
+    for p in params:
+        if base.kind in PID_KINDS and p.name not in PID_TUNABLE + TOP_LEVEL:
+            raise ScenarioError(f"--param {p.name!r}: kind {base.kind!r} tunes "
+                                f"{', '.join(PID_TUNABLE + TOP_LEVEL)}")
+        if p.name in ("kd", "ki") and base.kind in PID_KINDS and getattr(base, p.name) is None:
+            raise ScenarioError(f"--param {p.name!r}: kind {base.kind!r} has no such term")
+        for end in (p.low, p.high):
+            try:
+                config_at(base, [p], [end])
+            except (ControllerError, TypeError) as exc:
+                raise ScenarioError(f"--param {p.name}={p.low:g}:{p.high:g}: kind {base.kind!r}: "
+                                    f"{exc}") from None
+
+
+def generations_for(budget: int, dims: int) -> tuple[int, int]:
+    """(popsize multiplier, scipy's maxiter) for about `budget` evaluations (see the module docstring)."""
+    m = int(min(MAX_POPSIZE, max(1, budget // (GENERATIONS * dims))))
+    population = max(5, m * dims)
+    return m, max(0, budget // population - 1)
+
+
+def tune(scenario: Scenario, kind: str, params: Sequence[TuneParam], objective: str, budget: int,
+         seed: int = 0, progress: Callable[[int, float], None] | None = None) -> TuneResult:
+    """Search `params` of controller `kind` for the best `objective` on `scenario`'s field.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    kind : str
+        A controller kind (``PID``, ``PI``, ``P``, ``aog_pi``, ...).
+    params : sequence of TuneParam
+        The searched parameters and their ranges (names as in ``[controller]``, or its ``params`` for
+        kinds other than P, PI, PID; ``look_ahead_s`` for any kind).
+    objective : str
+        A figure of `METRICS` with a sense.
+    budget : int
+        About how many candidates to evaluate (>= 1).
+    seed : int
+        Seeds the search (the drive keeps the scenario's seed).
+    progress : callable, optional
+        ``progress(evaluations, best objective so far)`` after each generation.
+
+    Raises
+    ------
+    ScenarioError
+        Unknown kind, parameter or metric, an empty or reversed range, a budget below 1.
+    """
+    from scipy.optimize import differential_evolution
+
+    sense = check_objective(objective)
+    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+        raise ScenarioError(f"--budget must be an integer >= 1, got {budget!r}")
+    if not params:
+        raise ScenarioError("--param: give at least one parameter to tune (NAME=LOW:HIGH)")
+    names = [p.name for p in params]
+    if len(set(names)) < len(names):
+        raise ScenarioError(f"--param: a parameter is given twice: {names}")
+    base = base_config(scenario, kind)
+    check_params(base, params)
+    shared = drive_of(scenario)
+    history: list[dict] = []
+    best = [math.inf]
+
+    def score(summary: dict) -> float:
+        value = summary.get(objective)
+        if value is None or not math.isfinite(value):
+            return math.inf
+        return -value if sense == "max" else abs(value) if sense == "zero" else value
+
+    def evaluate(x: np.ndarray) -> np.ndarray:      # x: (params, population)
+        columns = np.atleast_2d(x).T
+        summaries = run_variants(shared, [config_at(base, params, v) for v in columns])
+        scores = np.array([score(s) for s in summaries])
+        generation = 1 + max((h["generation"] for h in history), default=0)
+        for v, s, sc in zip(columns, summaries, scores, strict=True):
+            best[0] = min(best[0], sc)
+            history.append({"evaluation": len(history) + 1, "generation": generation,
+                            **{p.name: float(val) for p, val in zip(params, v, strict=True)},
+                            objective: s.get(objective), "best_so_far": _unscore(best[0], sense)})
+        if progress is not None:
+            progress(len(history), _unscore(best[0], sense))
+        return scores
+
+    popsize, maxiter = generations_for(budget, len(params))
+    found = differential_evolution(evaluate, [(p.low, p.high) for p in params], popsize=popsize,
+                                   maxiter=maxiter, vectorized=True, updating="deferred", polish=False,
+                                   rng=np.random.default_rng(seed))
+    best_cfg = config_at(base, params, found.x)
+    tuned, baseline = run_variants(shared, [best_cfg, scenario.controller])
+    return TuneResult(scenario=scenario.name, objective=objective, sense=sense, params=tuple(params),
+                      best=best_cfg, best_values=dict(zip(names, map(float, found.x), strict=True)),
+                      best_objective=tuned.get(objective), evaluations=len(history),
+                      generations=history[-1]["generation"] if history else 0, history=history,
+                      tuned=tuned, baseline=baseline)
+
+
+def _unscore(score: float, sense: str) -> float | None:
+    if not math.isfinite(score):
+        return None
+    return -score if sense == "max" else score

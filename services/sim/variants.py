@@ -1,0 +1,174 @@
+"""Controller variants over one drive, as one batch: the fast path of sweeps and `vrsim tune`.
+
+A controller does not change the drive (SUMO track, sensor readings), nor the stage-1 targets while
+the look-ahead is the same (landing point, prescription there, sections, target shaft speed), nor
+the geometry of where product lands (strips of the sections that are on). `run_variants` computes
+those once and then
+
+1. runs the variants' loops together on the shared targets (`controller.build_variant_loops`: the
+   PID family on its lifted-matrix fast path, one loop per variant with its own gains; other kinds
+   one after another);
+2. lands every variant's metered product at once: the applied rate per tick is a column per variant,
+   the joined strips' masses too, and the as-applied rasters come from one sparse map from strips to
+   cells (`maps.StripMap`) applied to all mass columns;
+3. computes each variant's figures as `services.sim.run.account` does.
+
+Each summary equals `control_and_account(drive, cfg).summary` to rounding (tested to 1e-9 relative),
+but for the wall times: a variant's ``control_s`` and ``metrics_s`` are its share of the batch's
+(the batch's time over its variants), on top of the drive's stages.
+
+Variants whose look-ahead differs form separate batches (their targets differ); a variant with the
+look-ahead tune on (``look_ahead_tune > 0``: its targets depend on its own loop) runs alone through
+`control_and_account`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from common import ControllerError, ScenarioError
+from controller import ControllerConfig, build_variant_loops
+from maps import StripMap
+from services.sim.core import RUN_CHUNK, ControlCore, plant_for
+from services.sim.landing import applied_rate_kg_ha, land
+from services.sim.look_ahead import initial_look_ahead_s
+from services.sim.metrics import limit_metrics, map_metrics, overlap_metrics, transitions
+from services.sim.run import Drive, cells_in_field, check_world, control_and_account, summarize
+from services.sim.section_landing import StripPlan, limited_coverage, worked_fraction
+from services.sim.sections import SectionStates, pass_index
+
+VARIANT_CHUNK = 128  # variants run as one loop batch (their ticks x variants of floats held)
+RASTER_CHUNK = 32    # variants whose rasters are held at once (n x sub-cells of floats)
+
+
+def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[dict]:
+    """The summary of each controller over `drive`, computed as a batch (see the module docstring).
+
+    Parameters
+    ----------
+    drive : Drive
+        From `services.sim.run.drive` (not changed).
+    controllers : sequence of ControllerConfig
+
+    Returns
+    -------
+    list of dict
+        One summary per controller, in order: the keys of `vrsim run --json` (`control_and_account`).
+
+    Raises
+    ------
+    ScenarioError
+        A controller the run refuses (as `control_and_account` would).
+    """
+    scenario = drive.world.scenario
+    out: list[dict | None] = [None] * len(controllers)
+    batches: dict[float, list[int]] = {}
+    for i, cfg in enumerate(controllers):
+        if cfg.look_ahead_tune > 0:
+            out[i] = control_and_account(drive, cfg).summary
+            continue
+        sc = dataclasses.replace(scenario, controller=cfg)
+        try:
+            look_ahead = initial_look_ahead_s(sc, plant_for(sc))
+        except ControllerError as exc:
+            raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
+        batches.setdefault(look_ahead, []).append(i)
+    for idx in batches.values():
+        for lo in range(0, len(idx), VARIANT_CHUNK):
+            part = idx[lo:lo + VARIANT_CHUNK]
+            for i, summary in zip(part, _batch(drive, [controllers[i] for i in part]), strict=True):
+                out[i] = summary
+    return out
+
+
+def _batch(drive: Drive, cfgs: list[ControllerConfig]) -> list[dict]:
+    """Variants of one look-ahead: shared targets and landing, one loop batch, rasters at once."""
+    scenario = dataclasses.replace(drive.world.scenario, controller=cfgs[0])
+    clock = time.perf_counter()
+    rec, core = _targets(drive, scenario)
+    timing = scenario.timing
+    try:
+        loops = build_variant_loops(plant_for(scenario), cfgs, timing.control_period_s, timing.plant_step_s)
+    except ControllerError as exc:
+        raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
+    shaft_rev = np.empty((len(rec["target_shaft_rpm"]), len(cfgs)))
+    ticks = len(rec["target_shaft_rpm"])
+    for idx, loop in loops:
+        for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
+            part = rec["target_shaft_rpm"][lo:lo + RUN_CHUNK]
+            targets = np.repeat(part[:, None], len(idx), axis=1) if loop.n > 1 else part
+            shaft_rev[lo:lo + RUN_CHUNK, idx] = loop.run(targets).shaft_rev
+    metered = core._metered_kg(shaft_rev, (rec["width_on_m"] > 0)[:, None])
+    control_s = time.perf_counter() - clock
+    clock = time.perf_counter()
+    summaries = _account(drive, scenario, rec, metered, cfgs)
+    metrics_s = time.perf_counter() - clock
+    n = len(cfgs)
+    for summary in summaries:
+        stage = {**drive.stage_s, "control_s": control_s / n, "metrics_s": metrics_s / n}
+        summary["wall_time_s"] = sum(stage.values())
+        summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
+        summary["stage_s"] = stage
+    return summaries
+
+
+def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
+    """Stage 1 over the drive, in `ControlCore.run_track`'s chunks (the policy's and the section
+    switch's memory carried). The sections do not depend on the controller (the switch reads the
+    sensed track and its own coverage map, never the meter), so one switch serves the batch."""
+    world, track = drive.world, drive.track
+    core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
+    columns = (drive.measured_x_m, drive.measured_y_m, track["heading_rad"], drive.measured_speed_m_s,
+               track["implement_on"], track["s_m"])
+    n = len(drive.measured_x_m)
+    parts = [core.targets(*(np.asarray(a)[lo:lo + RUN_CHUNK] for a in columns))
+             for lo in range(0, max(n, 1), RUN_CHUNK)]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, core
+
+
+def _account(drive: Drive, scenario, rec: dict, metered: np.ndarray, cfgs) -> list[dict]:
+    """`services.sim.run.account` for the mass columns `metered` (ticks x variants) at once: the
+    landing geometry, the section strips, the worked area, the machine-limited ticks and the machine
+    check are the batch's; the product's figures come per column through `maps.StripMap`."""
+    world, track = drive.world, drive.track
+    grid, implement, timing = world.grid, scenario.implement, scenario.timing
+    delay_s, period_s, cell_m = implement.delivery_delay_s, timing.control_period_s, min(grid.cell_size)
+    width_on = rec["width_on_m"]
+    passes = pass_index(track["heading_rad"], track["implement_on"])
+    states = SectionStates(np.asarray(rec["sections_on"], bool), implement.section_widths,
+                           implement.section_offsets_m, passes, rec["sections_commanded"])
+    landing = land(grid, track, metered[:, 0], width_on, delay_s, period_s)
+    applied_kg_ha = applied_rate_kg_ha(metered, width_on[:, None], landing.strip_length_m[:, None])
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
+    strips = plan.strips
+    strip_map = StripMap(grid, strips.x0_m, strips.y0_m, strips.x1_m, strips.y1_m, strips.width_m,
+                         pass_index=strips.pass_index)
+    masses = plan.mass_kg(metered)
+    limited = implement.shaft_limited(rec["target_shaft_rpm"]) & (width_on > 0)
+    limited_cover = limited_coverage(track, metered, states, limited, delay_s, period_s, cell_m, grid)
+    in_field = cells_in_field(grid, world.field.polygon)
+    worked = worked_fraction(track, implement.width_m, grid)
+    check = check_world(world, in_field)
+    cell_w, cell_h = grid.cell_size
+    on = np.asarray(track["implement_on"], bool)
+    wall0 = time.perf_counter()
+    summaries = []
+    for j, cfg in enumerate(cfgs):
+        if j % RASTER_CHUNK == 0:
+            rasters = strip_map.apply(masses[:, j:j + RASTER_CHUNK])
+            applied = rasters.applied_kg_ha
+        c = j % RASTER_CHUNK
+        cover = rasters.coverage_fraction[c]
+        mm = map_metrics(grid.rates_kg_ha, applied[c], cover, in_field,
+                         abs(cell_w * cell_h) / 1e4, float(metered[:, j].sum()), float(rasters.outside_kg[c]))
+        tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, applied_kg_ha[:, j],
+                         on)
+        om = overlap_metrics(cover, rasters.overlap_fraction[c], rasters.overlap_kg[c], worked, in_field)
+        lm = limit_metrics(limited, width_on > 0, limited_cover[j], cover, in_field)
+        variant = dataclasses.replace(world, scenario=dataclasses.replace(scenario, controller=cfg))
+        summaries.append(summarize(variant, track, landing, (mm, tm, om, lm), check, wall0))
+    return summaries

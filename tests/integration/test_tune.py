@@ -1,0 +1,56 @@
+"""vrsim tune end to end (real SUMO, the real executable): a small search writes a [controller] table a
+scenario can include and the objective's history; bad input exits 2 naming what."""
+
+import csv
+import json
+import subprocess
+import tomllib
+
+import pytest
+
+from services.sim import scenario
+from services.sim.run import run
+from tests.conftest import VRSIM
+from tests.integration.test_variants import FIELD
+
+
+def vrsim(*args):
+    return subprocess.run([VRSIM, *args], capture_output=True, text=True, timeout=600)
+
+
+def test_tune_writes_a_controller_table_that_a_scenario_runs_to_the_same_figure(tmp_path):
+    (tmp_path / "f.toml").write_text(FIELD)
+    p = vrsim("tune", str(tmp_path / "f.toml"), "--controller", "PI", "--param", "kp=0.05:2",
+              "--param", "ki=0.1:10", "--objective", "mae_kg_ha", "--budget", "12", "--json",
+              "--out", str(tmp_path / "out"))
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["evaluations"] <= 12 and out["tuned"]["mae_kg_ha"] <= out["baseline"]["mae_kg_ha"] + 1e-9
+    table = (tmp_path / "out" / "best_controller.toml").read_text()
+    cfg = tomllib.loads(table)["controller"]
+    assert cfg["kind"] == "PI" and cfg["gains"] == "manual" and cfg["kp"] == pytest.approx(out["best"]["kp"])
+    (tmp_path / "tuned.toml").write_text(FIELD + "\n" + table)
+    again = run(scenario.load(str(tmp_path / "tuned.toml")))
+    assert again.summary["mae_kg_ha"] == pytest.approx(out["best_objective"], rel=1e-9)
+    with open(tmp_path / "out" / "history.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == out["evaluations"] and set(rows[0]) >= {"evaluation", "generation", "kp", "ki",
+                                                                "mae_kg_ha", "best_so_far"}
+    best = [float(r["best_so_far"]) for r in rows]
+    assert best == sorted(best, reverse=True) and best[-1] == pytest.approx(out["best_objective"], rel=1e-9)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--controller", "PIDX", "--param", "kp=0.1:1"], "PIDX"),
+    (["--controller", "PID", "--param", "kq=0.1:1"], "'kq'"),
+    (["--controller", "aog_pi", "--param", "nope=0.1:1"], "nope"),
+    (["--controller", "PID", "--param", "kp=1:0.5"], "LOW must be < HIGH"),
+    (["--controller", "PID", "--param", "kp=0.1:1", "--objective", "speed"], "'speed'"),
+    (["--controller", "PID", "--param", "kp=0.1:1", "--budget", "0"], "--budget"),
+])
+def test_bad_input_exits_2_naming_what(args, message):
+    if "--objective" not in args:
+        args = [*args, "--objective", "mae_kg_ha"]
+    p = vrsim("tune", "default", *args)
+    assert p.returncode == 2, p.stderr
+    assert message in p.stderr and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
