@@ -143,11 +143,14 @@ def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callabl
                for item in items}
     for future in as_completed(list(futures)):
         item = futures.pop(future)
-        if future.status == "finished":
-            result, error = future.result(), None
-        elif future.status == "cancelled":
+        if future.status == "cancelled":
             result, error = None, "cancelled: the cluster dropped this task"
         else:
-            result, error = None, describe_failure(future.exception())
+            # Not `future.status`: a result held by a worker that died since is "lost" and is being
+            # recomputed; `result()` waits for that, and raises the task's own failure.
+            try:
+                result, error = future.result(), None
+            except Exception as exc:  # any failure of the task becomes its row's error
+                result, error = None, describe_failure(exc)
         future.release()
         on_done(item, result, error)
