@@ -31,7 +31,9 @@ from common import ServiceError
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
 MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
 HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second
-HEADING_RING = 8192  # ticks of pose heading kept to orient the rate samples that follow them
+HEADING_RING = 1 << 18  # ticks of pose heading kept to orient the rate samples that follow them: on a
+# loaded machine the rate stream can lag the pose stream by seconds of lockstep ticks (8,192, half a
+# second at 15,000 ticks/s, lost samples under load); 4 MB for about 17 s
 UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
 MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m cells needs 12)
 STREAMS = ("pose", "shaft", "rate")
