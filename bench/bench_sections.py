@@ -21,16 +21,16 @@ from bench.bench_maps import _best  # best of 3 wall times
 def run() -> dict:
     from maps import AsApplied
     from services.sim.metrics import overlap_metrics
-    from services.sim.run import cells_in_field, driving, measure
+    from services.sim.run import cells_in_field, measure
     from services.sim.scenario import load
     from services.sim.section_landing import section_strips, worked_fraction
     from services.sim.sections import switch_sections
-    from services.sim.world import build_world
+    from services.sim.world import build_world, driving
 
     scenario = load("default")
     world = build_world(scenario)
     period_s = scenario.timing.control_period_s
-    with driving(world) as driver:
+    with driving(world.scenario, world.path) as driver:
         track = driver.run_all()
     measured = measure(scenario, track)
     imp, grid, polygon = scenario.implement, world.grid, world.field.polygon

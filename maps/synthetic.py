@@ -61,11 +61,16 @@ def zones(bounds, crs, cell_size_m: float = 5.0, seed: int = 0, n_zones: int = 6
     rates = rng.uniform(low, high, n_zones)
     if rate_step_kg_ha > 0:
         rates = np.clip(np.round(rates / rate_step_kg_ha) * rate_step_kg_ha, low, high)
-    from scipy.spatial import cKDTree  # here, not at import: scipy costs ~0.5 s to import
-
-    xx, yy = np.broadcast_arrays(x, y)
-    _, nearest = cKDTree(centres).query(np.column_stack((xx.ravel(), yy.ravel())))
-    grid.rates_kg_ha[:] = rates[nearest].reshape(grid.rows, grid.cols)
+    # The nearest of a handful of centres by brute force: a k-d tree (scipy.spatial, a quarter of a
+    # second to import) pays off only for many zones.
+    x, y = np.broadcast_arrays(x, y)
+    nearest = np.zeros(x.shape, np.intp)
+    best = (x - centres[0, 0]) ** 2 + (y - centres[0, 1]) ** 2
+    for k in range(1, n_zones):
+        d2 = (x - centres[k, 0]) ** 2 + (y - centres[k, 1]) ** 2
+        closer = d2 < best
+        nearest[closer], best[closer] = k, d2[closer]
+    grid.rates_kg_ha[:] = rates[nearest]
     return grid
 
 

@@ -11,7 +11,7 @@ and `vehicle.implement` (meter, sections, the delivery delay's value).
 """
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
-from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
+from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver, track_on_path
 from vehicle.field import Field
 from vehicle.gnss import Gnss, GnssConfig
 from vehicle.implement import Implement
@@ -21,5 +21,5 @@ from vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
 __all__ = [
     "CoveragePath", "DriveConfig", "Field", "Gnss", "GnssConfig", "Implement", "Pose",
     "Segment", "SpeedSensor", "SpeedSensorConfig", "SpeedVariation", "SumoDriver", "build_network",
-    "default_cache_dir", "find_netconvert", "plan_coverage",
+    "default_cache_dir", "find_netconvert", "plan_coverage", "track_on_path",
 ]

@@ -333,35 +333,61 @@ class SumoDriver:
         -------
         dict of ndarray, shape (n,)
             ``time_s``, ``s_m``, ``x_m``, ``y_m``, ``heading_rad`` (math convention), ``speed_m_s``,
-            ``implement_on`` (bool), ``segment_index`` (int).
+            ``implement_on`` (bool), ``segment_index`` (int): `track_on_path` of the whole drive.
 
         Raises
         ------
         VehicleError
             If the tractor has not finished after ``max_time_s``, e.g. because it stalled.
         """
+        expected = self.path.length_m / (self.drive.working_speed_m_s * self.step_s)
+        parts = list(self.run_parts(int(2 * expected) + 1000))
+        time_s, s_m, speed_m_s = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        return track_on_path(self.path, time_s, s_m, speed_m_s)
+
+    def run_parts(self, ticks: int):
+        """Drive the whole path (or the rest of it), yielding what SUMO reports every `ticks` ticks:
+        ``(time_s, s_m, speed_m_s)`` arrays of up to `ticks` ticks (the implement's arc length along
+        the path, not yet clipped to it; `track_on_path` makes a track of them, part by part or whole).
+
+        Raises `VehicleError` once the tractor has not finished after ``max_time_s``.
+        """
         self._require_open()
         max_ticks = max(int(self.max_time_s / self.step_s) - self._tick, 1)
-        expected = self.path.length_m / (self.drive.working_speed_m_s * self.step_s)
-        cap = min(max_ticks, int(2 * expected) + 1000)
-        t_arr, s_arr, v_arr = np.empty(cap), np.empty(cap), np.empty(cap)
-        length, n, advance = self._s[-1], 0, self._advance
+        length, n, total, advance = self._s[-1], 0, 0, self._advance
+        t_arr, s_arr, v_arr = np.empty(ticks), np.empty(ticks), np.empty(ticks)
         while True:
             got = advance()
             if got is None:
                 break
-            if n == cap:  # rare: grow by doubling
-                cap = min(2 * cap, max_ticks)
-                if n == cap:
-                    raise self._not_finished()
-                t_arr, s_arr, v_arr = (np.resize(a, cap) for a in (t_arr, s_arr, v_arr))
+            if total == max_ticks:
+                raise self._not_finished()
             t_arr[n], s_arr[n], v_arr[n] = got
             n += 1
+            total += 1
             if got[1] >= length:
                 break
+            if n == ticks:
+                yield t_arr.copy(), s_arr.copy(), v_arr.copy()
+                n = 0
         self.finished = True
-        s = np.clip(s_arr[:n], 0.0, length)
-        x, y, heading, seg, on = self.path.locate(s)
-        on = on & (s < length)
-        return {"time_s": t_arr[:n].copy(), "s_m": s, "x_m": x, "y_m": y, "heading_rad": heading,
-                "speed_m_s": v_arr[:n].copy(), "implement_on": on, "segment_index": seg}
+        if n or not total:  # no empty last part, but an empty drive is one (empty) part
+            yield t_arr[:n].copy(), s_arr[:n].copy(), v_arr[:n].copy()
+
+
+def track_on_path(path: CoveragePath, time_s, s_m, speed_m_s) -> dict:
+    """The per-tick track of a drive from what SUMO reported (`SumoDriver.run_parts`): arc lengths
+    clipped to the path, position, heading and segment there, the implement on inside a working
+    segment and before the path's end. Per tick, so a drive's parts give the whole's track.
+
+    Returns
+    -------
+    dict of ndarray, shape (n,)
+        ``time_s``, ``s_m``, ``x_m``, ``y_m``, ``heading_rad`` (math convention), ``speed_m_s``,
+        ``implement_on`` (bool), ``segment_index`` (int).
+    """
+    s = np.clip(s_m, 0.0, path.length_m)
+    x, y, heading, seg, on = path.locate(s)
+    on = on & (s < path.length_m)
+    return {"time_s": np.asarray(time_s, float), "s_m": s, "x_m": x, "y_m": y, "heading_rad": heading,
+            "speed_m_s": np.asarray(speed_m_s, float), "implement_on": on, "segment_index": seg}

@@ -145,22 +145,53 @@ class Gnss:
         -------
         x_meas_m, y_meas_m : ndarray, shape (n,)
         """
-        t, x, y = track_arrays("Gnss.measure", time_s, x_m=x_m, y_m=y_m)
         self.reset()
-        self._t0 = t[0]
+        return self.measure_next(time_s, x_m, y_m)
+
+    def measure_next(self, time_s, x_m, y_m):
+        """Measured positions for the next ticks of the track begun by `measure` (or by `fix`): a track
+        measured in parts equals the track measured whole, bit for bit (a streamed run measures each
+        part as SUMO drives it).
+
+        Parameters
+        ----------
+        time_s, x_m, y_m : array_like, shape (n,)
+            Tick times (s), strictly increasing and after the ticks measured so far, and true
+            positions (m).
+
+        Returns
+        -------
+        x_meas_m, y_meas_m : ndarray, shape (n,)
+        """
+        t, x, y = track_arrays("Gnss.measure", time_s, x_m=x_m, y_m=y_m)
+        if self._t0 is None:
+            self._t0 = t[0]
+            have, head = 0, 0
+        else:  # the last tick measured joins the part: fixes fall between it and the part's first
+            t_prev, x_prev, y_prev = self._prev
+            if not t[0] > t_prev:
+                raise VehicleError(f"Gnss.measure_next: time_s must increase, got {t[0]!r} after {t_prev!r}")
+            t, x, y = (np.concatenate([[p], a]) for p, a in ((t_prev, t), (x_prev, x), (y_prev, y)))
+            have, head = len(self._fixes), 1
         count = self._fix_count(t)  # fixes sampled once tick i is reached
-        n_fix = int(count[-1])
-        tj = t[0] + np.arange(n_fix) * self.period_s
+        j = np.arange(have, int(count[-1]))
+        tj = self._t0 + j * self.period_s
         # Fix j is sampled at the first tick i whose count exceeds j, between ticks i-1 and i.
-        i = np.searchsorted(count, np.arange(n_fix) + 1, side="left")
+        i = np.searchsorted(count, j + 1, side="left")
         im = np.maximum(i - 1, 0)
-        f = np.divide(tj - t[im], t[i] - t[im], out=np.zeros(n_fix), where=i > 0)
+        f = np.divide(tj - t[im], t[i] - t[im], out=np.zeros(j.size), where=i > 0)
         fx = x[im] + (x[i] - x[im]) * f
         fy = y[im] + (y[i] - y[im]) * f
-        fx[0], fy[0] = x[0], y[0]
-        e = self._errors(n_fix)
-        j = np.maximum(self._due_index(t), 0).astype(int)
-        return fx[j] + e[j, 0], fy[j] + e[j, 1]
+        if have == 0:
+            fx[0], fy[0] = x[0], y[0]
+        if j.size:
+            e = self._errors(j.size, self._err)
+            self._err = e[-1]
+            self._fixes.extend(zip((fx + e[:, 0]).tolist(), (fy + e[:, 1]).tolist(), strict=True))
+        self._prev = (float(t[-1]), float(x[-1]), float(y[-1]))
+        fixes = np.asarray(self._fixes).reshape(-1, 2)
+        due = np.maximum(self._due_index(t[head:]), 0).astype(int)
+        return fixes[due, 0], fixes[due, 1]
 
     # --- per tick --------------------------------------------------------------------------------
     def fix(self, time_s: float, x_m: float, y_m: float):

@@ -86,14 +86,23 @@ class SpeedSensor:
 
     def measure(self, time_s, speed_m_s) -> np.ndarray:
         """Measured speed (m/s) for a whole track of increasing ``time_s`` (s); starts a new track."""
-        t, v = track_arrays("SpeedSensor.measure", time_s, speed_m_s=speed_m_s)
         self.reset()
-        self._t0 = t[0]
+        return self.measure_next(time_s, speed_m_s)
+
+    def measure_next(self, time_s, speed_m_s) -> np.ndarray:
+        """Measured speed (m/s) for the next ticks of the track begun by `measure` (or `read`): a track
+        measured in parts equals the track measured whole, bit for bit."""
+        t, v = track_arrays("SpeedSensor.measure", time_s, speed_m_s=speed_m_s)
+        if self._t0 is None:
+            self._t0 = t[0]
         j = self._sample_index(t).astype(int)
-        w = self._rng.standard_normal(j[-1] + 1)
-        first = np.concatenate([[True], j[1:] != j[:-1]])  # the tick at which each sample is taken
-        sampled = v[first] * (1.0 + self.config.bias + self.config.sigma * w[j[first]])
-        return sampled[np.cumsum(first) - 1]
+        # One draw per sample since the last one taken, skipped samples included (as `read` draws).
+        w = self._rng.standard_normal(max(j[-1] - self._j, 0))
+        first = np.concatenate([[j[0] != self._j], j[1:] != j[:-1]])  # the tick at which each sample is taken
+        sampled = v[first] * (1.0 + self.config.bias + self.config.sigma * w[j[first] - self._j - 1])
+        held = np.concatenate([[self._value], sampled])  # ticks before the part's first sample hold the last
+        self._j, self._value = int(j[-1]), float(held[-1])
+        return held[np.cumsum(first)]
 
     def read(self, time_s: float, speed_m_s: float) -> float:
         """Measured speed (m/s) at one tick; call with increasing ``time_s``."""

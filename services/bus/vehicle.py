@@ -111,7 +111,8 @@ class VehicleService:
             self._set(state="failed", error=f"internal error: {type(exc).__name__}: {exc}")
 
     def _drive(self, start: messages.RunStart, world) -> str:
-        from services.sim.run import driving, sensors
+        from services.sim.run import sensors
+        from services.sim.world import driving
 
         sc = world.scenario
         period = sc.timing.control_period_s
@@ -120,7 +121,8 @@ class VehicleService:
         querier = self.session.declare_querier(self.keys.control_step, timeout=STEP_TIMEOUT_S)
         pipe = StepPipe(querier, self.publish_pose, self.keys.control_step)
         try:
-            with driving(world) as driver:  # the time limit of `vrsim run`, enforced by the driver
+            # the time limit of `vrsim run`, enforced by the driver
+            with driving(world.scenario, world.path) as driver:
                 gnss, speed_sensor = sensors(sc)  # seeded as `vrsim run` seeds them
                 wall0, batch, tick, state = time.monotonic(), [], 0, "finished"
                 self.drive0 = wall0

@@ -63,9 +63,9 @@ def run(args) -> int:
     from services.outputs.plot_worker import PlotWorker
     from services.outputs.summary import summary_json, text_summary
     from services.outputs.write import outputs_line, write_outputs
-    from services.sim import run as field_run
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
+    from services.sim.streamed import run_streamed
 
     apply_input_cap(args)
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
@@ -76,7 +76,7 @@ def run(args) -> int:
     plotter = PlotWorker().start() if sc.output.plots else None
     try:
         try:
-            result = field_run.run(sc, progress=progress)
+            result = run_streamed(sc, progress=progress)  # SUMO on the second core
         finally:
             progress.close()
         out_dir = args.out or default_out_dir(sc.name)

@@ -17,12 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, VehicleError
 from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
@@ -42,8 +40,8 @@ from services.sim.metrics import (
 from services.sim.scenario import Scenario
 from services.sim.section_landing import limited_coverage, section_strips, worked_fraction
 from services.sim.sections import SectionStates, pass_index
-from services.sim.world import World, build_world
-from vehicle import Gnss, SpeedSensor, SumoDriver
+from services.sim.world import World, build_world, driving
+from vehicle import Gnss, SpeedSensor
 
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
 
@@ -88,23 +86,6 @@ class RunResult:
     overlap_metrics: OverlapMetrics
     limit_metrics: LimitMetrics
     machine_check: MachineCheck
-
-
-@contextmanager
-def driving(world: World):
-    """A `vehicle.SumoDriver` on the world's path with the scenario's tractor, tick and time limit
-    (``[timing] max_sim_time_s``; unset, the driver derives it from the path), as a context manager.
-
-    `vrsim run` and the vehicle service both drive through this, so they stop at the same limit with
-    the same message; a `VehicleError` while driving becomes a `ScenarioError` naming the scenario.
-    """
-    sc = world.scenario
-    try:
-        with SumoDriver(world.path, sc.tractor, step_s=sc.timing.control_period_s, seed=sc.seed,
-                        max_time_s=sc.timing.max_sim_time_s) as driver:
-            yield driver
-    except VehicleError as exc:
-        raise ScenarioError(f"{sc.source}: {exc}") from None
 
 
 @dataclass
@@ -152,7 +133,7 @@ def drive(scenario: Scenario) -> Drive:
 
     world = build_world(scenario)
     lap("build_s")
-    with driving(world) as driver:
+    with driving(scenario, world.path) as driver:
         track = driver.run_all()
     lap("sumo_s")
     x_meas, y_meas, v_meas = measure(scenario, track)
@@ -181,29 +162,32 @@ def control_and_account(drive: Drive, controller: ControllerConfig | None = None
         scenario = dataclasses.replace(world.scenario, controller=controller)
         world = dataclasses.replace(world, scenario=scenario)
     scenario = world.scenario
-    stage = dict(drive.stage_s)
     clock = time.perf_counter()
-    wall0 = clock - sum(stage.values())   # as if the drive had run just now
-
-    def lap(name):
-        nonlocal clock
-        now = time.perf_counter()
-        stage[name] = now - clock
-        clock = now
-
+    wall0 = clock - sum(drive.stage_s.values())   # as if the drive had run just now
     core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
     control = core.run_track(drive.measured_x_m, drive.measured_y_m, track["heading_rad"],
                              drive.measured_speed_m_s, track["implement_on"], track["s_m"], progress)
-    lap("control_s")
+    stage = dict(drive.stage_s, control_s=time.perf_counter() - clock)
+    measured = (drive.measured_x_m, drive.measured_y_m, drive.measured_speed_m_s)
+    return accounted(world, track, measured, control, stage, wall0, drive.started_unix)
+
+
+def accounted(world: World, track: dict, measured: tuple, control: dict, stage_s: dict, wall0: float,
+              started_unix: float) -> RunResult:
+    """The `RunResult` of a driven and controlled track: `account` for it, its time in
+    ``stage_s["metrics_s"]``, the summary's wall time counted from `wall0` (`time.perf_counter`).
+
+    `measured` holds the measured x, y (m) and ground speed (m/s) per tick."""
+    clock = time.perf_counter()
     summary, rest = account(world, track, control, wall0)
-    lap("metrics_s")
+    stage = dict(stage_s, metrics_s=time.perf_counter() - clock)
     summary["wall_time_s"] = time.perf_counter() - wall0
     summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
     summary["stage_s"] = stage
-    return RunResult(world=world, track=track, measured_x_m=drive.measured_x_m,
-                     measured_y_m=drive.measured_y_m, measured_speed_m_s=drive.measured_speed_m_s,
-                     control=control, stage_s=stage, summary=summary, started_unix=drive.started_unix,
-                     **rest)
+    x_m, y_m, speed_m_s = measured
+    return RunResult(world=world, track=track, measured_x_m=x_m, measured_y_m=y_m,
+                     measured_speed_m_s=speed_m_s, control=control, stage_s=stage, summary=summary,
+                     started_unix=started_unix, **rest)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

@@ -7,6 +7,7 @@ metric CRS (its UTM zone), which is where the control core looks rates up.
 from __future__ import annotations
 
 import dataclasses
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,7 +15,7 @@ import numpy as np
 from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
 from services.sim.scenario import Scenario
-from vehicle import CoveragePath, Field, plan_coverage
+from vehicle import CoveragePath, Field, SumoDriver, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
 # Memory a run keeps per control tick: ~35 float64 arrays (the track, the sensors, the targets, the
@@ -85,7 +86,18 @@ def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
 
 
 def build_world(scenario: Scenario) -> World:
-    """Field, prescription and coverage path; errors name the scenario file and its table.
+    """Field, prescription and coverage path (`plan_path`); errors name the scenario file and its
+    table."""
+    field, path = plan_path(scenario)
+    try:
+        grid = build_prescription(scenario, field)
+    except MapError as exc:
+        raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
+    return World(scenario=scenario, field=field, path=path, grid=grid)
+
+
+def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:
+    """The field and the coverage path over it: all that SUMO drives.
 
     Refused before the path is planned: a run whose arrays would not fit in memory (`check_run_size`);
     after: a time limit the tractor cannot meet even at its top speed."""
@@ -98,11 +110,7 @@ def build_world(scenario: Scenario) -> World:
     except VehicleError as exc:
         raise ScenarioError(f"{scenario.source}: [field] {exc}") from None
     _check_time_limit(scenario, path)
-    try:
-        grid = build_prescription(scenario, field)
-    except MapError as exc:
-        raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
-    return World(scenario=scenario, field=field, path=path, grid=grid)
+    return field, path
 
 
 def check_run_size(scenario: Scenario, field: Field) -> None:
@@ -131,3 +139,20 @@ def field_and_grid(scenario: Scenario) -> tuple[Field, Grid]:
     path (what the map and controller services need)."""
     field = build_field(scenario)
     return field, build_prescription(scenario, field)
+
+
+@contextmanager
+def driving(scenario: Scenario, path: CoveragePath):
+    """A `vehicle.SumoDriver` on `path` with the scenario's tractor, tick and time limit
+    (``[timing] max_sim_time_s``; unset, the driver derives it from the path), as a context manager.
+
+    `vrsim run` and the vehicle service both drive through this, so they stop at the same limit with
+    the same message; a `VehicleError` while driving becomes a `ScenarioError` naming the scenario.
+    """
+    timing = scenario.timing
+    try:
+        with SumoDriver(path, scenario.tractor, step_s=timing.control_period_s, seed=scenario.seed,
+                        max_time_s=timing.max_sim_time_s) as driver:
+            yield driver
+    except VehicleError as exc:
+        raise ScenarioError(f"{scenario.source}: {exc}") from None

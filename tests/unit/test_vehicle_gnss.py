@@ -98,3 +98,33 @@ def test_sensors_refuse_ragged_or_unordered_tracks():
         Gnss(GnssConfig()).measure([0.0, 1.0], [0.0], [0.0, 1.0])
     with pytest.raises(VehicleError, match="SpeedSensor.measure: time_s must be strictly increasing"):
         SpeedSensor().measure([1.0, 0.0], [1.0, 1.0])
+
+
+@pytest.mark.parametrize("kind", ["rtk", "autonomous"])
+@pytest.mark.parametrize("rate_hz, latency_s", [(10.0, 0.1), (1.0, 0.33), (20.0, 0.05)])
+@pytest.mark.parametrize("cuts", [(1,), (7, 2000, 2001, 4500), (20, 40, 5999)])
+def test_a_track_measured_in_parts_equals_the_track_measured_whole(kind, rate_hz, latency_s, cuts):
+    from vehicle import SpeedSensor, SpeedSensorConfig
+
+    t, x, y = _track()
+    v = 2.5 + 0.3 * np.sin(t)
+    cfg = GnssConfig(kind=kind, rate_hz=rate_hz, latency_s=latency_s)
+    whole = Gnss(cfg, seed=3).measure(t, x, y)
+    speed_cfg = SpeedSensorConfig("radar", rate_hz=rate_hz)
+    whole_v = SpeedSensor(speed_cfg, seed=3).measure(t, v)
+    g, s = Gnss(cfg, seed=3), SpeedSensor(speed_cfg, seed=3)
+    bounds = [0, *cuts, len(t)]
+    spans = list(zip(bounds[:-1], bounds[1:], strict=True))
+    parts = [(g.measure if a == 0 else g.measure_next)(t[a:b], x[a:b], y[a:b]) for a, b in spans]
+    parts_v = [(s.measure if a == 0 else s.measure_next)(t[a:b], v[a:b]) for a, b in spans]
+    assert np.array_equal(np.concatenate([p[0] for p in parts]), whole[0])
+    assert np.array_equal(np.concatenate([p[1] for p in parts]), whole[1])
+    assert np.array_equal(np.concatenate(parts_v), whole_v)
+
+
+def test_a_part_must_come_after_the_ticks_measured():
+    t, x, y = _track(100)
+    g = Gnss(GnssConfig(), seed=1)
+    g.measure(t[:50], x[:50], y[:50])
+    with pytest.raises(VehicleError, match="measure_next: time_s must increase"):
+        g.measure_next(t[49:], x[49:], y[49:])

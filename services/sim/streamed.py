@@ -1,0 +1,124 @@
+"""`run` on two cores: SUMO drives in a second process while this one measures and controls the part
+of the track driven so far (what `vrsim run` does).
+
+libsumo holds the GIL while it steps, and stepping is about half of a run, so a thread would not
+help; a process does. Nothing that follows SUMO feeds back into it (the tractor's path does not
+depend on the metering), and everything that follows goes part by part with its state carried:
+the track (`vehicle.track_on_path`), the sensors (`Gnss.measure_next`, `SpeedSensor.measure_next`)
+and the control core (`ControlCore.run_track`, which the controller service calls per lockstep
+batch). The parts are the control core's own chunks (`RUN_CHUNK` ticks), so a streamed run's
+arrays and summary equal `services.sim.run.run`'s bit for bit (tested); only the wall times differ.
+
+The second process (`services.sim.drive_worker`) plans the path itself rather than wait for this
+one's world: both plan the same path from the same scenario, and its length is compared at the end.
+"""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from common import MapError, ScenarioError, VehicleError
+from services.sim.core import RUN_CHUNK, ControlCore
+from services.sim.run import RunResult, accounted, sensors
+from services.sim.scenario import Scenario
+from services.sim.world import build_world
+from vehicle import track_on_path
+
+# The errors the drive worker may report, by name: re-raised here as the same class.
+WORKER_ERRORS = {cls.__name__: cls for cls in (ScenarioError, VehicleError, MapError)}
+
+
+class DriveWorker:
+    """The drive's process, seen from the run: started on a scenario, its `parts` read in order."""
+
+    def __init__(self, scenario: Scenario, ticks_per_part: int = RUN_CHUNK):
+        self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        pickle.dump((scenario, ticks_per_part), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        self.proc.stdin.close()
+        self.path_length_m = self.sumo_s = None
+
+    def parts(self):
+        """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `path_length_m`
+        and `sumo_s` (the drive's wall time in the worker). Raises the worker's `common.VrsimError`,
+        or RuntimeError if it ended without a word (a bug or a kill)."""
+        while True:
+            try:
+                kind, *body = pickle.load(self.proc.stdout)
+            except EOFError:
+                raise RuntimeError("the drive worker (SUMO's process) ended before the drive did "
+                                   f"(exit code {self.proc.wait()})") from None
+            if kind == "part":
+                yield tuple(body)
+            elif kind == "done":
+                self.path_length_m, self.sumo_s = body
+                return
+            else:
+                name, message = body
+                raise WORKER_ERRORS.get(name, ScenarioError)(message)
+
+    def close(self) -> None:
+        """End the worker (killed if it is still driving: the run has failed) and reap it."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self.proc.stdout.close()
+
+
+def run_streamed(scenario: Scenario, progress=None, ticks_per_part: int = RUN_CHUNK) -> RunResult:
+    """`services.sim.run.run` of `scenario`, SUMO driving in a second process (see the module
+    docstring): the same result, sooner on two cores. `progress` as `run`'s; `ticks_per_part`, how
+    many ticks SUMO drives before it sends them (the control core's chunk: the last part's control
+    is what follows SUMO's end).
+
+    ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
+    worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
+    overlap, so they do not add up to ``wall_time_s``.
+    """
+    started, wall0 = time.time(), time.perf_counter()
+    worker = DriveWorker(scenario, ticks_per_part)
+    try:
+        world = build_world(scenario)
+        stage = {"build_s": time.perf_counter() - wall0, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
+        core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
+        gnss, speed = sensors(scenario)
+        expected = world.path.length_m / (scenario.tractor.working_speed_m_s * scenario.timing.control_period_s)
+        tracks, measured, controls, done = [], [], [], 0
+        clock = time.perf_counter()
+        for time_s, s_m, speed_m_s in worker.parts():
+            now = time.perf_counter()
+            stage["wait_s"] += now - clock
+            track = track_on_path(world.path, time_s, s_m, speed_m_s)
+            x_m, y_m = gnss.measure_next(track["time_s"], track["x_m"], track["y_m"])
+            v_m_s = speed.measure_next(track["time_s"], track["speed_m_s"])
+            clock = time.perf_counter()
+            stage["sensors_s"] += clock - now
+            part_progress = None if progress is None else \
+                (lambda n, _, before=done: progress(before + n, max(expected, before + n)))
+            controls.append(core.run_track(x_m, y_m, track["heading_rad"], v_m_s, track["implement_on"],
+                                           track["s_m"], part_progress))
+            tracks.append(track)
+            measured.append((x_m, y_m, v_m_s))
+            done += len(time_s)
+            now = time.perf_counter()
+            stage["control_s"] += now - clock
+            clock = now
+        stage["wait_s"] += time.perf_counter() - clock
+    finally:
+        worker.close()
+    if worker.path_length_m != world.path.length_m:  # both processes plan from one scenario
+        raise RuntimeError(f"the drive worker planned a path of {worker.path_length_m} m, this process "
+                           f"one of {world.path.length_m} m")
+    stage["sumo_s"] = worker.sumo_s
+    return accounted(world, _joined(tracks), tuple(np.concatenate(m) for m in zip(*measured, strict=True)),
+                     _joined(controls), stage, wall0, started)
+
+
+def _joined(parts: list[dict]) -> dict:
+    """Per-tick arrays of consecutive parts, joined along the ticks."""
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}

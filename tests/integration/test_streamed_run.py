@@ -1,0 +1,86 @@
+"""The streamed run (`services.sim.streamed`, what `vrsim run` does): SUMO in a second process, the
+track measured and controlled part by part, equal to the in-process run bit for bit (real SUMO)."""
+
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+
+from common import ScenarioError
+from services.outputs.encode import dumps
+from services.sim.run import run
+from services.sim.scenario import load, with_changes
+from services.sim.streamed import DriveWorker, run_streamed
+
+pytestmark = pytest.mark.integration
+
+CLOCK_KEYS = {"wall_time_s", "realtime_factor", "stage_s"}
+QUICK = "scenarios/quick_rectangle.toml"
+
+
+def assert_same_run(a, b):
+    assert dumps({k: v for k, v in a.summary.items() if k not in CLOCK_KEYS}) == \
+        dumps({k: v for k, v in b.summary.items() if k not in CLOCK_KEYS})  # NaN as null: equal
+    for key in a.track:
+        assert np.array_equal(a.track[key], b.track[key]), key
+    for key in a.control:
+        assert np.array_equal(a.control[key], b.control[key]), key
+    for name in ("measured_x_m", "measured_y_m", "measured_speed_m_s"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(a.as_applied.applied_kg_ha, b.as_applied.applied_kg_ha, equal_nan=True)
+
+
+@pytest.mark.parametrize("changes", [
+    {},
+    # coverage section control remembers where product landed; the look-ahead tune re-looks ticks up
+    {"implement": {"sections": 5, "section_control": "coverage"},
+     "controller": {"kind": "smith", "look_ahead_s": "auto", "look_ahead_tune": 0.5},
+     "gnss": {"kind": "dgps"}},
+])
+def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
+    sc = with_changes(load(QUICK), **changes)
+    whole = run(sc)
+    ticks = len(whole.track["time_s"])
+    # parts far smaller than the control core's chunks, and one not dividing them
+    streamed = run_streamed(sc, ticks_per_part=3001)
+    assert ticks > 4 * 3001
+    assert_same_run(whole, streamed)
+    stage = streamed.summary["stage_s"]
+    assert stage["sumo_s"] > 0 and stage["wait_s"] >= 0 and stage["control_s"] > 0
+
+
+def test_progress_counts_every_tick_once():
+    seen = []
+    result = run_streamed(load(QUICK), progress=lambda done, total: seen.append((done, total)),
+                          ticks_per_part=5000)
+    done = [d for d, _ in seen]
+    assert done == sorted(done) and done[-1] == len(result.track["time_s"])
+    assert all(d <= t for d, t in seen)
+
+
+def test_a_drive_past_its_time_limit_is_the_in_process_runs_error():
+    sc = with_changes(load(QUICK), tractor={"speed_variation_pct": 0.0, "working_speed_m_s": 0.5},
+                      timing={"max_sim_time_s": 4000.0})
+    with pytest.raises(ScenarioError) as in_process:
+        run(sc)
+    with pytest.raises(ScenarioError) as streamed:
+        run_streamed(sc)
+    assert str(streamed.value) == str(in_process.value)
+    assert "did not finish" in str(streamed.value)
+
+
+def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypatch):
+    started = []
+
+    class Watched(DriveWorker):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            started.append(self.proc)
+            threading.Timer(1.5, os.kill, (self.proc.pid, signal.SIGKILL)).start()
+
+    monkeypatch.setattr("services.sim.streamed.DriveWorker", Watched)
+    with pytest.raises(RuntimeError, match=r"drive worker .* ended before the drive did \(exit code -9\)"):
+        run_streamed(load("default"))
+    assert started[0].poll() == -9
