@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
 
 from common import ControllerError, check_positive
 
@@ -39,6 +38,8 @@ def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]
     M = np.zeros((nx + nu, nx + nu))
     M[:nx, :nx] = A * h
     M[:nx, nx:] = B * h
+    from scipy.linalg import expm  # here, not at import: a scenario loads without scipy
+
     E = expm(M)
     return E[:nx, :nx], E[:nx, nx:]
 

@@ -60,29 +60,34 @@ class Progress:
 
 
 def run(args) -> int:
-    from services.outputs.plot_worker import PlotWorker
-    from services.outputs.summary import summary_json, text_summary
-    from services.outputs.write import outputs_line, write_outputs
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
-    from services.sim.streamed import run_streamed
 
     apply_input_cap(args)
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     if args.check:
         return check(sc, args.json)
-    progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
-    # The pictures are drawn in a second process, which imports matplotlib while the run simulates.
+    # SUMO's process starts first, so that it plans and starts while this one imports and builds;
+    # the pictures' process next (its matplotlib import overlaps the run).
+    from services.outputs.plot_worker import PlotWorker
+    from services.sim.streamed import DriveWorker, run_streamed
+
+    driver = DriveWorker(sc)
     plotter = PlotWorker().start() if sc.output.plots else None
+    progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
+        from services.outputs.summary import summary_json, text_summary
+        from services.outputs.write import outputs_line, write_outputs
+
         try:
-            result = run_streamed(sc, progress=progress)  # SUMO on the second core
+            result = run_streamed(sc, progress=progress, worker=driver)
         finally:
             progress.close()
         out_dir = args.out or default_out_dir(sc.name)
         t0 = time.perf_counter()
         write_outputs(result, out_dir, plotter)
     finally:
+        driver.close()
         if plotter is not None:
             plotter.close()
     result.summary["outputs_wall_s"] = time.perf_counter() - t0

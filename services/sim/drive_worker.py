@@ -11,6 +11,7 @@ no format for anything else). It imports what planning and SUMO need, not the co
 
 from __future__ import annotations
 
+import os
 import pickle
 import sys
 import time
@@ -42,3 +43,4 @@ if __name__ == "__main__":
         serve(sys.stdin.buffer, sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
         pass
+    os._exit(0)  # every message is flushed and SUMO closed: skip the interpreter's teardown

@@ -37,6 +37,7 @@ class DriveWorker:
     """The drive's process, seen from the run: started on a scenario, its `parts` read in order."""
 
     def __init__(self, scenario: Scenario, ticks_per_part: int = RUN_CHUNK):
+        self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
         self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         pickle.dump((scenario, ticks_per_part), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
@@ -70,24 +71,34 @@ class DriveWorker:
         self.proc.stdout.close()
 
 
-def run_streamed(scenario: Scenario, progress=None, ticks_per_part: int = RUN_CHUNK) -> RunResult:
+def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None) -> RunResult:
     """`services.sim.run.run` of `scenario`, SUMO driving in a second process (see the module
-    docstring): the same result, sooner on two cores. `progress` as `run`'s; `ticks_per_part`, how
-    many ticks SUMO drives before it sends them (the control core's chunk: the last part's control
-    is what follows SUMO's end).
+    docstring): the same result, sooner on two cores.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    progress : callable, optional
+        As `services.sim.run.run`'s (the total is the path's ticks at the working speed until the
+        drive ends).
+    worker : DriveWorker, optional
+        Already started on `scenario` (`vrsim run` starts it first, so that SUMO's process plans and
+        starts while this one imports); closed here. None: one is started now.
 
     ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
     overlap, so they do not add up to ``wall_time_s``.
     """
-    started, wall0 = time.time(), time.perf_counter()
-    worker = DriveWorker(scenario, ticks_per_part)
+    worker = worker or DriveWorker(scenario)
+    started, wall0 = worker.started_unix, worker.started_perf_s   # the run began with SUMO's process
     try:
+        clock = time.perf_counter()
         world = build_world(scenario)
-        stage = {"build_s": time.perf_counter() - wall0, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
+        stage = {"build_s": time.perf_counter() - clock, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
         core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
         gnss, speed = sensors(scenario)
-        expected = world.path.length_m / (scenario.tractor.working_speed_m_s * scenario.timing.control_period_s)
+        period_s = scenario.timing.control_period_s
+        expected = world.path.length_m / (scenario.tractor.working_speed_m_s * period_s)
         tracks, measured, controls, done = [], [], [], 0
         clock = time.perf_counter()
         for time_s, s_m, speed_m_s in worker.parts():
