@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AsApplied
+from maps import StripMap
 from services.sim.metrics import MapMetrics, map_metrics
 from services.sim.run import RunResult
-from services.sim.section_landing import section_strips
+from services.sim.section_landing import StripPlan
 
 CAUSES = ("geometry and section control", "machine limits", "metering")
 
@@ -68,23 +68,28 @@ def reference_metered_kg(result: RunResult, clipped: bool) -> np.ndarray:
     return imp.mass_kg(rpm * period_s / 60.0)
 
 
-def relanded(result: RunResult, metered_kg) -> MapMetrics:
-    """The map figures of the run's track and sections with `metered_kg` per tick instead."""
+def relanded(result: RunResult, metered_kg) -> list[MapMetrics]:
+    """The map figures of the run's track and sections with each column of `metered_kg` (ticks x n)
+    per tick instead. The strips lie where the run's did, whatever they carry, so their geometry is
+    worked out once (`StripPlan`) and mapped to the raster once for all columns (`maps.StripMap`)."""
     world, imp = result.world, result.world.scenario.implement
-    grid = world.grid
-    acc = AsApplied(grid)
-    section_strips(result.track, metered_kg, result.sections, imp.delivery_delay_s,
-                   world.scenario.timing.control_period_s, min(grid.cell_size)).add_to(acc)
+    grid, metered = world.grid, np.asarray(metered_kg, float)
+    plan = StripPlan.of(result.track, result.sections, imp.delivery_delay_s,
+                        world.scenario.timing.control_period_s, min(grid.cell_size))
+    s = plan.strips
+    rasters = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered))
     cell_w, cell_h = grid.cell_size
-    return map_metrics(grid.rates_kg_ha, acc.applied_kg_ha, acc.coverage_fraction, result.in_field,
-                       abs(cell_w * cell_h) / 1e4, float(np.sum(metered_kg)), acc.outside_kg)
+    return [map_metrics(grid.rates_kg_ha, rasters.applied_kg_ha[j], rasters.coverage_fraction[j],
+                        result.in_field, abs(cell_w * cell_h) / 1e4, float(np.sum(metered[:, j])),
+                        float(rasters.outside_kg[j]))
+            for j in range(metered.shape[1])]
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:
     """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring)."""
-    stages = [relanded(result, reference_metered_kg(result, clipped=False)),
-              relanded(result, reference_metered_kg(result, clipped=True)),
-              result.map_metrics]
+    references = np.column_stack([reference_metered_kg(result, clipped=False),
+                                  reference_metered_kg(result, clipped=True)])
+    stages = [*relanded(result, references), result.map_metrics]
     total_mae = result.map_metrics.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0
     for cause, m in zip(CAUSES, stages, strict=True):

@@ -685,13 +685,22 @@ def _polygon_rings(polygon):
 def section_masks(actual) -> list[str]:
     """Each tick's open gates as a bitmask in hexadecimal, ``"0x..."``: bit k is section k counted
     from the left (``"0x3f"``: six sections all on; ``"0x0"``: none). Shape (n, sections) -> n strings."""
+    codes, masks = section_mask_codes(actual)
+    return np.array(masks, dtype=object)[codes].tolist()
+
+
+def section_mask_codes(actual) -> tuple[np.ndarray, list[str]]:
+    """`section_masks` as codes into the distinct masks: ``(codes, masks)``, tick i's mask
+    ``masks[codes[i]]`` (a run has a few dozen distinct masks at most: each is written out once)."""
     actual = np.asarray(actual, bool)
     if actual.shape[1] <= 63:
         bits = actual.astype(np.int64) @ (np.int64(1) << np.arange(actual.shape[1], dtype=np.int64))
-        return [f"0x{b:x}" for b in bits.tolist()]
+        distinct, codes = np.unique(bits, return_inverse=True)
+        return codes.reshape(-1), [f"0x{b:x}" for b in distinct.tolist()]
     packed = np.packbits(actual[:, ::-1], axis=1)  # the leftmost section in the lowest bit
     shift = packed.shape[1] * 8 - actual.shape[1]
-    return [f"0x{int.from_bytes(row.tobytes(), 'big') >> shift:x}" for row in packed]
+    distinct, codes = np.unique(packed, axis=0, return_inverse=True)
+    return codes.reshape(-1), [f"0x{int.from_bytes(row.tobytes(), 'big') >> shift:x}" for row in distinct]
 
 
 def sections_from_masks(masks, sections: int) -> np.ndarray:
