@@ -60,19 +60,28 @@ class Progress:
 
 
 def run(args) -> int:
-    from services.sim import scenario
-    from services.sim.overrides import parse_assignment
-
-    apply_input_cap(args)
-    sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
     if args.check:
-        return check(sc, args.json)
-    # SUMO's process starts first, so that it plans and starts while this one imports and builds;
-    # the pictures' process next (its matplotlib import overlaps the run).
-    from services.outputs.plot_worker import PlotWorker
-    from services.sim.streamed import DriveWorker, run_streamed
+        return check(args)
+    # SUMO's process starts first: it imports while this one does and loads the scenario.
+    from services.sim.drive_worker import DriveWorker
 
-    driver = DriveWorker(sc)
+    driver = DriveWorker()
+    try:
+        return _run(args, driver)
+    finally:
+        driver.close()
+
+
+def _run(args, driver) -> int:
+    from services.sim.core import RUN_CHUNK
+
+    sc = _scenario(args)
+    driver.drive(sc, RUN_CHUNK)
+    # The other imports while SUMO's process plans the path and drives.
+    from services.outputs.plot_worker import PlotWorker
+    from services.sim.streamed import run_streamed
+
+    # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
@@ -87,7 +96,6 @@ def run(args) -> int:
         t0 = time.perf_counter()
         write_outputs(result, out_dir, plotter)
     finally:
-        driver.close()
         if plotter is not None:
             plotter.close()
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
@@ -101,7 +109,15 @@ def run(args) -> int:
     return 0
 
 
-def check(sc, as_json: bool) -> int:
+def _scenario(args):
+    from services.sim import scenario
+    from services.sim.overrides import parse_assignment
+
+    apply_input_cap(args)
+    return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+
+
+def check(args) -> int:
     """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving)."""
     import dataclasses
 
@@ -109,8 +125,9 @@ def check(sc, as_json: bool) -> int:
     from services.sim.run import check_world
     from services.sim.world import build_world
 
+    sc = _scenario(args)
     result = check_world(build_world(sc))
-    if as_json:
+    if args.json:
         doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply}
         print(summary_json(doc))
     else:

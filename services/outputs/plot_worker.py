@@ -104,6 +104,9 @@ def serve(stdin, stdout) -> None:
 
 
 if __name__ == "__main__":
+    # At a low priority: its matplotlib import, during the run, takes what the run's two processes
+    # (control here, SUMO in the drive worker) leave of the two cores, not their share.
+    os.nice(10)
     try:
         serve(sys.stdin.buffer, sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone

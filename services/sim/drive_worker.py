@@ -2,23 +2,82 @@
 it in SUMO and sends what SUMO reports, part by part, while the first process controls what has been
 driven so far.
 
-``python -m services.sim.drive_worker``: the scenario and the ticks per part arrive pickled on stdin;
-on stdout go ``("part", time_s, s_m, speed_m_s)`` for each part (`vehicle.SumoDriver.run_parts`),
-then ``("done", path_length_m, sumo_s)``; or ``("error", kind, message)`` for a scenario that cannot be
-driven (``kind`` names the `common.VrsimError` subclass). Both ends are vrsim's own processes (pickle is
-no format for anything else). It imports what planning and SUMO need, not the controller or metrics.
+``python -m services.sim.drive_worker`` imports SUMO and the world building first, then reads the
+scenario and the ticks per part, pickled, on stdin; on stdout go ``("part", time_s, s_m, speed_m_s)``
+for each part (`vehicle.SumoDriver.run_parts`), then ``("done", path_length_m, sumo_s)``; or
+``("error", kind, message)`` for a scenario that cannot be driven (``kind`` names the
+`common.VrsimError` subclass). Both ends are vrsim's own processes (pickle is no format for anything
+else). `DriveWorker` is the first process's end. This module imports nothing heavy itself, so that
+`vrsim run` can start the worker before its own imports.
 """
 
 from __future__ import annotations
 
 import os
 import pickle
+import subprocess
 import sys
 import time
 
 
+class DriveWorker:
+    """The drive's process, seen from the run: `DriveWorker()` starts it (it imports while the caller
+    loads the scenario), `drive` gives it the scenario, `parts` reads what it drove, `close` ends it.
+    """
+
+    def __init__(self):
+        self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
+        self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.path_length_m = self.sumo_s = None
+
+    def drive(self, scenario, ticks_per_part: int) -> None:
+        """Start driving `scenario` (a `services.sim.scenario.Scenario`), sending every
+        `ticks_per_part` ticks."""
+        try:
+            pickle.dump((scenario, ticks_per_part), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self.proc.stdin.close()
+        except BrokenPipeError:  # it is gone already: `parts` says how
+            pass
+
+    def parts(self):
+        """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `path_length_m`
+        and `sumo_s` (the drive's wall time in the worker). Raises the worker's `common.VrsimError`,
+        or RuntimeError if it ended without a word (a bug or a kill)."""
+        from common import errors
+
+        while True:
+            try:
+                kind, *body = pickle.load(self.proc.stdout)
+            except EOFError:
+                raise RuntimeError("the drive worker (SUMO's process) ended before the drive did "
+                                   f"(exit code {self.proc.wait()})") from None
+            if kind == "part":
+                yield tuple(body)
+            elif kind == "done":
+                self.path_length_m, self.sumo_s = body
+                return
+            else:
+                name, message = body
+                cls = getattr(errors, name, None)
+                if not (isinstance(cls, type) and issubclass(cls, errors.VrsimError)):
+                    cls = errors.ScenarioError
+                raise cls(message)
+
+    def close(self) -> None:
+        """End the worker (killed if it is still driving: the run has failed, or never began) and
+        reap it."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for pipe in (self.proc.stdin, self.proc.stdout):
+            pipe.close()
+
+
 def serve(stdin, stdout) -> None:
     """Drive the scenario that arrives on `stdin`, writing the messages above to `stdout`."""
+    import libsumo  # noqa: F401 - the heaviest import, done while the caller loads the scenario
+
     from common import VrsimError
     from services.sim.world import driving, plan_path
 
@@ -26,7 +85,10 @@ def serve(stdin, stdout) -> None:
         pickle.dump(message, stdout, protocol=pickle.HIGHEST_PROTOCOL)
         stdout.flush()
 
-    scenario, ticks = pickle.load(stdin)
+    try:
+        scenario, ticks = pickle.load(stdin)
+    except EOFError:  # the caller gave up before the drive (a bad scenario, --check)
+        return
     try:
         _, path = plan_path(scenario)
         clock = time.perf_counter()

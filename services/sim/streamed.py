@@ -10,68 +10,26 @@ batch). The parts are the control core's own chunks (`RUN_CHUNK` ticks), so a st
 arrays and summary equal `services.sim.run.run`'s bit for bit (tested); only the wall times differ.
 
 The second process (`services.sim.drive_worker`) plans the path itself rather than wait for this
-one's world: both plan the same path from the same scenario, and its length is compared at the end.
+one's world (which holds the prescription too): both plan the same path from the same scenario, and
+its length is compared at the end.
 """
 
 from __future__ import annotations
 
-import pickle
-import subprocess
-import sys
 import time
 
 import numpy as np
 
-from common import MapError, ScenarioError, VehicleError
 from services.sim.core import RUN_CHUNK, ControlCore
+from services.sim.drive_worker import DriveWorker
 from services.sim.run import RunResult, accounted, sensors
 from services.sim.scenario import Scenario
 from services.sim.world import build_world
 from vehicle import track_on_path
 
-# The errors the drive worker may report, by name: re-raised here as the same class.
-WORKER_ERRORS = {cls.__name__: cls for cls in (ScenarioError, VehicleError, MapError)}
 
-
-class DriveWorker:
-    """The drive's process, seen from the run: started on a scenario, its `parts` read in order."""
-
-    def __init__(self, scenario: Scenario, ticks_per_part: int = RUN_CHUNK):
-        self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
-        self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        pickle.dump((scenario, ticks_per_part), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-        self.proc.stdin.close()
-        self.path_length_m = self.sumo_s = None
-
-    def parts(self):
-        """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `path_length_m`
-        and `sumo_s` (the drive's wall time in the worker). Raises the worker's `common.VrsimError`,
-        or RuntimeError if it ended without a word (a bug or a kill)."""
-        while True:
-            try:
-                kind, *body = pickle.load(self.proc.stdout)
-            except EOFError:
-                raise RuntimeError("the drive worker (SUMO's process) ended before the drive did "
-                                   f"(exit code {self.proc.wait()})") from None
-            if kind == "part":
-                yield tuple(body)
-            elif kind == "done":
-                self.path_length_m, self.sumo_s = body
-                return
-            else:
-                name, message = body
-                raise WORKER_ERRORS.get(name, ScenarioError)(message)
-
-    def close(self) -> None:
-        """End the worker (killed if it is still driving: the run has failed) and reap it."""
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait()
-        self.proc.stdout.close()
-
-
-def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None) -> RunResult:
+def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None,
+                 ticks_per_part: int = RUN_CHUNK) -> RunResult:
     """`services.sim.run.run` of `scenario`, SUMO driving in a second process (see the module
     docstring): the same result, sooner on two cores.
 
@@ -82,14 +40,20 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         As `services.sim.run.run`'s (the total is the path's ticks at the working speed until the
         drive ends).
     worker : DriveWorker, optional
-        Already started on `scenario` (`vrsim run` starts it first, so that SUMO's process plans and
-        starts while this one imports); closed here. None: one is started now.
+        Already driving `scenario` (`vrsim run` starts it first, so that SUMO's process imports while
+        this one does); closed here. None: one is started now.
+    ticks_per_part : int
+        Without `worker`: how many ticks SUMO drives before it sends them: the control core's chunk,
+        so that the last part's control is all that follows SUMO's end (any size gives the same
+        result).
 
     ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
     overlap, so they do not add up to ``wall_time_s``.
     """
-    worker = worker or DriveWorker(scenario)
+    if worker is None:
+        worker = DriveWorker()
+        worker.drive(scenario, ticks_per_part)
     started, wall0 = worker.started_unix, worker.started_perf_s   # the run began with SUMO's process
     try:
         clock = time.perf_counter()

@@ -44,7 +44,7 @@ def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
     whole = run(sc)
     ticks = len(whole.track["time_s"])
     # parts far smaller than the control core's chunks, and one not dividing them
-    streamed = run_streamed(sc, worker=DriveWorker(sc, ticks_per_part=3001))
+    streamed = run_streamed(sc, ticks_per_part=3001)
     assert ticks > 4 * 3001
     assert_same_run(whole, streamed)
     stage = streamed.summary["stage_s"]
@@ -54,8 +54,7 @@ def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
 def test_progress_counts_every_tick_once():
     seen = []
     sc = load(QUICK)
-    result = run_streamed(sc, progress=lambda done, total: seen.append((done, total)),
-                          worker=DriveWorker(sc, ticks_per_part=5000))
+    result = run_streamed(sc, progress=lambda done, total: seen.append((done, total)), ticks_per_part=5000)
     done = [d for d, _ in seen]
     assert done == sorted(done) and done[-1] == len(result.track["time_s"])
     assert all(d <= t for d, t in seen)
