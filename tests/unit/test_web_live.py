@@ -228,6 +228,34 @@ def test_a_map_on_another_grid_mid_run_asks_for_the_run_so_far():
     assert view.set_map(INFO, ViewGrid.from_info(INFO), 2) is False  # same grid: the layer stays
 
 
+def test_ticks_held_back_when_the_runs_grid_comes_are_painted_once_from_the_records():
+    """A view that got a run's first samples before its map (on the grid served before): those still
+    held back for the run's sections or for their pose are the records' to paint on the new grid,
+    and each tick counts once, as in a view that saw them all live (#17: painted from both)."""
+    coarse = dict(INFO, cell_size=[4.0, 4.0], rows=15, cols=25)
+    poses = [pose("r", t, 1010.0 + t) for t in range(8)]
+    rates = [rate("r", t, 1010.0 + t, applied=100.0 + 10.0 * t) for t in range(8)]
+    view = LiveView()
+    view.set_map(coarse, ViewGrid.from_info(coarse), 1)
+    view.on_pose(batch(poses[:3]))
+    view.on_rate(batch(rates[:4]))  # 0-2 wait for the sections, 3 for its pose as well
+    assert view.set_map(INFO, ViewGrid.from_info(INFO), 2) is True  # the run's map
+    known(view, "r")
+    view.on_pose(batch(poses[3:]))
+    view.on_rate(batch(rates[4:]))
+    shafts = [shaft("r", t) for t in range(8)]
+    records = (batch(records, RECORD_FIELDS) for records in (poses, shafts, rates))
+    assert view.backfill(*records, stride=1) == 4
+    view.frame()
+    live = view_with_map()
+    live.on_pose(batch(poses))
+    known(live, "r")
+    live.on_rate(batch(rates))
+    live.frame()
+    assert view.layer.samples.tolist() == live.layer.samples.tolist()
+    assert view.layer.since(-1) == live.layer.since(-1) and view.layer.painted > 0
+
+
 # ---------------------------------------------------------------------------------------- picture, CLI
 def test_png_has_the_map_size_the_scale_colours_and_transparent_nodata():
     from PIL import Image

@@ -237,7 +237,8 @@ class LiveView:
         self.sections: SectionGeometry | None = None  # the implement's sections, once known
         self.unsectioned: list = []  # (rates, heading) oriented, waiting for the sections
         self.latest: dict = {s: None for s in STREAMS}
-        self.first_tick: dict = {s: None for s in STREAMS}  # first tick seen live, per stream
+        # First tick seen live, per stream; for rate: painted live from (`set_map` moves it on).
+        self.first_tick: dict = {s: None for s in STREAMS}
         self.backfilled_to = 0  # rate ticks below this were painted from the monitor's records
         self.catchup = {"state": "none", "ticks": 0}
         self.catchup_points: list = []  # chart points from the records, added to the history when done
@@ -246,6 +247,7 @@ class LiveView:
         self.waiting: Batch | None = None  # rate samples whose pose has not come yet
         self.unpainted: list = []  # oriented samples for the next frame to paint
         self.newest_pose_tick = -1
+        self.newest_rate_tick = -1
         self.unoriented = 0  # rate samples left unpainted: their pose never came
         self.history.clear()
         self.report, self.report_seq = None, -1
@@ -275,8 +277,11 @@ class LiveView:
         return self._received("rate", batch, self._paint_new)
 
     def _paint_new(self, rates: Batch) -> None:
-        """Paint what the monitor's records have not painted already (a late joiner's overlap)."""
-        self._paint_oriented(rates.take(rates.tick >= self.backfilled_to))
+        """Paint the live samples from the live boundary on: ticks before ``first_tick["rate"]`` (the
+        first seen live, or the first after a new grid, `set_map`) and before ``backfilled_to`` are
+        the monitor's records' to paint (`backfill`), so no tick is painted from both."""
+        self.newest_rate_tick = max(self.newest_rate_tick, int(rates.tick.max()))
+        self._paint_oriented(rates.take(rates.tick >= max(self.backfilled_to, self.first_tick["rate"])))
 
     def _received(self, stream: str, batch: Batch, use) -> str | None:
         with self.lock:
@@ -403,11 +408,13 @@ class LiveView:
             if self.layer is not None and self.layer.grid == grid:
                 return False
             self.layer = AppliedLayer(grid)
-            self.unpainted = []
+            # Every rate tick seen so far is the records' to paint on the new grid, those held back
+            # (waiting for their pose or for the run's sections) too: dropped here, not painted twice.
+            self.unpainted, self.unsectioned, self.waiting = [], [], None
             self.backfilled_to = 0
-            last = self.latest["rate"]
-            self.first_tick["rate"] = None if last is None else last["tick"] + 1
-            return last is not None or (self.catchup["state"] != "none")
+            seen = self.newest_rate_tick >= 0
+            self.first_tick["rate"] = self.newest_rate_tick + 1 if seen else None
+            return seen or self.catchup["state"] != "none"
 
     def set_status(self, status: dict) -> None:
         with self.lock:
