@@ -84,3 +84,32 @@ def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypa
     with pytest.raises(RuntimeError, match=r"drive worker .* ended before the drive did \(exit code -9\)"):
         run_streamed(load("default"))
     assert started[0].poll() == -9
+
+
+def _drive_workers() -> set[int]:
+    found = set()
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                if b"services.sim.drive_worker" in fh.read():
+                    found.add(int(pid))
+        except OSError:
+            pass
+    return found
+
+
+@pytest.mark.parametrize("args, code, says", [
+    (["no_such_scenario.toml"], 2, "no such scenario file"),
+    (["default", "--set", "tractor.working_speed_m_s=-1"], 2, "working_speed_m_s"),
+    (["default", "--check"], 0, "Machine check"),
+])
+def test_vrsim_run_that_stops_early_leaves_no_drive_worker(args, code, says):
+    import subprocess
+
+    from tests.conftest import VRSIM
+
+    before = _drive_workers()
+    done = subprocess.run([VRSIM, "run", *args], capture_output=True, text=True, timeout=60)
+    assert done.returncode == code, done.stderr
+    assert says in done.stdout + done.stderr and "Traceback" not in done.stderr
+    assert _drive_workers() <= before
