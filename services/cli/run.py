@@ -73,10 +73,8 @@ def run(args) -> int:
 
 
 def _run(args, driver) -> int:
-    from services.sim.core import RUN_CHUNK
-
     sc = _scenario(args)
-    driver.drive(sc, RUN_CHUNK)
+    driver.drive(sc)
     # The other imports while SUMO's process plans the path and drives.
     from services.outputs.plot_worker import PlotWorker
     from services.sim.streamed import run_streamed
@@ -89,7 +87,7 @@ def _run(args, driver) -> int:
         from services.outputs.write import outputs_line, write_outputs
 
         try:
-            result = run_streamed(sc, progress=progress, worker=driver)
+            result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)
         finally:
             progress.close()
         out_dir = args.out or default_out_dir(sc.name)

@@ -25,8 +25,10 @@ import numpy as np
 
 from maps import StripMap
 from services.sim.metrics import MapMetrics, map_metrics
-from services.sim.run import RunResult
+from services.sim.run import RunResult, cells_in_field
 from services.sim.section_landing import StripPlan
+from services.sim.sections import run_section_states
+from services.sim.world import World
 
 CAUSES = ("geometry and section control", "machine limits", "metering")
 
@@ -53,43 +55,49 @@ class ErrorPart:
     share_pct: float
 
 
-def reference_metered_kg(result: RunResult, clipped: bool) -> np.ndarray:
+def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
     """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
     the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for."""
-    imp, c = result.world.scenario.implement, result.control
-    period_s = result.world.scenario.timing.control_period_s
+    imp, period_s = world.scenario.implement, world.scenario.timing.control_period_s
     if clipped:
-        rpm = c["target_shaft_rpm"]
+        rpm = control["target_shaft_rpm"]
     else:
-        width_on = c["width_on_m"]
-        rate = np.nan_to_num(c["prescribed_kg_ha"])
-        wanted = imp.target_shaft_rpm(rate, result.measured_speed_m_s, width_on)
+        width_on = control["width_on_m"]
+        rate = np.nan_to_num(control["prescribed_kg_ha"])
+        wanted = imp.target_shaft_rpm(rate, measured_speed_m_s, width_on)
         rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
     return imp.mass_kg(rpm * period_s / 60.0)
 
 
-def relanded(result: RunResult, metered_kg) -> list[MapMetrics]:
-    """The map figures of the run's track and sections with each column of `metered_kg` (ticks x n)
-    per tick instead. The strips lie where the run's did, whatever they carry, so their geometry is
-    worked out once (`StripPlan`) and mapped to the raster once for all columns (`maps.StripMap`)."""
-    world, imp = result.world, result.world.scenario.implement
-    grid, metered = world.grid, np.asarray(metered_kg, float)
-    plan = StripPlan.of(result.track, result.sections, imp.delivery_delay_s,
+def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
+    """The map figures of the two reference meters (unclipped, clipped: see the module docstring) on
+    the run's track and sections: what `error_split` adds to the run's own figures. A function of the
+    run's drive and control alone, so `vrsim run` computes it beside the run's accounting
+    (`services.sim.streamed`).
+
+    The strips lie where the run's did, whatever they carry, so their geometry is worked out once
+    (`StripPlan`) and mapped to the raster once for both meters (`maps.StripMap`)."""
+    imp, grid = world.scenario.implement, world.grid
+    metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
+                               for clipped in (False, True)])
+    plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
                         world.scenario.timing.control_period_s, min(grid.cell_size))
     s = plan.strips
     rasters = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered))
+    in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
-    return [map_metrics(grid.rates_kg_ha, rasters.applied_kg_ha[j], rasters.coverage_fraction[j],
-                        result.in_field, abs(cell_w * cell_h) / 1e4, float(np.sum(metered[:, j])),
-                        float(rasters.outside_kg[j]))
+    cell_ha = abs(cell_w * cell_h) / 1e4
+    return [map_metrics(grid.rates_kg_ha, rasters.applied_kg_ha[j], rasters.coverage_fraction[j], in_field,
+                        cell_ha, float(np.sum(metered[:, j])), float(rasters.outside_kg[j]))
             for j in range(metered.shape[1])]
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:
-    """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring)."""
-    references = np.column_stack([reference_metered_kg(result, clipped=False),
-                                  reference_metered_kg(result, clipped=True)])
-    stages = [*relanded(result, references), result.map_metrics]
+    """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring);
+    the reference meters' figures from ``result.reference_figures`` when the run computed them."""
+    references = result.reference_figures or reference_figures(result.world, result.track, result.control,
+                                                               result.measured_speed_m_s)
+    stages = [*references, result.map_metrics]
     total_mae = result.map_metrics.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0
     for cause, m in zip(CAUSES, stages, strict=True):

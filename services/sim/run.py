@@ -39,7 +39,7 @@ from services.sim.metrics import (
 )
 from services.sim.scenario import Scenario
 from services.sim.section_landing import limited_coverage, section_strips, worked_fraction
-from services.sim.sections import SectionStates, pass_index
+from services.sim.sections import SectionStates, run_section_states
 from services.sim.world import World, build_world, driving
 from vehicle import Gnss, SpeedSensor
 
@@ -86,6 +86,9 @@ class RunResult:
     overlap_metrics: OverlapMetrics
     limit_metrics: LimitMetrics
     machine_check: MachineCheck
+    # The error split's reference meters' figures (`services.sim.error_split.reference_figures`),
+    # when the run computed them beside its accounting; None: computed when asked for.
+    reference_figures: list[MapMetrics] | None = None
 
 
 @dataclass
@@ -238,9 +241,7 @@ def account(world: World, track: dict, control: dict, wall0: float):
     implement, timing = scenario.implement, scenario.timing
     delay_s, period_s = implement.delivery_delay_s, timing.control_period_s
     metered, width_on = control["metered_kg"], control["width_on_m"]
-    passes = pass_index(track["heading_rad"], track["implement_on"])
-    states = SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
-                           implement.section_offsets_m, passes, control.get("sections_commanded"))
+    states = run_section_states(track, control, implement)
     landing = land(grid, track, metered, width_on, delay_s, period_s)
     cell_m = min(grid.cell_size)
     acc = AsApplied(grid)

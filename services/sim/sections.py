@@ -682,6 +682,14 @@ def _polygon_rings(polygon):
 
 
 # --- the sections-on bitmask of the outputs (track.csv, the Zenoh rate stream) ---------------------
+def run_section_states(track: dict, control: dict, implement) -> SectionStates:
+    """The gates of a run's control-core arrays (``sections_on``, and ``sections_commanded`` when
+    given) with the implement's section widths and offsets and the passes of its true track."""
+    return SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
+                         implement.section_offsets_m, pass_index(track["heading_rad"], track["implement_on"]),
+                         control.get("sections_commanded"))
+
+
 def section_masks(actual) -> list[str]:
     """Each tick's open gates as a bitmask in hexadecimal, ``"0x..."``: bit k is section k counted
     from the left (``"0x3f"``: six sections all on; ``"0x0"``: none). Shape (n, sections) -> n strings."""

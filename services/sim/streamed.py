@@ -6,12 +6,14 @@ help; a process does. Nothing that follows SUMO feeds back into it (the tractor'
 depend on the metering), and everything that follows goes part by part with its state carried:
 the track (`vehicle.track_on_path`), the sensors (`Gnss.measure_next`, `SpeedSensor.measure_next`)
 and the control core (`ControlCore.run_track`, which the controller service calls per lockstep
-batch). The parts are the control core's own chunks (`RUN_CHUNK` ticks), so a streamed run's
-arrays and summary equal `services.sim.run.run`'s bit for bit (tested); only the wall times differ.
+batch, and whose result does not depend on how a track is split: tested). A streamed run's arrays
+and summary equal `services.sim.run.run`'s bit for bit; only the wall times differ.
 
 The second process (`services.sim.drive_worker`) plans the path itself rather than wait for this
 one's world (which holds the prescription too): both plan the same path from the same scenario, and
-its length is compared at the end.
+its length is compared at the end. With ``error_split``, the error split's reference meters
+(`services.sim.error_split.reference_figures`) land in a forked child while this process accounts
+for the run.
 """
 
 from __future__ import annotations
@@ -20,8 +22,10 @@ import time
 
 import numpy as np
 
-from services.sim.core import RUN_CHUNK, ControlCore
-from services.sim.drive_worker import DriveWorker
+from common.forked import Forked
+from services.sim.core import ControlCore
+from services.sim.drive_worker import PART_TICKS, DriveWorker
+from services.sim.error_split import reference_figures
 from services.sim.run import RunResult, accounted, sensors
 from services.sim.scenario import Scenario
 from services.sim.world import build_world
@@ -29,7 +33,7 @@ from vehicle import track_on_path
 
 
 def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None,
-                 ticks_per_part: int = RUN_CHUNK) -> RunResult:
+                 ticks_per_part: int = PART_TICKS, error_split: bool = False) -> RunResult:
     """`services.sim.run.run` of `scenario`, SUMO driving in a second process (see the module
     docstring): the same result, sooner on two cores.
 
@@ -43,9 +47,11 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         Already driving `scenario` (`vrsim run` starts it first, so that SUMO's process imports while
         this one does); closed here. None: one is started now.
     ticks_per_part : int
-        Without `worker`: how many ticks SUMO drives before it sends them: the control core's chunk,
-        so that the last part's control is all that follows SUMO's end (any size gives the same
-        result).
+        Without `worker`: how many ticks SUMO drives before it sends them (`PART_TICKS`; any size
+        gives the same result).
+    error_split : bool
+        Also compute the error split's reference figures (``result.reference_figures``, which the
+        report shows), in a forked child beside the accounting.
 
     ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
@@ -90,8 +96,16 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         raise RuntimeError(f"the drive worker planned a path of {worker.path_length_m} m, this process "
                            f"one of {world.path.length_m} m")
     stage["sumo_s"] = worker.sumo_s
-    return accounted(world, _joined(tracks), tuple(np.concatenate(m) for m in zip(*measured, strict=True)),
-                     _joined(controls), stage, wall0, started)
+    track, control = _joined(tracks), _joined(controls)
+    measured = tuple(np.concatenate(m) for m in zip(*measured, strict=True))
+    if not error_split:
+        return accounted(world, track, measured, control, stage, wall0, started)
+    # The error split's reference meters need the drive and the control only: a forked child lands
+    # them on the other core while this one accounts for the run.
+    with Forked(reference_figures, world, track, control, measured[2]) as references:
+        result = accounted(world, track, measured, control, stage, wall0, started)
+        result.reference_figures = references.result()
+    return result
 
 
 def _joined(parts: list[dict]) -> dict:

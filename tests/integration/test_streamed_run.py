@@ -51,6 +51,17 @@ def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
     assert stage["sumo_s"] > 0 and stage["wait_s"] >= 0 and stage["control_s"] > 0
 
 
+def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_after_it():
+    from services.sim.error_split import error_split
+
+    sc = load(QUICK)
+    streamed = run_streamed(sc, error_split=True)
+    assert streamed.reference_figures is not None
+    whole = run(sc)
+    assert whole.reference_figures is None
+    assert error_split(streamed) == error_split(whole)
+
+
 def test_progress_counts_every_tick_once():
     seen = []
     sc = load(QUICK)
