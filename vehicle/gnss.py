@@ -189,9 +189,10 @@ class Gnss:
             self._err = e[-1]
             self._fixes.extend(zip((fx + e[:, 0]).tolist(), (fy + e[:, 1]).tolist(), strict=True))
         self._prev = (float(t[-1]), float(x[-1]), float(y[-1]))
-        fixes = np.asarray(self._fixes).reshape(-1, 2)
         due = np.maximum(self._due_index(t[head:]), 0).astype(int)
-        return fixes[due, 0], fixes[due, 1]
+        first = int(due[0])  # the part's ticks output only fixes from there on (not all since t0)
+        fixes = np.asarray(self._fixes[first:]).reshape(-1, 2)
+        return fixes[due - first, 0], fixes[due - first, 1]
 
     # --- per tick --------------------------------------------------------------------------------
     def fix(self, time_s: float, x_m: float, y_m: float):
