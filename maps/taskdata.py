@@ -85,7 +85,7 @@ def write_taskdata(log: PointLog, folder, section_widths_m, task: str = "vrsim r
     sections = rates.sections_on if rates.sections_on.shape[1] else np.repeat(
         rates.work_on[:, None], widths.size, axis=1)
     ddis, values, logged = _records(rates, sections)
-    _prepare(folder)
+    prepare_folder(folder)
     time_s = np.where(np.isfinite(log.time_s), log.time_s, 0.0)
     time = log.start + np.rint(time_s * 1000).astype("timedelta64[ms]")
     binary = encode_records(time, lat, lon, rates.gnss_status, values, logged)
@@ -114,7 +114,10 @@ def _section_widths(section_widths_m, log: PointLog) -> np.ndarray:
     return widths
 
 
-def _prepare(folder: str) -> None:
+def prepare_folder(folder: str) -> None:
+    """Create a TASKDATA folder (its parent must exist), refusing one that holds a TASKDATA.XML
+    (`MapError`): what `write_taskdata` does first, for a caller that must know before it writes
+    anything else."""
     parent = os.path.dirname(os.path.abspath(folder))
     if not os.path.isdir(parent):
         raise MapError(f"{folder}: folder {parent} does not exist")

@@ -10,6 +10,7 @@ import time
 from services.cli.options import add_input_cap, apply_input_cap
 
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
+EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` returns (`main.console`)
 
 
 def configure(parser) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 
 from maps import PointLog, write_points, write_taskdata
-from maps.taskdata import TLG_NAME
+from maps.taskdata import TLG_NAME, prepare_folder
 from services.sim.aslog import run_point_log
 from services.sim.run import RunResult
 
@@ -27,8 +27,7 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
     """
     log = run_log(result)
     implement = result.world.scenario.implement
-    folder = os.path.join(out_dir, "taskdata")
-    _remove_earlier_run(folder)
+    folder = prepare_as_applied(out_dir)
     paths = {"taskdata": write_taskdata(log, folder,
                                         [implement.section_width_m] * implement.sections,
                                         task=result.world.scenario.name, device="vrsim implement")}
@@ -37,6 +36,15 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
         paths[name] = os.path.join(out_dir, name)
         write_points(log, paths[name])
     return paths
+
+
+def prepare_as_applied(out_dir: str) -> str:
+    """The run's taskdata/ folder in `out_dir`, emptied of an earlier run's log and created; refused
+    (`common.MapError`) if it holds anything else (`maps.taskdata.prepare_folder`)."""
+    folder = os.path.join(out_dir, "taskdata")
+    _remove_earlier_run(folder)
+    prepare_folder(folder)
+    return folder
 
 
 def _remove_earlier_run(folder: str) -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 
-from services.outputs.aslog import write_as_applied
+from services.outputs.aslog import prepare_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
 from services.outputs.summary import summary_json
 from services.outputs.track_csv import write_track_csv
@@ -43,9 +43,9 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
     os.makedirs(out_dir, exist_ok=True)
     paths = {name: os.path.join(out_dir, name) for name in FILES}
     output = result.world.scenario.output
-    paths.update(write_as_applied(result, out_dir))  # first: it refuses a folder with an earlier run's log
+    prepare_as_applied(out_dir)  # first: a taskdata/ of something else refuses the folder
     jobs = []
-    if output.plots:
+    if output.plots:  # next: the pictures take longest, in the worker
         jobs = [("draw_maps", plots.map_picture(result), paths["map.png"]),
                 ("draw_sections", plots.sections_picture(result), paths["sections.png"]),
                 ("draw_timeseries", plots.series_picture(result), paths["timeseries.png"])]
@@ -54,6 +54,7 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
     else:
         for name in PICTURES:
             del paths[name]
+    paths.update(write_as_applied(result, out_dir))
     doc = dict(result.summary, scenario_config=config_as_run(result.world.scenario))
     with open(paths["summary.json"], "w") as fh:
         fh.write(summary_json(doc) + "\n")
