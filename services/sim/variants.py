@@ -49,7 +49,7 @@ from services.sim.section_landing import LimitedStrips, StripPlan, worked_fracti
 from services.sim.sections import SectionStates, pass_index
 
 VARIANT_CHUNK = 128  # variants run as one loop batch (their ticks x variants of floats held)
-RASTER_CHUNK = 32    # variants whose rasters are held at once (n x sub-cells of floats)
+RASTER_CHUNK = 32    # variants whose rasters and applied rates are held at once (n x sub-cells, n x ticks)
 
 
 def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[dict]:
@@ -194,7 +194,7 @@ def _account(shared: _Shared, metered: np.ndarray, cfgs) -> list[dict]:
     geometry is the shared one; the product's figures come per column through `maps.StripMap`."""
     world, track, scenario, landing = shared.drive.world, shared.drive.track, shared.scenario, shared.landing
     grid, in_field, width_on = world.grid, shared.in_field, shared.rec["width_on_m"]
-    applied_kg_ha = applied_rate_kg_ha(metered, width_on[:, None], landing.strip_length_m[:, None])
+    strip_width_m, strip_length_m = width_on[:, None], landing.strip_length_m[:, None]
     masses = shared.plan.mass_kg(metered)
     limited_cover = shared.limited_strips.coverage(metered)
     cell_w, cell_h = grid.cell_size
@@ -203,14 +203,17 @@ def _account(shared: _Shared, metered: np.ndarray, cfgs) -> list[dict]:
     summaries = []
     for j, cfg in enumerate(cfgs):
         if j % RASTER_CHUNK == 0:
-            rasters = shared.strip_map.apply(masses[:, j:j + RASTER_CHUNK])
+            block = slice(j, j + RASTER_CHUNK)
+            rasters = shared.strip_map.apply(masses[:, block])
             applied = rasters.applied_kg_ha
+            # the applied rate per tick, a row per variant (its transitions read it whole)
+            rates = applied_rate_kg_ha(metered[:, block], strip_width_m, strip_length_m).T.copy()
         c = j % RASTER_CHUNK
         cover = rasters.coverage_fraction[c]
         mm = map_metrics(grid.rates_kg_ha, applied[c], cover, in_field,
                          abs(cell_w * cell_h) / 1e4, float(metered[:, j].sum()), float(rasters.outside_kg[c]))
-        tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, applied_kg_ha[:, j],
-                         on, shared.steps)
+        tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, rates[c], on,
+                         shared.steps)
         om = overlap_metrics(cover, rasters.overlap_fraction[c], rasters.overlap_kg[c], shared.worked,
                              in_field)
         lm = limit_metrics(shared.limited, width_on > 0, limited_cover[j], cover, in_field)
