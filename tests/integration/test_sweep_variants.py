@@ -46,6 +46,17 @@ def sweep(folder, name, out, *args):
     return json.loads(p.stdout), read_rows(str(out / "results.parquet"))
 
 
+def assert_same_figures(row: dict, want: dict) -> None:
+    """Every column of `want` but the timing equals `row`'s, floats to 1e-9 relative."""
+    for key, value in want.items():
+        if key in TIMING:
+            continue
+        if isinstance(value, float) and not math.isnan(value):
+            assert row[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+        else:
+            assert row[key] == value, key
+
+
 def test_fast_path_rows_equal_one_at_a_time_rows(tmp_path):
     (tmp_path / "q.toml").write_text(SCENARIO)
     (tmp_path / "s.toml").write_text(SWEEP)
@@ -58,13 +69,7 @@ def test_fast_path_rows_equal_one_at_a_time_rows(tmp_path):
     for row in fast:
         want = slow_by_key[row["key"]]
         assert [k for k in want if k != "outputs_wall_s"] == list(row)
-        for key, value in want.items():
-            if key in TIMING:
-                continue
-            if isinstance(value, float) and not math.isnan(value):
-                assert row[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
-            else:
-                assert row[key] == value, key
+        assert_same_figures(row, want)
     assert len({r["mae_kg_ha"] for r in fast}) == 8
 
 
@@ -81,13 +86,7 @@ def test_a_split_group_gives_the_rows_of_the_whole_group(tmp_path):
     assert [r["key"] for r in split] == [r["key"] for r in rows] == [s.key for s in whole]
     for got, want in zip(split, rows, strict=True):
         assert got.keys() == want.keys() and want["status"] == "ok"
-        for key, value in want.items():
-            if key in TIMING:
-                continue
-            if isinstance(value, float) and not math.isnan(value):
-                assert got[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
-            else:
-                assert got[key] == value, key
+        assert_same_figures(got, want)
     assert len({r["mae_kg_ha"] for r in rows}) == 4
 
 
