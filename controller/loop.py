@@ -59,8 +59,20 @@ class StepOutput:
 def _pid_rows(kp: np.ndarray, ki: np.ndarray, kd: np.ndarray, form: str, dom: bool,
               sample_s: float) -> np.ndarray:
     """Coefficients of u(n) on [acc, e, e1, e2, y, y1, y2] (volts), shape (n, 7), from gains (n,)."""
-    ki_t, kd_t = ki * sample_s, kd / sample_s
-    zero, one = np.zeros_like(kp), np.ones_like(kp)
+    return _rows_of(np.ones_like(kp), kp, ki * sample_s, kd / sample_s, form, dom)
+
+
+def _pid_terms(kp: np.ndarray, ki: np.ndarray, kd: np.ndarray, form: str, dom: bool,
+               sample_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """`_pid_rows` as (n, 4) weights of (4, 7) basis rows: the rows are linear in (1, kp, ki T, kd / T),
+    so the n loops' PID outputs are n weighted sums of four outputs every loop shares."""
+    weights = np.column_stack([np.ones_like(kp), kp, ki * sample_s, kd / sample_s])
+    return weights, _rows_of(*np.eye(4), form, dom)
+
+
+def _rows_of(one, kp, ki_t, kd_t, form: str, dom: bool) -> np.ndarray:
+    """`_pid_rows` of the terms: `one` (1 per loop), kp, ki T and kd / T, each shape (n,)."""
+    zero = np.zeros_like(kp)
     if form == "incremental":
         # u(n) = u(n-1) + A e - B e1 + C e2 (paper eq. 16); on measurement D acts on -y.
         if dom:
@@ -202,9 +214,10 @@ class ClosedLoop:
         self._ka, self._ks = _values(ps, "amplifier_gain_a_per_v", n), _values(ps, "sensor_gain_v_per_rpm", n)
         self._ilo, self._ihi = _values(ps, "current_min_a", n), _values(ps, "current_max_a", n)
         self._rmax = _values(ps, "shaft_rpm_max", n)
-        rows = _pid_rows(_values(gs, "kp", n), _values(gs, "ki", n), _values(gs, "kd", n), form,
-                         derivative_on_measurement, control_period_s)
+        kp, ki, kd = _values(gs, "kp", n), _values(gs, "ki", n), _values(gs, "kd", n)
+        rows = _pid_rows(kp, ki, kd, form, derivative_on_measurement, control_period_s)
         self._g, self._gr = _gain_vectors(rows, self._ks, lay)
+        self._terms = _pid_terms(kp, ki, kd, form, derivative_on_measurement, control_period_s)
         self._scalar = n == 1 and shared
         # With one plant and one set of gains, g . s' (the state part of the next tick's PID output) is one
         # more row of M: a tick is then one product plus a few elementwise operations.
@@ -288,7 +301,8 @@ class ClosedLoop:
         Parameters
         ----------
         targets_rpm : ndarray, shape (K,) for n = 1, or (K, n)
-            Setpoint per period and loop [rpm].
+            Setpoint per period and loop [rpm]; one target for every loop as a broadcast view
+            (``np.broadcast_to(t[:, None], (K, n))``) is taken as such, without a copy per loop.
         load_torque_nm : float or ndarray, shape (n,)
             Load torque held over the whole run [N m].
 
@@ -299,26 +313,88 @@ class ClosedLoop:
         """
         t = targets_matrix(targets_rpm, self.n)
         o = self._ns + 3
-        rec = np.empty((t.shape[0], self.n, 4))
+        rec = np.empty((t.shape[0], 4, self.n))
         if self._scalar:
-            flat = rec[:, 0, :]
+            flat = rec[:, :, 0]
             advance = self._advance
             for k, target in enumerate(t[:, 0].tolist()):
                 flat[k] = advance(target, load_torque_nm)[o:o + 4]
+        elif self._MT.ndim == 3:
+            self._run_per_plant(t, load_torque_nm, rec)
         else:
-            self._run_many(t, load_torque_nm, rec)
-        return StepOutput(rec[:, :, OUT_RPM], rec[:, :, OUT_REV], rec[:, :, OUT_CURRENT],
-                          rec[:, :, OUT_MEASURED])
+            self._run_shared_plant(t[:, :1] if t.strides[1] == 0 else t, load_torque_nm, rec)
+        return StepOutput(rec[:, OUT_RPM], rec[:, OUT_REV], rec[:, OUT_CURRENT], rec[:, OUT_MEASURED])
 
-    def _run_many(self, t: np.ndarray, load, rec: np.ndarray) -> None:
-        """`_advance` over the rows of `t` for n loops, its arithmetic unchanged, with the targets
-        clipped at once and the per-tick lookups hoisted (a batch of variants runs 10^5 ticks)."""
+    def _run_shared_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:
+        """`_advance` over the rows of `t` ((K, n), or (K, 1): one target for every loop) for n loops of
+        one plant, with the per-tick Python work cut (a batch of variants runs 10^5 ticks).
+
+        The state is held transposed (a row per entry, a column per loop: each tick writes contiguous
+        rows and the product goes into a spare buffer), and the PID output is a weighted sum of four
+        rows the product computes for every loop alike: the loops' gain rows are linear in
+        (1, kp, ki T, kd / T) (`_pid_terms`), so g . s + g_r r is those weights times four shared
+        basis outputs, which the product yields from the state and the next tick's target (an extra
+        input). Equal to `_advance` per tick to rounding (the sums are taken in another order).
+        """
+        common = t.shape[1] == 1
+        r_all = np.minimum(np.maximum(t[:, 0] if common else t, 0.0), self._rmax[0] if common else self._rmax)
+        if np.isnan(r_all).any():
+            raise ControllerError("target_shaft_rpm must be numbers, got NaN")
+        ns, ilo, ihi, ks = self._ns, self._ilo, self._ihi, self._ks
+        weights, basis = self._terms
+        gamma, delta = _gain_vectors(basis, np.full(len(basis), ks[0]), self._lay)
+        out0, w0, nin = ns + 4, ns + 8, ns + 4     # outputs, basis outputs; inputs: ..., next target
+        M = self._M
+        mx = np.zeros((ns + 12, nin))
+        mx[:ns, :ns + 3] = M[:ns]                  # rows ns..ns+3 stay zero: the next inputs' slots
+        mx[out0:out0 + 4, :ns + 3] = M[ns + 3:ns + 7]
+        mx[w0:, :ns + 3] = gamma @ M[:ns]
+        mx[w0:, ns + 3] = delta
+        kc = np.ascontiguousarray((self._ka[:, None] * weights).T)    # (4, n): ka times the weights
+        pairs = np.zeros((len(r_all), 2, 1 if common else self.n))     # (this target, the next one)
+        pairs[:, 0] = r_all if not common else r_all[:, None]
+        pairs[:-1, 1] = pairs[1:, 0]
+        with_load = isinstance(load, np.ndarray) or bool(load)
+        ring0, acc, positional = self._lay.ring0, self._lay.pid0 + ACC, self.form == "positional"
+        v = np.zeros((ns + 12, self.n))
+        v[:ns] = np.atleast_2d(self._v)[:, :ns].T
+        if len(r_all):
+            v[w0:] = gamma @ v[:ns] + delta[:, None] * pairs[0, 0]
+        spare = np.empty_like(v)
+        cur = v[ns + IN_CURRENT]
+        for k in range(len(r_all)):
+            unsat = np.einsum("bj,bj->j", kc, v[w0:])
+            np.minimum(np.maximum(unsat, ilo, out=cur), ihi, out=cur)
+            v[ns + IN_TARGET:ns + 4:2] = pairs[k]
+            if with_load:
+                v[ns + IN_LOAD] = load
+            out = np.dot(mx, v[:nin], out=spare)
+            if positional:      # clamping anti-windup: the error sum and the basis outputs after it
+                e = ks * (pairs[k, 0] - v[ring0])
+                frozen = ((unsat > ihi) & (e > 0)) | ((unsat < ilo) & (e < 0))
+                if frozen.any():
+                    held = np.where(frozen, e, 0.0)
+                    out[acc] -= held
+                    out[w0:] -= gamma[:, acc, None] * held
+            rec[k] = out[out0:out0 + 4]
+            v, spare = out, v
+            cur = v[ns + IN_CURRENT]
+        state = np.zeros_like(np.atleast_2d(self._v))
+        state[:, :ns] = v[:ns].T
+        state[:, ns + 3:ns + 7] = v[out0:out0 + 4].T
+        if self._cached_u:
+            state[:, self._iu] = state[:, :ns] @ self._g[0]
+        self._v = state
+
+    def _run_per_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:
+        """`_advance` over the rows of `t` (K, n) for n loops of their own plants (one product each),
+        its arithmetic unchanged, with the targets clipped at once and the per-tick lookups hoisted."""
         r_all = np.minimum(np.maximum(t, 0.0), self._rmax)
         if np.isnan(r_all).any():
             raise ControllerError("target_shaft_rpm must be numbers, got NaN")
         ns, o, iu = self._ns, self._ns + 3, self._iu
         g, gr, ka, ilo, ihi, MT = self._g, self._gr, self._ka, self._ilo, self._ihi, self._MT
-        cached, positional, shared = self._cached_u, self.form == "positional", MT.ndim == 2
+        cached, positional = self._cached_u, self.form == "positional"
         with_load = isinstance(load, np.ndarray) or bool(load)
         ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
         v = np.atleast_2d(self._v)
@@ -331,8 +407,7 @@ class ClosedLoop:
             v[:, ns + IN_TARGET] = r
             if with_load:
                 v[:, ns + IN_LOAD] = load
-            vin = v[:, :ns + 3]
-            out = vin @ MT if shared else np.matmul(vin[:, None, :], MT)[:, 0, :]
+            out = np.matmul(v[:, None, :ns + 3], MT)[:, 0, :]
             if positional:
                 e = self._ks * (r - v[:, ring0])
                 frozen = ((unsat > ihi) & (e > 0)) | ((unsat < ilo) & (e < 0))
@@ -340,7 +415,7 @@ class ClosedLoop:
                     out[:, acc] -= np.where(frozen, e, 0.0)
                     if cached:
                         out[:, iu] -= np.where(frozen, g[0, acc] * e, 0.0)
-            rec[k] = out[:, o:o + 4]
+            rec[k] = out[:, o:o + 4].T
             v = out
         self._v = v
 

@@ -390,6 +390,8 @@ class StripMap:
         self._sub_cell = np.full(raster._acc.size, -1, np.int64)
         self._sub_cell[self._cell_subs] = np.arange(rows * cols)[:, None]
         self._by_strip = None   # the weights by strip (CSC), made on first use
+        self._base = None       # (pattern, its `_terms_at` over every cell): the first one seen
+        self._sub_weights = None  # the weights of the sub-cells of cells, cell by cell (CSR), first use
         # The weights summed per cell and over the ring: applied and outside kg straight from masses.
         sub = np.flatnonzero(self._sub_cell >= 0)
         per_cell = sparse.csr_matrix((np.ones(sub.size), (self._sub_cell[sub], sub)),
@@ -402,7 +404,7 @@ class StripMap:
         return self.swept.size
 
     def _checked(self, mass_kg) -> np.ndarray:
-        mass = np.asarray(mass_kg, dtype=float)
+        mass = np.ascontiguousarray(mass_kg, dtype=float)   # once, not in each product below
         if mass.ndim != 2 or mass.shape[0] != self.strips or mass.shape[1] == 0:
             raise MapError(f"StripMap: mass_kg must have shape ({self.strips}, n >= 1), got {mass.shape}")
         if not np.all(np.isfinite(mass) & (mass >= 0)):
@@ -411,24 +413,26 @@ class StripMap:
 
     def apply(self, mass_kg) -> AppliedColumns:
         """The as-applied rasters of mass columns `mass_kg`, shape (k, n) (kg per strip, >= 0)."""
-        from scipy import sparse
 
         mass = self._checked(mass_kg)
         raster, grid = self._raster, self._raster.grid
         shape = (grid.rows, grid.cols)
-        terms, which = self._patterns_of(mass)
+        terms, which, patched = self._patterns_of(mass)
         out = dict(applied_kg=np.asarray(self._cell_weights @ mass).T.reshape(-1, *shape),
                    coverage_fraction=np.stack([terms[u][0].reshape(shape) for u in which]),
                    outside_kg=self._ring_weights @ mass, cell_area_m2=raster._cell_area_m2)
         if self._to_pass is not None:
-            overlap_kg = np.zeros((mass.shape[1], grid.rows * grid.cols))
-            for u, (_, _, _, extra) in enumerate(terms):
-                # Only the sub-cells more than one pass swept hold product beyond the first.
-                at = np.flatnonzero(extra)
-                beyond = sparse.csr_matrix((extra.ravel()[at], (at // extra.shape[1], np.arange(at.size))),
-                                           shape=(overlap_kg.shape[1], at.size))
-                part = beyond @ self.weights[self._cell_subs.ravel()[at]]
-                overlap_kg[which == u] = np.asarray(part @ mass[:, which == u]).T
+            # A sub-cell's product beyond the first pass is its share `extra` of the product on it.
+            if self._sub_weights is None:
+                self._sub_weights = self.weights[self._cell_subs.ravel()].tocsr()
+            cells, s2 = self._cell_subs.shape
+            per_sub = np.asarray(self._sub_weights @ mass).reshape(cells, s2, -1)   # kg
+            overlap_kg = np.einsum("cs,csn->nc", self._base[1][3], per_sub)
+            for u, at in enumerate(patched):   # a pattern's own terms differ at its patched cells only
+                if at is not None and at.size:
+                    cols = np.flatnonzero(which == u)
+                    overlap_kg[np.ix_(cols, at)] = np.einsum("cs,csn->nc", terms[u][3][at],
+                                                             per_sub[at][:, :, cols])
             out.update(pass_count=np.stack([terms[u][1].reshape(shape) for u in which]),
                        overlap_fraction=np.stack([terms[u][2].reshape(shape) for u in which]),
                        overlap_kg=overlap_kg.reshape(-1, *shape))
@@ -436,26 +440,35 @@ class StripMap:
 
     def coverage_fraction(self, mass_kg) -> np.ndarray:
         """Only `apply`'s ``coverage_fraction``: (n, rows, cols), for mass columns (k, n)."""
-        terms, which = self._patterns_of(self._checked(mass_kg))
+        terms, which, _ = self._patterns_of(self._checked(mass_kg))
         grid = self._raster.grid
         return np.stack([terms[u][0].reshape(grid.rows, grid.cols) for u in which])
 
     def _patterns_of(self, mass: np.ndarray):
         """The swept-area terms (`_terms_at`, every cell) of each distinct pattern of strips carrying
-        product in the columns of `mass`, and each column's pattern. The first pattern's are computed
-        over the whole grid; another's are the first's with the cells recomputed that the strips
-        where the two differ touch (the columns' patterns differ in a few strips, if at all)."""
+        product in the columns of `mass`, each column's pattern, and each pattern's cells whose terms
+        differ from the base's (None: the base's own terms). The base is the first pattern this map
+        sees: its terms are computed over the whole grid (once); any other's are those with the cells
+        recomputed that the strips where the two differ touch (the columns' patterns differ in a few
+        strips, if at all)."""
         carries = mass.T > 0
         packed = np.packbits(carries, axis=1)   # a column's pattern as bytes, to look it up
         first: dict[bytes, int] = {}
         which = np.array([first.setdefault(row.tobytes(), len(first)) for row in packed], dtype=np.int64)
         patterns = carries[np.unique(which, return_index=True)[1]]
-        base = self._terms_at(patterns[0], np.arange(self._cell_subs.shape[0]))
-        terms = [base]
-        for pattern in patterns[1:]:
+        if self._base is None:
+            self._base = (patterns[0], self._terms_at(patterns[0], np.arange(self._cell_subs.shape[0])))
+        base_pattern, base = self._base
+        terms, patched_cells = [], []
+        for pattern in patterns:
+            differ = np.flatnonzero(pattern != base_pattern)
+            if not differ.size:
+                terms.append(base)
+                patched_cells.append(None)
+                continue
             if self._by_strip is None:
                 self._by_strip = self.weights.tocsc()
-            touched = self._by_strip[:, np.flatnonzero(pattern != patterns[0])].indices
+            touched = self._by_strip[:, differ].indices
             cells = np.unique(self._sub_cell[touched])
             cells = cells[cells >= 0]
             patched = [None if t is None else t.copy() for t in base]
@@ -463,7 +476,8 @@ class StripMap:
                 if whole is not None:
                     whole[cells] = part
             terms.append(patched)
-        return terms, which
+            patched_cells.append(cells)
+        return terms, which, patched_cells
 
     def _terms_at(self, carries: np.ndarray, cells: np.ndarray):
         """For strips carrying product where `carries`, at `cells` (flat cell indices): the coverage,

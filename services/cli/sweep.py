@@ -56,14 +56,16 @@ class SweepProgress:
             sys.stderr.write("\n")
 
 
-def _run_on_dask(args, items, task, key, rows_of, table, progress) -> int:
-    """Run ``task(item)`` for every item on the cluster the options name, its rows (``rows_of(item,
-    result, error)``) into `table` as each comes; returns how many workers the cluster had."""
+def _run_on_dask(args, tasks_for, table, progress) -> int:
+    """Run the tasks ``tasks_for(workers)`` names, ``(items, task, key, rows_of)``, on the cluster the
+    options name: ``task(item)`` for every item, its rows (``rows_of(item, result, error)``) into
+    `table` as each comes; returns how many workers the cluster had."""
     from services.batch.driver import dashboard_available, open_client, run_tasks
 
     dashboard = dashboard_available() and not args.no_dashboard
     with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
         workers = len(client.scheduler_info().get("workers", {}))
+        items, task, key, rows_of = tasks_for(workers)
         progress.start = time.perf_counter()  # the rate counts runs, not the cluster's start
         if dashboard and not args.quiet:
             print(f"vrsim sweep: Dask dashboard at {client.dashboard_link}", file=sys.stderr)
@@ -81,10 +83,11 @@ def _run_on_dask(args, items, task, key, rows_of, table, progress) -> int:
     return workers
 
 
-def _tasks(sweep, todo, args, out_dir):
-    """(items, task, key, rows_of) for the runs `todo`: one task per group of controller variants
-    (the batched fast path, `services.sim.sweep.run_group`) when every axis is a ``controller.*`` key
-    and no run's own files are asked for; else one task per run (`run_row`)."""
+def _tasks(sweep, todo, args, out_dir, workers):
+    """(items, task, key, rows_of) for the runs `todo`: one task per group of controller variants, or
+    per part of a group so that each of the cluster's `workers` has one (the batched fast path,
+    `services.sim.sweep.run_group`), when every axis is a ``controller.*`` key and no run's own files
+    are asked for; else one task per run (`run_row`)."""
     from services.outputs.sweep_results import RunOutputs
     from services.sim.sweep import controller_only, failed_row, run_group, run_row, variant_groups
 
@@ -92,7 +95,8 @@ def _tasks(sweep, todo, args, out_dir):
         def group_rows(group, rows, error):
             return rows if rows is not None else [failed_row(spec, error) for spec in group]
 
-        return (variant_groups(todo), run_group, lambda g: f"vrsim-group-{g[0].key}-{len(g)}", group_rows)
+        return (variant_groups(todo, workers), run_group, lambda g: f"vrsim-group-{g[0].key}-{len(g)}",
+                group_rows)
 
     def run_rows(spec, row, error):
         return [row if row is not None else failed_row(spec, error)]
@@ -121,7 +125,8 @@ def run(args) -> int:
     done = table.done
     todo = [s for s in specs if s.key not in done]
     progress = SweepProgress(len(todo), enabled=not args.quiet)
-    workers = _run_on_dask(args, *_tasks(sweep, todo, args, out_dir), table, progress) if todo else 0
+    tasks_for = functools.partial(_tasks, sweep, todo, args, out_dir)
+    workers = _run_on_dask(args, tasks_for, table, progress) if todo else 0
     table.flush()
     report = os.path.join(out_dir, "report.html")
     write_sweep_report(table.rows, sweep, report)

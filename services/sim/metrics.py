@@ -339,7 +339,7 @@ def rate_steps(prescribed_kg_ha, active) -> np.ndarray:
     return np.flatnonzero(is_step) + 1
 
 
-def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> TransitionMetrics:
+def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, steps=None) -> TransitionMetrics:
     """Time and distance from each rate step until the applied rate is within 10 % of the new rate.
 
     Parameters
@@ -351,6 +351,9 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> 
         rate is undefined, e.g. standing still).
     active : ndarray of bool, shape (n,)
         Ticks where the implement is on.
+    steps : ndarray of int, optional
+        ``rate_steps(prescribed_kg_ha, active)`` when already known (many applied rates over one
+        prescription).
 
     A step whose rate changes again before the applied rate settles is not counted (its transition
     is unfinished, not fast or slow); one where the applied rate is already within tolerance at
@@ -360,7 +363,7 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active) -> 
     d = np.asarray(distance_m, dtype=float)
     rx = np.asarray(prescribed_kg_ha, dtype=float)
     applied = np.asarray(applied_kg_ha, dtype=float)
-    steps = rate_steps(rx, active)
+    steps = rate_steps(rx, active) if steps is None else steps
     ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
     ok_idx = np.flatnonzero(ok)
     ends = np.append(steps[1:], len(rx))  # a step's window closes at the next step

@@ -150,14 +150,34 @@ class StripPlan:
 def limited_coverage(track: dict, metered_kg: np.ndarray, states: SectionStates, limited: np.ndarray,
                      delay_s: float, period_s: float, cell_m: float, grid: Grid) -> np.ndarray:
     """Share of each cell that product metered in `limited` ticks (the machine-limited ones) landed on,
-    for each column of `metered_kg` (ticks, m): shape (m, rows, cols). The strips are the same for
-    every column; a column's product decides only which of them sweep (`maps.StripMap`)."""
-    if not limited.any():
-        return np.zeros((metered_kg.shape[1], grid.rows, grid.cols))
-    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
-    s = plan.strips
-    strip_map = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m)
-    return strip_map.coverage_fraction(plan.mass_kg(metered_kg))
+    for each column of `metered_kg` (ticks, m): shape (m, rows, cols) (`LimitedStrips`)."""
+    return LimitedStrips.of(track, states, limited, delay_s, period_s, cell_m, grid).coverage(metered_kg)
+
+
+@dataclass(frozen=True)
+class LimitedStrips:
+    """The strips of the machine-limited ticks, for any number of metered columns: the strips are the
+    same for every column; a column's product decides only which of them sweep (`maps.StripMap`)."""
+
+    plan: StripPlan | None      # None: no limited tick
+    strip_map: StripMap | None
+    shape: tuple[int, int]      # the grid's (rows, cols)
+
+    @classmethod
+    def of(cls, track: dict, states: SectionStates, limited: np.ndarray, delay_s: float, period_s: float,
+           cell_m: float, grid: Grid) -> LimitedStrips:
+        """`limited_coverage`'s parameters, less the product."""
+        if not limited.any():
+            return cls(None, None, (grid.rows, grid.cols))
+        plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+        s = plan.strips
+        return cls(plan, StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m), (grid.rows, grid.cols))
+
+    def coverage(self, metered_kg: np.ndarray) -> np.ndarray:
+        """`limited_coverage` of the columns `metered_kg` (ticks, m): shape (m, rows, cols)."""
+        if self.plan is None:
+            return np.zeros((metered_kg.shape[1], *self.shape))
+        return self.strip_map.coverage_fraction(self.plan.mass_kg(metered_kg))
 
 
 def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:

@@ -49,6 +49,9 @@ RANGE_KEYS = ("min", "max", "n", "log")
 REPORT_KEYS = ("pareto",)
 ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
 ROW_LAST = ("wall_s", "status", "error")
+# A group of controller variants is cut into parts (one task each) of at least this many: each part
+# drives once (about 2 s on the default scenario), which this many variants outweigh.
+MIN_PART_VARIANTS = 64
 
 # Which way is better ("min", "max" or "zero"), for the accuracy figures the report ranks: the
 # METRICS table's sense.
@@ -448,17 +451,32 @@ def controller_only(sweep: Sweep) -> bool:
     return bool(sweep.axes) and all(a.key.startswith("controller.") for a in sweep.axes)
 
 
-def variant_groups(specs: Sequence[RunSpec]) -> list[tuple[RunSpec, ...]]:
-    """The specs grouped by base scenario and seed, in first-seen order (one drive per group)."""
+def variant_groups(specs: Sequence[RunSpec], workers: int = 1,
+                   min_part: int = MIN_PART_VARIANTS) -> list[tuple[RunSpec, ...]]:
+    """The specs grouped by base scenario and seed, in first-seen order (one drive per group), each
+    group cut into consecutive parts of about equal size when there are fewer groups than `workers`:
+    as many parts as it takes for every worker to have one, each of at least `min_part` specs.
+
+    Each part is its own `run_group` task and drives on its own: with a core per worker the parts'
+    drives run side by side, so the wall time is one drive plus a part's variants, as when one drive
+    is shipped to every worker, without a task that waits for another or a drive in transit.
+    """
     groups: dict[tuple[str, int], list[RunSpec]] = {}
     for spec in specs:
         groups.setdefault((spec.scenario, spec.seed), []).append(spec)
-    return [tuple(g) for g in groups.values()]
+    wanted = -(-workers // max(len(groups), 1))   # parts per group for every worker to have one
+    parts = []
+    for group in groups.values():
+        k = max(1, min(wanted, len(group) // max(min_part, 1)))
+        bounds = [len(group) * i // k for i in range(k + 1)]
+        parts += [tuple(group[lo:hi]) for lo, hi in itertools.pairwise(bounds)]
+    return parts
 
 
 def run_group(specs: Sequence[RunSpec]) -> list[dict]:
-    """The rows of specs that differ only in ``controller.*`` keys (`variant_groups`), through the
-    fast path: one drive, then all controllers as one batch (`services.sim.variants.run_variants`).
+    """The rows of specs that differ only in ``controller.*`` keys (a group or a part of one, from
+    `variant_groups`), through the fast path: one drive, then all controllers as one batch
+    (`services.sim.variants.run_variants`).
 
     Rows have the form of `run_row`'s, ``wall_s`` each run's share of the group's wall time. If the
     batch fails (a controller the run refuses), every spec runs alone through `run_row`, so a failed

@@ -11,6 +11,7 @@ import subprocess
 import pytest
 
 from services.outputs.sweep_results import read_rows
+from services.sim.sweep import load_sweep, plan, run_group, variant_groups
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_sweep import SCENARIO
 
@@ -45,6 +46,17 @@ def sweep(folder, name, out, *args):
     return json.loads(p.stdout), read_rows(str(out / "results.parquet"))
 
 
+def assert_same_figures(row: dict, want: dict) -> None:
+    """Every column of `want` but the timing equals `row`'s, floats to 1e-9 relative."""
+    for key, value in want.items():
+        if key in TIMING:
+            continue
+        if isinstance(value, float) and not math.isnan(value):
+            assert row[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
+        else:
+            assert row[key] == value, key
+
+
 def test_fast_path_rows_equal_one_at_a_time_rows(tmp_path):
     (tmp_path / "q.toml").write_text(SCENARIO)
     (tmp_path / "s.toml").write_text(SWEEP)
@@ -57,14 +69,25 @@ def test_fast_path_rows_equal_one_at_a_time_rows(tmp_path):
     for row in fast:
         want = slow_by_key[row["key"]]
         assert [k for k in want if k != "outputs_wall_s"] == list(row)
-        for key, value in want.items():
-            if key in TIMING:
-                continue
-            if isinstance(value, float) and not math.isnan(value):
-                assert row[key] == pytest.approx(value, rel=1e-9, abs=1e-12), key
-            else:
-                assert row[key] == value, key
+        assert_same_figures(row, want)
     assert len({r["mae_kg_ha"] for r in fast}) == 8
+
+
+def test_a_split_group_gives_the_rows_of_the_whole_group(tmp_path):
+    """A group of variants cut into parts (one task each, each with its own drive) gives the rows of
+    the whole group, to 1e-9 relative (in process, real SUMO)."""
+    (tmp_path / "q.toml").write_text(SCENARIO)
+    (tmp_path / "s.toml").write_text(SWEEP)
+    whole = variant_groups(plan(load_sweep(str(tmp_path / "s.toml"))))[0]
+    parts = variant_groups(whole, workers=2, min_part=2)
+    assert [len(p) for p in parts] == [2, 2]
+    split = [row for part in parts for row in run_group(part)]
+    rows = run_group(whole)
+    assert [r["key"] for r in split] == [r["key"] for r in rows] == [s.key for s in whole]
+    for got, want in zip(split, rows, strict=True):
+        assert got.keys() == want.keys() and want["status"] == "ok"
+        assert_same_figures(got, want)
+    assert len({r["mae_kg_ha"] for r in rows}) == 4
 
 
 def test_a_variant_that_fails_at_run_time_is_its_own_failed_row(tmp_path):

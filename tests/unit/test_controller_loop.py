@@ -149,6 +149,32 @@ def test_run_equals_step_by_step():
         a.run(np.zeros((5, 3)))
 
 
+@pytest.mark.parametrize("form", ["incremental", "positional"])
+@pytest.mark.parametrize("dom", [False, True])
+@pytest.mark.parametrize("shared_target", [False, True])
+def test_run_of_loops_with_their_own_gains_equals_each_loop_alone(form, dom, shared_target):
+    """`run` of n loops with gains per loop (the variants' fast path: the PID output as weights of four
+    shared basis outputs) equals each loop run alone to 1e-9 relative, saturating both ways, with a
+    load torque, on one target row for all (a broadcast view) or a row per loop, and carries on with
+    `step` after it."""
+    weak = replace(P, current_max_a=0.8, shaft_rpm_max=195.0)
+    gains = [PidGains(0.1, 5.0, 0.0), PidGains(0.573, 2.1, 0.004), PidGains(1.2, 0.5, 0.01)]
+    targets = np.r_[np.full(40, 195.0), np.full(40, 5.0), np.full(40, 120.0)]
+    rows = (np.broadcast_to(targets[:, None], (120, 3)) if shared_target
+            else np.column_stack([targets, targets / 2, targets * 0.8]))
+    batch = ClosedLoop(weak, gains, form=form, derivative_on_measurement=dom, n=3)
+    got = batch.run(rows, 0.02)
+    after = batch.step(rows[-1], 0.02)
+    for i in range(3):
+        one = ClosedLoop(weak, gains[i], form=form, derivative_on_measurement=dom)
+        want = one.run(np.ascontiguousarray(rows[:, i]), 0.02)
+        for name in ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm"):
+            np.testing.assert_allclose(getattr(got, name)[:, i], getattr(want, name)[:, 0], rtol=1e-9,
+                                       atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(after.shaft_rpm[i], one.step(rows[-1, i], 0.02).shaft_rpm[0], rtol=1e-9)
+    assert got.current_a.max() == weak.current_max_a and got.current_a.min() == weak.current_min_a
+
+
 def test_load_torque_is_rejected_by_integral_action_at_the_predicted_current():
     loop = build_loop(P, ControllerConfig(kind="PI"))
     for _ in range(300):

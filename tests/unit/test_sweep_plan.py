@@ -18,6 +18,7 @@ from services.sim.sweep import (
     parse_sweep,
     plan,
     scenario_key,
+    variant_groups,
 )
 from tests.conftest import ROOT
 
@@ -366,3 +367,23 @@ def test_the_example_sweep_plans():
     assert len(specs) == 54 and sw.pareto == ("within_10pct_area_pct", "mass_balance_pct")
     sc = specs[0].load()
     assert (sc.controller.gains, sc.controller.kd, sc.name) == ("manual", 0.00003, "quick_rectangle")
+
+
+def test_variant_groups_cut_large_groups_so_each_worker_has_a_part(folder):
+    """One drive per scenario and seed; with fewer groups than workers the groups are cut into
+    consecutive parts of about equal size, none below min_part, every spec in exactly one part."""
+    sw = sweep_of(folder, """
+        scenarios = ["base.toml"]
+        seeds = [1, 2]
+        [axes]
+        "controller.kp" = { min = 0.1, max = 1.0, n = 10 }
+    """)
+    specs = plan(sw)
+    assert [len(g) for g in variant_groups(specs)] == [10, 10]
+    assert [len(g) for g in variant_groups(specs, workers=2)] == [10, 10]
+    parts = variant_groups(specs, workers=5, min_part=3)
+    assert [len(p) for p in parts] == [3, 3, 4, 3, 3, 4]
+    assert [s for p in parts for s in p] == [s for g in variant_groups(specs) for s in g]
+    assert all(len({(s.scenario, s.seed) for s in p}) == 1 for p in parts)
+    assert [len(p) for p in variant_groups(specs, workers=8, min_part=4)] == [5, 5, 5, 5]
+    assert [len(p) for p in variant_groups(specs, workers=8, min_part=20)] == [10, 10]
