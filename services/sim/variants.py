@@ -46,7 +46,7 @@ from services.sim.metrics import limit_metrics, map_metrics, overlap_metrics, ra
 from services.sim.run import Drive, cells_in_field, check_world, control_and_account, summarize
 from services.sim.scenario import Scenario
 from services.sim.section_landing import LimitedStrips, StripPlan, worked_fraction
-from services.sim.sections import SectionStates, pass_index
+from services.sim.sections import run_section_states
 
 # Variants run as one loop batch: more cut the loop's Python work per variant (256: about a quarter
 # less than 128), and hold more (their ticks x variants of floats, 0.36 GB for 256 on the default
@@ -127,9 +127,7 @@ class _Shared:
         grid, implement, timing = world.grid, scenario.implement, scenario.timing
         delay_s, period_s, cell_m = implement.delivery_delay_s, timing.control_period_s, min(grid.cell_size)
         width_on = rec["width_on_m"]
-        passes = pass_index(track["heading_rad"], track["implement_on"])
-        states = SectionStates(np.asarray(rec["sections_on"], bool), implement.section_widths,
-                               implement.section_offsets_m, passes, rec["sections_commanded"])
+        states = run_section_states(track, rec, implement)
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
         strips = plan.strips
