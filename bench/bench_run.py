@@ -7,7 +7,8 @@ Figures:
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
   start-up, imports and every output file included (summary.json, three GeoTIFFs, track.csv, the
-  TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the better of two runs.
+  TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the best of three runs (the
+  machine's noise is a few tenths of a second).
 
     .venv/bin/python -m bench.bench_run
 """
@@ -33,7 +34,7 @@ def _in_process(name: str) -> dict:
     return best.summary
 
 
-def _cli_wall_s(name: str, runs: int = 2) -> float:
+def _cli_wall_s(name: str, runs: int = 3) -> float:
     vrsim = os.path.join(os.path.dirname(sys.executable), "vrsim")
     best = float("inf")
     for _ in range(runs):
