@@ -53,7 +53,7 @@ class DriveWorker:
         while True:
             try:
                 kind, *body = pickle.load(self.proc.stdout)
-            except EOFError:
+            except (EOFError, pickle.UnpicklingError):  # gone, perhaps in the middle of a message
                 raise RuntimeError("the drive worker (SUMO's process) ended before the drive did "
                                    f"(exit code {self.proc.wait()})") from None
             if kind == "part":

@@ -3,7 +3,6 @@ track measured and controlled part by part, equal to the in-process run bit for 
 
 import os
 import signal
-import threading
 
 import numpy as np
 import pytest
@@ -86,10 +85,13 @@ def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypa
     started = []
 
     class Watched(DriveWorker):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            started.append(self.proc)
-            threading.Timer(1.5, os.kill, (self.proc.pid, signal.SIGKILL)).start()
+        def parts(self):
+            for part in super().parts():
+                if not started:  # killed once it has driven a part, and gone before the next is read
+                    started.append(self.proc)
+                    os.kill(self.proc.pid, signal.SIGKILL)
+                    self.proc.wait()
+                yield part
 
     monkeypatch.setattr("services.sim.streamed.DriveWorker", Watched)
     with pytest.raises(RuntimeError, match=r"drive worker .* ended before the drive did \(exit code -9\)"):
