@@ -364,7 +364,8 @@ class SumoDriver:
         # `_advance` inlined, with everything it reads in locals: this loop is the drive's Python time.
         step, route_index, lane_position, speed, set_max_speed = self._calls
         every, next_factor, working_m_s = self._update_every, self._speed.next, self.drive.working_speed_m_s
-        k0, edge_start, scale, offset_m = self._k0, self._edge_start, self._scale, self.drive.implement_offset_m
+        k0, edge_start, scale = self._k0, self._edge_start, self._scale
+        offset_m = self.drive.implement_offset_m
         gone, step_s, tick = self._ls.TraCIException, self.step_s, self._tick
         length, n, total = self._s[-1], 0, 0
         t_arr, s_arr, v_arr = np.empty(ticks), np.empty(ticks), np.empty(ticks)
