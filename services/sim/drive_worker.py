@@ -1,14 +1,14 @@
-"""The second process of a streamed run (`services.sim.streamed`): it plans the scenario's path, drives
-it in SUMO and sends what SUMO reports, part by part, while the first process controls what has been
-driven so far.
+"""The second process of a streamed run (`services.sim.streamed`): it drives the path the first
+process planned in SUMO and sends what SUMO reports, part by part, while the first process controls
+what has been driven so far.
 
-``python -m services.sim.drive_worker`` imports SUMO and the world building first, then reads the
-scenario and the ticks per part, pickled, on stdin; on stdout go ``("part", time_s, s_m, speed_m_s)``
-for each part (`vehicle.SumoDriver.run_parts`), then ``("done", path_length_m, sumo_s)``; or
-``("error", kind, message)`` for a scenario that cannot be driven (``kind`` names the
-`common.VrsimError` subclass). Both ends are vrsim's own processes (pickle is no format for anything
-else). `DriveWorker` is the first process's end. This module imports nothing heavy itself, so that
-`vrsim run` can start the worker before its own imports.
+``python -m services.sim.drive_worker`` imports SUMO and the vehicle room first (nothing of the
+scenario's parser, the controllers or the maps), then reads a `services.sim.drive_job.DriveJob` and
+the ticks per part, pickled, on stdin; on stdout go ``("part", time_s, s_m, speed_m_s)`` for each part
+(`vehicle.SumoDriver.run_parts`), then ``("done", sumo_s)``; or ``("error", kind, message)`` for a
+path that cannot be driven (``kind`` names the `common.VrsimError` subclass). Both ends are vrsim's
+own processes (pickle is no format for anything else). `DriveWorker` is the first process's end. This
+module imports nothing heavy itself, so that `vrsim run` can start the worker before its own imports.
 """
 
 from __future__ import annotations
@@ -33,20 +33,28 @@ class DriveWorker:
         self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
         self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self.path_length_m = self.sumo_s = None
+        self.planned = self.plan_s = self.sumo_s = None
 
     def drive(self, scenario, ticks_per_part: int = PART_TICKS) -> None:
-        """Start driving `scenario` (a `services.sim.scenario.Scenario`), sending every
-        `ticks_per_part` ticks."""
+        """Plan `scenario`'s path here (`services.sim.world.plan_path`: its errors are raised here) and
+        start driving it, sending every `ticks_per_part` ticks; ``planned`` holds (field, path), ``plan_s``
+        the time planning took."""
+        from services.sim.drive_job import DriveJob
+        from services.sim.world import plan_path
+
+        clock = time.perf_counter()
+        self.planned = plan_path(scenario)
+        self.plan_s = time.perf_counter() - clock
         try:
-            pickle.dump((scenario, ticks_per_part), self.proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump((DriveJob.of(scenario, self.planned[1]), ticks_per_part), self.proc.stdin,
+                        protocol=pickle.HIGHEST_PROTOCOL)
             self.proc.stdin.close()
         except BrokenPipeError:  # it is gone already: `parts` says how
             pass
 
     def parts(self):
-        """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `path_length_m`
-        and `sumo_s` (the drive's wall time in the worker). Raises the worker's `common.VrsimError`,
+        """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `sumo_s` (the
+        drive's wall time in the worker). Raises the worker's `common.VrsimError`,
         or RuntimeError if it ended without a word (a bug or a kill)."""
         from common import errors
 
@@ -59,7 +67,7 @@ class DriveWorker:
             if kind == "part":
                 yield tuple(body)
             elif kind == "done":
-                self.path_length_m, self.sumo_s = body
+                (self.sumo_s,) = body
                 return
             else:
                 name, message = body
@@ -79,27 +87,26 @@ class DriveWorker:
 
 
 def serve(stdin, stdout) -> None:
-    """Drive the scenario that arrives on `stdin`, writing the messages above to `stdout`."""
+    """Drive the `DriveJob` that arrives on `stdin`, writing the messages above to `stdout`."""
     import libsumo  # noqa: F401 - the heaviest import, done while the caller loads the scenario
 
     from common import VrsimError
-    from services.sim.world import driving, plan_path
+    from services.sim import drive_job  # noqa: F401 - the job's classes, before it arrives
 
     def send(message) -> None:
         pickle.dump(message, stdout, protocol=pickle.HIGHEST_PROTOCOL)
         stdout.flush()
 
     try:
-        scenario, ticks = pickle.load(stdin)
+        job, ticks = pickle.load(stdin)
     except EOFError:  # the caller gave up before the drive (a bad scenario, --check)
         return
     try:
-        _, path = plan_path(scenario)
         clock = time.perf_counter()
-        with driving(scenario, path) as driver:
+        with job.driving() as driver:
             for part in driver.run_parts(ticks):
                 send(("part", *part))
-        send(("done", path.length_m, time.perf_counter() - clock))
+        send(("done", time.perf_counter() - clock))
     except VrsimError as exc:
         send(("error", type(exc).__name__, str(exc)))
 

@@ -9,9 +9,8 @@ and the control core (`ControlCore.run_track`, which the controller service call
 batch, and whose result does not depend on how a track is split: tested). A streamed run's arrays
 and summary equal `services.sim.run.run`'s bit for bit; only the wall times differ.
 
-The second process (`services.sim.drive_worker`) plans the path itself rather than wait for this
-one's world (which holds the prescription too): both plan the same path from the same scenario, and
-its length is compared at the end. With ``error_split``, the error split's reference meters
+This process plans the path and sends it to the second (`services.sim.drive_worker`) before it
+builds the rest of the world (the prescription). With ``error_split``, the error split's reference meters
 (`services.sim.error_split.reference_figures`) land in a forked child while this process accounts
 for the run.
 """
@@ -44,8 +43,8 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         As `services.sim.run.run`'s (the total is the path's ticks at the working speed until the
         drive ends).
     worker : DriveWorker, optional
-        Already driving `scenario` (`vrsim run` starts it first, so that SUMO's process imports while
-        this one does); closed here. None: one is started now.
+        Started (`vrsim run` starts it first, so that SUMO's process imports while this one does), and
+        perhaps already driving `scenario`; closed here. None: one is started now.
     ticks_per_part : int
         Without `worker`: how many ticks SUMO drives before it sends them (`PART_TICKS`; any size
         gives the same result).
@@ -57,14 +56,15 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
     overlap, so they do not add up to ``wall_time_s``.
     """
-    if worker is None:
-        worker = DriveWorker()
-        worker.drive(scenario, ticks_per_part)
+    worker = worker or DriveWorker()
     started, wall0 = worker.started_unix, worker.started_perf_s   # the run began with SUMO's process
     try:
+        if worker.planned is None:
+            worker.drive(scenario, ticks_per_part)
         clock = time.perf_counter()
-        world = build_world(scenario)
-        stage = {"build_s": time.perf_counter() - clock, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
+        world = build_world(scenario, planned=worker.planned)
+        build_s = worker.plan_s + time.perf_counter() - clock
+        stage = {"build_s": build_s, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
         core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
         gnss, speed = sensors(scenario)
         period_s = scenario.timing.control_period_s
@@ -92,9 +92,6 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         stage["wait_s"] += time.perf_counter() - clock
     finally:
         worker.close()
-    if worker.path_length_m != world.path.length_m:  # both processes plan from one scenario
-        raise RuntimeError(f"the drive worker planned a path of {worker.path_length_m} m, this process "
-                           f"one of {world.path.length_m} m")
     stage["sumo_s"] = worker.sumo_s
     track, control = _joined(tracks), _joined(controls)
     measured = tuple(np.concatenate(m) for m in zip(*measured, strict=True))

@@ -7,15 +7,15 @@ metric CRS (its UTM zone), which is where the control core looks rates up.
 from __future__ import annotations
 
 import dataclasses
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
+from services.sim.drive_job import DriveJob
 from services.sim.scenario import Scenario
-from vehicle import CoveragePath, Field, SumoDriver, plan_coverage
+from vehicle import CoveragePath, Field, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
 # Memory a run keeps per control tick: ~35 float64 arrays (the track, the sensors, the targets, the
@@ -85,10 +85,10 @@ def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
                                source="synthetic:zones_gradient")
 
 
-def build_world(scenario: Scenario) -> World:
-    """Field, prescription and coverage path (`plan_path`); errors name the scenario file and its
-    table."""
-    field, path = plan_path(scenario)
+def build_world(scenario: Scenario, planned: tuple[Field, CoveragePath] | None = None) -> World:
+    """Field, prescription and coverage path (`plan_path`, unless `planned` holds what it gave);
+    errors name the scenario file and its table."""
+    field, path = planned or plan_path(scenario)
     try:
         grid = build_prescription(scenario, field)
     except MapError as exc:
@@ -141,18 +141,12 @@ def field_and_grid(scenario: Scenario) -> tuple[Field, Grid]:
     return field, build_prescription(scenario, field)
 
 
-@contextmanager
 def driving(scenario: Scenario, path: CoveragePath):
     """A `vehicle.SumoDriver` on `path` with the scenario's tractor, tick and time limit
     (``[timing] max_sim_time_s``; unset, the driver derives it from the path), as a context manager.
 
-    `vrsim run` and the vehicle service both drive through this, so they stop at the same limit with
-    the same message; a `VehicleError` while driving becomes a `ScenarioError` naming the scenario.
+    `vrsim run` and the vehicle service both drive through this (`services.sim.drive_job.DriveJob`),
+    so they stop at the same limit with the same message; a `VehicleError` while driving becomes a
+    `ScenarioError` naming the scenario.
     """
-    timing = scenario.timing
-    try:
-        with SumoDriver(path, scenario.tractor, step_s=timing.control_period_s, seed=scenario.seed,
-                        max_time_s=timing.max_sim_time_s) as driver:
-            yield driver
-    except VehicleError as exc:
-        raise ScenarioError(f"{scenario.source}: {exc}") from None
+    return DriveJob.of(scenario, path).driving()

@@ -364,8 +364,8 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     """Stopped 3 ticks into a batch of 7: status counts every tick sent to the controller."""
     import types
 
+    import services.sim.drive_job
     import services.sim.run
-    import services.sim.world
     from services.bus import messages
     from services.bus.config import Keys
     from services.bus.vehicle import VehicleService
@@ -398,10 +398,10 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)
     gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
     speed = types.SimpleNamespace(read=lambda t, v: v)
-    monkeypatch.setattr(services.sim.world, "SumoDriver", Driver)
+    monkeypatch.setattr(services.sim.drive_job, "SumoDriver", Driver)
     monkeypatch.setattr(services.sim.run, "sensors", lambda sc: (gnss, speed))
     timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
-    scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1)
+    scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1, source="s.toml")
     world = types.SimpleNamespace(scenario=scenario, path=None)
     start = messages.RunStart("r", "", "s", "/", "lockstep", 1.0, 7)
     assert svc._drive(start, world) == "stopped"
