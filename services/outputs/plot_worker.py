@@ -1,14 +1,17 @@
 """A second process that draws a run's pictures while the first writes the other files.
 
 `vrsim run` starts it (`PlotWorker.start`) before it simulates, so its matplotlib import (a third of a
-second or more) overlaps the simulation on another core; after the run it draws map.png and
-timeseries.png while the run's process writes the GeoTIFFs, track.csv and the TimeLog. A process, not
-a thread: drawing holds the GIL.
+second or more) overlaps the simulation on another core; after the run it draws map.png, sections.png
+and timeseries.png while the run's process writes the GeoTIFFs, track.csv and the TimeLog. A process,
+not a thread: drawing holds the GIL.
 
 The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path)
-arrive pickled on its stdin and one reply per job goes back on its stdout, in order. Both ends are
-vrsim's own processes (pickle is no format for anything else). It imports only numpy and matplotlib
-(no multiprocessing start-up that re-imports the caller's main module).
+arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply per job
+goes back pickled on its stdout, in order. Each job is drawn in a child forked from the worker (fork
+copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
+run's process leaves, and a drawing that crashes its process is an error reply, not a lost worker.
+Both ends are vrsim's own processes (pickle is no format for anything else). It imports only numpy and
+matplotlib (no multiprocessing start-up that re-imports the caller's main module).
 """
 
 from __future__ import annotations
@@ -16,12 +19,15 @@ from __future__ import annotations
 import os
 import pickle
 import queue
+import select
+import struct
 import subprocess
 import sys
 import threading
 
 # What a job may ask for, from services.outputs.plots.
 DRAWINGS = ("draw_maps", "draw_sections", "draw_timeseries")
+_LENGTH = struct.Struct("<Q")  # each job's length, before it
 
 
 class PlotWorker:
@@ -46,7 +52,8 @@ class PlotWorker:
         if self._writer is None:
             self._writer = threading.Thread(target=self._write_jobs, name="plot-jobs", daemon=True)
             self._writer.start()
-        self._jobs.put(pickle.dumps((drawing, picture, path), protocol=pickle.HIGHEST_PROTOCOL))
+        job = pickle.dumps((drawing, picture, path), protocol=pickle.HIGHEST_PROTOCOL)
+        self._jobs.put(_LENGTH.pack(len(job)) + job)
 
     def _write_jobs(self) -> None:
         stdin = self.proc.stdin
@@ -81,26 +88,86 @@ class PlotWorker:
             self.proc = None
 
 
-def serve(stdin, stdout) -> None:
-    """The worker's loop: draw each job, reply ("ok", path) or ("error", text), until stdin closes."""
+def serve(stdin_fd: int, stdout) -> None:
+    """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
+    child (`_drawn`); the replies, ("ok", path) or ("error", text), go out in the jobs' order."""
     import matplotlib.figure  # noqa: F401 - imported before the first job arrives
 
     from services.outputs import plots
 
-    while True:
-        try:
-            drawing, picture, path = pickle.load(stdin)
-        except EOFError:
+    pending, drawing = bytearray(), []     # bytes of jobs not yet whole; [child] in the jobs' order
+    reading, jobs = True, 0
+    while reading or drawing:
+        waiting = [child.fd for child in drawing if child.reply is None]
+        ready, _, _ = select.select(waiting + ([stdin_fd] if reading else []), [], [])
+        if stdin_fd in ready:
+            data = os.read(stdin_fd, 1 << 20)
+            reading = bool(data)
+            pending += data
+            while len(pending) >= _LENGTH.size and len(pending) >= _LENGTH.size + _job_size(pending):
+                end = _LENGTH.size + _job_size(pending)
+                jobs += 1
+                drawing.append(_Child.draw(plots, bytes(pending[_LENGTH.size:end]), f"job {jobs}", stdin_fd,
+                                           drawing))
+                del pending[:end]
+        for child in drawing:
+            if child.fd in ready:
+                child.read()
+        while drawing and drawing[0].reply is not None:
+            pickle.dump(drawing.pop(0).reply, stdout)
+            stdout.flush()
+
+
+def _job_size(pending: bytearray) -> int:
+    return _LENGTH.unpack_from(pending)[0]
+
+
+class _Child:
+    """A forked child drawing one job; `fd` reads its reply, which `read` collects once it is whole."""
+
+    def __init__(self, pid: int, fd: int, label: str):
+        self.pid, self.fd, self.label = pid, fd, label
+        self.chunks, self.reply = [], None
+
+    @classmethod
+    def draw(cls, plots, job: bytes, label: str, stdin_fd: int, others) -> _Child:
+        read_fd, write_fd = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the child: draw, write the reply, exit without the parent's teardown
+            try:
+                for fd in (read_fd, stdin_fd, *(other.fd for other in others if other.reply is None)):
+                    os.close(fd)
+                with os.fdopen(write_fd, "wb") as out:
+                    out.write(pickle.dumps(_drawn(plots, job)))
+            finally:
+                os._exit(0)
+        os.close(write_fd)
+        return cls(pid, read_fd, label)
+
+    def read(self) -> None:
+        data = os.read(self.fd, 1 << 16)
+        if data:
+            self.chunks.append(data)
             return
+        os.close(self.fd)
+        _, status = os.waitpid(self.pid, 0)
         try:
-            if drawing not in DRAWINGS:
-                raise ValueError(f"unknown drawing {drawing!r}")
-            getattr(plots, drawing)(picture, path)
-            reply = ("ok", path)
-        except Exception as exc:  # noqa: BLE001 - reported to the caller, which raises it
-            reply = ("error", f"{drawing} {path}: {type(exc).__name__}: {exc}")
-        pickle.dump(reply, stdout)
-        stdout.flush()
+            self.reply = pickle.loads(b"".join(self.chunks))
+        except (EOFError, pickle.UnpicklingError):
+            self.reply = ("error", f"{self.label}: the drawing process ended without a reply "
+                                   f"(wait status {status})")
+
+
+def _drawn(plots, job: bytes) -> tuple[str, str]:
+    """Draw one pickled job; its reply."""
+    drawing, picture, path = pickle.loads(job)
+    try:
+        if drawing not in DRAWINGS:
+            raise ValueError(f"unknown drawing {drawing!r}")
+        getattr(plots, drawing)(picture, path)
+        return ("ok", path)
+    except Exception as exc:  # noqa: BLE001 - reported to the caller, which raises it
+        return ("error", f"{drawing} {path}: {type(exc).__name__}: {exc}")
 
 
 if __name__ == "__main__":
@@ -108,7 +175,7 @@ if __name__ == "__main__":
     # (control here, SUMO in the drive worker) leave of the two cores, not their share.
     os.nice(10)
     try:
-        serve(sys.stdin.buffer, sys.stdout.buffer)
+        serve(sys.stdin.fileno(), sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
         pass
     # Every reply is flushed and every picture closed: skip the interpreter's teardown of matplotlib

@@ -226,6 +226,46 @@ def test_pictures_drawn_here_and_by_the_worker(farm_run, tmp_path):
     assert "data:image/png;base64" in (out / "report.html").read_text()
 
 
+class _EndsItsProcess:
+    """A picture whose unpickling ends the process that draws it (a crash without a reply)."""
+
+    def __reduce__(self):
+        return os._exit, (3,)
+
+
+def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_ends(tmp_path):
+    from PIL import Image
+
+    from services.outputs.plot_worker import PlotWorker
+    from services.outputs.plots import SeriesPicture
+
+    t = np.arange(0.0, 60.0, 0.05)
+    series = SeriesPicture(t, 100 + 0 * t, 99 + 0 * t, 150 + 0 * t, 149 + 0 * t, "a minute")
+    worker = PlotWorker().start()
+    try:
+        worker.submit("draw_timeseries", series, str(tmp_path / "a.png"))
+        worker.submit("draw_timeseries", _EndsItsProcess(), str(tmp_path / "b.png"))
+        worker.submit("draw_timeseries", series, str(tmp_path / "c.png"))
+        worker.result()
+        with pytest.raises(RuntimeError, match=r"job 2: the drawing process ended without a reply "
+                                               r"\(wait status 768\)"):
+            worker.result()
+        worker.result()
+        drawers = _children(worker.proc.pid)
+    finally:
+        worker.close()
+    for name in ("a.png", "c.png"):
+        with Image.open(tmp_path / name) as im:
+            assert im.size[0] > 900, name
+    assert not (tmp_path / "b.png").exists()
+    assert drawers == []  # every drawing process reaped once it replied
+
+
+def _children(pid: int) -> list[int]:
+    with open(f"/proc/{pid}/task/{pid}/children") as fh:
+        return [int(c) for c in fh.read().split()]
+
+
 def test_output_options(tmp_path):
     folder = str(tmp_path)
     out = tmp_path / "o"
