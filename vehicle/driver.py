@@ -273,9 +273,9 @@ class SumoDriver:
         self._update_every = max(1, round(drive.speed_update_s / self.step_s))
         self._tick = 0
         self.finished = False
-        # The C++ functions behind libsumo's Python wrappers (`simulationStep`, `vehicle.getSpeed`,
-        # ...), which add a Python call each, and `simulationStep` a pass over step listeners (vrsim
-        # adds none), to the four calls a tick makes: the same calls, about a fifth of the drive's time.
+        # `_advance` calls the C++ functions behind libsumo's Python wrappers (`simulationStep`,
+        # `vehicle.getSpeed`, ...), which add a Python call each, and `simulationStep` a pass over step
+        # listeners (vrsim adds none), to the four calls a tick makes: the same calls, a fifth less time.
         from libsumo import _libsumo as c
 
         self._calls = (c.simulation_step, c.vehicle_getRouteIndex, c.vehicle_getLanePosition,
@@ -361,38 +361,22 @@ class SumoDriver:
         """
         self._require_open()
         max_ticks = max(int(self.max_time_s / self.step_s) - self._tick, 1)
-        # `_advance` inlined, with everything it reads in locals: this loop is the drive's Python time.
-        step, route_index, lane_position, speed, set_max_speed = self._calls
-        every, next_factor, working_m_s = self._update_every, self._speed.next, self.drive.working_speed_m_s
-        k0, edge_start, scale = self._k0, self._edge_start, self._scale
-        offset_m = self.drive.implement_offset_m
-        gone, step_s, tick = self._ls.TraCIException, self.step_s, self._tick
-        length, n, total = self._s[-1], 0, 0
+        length, n, total, advance = self._s[-1], 0, 0, self._advance
         t_arr, s_arr, v_arr = np.empty(ticks), np.empty(ticks), np.empty(ticks)
-        try:
-            while True:
-                step(0.0)
-                if tick % every == 0:  # after the step: the tractor is inserted in step 1
-                    set_max_speed(_VEH, working_m_s * next_factor())
-                tick += 1
-                try:
-                    k = route_index(_VEH) + k0
-                    s = edge_start[k] + lane_position(_VEH) * scale[k] - offset_m
-                    v = speed(_VEH)
-                except gone:  # arrived: the lead-out edge ended
-                    break
-                if total == max_ticks:
-                    raise self._not_finished()
-                t_arr[n], s_arr[n], v_arr[n] = tick * step_s, s, v
-                n += 1
-                total += 1
-                if s >= length:
-                    break
-                if n == ticks:
-                    yield t_arr.copy(), s_arr.copy(), v_arr.copy()
-                    n = 0
-        finally:
-            self._tick = tick
+        while True:
+            got = advance()
+            if got is None:
+                break
+            if total == max_ticks:
+                raise self._not_finished()
+            t_arr[n], s_arr[n], v_arr[n] = got
+            n += 1
+            total += 1
+            if got[1] >= length:
+                break
+            if n == ticks:
+                yield t_arr.copy(), s_arr.copy(), v_arr.copy()
+                n = 0
         self.finished = True
         if n or not total:  # no empty last part, but an empty drive is one (empty) part
             yield t_arr[:n].copy(), s_arr[:n].copy(), v_arr[:n].copy()
