@@ -10,7 +10,8 @@ import multiprocessing
 
 class Forked:
     """``Forked(fn, *args)`` starts ``fn(*args)`` in a forked child; `result` waits for its value (or
-    raises its exception); `cancel` ends it unfinished. Use as a context manager to cancel on leaving."""
+    raises its exception), `fileno` says when it would not wait; `cancel` ends it unfinished. Use as a
+    context manager to cancel on leaving."""
 
     def __init__(self, fn, *args):
         ctx = multiprocessing.get_context("fork")
@@ -19,6 +20,10 @@ class Forked:
         self._proc = ctx.Process(target=_call, args=(send, fn, args), name=f"forked {self.name}", daemon=True)
         self._proc.start()
         send.close()
+
+    def fileno(self) -> int:
+        """A descriptor that turns readable once `result` would not wait (for `select`)."""
+        return self._recv.fileno()
 
     def result(self):
         """The function's value, once the child has it; its exception is raised here."""

@@ -9,7 +9,8 @@ The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function
 arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply per job
 goes back pickled on its stdout, in order. Each job is drawn in a child forked from the worker (fork
 copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
-run's process leaves, and a drawing that crashes its process is an error reply, not a lost worker.
+run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
+reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). It imports only numpy and
 matplotlib (no multiprocessing start-up that re-imports the caller's main module).
 """
@@ -90,16 +91,18 @@ class PlotWorker:
 
 def serve(stdin_fd: int, stdout) -> None:
     """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
-    child (`_drawn`); the replies, ("ok", path) or ("error", text), go out in the jobs' order."""
+    child (`common.forked.Forked` of `_drawn`); the replies, ("ok", path) or ("error", text), go out in
+    the jobs' order."""
     import matplotlib.figure  # noqa: F401 - imported before the first job arrives
 
+    from common.forked import Forked
     from services.outputs import plots
 
-    pending, drawing = bytearray(), []     # bytes of jobs not yet whole; [child] in the jobs' order
+    pending, drawing = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
     reading, jobs = True, 0
     while reading or drawing:
-        waiting = [child.fd for child in drawing if child.reply is None]
-        ready, _, _ = select.select(waiting + ([stdin_fd] if reading else []), [], [])
+        ready, _, _ = select.select([child for child, _ in drawing[:1]] + ([stdin_fd] if reading else []),
+                                    [], [])
         if stdin_fd in ready:
             data = os.read(stdin_fd, 1 << 20)
             reading = bool(data)
@@ -107,55 +110,20 @@ def serve(stdin_fd: int, stdout) -> None:
             while len(pending) >= _LENGTH.size and len(pending) >= _LENGTH.size + _job_size(pending):
                 end = _LENGTH.size + _job_size(pending)
                 jobs += 1
-                drawing.append(_Child.draw(plots, bytes(pending[_LENGTH.size:end]), f"job {jobs}", stdin_fd,
-                                           drawing))
+                drawing.append((Forked(_drawn, plots, bytes(pending[_LENGTH.size:end])), f"job {jobs}"))
                 del pending[:end]
-        for child in drawing:
-            if child.fd in ready:
-                child.read()
-        while drawing and drawing[0].reply is not None:
-            pickle.dump(drawing.pop(0).reply, stdout)
+        if drawing and drawing[0][0] in ready:  # the oldest job's reply goes first
+            child, label = drawing.pop(0)
+            try:
+                reply = child.result()
+            except RuntimeError as exc:  # its process ended without one
+                reply = ("error", f"{label}: {exc}")
+            pickle.dump(reply, stdout)
             stdout.flush()
 
 
 def _job_size(pending: bytearray) -> int:
     return _LENGTH.unpack_from(pending)[0]
-
-
-class _Child:
-    """A forked child drawing one job; `fd` reads its reply, which `read` collects once it is whole."""
-
-    def __init__(self, pid: int, fd: int, label: str):
-        self.pid, self.fd, self.label = pid, fd, label
-        self.chunks, self.reply = [], None
-
-    @classmethod
-    def draw(cls, plots, job: bytes, label: str, stdin_fd: int, others) -> _Child:
-        read_fd, write_fd = os.pipe()
-        pid = os.fork()
-        if pid == 0:  # the child: draw, write the reply, exit without the parent's teardown
-            try:
-                for fd in (read_fd, stdin_fd, *(other.fd for other in others if other.reply is None)):
-                    os.close(fd)
-                with os.fdopen(write_fd, "wb") as out:
-                    out.write(pickle.dumps(_drawn(plots, job)))
-            finally:
-                os._exit(0)
-        os.close(write_fd)
-        return cls(pid, read_fd, label)
-
-    def read(self) -> None:
-        data = os.read(self.fd, 1 << 16)
-        if data:
-            self.chunks.append(data)
-            return
-        os.close(self.fd)
-        _, status = os.waitpid(self.pid, 0)
-        try:
-            self.reply = pickle.loads(b"".join(self.chunks))
-        except (EOFError, pickle.UnpicklingError):
-            self.reply = ("error", f"{self.label}: the drawing process ended without a reply "
-                                   f"(wait status {status})")
 
 
 def _drawn(plots, job: bytes) -> tuple[str, str]:

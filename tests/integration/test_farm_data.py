@@ -247,8 +247,8 @@ def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_end
         worker.submit("draw_timeseries", _EndsItsProcess(), str(tmp_path / "b.png"))
         worker.submit("draw_timeseries", series, str(tmp_path / "c.png"))
         worker.result()
-        with pytest.raises(RuntimeError, match=r"job 2: the drawing process ended without a reply "
-                                               r"\(wait status 768\)"):
+        with pytest.raises(RuntimeError, match=r"job 2: the forked _drawn ended without a result "
+                                               r"\(exit code 3\)"):
             worker.result()
         worker.result()
         drawers = _children(worker.proc.pid)
