@@ -121,8 +121,7 @@ class VehicleService:
         querier = self.session.declare_querier(self.keys.control_step, timeout=STEP_TIMEOUT_S)
         pipe = StepPipe(querier, self.publish_pose, self.keys.control_step)
         try:
-            # the time limit of `vrsim run`, enforced by the driver
-            with driving(world.scenario, world.path) as driver:
+            with driving(sc, world.path) as driver:  # the time limit of `vrsim run`, enforced by the driver
                 gnss, speed_sensor = sensors(sc)  # seeded as `vrsim run` seeds them
                 wall0, batch, tick, state = time.monotonic(), [], 0, "finished"
                 self.drive0 = wall0
