@@ -98,22 +98,20 @@ def serve(stdin_fd: int, stdout) -> None:
     from common.forked import Forked
     from services.outputs import plots
 
-    pending, drawing = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
+    pending, children = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
     reading, jobs = True, 0
-    while reading or drawing:
-        ready, _, _ = select.select([child for child, _ in drawing[:1]] + ([stdin_fd] if reading else []),
+    while reading or children:
+        ready, _, _ = select.select([child for child, _ in children[:1]] + ([stdin_fd] if reading else []),
                                     [], [])
         if stdin_fd in ready:
             data = os.read(stdin_fd, 1 << 20)
             reading = bool(data)
             pending += data
-            while len(pending) >= _LENGTH.size and len(pending) >= _LENGTH.size + _job_size(pending):
-                end = _LENGTH.size + _job_size(pending)
+            for job in _whole_jobs(pending):
                 jobs += 1
-                drawing.append((Forked(_drawn, plots, bytes(pending[_LENGTH.size:end])), f"job {jobs}"))
-                del pending[:end]
-        if drawing and drawing[0][0] in ready:  # the oldest job's reply goes first
-            child, label = drawing.pop(0)
+                children.append((Forked(_drawn, plots, job), f"job {jobs}"))
+        if children and children[0][0] in ready:  # the oldest job's reply goes first
+            child, label = children.pop(0)
             try:
                 reply = child.result()
             except RuntimeError as exc:  # its process ended without one
@@ -122,8 +120,15 @@ def serve(stdin_fd: int, stdout) -> None:
             stdout.flush()
 
 
-def _job_size(pending: bytearray) -> int:
-    return _LENGTH.unpack_from(pending)[0]
+def _whole_jobs(pending: bytearray):
+    """Take each whole job (its length, then its pickled bytes) off the front of `pending`."""
+    while len(pending) >= _LENGTH.size:
+        end = _LENGTH.size + _LENGTH.unpack_from(pending)[0]
+        if len(pending) < end:
+            return
+        job = bytes(pending[_LENGTH.size:end])
+        del pending[:end]
+        yield job
 
 
 def _drawn(plots, job: bytes) -> tuple[str, str]:
