@@ -140,7 +140,6 @@ class AsApplied:
             where the index changes.
         """
         x0, y0, x1, y1, width, mass = self._checked(x0, y0, x1, y1, width_m, mass_kg)
-        x0, y0, x1, y1, width, mass = self._checked(x0, y0, x1, y1, width_m, mass_kg)
         if pass_index is None:
             self._target = self._acc
             self._add(x0, y0, x1, y1, width, mass)
