@@ -11,8 +11,9 @@ goes back pickled on its stdout, in order. Each job is drawn in a child forked f
 copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
 run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
 reply, not a lost worker.
-Both ends are vrsim's own processes (pickle is no format for anything else). It imports only numpy and
-matplotlib (no multiprocessing start-up that re-imports the caller's main module).
+Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
+matplotlib and vrsim's drawing code; it is started as a plain subprocess, not through multiprocessing,
+whose spawn would re-import the caller's main module (its children are forked: they re-import nothing).
 """
 
 from __future__ import annotations
