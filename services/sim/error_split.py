@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import StripMap
+from maps import ColumnDeposit
 from services.sim.metrics import MapMetrics, map_metrics
 from services.sim.run import RunResult, cells_in_field
 from services.sim.section_landing import StripPlan
@@ -76,14 +76,13 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     (`services.sim.streamed`).
 
     The strips lie where the run's did, whatever they carry, so their geometry is worked out once
-    (`StripPlan`) and mapped to the raster once for both meters (`maps.StripMap`)."""
+    (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`)."""
     imp, grid = world.scenario.implement, world.grid
     metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
                                for clipped in (False, True)])
     plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
                         world.scenario.timing.control_period_s, min(grid.cell_size))
-    s = plan.strips
-    rasters = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered))
+    rasters = ColumnDeposit(grid, plan.strips.footprint()).apply(plan.mass_kg(metered))
     in_field = cells_in_field(grid, world.field.polygon)
     cell_w, cell_h = grid.cell_size
     cell_ha = abs(cell_w * cell_h) / 1e4

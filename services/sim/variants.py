@@ -10,7 +10,7 @@ those once and then
    one after another);
 2. lands every variant's metered product at once: the applied rate per tick is a column per variant,
    the joined strips' masses too, and the as-applied rasters come from one sparse map from strips to
-   cells (`maps.StripMap`) applied to all mass columns;
+   cells (`maps.ColumnDeposit`) applied to all mass columns;
 3. computes each variant's figures as `services.sim.run.account` does.
 
 The controller-free work (the targets, the strips and their sparse map, the landing geometry, the
@@ -37,7 +37,7 @@ import numpy as np
 
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, build_variant_loops
-from maps import StripMap
+from maps import ColumnDeposit
 from services.sim.core import RUN_CHUNK, ControlCore, plant_for
 from services.sim.landing import Landing, applied_rate_kg_ha, land
 from services.sim.limits import MachineCheck
@@ -107,7 +107,7 @@ class _Shared:
     core: ControlCore
     landing: Landing          # the landing geometry (its applied rates are each variant's own)
     plan: StripPlan
-    strip_map: StripMap
+    strip_map: ColumnDeposit
     limited: np.ndarray       # machine-limited ticks
     limited_strips: LimitedStrips
     steps: np.ndarray         # the prescription's rate steps under the landing point
@@ -131,8 +131,7 @@ class _Shared:
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
         strips = plan.strips
-        strip_map = StripMap(grid, strips.x0_m, strips.y0_m, strips.x1_m, strips.y1_m, strips.width_m,
-                             pass_index=strips.pass_index)
+        strip_map = ColumnDeposit(grid, strips.footprint(), pass_index=strips.pass_index)
         limited = implement.shaft_limited(rec["target_shaft_rpm"]) & (width_on > 0)
         in_field = cells_in_field(grid, world.field.polygon)
         shared = cls(drive, scenario, rec, core, landing, plan, strip_map, limited,
@@ -192,7 +191,7 @@ def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
 
 def _account(shared: _Shared, metered: np.ndarray, cfgs) -> list[dict]:
     """`services.sim.run.account` for the mass columns `metered` (ticks x variants) at once: the
-    geometry is the shared one; the product's figures come per column through `maps.StripMap`."""
+    geometry is the shared one; the product's figures come per column through `maps.ColumnDeposit`."""
     world, track, scenario, landing = shared.drive.world, shared.drive.track, shared.scenario, shared.landing
     grid, in_field, width_on = world.grid, shared.in_field, shared.rec["width_on_m"]
     strip_width_m, strip_length_m = width_on[:, None], landing.strip_length_m[:, None]
