@@ -12,9 +12,12 @@ It is the live view's layer, not the report's: each rate sample's applied rate (
 area its sections covered in the period) is spread across each section whose gate was open (the
 sample's ``section_mask``, placed with the implement's section widths: samples wait until the run's
 scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, and a
-cell shows the mean of the samples that touched it. The report's raster (product put where it really
-landed on the true path, area-weighted) is what the monitor computes the metrics on; the two agree
-to within the GNSS error and a cell's edge.
+cell shows the mean of the samples over it, each weighted by the length of its line across the
+cell. The lines are deposited as they arrive through the run's own deposition engine
+(`maps.AsApplied`, incrementally, one sub-cell per cell: sampled every half cell), as the
+``section_strips`` footprint (`maps.Strips`) a millimetre long across the heading. The report's
+raster (product put where it really landed on the true path, area-weighted) is what the monitor
+computes the metrics on; the two agree to within the GNSS error and a cell's edge.
 """
 
 from __future__ import annotations
@@ -25,8 +28,10 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from affine import Affine
 
 from common import ServiceError
+from maps import AsApplied, Grid, Strips
 
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
 MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
@@ -35,7 +40,10 @@ HEADING_RING = 1 << 18  # ticks of pose heading kept to orient the rate samples 
 # loaded machine the rate stream can lag the pose stream by seconds of lockstep ticks (8,192, half a
 # second at 15,000 ticks/s, lost samples under load); 4 MB for about 17 s
 UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
-MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m cells needs 12)
+LINE_M = 1e-3  # a rate sample is a line across the heading: a strip this long along it (m)
+# The page's frame: metres east and north, as the rate samples' landing points (``landing_x_m``).
+VIEW_CRS = ('ENGCRS["vrsim view",EDATUM["landing points"],CS[Cartesian,2],AXIS["easting",east,'
+            'LENGTHUNIT["metre",1]],AXIS["northing",north,LENGTHUNIT["metre",1]]]')
 STREAMS = ("pose", "shaft", "rate")
 
 
@@ -102,20 +110,16 @@ class ViewGrid:
     def cells(self) -> int:
         return self.rows * self.cols
 
+    def as_grid(self) -> Grid:
+        """This raster as a `maps.Grid` (no rates) in the page's metric frame: what the deposition
+        engine accumulates on and `Grid.lookup` finds cells in."""
+        transform = Affine(self.cell_x_m, 0.0, self.west_m, 0.0, -self.cell_y_m, self.north_m)
+        return Grid(np.zeros((self.rows, self.cols)), transform, VIEW_CRS, source="live view")
+
     def centres(self) -> tuple[np.ndarray, np.ndarray]:
         """x and y of every cell's centre, row-major, shape (rows * cols,)."""
-        x = self.west_m + (np.arange(self.cols) + 0.5) * self.cell_x_m
-        y = self.north_m - (np.arange(self.rows) + 0.5) * self.cell_y_m
+        x, y = self.as_grid().cell_centres()
         return np.tile(x, self.rows), np.repeat(y, self.cols)
-
-    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat cell index of each point (row * cols + col), -1 off the grid or not finite."""
-        with np.errstate(invalid="ignore"):
-            col = np.floor((np.asarray(x) - self.west_m) / self.cell_x_m)
-            row = np.floor((self.north_m - np.asarray(y)) / self.cell_y_m)
-            inside = (col >= 0) & (col < self.cols) & (row >= 0) & (row < self.rows)
-        return np.where(inside, np.where(inside, row, 0) * self.cols + np.where(inside, col, 0), -1
-                        ).astype(np.int64)
 
     def to_dict(self) -> dict:
         return {"west_m": self.west_m, "north_m": self.north_m, "cell_x_m": self.cell_x_m,
@@ -159,50 +163,57 @@ class SectionGeometry:
 
 class AppliedLayer:
     """The live as-applied layer on a `ViewGrid`: per cell the mean applied rate (kg/ha) of the rate
-    samples whose working width touched it, and the frame in which it last changed."""
+    samples whose lines crossed it, each weighted by its line's length across the cell, and the frame
+    in which it last changed.
+
+    Two deposits of the same lines through the deposition engine (`maps.AsApplied`): their lengths
+    (``line_m``, m per cell) and their lengths times their rates; the mean is the one over the other.
+    """
 
     def __init__(self, grid: ViewGrid):
         self.grid = grid
-        self.sum_kg_ha = np.zeros(grid.cells)
-        self.samples = np.zeros(grid.cells, dtype=np.int64)
+        frame = grid.as_grid()
+        self._length = AsApplied(frame, subcells=1)  # per cell: m of sample lines
+        self._rated = AsApplied(frame, subcells=1)   # ... times their rates, m kg/ha
+        self.line_m = np.zeros(grid.cells)
+        self.mean_kg_ha = np.zeros(grid.cells)
         self.stamp = np.full(grid.cells, -1, dtype=np.int64)  # frame seq of the last change
 
     def paint(self, seq: int, x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha) -> int:
         """Add samples (arrays of one length); returns the number of cells touched.
 
         Each sample is a line across the heading, ``width_m`` long, centred ``offset_m`` to the left
-        of (x, y), sampled every half cell; a sample counts once in each cell it touches. Samples with
-        a non-finite value, or no width, are left out (sections off, standstill, off the map).
+        of (x, y). Samples with a non-finite or negative value, or no width, are left out (sections
+        off, standstill, off the map).
         """
         x, y, h, w, off, rate = (np.asarray(a, dtype=np.float64) for a in
                                  (x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha))
         ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(h) & np.isfinite(off) & np.isfinite(rate) \
-            & np.isfinite(w) & (w > 0)
+            & (rate >= 0) & np.isfinite(w) & (w > 0)
         if not ok.any():
             return 0
         x, y, h, w, off, rate = x[ok], y[ok], h[ok], w[ok], off[ok], rate[ok]
-        spacing = 0.5 * min(self.grid.cell_x_m, self.grid.cell_y_m)
-        k = int(min(MAX_ACROSS, max(1, math.ceil(float(w.max()) / spacing))))
-        across = off[:, None] + ((np.arange(k) + 0.5) / k - 0.5)[None, :] * w[:, None]
-        left_x, left_y = -np.sin(h), np.cos(h)  # the left normal of a heading counter-clockwise from east
-        cell = self.grid.index(x[:, None] + left_x[:, None] * across, y[:, None] + left_y[:, None] * across)
-        sample = np.broadcast_to(np.arange(len(x))[:, None], cell.shape)
-        on = cell >= 0
-        pairs = np.unique(sample[on] * self.grid.cells + cell[on])  # each sample once per cell
-        cells, inverse = np.unique(pairs % self.grid.cells, return_inverse=True)
-        self.sum_kg_ha[cells] += np.bincount(inverse, weights=rate[pairs // self.grid.cells])
-        self.samples[cells] += np.bincount(inverse)
+        along_x, along_y = np.cos(h), np.sin(h)  # a heading counter-clockwise from east
+        cx, cy = x - along_y * off, y + along_x * off  # the line's centre, `off` to the left
+        half = 0.5 * LINE_M
+        lines = Strips(cx - half * along_x, cy - half * along_y, cx + half * along_x, cy + half * along_y, w)
+        self._length.deposit(lines, w)
+        self._rated.deposit(lines, w * rate)
+        line_m = self._length.applied_kg.ravel()
+        cells = np.flatnonzero(line_m != self.line_m)
+        self.line_m[cells] = line_m[cells]
+        self.mean_kg_ha[cells] = self._rated.applied_kg.ravel()[cells] / line_m[cells]
         self.stamp[cells] = seq
         return len(cells)
 
     def since(self, seq: int) -> dict:
         """Cells changed after frame ``seq``: ``{"i": flat indices, "v": mean kg/ha}`` (-1: all)."""
         i = np.flatnonzero(self.stamp > seq)
-        return {"i": i.tolist(), "v": np.round(self.sum_kg_ha[i] / self.samples[i], 2).tolist()}
+        return {"i": i.tolist(), "v": np.round(self.mean_kg_ha[i], 2).tolist()}
 
     @property
     def painted(self) -> int:
-        return int(np.count_nonzero(self.samples))
+        return int(np.count_nonzero(self.line_m))
 
 
 class LiveView:
