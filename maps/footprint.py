@@ -15,8 +15,9 @@ implements:
 ``samples(step, metres_per_unit, part)``
     Yields `Samples` batches covering the items of ``part`` (a slice; each item in exactly one
     batch). ``step`` is the largest side a sample's box may have, CRS units; ``metres_per_unit``
-    converts lengths in metres to the grid's CRS units. (The engine asks for a pass's items at a
-    time, so a pass's product is on its own raster when the pass closes.)
+    converts lengths in metres to the grid's CRS units. The engine asks for a pass's items at a
+    time (so a pass's product is on its own raster when the pass closes): an item's samples must
+    not depend on the other items in ``part``.
 
 Each item's samples tile the ground it sweeps in equal areas (``swept / samples per item``): that
 is the coverage the item gives where it carries product. Its product is shared between its samples

@@ -124,6 +124,17 @@ def test_cells_show_the_mean_of_their_samples_and_unusable_samples_are_left_out(
     assert touched == 0 and layer.since(1) == {"i": [], "v": []}
 
 
+def test_a_cell_weighs_each_sample_by_its_line_across_it_and_shows_zero_rates():
+    layer = AppliedLayer(ViewGrid.from_info(INFO))
+    # Heading east in column 25: one 2 m line fills row 14 (y 5030..5032) at 90 kg/ha, another
+    # (y 5029..5031) crosses it for 1 m at 180 kg/ha: (2 * 90 + 1 * 180) / 3 = 120.
+    layer.paint(1, [1051.0, 1051.0], [5031.0, 5030.0], [0.0, 0.0], [2.0, 2.0], [0.0, 0.0], [90.0, 180.0])
+    painted = layer.since(-1)
+    assert dict(zip(painted["i"], painted["v"], strict=True)) == {14 * 50 + 25: 120.0, 15 * 50 + 25: 180.0}
+    layer.paint(2, [1061.0], [5031.0], [0.0], [2.0], [0.0], [0.0])  # sections open, nothing metered
+    assert layer.since(1) == {"i": [14 * 50 + 30], "v": [0.0]}
+
+
 def test_section_masks_paint_the_open_sections_once_the_implement_is_known():
     view = view_with_map()
     view.on_pose(batch([pose("r", 0, 1051.0, 5031.0)]))
