@@ -57,7 +57,7 @@ class AsApplied:
     def __init__(self, grid: Grid, subcells: int = 2):
         self.grid = grid
         self.raster = checked_raster(grid, subcells, "AsApplied")
-        self._cell_area_m2 = grid.cell_area_m2
+        self._cell_area_m2 = grid.cell_area_m2  # refuses lon/lat grids with a clear message
         # Real part: mass in kg; imaginary part: swept area in CRS units^2, so one np.add.at updates
         # both.
         self._acc = np.zeros(self.raster.size, dtype=np.complex128)
@@ -268,13 +268,12 @@ class AsApplied:
 
 
 def checked_raster(grid: Grid, subcells: int, who: str) -> SubcellRaster:
-    """The sub-cell raster of `grid`; `MapError` for a grid that is none, a lon/lat grid (no cell
-    area) or a bad `subcells`."""
+    """The sub-cell raster of `grid`; `MapError` for a grid that is none or a bad `subcells` (a
+    lon/lat grid is refused by its `Grid.cell_area_m2`, which both modes read next)."""
     if not isinstance(grid, Grid):
         raise MapError(f"{who}: grid must be a maps.Grid, got {type(grid).__name__}")
     if not (isinstance(subcells, int) and 1 <= subcells <= 32):
         raise MapError(f"{who}: subcells={subcells!r} must be an integer in 1..32")
-    grid.cell_area_m2  # noqa: B018 (refuses lon/lat grids with a clear message)
     return SubcellRaster(grid, subcells)
 
 
