@@ -11,13 +11,10 @@ second while a lockstep run carries some 15,000 rate samples a second: only the 
 It is the live view's layer, not the report's: each rate sample's applied rate (metered kg over the
 area its sections covered in the period) is spread across each section whose gate was open (the
 sample's ``section_mask``, placed with the implement's section widths: samples wait until the run's
-scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, and a
-cell shows the mean of the samples over it, each weighted by the length of its line across the
-cell. The lines are deposited as they arrive through the run's own deposition engine
-(`maps.AsApplied`, incrementally, one sub-cell per cell: sampled every half cell), as the
-``section_strips`` footprint (`maps.Strips`) a millimetre long across the heading. The report's
-raster (product put where it really landed on the true path, area-weighted) is what the monitor
-computes the metrics on; the two agree to within the GNSS error and a cell's edge.
+scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, through
+the run's deposition engine (`AppliedLayer`); a cell shows the mean of the samples over it. The
+report's raster (product put where it really landed on the true path, area-weighted) is what the
+monitor computes the metrics on; the two agree to within the GNSS error and a cell's edge.
 """
 
 from __future__ import annotations
@@ -41,9 +38,8 @@ HEADING_RING = 1 << 18  # ticks of pose heading kept to orient the rate samples 
 # second at 15,000 ticks/s, lost samples under load); 4 MB for about 17 s
 UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
 LINE_M = 1e-3  # a rate sample is a line across the heading: a strip this long along it (m)
-# The page's frame: metres east and north, as the rate samples' landing points (``landing_x_m``).
-VIEW_CRS = ('ENGCRS["vrsim view",EDATUM["landing points"],CS[Cartesian,2],AXIS["easting",east,'
-            'LENGTHUNIT["metre",1]],AXIS["northing",north,LENGTHUNIT["metre",1]]]')
+VIEW_CRS = ('ENGCRS["vrsim view",EDATUM["landing points"],CS[Cartesian,2],'  # `ViewGrid.as_grid`
+            'AXIS["easting",east,LENGTHUNIT["metre",1]],AXIS["northing",north,LENGTHUNIT["metre",1]]]')
 STREAMS = ("pose", "shaft", "rate")
 
 
@@ -111,8 +107,8 @@ class ViewGrid:
         return self.rows * self.cols
 
     def as_grid(self) -> Grid:
-        """This raster as a `maps.Grid` (no rates) in the page's metric frame: what the deposition
-        engine accumulates on and `Grid.lookup` finds cells in."""
+        """This raster as a `maps.Grid` (no rates) in the page's frame, metres east and north as the
+        rate samples' landing points: what the deposition engine accumulates on."""
         transform = Affine(self.cell_x_m, 0.0, self.west_m, 0.0, -self.cell_y_m, self.north_m)
         return Grid(np.zeros((self.rows, self.cols)), transform, VIEW_CRS, source="live view")
 
@@ -166,8 +162,9 @@ class AppliedLayer:
     samples whose lines crossed it, each weighted by its line's length across the cell, and the frame
     in which it last changed.
 
-    Two deposits of the same lines through the deposition engine (`maps.AsApplied`): their lengths
-    (``line_m``, m per cell) and their lengths times their rates; the mean is the one over the other.
+    The lines go through the deposition engine as they arrive (`maps.AsApplied`, one sub-cell per
+    cell: sampled every half cell) as `maps.Strips` a millimetre long across the heading, twice: their
+    lengths (``line_m``, m per cell) and their lengths times their rates, whose ratio is the mean.
     """
 
     def __init__(self, grid: ViewGrid):
