@@ -84,6 +84,18 @@ class AsApplied:
         """Applied product per cell, kg, shape (rows, cols)."""
         return self.raster.interior(self._all().real).sum(axis=(1, 3))
 
+    def applied_kg_in(self, rows: slice, cols: slice) -> np.ndarray:
+        """`applied_kg` of a window of cells (slices of rows and columns, steps of 1), reading only
+        its sub-cells: for a reader that follows deposits as they arrive (the live page)."""
+        s = self.raster.subcells
+        r0, r1, _ = rows.indices(self.grid.rows)
+        c0, c1, _ = cols.indices(self.grid.cols)
+        window = (slice(1 + r0 * s, 1 + r1 * s), slice(1 + c0 * s, 1 + c1 * s))
+        part = self._acc.reshape(self.raster.shape)[window].real
+        if self._pass is not None:
+            part = part + self._pass_acc.reshape(self.raster.shape)[window].real
+        return part.reshape(max(r1 - r0, 0), s, max(c1 - c0, 0), s).sum(axis=(1, 3))
+
     @property
     def applied_kg_ha(self) -> np.ndarray:
         """Applied product per cell, kg/ha, shape (rows, cols)."""

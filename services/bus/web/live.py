@@ -12,8 +12,8 @@ It is the live view's layer, not the report's: each rate sample's applied rate (
 area its sections covered in the period) is spread across each section whose gate was open (the
 sample's ``section_mask``, placed with the implement's section widths: samples wait until the run's
 scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, through
-the run's deposition engine (`AppliedLayer`); a cell shows the mean of the samples over it. The
-report's raster (product put where it really landed on the true path, area-weighted) is what the
+the run's deposition engine (`services.bus.web.layer`); a cell shows the mean of the samples over it.
+The report's raster (product put where it really landed on the true path, area-weighted) is what the
 monitor computes the metrics on; the two agree to within the GNSS error and a cell's edge.
 """
 
@@ -25,21 +25,15 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from affine import Affine
 
-from common import ServiceError
-from maps import AsApplied, Grid, Strips
+from services.bus.web.layer import AppliedLayer, ViewGrid
 
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
-MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
 HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second
 HEADING_RING = 1 << 18  # ticks of pose heading kept to orient the rate samples that follow them: on a
 # loaded machine the rate stream can lag the pose stream by seconds of lockstep ticks (8,192, half a
 # second at 15,000 ticks/s, lost samples under load); 4 MB for about 17 s
 UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
-LINE_M = 1e-3  # a rate sample is a line across the heading: a strip this long along it (m)
-VIEW_CRS = ('ENGCRS["vrsim view",EDATUM["landing points"],CS[Cartesian,2],'  # `ViewGrid.as_grid`
-            'AXIS["easting",east,LENGTHUNIT["metre",1]],AXIS["northing",north,LENGTHUNIT["metre",1]]]')
 STREAMS = ("pose", "shaft", "rate")
 
 
@@ -73,60 +67,6 @@ class Batch:
                      other.last)
 
 
-@dataclass(frozen=True)
-class ViewGrid:
-    """The raster the page shows, in the map's CRS: the map's own grid, or every ``stride``-th cell of
-    it when the map has more than `MAX_VIEW_CELLS` cells. Row 0 is the north row."""
-
-    west_m: float
-    north_m: float
-    cell_x_m: float
-    cell_y_m: float
-    rows: int
-    cols: int
-    stride: int = 1
-
-    @classmethod
-    def from_info(cls, info, max_cells: int = MAX_VIEW_CELLS) -> ViewGrid:
-        """From a ``map/info`` reply (untrusted: every field used is checked)."""
-        if not isinstance(info, dict):
-            raise ServiceError(f"map/info: expected a JSON object, got {type(info).__name__}")
-        bounds, cell = info.get("bounds"), info.get("cell_size")
-        rows, cols = info.get("rows"), info.get("cols")
-        if not (_numbers(bounds, 4) and _numbers(cell, 2) and min(cell) > 0):
-            raise ServiceError(f"map/info: bounds {bounds!r} and cell_size {cell!r} must be 4 and 2 finite "
-                               "numbers, cell sizes > 0")
-        if not all(type(v) is int and v > 0 for v in (rows, cols)) or rows * cols > 10**10:
-            raise ServiceError(f"map/info: rows {rows!r} and cols {cols!r} must be positive integers")
-        stride = max(1, math.ceil(math.sqrt(rows * cols / max_cells)))
-        return cls(float(bounds[0]), float(bounds[3]), cell[0] * stride, cell[1] * stride,
-                   math.ceil(rows / stride), math.ceil(cols / stride), stride)
-
-    @property
-    def cells(self) -> int:
-        return self.rows * self.cols
-
-    def as_grid(self) -> Grid:
-        """This raster as a `maps.Grid` (no rates) in the page's frame, metres east and north as the
-        rate samples' landing points: what the deposition engine accumulates on."""
-        transform = Affine(self.cell_x_m, 0.0, self.west_m, 0.0, -self.cell_y_m, self.north_m)
-        return Grid(np.zeros((self.rows, self.cols)), transform, VIEW_CRS, source="live view")
-
-    def centres(self) -> tuple[np.ndarray, np.ndarray]:
-        """x and y of every cell's centre, row-major, shape (rows * cols,)."""
-        x, y = self.as_grid().cell_centres()
-        return np.tile(x, self.rows), np.repeat(y, self.cols)
-
-    def to_dict(self) -> dict:
-        return {"west_m": self.west_m, "north_m": self.north_m, "cell_x_m": self.cell_x_m,
-                "cell_y_m": self.cell_y_m, "rows": self.rows, "cols": self.cols, "stride": self.stride}
-
-
-def _numbers(value, n: int) -> bool:
-    return (isinstance(value, list) and len(value) == n
-            and all(type(v) in (int, float) and math.isfinite(v) for v in value))
-
-
 def _take(column, which):
     """``column[which]`` for an array or a list (str fields come as lists, `messages.decode_columns`)."""
     if isinstance(column, list):
@@ -155,62 +95,6 @@ class SectionGeometry:
         on &= (np.asarray(width_on_m, dtype=np.float64) > 0)[:, None]
         sample, section = np.nonzero(on)
         return sample, self.widths_m[section], self.offsets_m[section]
-
-
-class AppliedLayer:
-    """The live as-applied layer on a `ViewGrid`: per cell the mean applied rate (kg/ha) of the rate
-    samples whose lines crossed it, each weighted by its line's length across the cell, and the frame
-    in which it last changed.
-
-    The lines go through the deposition engine as they arrive (`maps.AsApplied`, one sub-cell per
-    cell: sampled every half cell) as `maps.Strips` a millimetre long across the heading, twice: their
-    lengths (``line_m``, m per cell) and their lengths times their rates, whose ratio is the mean.
-    """
-
-    def __init__(self, grid: ViewGrid):
-        self.grid = grid
-        frame = grid.as_grid()
-        self._length = AsApplied(frame, subcells=1)  # per cell: m of sample lines
-        self._rated = AsApplied(frame, subcells=1)   # ... times their rates, m kg/ha
-        self.line_m = np.zeros(grid.cells)
-        self.mean_kg_ha = np.zeros(grid.cells)
-        self.stamp = np.full(grid.cells, -1, dtype=np.int64)  # frame seq of the last change
-
-    def paint(self, seq: int, x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha) -> int:
-        """Add samples (arrays of one length); returns the number of cells touched.
-
-        Each sample is a line across the heading, ``width_m`` long, centred ``offset_m`` to the left
-        of (x, y). Samples with a non-finite or negative value, or no width, are left out (sections
-        off, standstill, off the map).
-        """
-        x, y, h, w, off, rate = (np.asarray(a, dtype=np.float64) for a in
-                                 (x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha))
-        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(h) & np.isfinite(off) & np.isfinite(rate) \
-            & (rate >= 0) & np.isfinite(w) & (w > 0)
-        if not ok.any():
-            return 0
-        x, y, h, w, off, rate = x[ok], y[ok], h[ok], w[ok], off[ok], rate[ok]
-        along_x, along_y = np.cos(h), np.sin(h)  # a heading counter-clockwise from east
-        cx, cy = x - along_y * off, y + along_x * off  # the line's centre, `off` to the left
-        half = 0.5 * LINE_M
-        lines = Strips(cx - half * along_x, cy - half * along_y, cx + half * along_x, cy + half * along_y, w)
-        self._length.deposit(lines, w)
-        self._rated.deposit(lines, w * rate)
-        line_m = self._length.applied_kg.ravel()
-        cells = np.flatnonzero(line_m != self.line_m)
-        self.line_m[cells] = line_m[cells]
-        self.mean_kg_ha[cells] = self._rated.applied_kg.ravel()[cells] / line_m[cells]
-        self.stamp[cells] = seq
-        return len(cells)
-
-    def since(self, seq: int) -> dict:
-        """Cells changed after frame ``seq``: ``{"i": flat indices, "v": mean kg/ha}`` (-1: all)."""
-        i = np.flatnonzero(self.stamp > seq)
-        return {"i": i.tolist(), "v": np.round(self.mean_kg_ha[i], 2).tolist()}
-
-    @property
-    def painted(self) -> int:
-        return int(np.count_nonzero(self.line_m))
 
 
 class LiveView:
