@@ -62,7 +62,7 @@ class AsApplied:
         # both.
         self._acc = np.zeros(self.raster.size, dtype=np.complex128)
         self.total_kg = 0.0
-        self.strips = 0  # items deposited
+        self.items = 0  # items deposited
         # Pass accounting (see `deposit`'s pass_index). The open pass deposits into its own raster
         # (`_pass_acc`, made on first use), over a window of sub-cells `_window`; when it closes,
         # that window is added to `_acc`, and to the capped swept-area sum (`_capped`, per interior
@@ -170,7 +170,7 @@ class AsApplied:
             for samples in footprint.samples(step, unit, part):
                 self._deposit(samples, mass[samples.items])
         self.total_kg += float(mass.sum())
-        self.strips += int(mass.size)
+        self.items += int(mass.size)
 
     def add_strips(self, x0, y0, x1, y1, width_m, mass_kg, pass_index=None) -> None:
         """`deposit` through `maps.footprint.Strips` ``(x0, y0, x1, y1, width_m)``: strips of product,
