@@ -25,7 +25,9 @@ equally, or by ``Samples.weight`` (a pattern's relative mass, summing to 1 over 
 Today's kind is `Strips` (``"section_strips"``): a rectangle per section along the track. A
 spinner's 2-D pattern thrown behind the discs is a kind whose samples lie on a lattice behind and
 across the disc centre with the transverse pattern's weights; a sprayer's nozzles one whose samples
-are each nozzle's fan; neither needs a change to the engine.
+are each nozzle's fan; neither needs a change to the engine. `footprint_kind` finds a kind by its
+name (what a machine's configuration names); tests/unit/test_deposition.py adds a worked example, a
+weighted transverse pattern, and deposits it through both modes.
 """
 
 from __future__ import annotations
