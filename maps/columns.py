@@ -61,19 +61,16 @@ class ColumnDeposit:
             item = sm.flat(sm.items)
             n = sm.per_item
             low, high = (1.0 - wc) / n, wc / n  # equal shares of an item's area (and product)
+            area_w += [low * (1.0 - wr), high * (1.0 - wr), low * wr, high * wr]
             if sm.weight is None:
-                m_low, m_high = low, high
+                mass_w += area_w[-4:]
             else:
                 weighted = True
                 w = np.broadcast_to(sm.weight, sm.x.shape).ravel()
                 m_low, m_high = (1.0 - wc) * w, wc * w
-            for cell, am, mm in ((r0 + c0, low * (1.0 - wr), m_low * (1.0 - wr)),
-                                 (r0 + c1, high * (1.0 - wr), m_high * (1.0 - wr)),
-                                 (r1 + c0, low * wr, m_low * wr), (r1 + c1, high * wr, m_high * wr)):
-                cells.append(cell)
-                items.append(item)
-                area_w.append(am)
-                mass_w.append(mm)
+                mass_w += [m_low * (1.0 - wr), m_high * (1.0 - wr), m_low * wr, m_high * wr]
+            cells += [r0 + c0, r0 + c1, r1 + c0, r1 + c1]
+            items += [item] * 4
         where = (_joined(cells, np.int64), _joined(items, np.int64))
         # `area`: each item's swept area's shares; `weights`: its product's (the same matrix unless
         # the footprint weighs its samples).
