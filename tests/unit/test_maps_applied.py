@@ -230,3 +230,12 @@ def test_strip_map_pass_figures_equal_add_strips_with_passes():
     assert cols.overlap_kg[0].sum() > 0 and cols.pass_count.max() == 2
     np.testing.assert_allclose(ColumnDeposit(g, Strips(x0, y0, x1, y1, width)).coverage_fraction(mass),
                                cols.coverage_fraction, rtol=0, atol=0)
+
+
+def test_applied_kg_in_a_window_is_that_window_of_applied_kg_open_pass_included():
+    acc = AsApplied(field(), subcells=3)
+    acc.add_strips(500_025.0, 5_300_000.0, 500_031.0, 5_300_100.0, 20.0, 20.0, pass_index=0)
+    acc.add_strips(500_045.0, 5_300_010.0, 500_040.0, 5_300_060.0, 12.0, 7.0, pass_index=1)  # open
+    whole = acc.applied_kg
+    for rows, cols in ((slice(2, 9), slice(3, 12)), (slice(0, 20), slice(0, 20)), (slice(5, 5), slice(0, 4))):
+        np.testing.assert_array_equal(acc.applied_kg_in(rows, cols), whole[rows, cols])
