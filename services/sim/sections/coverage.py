@@ -1,8 +1,8 @@
 """The coverage raster: the terminal's coverage map, where product has landed and where the field is.
 
 Coverage switching reads each section's strip off it ahead of the implement (`CoverageRaster.wanted`)
-and marks what landed where a pass ends (`CoverageRaster.mark`); cells are metres on a side, north-up
-in the field's metric CRS.
+and marks what landed where a pass ends (`CoverageRaster.mark`). North-up in the field's metric CRS,
+square cells a fraction of a section wide (`coverage_cell_m`, m).
 """
 
 from __future__ import annotations
