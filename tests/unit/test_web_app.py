@@ -30,7 +30,8 @@ def scope(path: str, cookie: str = "") -> dict:
     headers = [(b"host", b"127.0.0.1:8448")] + ([(b"cookie", cookie.encode())] if cookie else [])
     return {"type": "http", "asgi": {"version": "3.0", "spec_version": "2.4"}, "http_version": "1.1",
             "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"",
-            "root_path": "", "headers": headers, "server": ("127.0.0.1", 8448), "client": ("127.0.0.1", 50000)}
+            "root_path": "", "headers": headers, "server": ("127.0.0.1", 8448),
+            "client": ("127.0.0.1", 50000)}
 
 
 def events_of(chunks: list[bytes]) -> list[tuple[str, dict]]:
