@@ -99,6 +99,14 @@ def allowed_hosts(host: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def check_listen(host: str, port: int, tls: bool, insecure: bool) -> None:
+    """Refuse a page beyond loopback without TLS on a secure bus (the page takes the bus's certificate)."""
+    if host not in LOOPBACK and not tls and not insecure:
+        raise ServiceError(f"web page on {host}:{port}: beyond loopback the page needs TLS, with "
+                           "the bus's certificates (start the bus with --tls: `vrsim serve all --tls --web "
+                           "...`), or listen on 127.0.0.1")
+
+
 def page_tls(config, host: str, port: int):
     """(the state folder's passwords or None, (certificate, key) for TLS or None) for a page on
     ``host``: beyond loopback the page is served over TLS with the bus's certificate (its CA signed
@@ -113,10 +121,7 @@ def page_tls(config, host: str, port: int):
     state = security.load_state(config.zenoh.state_dir)
     if host in LOOPBACK:
         return state.passwords, None
-    if not state.tls:
-        raise ServiceError(f"serve web: --listen {host}:{port} is beyond loopback: the page needs TLS, with "
-                           "the bus's certificates (start the bus with --tls: `vrsim serve all --tls --web "
-                           "...`), or listen on 127.0.0.1")
+    check_listen(host, port, state.tls, insecure=False)
     return state.passwords, (state.tls_file("router.pem"), state.tls_file("router-key.pem"))
 
 
@@ -132,8 +137,8 @@ def main(config, stop: threading.Event | None = None) -> int:
     from services.bus.web.live import LiveView
 
     host, port = parse_listen(config.web_listen or DEFAULT_LISTEN)
+    sock = bind(host, port)  # first: a taken port is the clearest error
     passwords, tls = page_tls(config, host, port)
-    sock = bind(host, port)
     stop = stop or threading.Event()
     if host not in LOOPBACK:
         print(f"vrsim serve web: listening on {host}:{port}, beyond this machine: anyone who reaches it "

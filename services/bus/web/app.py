@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
+import ctypes.util
 import os
 import time
 from urllib.parse import parse_qsl
@@ -42,6 +44,7 @@ LOOPBACK_HOSTS = ["127.0.0.1", "localhost"]
 MAX_STREAMS = 64  # open /events at once (each browser tab holds one)
 SEND_TIMEOUT_S = 5.0  # a browser that takes no piece of an event for this long is dropped
 PIECE_BYTES = 16384  # an event leaves in pieces: a stalled browser holds at most one beyond uvicorn's 64 KB
+GIVE_BACK_S = 2.0  # after streams ended, free heap pages go back to the system this often at most
 STREAM_HEADERS = [(b"content-type", b"text/event-stream; charset=utf-8"), (b"cache-control", b"no-store"),
                   (b"x-accel-buffering", b"no")]
 
@@ -86,12 +89,34 @@ class Frames:
 
 
 class Streams:
-    """The open ``/events`` streams: at most ``limit``; how many were dropped for not reading."""
+    """The open ``/events`` streams: at most ``limit``; how many ended, and were dropped for not
+    reading."""
 
     def __init__(self, limit: int):
         self.limit = limit
         self.open = 0
+        self.ended = 0
         self.dropped = 0
+
+    async def give_back(self) -> None:
+        """After streams ended, hand the heap's free pages back to the system: the events and buffers
+        of a crowd of browsers are freed when they go, but glibc keeps the pages (``malloc_trim``)."""
+        trim = _malloc_trim()
+        seen = self.ended
+        while trim is not None:
+            await asyncio.sleep(GIVE_BACK_S)
+            if self.ended != seen:
+                seen = self.ended
+                trim(0)
+
+
+def _malloc_trim():
+    """glibc's ``malloc_trim`` (None on another C library)."""
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):
+        return None
 
 
 def sse(kind: str, doc: dict) -> bytes:
@@ -125,6 +150,7 @@ class EventStream:
                 await gone
         finally:
             self.streams.open -= 1
+            self.streams.ended += 1
             self.bridge.viewers -= 1
 
     async def _produce(self, send) -> bool:
@@ -182,13 +208,14 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
     @contextlib.asynccontextmanager
     async def lifespan(app):
         frames.event = asyncio.Event()  # bound to uvicorn's loop
-        task = asyncio.create_task(frames.run())
+        tasks = [asyncio.create_task(frames.run()), asyncio.create_task(streams.give_back())]
         try:
             yield
         finally:
             frames.closing = True
             frames.event.set()
-            task.cancel()
+            for task in tasks:
+                task.cancel()
 
     async def page(request: Request) -> Response:
         return FileResponse(os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"})
