@@ -24,7 +24,6 @@ DEFAULT_LISTEN = "127.0.0.1:8448"
 READY_TIMEOUT_S = 10.0
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 WILDCARDS = ("0.0.0.0", "::")
-MAX_CONNECTIONS = 256  # uvicorn answers 503 beyond this many connections (dropped streams' too)
 
 
 def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int]:
@@ -60,7 +59,6 @@ class HttpServer:
         certfile, keyfile = tls or (None, None)
         self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False,
                                                     timeout_graceful_shutdown=1, lifespan="on",
-                                                    limit_concurrency=MAX_CONNECTIONS,
                                                     ssl_certfile=certfile, ssl_keyfile=keyfile))
         self.thread = threading.Thread(target=self._run, args=(sock, stop), name="vrsim-web-http",
                                        daemon=True)

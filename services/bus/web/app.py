@@ -146,8 +146,8 @@ class EventStream:
                 gone.cancel()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(send({"type": "http.response.body", "body": b""}), SEND_TIMEOUT_S)
-            else:  # dropped (nothing more is sent or kept for it), or gone: the connection ends with it
-                await gone
+            else:  # dropped (nothing more is sent or kept for it: its slot is held, so such connections
+                await gone  # stay at most `MAX_STREAMS`), or gone; the connection ends with the browser
         finally:
             self.streams.open -= 1
             self.streams.ended += 1
