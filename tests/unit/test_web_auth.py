@@ -167,14 +167,14 @@ def test_every_answer_forbids_framing():
         assert "frame-ancestors 'none'" in headers["content-security-policy"]
 
 
-@pytest.mark.parametrize("listen", ["0.0.0.0", "127.0.0.2", "127.0.0.1"])
-def test_a_forged_host_is_refused_on_every_listen_address(listen):
+@pytest.mark.parametrize("listen, host", [("0.0.0.0", "127.0.0.1"), ("127.0.0.2", "127.0.0.2"),
+                                          ("127.0.0.1", "localhost"), ("::1", "[::1]")])
+def test_a_forged_host_is_refused_on_every_listen_address(listen, host):
     app, logins, _ = service(allowed_hosts=allowed_hosts(listen))
     operator, csrf = session(app, logins, "operator")
     forged = {**operator, "x-csrf-token": csrf, "host": "evil.example:8448", "origin": "http://evil.example:8448"}
     status, _, _ = call(app, "POST", "/api/start", forged)
     assert status == 400
-    host = "127.0.0.1" if listen == "0.0.0.0" else listen
     assert call(app, "GET", "/api/status", {**operator, "host": f"{host}:8448"})[0] == 200
 
 

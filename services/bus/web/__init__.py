@@ -13,6 +13,7 @@ Keep imports here light: ``vrsim serve`` imports this package only to call `main
 
 from __future__ import annotations
 
+import os
 import socket
 import sys
 import threading
@@ -88,8 +89,8 @@ def allowed_hosts(host: str) -> list[str]:
 
     names = [*LOOPBACK_HOSTS]
     if host not in WILDCARDS:
-        return [*names, host]
-    names += [socket.gethostname(), socket.getfqdn()]
+        return [*names, f"[{host}]" if ":" in host else host]  # Host headers bracket IPv6 addresses
+    names += [socket.gethostname(), socket.getfqdn(), *(["[::1]"] if host == "::" else [])]
     try:
         names += socket.gethostbyname_ex(socket.gethostname())[2]
     except OSError:
@@ -116,6 +117,9 @@ def page_tls(config, host: str, port: int):
             print(f"vrsim serve web: WARNING: --insecure: the page on {host}:{port} is plain HTTP beyond "
                   "this machine; its login token crosses the network in clear", file=sys.stderr, flush=True)
         return None, None
+    if config.zenoh.config_file is not None and not os.path.isdir(config.zenoh.state_dir):
+        check_listen(host, port, tls=False, insecure=False)  # logged in by the file: no state folder
+        return None, None  # the token only
     state = security.load_state(config.zenoh.state_dir)
     if host in LOOPBACK:
         return state.passwords, None
