@@ -21,7 +21,7 @@ import pytest
 from services.bus.web.app import MAX_STREAMS
 from tests.conftest import VRSIM
 from tests.integration.test_services_support import ServeAll, free_port
-from tests.integration.test_web import Web, printed_token
+from tests.integration.test_web import CHROMIUM, CHROMIUM_ARGS, Web, need_chromium, printed_token, until
 
 CROWD = 300  # stream clients at once in the memory test
 PAINT_S = 8.0  # of the built-in default run before the crowd comes
@@ -117,6 +117,30 @@ def test_every_answer_forbids_framing(net):
         conn.close()
         assert resp.getheader("x-frame-options") == "DENY", path
         assert "frame-ancestors 'none'" in resp.getheader("content-security-policy"), path
+
+
+def test_in_chromium_the_page_asks_for_a_login_and_a_viewers_password_shows_it_without_buttons(net):
+    need_chromium()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page()
+            page.goto(net.web.base + "/")
+            assert page.url == net.web.base + "/login"
+            page.select_option("select[name=user]", "viewer")
+            page.fill("input[name=password]", passwords(net.state)["viewer"])
+            page.click("button[type=submit]")
+            until(page, "window.vrsimView !== undefined && window.vrsimView.role === 'viewer' "
+                        "&& window.vrsimView.connected")
+            assert page.url == net.web.base + "/"
+            assert page.evaluate("document.getElementById('ops').hidden") is True
+            cookie = next(c for c in page.context.cookies() if c["name"] == f"vrsim_session_{net.web.port}")
+            assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
+            assert page.evaluate("document.cookie") == ""  # the page's script cannot read the session
+        finally:
+            browser.close()
 
 
 class Client:

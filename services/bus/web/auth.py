@@ -33,7 +33,9 @@ SECURITY_HEADERS = [
     (b"content-security-policy",
      b"default-src 'self'; frame-ancestors 'none'; base-uri 'none'; form-action 'self'; object-src 'none'"),
     (b"x-content-type-options", b"nosniff"),
-    (b"referrer-policy", b"no-referrer"),  # the token in a URL never leaves in a Referer
+    # The token in a URL never leaves in a Referer to another site (no-referrer would also make a
+    # form's Origin "null", which the login refuses as another site's).
+    (b"referrer-policy", b"same-origin"),
 ]
 
 
