@@ -84,7 +84,7 @@ def _run(args, driver) -> int:
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
-        from services.outputs.summary import summary_json, text_summary
+        from services.outputs.summary import summary_json, text_summary, with_settings
         from services.outputs.write import outputs_line, write_outputs
 
         try:
@@ -100,7 +100,7 @@ def _run(args, driver) -> int:
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
     result.summary["out_dir"] = out_dir
     if args.json:
-        print(summary_json(result.summary))
+        print(summary_json(with_settings(result)))
     else:
         print(result.machine_check.text())
         print(text_summary(result.summary))

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import json
 import os
+import re
 import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -122,8 +124,10 @@ class Scenario:
         return relative if os.path.isabs(relative) else os.path.join(self.base_dir, relative)
 
 
-TOP_KEYS = {"name", "seed", "description", "field", "map", "implement", "tractor", "gnss",
-            "speed_sensor", "controller", "plant", "timing", "output"}
+# The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
+TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
+          "output")
+TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
 def builtin_names() -> list[str]:
@@ -183,7 +187,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     doc = apply_overrides(doc, overrides, source)
     no_unknown(doc, TOP_KEYS, source, "")
-    for key in TOP_KEYS - {"name", "seed", "description"}:
+    for key in TABLES:
         if key in doc and not isinstance(doc[key], dict):
             raise ScenarioError(f"{source}: [{key}] must be a table, got {doc[key]!r}")
     name = typed(doc, "name", str, source, "", default=os.path.splitext(os.path.basename(source))[0])
@@ -400,3 +404,59 @@ def as_dict(scenario: Scenario) -> dict[str, Any]:
         value = getattr(scenario, f.name)
         out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     return out
+
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def to_toml(scenario: Scenario) -> str:
+    """The scenario as the text of a scenario file that `parse` reads back to the same scenario.
+
+    Unset keys (None) are left out; the files it names (``[field] file``, ``[map] file``) are written
+    as absolute paths, so the text loads from any folder; ``[plant]`` leaves out the transmission
+    ratio and shaft-speed limit, which ``[implement]`` describes. Written from the scenario as run
+    (`services.sim.as_run.as_run`), it reruns the run with every value shown.
+    """
+    lines = [f"{key} = {_toml_value(getattr(scenario, key))}" for key in ("name", "seed", "description")]
+    for key in TABLES:
+        lines += ["", f"[{key}]"]
+        lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in _table(scenario, key).items()
+                  if v is not None]
+    return "\n".join(lines) + "\n"
+
+
+def _table(scenario: Scenario, key: str) -> dict:
+    """Table `key` of `scenario` as a scenario file writes it (see `to_toml`)."""
+    value = getattr(scenario, key)
+    table = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.init}
+    if key in ("field", "map") and table["file"] is not None:
+        table["file"] = os.path.abspath(scenario.path(table["file"]))
+    if key == "plant":
+        for machine in ("transmission_ratio", "shaft_rpm_max"):
+            del table[machine]
+    if key == "controller":
+        table = {("class" if k == "class_name" else k): v for k, v in table.items()}
+    return table
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.fullmatch(key) else json.dumps(key)
+
+
+def _toml_value(value) -> str:
+    """`value` (bool, int, float, str, list, tuple or dict of them) as a TOML value; floats by `repr`,
+    which reads back to the same number."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(int(value))
+    if isinstance(value, float):
+        return repr(float(value))
+    if isinstance(value, str):
+        return json.dumps(value)   # a JSON string is a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        items = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None]
+        return "{ " + ", ".join(items) + " }" if items else "{}"
+    raise ScenarioError(f"{type(value).__name__} {value!r} has no TOML form")
