@@ -417,10 +417,10 @@ def to_toml(scenario: Scenario) -> str:
     ratio and shaft-speed limit, which ``[implement]`` describes. Written from the scenario as run
     (`services.sim.as_run.as_run`), it reruns the run with every value shown.
     """
-    lines = [f"{key} = {_toml_value(getattr(scenario, key))}" for key in ("name", "seed", "description")]
+    lines = [f"{key} = {toml_value(getattr(scenario, key))}" for key in ("name", "seed", "description")]
     for key in TABLES:
         lines += ["", f"[{key}]"]
-        lines += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in _table(scenario, key).items()
+        lines += [f"{_toml_key(k)} = {toml_value(v)}" for k, v in _table(scenario, key).items()
                   if v is not None]
     return "\n".join(lines) + "\n"
 
@@ -443,9 +443,15 @@ def _toml_key(key: str) -> str:
     return key if _BARE_KEY.fullmatch(key) else json.dumps(key)
 
 
-def _toml_value(value) -> str:
-    """`value` (bool, int, float, str, list, tuple or dict of them) as a TOML value; floats by `repr`,
-    which reads back to the same number."""
+def toml_value(value) -> str:
+    """`value` (bool, int, float, str, list, tuple or dict of them) as a scenario file writes it, a
+    TOML value; a float by `repr`, which reads back to the same number.
+
+    Raises
+    ------
+    ScenarioError
+        A value of another type (None: a TOML file leaves the key out).
+    """
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -455,8 +461,8 @@ def _toml_value(value) -> str:
     if isinstance(value, str):
         return json.dumps(value)   # a JSON string is a TOML basic string
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     if isinstance(value, dict):
-        items = [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in value.items() if v is not None]
+        items = [f"{_toml_key(k)} = {toml_value(v)}" for k, v in value.items() if v is not None]
         return "{ " + ", ".join(items) + " }" if items else "{}"
     raise ScenarioError(f"{type(value).__name__} {value!r} has no TOML form")
