@@ -84,8 +84,9 @@ def _run(args, driver) -> int:
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     try:
-        from services.outputs.summary import summary_json, text_summary, with_settings
+        from services.outputs.summary import summary_json, text_summary
         from services.outputs.write import outputs_line, write_outputs
+        from services.sim.as_run import with_settings
 
         try:
             result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)

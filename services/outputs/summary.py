@@ -4,27 +4,14 @@ monitor's report all print it with these)."""
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from services.outputs.encode import dumps_text
 from services.sim.metrics import METRICS
-
-if TYPE_CHECKING:
-    from services.sim.run import RunResult
 
 
 def summary_json(summary: dict) -> str:
     """One JSON object; non-finite figures (e.g. no rate steps crossed) become null."""
     return dumps_text(summary, indent=True)
-
-
-def with_settings(result: RunResult) -> dict:
-    """The run's summary and, under ``scenario_config``, the settings it ran with: its scenario as run
-    (every kind's default resolved, `services.sim.as_run`; the plant as run, `config_as_run`).
-    summary.json and ``vrsim run --json`` print this."""
-    from services.sim.core import config_as_run  # here: a sweep's report imports this module for its rows
-
-    return dict(result.summary, scenario_config=config_as_run(result.world.scenario))
 
 
 # The report's rows (label, key, unit): the metrics of `METRICS` that have a label, in its order.

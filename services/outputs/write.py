@@ -8,8 +8,9 @@ import os
 
 from services.outputs.aslog import prepare_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
-from services.outputs.summary import summary_json, with_settings
+from services.outputs.summary import summary_json
 from services.outputs.track_csv import write_track_csv
+from services.sim.as_run import with_settings
 from services.sim.run import RunResult
 
 FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "track.csv",

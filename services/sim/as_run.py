@@ -5,13 +5,14 @@ A scenario may leave values to its kinds: the controller's ``gains = "paper"`` (
 sensor delay), ``look_ahead_s`` unset or "auto", the GNSS ``kind`` (its error and correlation time)
 and the speed sensor's ``kind`` (its noise and bias). `as_run` fills them in, in the same
 dataclasses, before anything moves: `services.sim.world.build_world` calls it, so the world's scenario,
-which the run consumes, is the one that summary.json, ``vrsim run --json`` and the report's "Settings
-as run" show. Written out (`services.sim.scenario.to_toml`), it loads and reruns to the same figures.
+which the run consumes, is the one that summary.json, ``vrsim run --json`` (`with_settings`) and the
+report's "Settings as run" show. Written out (`services.sim.scenario.to_toml`), it loads and reruns to
+the same figures.
 
 What each becomes:
 
-* PID family (kind P, PI, PID): ``gains = "manual"`` with the `kp`, `ki`, `kd` its source gives
-  (`controller.resolve_gains`; `ki` only with an I term, `kd` with a D term);
+* PID family (kind P, PI, PID; "pid" becomes "PID"): ``gains = "manual"`` with the `kp`, `ki`, `kd`
+  its source gives (`controller.resolve_gains`; `ki` only with an I term, `kd` with a D term);
 * any other kind but ``python``: ``params`` with every key of its parameters (`KindParams.to_dict`);
   ``fuzzy_pid``'s base gains as for the PID family, ``smith``'s `model_delay_s` and ``ff_pi``'s
   `reference_delay_s` the plant's sensor delay when unset (`SENSOR_DELAY_KEYS`); a ``python`` kind's
@@ -26,13 +27,17 @@ Resolving is idempotent: the scenario as run of a scenario as run is itself.
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, PlantParams, gains_from_source, resolve_gains
 from controller.config import PID_KINDS, USER_KIND
-from services.sim.core import plant_for
+from services.sim.core import config_as_run, plant_for
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.scenario import Scenario
+
+if TYPE_CHECKING:
+    from services.sim.run import RunResult
 
 # Kinds whose parameter None means "the plant's sensor delay" (see each kind's params dataclass).
 SENSOR_DELAY_KEYS = {"smith": "model_delay_s", "ff_pi": "reference_delay_s"}
@@ -58,6 +63,13 @@ def as_run(scenario: Scenario) -> Scenario:
                                controller=dataclasses.replace(controller, look_ahead_s=look_ahead_s))
 
 
+def with_settings(result: RunResult) -> dict:
+    """A run's summary and, under ``scenario_config``, the settings it ran with: its scenario as run
+    with the plant as run (`services.sim.core.config_as_run`). What summary.json, ``vrsim run --json``,
+    ``vrsim report --json``, the monitor's report and each run of ``vrsim compare --json`` print."""
+    return dict(result.summary, scenario_config=config_as_run(result.world.scenario))
+
+
 def resolved_controller(cfg: ControllerConfig, plant: PlantParams,
                         control_period_s: float) -> ControllerConfig:
     """`cfg` with its gains and its kind's defaults as numbers, for `plant` at `control_period_s` [s]
@@ -65,8 +77,8 @@ def resolved_controller(cfg: ControllerConfig, plant: PlantParams,
     numbers bit for bit."""
     if cfg.kind in PID_KINDS:
         g, terms = resolve_gains(cfg, plant, control_period_s), PID_KINDS[cfg.kind]
-        return dataclasses.replace(cfg, gains="manual", kp=g.kp, ki=g.ki if "I" in terms else None,
-                                   kd=g.kd if "D" in terms else None)
+        return dataclasses.replace(cfg, kind=terms, gains="manual", kp=g.kp,
+                                   ki=g.ki if "I" in terms else None, kd=g.kd if "D" in terms else None)
     if cfg.kind == USER_KIND:
         return cfg
     params = cfg.kind_params().to_dict()

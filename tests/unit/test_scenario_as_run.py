@@ -41,7 +41,7 @@ def test_default_scenario_shows_the_paper_gains_the_rtk_grade_and_the_radar():
 
 
 @pytest.mark.parametrize("controller", [
-    {"kind": "PID"}, {"kind": "PI"}, {"kind": "P"}, {"kind": "PID", "gains": "textbook"},
+    {"kind": "PID"}, {"kind": "pid"}, {"kind": "PI"}, {"kind": "P"}, {"kind": "PID", "gains": "textbook"},
     {"kind": "PI", "gains": "relay", "form": "positional"},
     {"kind": "PID", "derivative_on_measurement": True},
     {"kind": "PID", "gains": "manual", "kp": 0.4, "ki": 1.5},
@@ -53,7 +53,8 @@ def test_every_kind_resolves_to_numbers_that_run_the_same_loop_bit_for_bit(contr
     sc = with_changes(load(None), controller=controller)
     resolved = as_run(sc)
     cfg = resolved.controller
-    if cfg.kind in ("P", "PI", "PID"):
+    if sc.controller.kind in ("P", "PI", "PID", "pid"):
+        assert cfg.kind == sc.controller.kind.upper()
         assert cfg.gains == "manual" and cfg.kp is not None
         assert (cfg.ki is not None) == ("I" in cfg.kind) and (cfg.kd is not None) == ("D" in cfg.kind)
     else:   # every parameter of the kind, none left to a default that depends on the plant
