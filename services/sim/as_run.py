@@ -17,7 +17,10 @@ What each becomes:
   ``fuzzy_pid``'s base gains as for the PID family, ``smith``'s `model_delay_s` and ``ff_pi``'s
   `reference_delay_s` the plant's sensor delay when unset (`SENSOR_DELAY_KEYS`); a ``python`` kind's
   params are the user's and stay as given;
-* ``look_ahead_s``: seconds (`services.sim.look_ahead.initial_look_ahead_s`);
+* ``look_ahead_s``: seconds (`services.sim.look_ahead.initial_look_ahead_s`), but a ``python``
+  controller's "auto" stays "auto" (the run's control core measures it): measuring it runs the user's
+  code, which only the run's controller may do; the bus's services build worlds of scenarios that
+  came over the network, and only the controller service checks where user code may run from;
 * ``[gnss]`` `sigma_m`, `tau_s` and ``[speed_sensor]`` `noise_pct`, `bias_pct`: their class's values
   where unset (`vehicle.GnssConfig.resolved`, `vehicle.SpeedSensorConfig.resolved`).
 
@@ -31,7 +34,7 @@ from typing import TYPE_CHECKING
 
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, PlantParams, gains_from_source, resolve_gains
-from controller.config import PID_KINDS, USER_KIND
+from controller.config import LOOK_AHEAD_AUTO, PID_KINDS, USER_KIND
 from services.sim.core import config_as_run, plant_for
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.scenario import Scenario
@@ -50,17 +53,17 @@ def as_run(scenario: Scenario) -> Scenario:
     ------
     ScenarioError
         ``"<file>: [controller] <message>"`` when the controller cannot be resolved (a relay experiment
-        that fails, a user's class that does not load for the "auto" look-ahead), as the run would.
+        that fails, a loop that the "auto" look-ahead cannot measure), as the run would.
     """
-    plant = plant_for(scenario)
+    plant, cfg = plant_for(scenario), scenario.controller
     try:
-        look_ahead_s = initial_look_ahead_s(scenario, plant)
-        controller = resolved_controller(scenario.controller, plant, scenario.timing.control_period_s)
+        controller = resolved_controller(cfg, plant, scenario.timing.control_period_s)
+        if not (cfg.kind == USER_KIND and cfg.look_ahead_s == LOOK_AHEAD_AUTO):
+            controller = dataclasses.replace(controller, look_ahead_s=initial_look_ahead_s(scenario, plant))
     except ControllerError as exc:
         raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
     return dataclasses.replace(scenario, gnss=scenario.gnss.resolved(),
-                               speed_sensor=scenario.speed_sensor.resolved(),
-                               controller=dataclasses.replace(controller, look_ahead_s=look_ahead_s))
+                               speed_sensor=scenario.speed_sensor.resolved(), controller=controller)
 
 
 def with_settings(result: RunResult) -> dict:

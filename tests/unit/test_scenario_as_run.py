@@ -82,6 +82,13 @@ def test_a_python_controller_keeps_its_own_params():
     assert resolved.controller.file == sc.controller.file and os.path.isabs(resolved.controller.file)
 
 
+def test_a_python_controllers_auto_look_ahead_is_left_to_the_run_so_no_user_code_runs(tmp_path):
+    (tmp_path / "boom.py").write_text("raise SystemExit('user code ran')\n")
+    sc = with_changes(load(None), controller={"kind": "python", "file": str(tmp_path / "boom.py"),
+                                              "class": "C", "look_ahead_s": "auto"})
+    assert as_run(sc).controller.look_ahead_s == "auto"   # building a world never runs the file
+
+
 @pytest.mark.parametrize("kind", sorted(GNSS_CLASSES))
 def test_gnss_grades_resolve_to_their_class_and_overrides_stay(kind):
     cfg = GnssConfig(kind=kind)
