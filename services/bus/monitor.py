@@ -269,13 +269,14 @@ class MonitorService:
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
         from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
+        from services.sim.as_run import with_settings
 
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
-            return summary_json(self._report(params.text("run_id"))).encode()
+            return summary_json(with_settings(self._report(params.text("run_id")))).encode()
 
-    def _report(self, run_id: str | None) -> dict:
-        return recorded_run(self.store, self.store.run(run_id), self._world).summary
+    def _report(self, run_id: str | None):
+        return recorded_run(self.store, self.store.run(run_id), self._world)
 
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])

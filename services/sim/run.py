@@ -24,6 +24,7 @@ import numpy as np
 from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
+from services.sim.as_run import as_run
 from services.sim.core import ControlCore
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck, machine_check, working_speeds
@@ -135,6 +136,7 @@ def drive(scenario: Scenario) -> Drive:
         clock = now
 
     world = build_world(scenario)
+    scenario = world.scenario   # as run: what the drive, the sensors and the outputs use
     lap("build_s")
     with driving(scenario, world.path) as driver:
         track = driver.run_all()
@@ -162,7 +164,7 @@ def control_and_account(drive: Drive, controller: ControllerConfig | None = None
     """
     world, track = drive.world, drive.track
     if controller is not None:
-        scenario = dataclasses.replace(world.scenario, controller=controller)
+        scenario = as_run(dataclasses.replace(world.scenario, controller=controller))
         world = dataclasses.replace(world, scenario=scenario)
     scenario = world.scenario
     clock = time.perf_counter()

@@ -63,6 +63,7 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
             worker.drive(scenario, ticks_per_part)
         clock = time.perf_counter()
         world = build_world(scenario, planned=worker.planned)
+        scenario = world.scenario   # as run: what the control, the sensors and the outputs use
         build_s = worker.plan_s + time.perf_counter() - clock
         stage = {"build_s": build_s, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
         core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
