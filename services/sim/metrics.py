@@ -18,14 +18,13 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 
 Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap and skipped area,
 product beyond the first pass, and the share of working time and covered area where the meter could
-not turn at the speed the map asked for.
+not turn at the speed the map asked for. In time (per tick, along the track): `transitions`.
 
-In time (per tick, along the track), see `transitions`.
-
-`METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, and the
-tolerance the accuracy library holds it to. The summary's keys (`summary`), the rows of the text and
-HTML reports, the accuracy library's tolerances and the monitor's report all derive from it, so a new
-figure is one row here plus where it is computed.
+`METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
+tolerance the accuracy library holds it to, and how it comes from a run's accounts
+(`services.sim.accounting.Accounts`). The summary (`summary`: ``vrsim run`` and ``--json``, the
+monitor's report, the variants of sweeps), the rows of the text and HTML reports and the accuracy
+library's tolerances all derive from it, so a new figure is one row here and its formula.
 """
 
 from __future__ import annotations
@@ -64,13 +63,11 @@ class Metric:
         What the accuracy library holds it to: (absolute floor, share of the value); None for figures
         of the machine (timings) or of the set-up, not of the model.
     sense : {"min", "max", "zero"} or None
-        Which way is better, for the accuracy figures that sweeps rank and `vrsim tune` optimizes:
-        smaller, larger, or closest to zero (a bias or a mass balance, whichever its sign); None for a
-        figure that describes the run rather than judges it.
+        Which way is better for the figures sweeps rank and `vrsim tune` optimizes: smaller, larger, or
+        closest to zero (a bias, a mass balance); None for one that describes the run, not judges it.
     of : str or callable or None
-        How its value comes from a run's accounts (`services.sim.accounting.Accounts`): a dotted path
-        of attributes (``"map.mae_kg_ha"``) or a formula, ``of(accounts) -> value``; None for the
-        figures of a log (`POINT_METRICS`), which `point_metrics` computes.
+        How its value comes from a run's `Accounts`: a dotted path of attributes (``"map.mae_kg_ha"``)
+        or a formula, ``of(accounts) -> value``; None for a log's figures (`point_metrics`).
     """
 
     key: str
@@ -86,26 +83,9 @@ class Metric:
         return self.of(accounts) if callable(self.of) else attrgetter(self.of)(accounts)
 
 
-# Formulas of the figures that are not one attribute of the accounts.
-def _ticks(a: Accounts) -> int:
-    return len(a.setting.track["time_s"])
-
-
+# Formulas of figures that are not one attribute of the accounts and serve more than one row.
 def _sim_time_s(a: Accounts) -> float:
-    return _ticks(a) * a.setting.world.scenario.timing.control_period_s
-
-
-def _realtime_factor(a: Accounts) -> float:
-    return _sim_time_s(a) / a.timing.wall_time_s
-
-
-def _section_widths_m(a: Accounts) -> list[float]:
-    return [float(w) for w in a.setting.world.scenario.implement.section_widths]
-
-
-def _path_length_m(a: Accounts) -> float:
-    distance_m = a.setting.landing.distance_m
-    return float(distance_m[-1]) if len(distance_m) else 0.0
+    return len(a.setting.track["time_s"]) * a.setting.world.scenario.timing.control_period_s
 
 
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
@@ -117,8 +97,9 @@ METRICS = (
     Metric("sim_time_s", "s", "Simulated time", "ticks x control period", of=_sim_time_s),
     Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)",
            of="timing.wall_time_s"),
-    Metric("ticks", "", "", "control ticks driven", of=_ticks),
-    Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time", of=_realtime_factor),
+    Metric("ticks", "", "", "control ticks driven", of=lambda a: len(a.setting.track["time_s"])),
+    Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time",
+           of=lambda a: _sim_time_s(a) / a.timing.wall_time_s),
     Metric("prescribed_kg", "kg", "Prescribed product",
            "what the prescription asks for on the area actually worked", (0.5, 0.005),
            of="map.prescribed_kg"),
@@ -169,7 +150,7 @@ METRICS = (
     Metric("sections", "", "Sections", "number of sections of the implement",
            of="setting.world.scenario.implement.sections"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",
-           of=_section_widths_m),
+           of=lambda a: [float(w) for w in a.setting.world.scenario.implement.section_widths]),
     Metric("max_speed_m_s", "m/s", "Highest speed for the map",
            "highest working speed at which the meter can apply the map's highest rate over the full width",
            of="setting.check.max_speed_m_s"),
@@ -181,17 +162,16 @@ METRICS = (
            of="map.bias_pct"),
     Metric("transitions", "", "", "rate steps whose transition settled", of="transitions.transitions"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
-    Metric("path_length_m", "m", "", "length of the landing path", of=_path_length_m),
+    Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
+           of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
 )
 
 
 def summary(accounts: Accounts) -> dict:
-    """The run's summary: ``scenario``, every `METRICS` figure in table order read off `accounts`
-    (`Metric.value`), ``seed`` and the wall time of each stage, ``stage_s``."""
+    """``scenario``, every `METRICS` figure in table order (`Metric.value`), ``seed``, ``stage_s``."""
     scenario = accounts.setting.world.scenario
     return {"scenario": scenario.name, **{m.key: m.value(accounts) for m in METRICS}, "seed": scenario.seed,
             "stage_s": accounts.timing.stage_s}
-
 
 
 @dataclass(frozen=True)
