@@ -36,7 +36,7 @@ from services.sim.accounting import (
 from services.sim.core import ControlCore
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
-from services.sim.metrics import MapMetrics
+from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics, TransitionMetrics
 from services.sim.scenario import Scenario
 from services.sim.section_landing import limited_coverage, section_strips
 from services.sim.sections import SectionStates, run_section_states
@@ -103,6 +103,27 @@ class RunResult:
     @property
     def machine_check(self) -> MachineCheck:
         return self.accounts.setting.check
+
+    # The accounts' parts by the names the Python API has documented (README, docs/api.md).
+    @property
+    def map_metrics(self) -> MapMetrics:
+        return self.accounts.map
+
+    @property
+    def transition_metrics(self) -> TransitionMetrics:
+        return self.accounts.transitions
+
+    @property
+    def overlap_metrics(self) -> OverlapMetrics:
+        return self.accounts.overlap
+
+    @property
+    def limit_metrics(self) -> LimitMetrics:
+        return self.accounts.limits
+
+    @property
+    def stage_s(self) -> dict:
+        return self.accounts.timing.stage_s
 
 
 @dataclass

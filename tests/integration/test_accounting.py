@@ -71,6 +71,11 @@ def test_the_timer_gives_the_summary_its_wall_time_and_stages(small_drive):
     assert s["wall_time_s"] == timing.wall_time_s >= sum(s["stage_s"].values()) * (1 - 1e-9)
     assert s["realtime_factor"] == s["sim_time_s"] / s["wall_time_s"]
     assert s["sim_time_s"] == s["ticks"] * small_drive.world.scenario.timing.control_period_s
+    # the documented API's names read the same accounts
+    assert result.stage_s == s["stage_s"] and result.map_metrics.mae_kg_ha == s["mae_kg_ha"]
+    assert result.transition_metrics.transitions == s["transitions"]
+    assert result.overlap_metrics.overlap_kg == s["overlap_kg"]
+    assert result.limit_metrics.limited_time_pct == s["limited_time_pct"]
     variant, = run_variants(small_drive, [ControllerConfig(kind="PID")])
     assert variant["wall_time_s"] == pytest.approx(sum(variant["stage_s"].values()), rel=1e-12)
     assert np.isfinite(variant["realtime_factor"])
