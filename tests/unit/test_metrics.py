@@ -107,7 +107,9 @@ def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():
     assert TOLERANCES == {m.key: m.tolerance for m in METRICS if m.tolerance is not None}
     assert "wall_time_s" not in TOLERANCES and "mae_kg_ha" in TOLERANCES  # the machine is not held
     assert summary_rows() == tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
-    # Every figure the metric functions compute is a row of the table, read from its part.
+    # Every row says how its figure comes from a run's accounts; every figure the metric functions
+    # compute is a row of the table, read from its part.
+    assert all(m.of is not None for m in METRICS)
     sources = {m.of for m in METRICS}
     for part, cls in (("map", MapMetrics), ("transitions", TransitionMetrics), ("overlap", OverlapMetrics),
                       ("limits", LimitMetrics)):
