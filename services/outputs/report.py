@@ -12,9 +12,10 @@ import os
 
 from common import __version__
 from services.outputs.summary import fmt
+from services.sim import metrics
 from services.sim.core import config_as_run
 from services.sim.error_split import error_split
-from services.sim.metrics import LOG_UNIT, METRICS
+from services.sim.metrics import LOG_UNIT
 from services.sim.run import RunResult
 from services.sim.scenario import to_toml, toml_value
 
@@ -125,7 +126,7 @@ def split_table(result: RunResult) -> str:
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: machine check, figures, the error split, settings as run, versions and
     seed, pictures, definitions."""
-    from services.outputs.summary import SUMMARY_ROWS
+    from services.outputs.summary import summary_rows
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
@@ -137,14 +138,14 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
-                ("Figures", figures_table(SUMMARY_ROWS, summary)),
+                ("Figures", figures_table(summary_rows(), summary)),
                 ("Where the error comes from", split_table(result)),
                 ("Settings as run", f'<div class="cols">{settings}</div>\n<details><summary>The scenario '
                  f'as run, as a scenario file (<code>vrsim run</code> reruns it)</summary>'
                  f'<pre>{scenario_file}</pre></details>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
-                [("What the figures mean", definitions(METRICS))], FILES_NOTE)
+                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE)
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
