@@ -288,7 +288,8 @@ def gdal_path(path: str, error=VrsimError) -> str:
 def refuse_vsi(path: str, error=VrsimError, label: str | None = None) -> None:
     """Refuse a path naming a GDAL virtual file system (``/vsicurl/``, ``/vsizip/``, ...)."""
     if path.lower().startswith("/vsi"):
-        raise error(f"{label or path}: a GDAL virtual file system path (/vsi...); vrsim reads local files only")
+        raise error(f"{label or path}: a GDAL virtual file system path (/vsi...); vrsim reads local "
+                    "files only")
 
 
 def _names(folder: str) -> list[str]:

@@ -55,8 +55,8 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
     files.check_file(path, "geotiff", MapError)
     files.check_siblings(path, MapError)
     if files.head_bytes(path, 4, MapError) not in files.TIFF_SIGNATURES:
-        raise MapError(f"{path}: not a GeoTIFF (no TIFF header); vrsim reads .tif files as GeoTIFF only, "
-                       "not a GDAL VRT or another format under that name")
+        raise MapError(f"{path}: cannot read as a raster: not a GeoTIFF (no TIFF header); vrsim reads "
+                       ".tif files as GeoTIFF only, not a GDAL VRT or another format under that name")
     try:
         with rasterio.Env(**_READ_ENV), rasterio.open(real, driver=DRIVER) as src:
             check_size(src.height, src.width, max_cells, path)
