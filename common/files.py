@@ -205,8 +205,11 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
             for name in _names(folder):
                 refuse_outside(os.path.join(folder, name))
         return real
-    # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target.
-    for sibling in {*_siblings(os.path.abspath(path)), *_siblings(real)}:
+    # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target;
+    # an ISOXML reader given TASKDATA.XML opens the grid and log files its folder holds.
+    given = os.path.abspath(path)
+    near = _siblings if kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
+    for sibling in {*near(given), *near(real)}:
         refuse_outside(sibling)
         if kind_of(real) == "geotiff":
             _refuse_raster_sidecar(sibling, label, error)
@@ -290,6 +293,10 @@ def refuse_vsi(path: str, error=VrsimError, label: str | None = None) -> None:
     if path.lower().startswith("/vsi"):
         raise error(f"{label or path}: a GDAL virtual file system path (/vsi...); vrsim reads local "
                     "files only")
+
+
+def _names_in(folder: str) -> list[str]:
+    return [os.path.join(folder, name) for name in _names(folder)]
 
 
 def _names(folder: str) -> list[str]:

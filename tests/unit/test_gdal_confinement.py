@@ -226,3 +226,23 @@ def test_vector_files_open_only_as_their_extension_says(place, web):
         (root / name).write_text(ogr_vrt)
         _refused(lambda name=name: read_point_log(root / name), name, "cannot read as a vector file")
     assert hits == []
+
+
+def test_a_taskdata_xml_whose_grid_file_links_out_of_the_root_is_refused_unopened(place, watch):
+    """Given TASKDATA.XML rather than its folder, the reader still opens the folder's GRD .BIN."""
+    root, outside = place
+    from maps.isoxml import write_isoxml
+
+    write_isoxml(read_map(outside / "secret.tif"), str(outside / "TASKDATA"))
+    (root / "task").mkdir()
+    for name in os.listdir(outside / "TASKDATA"):
+        target = outside / "TASKDATA" / name
+        if name.upper().endswith(".BIN"):
+            os.symlink(target, root / "task" / name)
+        else:
+            (root / "task" / name).write_bytes(target.read_bytes())
+    binary = next(p for p in (outside / "TASKDATA").iterdir() if p.suffix.upper() == ".BIN")
+    secret = watch(binary)
+    _refused(lambda: _load(root, FIELD + '[map]\nfile = "task/TASKDATA.XML"\n'), "task/TASKDATA.XML",
+             "outside the data root")
+    assert secret.untouched()
