@@ -183,8 +183,10 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
     resolved, before anything opens it; returns the resolved path.
 
     What a reader may open along with it is checked too: a folder's entries (and those of its
-    ``TASKDATA`` subfolder, as an ISOXML reader looks there) and a file's siblings ``x.*`` (a
-    shapefile's ``.dbf``, GDAL's ``.aux.xml``). The message names the path as given (``label``) and
+    ``TASKDATA`` subfolder, as an ISOXML reader looks there; for a ``TASKDATA.XML``, its folder's),
+    and a file's siblings ``x.*`` (a shapefile's ``.dbf``, GDAL's ``.aux.xml``) beside the path as
+    given and beside its resolved target; a raster's side files that would lead GDAL to another file
+    are refused (`_refuse_raster_sidecar`). The message names the path as given (``label``) and
     says nothing of whether it exists or what it holds.
     """
     label = label or path
