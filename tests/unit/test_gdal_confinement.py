@@ -246,3 +246,14 @@ def test_a_taskdata_xml_whose_grid_file_links_out_of_the_root_is_refused_unopene
     _refused(lambda: _load(root, FIELD + '[map]\nfile = "task/TASKDATA.XML"\n'), "task/TASKDATA.XML",
              "outside the data root")
     assert secret.untouched()
+
+
+def test_gdal_read_env_itself_keeps_gdal_off_the_network(web):
+    """Behind the signature checks, the environment every read runs in: /vsicurl/ fetches nothing."""
+    from common import files
+
+    url, hits = web
+    for env in ({}, files.GDAL_READ_ENV):
+        with pytest.raises(rasterio.errors.RasterioIOError), rasterio.Env(**env):
+            rasterio.open(f"/vsicurl/{url}/x{len(env)}.tif")
+    assert hits and all(hit == "/x0.tif" for hit in hits)  # only the read without it went out
