@@ -3,11 +3,10 @@
 GDAL picks the driver of a file by its content, and some drivers open other files or URLs named
 inside it (an OGR VRT, a CSV with a ``.csvt``, ...). pyogrio cannot restrict the drivers it opens with
 (its ``read`` takes no ``driver``; https://github.com/geopandas/pyogrio/issues/310), so the file's
-signature is checked first: a ``.shp`` must start
-with the shapefile file code, a ``.gpkg`` with SQLite's header and a GeoPackage application id, a
-``.zip`` must hold such a ``.shp``, which vrsim then names inside the checked archive itself
-(``/vsizip/<resolved zip>/<member>``). Only the named driver (``DRIVERS``) recognizes such a file.
-No side-file scan, no network (`common.files.GDAL_READ_ENV`).
+signature is checked first: a ``.shp`` must start with the shapefile file code, a ``.gpkg`` with
+SQLite's header and a GeoPackage application id, a ``.zip`` must hold such a ``.shp``, which vrsim then
+names inside the checked archive itself (``/vsizip/<resolved zip>/<member>``). Only the named driver
+(``DRIVERS``) recognizes such a file. No side-file scan, no network (`common.files.GDAL_READ_ENV`).
 """
 
 from __future__ import annotations
