@@ -54,16 +54,13 @@ class MonitorStore:
     Parameters
     ----------
     path : str
-        Database file; created with its folder if missing.
+        Database file; created with its folder if missing, the file 0600 and a new folder 0700 (it holds
+        every pose and every scenario's text: `private_db`).
     """
 
     def __init__(self, path: str):
         self.path = path
-        folder = os.path.dirname(os.path.abspath(path))
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+        private_db(path)
         try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
@@ -341,8 +338,33 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
 
 
 def default_db(options) -> str:
-    """``runs/monitor-<prefix>-<machine>.sqlite``: one database per prefix and machine."""
-    return os.path.join("runs", f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+    """``runs/monitor/<prefix>-<machine>.sqlite``: one database per prefix and machine, in a folder of
+    the monitor's own (made 0700 by `private_db`)."""
+    return os.path.join(DEFAULT_DB_FOLDER, f"{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+
+
+DEFAULT_DB_FOLDER = os.path.join("runs", "monitor")
+_DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it gives them its mode)
+
+
+def private_db(path: str) -> None:
+    """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
+    default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
+    an older database's files (0644 before) tightened to 0600."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        if folder == os.path.abspath(DEFAULT_DB_FOLDER):
+            os.chmod(folder, 0o700)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+        os.close(fd)
+        for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
+            st = os.stat(name)
+            if st.st_mode & 0o077 and st.st_uid == os.getuid():
+                os.chmod(name, 0o600)
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create it (or its folder {folder}) as a private file: "
+                           f"{exc.strerror}") from None
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
