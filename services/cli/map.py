@@ -130,7 +130,7 @@ def _write_whole(write, out: str) -> None:
     place, what it added removed again if it fails."""
     import os
 
-    from common.files import write_failure, written
+    from common.written import write_failure, written
 
     folder = os.path.dirname(out) or "." if out.lower().endswith(".xml") else out
     if not os.path.isdir(folder):
@@ -154,7 +154,7 @@ def _plot(args) -> int:
 
     if not args.out.lower().endswith(".png"):
         raise MapError(f"map plot: output {args.out!r} must end in .png")
-    from common.files import written
+    from common.written import written
 
     grid = _read(args)
     with written(args.out, MapError) as temp:

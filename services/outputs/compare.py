@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from common.files import staged
+from common.written import staged
 from services.outputs.plots import figure
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows

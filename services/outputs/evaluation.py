@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from common.files import staged
+from common.written import staged
 from maps import Grid, write_map
 from services.outputs.encode import dumps_text
 from services.outputs.plots import figure

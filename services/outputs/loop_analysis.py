@@ -9,7 +9,7 @@ import os
 import numpy as np
 
 from common import VrsimError
-from common.files import staged
+from common.written import staged
 
 STEP_RPM = 100.0       # the step of step.png, from rest, as in the paper's bench test
 STEP_DURATION_S = 5.0

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from matplotlib.ticker import NullFormatter
 
-from common.files import written
+from common.written import written
 from services.outputs.plots import figure
 from services.outputs.summary import SUMMARY_ROWS
 from services.sim.sweep import (

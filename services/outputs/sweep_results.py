@@ -14,7 +14,7 @@ import os
 import time
 
 from common import ScenarioError
-from common.files import written
+from common.written import written
 from services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"

@@ -9,7 +9,7 @@ import json
 import math
 import os
 
-from common.files import staged
+from common.written import staged
 from controller.config import PID_KEYS
 from services.sim.metrics import METRICS
 from services.sim.tune import TuneResult

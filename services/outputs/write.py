@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 
 from common import MapError
-from common.files import staged
+from common.written import staged
 from services.outputs.aslog import check_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
 from services.outputs.summary import summary_json
