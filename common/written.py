@@ -10,7 +10,9 @@ the CLI prints with exit code 2.
 from __future__ import annotations
 
 import errno
+import logging
 import os
+import sys
 from contextlib import contextmanager
 
 from common.errors import VrsimError
@@ -118,6 +120,47 @@ def _put_in_place(temp: str, path: str) -> None:
         os.replace(temp, path)
 
 
+class _Held(logging.Handler):
+    """Holds what the libraries print during a write until its outcome is known: GDAL's log records
+    (through rasterio's and pyogrio's loggers) and what C code writes on stderr (libtiff's
+    ``_tiffWriteProc: No space left on device.``, into a memory file: the disk may be full)."""
+
+    LOGGERS = ("rasterio", "pyogrio")
+
+    def __init__(self):
+        super().__init__()
+        self.records: list[logging.LogRecord] = []
+        self.fds: tuple[int, int] | None = None  # (memory file, stderr as it was)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
+
+    def __enter__(self) -> _Held:
+        for name in self.LOGGERS:
+            logging.getLogger(name).addHandler(self)
+        if hasattr(os, "memfd_create"):
+            sys.stderr.flush()
+            self.fds = (os.memfd_create("vrsim-held-stderr"), os.dup(2))
+            os.dup2(self.fds[0], 2)
+        return self
+
+    def done(self, shown: bool) -> None:
+        """Stop holding; what was held goes on to stderr if ``shown`` (dropped: the one line says it)."""
+        for name in self.LOGGERS:
+            logging.getLogger(name).removeHandler(self)
+        if self.fds is not None:
+            sys.stderr.flush()
+            held, stderr = self.fds
+            os.dup2(stderr, 2)
+            os.close(stderr)
+            os.lseek(held, 0, os.SEEK_SET)
+            while shown and (chunk := os.read(held, 1 << 16)):
+                os.write(2, chunk)
+            os.close(held)
+        for record in self.records if shown else ():
+            logging.getLogger(record.name).handle(record)
+
+
 @contextmanager
 def written(path: str, error=VrsimError):
     """Write ``path`` whole or not at all: yields a free temporary name in the same folder (hidden,
@@ -126,16 +169,19 @@ def written(path: str, error=VrsimError):
     to ``path``'s stem), removed otherwise.
 
     A failure for lack of space or permission becomes one line naming the folder and the cause
-    (`write_failure`, raised as ``error``); other exceptions pass unchanged (the temporary is removed
-    either way).
+    (`write_failure`, raised as ``error``), and GDAL's own lines about it are dropped; other
+    exceptions pass unchanged (the temporary is removed either way).
     """
     folder = os.path.dirname(os.path.abspath(path))
     temp = _temp_beside(path)
+    held = _Held().__enter__()
     try:
         yield temp
         _put_all_in_place(temp, path)
+        held.done(shown=True)
     except BaseException as exc:
         failure = write_failure(exc, folder, error) if isinstance(exc, Exception) else None
+        held.done(shown=failure is None)
         _remove_temp(temp)
         if failure is not None:
             raise failure from None
@@ -150,10 +196,11 @@ def staged(folder: str, last: tuple[str, ...] = (), error=VrsimError):
     names in ``last`` last, in that order: a completion mark); otherwise nothing under a final name
     changes, the temporary folder is removed, and a ``folder`` this call created too.
 
-    Errors as `written`.
+    Errors, and GDAL's log lines, as `written`.
     """
     created = not os.path.isdir(folder)
     stage = _temp_beside(os.path.join(folder, "staged"))
+    held = _Held().__enter__()
     try:
         try:
             os.makedirs(stage)
@@ -165,8 +212,10 @@ def staged(folder: str, last: tuple[str, ...] = (), error=VrsimError):
         for name in entries:
             _put_in_place(os.path.join(stage, name), os.path.join(folder, name))
         os.rmdir(stage)
+        held.done(shown=True)
     except BaseException as exc:
         failure = write_failure(exc, os.path.abspath(folder), error) if isinstance(exc, Exception) else None
+        held.done(shown=failure is None)
         _remove_temp(stage)
         if created:
             try:
