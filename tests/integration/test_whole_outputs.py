@@ -121,3 +121,15 @@ def test_map_convert_to_a_read_only_folder_exits_2(tmp_path, big_map):
     with tmpfs(tmp_path / "ro", "1m", read_only=True) as mount:
         refused(vrsim("map", "convert", big_map, os.path.join(mount, "rx.geojson")), "map", mount,
                 "read-only file system")
+
+
+def test_evaluate_to_a_full_disk_exits_2_and_leaves_nothing(tmp_path, scenario):
+    run = tmp_path / "run"
+    p = vrsim("run", scenario, "--quiet", "--set", "output.plots=false", "--set", "output.html=false",
+              "--out", run)
+    assert p.returncode == 0, p.stderr
+    with tmpfs(tmp_path / "full", "200k") as mount:
+        out = os.path.join(mount, "evaluation")
+        p = vrsim("evaluate", run / "taskdata", "--prescription", run / "prescription.tif", "--out", out)
+        refused(p, "evaluate", out, "no space left on the device")
+        assert everything_in(mount) == []
