@@ -350,21 +350,27 @@ _DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it
 def private_db(path: str) -> None:
     """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
     default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
-    an older database's files (0644 before) tightened to 0600."""
+    an older database's files (0644 before) tightened to 0600 where they can be. A symlink is refused."""
     folder = os.path.dirname(os.path.abspath(path))
     try:
         os.makedirs(folder, mode=0o700, exist_ok=True)
         if folder == os.path.abspath(DEFAULT_DB_FOLDER):
             os.chmod(folder, 0o700)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
-        os.close(fd)
-        for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
-            st = os.stat(name)
-            if st.st_mode & 0o077 and st.st_uid == os.getuid():
-                os.chmod(name, 0o600)
+        if not os.path.lexists(path):
+            flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+            os.close(os.open(path, flags, 0o600))
     except OSError as exc:
         raise ServiceError(f"--db {path}: cannot create it (or its folder {folder}) as a private file: "
                            f"{exc.strerror}") from None
+    if os.path.islink(path):
+        raise ServiceError(f"--db {path}: is a symlink; give the database file itself")
+    for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
+        st = os.stat(name)
+        if st.st_mode & 0o077 and st.st_uid == os.getuid():
+            try:
+                os.chmod(name, 0o600)
+            except OSError:  # a database on a read-only mount, read by `vrsim report`: as it is
+                pass
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

@@ -47,7 +47,7 @@ def test_the_default_database_is_in_a_folder_of_its_own_made_0700(tmp_path, monk
 def test_a_database_named_through_a_symlink_is_refused(tmp_path):
     (tmp_path / "elsewhere.sqlite").write_bytes(b"")
     os.symlink(tmp_path / "elsewhere.sqlite", tmp_path / "m.sqlite")
-    with pytest.raises(ServiceError, match="m.sqlite: cannot create it"):
+    with pytest.raises(ServiceError, match="m.sqlite: is a symlink"):
         MonitorStore(str(tmp_path / "m.sqlite"))
 
 

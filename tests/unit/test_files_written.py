@@ -104,3 +104,13 @@ def test_files_a_writer_makes_beside_it_follow_it(tmp_path):
         for ext in (".csv", ".prj"):
             (tmp_path / (os.path.splitext(temp)[0] + ext)).write_text(ext)
     assert _names(tmp_path) == ["rx.csv", "rx.prj"]
+
+
+def test_what_c_code_prints_about_a_write_is_dropped_only_when_the_one_line_says_it(tmp_path, capfd):
+    with written(str(tmp_path / "ok.tif")) as temp:
+        open(temp, "w").close()
+        os.write(2, b"a warning of a write that worked\n")
+    with pytest.raises(VrsimError), written(str(tmp_path / "full.tif")) as temp:
+        os.write(2, b"_tiffWriteProc: No space left on device.\n")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert capfd.readouterr().err == "a warning of a write that worked\n"
