@@ -356,12 +356,14 @@ def private_db(path: str) -> None:
         os.makedirs(folder, mode=0o700, exist_ok=True)
         if folder == os.path.abspath(DEFAULT_DB_FOLDER):
             os.chmod(folder, 0o700)
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+    try:
         if not os.path.lexists(path):
             flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
             os.close(os.open(path, flags, 0o600))
     except OSError as exc:
-        raise ServiceError(f"--db {path}: cannot create it (or its folder {folder}) as a private file: "
-                           f"{exc.strerror}") from None
+        raise ServiceError(f"--db {path}: cannot create it as a private file: {exc.strerror}") from None
     if os.path.islink(path):
         raise ServiceError(f"--db {path}: is a symlink; give the database file itself")
     for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
