@@ -266,7 +266,7 @@ class ClosedLoop:
         return StepOutput(out[:, o + OUT_RPM], out[:, o + OUT_REV], out[:, o + OUT_CURRENT],
                           out[:, o + OUT_MEASURED])
 
-    def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
+    def run(self, targets_rpm, load_torque_nm=0.0, context=None) -> StepOutput:
         """Advance one control period per row of `targets_rpm`; the same as calling `step` per row.
 
         Parameters
@@ -276,6 +276,8 @@ class ClosedLoop:
             (``np.broadcast_to(t[:, None], (K, n))``) is taken as such, without a copy per loop.
         load_torque_nm : float or ndarray, shape (n,)
             Load torque held over the whole run [N m].
+        context : controller.context.ContextTrack, optional
+            The drive's context (`controller.PlantLoop.run`); the PID's law reads none of it.
 
         Returns
         -------

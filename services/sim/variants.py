@@ -38,7 +38,7 @@ import numpy as np
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, build_variant_loops
 from maps import StripMap
-from services.sim.core import RUN_CHUNK, ControlCore, plant_for
+from services.sim.core import RUN_CHUNK, ControlCore, context_track, plant_for
 from services.sim.landing import Landing, applied_rate_kg_ha, land
 from services.sim.limits import MachineCheck
 from services.sim.look_ahead import initial_look_ahead_s
@@ -161,7 +161,9 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
             part = slice(lo, lo + RUN_CHUNK)
             target = rec["target_shaft_rpm"][part]
             targets = np.broadcast_to(target[:, None], (len(target), loop.n)) if loop.n > 1 else target
-            metered[part, idx] = shared.core._metered_kg(loop.run(targets).shaft_rev, applying[part])
+            context = context_track(rec, drive.measured_speed_m_s, part)
+            metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
+                                                         applying[part])
     control_s = time.perf_counter() - clock
     clock = time.perf_counter()
     summaries = _account(shared, metered, cfgs)
