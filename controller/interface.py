@@ -112,7 +112,10 @@ class Controller(abc.ABC):
 
     @abc.abstractmethod
     def step(self, target_rpm: np.ndarray, measured_rpm: np.ndarray) -> np.ndarray:
-        """Valve current for the next period [A], shape (n,), from targets and readings [rpm], (n,)."""
+        """Valve current for the next period [A], shape (n,), from targets and readings [rpm], (n,).
+
+        A subclass may take a third argument, ``context`` (`controller.context.ControlContext`), to be
+        given the period's ground speed, rate, sections, time and plant gain."""
 
     @abc.abstractmethod
     def reset(self) -> None:

@@ -147,8 +147,9 @@ class PlantLoop:
             raise ControllerError(f"context must cover the {periods} periods, got {len(track.speed_m_s)}")
         return track.per_loop(self.n)
 
-    def _context(self, r, measured, speed, rate, sections) -> ControlContext:
-        return ControlContext(r, measured, speed, rate, sections, self._periods * self.control_period_s,
+    def _context(self, period: int, r, measured, speed, rate, sections) -> ControlContext:
+        """The context of period `period` since the start (its time) for targets `r` and readings."""
+        return ControlContext(r, measured, speed, rate, sections, period * self.control_period_s,
                               self.info.plant.shaft_rpm_per_a)
 
     def _run_one(self, r_all: np.ndarray, load: float, drive: tuple) -> StepOutput:
@@ -165,6 +166,7 @@ class PlantLoop:
         ilo, ihi = self._ilo, self._ihi
         ctrl = self.controller
         one = None if drive else getattr(ctrl, "step_one", None)
+        start = self._periods
         for k, r in enumerate(r_all.tolist()):
             m = ring[head]
             if one is not None:
@@ -172,7 +174,8 @@ class PlantLoop:
             else:
                 if drive:
                     target, reading = np.array((r,)), np.array((m,))
-                    out = ctrl.step(target, reading, self._context(target, reading, *(a[k] for a in drive)))
+                    context = self._context(start + k, target, reading, *(a[k] for a in drive))
+                    out = ctrl.step(target, reading, context)
                 else:
                     out = ctrl.step(np.array((r,)), np.array((m,)))
                 if not (isinstance(out, np.ndarray) and out.shape == (1,)):
@@ -186,7 +189,7 @@ class PlantLoop:
             z[:N_STATES] = new[:N_STATES]
             ring[head] = float(new[N_STATES])
             head = head + 1 if head + 1 < depth else 0
-            self._periods += 1
+        self._periods = start + k_all
         self._z[0, :N_STATES + 1] = z
         self._z[0, N_STATES + 1] = load
         self._ring[0] = ring[head:] + ring[:head]
@@ -207,7 +210,7 @@ class PlantLoop:
         (speed, rate, sections: `_drive`'s rows): (product output, applied current, reading used)."""
         measured = self._ring[:, 0].copy()
         if drive:
-            cur = self.controller.step(r, measured, self._context(r, measured, *drive))
+            cur = self.controller.step(r, measured, self._context(self._periods, r, measured, *drive))
         else:
             cur = self.controller.step(r, measured)
         self._periods += 1
