@@ -20,6 +20,8 @@ states and currents. It agrees with the n-loop path to rounding (1e-12).
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from common import ControllerError
@@ -115,8 +117,8 @@ class PlantLoop:
         """Advance one control period; arguments and result as `controller.ClosedLoop.step` (a
         context-taking controller gets no drive: NaN speed and rate, `run` gives one)."""
         r = clip_targets(target_shaft_rpm, self.n, self._rmax)
-        drive = self._drive(None, 1)
-        out, cur, measured = self._advance(r, load_torque_nm, *(a[0] for a in drive))
+        drive = (a[0] for a in self._drive(None, 1)) if self._with_context else ()
+        out, cur, measured = self._advance(r, load_torque_nm, *drive)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
     def run(self, targets_rpm, load_torque_nm=0.0, context: ContextTrack | None = None) -> StepOutput:
@@ -132,8 +134,9 @@ class PlantLoop:
             return self._run_one(r_all[:, 0], float(np.broadcast_to(load_torque_nm, (1,))[0]), drive)
         rec = np.empty((4, t.shape[0], self.n))
         advance = self._advance
-        for k in range(t.shape[0]):
-            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm, *(a[k] for a in drive))
+        rows = zip(*drive, strict=True) if drive else itertools.repeat(())    # period k's context rows
+        for k, row in zip(range(t.shape[0]), rows, strict=False):   # repeat(()) has no end
+            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm, *row)
             rec[0, k], rec[1, k] = out[:, OUT_RPM], out[:, OUT_REV]
         return StepOutput(rec[0], rec[1], rec[2], rec[3])
 
