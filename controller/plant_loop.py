@@ -117,8 +117,8 @@ class PlantLoop:
         """Advance one control period; arguments and result as `controller.ClosedLoop.step` (a
         context-taking controller gets no drive: NaN speed and rate, `run` gives one)."""
         r = clip_targets(target_shaft_rpm, self.n, self._rmax)
-        drive = (a[0] for a in self._drive(None, 1)) if self._with_context else ()
-        out, cur, measured = self._advance(r, load_torque_nm, *drive)
+        drive = tuple(a[0] for a in self._drive(None, 1)) if self._with_context else None
+        out, cur, measured = self._advance(r, load_torque_nm, drive)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
     def run(self, targets_rpm, load_torque_nm=0.0, context: ContextTrack | None = None) -> StepOutput:
@@ -134,9 +134,9 @@ class PlantLoop:
             return self._run_one(r_all[:, 0], float(np.broadcast_to(load_torque_nm, (1,))[0]), drive)
         rec = np.empty((4, t.shape[0], self.n))
         advance = self._advance
-        rows = zip(*drive, strict=True) if drive else itertools.repeat(())    # period k's context rows
-        for k, row in zip(range(t.shape[0]), rows, strict=False):   # repeat(()) has no end
-            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm, *row)
+        rows = zip(*drive, strict=True) if drive else itertools.repeat(None)    # period k's context rows
+        for k, row in zip(range(t.shape[0]), rows, strict=False):   # repeat(None) has no end
+            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm, row)
             rec[0, k], rec[1, k] = out[:, OUT_RPM], out[:, OUT_REV]
         return StepOutput(rec[0], rec[1], rec[2], rec[3])
 
@@ -208,14 +208,15 @@ class PlantLoop:
         z0[:, N_STATES:] = self._z[:, N_STATES:]   # this period's current and load
         return so, z0 @ self._FT
 
-    def _advance(self, r, load, *drive):
+    def _advance(self, r, load, drive=None):
         """One period with clipped targets `r` and, for a controller that takes it, the drive's context
-        (speed, rate, sections: `_drive`'s rows): (product output, applied current, reading used)."""
+        (speed, rate, sections: a row of each of `_drive`'s arrays): (product output, applied current,
+        reading used)."""
         measured = self._ring[:, 0].copy()
-        if drive:
-            cur = self.controller.step(r, measured, self._context(self._periods, r, measured, *drive))
-        else:
+        if drive is None:
             cur = self.controller.step(r, measured)
+        else:
+            cur = self.controller.step(r, measured, self._context(self._periods, r, measured, *drive))
         self._periods += 1
         if not (isinstance(cur, np.ndarray) and cur.shape == (self.n,)):
             cur = as_loop_currents(cur, self.n, self.controller)
