@@ -3,8 +3,8 @@ versus prescribed (``vrsim serve monitor``).
 
 Every message it receives is committed to a local SQLite database (WAL) before the next one is read,
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
-``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
-`services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
+``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and accounts for them with
+`services.sim.run.accounted`, as ``vrsim run`` does, so it replies with the same JSON keys
 as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
 ``missing_ticks`` and ``complete``: the ticks it did not get (a monitor that was down for a while).
 That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from common import ServiceError
+from common.section_masks import sections_from_masks
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
@@ -53,16 +54,13 @@ class MonitorStore:
     Parameters
     ----------
     path : str
-        Database file; created with its folder if missing.
+        Database file; created with its folder if missing, the file 0600 and a new folder 0700 (it holds
+        every pose and every scenario's text: `private_db`).
     """
 
     def __init__(self, path: str):
         self.path = path
-        folder = os.path.dirname(os.path.abspath(path))
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+        private_db(path)
         try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
@@ -169,12 +167,10 @@ class MonitorStore:
                                     for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
 
     def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
-        """Track and control arrays (the shapes `services.sim.run.account` takes; the track also holds
+        """Track and control arrays (the shapes `services.sim.run.accounted` takes; the track also holds
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
         ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`: the
         implement's (for the masks)."""
-        from services.sim.sections import sections_from_masks
-
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")
@@ -270,13 +266,14 @@ class MonitorService:
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
         from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
+        from services.sim.as_run import with_settings
 
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
-            return summary_json(self._report(params.text("run_id"))).encode()
+            return summary_json(with_settings(self._report(params.text("run_id")))).encode()
 
-    def _report(self, run_id: str | None) -> dict:
-        return recorded_run(self.store, self.store.run(run_id), self._world).summary
+    def _report(self, run_id: str | None):
+        return recorded_run(self.store, self.store.run(run_id), self._world)
 
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
@@ -305,7 +302,7 @@ def run_world(run: dict, data: DataRoot | None = None):
 
 def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     """A services run as a `services.sim.run.RunResult`, rebuilt from its records over the complete
-    ticks with `services.sim.run.account`, the function ``vrsim run`` uses: the monitor's report is its
+    ticks with `services.sim.run.accounted`, the function ``vrsim run`` uses: the monitor's report is its
     summary, and ``vrsim report`` writes its files with ``vrsim run``'s writers.
 
     Parameters
@@ -316,7 +313,8 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     world_of : callable
         ``world_of(run) -> World`` (default `run_world`; the monitor keeps the last one).
     """
-    from services.sim.run import RunResult, account
+    from services.sim.accounting import StageTimer
+    from services.sim.run import accounted
 
     t0 = time.perf_counter()
     world = world_of(run)  # first: the records' section masks need the implement's sections
@@ -325,25 +323,55 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     n = len(track["time_s"])
     if n < 2:
         raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
-    measured = {key: track.pop(key) for key in MEASURED}
-    t2 = time.perf_counter()
-    summary, rest = account(world, track, control, t2)
-    wall = max(run["last_unix"] - run["started_unix"], 1e-9)
-    summary["wall_time_s"] = wall
-    summary["realtime_factor"] = summary["sim_time_s"] / wall
-    stage = {"build_s": t1 - t0, "read_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
-    summary["stage_s"] = stage
+    measured = tuple(track.pop(key) for key in MEASURED)
+    # The wall time is the services run's, by its records' clock, not this report's.
+    timer = StageTimer({"build_s": t1 - t0, "read_s": time.perf_counter() - t1},
+                       wall_time_s=max(run["last_unix"] - run["started_unix"], 1e-9))
+    result = accounted(world, track, measured, control, timer, run["started_unix"])
+    summary = result.summary
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
     summary["missing_ticks"] = missing_ticks(track["tick"])
     summary["complete"] = not summary["missing_ticks"]
-    return RunResult(world=world, track=track, control=control, stage_s=stage, summary=summary,
-                     started_unix=run["started_unix"], **measured, **rest)
+    return result
 
 
 def default_db(options) -> str:
-    """``runs/monitor-<prefix>-<machine>.sqlite``: one database per prefix and machine."""
-    return os.path.join("runs", f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+    """``runs/monitor/<prefix>-<machine>.sqlite``: one database per prefix and machine, in a folder of
+    the monitor's own (made 0700 by `private_db`)."""
+    return os.path.join(DEFAULT_DB_FOLDER, f"{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+
+
+DEFAULT_DB_FOLDER = os.path.join("runs", "monitor")
+_DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it gives them its mode)
+
+
+def private_db(path: str) -> None:
+    """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
+    default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
+    an older database's files (0644 before) tightened to 0600 where they can be. A symlink is refused."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        if folder == os.path.abspath(DEFAULT_DB_FOLDER):
+            os.chmod(folder, 0o700)
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+    try:
+        if not os.path.lexists(path):
+            flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+            os.close(os.open(path, flags, 0o600))
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create it as a private file: {exc.strerror}") from None
+    if os.path.islink(path):
+        raise ServiceError(f"--db {path}: is a symlink; give the database file itself")
+    for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
+        st = os.stat(name)
+        if st.st_mode & 0o077 and st.st_uid == os.getuid():
+            try:
+                os.chmod(name, 0o600)
+            except OSError:  # a database on a read-only mount, read by `vrsim report`: as it is
+                pass
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

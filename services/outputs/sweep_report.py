@@ -13,8 +13,9 @@ import math
 import numpy as np
 from matplotlib.ticker import NullFormatter
 
+from common.written import written
 from services.outputs.plots import figure
-from services.outputs.summary import SUMMARY_ROWS
+from services.outputs.summary import summary_rows
 from services.sim.sweep import (
     METRIC_SENSE,
     Configuration,
@@ -25,7 +26,7 @@ from services.sim.sweep import (
     pareto_front,
 )
 
-LABELS = {key: f"{label} [{unit}]" for label, key, unit in SUMMARY_ROWS}
+LABELS = {key: f"{label} [{unit}]" for label, key, unit in summary_rows()}
 BEST_K = 3  # configurations listed per metric
 MAX_TICKS = 12  # an axis with at most this many values is labelled at each value and joined by a line
 SENSE_WORDS = {"min": "lower is better", "max": "higher is better", "zero": "closest to 0 is better"}
@@ -181,5 +182,5 @@ td,th{{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left}}img{{max-w
 <p>Every run is a row of results.parquet and results.csv beside this page.</p>
 </body></html>
 """
-    with open(path, "w", encoding="utf-8") as fh:
+    with written(path) as temp, open(temp, "w", encoding="utf-8") as fh:
         fh.write(page)
