@@ -248,5 +248,6 @@ def _figures(s: Setting, d: Deposit) -> tuple[MapMetrics, TransitionMetrics, Ove
                         d.outside_kg),
             transitions(s.track["time_s"], landing.distance_m, landing.prescribed_kg_ha, d.rate_kg_ha,
                         np.asarray(s.track["implement_on"], bool), s.steps),
-            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field),
+            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field,
+                            s.world.grid.rates_kg_ha),
             limit_metrics(s.limited, s.applying, d.limited_coverage, cover, s.in_field))

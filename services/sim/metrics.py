@@ -17,9 +17,16 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 - off_target_kg: product landing outside the field or off the grid, plus product on zero-rate cells;
 - coverage_pct: share of the field's cells that are covered.
 
-Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap and skipped area,
-product beyond the first pass, and the share of working time and covered area where the meter could
-not turn at the speed the map asked for. In time (per tick, along the track): `transitions`.
+Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap area, skipped area
+(worked ground whose prescription asks for product that got none), zero-rate ground left bare (off as
+prescribed: closing the sections there is right, not a skip), product beyond the first pass, and the
+share of working time and covered area where the meter could not turn at the speed the map asked for.
+
+In time (per tick, along the track, `transitions`): a rate step's transition ends where the applied
+rate enters, and stays until the step's window ends, within 10 % of the new rate. The window closes at
+the next step or where the implement goes off (a turn, the end of a pass). Steps into zero rate
+(sections closing) and steps whose window closes before the rate settles are counted apart and left
+out of the mean and the percentiles, so that both describe the same steps.
 
 `METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
 tolerance the accuracy library holds it to, and how it comes from a run's accounts
@@ -120,15 +127,24 @@ METRICS = (
            "share of covered cells within 10 % of a positive prescription", (1.0, 0.0), sense="max",
            of="map.within_10pct_area_pct"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
-           "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05),
+           "from a rate step to a non-zero rate until the applied rate settles (enters and stays within "
+           "10 % of the new rate), over the steps that settle", (0.05, 0.05),
            sense="min", of="transitions.transition_time_s_mean"),
-    Metric("transition_time_s_p95", "s", "Transition time, 95th percentile", "as above, 95th percentile",
-           (0.05, 0.05), sense="min", of="transitions.transition_time_s_p95"),
+    Metric("transition_time_s_p95", "s", "Transition time, 95th percentile",
+           "as above (the same steps), 95th percentile", (0.05, 0.05), sense="min",
+           of="transitions.transition_time_s_p95"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the landing path over the transition", (0.1, 0.05), sense="min",
            of="transitions.transition_distance_m_mean"),
     Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
            "as above, 95th percentile", (0.1, 0.05), sense="min", of="transitions.transition_distance_m_p95"),
+    Metric("transitions_to_zero", "", "Rate steps to zero",
+           "rate steps into a zero rate (sections closing), not in the transition figures",
+           of="transitions.transitions_to_zero"),
+    Metric("transitions_cut", "", "Rate steps cut",
+           "rate steps to a non-zero rate whose window closed (the implement went off or the next step "
+           "came) before the applied rate settled, not in the transition figures",
+           of="transitions.transitions_cut"),
     Metric("off_target_kg", "kg", "Off-target product",
            "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min",
            of="map.off_target_kg"),
@@ -138,8 +154,12 @@ METRICS = (
            "share of the covered field area that received product from more than one pass", (0.3, 0.03),
            sense="min", of="overlap.overlap_area_pct"),
     Metric("skip_area_pct", "%", "Skipped area",
-           "share of the worked field area (swept by the working width along working stretches) that "
-           "received no product", (0.3, 0.03), sense="min", of="overlap.skip_area_pct"),
+           "share of the worked field area (swept by the working width along working stretches) whose "
+           "prescription is above 0 that received no product", (0.3, 0.03), sense="min",
+           of="overlap.skip_area_pct"),
+    Metric("off_as_prescribed_area_pct", "%", "Off as prescribed",
+           "share of the worked field area whose prescription is 0 (or none) that received no product: "
+           "sections rightly closed, not skipped", (0.3, 0.03), of="overlap.off_as_prescribed_area_pct"),
     Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
            (0.2, 0.03), sense="min", of="overlap.overlap_kg"),
     Metric("limited_time_pct", "%", "Machine-limited time",
@@ -161,7 +181,8 @@ METRICS = (
            of="map.rmse_pct"),
     Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells", sense="zero",
            of="map.bias_pct"),
-    Metric("transitions", "", "", "rate steps whose transition settled", of="transitions.transitions"),
+    Metric("transitions", "", "", "rate steps to a non-zero rate whose transition settled: the steps of the "
+           "transition figures", of="transitions.transitions"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
     Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
            of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
@@ -200,6 +221,8 @@ class TransitionMetrics:
     transition_time_s_p95: float
     transition_distance_m_mean: float
     transition_distance_m_p95: float
+    transitions_to_zero: int
+    transitions_cut: int
 
 
 def _pct(part: float, whole: float) -> float:
@@ -293,11 +316,12 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
 class OverlapMetrics:
     overlap_area_pct: float
     skip_area_pct: float
+    off_as_prescribed_area_pct: float
     overlap_kg: float
 
 
-def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_fraction,
-                    in_field) -> OverlapMetrics:
+def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_fraction, in_field,
+                    prescribed_kg_ha) -> OverlapMetrics:
     """Overlap and skips over the field's cells.
 
     Parameters
@@ -312,17 +336,23 @@ def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_frac
         area, `services.sim.section_landing.worked_fraction`).
     in_field : ndarray of bool, shape (rows, cols)
         Cells whose centre lies inside the field.
+    prescribed_kg_ha : ndarray, shape (rows, cols)
+        The prescription (NaN on nodata).
 
-    ``overlap_area_pct`` is over the covered area, ``skip_area_pct`` over the worked area: the
-    worked share of a cell that product did not cover.
+    ``overlap_area_pct`` is over the covered area. The worked share of a cell that product did not
+    cover is bare: ``skip_area_pct`` is the bare area of cells whose prescription is above 0 over
+    their worked area, ``off_as_prescribed_area_pct`` the bare area of the other cells (zero rate or
+    nodata: the sections rightly closed there) over the whole worked area.
     """
     field = np.asarray(in_field, bool)
     covered = np.asarray(coverage_fraction, float)[field]
     worked = np.minimum(np.asarray(worked_fraction, float)[field], 1.0)
-    skipped = np.maximum(worked - covered, 0.0)
+    bare = np.maximum(worked - covered, 0.0)
+    asks = np.asarray(prescribed_kg_ha, float)[field] > 0  # NaN (nodata): asks for nothing
     return OverlapMetrics(
         overlap_area_pct=_pct(np.asarray(overlap_fraction, float)[field].sum(), covered.sum()),
-        skip_area_pct=_pct(skipped.sum(), worked.sum()),
+        skip_area_pct=_pct(bare[asks].sum(), worked[asks].sum()),
+        off_as_prescribed_area_pct=_pct(bare[~asks].sum(), worked.sum()),
         overlap_kg=float(np.asarray(overlap_kg, float)[field].sum()),
     )
 
@@ -371,7 +401,7 @@ def rate_steps(prescribed_kg_ha, active) -> np.ndarray:
 
 
 def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, steps=None) -> TransitionMetrics:
-    """Time and distance from each rate step until the applied rate is within 10 % of the new rate.
+    """Time and distance from each rate step until the applied rate settles on the new rate.
 
     Parameters
     ----------
@@ -379,39 +409,52 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
         Time of each tick and distance travelled by the landing point up to it (monotone).
     prescribed_kg_ha, applied_kg_ha : ndarray, shape (n,)
         Prescription under the landing point and the applied rate there, per tick (NaN where the
-        rate is undefined, e.g. standing still).
+        rate is undefined, e.g. standing still or every section off: not within tolerance).
     active : ndarray of bool, shape (n,)
         Ticks where the implement is on.
     steps : ndarray of int, optional
         ``rate_steps(prescribed_kg_ha, active)`` when already known (many applied rates over one
         prescription).
 
-    A step whose rate changes again before the applied rate settles is not counted (its transition
-    is unfinished, not fast or slow); one where the applied rate is already within tolerance at
-    the step counts as zero.
+    A step's window runs from the step to the next step or to the first tick with the implement off,
+    whichever comes first. The transition ends at the first tick of the window from which the applied
+    rate stays within `TRANSITION_TOLERANCE` of the new rate to the window's end (zero when it is
+    within from the step on; an overshoot that leaves the band and comes back ends where it comes
+    back). A step into zero rate is counted in ``transitions_to_zero``; one whose window ends outside
+    the band in ``transitions_cut`` (unfinished, not fast or slow); neither is in the mean or the
+    percentiles.
     """
     t = np.asarray(time_s, dtype=float)
     d = np.asarray(distance_m, dtype=float)
     rx = np.asarray(prescribed_kg_ha, dtype=float)
     applied = np.asarray(applied_kg_ha, dtype=float)
-    steps = rate_steps(rx, active) if steps is None else steps
+    on = np.asarray(active, dtype=bool)
+    n = len(rx)
+    steps = rate_steps(rx, on) if steps is None else np.asarray(steps, dtype=int)
+    ticks = np.arange(n)
+    # First tick at or after each tick with the implement off (n: none), last tick at or before each
+    # tick outside the band (-1: none).
+    next_off = np.minimum.accumulate(np.where(on, n, ticks)[::-1])[::-1]
     ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
-    ok_idx = np.flatnonzero(ok)
-    ends = np.append(steps[1:], len(rx))  # a step's window closes at the next step
-    first_ok = ok_idx[np.minimum(np.searchsorted(ok_idx, steps), max(len(ok_idx) - 1, 0))] \
-        if ok_idx.size else np.full(len(steps), len(rx))
-    settled = (first_ok >= steps) & (first_ok < ends) if ok_idx.size else np.zeros(len(steps), bool)
-    k, j = steps[settled], first_ok[settled]
+    last_out = np.maximum.accumulate(np.where(ok, -1, ticks))
+    to_zero = rx[steps] <= 0
+    ends = np.minimum(np.append(steps[1:], n), next_off[steps])  # each step's window: [step, end)
+    settle = np.maximum(last_out[ends - 1] + 1, steps)
+    settled = ~to_zero & (settle < ends)
+    k, j = steps[settled], settle[settled]
     times, dists = t[j] - t[k], d[j] - d[k]
+    counts = dict(transitions=int(times.size), transitions_to_zero=int(np.count_nonzero(to_zero)),
+                  transitions_cut=int(np.count_nonzero(~to_zero & ~settled)))
     if times.size == 0:
         nan = float("nan")
-        return TransitionMetrics(0, nan, nan, nan, nan)
+        return TransitionMetrics(transition_time_s_mean=nan, transition_time_s_p95=nan,
+                                 transition_distance_m_mean=nan, transition_distance_m_p95=nan, **counts)
     return TransitionMetrics(
-        transitions=int(times.size),
         transition_time_s_mean=float(times.mean()),
         transition_time_s_p95=float(np.percentile(times, 95)),
         transition_distance_m_mean=float(dists.mean()),
         transition_distance_m_p95=float(np.percentile(dists, 95)),
+        **counts,
     )
 
 
@@ -441,9 +484,11 @@ POINT_METRICS = (
            "share of the points with a positive target where |applied - target| <= 10 % of it"),
     Metric("transitions", "", "Rate steps settled",
            "steps of the target between consecutive points compared (more than 10 % and 5 kg/ha, or 5 L/ha "
-           "for a volume rate) after which the applied rate came within 10 % before the next step"),
+           "for a volume rate) to a non-zero target after which the applied rate settled (entered and stayed "
+           "within 10 %) before the next step or a point not compared"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
-           "from a step until the applied rate is within 10 % of the new target (to the log's interval)"),
+           "from a step until the applied rate settles within 10 % of the new target (to the log's "
+           "interval), over the steps settled"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the logged positions over the transition"),
 )
