@@ -23,8 +23,8 @@ prescribed: closing the sections there is right, not a skip), product beyond the
 share of working time and covered area where the meter could not turn at the speed the map asked for.
 
 In time (per tick, along the track, `transitions`): a rate step's transition ends where the applied
-rate enters, and stays until the step's window ends, within 10 % of the new rate. The window closes at
-the next step or where the implement goes off (a turn, the end of a pass). Steps into zero rate
+rate settles: enters and stays within 10 % of the new rate for ``SETTLE_HOLD_S`` (1 s) or until the
+step's window closes, at the next step or where the implement goes off (a turn, the end of a pass). Steps into zero rate
 (sections closing) and steps whose window closes before the rate settles are counted apart and left
 out of the mean and the percentiles, so that both describe the same steps.
 
@@ -49,6 +49,7 @@ if TYPE_CHECKING:
 
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
 TRANSITION_TOLERANCE = 0.10  # "within 10 % of the new rate"
+SETTLE_HOLD_S = 1.0  # ... and staying there this long (or to the step's window end) is settling
 STEP_MIN_RELATIVE = 0.10  # a rate change of more than 10 % ...
 STEP_MIN_KG_HA = 5.0  # ... and more than 5 kg/ha is a rate step
 
@@ -418,9 +419,10 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
 
     A step's window runs from the step to the next step or to the first tick with the implement off,
     whichever comes first. The transition ends at the first tick of the window from which the applied
-    rate stays within `TRANSITION_TOLERANCE` of the new rate to the window's end (zero when it is
-    within from the step on; an overshoot that leaves the band and comes back ends where it comes
-    back). A step into zero rate is counted in ``transitions_to_zero``; one whose window ends outside
+    rate stays within `TRANSITION_TOLERANCE` of the new rate for `SETTLE_HOLD_S` or to the window's
+    end (zero when it does so from the step on; an overshoot that leaves the band and comes back ends
+    where it comes back; a rate that leaves the band later, at the end of the pass say, is a new
+    disturbance, not this step's). A step into zero rate is counted in ``transitions_to_zero``; one whose window ends outside
     the band in ``transitions_cut`` (unfinished, not fast or slow); neither is in the mean or the
     percentiles.
     """
@@ -437,9 +439,15 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
     next_off = np.minimum.accumulate(np.where(on, n, ticks)[::-1])[::-1]
     ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
     last_out = np.maximum.accumulate(np.where(ok, -1, ticks))
+    next_out = np.minimum.accumulate(np.where(ok, n, ticks)[::-1])[::-1]
+    # A tick from which the rate stays in the band for the hold (1 ns: the ticks' float times).
+    held = ok & ((t[np.minimum(next_out, n - 1)] - t >= SETTLE_HOLD_S - 1e-9) | (next_out == n))
+    next_held = np.minimum.accumulate(np.where(held, ticks, n)[::-1])[::-1]
     to_zero = rx[steps] <= 0
     ends = np.minimum(np.append(steps[1:], n), next_off[steps])  # each step's window: [step, end)
-    settle = np.maximum(last_out[ends - 1] + 1, steps)
+    # Settled at the first held tick of the window, or where the band holds to the window's end.
+    tail = np.maximum(last_out[ends - 1] + 1, steps)
+    settle = np.minimum(next_held[steps], np.where(tail < ends, tail, n))
     settled = ~to_zero & (settle < ends)
     k, j = steps[settled], settle[settled]
     times, dists = t[j] - t[k], d[j] - d[k]

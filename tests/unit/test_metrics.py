@@ -101,26 +101,27 @@ def test_unsettled_step_is_cut():
 
 
 def _track_of_steps():
-    """One track at 1 s a tick, 2 m/s, of four rate steps (each 10 ticks apart) and their applied rates:
+    """One track at 0.5 s a tick, 2 m/s, of four rate steps (each 10 ticks apart) and their applied rates:
 
-    - tick 5, 100 -> 200, a normal step: within 10 % (>= 180) from tick 8 on: 3 s;
+    - tick 5, 100 -> 200, a normal step: within 10 % (>= 180) from tick 8 on: 1.5 s; the sections
+      closing at tick 13 (more than `SETTLE_HOLD_S` later) do not undo it;
     - tick 15, 200 -> 0, into zero: the sections close (applied NaN);
     - tick 25, 0 -> 300, cut: the implement turns off at tick 29 before the rate comes near 300;
-    - tick 35, 100 -> 50 (after the turn), an overshoot: in the band at 37, out at 38-39 (40 < 45),
-      back from 40 on: 5 s, not 2.
+    - tick 35, 100 -> 50 (after the turn), an overshoot: in the band at 37 (for less than the hold),
+      out at 38-39 (40 < 45), back from 40 on: 2.5 s, not 1.
     """
     n = 50
-    t = np.arange(n, dtype=float)
+    t = np.arange(n) * 0.5
     rx = np.full(n, 100.0)
     rx[5:15], rx[15:25], rx[25:30], rx[35:] = 200.0, 0.0, 300.0, 50.0
     applied = rx.copy()
     applied[5:8] = (120.0, 150.0, 170.0)
-    applied[15:25] = np.nan
+    applied[13:25] = np.nan
     applied[25:29] = (60.0, 150.0, 200.0, 240.0)
     applied[35:41] = (90.0, 60.0, 52.0, 40.0, 42.0, 46.0)
     on = np.ones(n, bool)
     on[29:31] = False  # a turn
-    return t, 2.0 * t, rx, applied, on
+    return t, 2.0 * t, rx, applied, on  # 2 m/s
 
 
 def test_transitions_settle_and_leave_out_steps_into_zero_and_cut_steps():
@@ -128,11 +129,11 @@ def test_transitions_settle_and_leave_out_steps_into_zero_and_cut_steps():
     assert list(rate_steps(rx, on)) == [5, 15, 25, 35]
     m = transitions(t, d, rx, applied, on)
     assert (m.transitions, m.transitions_to_zero, m.transitions_cut) == (2, 1, 1)
-    assert m.transition_time_s_mean == pytest.approx((3.0 + 5.0) / 2)
-    assert m.transition_distance_m_mean == pytest.approx(2 * (3.0 + 5.0) / 2)
+    assert m.transition_time_s_mean == pytest.approx((1.5 + 2.5) / 2)
+    assert m.transition_distance_m_mean == pytest.approx(2 * (1.5 + 2.5) / 2)
     # The mean and the 95th percentile describe the same two steps: mean <= p95 <= max here.
-    assert m.transition_time_s_p95 == pytest.approx(np.percentile([3.0, 5.0], 95))
-    assert 3.0 <= m.transition_time_s_mean <= m.transition_time_s_p95 <= 5.0
+    assert m.transition_time_s_p95 == pytest.approx(np.percentile([1.5, 2.5], 95))
+    assert 1.5 <= m.transition_time_s_mean <= m.transition_time_s_p95 <= 2.5
     assert m.transition_distance_m_p95 == pytest.approx(2 * m.transition_time_s_p95)
 
 
