@@ -49,8 +49,9 @@ class ControlCore:
        policy off the map), which sections apply (`services.sim.sections.SectionSwitch`, stateful:
        coverage control remembers where product landed) and the target shaft speed for the width
        whose gates are open. No feedback, so vectorized over ticks. The landing point is predicted
-       by dead reckoning from the fix: product metered now lands `delivery_delay_s` later, when the
-       implement has moved ``speed * delay`` along its heading; the look-ahead adds the loop's lag
+       from the fix: product metered now lands `delivery_delay_s` later, where the sensed speed,
+       acceleration and yaw rate take the implement (`services.sim.sections.motion`, the same
+       prediction as the sections'); the look-ahead adds the loop's lag
        if asked to (`services.sim.look_ahead`). The sections decide on their own look-ahead (their
        latencies and the delivery delay), so they do not depend on the rate's look-ahead.
     2. the closed loop (PID, valve, motor; or any controller kind, `controller.build_loop`) over the

@@ -5,7 +5,7 @@ core reads is on average ``latency_s + 0.5 / rate_hz`` old (sample and hold at t
 latency); a loop that lags its target by a mean time λ meters the new rate on average λ after the
 target changed. So the rate should be looked up ``L = delivery_delay_s + fix age + λ`` ahead for the
 middle of each rate transition to land on the boundary (`ControlCore.targets` predicts the point
-``speed x L`` ahead of the fix along the heading).
+L ahead of the fix from the sensed speed, acceleration and yaw rate: `services.sim.sections.motion`).
 
 ``[controller] look_ahead_s`` chooses L (`initial_look_ahead_s`):
 

@@ -130,7 +130,7 @@ def test_coverage_mode_switches_sections_off_over_the_headland(heading_deg):
 
 def test_longer_latencies_give_more_overlap_and_skips():
     field = rectangle()
-    # Speed varying by +-20 % makes dead reckoning over the look-ahead err, as in the field.
+    # Speed varying by +-20 % makes the prediction over the look-ahead err, as in the field.
     track = planned_track(field, heading_deg=35.0, speed_wave=0.2)
     figures = []
     for delay_s in (0.5, 1.0, 2.0, 4.0):
