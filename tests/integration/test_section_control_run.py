@@ -2,6 +2,7 @@
 the error split, the machine check, and the outputs and refusals of `vrsim run`."""
 
 import json
+import os
 import subprocess
 
 import numpy as np
@@ -10,9 +11,10 @@ import rasterio
 
 from common.section_masks import sections_from_masks
 from services.outputs.write import write_outputs
+from services.sim import accuracy
 from services.sim.error_split import error_split
 from services.sim.run import run
-from services.sim.scenario import parse, with_changes
+from services.sim.scenario import load, parse, with_changes
 from tests.conftest import VRSIM
 
 FIELD = """
@@ -63,9 +65,9 @@ def test_uniform_map_with_the_ideal_meter_lands_the_map():
 
 @pytest.fixture(scope="module")
 def rectangle_ideal():
-    """The plain rectangle, uniform map, ideal meter, turns at the default 1.2 m/s (the tractor speeds
-    up to 2.5 m/s out of each headland turn)."""
-    return run(with_changes(field("rectangle", rx=UNIFORM), controller={"kind": "ideal"}))
+    """The accuracy library's plain rectangle, uniform map, ideal meter, turns at the default 1.2 m/s
+    (the tractor speeds up to 2.5 m/s out of each headland turn)."""
+    return run(load(os.path.join(accuracy.SCENARIO_DIR, "rectangle_uniform_ideal.toml")))
 
 
 def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
