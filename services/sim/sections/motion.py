@@ -9,8 +9,10 @@ pose, has then travelled ``d - w t o``: its own ground speed is the centre's min
 its offset (left positive, counter-clockwise yaw positive), so the inner sections of a turn look less
 far ahead than the outer ones.
 
-At constant speed on a straight line this is the old prediction (``v t`` straight ahead); where the
-tractor speeds up out of a headland turn, the sections look as far ahead as it will really travel.
+At constant speed on a straight line the prediction is ``v t`` straight ahead; where the tractor
+speeds up out of a headland turn, the sections look as far ahead as it will really travel. Where the
+acceleration or the yaw rate changes within the lead (the end of a turn, of a speed-up or slow-down),
+the extrapolation errs, and the mean over the window lags by half of it.
 """
 
 from __future__ import annotations

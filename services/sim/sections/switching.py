@@ -216,7 +216,7 @@ class _Coverage:
     sensed pose, speed, acceleration and yaw rate (`Motion.ahead`: each section by its own ground
     speed), whether the path works there is read off the plan at the distance travelled by then.
     The gates follow the commands after ``section_on_delay_s`` / ``section_off_delay_s``
-    (`GateLine`). Exact at constant speed, acceleration and yaw rate; where they change within the
+    (`GateLine`). Exact at constant acceleration and yaw rate; where they change within the
     look-ahead, longer latencies leave more skips and overlap, as the terminals' manuals warn.
 
     Vectorized: the coverage raster changes only where a pass ends (`PassTracker`), when all that
