@@ -368,9 +368,9 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     import services.sim.run
     from services.bus import messages
     from services.bus.config import Keys
-    from services.bus.vehicle import VehicleService
+    from services.bus.vehicle import _VehicleService
 
-    svc = VehicleService(None, Keys(), lambda payload: None)
+    svc = _VehicleService(None, Keys(), lambda payload: None)
     sent = []
 
     class Driver:
@@ -411,9 +411,9 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
 def test_run_id_is_safe_in_a_selector_parameter():
     import zenoh
 
-    from services.bus.scenario import new_run_id
+    from services.bus.scenario import _new_run_id
 
-    run_id = new_run_id("north field; v2#b?", 3)
+    run_id = _new_run_id("north field; v2#b?", 3)
     assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id
     params = zenoh.Selector(f"vrsim/tractor1/report?run_id={run_id}").parameters
     assert list(params) == [("run_id", run_id)]
@@ -428,7 +428,7 @@ def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
     from common import ScenarioError
     from services.bus import messages
     from services.bus.config import Keys
-    from services.bus.vehicle import VehicleService
+    from services.bus.vehicle import _VehicleService
     from services.sim import run as field_run
     from services.sim import scenario
     from services.sim.world import build_world
@@ -441,7 +441,7 @@ def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
         field_run.run(sc)
     assert str(path) in str(ran.value) and "within max_time_s=160 s" in str(ran.value)
 
-    svc = VehicleService(None, Keys(), lambda payload: None)
+    svc = _VehicleService(None, Keys(), lambda payload: None)
     ok = types.SimpleNamespace(ok=object())
     querier = types.SimpleNamespace(get=lambda payload: [ok], undeclare=lambda: None)
     svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)

@@ -9,11 +9,14 @@ Read from the source with `ast`, like `test_import_direction.py` (every import, 
   `controller` or `services` is used by another of those modules or listed in its module's
   ``__all__`` (the API a user imports: `services.sim.__all__`, `maps.__all__`, ...).
 
-A *use* is ``from x import y``, ``x.y`` on an imported module ``x`` (``services.sim.run.drive``),
-or an entry of a package's lazy table ``_LAZY = {"name": "module"}`` (the re-exports that module
-``__getattr__`` resolves on first use). The command and service modules are found by name at run
-time (`services.cli.main` imports ``services.cli.<command>``, `vrsim serve` ``services.bus.<service>``),
-so the entry points of those protocols (`PROTOCOLS`) count as used.
+A *use* by another module is ``from x import y``; ``x.y`` on an imported module ``x``
+(``services.sim.run.drive``); an entry of a package's lazy table ``_LAZY = {"name": "module"}`` (the
+re-exports its module ``__getattr__`` resolves on first use); a module-level decorator or call of
+another module that receives the definition (``@register("pid", PidParams, ...)`` hands both to
+`controller.registry`); a class named in the signature of a function other modules call (its callers
+hold one); a command of pyproject.toml's ``[project.scripts]``. Modules found by name at run time
+(`services.cli.main` imports ``services.cli.<command>``, `vrsim serve` ``services.bus.<service>``, the
+plot worker draws by function name) are used through their protocol's names (`PROTOCOLS`).
 
 Tests, benchmarks and the example scripts do not count as uses, and (a) does not apply to them: a
 unit test is its module's own and may call its private helpers; a name public only for a test would
@@ -23,6 +26,7 @@ still be the module's internals, and a user's API is what ``__all__`` says.
 import ast
 import os
 import re
+import tomllib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PACKAGES = ("common", "maps", "vehicle", "controller", "services")
@@ -31,6 +35,8 @@ PACKAGES = ("common", "maps", "vehicle", "controller", "services")
 PROTOCOLS = {
     r"services\.cli\.\w+": {"configure", "run"},  # services.cli.main: HELP, configure(parser), run(args)
     r"services\.bus\.\w+": {"main"},  # vrsim serve NAME: services.bus.NAME.main(config, stop)
+    # The plot worker draws a job by its function's name (`services.outputs.plot_worker.DRAWINGS`).
+    r"services\.outputs\.plots": {"draw_maps", "draw_sections", "draw_timeseries"},
 }
 
 # Names of files other helpers of issue #24 are editing at the same time: they keep their names
@@ -134,6 +140,33 @@ def _handed_over(tree: ast.Module, known: set[str]) -> set[str]:
     return given
 
 
+def _entry_points(root: str) -> set[tuple[str, str]]:
+    """(module, name) of the commands pyproject.toml installs (``vrsim = "services.cli.main:console"``)."""
+    path = os.path.join(root, "pyproject.toml")
+    if not os.path.exists(path):
+        return set()
+    with open(path, "rb") as fh:
+        scripts = tomllib.load(fh).get("project", {}).get("scripts", {})
+    return {tuple(target.split(":")) for target in scripts.values()}
+
+
+def _in_signatures(trees: dict[str, ast.Module], used: set[tuple[str, str]]) -> set[tuple[str, str]]:
+    """(module, name) of the classes named in the annotations of the functions other modules use.
+
+    ``load_state(folder) -> SecurityState``: whoever calls it holds one, so the type is public too.
+    """
+    out = set()
+    for mod, tree in trees.items():
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and (mod, node.name) in used:
+                args = node.args
+                notes = [a.annotation for a in (*args.posonlyargs, *args.args, *args.kwonlyargs)]
+                for note in (*notes, node.returns):
+                    if note is not None:
+                        out.update((mod, n.id) for n in ast.walk(note) if isinstance(n, ast.Name))
+    return out
+
+
 def _all(tree: ast.Module) -> set[str]:
     for node in tree.body:
         if (isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__"
@@ -157,6 +190,7 @@ def unused_public(root: str = ROOT, allowed=ALLOWED) -> list[str]:
     known = set(trees)
     used = {(target, name) for mod, tree in trees.items() for target, name in _uses(tree, known)
             if target != mod}
+    used |= _entry_points(root) | _in_signatures(trees, used)
     bad = []
     for mod, tree in trees.items():
         exported = _all(tree) | _handed_over(tree, known) | {

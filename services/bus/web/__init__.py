@@ -34,7 +34,7 @@ def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int
     return host, int(port)
 
 
-def bind(host: str, port: int) -> socket.socket:
+def _bind(host: str, port: int) -> socket.socket:
     """A listening socket, bound before anything else starts, so a taken port is a clear error."""
     try:
         info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
@@ -47,7 +47,7 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-class HttpServer:
+class _HttpServer:
     """uvicorn serving ``app`` on ``sock`` in a thread; ``stop`` is set if it ends by itself."""
 
     def __init__(self, app, sock: socket.socket, stop: threading.Event):
@@ -86,7 +86,7 @@ def main(config, stop: threading.Event | None = None) -> int:
 
     host, port = parse_listen(config.web_listen or DEFAULT_LISTEN)
     loopback = host in ("127.0.0.1", "localhost", "::1")
-    sock = bind(host, port)
+    sock = _bind(host, port)
     stop = stop or threading.Event()
     if not loopback:
         print(f"vrsim serve web: listening on {host}:{port}, beyond this machine: anyone who reaches it "
@@ -98,7 +98,7 @@ def main(config, stop: threading.Event | None = None) -> int:
         subscribers = bridge.declare()
         operator = Operator(config.operator) if config.operator is not None else None
         allowed = [*LOOPBACK_HOSTS, f"[{host}]" if ":" in host else host] if loopback else None
-        http = HttpServer(create_app(view, bridge, operator, allowed), sock, stop)
+        http = _HttpServer(create_app(view, bridge, operator, allowed), sock, stop)
         bridge.start()
         role = "operator: start and stop allowed" if operator else "viewer"
         shown = f"[{host}]" if ":" in host else host

@@ -33,7 +33,7 @@ MAX_SCENARIO_BYTES = 1_000_000
 LOOPBACK_HOSTS = ["127.0.0.1", "localhost"]
 
 
-class Frames:
+class _Frames:
     """Closes frames at most every `FRAME_S` and wakes the streams waiting for one."""
 
     def __init__(self, view: LiveView):
@@ -61,7 +61,7 @@ class Frames:
         return True
 
 
-def sse(kind: str, doc: dict) -> bytes:
+def _sse(kind: str, doc: dict) -> bytes:
     """One event; ``sent_unix``: when it left (wall clock, s), for a client's own latency figures."""
     doc["sent_unix"] = time.time()
     return b"event: " + kind.encode() + b"\ndata: " + orjson.dumps(doc) + b"\n\n"
@@ -71,7 +71,7 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
                allowed_hosts: list[str] | None = None) -> Starlette:
     """The Starlette app. ``operator`` None: a viewer (start and stop answer 403);
     ``allowed_hosts``: Host headers accepted (against DNS rebinding on loopback; None: any)."""
-    frames = Frames(view)
+    frames = _Frames(view)
     role = "operator" if operator is not None else "viewer"
 
     @contextlib.asynccontextmanager
@@ -95,7 +95,7 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
             try:
                 doc = view.hello()
                 sent = loop.time()
-                yield sse("hello", doc)
+                yield _sse("hello", doc)
                 while not frames.closing:
                     if not await frames.next(doc["seq"]):
                         yield b": keepalive\n\n"
@@ -106,7 +106,7 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
                         return
                     doc = view.delta(doc["seq"], doc["epoch"])
                     sent = loop.time()
-                    yield sse(doc["type"], doc)
+                    yield _sse(doc["type"], doc)
             finally:
                 bridge.viewers -= 1
 
