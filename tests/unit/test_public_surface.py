@@ -25,6 +25,7 @@ still be the module's internals, and a user's API is what ``__all__`` says.
 """
 
 import ast
+import functools
 import os
 import re
 import subprocess
@@ -93,6 +94,7 @@ ALLOWED = {
 }
 
 
+@functools.cache
 def _parse(root: str, packages=PACKAGES) -> dict[str, ast.Module]:
     """{module name: its syntax tree} of every .py file under `packages`."""
     out = {}
@@ -240,25 +242,29 @@ def _all(tree: ast.Module) -> set[str]:
     return set()
 
 
-def private_crossings(root: str = ROOT, allowed=ALLOWED) -> list[str]:
-    """(a): every private name a module takes from another one, but those of `ALLOWED`."""
+@functools.cache
+def _crossings(root: str) -> frozenset[tuple[str, str, str]]:
+    """(module, module it takes a name from, name) of every use across modules under `root`."""
     trees = _parse(root)
-    known = set(trees)
-    return sorted(f"{mod} uses {target}.{name}" for mod, tree in trees.items()
-                  for target, name in _uses(tree, known)
-                  if target != mod and _private(name) and (target, name) not in allowed)
+    return frozenset((mod, target, name) for mod, tree in trees.items()
+                     for target, name in _uses(tree, set(trees)) if target != mod)
+
+
+def private_crossings(root: str = ROOT, allowed=ALLOWED) -> list[str]:
+    """(a): every private name a module takes from another one, but those of `allowed`."""
+    return sorted(f"{mod} uses {target}.{name}" for mod, target, name in _crossings(root)
+                  if _private(name) and (target, name) not in allowed)
 
 
 def unused_public(root: str = ROOT, allowed=ALLOWED) -> list[str]:
-    """(b): every public module-level function or class that no other module uses, nor `__all__` lists."""
+    """(b): every public module-level function or class that no other module uses, nor `__all__` lists,
+    but those of `allowed`."""
     trees = _parse(root)
-    known = set(trees)
-    used = {(target, name) for mod, tree in trees.items() for target, name in _uses(tree, known)
-            if target != mod}
-    used = _in_signatures(trees, used | _entry_points(root))
+    used = {(target, name) for _, target, name in _crossings(root)} | _entry_points(root)
+    used = _in_signatures(trees, used)
     bad = []
     for mod, tree in trees.items():
-        exported = _all(tree) | _handed_over(tree, known) | {
+        exported = _all(tree) | _handed_over(tree, set(trees)) | {
             n for pattern, names in PROTOCOLS.items() if re.fullmatch(pattern, mod) for n in names}
         for node in tree.body:
             if (isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef))
@@ -319,3 +325,40 @@ def test_importing_a_submodule_loads_no_other_part_of_the_api():
     code = f"import sys, services.sim.scenario\nprint(*(m for m in {heavy!r} if m in sys.modules))"
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.split() == [], (done.stdout, done.stderr)
+
+
+def _namesakes(tree: ast.Module) -> list[str]:
+    """Where `tree` takes one of `services.sim`'s functions named like its module for the module:
+    ``import services.sim.run as m`` (binds the function), or ``from services.sim import run``
+    then ``run.drive``."""
+    import services.sim
+
+    sim = os.path.join(ROOT, "services", "sim")
+    clash = {n for n in services.sim.__all__ if os.path.exists(os.path.join(sim, f"{n}.py"))}
+    bound, bad = set(), []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            bad += [f"import {a.name} as {a.asname}" for a in node.names
+                    if a.asname and a.name.startswith("services.sim.") and a.name.split(".")[2] in clash]
+        elif isinstance(node, ast.ImportFrom) and node.module == "services.sim":
+            bound |= {a.asname or a.name for a in node.names if a.name in clash}
+    bad += [f"{n.value.id}.{n.attr}" for n in ast.walk(tree)
+            if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id in bound]
+    return bad
+
+
+def test_no_module_is_taken_for_its_namesake_function():
+    """`services.sim.run` is the function: its module is imported by its full name (``from
+    services.sim.run import drive``); so are `compare`, `evaluate` and `tune`'s."""
+    wrong = "from services.sim import run as r\nr.drive(s)\nimport services.sim.tune as t\n"
+    assert _namesakes(ast.parse(wrong)) == ["import services.sim.tune as t", "r.drive"]
+    found = {}
+    for top in (*PACKAGES, "tests", "bench", "scenarios"):
+        for folder, _, files in os.walk(os.path.join(ROOT, top)):
+            for name in files:
+                if name.endswith(".py"):
+                    path = os.path.join(folder, name)
+                    bad = _namesakes(ast.parse(open(path, encoding="utf-8").read(), path))
+                    if bad:
+                        found[os.path.relpath(path, ROOT)] = bad
+    assert found == {}
