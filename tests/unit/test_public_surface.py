@@ -153,7 +153,7 @@ def _uses(tree: ast.Module, known: set[str]) -> set[tuple[str, str]]:
 
 
 def _handed_over(tree: ast.Module, known: set[str]) -> set[str]:
-    """(own module, name) of each definition a module-level decorator or call of another module receives.
+    """The names of the definitions a module-level decorator or call of another vrsim module receives.
 
     ``@register("pid", PidParams, ...)`` on ``class PidController`` hands the class and its parameters
     to `controller.registry`, which uses them from then on: that is a use by another module.
@@ -209,7 +209,7 @@ def _in_signatures(trees: dict[str, ast.Module], used: set[tuple[str, str]]) -> 
         found = set(out)
         for mod, tree in trees.items():
             for node in tree.body:
-                if (mod, node.name if hasattr(node, "name") else None) not in out:
+                if (mod, getattr(node, "name", None)) not in out:
                     continue
                 if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                     args = node.args
