@@ -25,13 +25,13 @@ import threading
 import numpy as np
 
 from common import ServiceError
+from common.section_masks import section_masks
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
 from services.bus.serving import Params, run_service, serve
 from services.outputs.encode import dumps
 from services.sim.landing import applied_rate_kg_ha
-from services.sim.sections import section_masks
 
 
 class _ControllerService:

@@ -247,7 +247,7 @@ class RateSample(Message):
     the period (null at standstill or with all sections off); ``prescribed_kg_ha`` is null outside the
     map (policy "off"); ``width_on_m`` is the working width of the sections whose gates are open and
     ``section_mask`` which ones: a bitmask in hexadecimal, bit k the k-th section from the left
-    (``"0x3f"``: six sections all on; `services.sim.sections.section_masks`).
+    (``"0x3f"``: six sections all on; `common.section_masks.section_masks`).
     """
 
     run_id: str

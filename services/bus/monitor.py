@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from common import ServiceError
+from common.section_masks import sections_from_masks
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
@@ -173,8 +174,6 @@ class MonitorStore:
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
         ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`: the
         implement's (for the masks)."""
-        from services.sim.sections import sections_from_masks
-
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")

@@ -108,7 +108,7 @@ def split_table(result: RunResult) -> str:
             "<td>100</td></tr></table>\n<p>Geometry and section control: the same run with a meter whose "
             "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
             "to the shaft's range adds (the <code>ideal</code> controller); metering: what the "
-            "controller and plant add. See the README's accuracy section.</p>")
+            "controller and plant add. See vrsim's docs/model.md, section 7.</p>")
 
 
 def write_html(result: RunResult, paths: dict[str, str]) -> None:

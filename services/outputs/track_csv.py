@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from common.section_masks import section_mask_codes
 from services.sim.run import RunResult
-from services.sim.sections import section_mask_codes
 
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha; None: as is
 TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),
@@ -22,7 +22,7 @@ TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("targ
 
 def write_track_csv(result: RunResult, path: str) -> None:
     """``sections_on`` counts the sections whose gates are open in the tick, ``section_mask`` says which
-    (hexadecimal bitmask, bit k the k-th section from the left: `services.sim.sections.section_masks`)."""
+    (hexadecimal bitmask, bit k the k-th section from the left: `common.section_masks.section_masks`)."""
     import pyarrow as pa
     import pyarrow.csv as pa_csv
 

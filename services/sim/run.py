@@ -1,6 +1,6 @@
 """The in-process run: world, SUMO, sensors, control core, landing and metrics, staged.
 
-Data flow of one control tick (see the README's picture)::
+Data flow of one control tick (docs/design.md draws it)::
 
     SUMO pose --GNSS--> measured fix --look-ahead by the delivery delay--> landing point
     --map lookup--> rate kg/ha --with speed, width, kg/rev--> target shaft rpm --PID--> valve current

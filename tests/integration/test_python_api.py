@@ -1,4 +1,4 @@
-"""The Python API example (scenarios/python_api.py) runs as the README shows it, from another folder."""
+"""The Python API example (scenarios/python_api.py) runs as docs/api.md shows it, from another folder."""
 
 import json
 import os

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import rasterio
 
+from common.section_masks import sections_from_masks
 from services.outputs.write import write_outputs
 from services.sim.error_split import error_split
 from services.sim.run import run
 from services.sim.scenario import parse, with_changes
-from services.sim.sections import sections_from_masks
 from tests.conftest import VRSIM
 
 FIELD = """

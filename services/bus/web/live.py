@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ServiceError
+from common.section_masks import sections_from_masks
 
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
 MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
@@ -145,9 +146,7 @@ class SectionGeometry:
     def strips(self, masks, width_on_m):
         """Per open section of each sample: (sample index, strip width, strip offset), arrays of one
         length. A batch holding a mask that is not one of these sections' is left out whole (the
-        bus is untrusted; `services.sim.sections.sections_from_masks` checks the masks)."""
-        from services.sim.sections import sections_from_masks
-
+        bus is untrusted; `common.section_masks.sections_from_masks` checks the masks)."""
         try:
             on = sections_from_masks(masks, self.widths_m.size)
         except ValueError:

@@ -1,0 +1,126 @@
+"""The coverage raster: the terminal's coverage map, where product has landed and where the field is.
+
+Coverage switching reads each section's strip off it ahead of the implement (`CoverageRaster.wanted`)
+and marks what landed where a pass ends (`CoverageRaster.mark`). North-up in the field's metric CRS,
+square cells a fraction of a section wide (`coverage_cell_m`, m).
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+import zlib
+
+import numpy as np
+import shapely
+
+from maps.rasterize import fill_rings
+from services.sim.sections.passes import runs_of
+from services.sim.sections.strips import Poses, Strip, fill_outlines
+from vehicle import Implement
+
+_TREATED, _OUTSIDE = np.uint8(1), np.uint8(2)  # bits of the coverage raster
+_CELLS_PER_SECTION = 8  # default coverage cell: the narrowest section / this
+_MAX_COVERAGE_CELLS = 16_000_000  # 16 MB of coverage raster at most; coarser cells beyond
+_MIN_COVERAGE_CELL_M = 0.05
+
+
+def coverage_cell_m(implement: Implement, map_cell_m: float | None = None) -> float:
+    """Default coverage-raster cell, m: an eighth of the narrowest section, no coarser than the map's."""
+    cell = float(implement.section_widths.min()) / _CELLS_PER_SECTION
+    if map_cell_m is not None:
+        cell = min(cell, float(map_cell_m))
+    return max(cell, _MIN_COVERAGE_CELL_M)
+
+
+class CoverageRaster:
+    """Where product has landed so far, and where the field is, on a north-up raster of `cell_m` m cells.
+
+    One byte per cell: `_TREATED` once a landed strip covers the cell's centre, `_OUTSIDE` where the
+    centre lies outside the field. Points beyond the raster read as the nearest edge cell, which
+    lies outside the field (the raster has a margin).
+
+    Parameters
+    ----------
+    field_polygon : shapely Polygon or MultiPolygon
+        The field boundary in the metric CRS of the positions.
+    cell_m : float
+        Cell size, m; larger where the raster would exceed 16 million cells.
+    margin_m : float
+        Margin around the field's bounds, m.
+    """
+
+    def __init__(self, field_polygon, cell_m: float, margin_m: float):
+        minx, miny, maxx, maxy = field_polygon.bounds
+        margin = margin_m + 2 * cell_m
+        area = (maxx - minx + 2 * margin) * (maxy - miny + 2 * margin)
+        cell = max(cell_m, math.sqrt(area / _MAX_COVERAGE_CELLS))
+        self.cell_m = cell
+        self.west, self.north = minx - margin, maxy + margin
+        self.cols = math.ceil((maxx + margin - self.west) / cell)
+        self.rows = math.ceil((self.north - miny + margin) / cell)
+        inside = np.zeros((self.rows, self.cols), bool)
+        fill_rings(inside, *_polygon_rings(field_polygon), self.west, self.north, cell)
+        self.state = np.where(inside, np.uint8(0), _OUTSIDE)
+
+    def wanted(self, strip: Strip, x_m, y_m, cos, sin, treated_pct: float, outside_pct: float):
+        """Whether each section's product is wanted on its strip: bool (m, sections).
+
+        The strips lie across points (x_m, y_m) (m) heading (cos, sin), arrays of shape (m,);
+        wanted is no more than `treated_pct` (%) of the strip on treated ground and no more than
+        `outside_pct` (%) outside the field.
+        """
+        # In cell units relative to the raster's corner, float32 (exact to a thousandth of a cell),
+        # shape (points, m).
+        inv = 1.0 / self.cell_m
+        off = (strip.offsets_m * inv).astype(np.float32)[:, None]
+        col = ((x_m - self.west) * inv).astype(np.float32)[None, :] - sin.astype(np.float32)[None, :] * off
+        row = ((self.north - y_m) * inv).astype(np.float32)[None, :] - cos.astype(np.float32)[None, :] * off
+        np.clip(col, 0, self.cols - 1, out=col)
+        np.clip(row, 0, self.rows - 1, out=row)
+        cell = row.astype(np.int32)  # at most _MAX_COVERAGE_CELLS: int32 indices (half the work of int64)
+        cell *= self.cols
+        cell += col.astype(np.int32)
+        code = self.state.reshape(-1)[cell]
+        treated, outside = strip.count(code & _TREATED), strip.count(code >> 1)
+        counts = strip.counts
+        return (treated * 100.0 <= treated_pct * counts) & (outside * 100.0 <= outside_pct * counts)
+
+    def treated(self) -> str:
+        """The treated cells as plain data: the `_TREATED` bits packed, zlib-compressed, base64.
+
+        A coverage map of millions of cells stays a few kilobytes; `_OUTSIDE` follows from the field.
+        """
+        bits = np.packbits((self.state & _TREATED).astype(bool).reshape(-1))
+        return base64.b64encode(zlib.compress(bits.tobytes(), 6)).decode("ascii")
+
+    def set_treated(self, packed: str) -> None:
+        """Restore the treated cells from what `treated` returned."""
+        bits = np.frombuffer(zlib.decompress(base64.b64decode(packed)), np.uint8)
+        treated = np.unpackbits(bits, count=self.state.size).reshape(self.state.shape).astype(bool)
+        self.state = (self.state & _OUTSIDE) | np.where(treated, _TREATED, np.uint8(0))
+
+    def mark(self, strip: Strip, pose: Poses, a: int, landed: np.ndarray) -> None:
+        """Record as treated the strips landed at poses a, a+1, ... (`landed`: bool (m, sections)).
+
+        Each run of a section is outlined from its first pose to the pose after its last.
+        """
+        rings = []
+        step = pose.vertex_step(a, a + landed.shape[0])
+        for s in range(landed.shape[1]):
+            left, right = strip.edges_m[s]
+            for r0, r1 in runs_of(landed[:, s]):
+                rings += pose.outlines(a + r0, a + r1, left, right, step)
+        fill_outlines(self.state, rings, self.west, self.north, self.cell_m, value=_TREATED)
+
+
+def _polygon_rings(polygon):
+    """Vertex arrays of a (multi)polygon's rings, exterior and holes of a part sharing an owner."""
+    rings, owners = [], []
+    for part, geom in enumerate(getattr(polygon, "geoms", [polygon])):
+        for ring in [geom.exterior, *geom.interiors]:
+            rings.append(shapely.get_coordinates(ring))
+            owners.append(part)
+    xy = np.concatenate(rings)
+    start = np.concatenate(([0], np.cumsum([len(r) for r in rings])))
+    return xy[:, 0], xy[:, 1], start, np.asarray(owners)

@@ -1,0 +1,360 @@
+"""Switching: which sections' gates are open, tick by tick, by ``[implement] section_control``.
+
+Three modes (`SWITCHING`): ``"coverage"`` as terminals do it (a section switches off ahead of ground
+already treated, outside the field or off the planned path's working stretches), ``"boundary"`` (a
+section applies while its centre's predicted landing point lies in the field) and ``"off"`` (every
+section applies while the implement is on).
+
+`SectionSwitch.step` is causal and carries everything over, so a track stepped in batches of any size
+gives the states of one step over the whole track: `vrsim run` steps once, the Zenoh controller
+service once per lockstep batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.sim.sections.coverage import CoverageRaster, coverage_cell_m
+from services.sim.sections.gates import GateLine, command
+from services.sim.sections.passes import PassTracker, pass_index
+from services.sim.sections.strips import Poses, Strip
+from vehicle import CoveragePath, Implement
+from vehicle.implement import SECTION_CONTROL_MODES
+
+_MAX_WANTED_TICKS = 20_000  # decisions read off the raster in chunks of this many ticks (memory)
+
+
+@dataclass(frozen=True)
+class SectionStates:
+    """Per-tick section states of a run (or of one batch of ticks): gates, commands, passes; widths in m.
+
+    Attributes
+    ----------
+    actual : ndarray of bool, shape (n, sections)
+        Whether the section's gate is open during the tick: product metered in tick t passes it
+        and lands ``delivery_delay_s`` later on the section's own strip.
+    widths_m, offsets_m : ndarray, shape (sections,)
+        Width of each section and its centre's offset left of the implement's centre, m, left to right.
+    pass_index : ndarray of int, shape (n,)
+        The pass each tick's pose belongs to (-1 in turns); see `pass_index`.
+    commanded : ndarray of bool, shape (n, sections), or None
+        The terminal's command at each tick; None where only the gates are known (a run's records
+        rebuilt by the monitor).
+    """
+
+    actual: np.ndarray
+    widths_m: np.ndarray
+    offsets_m: np.ndarray
+    pass_index: np.ndarray
+    commanded: np.ndarray | None = None
+
+    @property
+    def width_on_m(self) -> np.ndarray:
+        """Working width whose gates are open at each tick, m, shape (n,): the width the meter's
+        target is computed for."""
+        return self.actual @ self.widths_m
+
+    @property
+    def count_on(self) -> np.ndarray:
+        """Number of sections whose gates are open at each tick, int, shape (n,)."""
+        return self.actual.sum(axis=1)
+
+
+class SectionSwitch:
+    """Section states tick by tick (ticks of `period_s` s), by the implement's ``section_control``.
+
+    Carried across `step` calls: batches of any size give the states of one call.
+
+    Parameters
+    ----------
+    implement : vehicle.Implement
+    field_polygon : shapely Polygon or MultiPolygon
+        The field boundary in the metric CRS of the positions.
+    path : vehicle.CoveragePath, optional
+        The planned path (coverage control reads off it where the path works; required there).
+    period_s : float
+        Control period (one tick), s.
+    map_cell_m : float, optional
+        The prescription's cell size; the coverage raster is at least this fine.
+    """
+
+    def __init__(self, implement: Implement, field_polygon, path: CoveragePath | None = None,
+                 period_s: float = 0.05, map_cell_m: float | None = None):
+        self.implement = implement
+        self.passes = PassTracker()
+        self.engine = SWITCHING[implement.section_control](implement, field_polygon, path, period_s,
+                                                           map_cell_m)
+        self.tick = 0
+
+    def step(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> SectionStates:
+        """The states of the next m ticks, from positions in m, heading in rad, speed in m/s.
+
+        Parameters
+        ----------
+        x_m, y_m, speed_m_s : array_like, shape (m,)
+            What the terminal knows: the GNSS position (field CRS, m), the sensed ground speed (m/s).
+        heading_rad : array_like, shape (m,)
+            Heading, math convention.
+        implement_on : array_like of bool, shape (m,)
+            The path is a working stretch here.
+        s_m : array_like, shape (m,), optional
+            Distance along the planned path (coverage control needs it).
+        """
+        on = np.asarray(implement_on, bool)
+        passes = self.passes.step(heading_rad, on)
+        sensed = _Sensed.of(x_m, y_m, speed_m_s, heading_rad)
+        commanded, actual = self.engine.step(sensed, on, s_m, passes, self.tick)
+        self.tick += on.size
+        imp = self.implement
+        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded)
+
+    def state(self) -> dict:
+        """What the switch carries from one `step` to the next, as plain data (JSON-safe): the tick,
+        the pass tracker and the switching's own memory (coverage: the coverage map, packed, the last
+        commands, the gates, what landed since the last pass ended)."""
+        return {"tick": self.tick, "passes": self.passes.state(), "engine": self.engine.state()}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from what `state` returned (also after JSON: lists for arrays)."""
+        self.tick = int(state["tick"])
+        self.passes.set_state(state["passes"])
+        self.engine.set_state(state["engine"])
+
+
+def switch_sections(track: dict, implement: Implement, field_polygon, path: CoveragePath | None = None,
+                    map_cell_m: float | None = None, measured=None, period_s: float | None = None
+                    ) -> SectionStates:
+    """Section states over a whole run (positions m, speed m/s): one `SectionSwitch.step` over the track.
+
+    Parameters
+    ----------
+    track : dict of ndarray, shape (n,)
+        ``time_s`` (evenly spaced), ``x_m``, ``y_m`` (field CRS, metres), ``heading_rad`` (math
+        convention), ``speed_m_s``, ``implement_on`` (bool: the path is a working stretch) and, for
+        coverage control, ``s_m`` (distance along `path`).
+    implement, field_polygon, path, map_cell_m
+        As for `SectionSwitch`.
+    measured : (x_m, y_m, speed_m_s), optional
+        What the terminal knows (GNSS position, sensed ground speed), arrays of shape (n,). Default:
+        the true ones.
+    period_s : float, optional
+        Tick length, s; default: the track's median time step.
+    """
+    if period_s is None:
+        period_s = _period_s(np.asarray(track["time_s"], float))
+    if measured is None:
+        measured = (track["x_m"], track["y_m"], track["speed_m_s"])
+    switch = SectionSwitch(implement, field_polygon, path, period_s, map_cell_m)
+    x, y, v = measured
+    return switch.step(x, y, track["heading_rad"], v, track["implement_on"], track.get("s_m"))
+
+
+def run_section_states(track: dict, control: dict, implement) -> SectionStates:
+    """The `SectionStates` of a run's control-core arrays: bool (n, sections) per tick and section.
+
+    The gates are ``control["sections_on"]`` (the commands ``sections_commanded`` when given), with
+    the implement's section widths and offsets (m) and the passes of the true track.
+    """
+    return SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
+                         implement.section_offsets_m, pass_index(track["heading_rad"], track["implement_on"]),
+                         control.get("sections_commanded"))
+
+
+# --- the three ways of switching ----------------------------------------------------------------
+class _Memoryless:
+    """A way of switching that carries nothing from one `step` to the next."""
+
+    def state(self) -> None:
+        return None
+
+    def set_state(self, state) -> None:
+        pass
+
+
+class _AllOn(_Memoryless):
+    """``"off"``: every section applies while the implement is on."""
+
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        self.sections = implement.sections
+
+    def step(self, sensed, on, s_m, passes, tick):
+        actual = np.repeat(on[:, None], self.sections, axis=1)
+        return actual, actual
+
+
+class _Boundary(_Memoryless):
+    """``"boundary"``: a section applies while the implement is on and its centre, at the control
+    core's predicted landing point, lies inside the field (no latency)."""
+
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        self.implement, self.polygon = implement, polygon
+
+    def step(self, sensed, on, s_m, passes, tick):
+        lx, ly = sensed.ahead(self.implement.delivery_delay_s)
+        actual = self.implement.sections_on(self.polygon, lx, ly, sensed.heading_rad, on)
+        return actual, actual
+
+
+class _Coverage:
+    """``"coverage"``, as terminals do it; stateful across `step` calls.
+
+    A section switches off when more than ``section_overlap_pct`` of its strip would land on treated
+    ground, more than ``boundary_overlap_pct`` outside the field, or beyond the planned path's
+    working stretch (in a turn), and on again over untreated ground in the field. It decides ahead
+    by its own latency plus the delivery delay: where its strip will be is dead-reckoned from the
+    sensed pose and speed, whether the path works there is read off the plan at the distance
+    travelled by then. The gates follow the commands after ``section_on_delay_s`` /
+    ``section_off_delay_s`` (`GateLine`). Exact at constant speed on straight lines; where speed or
+    heading change within the look-ahead, longer latencies leave more skips and overlap, as the
+    terminals' manuals warn.
+
+    Vectorized: the coverage raster changes only where a pass ends (`PassTracker`), when all that
+    landed since the previous end is marked, so the decisions of all ticks between two ends are read
+    off it at once. The price: ground a pass treated itself counts only once the pass ends (inner
+    sections of a turn tighter than half the working width keep applying where they pivot), and a
+    decision looking across a pass's end does not see that pass's own strips yet.
+    """
+
+    def __init__(self, implement, polygon, path, period_s, map_cell_m):
+        if path is None:
+            raise ValueError("coverage section control needs the planned path")
+        self.implement, self.path, self.period_s = implement, path, period_s
+        self.segment_works = np.array([seg.implement_on for seg in path.segments], bool)
+        self.lag = _Lags.of(implement, period_s)
+        self.raster = CoverageRaster(polygon, coverage_cell_m(implement, map_cell_m),
+                                     margin_m=implement.width_m)
+        self.strip = Strip.across(implement, self.raster.cell_m)
+        self.limits = (implement.section_overlap_pct, implement.boundary_overlap_pct)
+        # The strip a tick's product covers is read at its middle, half a tick's travel further on.
+        self.lead_on_s = implement.delivery_delay_s + implement.section_on_delay_s + period_s / 2
+        self.lead_off_s = implement.delivery_delay_s + implement.section_off_delay_s + period_s / 2
+        sections = implement.sections
+        self.last_command = np.zeros(sections, bool)
+        self.gates = GateLine(self.lag.on, self.lag.off, sections)
+        self.last_pass = -1
+        # Since the last pass ended (tick `mark_from`): the sensed poses, and the gates from
+        # `mark_from - delivery` (whose product lands at those poses), in chunks.
+        self.mark_from, self.gate_from = 0, 0
+        self.poses: list[np.ndarray] = []
+        self.gate_rows: list[np.ndarray] = [np.zeros((0, sections), bool)]
+
+    def step(self, sensed, on, s_m, passes, tick):
+        m, sections = on.size, self.implement.sections
+        if s_m is None:
+            raise ValueError("coverage section control needs s_m, the distance along the planned path")
+        s_m = np.asarray(s_m, float)
+        self.poses.append(np.stack([sensed.x_m, sensed.y_m, sensed.cos, sensed.sin]))
+        ahead = [(sensed.ahead(lead), self._working(s_m + sensed.speed_m_s * lead))
+                 for lead in (self.lead_on_s, self.lead_off_s)]
+        before = np.concatenate(([self.last_pass], passes[:-1]))
+        ends = np.flatnonzero((before >= 0) & (passes != before))
+        commanded, actual = np.zeros((m, sections), bool), np.zeros((m, sections), bool)
+        for a, b in zip(np.concatenate(([0], ends)), np.concatenate((ends, [m])), strict=True):
+            if a in ends:  # a pass ended here: what landed up to now is treated for what follows
+                self._mark(tick + int(a))
+            if b <= a:
+                continue
+            won, woff = (self._wanted(xy, work, sensed, a, b) for xy, work in ahead)
+            commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
+            self.last_command = commanded[b - 1]
+            actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
+            self.gate_rows.append(actual[a:b])
+        if m:
+            self.last_pass = int(passes[-1])
+        return commanded, actual
+
+    def state(self) -> dict:
+        poses = np.concatenate(self.poses, axis=1)
+        gates = np.concatenate(self.gate_rows)
+        return {"last_command": self.last_command.tolist(), "gates": self.gates.state(),
+                "last_pass": self.last_pass, "mark_from": self.mark_from, "gate_from": self.gate_from,
+                "poses": poses.tolist(), "gate_rows": gates.tolist(), "treated": self.raster.treated()}
+
+    def set_state(self, state: dict) -> None:
+        sections = self.implement.sections
+        self.last_command = np.asarray(state["last_command"], bool).reshape(sections)
+        self.gates.set_state(state["gates"])
+        self.last_pass = int(state["last_pass"])
+        self.mark_from, self.gate_from = int(state["mark_from"]), int(state["gate_from"])
+        self.poses = [np.asarray(state["poses"], float).reshape(4, -1)]
+        self.gate_rows = [np.asarray(state["gate_rows"], bool).reshape(-1, sections)]
+        self.raster.set_treated(state["treated"])
+
+    def _working(self, s_m):
+        """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
+        return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
+
+    def _wanted(self, xy, working, sensed, a, b):
+        out = np.zeros((b - a, self.implement.sections), bool)
+        for lo in range(a, b, _MAX_WANTED_TICKS):
+            hi = min(b, lo + _MAX_WANTED_TICKS)
+            out[lo - a:hi - a] = self.raster.wanted(self.strip, xy[0][lo:hi], xy[1][lo:hi], sensed.cos[lo:hi],
+                                                    sensed.sin[lo:hi], *self.limits) & working[lo:hi, None]
+        return out
+
+    def _mark(self, end: int) -> None:
+        """Mark as treated what landed at the poses [mark_from, end), and start again from `end`."""
+        poses = np.concatenate(self.poses, axis=1)  # poses from tick mark_from on
+        gates = np.concatenate(self.gate_rows)  # gates from tick gate_from on
+        # Product landing at pose q left the meter at tick q - delivery; gates before tick 0 were closed.
+        metered = np.arange(self.mark_from, end) - self.lag.delivery
+        landed = gates[np.maximum(metered - self.gate_from, 0)] & (metered >= 0)[:, None]
+        if landed.any():
+            self.raster.mark(self.strip, Poses(*poses[:, :end - self.mark_from + 1]), 0, landed)
+        keep = max(end - self.lag.delivery, self.gate_from)
+        self.poses, self.gate_rows = [poses[:, end - self.mark_from:]], [gates[keep - self.gate_from:]]
+        self.mark_from, self.gate_from = end, keep
+
+
+# The ways of switching by ``[implement] section_control``: name -> class.
+SWITCHING = {"coverage": _Coverage, "boundary": _Boundary, "off": _AllOn}
+assert set(SWITCHING) == set(SECTION_CONTROL_MODES)
+
+
+@dataclass(frozen=True)
+class _Sensed:
+    """The pose and speed the terminal knows, and its dead-reckoned look-ahead."""
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    speed_m_s: np.ndarray
+    heading_rad: np.ndarray
+    cos: np.ndarray
+    sin: np.ndarray
+
+    @classmethod
+    def of(cls, x_m, y_m, speed_m_s, heading_rad) -> _Sensed:
+        x, y, v, h = (np.asarray(a, float) for a in (x_m, y_m, speed_m_s, heading_rad))
+        return cls(x, y, v, h, np.cos(h), np.sin(h))
+
+    def ahead(self, delay_s: float):
+        """Where the implement will be `delay_s` later, straight ahead at the sensed speed: (x, y).
+        The same arithmetic as the control core's landing point, so boundary mode matches it."""
+        lead_m = self.speed_m_s * delay_s
+        return self.x_m + lead_m * self.cos, self.y_m + lead_m * self.sin
+
+
+def _period_s(time_s: np.ndarray) -> float:
+    return float(np.median(np.diff(time_s))) if time_s.size > 1 else 1.0
+
+
+@dataclass(frozen=True)
+class _Lags:
+    """The delays in ticks: delivery (meter to ground), section on and off (command to gate)."""
+
+    delivery: int
+    on: int
+    off: int
+
+    @classmethod
+    def of(cls, implement: Implement, period_s: float) -> _Lags:
+        return cls(round(implement.delivery_delay_s / period_s),
+                   round(implement.section_on_delay_s / period_s),
+                   round(implement.section_off_delay_s / period_s))
+
+    @property
+    def on_first(self) -> bool:
+        return self.on >= self.off
+
