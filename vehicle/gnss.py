@@ -14,7 +14,7 @@ same random numbers in the same order, so they give identical numbers.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,7 +44,8 @@ class GnssConfig:
     latency_s : float
         Delay from sampling a fix to its output, s.
     sigma_m, tau_s : float, optional
-        Override the class's per-axis standard deviation (m) and correlation time (s).
+        Override the class's per-axis standard deviation (m) and correlation time (s); None: the
+        class's (`CLASSES`; `resolved` fills them in).
     """
 
     kind: str = "rtk"
@@ -65,11 +66,18 @@ class GnssConfig:
 
     @property
     def sigma(self) -> float:
+        """The per-axis 1-sigma error the receiver uses [m]."""
         return CLASSES[self.kind][0] if self.sigma_m is None else float(self.sigma_m)
 
     @property
     def tau(self) -> float:
+        """The error's correlation time the receiver uses [s]."""
         return CLASSES[self.kind][1] if self.tau_s is None else float(self.tau_s)
+
+    def resolved(self) -> GnssConfig:
+        """A copy with `sigma_m` and `tau_s` set to the values used (the class's where unset): the
+        same receiver, its numbers shown."""
+        return replace(self, sigma_m=self.sigma, tau_s=self.tau)
 
 
 def _positive(name, value, allow_zero=False, hi=None):

@@ -9,7 +9,7 @@ Model: the sensor samples the true speed at ``rate_hz`` and holds it; each sampl
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -17,8 +17,9 @@ from common.checks import check_number
 from common.errors import VehicleError
 from vehicle.track import track_arrays
 
-# (noise 1-sigma, bias) as fractions of the true speed
-CLASSES = {"perfect": (0.0, 0.0), "radar": (0.01, 0.0), "wheel": (0.005, 0.03)}
+# (noise 1-sigma, bias) in percent of the true speed, the unit of `noise_pct` and `bias_pct`: a class's
+# value and the same value written as an override are the same number (x / 100 rounds alike).
+CLASSES = {"perfect": (0.0, 0.0), "radar": (1.0, 0.0), "wheel": (0.5, 3.0)}
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,8 @@ class SpeedSensorConfig:
     rate_hz : float
         Sample rate, Hz.
     noise_pct, bias_pct : float, optional
-        Override the class's 1-sigma noise and bias, percent of the true speed.
+        Override the class's 1-sigma noise and bias, percent of the true speed; None: the class's
+        (`CLASSES`; `resolved` fills them in).
     """
 
     kind: str = "radar"
@@ -54,11 +56,20 @@ class SpeedSensorConfig:
 
     @property
     def sigma(self) -> float:
-        return CLASSES[self.kind][0] if self.noise_pct is None else self.noise_pct / 100.0
+        """The 1-sigma noise used, a fraction of the true speed."""
+        return (CLASSES[self.kind][0] if self.noise_pct is None else self.noise_pct) / 100.0
 
     @property
     def bias(self) -> float:
-        return CLASSES[self.kind][1] if self.bias_pct is None else self.bias_pct / 100.0
+        """The bias used, a fraction of the true speed."""
+        return (CLASSES[self.kind][1] if self.bias_pct is None else self.bias_pct) / 100.0
+
+    def resolved(self) -> SpeedSensorConfig:
+        """A copy with `noise_pct` and `bias_pct` set to the values used (the class's where unset):
+        the same sensor, its numbers shown."""
+        kind_noise_pct, kind_bias_pct = CLASSES[self.kind]
+        return replace(self, noise_pct=kind_noise_pct if self.noise_pct is None else self.noise_pct,
+                       bias_pct=kind_bias_pct if self.bias_pct is None else self.bias_pct)
 
 
 class SpeedSensor:

@@ -3,8 +3,8 @@ versus prescribed (``vrsim serve monitor``).
 
 Every message it receives is committed to a local SQLite database (WAL) before the next one is read,
 so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
-``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and calls
-`services.sim.run.account`, the same function ``vrsim run`` uses, so it replies with the same JSON keys
+``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and accounts for them with
+`services.sim.run.accounted`, as ``vrsim run`` does, so it replies with the same JSON keys
 as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
 ``missing_ticks`` and ``complete``: the ticks it did not get (a monitor that was down for a while).
 That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
@@ -170,7 +170,7 @@ class MonitorStore:
                                     for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
 
     def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
-        """Track and control arrays (the shapes `services.sim.run.account` takes; the track also holds
+        """Track and control arrays (the shapes `services.sim.run.accounted` takes; the track also holds
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
         ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`: the
         implement's (for the masks)."""
@@ -269,13 +269,14 @@ class MonitorService:
 
     def report(self, params: Params, payload: bytes | None) -> bytes:
         from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
+        from services.sim.as_run import with_settings
 
         params.only("run_id")
         with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
-            return summary_json(self._report(params.text("run_id"))).encode()
+            return summary_json(with_settings(self._report(params.text("run_id")))).encode()
 
-    def _report(self, run_id: str | None) -> dict:
-        return recorded_run(self.store, self.store.run(run_id), self._world).summary
+    def _report(self, run_id: str | None):
+        return recorded_run(self.store, self.store.run(run_id), self._world)
 
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
@@ -304,7 +305,7 @@ def run_world(run: dict, data: DataRoot | None = None):
 
 def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     """A services run as a `services.sim.run.RunResult`, rebuilt from its records over the complete
-    ticks with `services.sim.run.account`, the function ``vrsim run`` uses: the monitor's report is its
+    ticks with `services.sim.run.accounted`, the function ``vrsim run`` uses: the monitor's report is its
     summary, and ``vrsim report`` writes its files with ``vrsim run``'s writers.
 
     Parameters
@@ -315,7 +316,8 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     world_of : callable
         ``world_of(run) -> World`` (default `run_world`; the monitor keeps the last one).
     """
-    from services.sim.run import RunResult, account
+    from services.sim.accounting import StageTimer
+    from services.sim.run import accounted
 
     t0 = time.perf_counter()
     world = world_of(run)  # first: the records' section masks need the implement's sections
@@ -324,20 +326,17 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     n = len(track["time_s"])
     if n < 2:
         raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
-    measured = {key: track.pop(key) for key in MEASURED}
-    t2 = time.perf_counter()
-    summary, rest = account(world, track, control, t2)
-    wall = max(run["last_unix"] - run["started_unix"], 1e-9)
-    summary["wall_time_s"] = wall
-    summary["realtime_factor"] = summary["sim_time_s"] / wall
-    stage = {"build_s": t1 - t0, "read_s": t2 - t1, "metrics_s": time.perf_counter() - t2}
-    summary["stage_s"] = stage
+    measured = tuple(track.pop(key) for key in MEASURED)
+    # The wall time is the services run's, by its records' clock, not this report's.
+    timer = StageTimer({"build_s": t1 - t0, "read_s": time.perf_counter() - t1},
+                       wall_time_s=max(run["last_unix"] - run["started_unix"], 1e-9))
+    result = accounted(world, track, measured, control, timer, run["started_unix"])
+    summary = result.summary
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
     summary["missing_ticks"] = missing_ticks(track["tick"])
     summary["complete"] = not summary["missing_ticks"]
-    return RunResult(world=world, track=track, control=control, stage_s=stage, summary=summary,
-                     started_unix=run["started_unix"], **measured, **rest)
+    return result
 
 
 def default_db(options) -> str:

@@ -22,6 +22,7 @@ def run(args) -> int:
     from services.bus.monitor import MonitorStore, recorded_run
     from services.outputs.summary import summary_json, text_summary
     from services.outputs.write import outputs_line, write_outputs
+    from services.sim.as_run import with_settings
 
     if not os.path.isfile(args.db):
         raise ServiceError(f"--db {args.db}: no such file")
@@ -34,7 +35,7 @@ def run(args) -> int:
     write_outputs(result, args.out)
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
     result.summary["out_dir"] = args.out
-    print(summary_json(result.summary) if args.json else text_summary(result.summary))
+    print(summary_json(with_settings(result)) if args.json else text_summary(result.summary))
     if not args.json:
         print(outputs_line(args.out))
     return 0

@@ -86,6 +86,7 @@ def _run(args, driver) -> int:
     try:
         from services.outputs.summary import summary_json, text_summary
         from services.outputs.write import outputs_line, write_outputs
+        from services.sim.as_run import with_settings
 
         try:
             result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)
@@ -100,7 +101,7 @@ def _run(args, driver) -> int:
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
     result.summary["out_dir"] = out_dir
     if args.json:
-        print(summary_json(result.summary))
+        print(summary_json(with_settings(result)))
     else:
         print(result.machine_check.text())
         print(text_summary(result.summary))

@@ -68,8 +68,9 @@ def configure(parser) -> None:
     parser.add_argument("--web", action="store_true",
                         help="all: also start the web service (the live page, with start and stop)")
     parser.add_argument("--web-listen", metavar="HOST:PORT", default=None,
-                        help="all --web: where the page listens (default 127.0.0.1:8448); "
-                             "`serve web` takes it as --listen HOST:PORT")
+                        help="all --web: where the page listens (default 127.0.0.1:8448; beyond loopback "
+                             "over TLS, with --tls); `serve web` takes it as --listen HOST:PORT. The page "
+                             "asks for a login: its URL with a token is printed at start")
     parser.add_argument("--operator", action="store_true",
                         help="web: allow starting and stopping runs from the page, through a session "
                              "logged in as `operator` from the state folder (default: a viewer)")
@@ -152,9 +153,11 @@ def _serve_all(args, options: ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
     if args.web:
-        from services.bus.web import DEFAULT_LISTEN, parse_listen
+        from services.bus.web import DEFAULT_LISTEN, check_listen, parse_listen
 
-        parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen")  # before anything starts
+        # Before anything starts: beyond loopback the page needs the bus's TLS certificates.
+        check_listen(*parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen"),
+                     tls=options.tls, insecure=options.insecure)
     user_code_dirs = tuple(os.path.abspath(d) for d in args.allow_user_code)
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
         from services.bus import messages

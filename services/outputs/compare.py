@@ -115,8 +115,10 @@ def _step_windows(result, count: int = STEP_PANELS) -> list[int]:
     other step, spread over the run: the steps every controller's time series are shown at."""
     t = result.track["time_s"]
     steps = rate_steps(result.landing.prescribed_kg_ha, np.asarray(result.track["implement_on"], bool))
+    if not len(steps):   # a uniform map, or one whose steps all fall outside working
+        return []
     before, after = STEP_WINDOW_S
-    gaps = np.diff(t[steps]) if len(steps) else np.zeros(0)
+    gaps = np.diff(t[steps])
     alone = np.r_[True, gaps > after] & np.r_[gaps > after, True]   # no other step within `after` s
     clean = [int(k) for k, ok in zip(steps, alone, strict=True) if ok and t[k] + before >= t[0]]
     if len(clean) <= count:

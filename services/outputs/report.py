@@ -12,12 +12,15 @@ import os
 
 from common import __version__
 from services.outputs.summary import fmt
+from services.sim import metrics
 from services.sim.core import config_as_run
 from services.sim.error_split import error_split
-from services.sim.metrics import LOG_UNIT, METRICS
+from services.sim.metrics import LOG_UNIT
 from services.sim.run import RunResult
+from services.sim.scenario import to_toml, toml_value
 
-# The scenario tables the report shows, in this order (the plant as run: `config_as_run`).
+# The scenario tables the report shows, in this order: the scenario as run (`services.sim.as_run`, every
+# kind's default resolved), the plant as run (`config_as_run`).
 SETTINGS = (("controller", "Controller"), ("implement", "Implement"), ("gnss", "GNSS"),
             ("speed_sensor", "Speed sensor"), ("tractor", "Tractor"), ("map", "Prescription"),
             ("timing", "Timing"), ("plant", "Metering drive (plant, as run)"))
@@ -50,6 +53,15 @@ def figures_table(rows, values: dict) -> str:
 def key_values(doc: dict) -> str:
     """A two-column table of a dict's keys and values."""
     body = "".join(f"<tr><td>{html.escape(str(k))}</td><td>{_esc(v)}</td></tr>" for k, v in doc.items())
+    return f"<table>{body}</table>"
+
+
+def settings_table(table: dict) -> str:
+    """A two-column table of a scenario table's keys and values as a scenario file writes them
+    (`services.sim.scenario.toml_value`: every digit of a number), "unset" for None."""
+    body = "".join(f"<tr><td>{html.escape(str(k))}</td><td><code>"
+                   f"{html.escape('unset' if v is None else toml_value(v))}</code></td></tr>"
+                   for k, v in table.items())
     return f"<table>{body}</table>"
 
 
@@ -114,23 +126,26 @@ def split_table(result: RunResult) -> str:
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: machine check, figures, the error split, settings as run, versions and
     seed, pictures, definitions."""
-    from services.outputs.summary import SUMMARY_ROWS
+    from services.outputs.summary import summary_rows
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
-    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{key_values(config[key])}</div>"
+    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{settings_table(config[key])}</div>"
                        for key, label in SETTINGS)
+    scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
                 "ticks": summary["ticks"]}
     check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
-                ("Figures", figures_table(SUMMARY_ROWS, summary)),
+                ("Figures", figures_table(summary_rows(), summary)),
                 ("Where the error comes from", split_table(result)),
-                ("Settings as run", f'<div class="cols">{settings}</div>'),
+                ("Settings as run", f'<div class="cols">{settings}</div>\n<details><summary>The scenario '
+                 f'as run, as a scenario file (<code>vrsim run</code> reruns it)</summary>'
+                 f'<pre>{scenario_file}</pre></details>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
-                [("What the figures mean", definitions(METRICS))], FILES_NOTE)
+                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE)
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 

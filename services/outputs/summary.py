@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 
 from services.outputs.encode import dumps_text
-from services.sim.metrics import METRICS
+from services.sim import metrics
 
 
 def summary_json(summary: dict) -> str:
@@ -14,8 +14,10 @@ def summary_json(summary: dict) -> str:
     return dumps_text(summary, indent=True)
 
 
-# The report's rows (label, key, unit): the metrics of `METRICS` that have a label, in its order.
-SUMMARY_ROWS = tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
+def summary_rows() -> tuple[tuple[str, str, str], ...]:
+    """The report's rows (label, key, unit): the figures of `services.sim.metrics.METRICS` that have a
+    label, in its order."""
+    return tuple((m.label, m.key, m.unit) for m in metrics.METRICS if m.label)
 
 
 def fmt(value) -> str:
@@ -29,6 +31,6 @@ def fmt(value) -> str:
 def text_summary(summary: dict) -> str:
     """The readable summary `vrsim run` prints."""
     lines = [f"vrsim run: {summary['scenario']} ({summary['ticks']:,} ticks)"]
-    for label, key, unit in SUMMARY_ROWS:
+    for label, key, unit in summary_rows():
         lines.append(f"  {label:<38} {fmt(summary[key]):>14} {unit}")
     return "\n".join(lines)

@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.ticker import NullFormatter
 
 from services.outputs.plots import figure
-from services.outputs.summary import SUMMARY_ROWS
+from services.outputs.summary import summary_rows
 from services.sim.sweep import (
     METRIC_SENSE,
     Configuration,
@@ -25,7 +25,7 @@ from services.sim.sweep import (
     pareto_front,
 )
 
-LABELS = {key: f"{label} [{unit}]" for label, key, unit in SUMMARY_ROWS}
+LABELS = {key: f"{label} [{unit}]" for label, key, unit in summary_rows()}
 BEST_K = 3  # configurations listed per metric
 MAX_TICKS = 12  # an axis with at most this many values is labelled at each value and joined by a line
 SENSE_WORDS = {"min": "lower is better", "max": "higher is better", "zero": "closest to 0 is better"}

@@ -10,7 +10,7 @@ from services.outputs.aslog import prepare_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
 from services.outputs.summary import summary_json
 from services.outputs.track_csv import write_track_csv
-from services.sim.core import config_as_run
+from services.sim.as_run import with_settings
 from services.sim.run import RunResult
 
 FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "track.csv",
@@ -55,9 +55,8 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
         for name in PICTURES:
             del paths[name]
     paths.update(write_as_applied(result, out_dir))
-    doc = dict(result.summary, scenario_config=config_as_run(result.world.scenario))
     with open(paths["summary.json"], "w") as fh:
-        fh.write(summary_json(doc) + "\n")
+        fh.write(summary_json(with_settings(result)) + "\n")
     write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"],
                   paths["passes.tif"])
     write_track_csv(result, paths["track.csv"])

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from common import ScenarioError
 from controller import KINDS, ControllerConfig
 from controller.config import PID_KINDS
+from services.sim.as_run import with_settings
 from services.sim.metrics import METRICS
 from services.sim.run import Drive, RunResult, control_and_account, drive
 from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario, controller_from_table
@@ -95,8 +96,10 @@ class Comparison:
     results: list[RunResult]
 
     def summaries(self) -> list[dict]:
-        """``{"controller": label, **summary}`` per run (the keys of ``vrsim run --json``)."""
-        return [{"controller": s.label, **r.summary} for s, r in zip(self.specs, self.results, strict=True)]
+        """``{"controller": label, **summary, "scenario_config": ...}`` per run (the keys of ``vrsim run
+        --json``: `services.sim.as_run.with_settings`)."""
+        return [{"controller": spec.label, **with_settings(result)}
+                for spec, result in zip(self.specs, self.results, strict=True)]
 
     def to_dict(self) -> dict:
         """What ``vrsim compare --json`` prints."""

@@ -23,9 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import StripMap
-from services.sim.metrics import MapMetrics, map_metrics
-from services.sim.run import RunResult, cells_in_field
+from maps import AppliedColumns, StripMap
+from services.sim.accounting import cells_in_field, map_figures
+from services.sim.metrics import MapMetrics
+from services.sim.run import RunResult
 from services.sim.section_landing import StripPlan
 from services.sim.sections import run_section_states
 from services.sim.world import World
@@ -76,20 +77,25 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     (`services.sim.streamed`).
 
     The strips lie where the run's did, whatever they carry, so their geometry is worked out once
-    (`StripPlan`) and mapped to the raster once for both meters (`maps.StripMap`)."""
+    (`StripPlan`) and mapped to the raster once for both meters (`maps.StripMap`); their figures are
+    the accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
     metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
                                for clipped in (False, True)])
     plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
                         world.scenario.timing.control_period_s, min(grid.cell_size))
-    s = plan.strips
-    rasters = StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered))
+    rasters = _reference_rasters(grid, plan, metered)
     in_field = cells_in_field(grid, world.field.polygon)
-    cell_w, cell_h = grid.cell_size
-    cell_ha = abs(cell_w * cell_h) / 1e4
-    return [map_metrics(grid.rates_kg_ha, rasters.applied_kg_ha[j], rasters.coverage_fraction[j], in_field,
-                        cell_ha, float(np.sum(metered[:, j])), float(rasters.outside_kg[j]))
+    applied_kg_ha = rasters.applied_kg_ha
+    return [map_figures(grid, in_field, applied_kg_ha[j], rasters.coverage_fraction[j],
+                        float(np.sum(metered[:, j])), float(rasters.outside_kg[j]))
             for j in range(metered.shape[1])]
+
+
+def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> AppliedColumns:
+    """The as-applied rasters of the columns `metered_kg` (ticks, n) along the plan's strips."""
+    s = plan.strips
+    return StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered_kg))
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:
@@ -97,8 +103,8 @@ def error_split(result: RunResult) -> list[ErrorPart]:
     the reference meters' figures from ``result.reference_figures`` when the run computed them."""
     references = result.reference_figures or reference_figures(result.world, result.track, result.control,
                                                                result.measured_speed_m_s)
-    stages = [*references, result.map_metrics]
-    total_mae = result.map_metrics.mae_kg_ha
+    stages = [*references, result.accounts.map]
+    total_mae = result.accounts.map.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0
     for cause, m in zip(CAUSES, stages, strict=True):
         mae = m.mae_kg_ha - mae0

@@ -19,21 +19,26 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 
 Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap and skipped area,
 product beyond the first pass, and the share of working time and covered area where the meter could
-not turn at the speed the map asked for.
+not turn at the speed the map asked for. In time (per tick, along the track): `transitions`.
 
-In time (per tick, along the track), see `transitions`.
-
-`METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, and the
-tolerance the accuracy library holds it to. The summary's keys (`summary`), the rows of the text and
-HTML reports, the accuracy library's tolerances and the monitor's report all derive from it, so a new
-figure is one row here plus where it is computed.
+`METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
+tolerance the accuracy library holds it to, and how it comes from a run's accounts
+(`services.sim.accounting.Accounts`). The summary (`summary`: ``vrsim run`` and ``--json``, the
+monitor's report, the variants of sweeps), the rows of the text and HTML reports and the accuracy
+library's tolerances all derive from it, so a new figure is one row here and its formula.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from operator import attrgetter
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from services.sim.accounting import Accounts
 
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
 TRANSITION_TOLERANCE = 0.10  # "within 10 % of the new rate"
@@ -59,9 +64,11 @@ class Metric:
         What the accuracy library holds it to: (absolute floor, share of the value); None for figures
         of the machine (timings) or of the set-up, not of the model.
     sense : {"min", "max", "zero"} or None
-        Which way is better, for the accuracy figures that sweeps rank and `vrsim tune` optimizes:
-        smaller, larger, or closest to zero (a bias or a mass balance, whichever its sign); None for a
-        figure that describes the run rather than judges it.
+        Which way is better for the figures sweeps rank and `vrsim tune` optimizes: smaller, larger, or
+        closest to zero (a bias, a mass balance); None for one that describes the run, not judges it.
+    of : str or callable or None
+        How its value comes from a run's `Accounts`: a dotted path of attributes (``"map.mae_kg_ha"``)
+        or a formula, ``of(accounts) -> value``; None for a log's figures (`point_metrics`).
     """
 
     key: str
@@ -70,79 +77,102 @@ class Metric:
     description: str
     tolerance: tuple[float, float] | None = None
     sense: str | None = None
+    of: str | Callable[[Accounts], object] | None = None
+
+    def value(self, accounts: Accounts):
+        """This figure of a run (`of`)."""
+        return self.of(accounts) if callable(self.of) else attrgetter(self.of)(accounts)
+
+
+# Formulas of figures that are not one attribute of the accounts and serve more than one row.
+def _sim_time_s(a: Accounts) -> float:
+    return len(a.setting.track["time_s"]) * a.setting.world.scenario.timing.control_period_s
 
 
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
 # machine, last-digit differences across BLAS builds) passes and a change of the model or controller
 # that a user would notice fails.
 METRICS = (
-    Metric("field_area_ha", "ha", "Field area", "area of the field boundary"),
-    Metric("sim_time_s", "s", "Simulated time", "ticks x control period"),
-    Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)"),
-    Metric("ticks", "", "", "control ticks driven"),
-    Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time"),
+    Metric("field_area_ha", "ha", "Field area", "area of the field boundary",
+           of="setting.world.field.area_ha"),
+    Metric("sim_time_s", "s", "Simulated time", "ticks x control period", of=_sim_time_s),
+    Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)",
+           of="timing.wall_time_s"),
+    Metric("ticks", "", "", "control ticks driven", of=lambda a: len(a.setting.track["time_s"])),
+    Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time",
+           of=lambda a: _sim_time_s(a) / a.timing.wall_time_s),
     Metric("prescribed_kg", "kg", "Prescribed product",
-           "what the prescription asks for on the area actually worked", (0.5, 0.005)),
-    Metric("applied_kg", "kg", "Applied product", "all product metered", (0.5, 0.005)),
+           "what the prescription asks for on the area actually worked", (0.5, 0.005),
+           of="map.prescribed_kg"),
+    Metric("applied_kg", "kg", "Applied product", "all product metered", (0.5, 0.005), of="map.applied_kg"),
     Metric("mass_balance_pct", "%", "Mass balance", "100 (applied - prescribed) / prescribed", (0.3, 0.0),
-           sense="zero"),
+           sense="zero", of="map.mass_balance_pct"),
     Metric("mae_kg_ha", "kg/ha", "Mean absolute error", "mean |applied - prescribed| over covered cells",
-           (0.3, 0.03), sense="min"),
+           (0.3, 0.03), sense="min", of="map.mae_kg_ha"),
     Metric("rmse_kg_ha", "kg/ha", "RMSE", "root mean square of applied - prescribed over covered cells",
-           (0.3, 0.03), sense="min"),
+           (0.3, 0.03), sense="min", of="map.rmse_kg_ha"),
     Metric("bias_kg_ha", "kg/ha", "Bias", "mean applied - prescribed over covered cells", (0.3, 0.03),
-           sense="zero"),
+           sense="zero", of="map.bias_kg_ha"),
     Metric("within_5pct_area_pct", "%", "Covered area within +-5 %",
-           "share of covered cells within 5 % of a positive prescription", (1.0, 0.0), sense="max"),
+           "share of covered cells within 5 % of a positive prescription", (1.0, 0.0), sense="max",
+           of="map.within_5pct_area_pct"),
     Metric("within_10pct_area_pct", "%", "Covered area within +-10 %",
-           "share of covered cells within 10 % of a positive prescription", (1.0, 0.0), sense="max"),
+           "share of covered cells within 10 % of a positive prescription", (1.0, 0.0), sense="max",
+           of="map.within_10pct_area_pct"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
            "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05),
-           sense="min"),
+           sense="min", of="transitions.transition_time_s_mean"),
     Metric("transition_time_s_p95", "s", "Transition time, 95th percentile", "as above, 95th percentile",
-           (0.05, 0.05), sense="min"),
+           (0.05, 0.05), sense="min", of="transitions.transition_time_s_p95"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
-           "distance along the landing path over the transition", (0.1, 0.05), sense="min"),
+           "distance along the landing path over the transition", (0.1, 0.05), sense="min",
+           of="transitions.transition_distance_m_mean"),
     Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
-           "as above, 95th percentile", (0.1, 0.05), sense="min"),
+           "as above, 95th percentile", (0.1, 0.05), sense="min", of="transitions.transition_distance_m_p95"),
     Metric("off_target_kg", "kg", "Off-target product",
-           "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min"),
+           "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min",
+           of="map.off_target_kg"),
     Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0),
-           sense="max"),
+           sense="max", of="map.coverage_pct"),
     Metric("overlap_area_pct", "%", "Overlap area",
            "share of the covered field area that received product from more than one pass", (0.3, 0.03),
-           sense="min"),
+           sense="min", of="overlap.overlap_area_pct"),
     Metric("skip_area_pct", "%", "Skipped area",
            "share of the worked field area (swept by the working width along working stretches) that "
-           "received no product", (0.3, 0.03), sense="min"),
+           "received no product", (0.3, 0.03), sense="min", of="overlap.skip_area_pct"),
     Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
-           (0.2, 0.03), sense="min"),
+           (0.2, 0.03), sense="min", of="overlap.overlap_kg"),
     Metric("limited_time_pct", "%", "Machine-limited time",
            "share of applying time with the target shaft speed clipped to [shaft_rpm_min, shaft_rpm_max]",
-           (0.3, 0.03), sense="min"),
+           (0.3, 0.03), sense="min", of="limits.limited_time_pct"),
     Metric("limited_area_pct", "%", "Machine-limited area",
            "share of the covered field area where product was metered with the target clipped", (0.3, 0.03),
-           sense="min"),
-    Metric("sections", "", "Sections", "number of sections of the implement"),
-    Metric("section_widths_m", "m", "Section widths", "width of each section, left to right"),
+           sense="min", of="limits.limited_area_pct"),
+    Metric("sections", "", "Sections", "number of sections of the implement",
+           of="setting.world.scenario.implement.sections"),
+    Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",
+           of=lambda a: [float(w) for w in a.setting.world.scenario.implement.section_widths]),
     Metric("max_speed_m_s", "m/s", "Highest speed for the map",
-           "highest working speed at which the meter can apply the map's highest rate over the full width"),
+           "highest working speed at which the meter can apply the map's highest rate over the full width",
+           of="setting.check.max_speed_m_s"),
     Metric("mae_pct", "%", "", "mean absolute error over the mean prescription of the covered cells",
-           sense="min"),
-    Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells", sense="min"),
-    Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells", sense="zero"),
-    Metric("transitions", "", "", "rate steps whose transition settled"),
-    Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %"),
-    Metric("path_length_m", "m", "", "length of the landing path"),
+           sense="min", of="map.mae_pct"),
+    Metric("rmse_pct", "%", "", "RMSE over the mean prescription of the covered cells", sense="min",
+           of="map.rmse_pct"),
+    Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells", sense="zero",
+           of="map.bias_pct"),
+    Metric("transitions", "", "", "rate steps whose transition settled", of="transitions.transitions"),
+    Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
+    Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
+           of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
 )
 
 
-def summary(scenario_name: str, seed: int, figures: dict) -> dict:
-    """The run's summary: ``scenario``, every `METRICS` key in table order from `figures`, ``seed``.
-
-    Raises KeyError naming a figure of the table that `figures` lacks (a bug, not bad input).
-    """
-    return {"scenario": scenario_name, **{m.key: figures[m.key] for m in METRICS}, "seed": seed}
+def summary(accounts: Accounts) -> dict:
+    """``scenario``, every `METRICS` figure in table order (`Metric.value`), ``seed``, ``stage_s``."""
+    scenario = accounts.setting.world.scenario
+    return {"scenario": scenario.name, **{m.key: m.value(accounts) for m in METRICS}, "seed": scenario.seed,
+            "stage_s": accounts.timing.stage_s}
 
 
 @dataclass(frozen=True)

@@ -15,19 +15,21 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import math
+import json
 import os
+import re
 import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, VrsimError, files, is_number
+from common import ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
+from services.sim.tables import build, no_unknown, typed
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
 
@@ -122,8 +124,10 @@ class Scenario:
         return relative if os.path.isabs(relative) else os.path.join(self.base_dir, relative)
 
 
-TOP_KEYS = {"name", "seed", "description", "field", "map", "implement", "tractor", "gnss",
-            "speed_sensor", "controller", "plant", "timing", "output"}
+# The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
+TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
+          "output")
+TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
 def builtin_names() -> list[str]:
@@ -182,28 +186,28 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     doc = apply_overrides(doc, overrides, source)
-    _no_unknown(doc, TOP_KEYS, source, "")
-    for key in TOP_KEYS - {"name", "seed", "description"}:
+    no_unknown(doc, TOP_KEYS, source, "")
+    for key in TABLES:
         if key in doc and not isinstance(doc[key], dict):
             raise ScenarioError(f"{source}: [{key}] must be a table, got {doc[key]!r}")
-    name = _typed(doc, "name", str, source, "", default=os.path.splitext(os.path.basename(source))[0])
-    seed = _typed(doc, "seed", int, source, "", default=1)
+    name = typed(doc, "name", str, source, "", default=os.path.splitext(os.path.basename(source))[0])
+    seed = typed(doc, "seed", int, source, "", default=1)
     scenario = Scenario(
         name=name.replace("builtin:", ""),
         source=source,
         base_dir=base_dir,
         seed=seed,
-        description=_typed(doc, "description", str, source, "", default=""),
-        field=_build(FieldSpec, doc.get("field", {}), source, "field"),
-        map=_build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=_build(Implement, doc.get("implement", {}), source, "implement"),
-        tractor=_build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
-        gnss=_build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
-        speed_sensor=_build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
+        description=typed(doc, "description", str, source, "", default=""),
+        field=build(FieldSpec, doc.get("field", {}), source, "field"),
+        map=build(MapSpec, doc.get("map", {}), source, "map"),
+        implement=build(Implement, doc.get("implement", {}), source, "implement"),
+        tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
+        gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
+        speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
         controller=controller_from_table(doc.get("controller", {}), source, base_dir),
-        plant=_build(PlantParams, doc.get("plant", {}), source, "plant"),
-        timing=_build(TimingSpec, doc.get("timing", {}), source, "timing"),
-        output=_build(OutputSpec, doc.get("output", {}), source, "output"),
+        plant=build(PlantParams, doc.get("plant", {}), source, "plant"),
+        timing=build(TimingSpec, doc.get("timing", {}), source, "timing"),
+        output=build(OutputSpec, doc.get("output", {}), source, "output"),
     )
     _machine_once(doc.get("plant", {}), source)
     _check(scenario)
@@ -236,9 +240,9 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
     source, top = scenario.source, {}
     for key, value in changes.items():
         if key in ("name", "description"):
-            top[key] = _typed(changes, key, str, source, "")
+            top[key] = typed(changes, key, str, source, "")
         elif key == "seed":
-            top[key] = _typed(changes, key, int, source, "")
+            top[key] = typed(changes, key, int, source, "")
         elif key in TOP_KEYS:
             if not isinstance(value, dict):
                 raise ScenarioError(f"{source}: [{key}] changes must be a dict of its keys, got {value!r}")
@@ -247,12 +251,12 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
             if key == "controller":
                 top[key] = _changed_controller(current, kept, value, scenario)
                 continue
-            _no_unknown(value, kept, source, key)
+            no_unknown(value, kept, source, key)
             if key == "plant":
                 _machine_once(value, source)
-            top[key] = _build(type(current), {**kept, **value}, source, key)
+            top[key] = build(type(current), {**kept, **value}, source, key)
         else:
-            _no_unknown({key: value}, TOP_KEYS, source, "")
+            no_unknown({key: value}, TOP_KEYS, source, "")
     changed = dataclasses.replace(scenario, **top)
     _check(changed)
     return changed
@@ -269,9 +273,9 @@ def controller_from_table(table: dict, source: str, base_dir: str) -> Controller
     keyword cannot be a field); ``file`` (kind "python") is taken relative to the scenario's folder
     and must exist (its class is loaded when a run builds the loop, not here: parsing never runs
     user code)."""
-    _no_unknown(table, CONTROLLER_KEYS, source, "controller")
+    no_unknown(table, CONTROLLER_KEYS, source, "controller")
     renamed = {("class_name" if k == "class" else k): v for k, v in table.items()}
-    cfg = _build(ControllerConfig, renamed, source, "controller").resolved(base_dir)
+    cfg = build(ControllerConfig, renamed, source, "controller").resolved(base_dir)
     if cfg.file is not None and not os.path.isfile(cfg.file):
         raise ScenarioError(f"{source}: [controller] file {table.get('file', cfg.file)!r}: no such file "
                             f"({cfg.file})")
@@ -281,7 +285,7 @@ def controller_from_table(table: dict, source: str, base_dir: str) -> Controller
 def _changed_controller(current: ControllerConfig, kept: dict, changes: dict, scenario: Scenario):
     """`with_changes` of ``[controller]``: keys as in a file (``class``); a change of kind starts from
     that kind's defaults and keeps only the look-ahead (`KIND_INDEPENDENT_KEYS`)."""
-    _no_unknown(changes, CONTROLLER_KEYS, scenario.source, "controller")
+    no_unknown(changes, CONTROLLER_KEYS, scenario.source, "controller")
     new_kind = changes.get("kind", current.kind)
     if new_kind != current.kind and not (isinstance(new_kind, str) and _same_family(new_kind, current.kind)):
         kept = {k: kept[k] for k in KIND_INDEPENDENT_KEYS}
@@ -313,74 +317,13 @@ def _check(scenario: Scenario) -> None:
     _check_output(scenario.output, scenario.timing, source)
 
 
-def _no_unknown(table: dict, known, source: str, section: str) -> None:
-    unknown = sorted(set(table) - set(known))
-    if unknown:
-        where = f"[{section}] " if section else ""
-        raise ScenarioError(f"{source}: {where}unknown key {unknown[0]!r} "
-                            f"(known: {', '.join(sorted(known))})")
-
-
-def _typed(table: dict, key: str, kind, source: str, section: str, default=None):
-    if key not in table:
-        return default
-    value = table[key]
-    ok = isinstance(value, kind) and not (kind is int and isinstance(value, bool))
-    if not ok:
-        where = f"[{section}] " if section else ""
-        raise ScenarioError(f"{source}: {where}{key} must be {kind.__name__}, got {value!r}")
-    return value
-
-
-def _expected_type(f: dataclasses.Field):
-    """The Python type a TOML value must have for dataclass field `f` (None: anything)."""
-    default = f.default if f.default is not dataclasses.MISSING else (
-        f.default_factory() if f.default_factory is not dataclasses.MISSING else None)
-    if isinstance(default, bool):
-        return bool
-    if isinstance(default, (int, float)):
-        return (int, float) if isinstance(default, float) or "float" in str(f.type) else int
-    if isinstance(default, (str, dict, list)):
-        return type(default)
-    text = str(f.type)
-    if len([t for t in text.split("|") if t.strip() != "None"]) > 1:
-        return None     # a union such as "float | str": the dataclass checks it
-    for name, kind in (("float", (int, float)), ("int", int), ("str", str), ("bool", bool),
-                       ("dict", dict), ("list", list)):
-        if text.startswith(name):
-            return kind
-    return None
-
-
-def _build(cls, table: dict, source: str, section: str):
-    """Construct dataclass `cls` from TOML `table`, naming file, table, key and value on error."""
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    _no_unknown(table, fields, source, section)
-    for key, value in table.items():
-        kind = _expected_type(fields[key])
-        if kind is None or value is None:
-            continue
-        bad_bool = isinstance(value, bool) and kind is not bool
-        if bad_bool or not isinstance(value, kind):
-            names = kind.__name__ if isinstance(kind, type) else "number"
-            raise ScenarioError(f"{source}: [{section}] {key} must be {names}, got {value!r}")
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ScenarioError(f"{source}: [{section}] {key} must be finite, got {value!r}")
-    try:
-        return cls(**table)
-    except VrsimError as exc:
-        raise ScenarioError(f"{source}: [{section}] {exc}") from None
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(f"{source}: [{section}] {exc}") from None
-
-
 def _check_field(spec: FieldSpec, source: str) -> None:
     given = [k for k in ("file", "rectangle", "polygon_lonlat") if getattr(spec, k) is not None]
     if len(given) != 1:
         raise ScenarioError(f"{source}: [field] needs exactly one of file, rectangle, polygon_lonlat "
                             f"(got {', '.join(given) or 'none'})")
     if spec.rectangle is not None:
-        _no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
+        no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
         for key in ("width_m", "length_m", "lat", "lon"):
             value = spec.rectangle.get(key)
             if not is_number(value):
@@ -398,7 +341,7 @@ def _check_map(spec: MapSpec, source: str) -> None:
         if spec.synthetic not in SYNTHETIC_KINDS:
             raise ScenarioError(f"{source}: [map] synthetic must be one of {', '.join(SYNTHETIC_KINDS)}, "
                                 f"got {spec.synthetic!r}")
-        _no_unknown(spec.params, synthetic_params(spec.synthetic), source, "map.params")
+        no_unknown(spec.params, synthetic_params(spec.synthetic), source, "map.params")
     if spec.policy not in POLICIES:
         raise ScenarioError(f"{source}: [map] policy must be one of {', '.join(POLICIES)}, "
                             f"got {spec.policy!r}")
@@ -461,3 +404,65 @@ def as_dict(scenario: Scenario) -> dict[str, Any]:
         value = getattr(scenario, f.name)
         out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     return out
+
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def to_toml(scenario: Scenario) -> str:
+    """The scenario as the text of a scenario file that `parse` reads back to the same scenario.
+
+    Unset keys (None) are left out; the files it names (``[field] file``, ``[map] file``) are written
+    as absolute paths, so the text loads from any folder; ``[plant]`` leaves out the transmission
+    ratio and shaft-speed limit, which ``[implement]`` describes. Written from the scenario as run
+    (`services.sim.as_run.as_run`), it reruns the run with every value shown.
+    """
+    lines = [f"{key} = {toml_value(getattr(scenario, key))}" for key in ("name", "seed", "description")]
+    for key in TABLES:
+        lines += ["", f"[{key}]"]
+        lines += [f"{_toml_key(k)} = {toml_value(v)}" for k, v in _table(scenario, key).items()
+                  if v is not None]
+    return "\n".join(lines) + "\n"
+
+
+def _table(scenario: Scenario, key: str) -> dict:
+    """Table `key` of `scenario` as a scenario file writes it (see `to_toml`)."""
+    value = getattr(scenario, key)
+    table = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.init}
+    if key in ("field", "map") and table["file"] is not None:
+        table["file"] = os.path.abspath(scenario.path(table["file"]))
+    if key == "plant":
+        for machine in ("transmission_ratio", "shaft_rpm_max"):
+            del table[machine]
+    if key == "controller":
+        table = {("class" if k == "class_name" else k): v for k, v in table.items()}
+    return table
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.fullmatch(key) else json.dumps(key)
+
+
+def toml_value(value) -> str:
+    """`value` (bool, int, float, str, list, tuple or dict of them) as a scenario file writes it, a
+    TOML value; a float by `repr`, which reads back to the same number.
+
+    Raises
+    ------
+    ScenarioError
+        A value of another type (None: a TOML file leaves the key out).
+    """
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(int(value))
+    if isinstance(value, float):
+        return repr(float(value))
+    if isinstance(value, str):
+        return json.dumps(value)   # a JSON string is a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        items = [f"{_toml_key(k)} = {toml_value(v)}" for k, v in value.items() if v is not None]
+        return "{ " + ", ".join(items) + " }" if items else "{}"
+    raise ScenarioError(f"{type(value).__name__} {value!r} has no TOML form")

@@ -22,6 +22,7 @@ import time
 import numpy as np
 
 from common.forked import Forked
+from services.sim.accounting import StageTimer
 from services.sim.core import ControlCore
 from services.sim.drive_worker import PART_TICKS, DriveWorker
 from services.sim.error_split import reference_figures
@@ -57,14 +58,17 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
     overlap, so they do not add up to ``wall_time_s``.
     """
     worker = worker or DriveWorker()
-    started, wall0 = worker.started_unix, worker.started_perf_s   # the run began with SUMO's process
+    started = worker.started_unix
+    # The run began with SUMO's process; the stages in the summary's order, the worker's last.
+    timer = StageTimer(dict.fromkeys(("build_s", "sensors_s", "control_s", "wait_s"), 0.0),
+                       started_s=worker.started_perf_s)
     try:
         if worker.planned is None:
             worker.drive(scenario, ticks_per_part)
-        clock = time.perf_counter()
-        world = build_world(scenario, planned=worker.planned)
-        build_s = worker.plan_s + time.perf_counter() - clock
-        stage = {"build_s": build_s, "sensors_s": 0.0, "control_s": 0.0, "wait_s": 0.0}
+        with timer.stage("build_s"):
+            world = build_world(scenario, planned=worker.planned)
+        timer.add("build_s", worker.plan_s)
+        scenario = world.scenario   # as run: what the control, the sensors and the outputs use
         core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
         gnss, speed = sensors(scenario)
         period_s = scenario.timing.control_period_s
@@ -72,35 +76,32 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         tracks, measured, controls, done = [], [], [], 0
         clock = time.perf_counter()
         for time_s, s_m, speed_m_s in worker.parts():
-            now = time.perf_counter()
-            stage["wait_s"] += now - clock
-            track = track_on_path(world.path, time_s, s_m, speed_m_s)
-            x_m, y_m = gnss.measure_next(track["time_s"], track["x_m"], track["y_m"])
-            v_m_s = speed.measure_next(track["time_s"], track["speed_m_s"])
-            clock = time.perf_counter()
-            stage["sensors_s"] += clock - now
+            timer.add("wait_s", time.perf_counter() - clock)
+            with timer.stage("sensors_s"):
+                track = track_on_path(world.path, time_s, s_m, speed_m_s)
+                x_m, y_m = gnss.measure_next(track["time_s"], track["x_m"], track["y_m"])
+                v_m_s = speed.measure_next(track["time_s"], track["speed_m_s"])
             part_progress = None if progress is None else \
                 (lambda n, _, before=done: progress(before + n, max(expected, before + n)))
-            controls.append(core.run_track(x_m, y_m, track["heading_rad"], v_m_s, track["implement_on"],
-                                           track["s_m"], part_progress))
+            with timer.stage("control_s"):
+                controls.append(core.run_track(x_m, y_m, track["heading_rad"], v_m_s, track["implement_on"],
+                                               track["s_m"], part_progress))
             tracks.append(track)
             measured.append((x_m, y_m, v_m_s))
             done += len(time_s)
-            now = time.perf_counter()
-            stage["control_s"] += now - clock
-            clock = now
-        stage["wait_s"] += time.perf_counter() - clock
+            clock = time.perf_counter()
+        timer.add("wait_s", time.perf_counter() - clock)
     finally:
         worker.close()
-    stage["sumo_s"] = worker.sumo_s
+    timer.add("sumo_s", worker.sumo_s)
     track, control = _joined(tracks), _joined(controls)
     measured = tuple(np.concatenate(m) for m in zip(*measured, strict=True))
     if not error_split:
-        return accounted(world, track, measured, control, stage, wall0, started)
+        return accounted(world, track, measured, control, timer, started)
     # The error split's reference meters need the drive and the control only: a forked child lands
     # them on the other core while this one accounts for the run.
     with Forked(reference_figures, world, track, control, measured[2]) as references:
-        result = accounted(world, track, measured, control, stage, wall0, started)
+        result = accounted(world, track, measured, control, timer, started)
         result.reference_figures = references.result()
     return result
 

@@ -11,7 +11,7 @@ those once and then
 2. lands every variant's metered product at once: the applied rate per tick is a column per variant,
    the joined strips' masses too, and the as-applied rasters come from one sparse map from strips to
    cells (`maps.StripMap`) applied to all mass columns;
-3. computes each variant's figures as `services.sim.run.account` does.
+3. accounts for each variant's deposit with the run's own accounting (`services.sim.accounting`).
 
 The controller-free work (the targets, the strips and their sparse map, the landing geometry, the
 worked area, the rate steps, the machine check) is done once for all the variants of one look-ahead,
@@ -19,7 +19,8 @@ however many batches of `VARIANT_CHUNK` they make (`_Shared`).
 
 Each summary equals `control_and_account(drive, cfg).summary` to rounding (tested to 1e-9 relative),
 but for the wall times: a variant's ``control_s`` and ``metrics_s`` are its share of its batch's
-and of the shared work's (each time over the variants it served), on top of the drive's stages.
+(and its raster chunk's) and of the shared work's (each time over the variants it served), on top
+of the drive's stages; its wall time is their sum.
 
 Variants whose look-ahead differs form separate batches (their targets differ); a variant with the
 look-ahead tune on (``look_ahead_tune > 0``: its targets depend on its own loop) runs alone through
@@ -37,15 +38,15 @@ import numpy as np
 
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, build_variant_loops
-from maps import StripMap
+from maps import AppliedColumns, StripMap
+from services.sim import metrics
+from services.sim.accounting import Deposit, Setting, StageTimer, account
 from services.sim.core import RUN_CHUNK, ControlCore, plant_for
-from services.sim.landing import Landing, applied_rate_kg_ha, land
-from services.sim.limits import MachineCheck
+from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.metrics import limit_metrics, map_metrics, overlap_metrics, rate_steps, transitions
-from services.sim.run import Drive, cells_in_field, check_world, control_and_account, summarize
+from services.sim.run import Drive, control_and_account
 from services.sim.scenario import Scenario
-from services.sim.section_landing import LimitedStrips, StripPlan, worked_fraction
+from services.sim.section_landing import LimitedStrips, StripPlan
 from services.sim.sections import run_section_states
 
 # Variants run as one loop batch: more cut the loop's Python work per variant (256: about a quarter
@@ -99,21 +100,18 @@ def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[
 @dataclass
 class _Shared:
     """What the variants of one look-ahead share: the drive, stage 1's targets and the product's
-    geometry (everything `services.sim.run.account` computes that the metered kg do not change)."""
+    geometry (the accounting's `Setting`, with its landing geometry, and the strips: everything
+    `services.sim.run.accounted` computes that the metered kg do not change). The setting's world is
+    the first variant's (the variants differ in their controller only, which no figure reads)."""
 
     drive: Drive
     scenario: Scenario
     rec: dict                 # stage 1 per tick (`ControlCore.targets`)
     core: ControlCore
-    landing: Landing          # the landing geometry (its applied rates are each variant's own)
+    setting: Setting          # its landing's applied rates are each variant's own
     plan: StripPlan
     strip_map: StripMap
-    limited: np.ndarray       # machine-limited ticks
     limited_strips: LimitedStrips
-    steps: np.ndarray         # the prescription's rate steps under the landing point
-    in_field: np.ndarray
-    worked: np.ndarray
-    check: MachineCheck
     control_s: float          # each variant's share of the shared stage 1
     metrics_s: float          # ... and of the shared geometry
 
@@ -123,25 +121,25 @@ class _Shared:
         rec, core = _targets(drive, scenario)
         control_s = time.perf_counter() - clock
         clock = time.perf_counter()
-        world, track = drive.world, drive.track
+        world, track = dataclasses.replace(drive.world, scenario=scenario), drive.track
         grid, implement, timing = world.grid, scenario.implement, scenario.timing
         delay_s, period_s, cell_m = implement.delivery_delay_s, timing.control_period_s, min(grid.cell_size)
         width_on = rec["width_on_m"]
         states = run_section_states(track, rec, implement)
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
+        setting = Setting.of(world, track, rec, landing)
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
-        strips = plan.strips
-        strip_map = StripMap(grid, strips.x0_m, strips.y0_m, strips.x1_m, strips.y1_m, strips.width_m,
-                             pass_index=strips.pass_index)
-        limited = implement.shaft_limited(rec["target_shaft_rpm"]) & (width_on > 0)
-        in_field = cells_in_field(grid, world.field.polygon)
-        shared = cls(drive, scenario, rec, core, landing, plan, strip_map, limited,
-                     LimitedStrips.of(track, states, limited, delay_s, period_s, cell_m, grid),
-                     rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
-                     in_field, worked_fraction(track, implement.width_m, grid), check_world(world, in_field),
+        shared = cls(drive, scenario, rec, core, setting, plan, _strip_map(grid, plan),
+                     LimitedStrips.of(track, states, setting.limited, delay_s, period_s, cell_m, grid),
                      control_s / variants, 0.0)
         shared.metrics_s = (time.perf_counter() - clock) / variants
         return shared
+
+
+def _strip_map(grid, plan: StripPlan) -> StripMap:
+    """The sparse map from the plan's strips (with their passes) to the grid's cells."""
+    s = plan.strips
+    return StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m, pass_index=s.pass_index)
 
 
 def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
@@ -163,17 +161,10 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
             targets = np.broadcast_to(target[:, None], (len(target), loop.n)) if loop.n > 1 else target
             metered[part, idx] = shared.core._metered_kg(loop.run(targets).shaft_rev, applying[part])
     control_s = time.perf_counter() - clock
-    clock = time.perf_counter()
-    summaries = _account(shared, metered, cfgs)
-    metrics_s = time.perf_counter() - clock
-    n = len(cfgs)
-    for summary in summaries:
-        stage = {**drive.stage_s, "control_s": shared.control_s + control_s / n,
-                 "metrics_s": shared.metrics_s + metrics_s / n}
-        summary["wall_time_s"] = sum(stage.values())
-        summary["realtime_factor"] = summary["sim_time_s"] / summary["wall_time_s"]
-        summary["stage_s"] = stage
-    return summaries
+    # A variant's wall time is the sum of its shares of the work done for it.
+    timers = [StageTimer({**drive.stage_s, "control_s": shared.control_s + control_s / len(cfgs),
+                          "metrics_s": shared.metrics_s}, shares=True) for _ in cfgs]
+    return _account(shared, metered, timers)
 
 
 def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
@@ -190,33 +181,34 @@ def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, core
 
 
-def _account(shared: _Shared, metered: np.ndarray, cfgs) -> list[dict]:
-    """`services.sim.run.account` for the mass columns `metered` (ticks x variants) at once: the
-    geometry is the shared one; the product's figures come per column through `maps.StripMap`."""
-    world, track, scenario, landing = shared.drive.world, shared.drive.track, shared.scenario, shared.landing
-    grid, in_field, width_on = world.grid, shared.in_field, shared.rec["width_on_m"]
-    strip_width_m, strip_length_m = width_on[:, None], landing.strip_length_m[:, None]
+def _account(shared: _Shared, metered: np.ndarray, timers: list[StageTimer]) -> list[dict]:
+    """The summaries of the mass columns `metered` (ticks x variants): their deposits, `RASTER_CHUNK`
+    at a time from the shared strips' sparse map, accounted (`services.sim.accounting.account`); each
+    variant's timer gets its share of the work as ``metrics_s``."""
+    setting = shared.setting
+    width_on_m, strip_length_m = shared.rec["width_on_m"][:, None], setting.landing.strip_length_m[:, None]
+    clock = time.perf_counter()
     limited_cover = shared.limited_strips.coverage(metered)
-    cell_w, cell_h = grid.cell_size
-    on = np.asarray(track["implement_on"], bool)
-    wall0 = time.perf_counter()
+    limited_s = (time.perf_counter() - clock) / len(timers)
     summaries = []
-    for j, cfg in enumerate(cfgs):
-        if j % RASTER_CHUNK == 0:
-            block = slice(j, j + RASTER_CHUNK)
-            rasters = shared.strip_map.apply(shared.plan.mass_kg(metered[:, block]))
-            applied = rasters.applied_kg_ha
-            # the applied rate per tick, a row per variant (its transitions read it whole)
-            rates = applied_rate_kg_ha(metered[:, block], strip_width_m, strip_length_m).T.copy()
-        c = j % RASTER_CHUNK
-        cover = rasters.coverage_fraction[c]
-        mm = map_metrics(grid.rates_kg_ha, applied[c], cover, in_field,
-                         abs(cell_w * cell_h) / 1e4, float(metered[:, j].sum()), float(rasters.outside_kg[c]))
-        tm = transitions(track["time_s"], landing.distance_m, landing.prescribed_kg_ha, rates[c], on,
-                         shared.steps)
-        om = overlap_metrics(cover, rasters.overlap_fraction[c], rasters.overlap_kg[c], shared.worked,
-                             in_field)
-        lm = limit_metrics(shared.limited, width_on > 0, limited_cover[j], cover, in_field)
-        variant = dataclasses.replace(world, scenario=dataclasses.replace(scenario, controller=cfg))
-        summaries.append(summarize(variant, track, landing, (mm, tm, om, lm), shared.check, wall0))
+    for lo in range(0, metered.shape[1], RASTER_CHUNK):
+        clock = time.perf_counter()
+        columns, chunk = metered[:, lo:lo + RASTER_CHUNK], timers[lo:lo + RASTER_CHUNK]
+        rasters = _rasters(shared, columns)
+        applied, cover = rasters.applied_kg_ha, rasters.coverage_fraction
+        # the applied rate per tick, a row per variant (its transitions read it whole)
+        rates = applied_rate_kg_ha(columns, width_on_m, strip_length_m).T.copy()
+        deposits = [Deposit(columns[:, c], rates[c], applied[c], cover[c], rasters.overlap_fraction[c],
+                            rasters.overlap_kg[c], float(rasters.outside_kg[c]), limited_cover[lo + c])
+                    for c in range(len(chunk))]
+        share_s = limited_s + (time.perf_counter() - clock) / len(chunk)
+        for timer in chunk:
+            timer.add("metrics_s", share_s)
+        # summed up chunk by chunk: the accounts hold their rasters
+        summaries += [metrics.summary(a) for a in account(setting, deposits, chunk)]
     return summaries
+
+
+def _rasters(shared: _Shared, metered: np.ndarray) -> AppliedColumns:
+    """The as-applied rasters of the mass columns `metered` (ticks, n) along the shared strips."""
+    return shared.strip_map.apply(shared.plan.mass_kg(metered))

@@ -13,6 +13,7 @@ import numpy as np
 
 from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
+from services.sim.as_run import as_run
 from services.sim.drive_job import DriveJob
 from services.sim.scenario import Scenario
 from vehicle import CoveragePath, Field, plan_coverage
@@ -27,7 +28,7 @@ RUN_BYTES_PER_TICK = 400
 class World:
     """What a scenario builds before anything moves: field, path and the prescription on its grid."""
 
-    scenario: Scenario
+    scenario: Scenario   # as run (`services.sim.as_run.as_run`)
     field: Field
     path: CoveragePath
     grid: Grid  # the prescription, in the field's metric CRS
@@ -86,14 +87,15 @@ def _zones_plus_gradient(bounds, crs, cell_size_m, seed, params) -> Grid:
 
 
 def build_world(scenario: Scenario, planned: tuple[Field, CoveragePath] | None = None) -> World:
-    """Field, prescription and coverage path (`plan_path`, unless `planned` holds what it gave);
-    errors name the scenario file and its table."""
+    """Field, prescription and coverage path (`plan_path`, unless `planned` holds what it gave), and
+    the scenario as run (`services.sim.as_run.as_run`: every kind's default resolved), which the run
+    consumes and its outputs show; errors name the scenario file and its table."""
     field, path = planned or plan_path(scenario)
     try:
         grid = build_prescription(scenario, field)
     except MapError as exc:
         raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
-    return World(scenario=scenario, field=field, path=path, grid=grid)
+    return World(scenario=as_run(scenario), field=field, path=path, grid=grid)
 
 
 def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:

@@ -116,6 +116,16 @@ def test_compare_table_marks_the_best_of_each_column(folder):
     assert "best in its column" in p.stdout and (folder / "cmp2" / "compare.html").is_file()
 
 
+def test_compare_on_a_uniform_map_has_no_step_to_show(folder):
+    """A map with no rate step: the page shows no step panels instead of failing (was exit 1)."""
+    uniform = SMALL.replace('synthetic = "zones"\nparams = { n_zones = 4 }', 'synthetic = "uniform"')
+    (folder / "uniform.toml").write_text(uniform)
+    p = vrsim("compare", str(folder / "uniform.toml"), "--controller", "pid", "--controller", "ideal",
+              "--quiet", "--out", str(folder / "cmp_uniform"))
+    assert p.returncode == 0, p.stderr
+    assert (folder / "cmp_uniform" / "compare.html").is_file()
+
+
 @pytest.mark.parametrize("args, message", [
     (("--controller", "bang_bang"), "controller spec 'bang_bang': neither a kind"),
     (("--look-ahead", "soon"), "--look-ahead 'soon': must be seconds or auto"),

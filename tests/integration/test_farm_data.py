@@ -160,7 +160,7 @@ def test_summary_shows_the_parameters_as_run_and_the_report_the_settings(farm_ru
     assert config["output"]["log_rate_hz"] == 1.0
     page = (out / "report.html").read_text()
     for text in ("Controller", "Implement", "GNSS", "Speed sensor", "incremental", "rtk", "SUMO (libsumo)",
-                 "1.28.0", "<td>seed</td><td>4</td>", "shaft_rpm_max", "120.00"):
+                 "1.28.0", "<td>seed</td><td>4</td>", "<td>shaft_rpm_max</td><td><code>120.0</code></td>"):
         assert text in page, text
     for m in METRICS:
         assert f"<code>{m.key}</code>" in page and m.description.replace("'", "&#x27;") in page, m.key

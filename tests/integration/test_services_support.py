@@ -19,6 +19,8 @@ from tests.conftest import VRSIM
 # Keys of a summary whose values depend on the wall clock, not on the simulation.
 WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
 MONITOR_KEYS = frozenset({"missing_ticks", "complete"})  # a monitor's report says which ticks it lacks
+# Where a run's scenario was read from: a file's path for `vrsim run`, the name it came by over the bus.
+ORIGIN_KEYS = {"source", "base_dir"}
 CELL_M = 2.0
 MARGIN_M = 30.0
 FIELD = dict(width_m=36.0, length_m=60.0, lat=52.1, lon=11.6)
@@ -199,5 +201,8 @@ def assert_same_summary(got: dict, expected: dict, extra: frozenset = frozenset(
             continue
         if isinstance(want, float) and not math.isnan(want):
             assert got[key] == pytest.approx(want, rel=1e-9, abs=1e-12), key
+        elif key == "scenario_config":   # the same settings as run, wherever the scenario came from
+            assert {k: v for k, v in got[key].items() if k not in ORIGIN_KEYS} == \
+                {k: v for k, v in want.items() if k not in ORIGIN_KEYS}
         else:
             assert got[key] == want, key

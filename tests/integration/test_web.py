@@ -1,13 +1,15 @@
 """The web service with real processes: `vrsim serve all --web` (an operator page) and a second
 `vrsim serve web` started on its own (a viewer), real runs of the quick scenario, `/events` read over a
 raw socket, the JSON API over HTTP, and the page in a real headless Chromium driven by Playwright.
-The tests share one `serve all` and run in file order."""
+The tests share one `serve all` and run in file order; each web service is used logged in with the
+token it printed with its URL (tests/integration/test_web_trust.py: what happens without)."""
 
 from __future__ import annotations
 
 import http.client
 import json
 import os
+import re
 import socket
 import subprocess
 import threading
@@ -27,12 +29,34 @@ OUT = os.environ.get("VRSIM_TEST_OUT", os.path.join(ROOT, "runs", "test-out"))
 
 
 # ---------------------------------------------------------------------------------------- helpers
+def printed_token(output: str, port: int) -> str | None:
+    """The login token a web service printed with its page's URL."""
+    found = re.search(rf"page at https?://[^/\s]+:{port}/\?token=([A-Za-z0-9_-]+)", output)
+    return found.group(1) if found else None
+
+
 class Web:
-    """HTTP to one web service on 127.0.0.1."""
+    """HTTP to one web service on 127.0.0.1, logged in with its token (`login`): every request carries
+    the session cookie, every POST the session's CSRF token."""
 
     def __init__(self, port: int):
         self.port = port
         self.base = f"http://127.0.0.1:{port}"
+        self.token = self.cookie = self.csrf = None
+
+    def login(self, token: str) -> None:
+        """Open the URL with the token: the answer sets the session cookie and drops the token."""
+        self.token = token
+        conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=30)
+        try:
+            conn.request("GET", f"/?token={token}")
+            resp = conn.getresponse()
+            resp.read()
+            assert resp.status == 303 and resp.getheader("location") == "/", resp.status
+            self.cookie = resp.getheader("set-cookie").split(";")[0]
+        finally:
+            conn.close()
+        self.csrf = self.json("/api/view")["csrf"]
 
     def get(self, path: str, headers: dict | None = None) -> tuple[int, bytes, str]:
         return self.request("GET", path, headers=headers)
@@ -45,19 +69,25 @@ class Web:
     def request(self, method: str, path: str, body: bytes | None = None,
                 headers: dict | None = None) -> tuple[int, bytes, str]:
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=130)
+        mine = {"Cookie": self.cookie} if self.cookie else {}
+        if method == "POST" and self.csrf:
+            mine["X-CSRF-Token"] = self.csrf
         try:
-            conn.request(method, path, body=body, headers=headers or {})
+            conn.request(method, path, body=body, headers={**mine, **(headers or {})})
             resp = conn.getresponse()
             return resp.status, resp.read(), resp.getheader("content-type", "")
         finally:
             conn.close()
 
-    def wait_up(self, timeout_s: float = 30.0) -> None:
+    def wait_up(self, output, timeout_s: float = 30.0) -> None:
+        """Until the service printed its URL (``output()``: what it printed so far) and answers; then
+        log in with the token."""
         deadline = time.monotonic() + timeout_s
         while True:
+            token = printed_token(output(), self.port)
             try:
-                if self.get("/api/view")[0] == 200:
-                    return
+                if token is not None and self.get("/login")[0] == 200:
+                    return self.login(token)
             except OSError:
                 pass
             assert time.monotonic() < deadline, f"{self.base} not up after {timeout_s} s"
@@ -67,11 +97,11 @@ class Web:
 class EventStream:
     """``GET /events`` over a raw socket; a thread parses the chunked body into (time, kind, doc)."""
 
-    def __init__(self, port: int):
+    def __init__(self, web: Web):
         self.events: list = []
         self.sock = socket.socket()
-        self.sock.connect(("127.0.0.1", port))
-        self.sock.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+        self.sock.connect(("127.0.0.1", web.port))
+        self.sock.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{web.port}\r\nCookie: {web.cookie}\r\n"
                           "Accept: text/event-stream\r\n\r\n".encode())
         self.headers = ""
         self.thread = threading.Thread(target=self._read, daemon=True)
@@ -160,11 +190,11 @@ def per_second_max(times: list[float]) -> int:
     return max((sum(1 for u in times[i:] if u < t + 1.0) for i, t in enumerate(times)), default=0)
 
 
-def hello(port: int, predicate, timeout_s: float = 30.0) -> dict:
+def hello(web: Web, predicate, timeout_s: float = 30.0) -> dict:
     """The `hello` of a fresh /events connection, retried until ``predicate(doc)``."""
     deadline = time.monotonic() + timeout_s
     while True:
-        stream = EventStream(port)
+        stream = EventStream(web)
         try:
             while not stream.events and time.monotonic() < deadline:
                 time.sleep(0.02)
@@ -187,7 +217,7 @@ def net(tmp_path_factory):
     server.extra = []
     try:
         server.wait_ready()
-        server.web.wait_up()
+        server.web.wait_up(server.output)
         yield server
     finally:
         for proc in server.extra:
@@ -195,6 +225,15 @@ def net(tmp_path_factory):
             proc.wait(timeout=15)
         rc = server.stop()
         assert rc == 0, server.output()
+
+
+def until(page, expression: str, timeout: float = 30_000) -> None:
+    """Until ``expression`` is true in ``page`` (polled from here: Playwright's `wait_for_function`
+    evaluates its predicate with `eval`, which the page's Content-Security-Policy forbids)."""
+    deadline = time.monotonic() + timeout / 1000
+    while not page.evaluate(expression):
+        assert time.monotonic() < deadline, f"never true: {expression}"
+        time.sleep(0.05)
 
 
 def need_chromium() -> None:
@@ -214,7 +253,13 @@ def serve_viewer(net) -> tuple[subprocess.Popen, Web]:
     proc = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, cwd=net.folder)
     net.extra.append(proc)
     web = Web(port)
-    web.wait_up()
+
+    def output() -> str:
+        log.flush()
+        with open(log.name) as fh:
+            return fh.read()
+
+    web.wait_up(output)
     return proc, web
 
 
@@ -251,7 +296,7 @@ def test_api_map_is_the_map_services_info_and_the_png_has_its_grid(net):
 
 
 def test_events_first_within_1s_of_the_run_and_at_most_20_a_second_at_lockstep(net):
-    stream = EventStream(net.web.port)
+    stream = EventStream(net.web)
     watch = PoseWatch(net.session)
     try:
         time.sleep(0.5)
@@ -299,9 +344,9 @@ def test_report_and_status_are_the_services_own(net):
 
 def test_a_viewer_started_after_the_run_shows_it_from_the_monitors_records(net):
     run_id = net.web.json("/api/status")["run_id"]
-    mine = hello(net.web.port, lambda d: d["run_id"] == run_id and d["applied"]["i"])
+    mine = hello(net.web, lambda d: d["run_id"] == run_id and d["applied"]["i"])
     _, viewer = serve_viewer(net)
-    theirs = hello(viewer.port, lambda d: d["run_id"] == run_id and d["catchup"]["state"] == "done"
+    theirs = hello(viewer, lambda d: d["run_id"] == run_id and d["catchup"]["state"] == "done"
                    and d["run"].get("field"))
     ticks = net.web.json("/api/status")["ticks"]
     assert theirs["catchup"]["ticks"] == ticks
@@ -337,14 +382,15 @@ def test_page_in_chromium_shows_a_realtime_run_and_a_viewer_catches_up_mid_run(n
             page = browser.new_page(viewport={"width": 1400, "height": 820})
             errors = []
             page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.goto(net.web.base + "/")
-            page.wait_for_function("window.vrsimView.role === 'operator' && window.vrsimView.mapLoaded")
+            page.goto(f"{net.web.base}/?token={net.web.token}")
+            assert page.url == net.web.base + "/"  # logged in: the token is gone from the URL
+            until(page, "window.vrsimView.role === 'operator' && window.vrsimView.mapLoaded")
             # Start from the page: the quick scenario, real time at 20 x.
             page.set_input_files("#scenario", SCENARIO)
             page.select_option("#clock", "realtime")
             page.fill("#speed", "20")
             page.click("#start")
-            page.wait_for_function("window.vrsimView.status && window.vrsimView.status.state === 'running' "
+            until(page, "window.vrsimView.status && window.vrsimView.status.state === 'running' "
                                    "&& window.vrsimView.appliedCells > 0", timeout=60_000)
             state = ("() => { const s = window.vrsimView; return {moves: s.tractorMoves, "
                      "cells: s.appliedCells, points: s.points, x: s.pose.x_m, y: s.pose.y_m, draws: s.draws, "
@@ -363,8 +409,8 @@ def test_page_in_chromium_shows_a_realtime_run_and_a_viewer_catches_up_mid_run(n
             # A web service started now, mid-run, and a page on it: the past comes from the monitor.
             _, late = serve_viewer(net)
             viewer = browser.new_page(viewport={"width": 1400, "height": 820})
-            viewer.goto(late.base + "/")
-            viewer.wait_for_function(f"window.vrsimView.runId === '{after['run']}' && "
+            viewer.goto(f"{late.base}/?token={late.token}")
+            until(viewer, f"window.vrsimView.runId === '{after['run']}' && "
                                      "window.vrsimView.catchup && window.vrsimView.catchup.state === 'done'",
                                      timeout=60_000)
             caught = viewer.evaluate("window.vrsimView.catchup")
@@ -375,13 +421,13 @@ def test_page_in_chromium_shows_a_realtime_run_and_a_viewer_catches_up_mid_run(n
             page.screenshot(path=path)
             print(f"\nscreenshot: {path}; viewer caught up {caught['ticks']} ticks from the monitor")
             page.click("#stop")
-            page.wait_for_function("window.vrsimView.status.state === 'stopped'", timeout=30_000)
+            until(page, "window.vrsimView.status.state === 'stopped'", timeout=30_000)
             assert errors == []
         finally:
             browser.close()
     wait_done(net, after["run"])
-    theirs = hello(late.port, lambda d: d["run_id"] == after["run"])
-    mine = hello(net.web.port, lambda d: d["run_id"] == after["run"])
+    theirs = hello(late, lambda d: d["run_id"] == after["run"])
+    mine = hello(net.web, lambda d: d["run_id"] == after["run"])
     assert set(theirs["applied"]["i"]) == set(mine["applied"]["i"])  # the past filled in, nothing twice
 
 
@@ -393,8 +439,8 @@ def test_page_keeps_up_at_lockstep_with_at_most_20_frames_a_second(net):
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1400, "height": 820})
-            page.goto(net.web.base + "/")
-            page.wait_for_function("window.vrsimView.mapLoaded")
+            page.goto(f"{net.web.base}/?token={net.web.token}")
+            until(page, "window.vrsimView.mapLoaded")
             cpu0, t0 = chromium_cpu_s(), time.monotonic()
             frames0 = page.evaluate("window.vrsimView.frames")
             run = start_run(net)
@@ -405,7 +451,7 @@ def test_page_keeps_up_at_lockstep_with_at_most_20_frames_a_second(net):
             print(f"\nlockstep run ({status['ticks'] / status['drive_s']:.0f} ticks/s) with the page open: "
                   f"{frames} frames in {t1 - t0:.1f} s, Chromium used {share * 100:.0f} % of one core")
             assert frames <= 20 * (t1 - t0) + 2  # the thinning is what keeps the browser's share low
-            page.wait_for_function(f"window.vrsimView.runId === '{run['run_id']}' && "
+            until(page, f"window.vrsimView.runId === '{run['run_id']}' && "
                                    "window.vrsimView.status.state === 'finished'", timeout=30_000)
         finally:
             browser.close()

@@ -1,11 +1,14 @@
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from services.sim.metrics import (
     METRICS,
+    LimitMetrics,
     MapMetrics,
+    OverlapMetrics,
     TransitionMetrics,
     map_metrics,
     rate_steps,
@@ -96,19 +99,50 @@ def test_unsettled_step_is_not_counted():
 
 
 def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():
-    from services.outputs.summary import SUMMARY_ROWS
+    from services.outputs.summary import summary_rows
     from services.sim.accuracy import TOLERANCES
 
     keys = [m.key for m in METRICS]
     assert len(keys) == len(set(keys))
     assert TOLERANCES == {m.key: m.tolerance for m in METRICS if m.tolerance is not None}
     assert "wall_time_s" not in TOLERANCES and "mae_kg_ha" in TOLERANCES  # the machine is not held
-    assert SUMMARY_ROWS == tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
-    # Every figure the metric functions compute is a row of the table.
-    computed = {f.name for f in dataclasses.fields(MapMetrics)} | {f.name for f in dataclasses.fields(
-        TransitionMetrics)}
-    assert computed <= set(keys)
-    figures = {k: float(i) for i, k in enumerate(keys)}
-    assert list(summary("s", 3, figures)) == ["scenario", *keys, "seed"]
-    with pytest.raises(KeyError, match="coverage_pct"):
-        summary("s", 3, {k: v for k, v in figures.items() if k != "coverage_pct"})
+    assert summary_rows() == tuple((m.label, m.key, m.unit) for m in METRICS if m.label)
+    # Every row says how its figure comes from a run's accounts; every figure the metric functions
+    # compute is a row of the table, read from its part.
+    assert all(m.of is not None for m in METRICS)
+    sources = {m.of for m in METRICS}
+    for part, cls in (("map", MapMetrics), ("transitions", TransitionMetrics), ("overlap", OverlapMetrics),
+                      ("limits", LimitMetrics)):
+        assert {f"{part}.{f.name}" for f in dataclasses.fields(cls)} <= sources, part
+
+
+def _accounts(ticks=4, wall_time_s=2.0):
+    """Accounts as `services.sim.accounting.account` gives them, their parts filled with counts."""
+    def part(cls, first):
+        return cls(*(float(first + i) for i, _ in enumerate(dataclasses.fields(cls))))
+
+    implement = SimpleNamespace(sections=2, section_widths=np.array([3.0, 3.0]))
+    scenario = SimpleNamespace(name="s", seed=3, implement=implement,
+                               timing=SimpleNamespace(control_period_s=0.05))
+    world = SimpleNamespace(scenario=scenario, field=SimpleNamespace(area_ha=1.5))
+    setting = SimpleNamespace(world=world, track={"time_s": np.arange(ticks) * 0.05},
+                              landing=SimpleNamespace(distance_m=np.arange(ticks) * 1.5),
+                              check=SimpleNamespace(max_speed_m_s=4.0))
+    return SimpleNamespace(setting=setting, map=part(MapMetrics, 100),
+                           transitions=part(TransitionMetrics, 200), overlap=part(OverlapMetrics, 300),
+                           limits=part(LimitMetrics, 400),
+                           timing=SimpleNamespace(stage_s={"control_s": 1.0}, wall_time_s=wall_time_s))
+
+
+def test_the_summary_reads_each_figure_off_the_accounts_in_table_order():
+    a = _accounts()
+    s = summary(a)
+    assert list(s) == ["scenario", *[m.key for m in METRICS], "seed", "stage_s"]
+    assert (s["scenario"], s["seed"], s["stage_s"]) == ("s", 3, {"control_s": 1.0})
+    assert s["mae_kg_ha"] == a.map.mae_kg_ha and s["overlap_kg"] == a.overlap.overlap_kg
+    assert s["transitions"] == a.transitions.transitions
+    assert s["limited_area_pct"] == a.limits.limited_area_pct
+    assert (s["ticks"], s["sim_time_s"], s["wall_time_s"], s["realtime_factor"]) == (4, 0.2, 2.0, 0.1)
+    assert (s["path_length_m"], s["section_widths_m"], s["sections"]) == (4.5, [3.0, 3.0], 2)
+    assert (s["field_area_ha"], s["max_speed_m_s"]) == (1.5, 4.0)
+    assert summary(_accounts(ticks=0))["path_length_m"] == 0.0

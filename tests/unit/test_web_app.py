@@ -11,6 +11,7 @@ import json
 
 from services.bus import messages
 from services.bus.web.app import create_app
+from services.bus.web.auth import Logins
 from services.bus.web.bridge import _decode
 from services.bus.web.live import FIELDS, FRAME_S, LiveView, ViewGrid
 
@@ -25,10 +26,11 @@ class NoBus:
     map_scale = None
 
 
-def scope(path: str) -> dict:
+def scope(path: str, cookie: str = "") -> dict:
+    headers = [(b"host", b"127.0.0.1:8448")] + ([(b"cookie", cookie.encode())] if cookie else [])
     return {"type": "http", "asgi": {"version": "3.0", "spec_version": "2.4"}, "http_version": "1.1",
             "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"",
-            "root_path": "", "headers": [(b"host", b"127.0.0.1:8448")], "server": ("127.0.0.1", 8448),
+            "root_path": "", "headers": headers, "server": ("127.0.0.1", 8448),
             "client": ("127.0.0.1", 50000)}
 
 
@@ -42,7 +44,8 @@ def events_of(chunks: list[bytes]) -> list[tuple[str, dict]]:
 
 
 async def stalled_browser(view: LiveView, stall_s: float):
-    app = create_app(view, NoBus(), None)
+    logins = Logins("viewer", None, "vrsim_session")
+    app = create_app(view, NoBus(), None, logins)
     life_in: asyncio.Queue = asyncio.Queue()
     life_out: list = []
     await life_in.put({"type": "lifespan.startup"})
@@ -77,7 +80,8 @@ async def stalled_browser(view: LiveView, stall_s: float):
 
     drive(0)  # the run is under way when the browser comes
     await asyncio.sleep(2 * FRAME_S)
-    stream = asyncio.create_task(app(scope("/events"), receive, send))
+    cookie = f"vrsim_session={logins.open('viewer')}"
+    stream = asyncio.create_task(app(scope("/events", cookie), receive, send))
     first_seq = view.seq
     for tick in range(1, int(stall_s / FRAME_S)):  # a run goes on: a new pose every frame
         drive(tick)

@@ -3,34 +3,50 @@
 Frames: one task closes a frame of the `LiveView` at most every `FRAME_S` when anything changed and
 wakes the streams; each stream sends one event per frame at most (``hello`` to start over, else
 ``frame``: what changed since the frame it sent last). A browser slower than that skips frames: its
-stream waits in `send` (uvicorn stops at 64 KB of unsent bytes), and its next event covers all it
-missed, so nothing queues up per browser.
+next event covers all it missed. Memory per browser is bounded: at most `MAX_STREAMS` streams (503
+beyond), a stream keeps only the seq and epoch it sent last, sends an event in pieces of
+`PIECE_BYTES` and is dropped when its browser has not taken a piece within `SEND_TIMEOUT_S` (uvicorn
+stops at 64 KB of unsent bytes), and streams starting on the same frame share one encoded ``hello``.
+
+Who may ask (`auth`): every route but the login page needs a session; start and stop an operator's
+session and its CSRF token; the Host header must be one of ``allowed_hosts``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ctypes
+import ctypes.util
 import os
 import time
+from urllib.parse import parse_qsl
 
 import orjson
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
-from starlette.responses import FileResponse, JSONResponse, Response, StreamingResponse
+from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from common import VrsimError
+from services.bus.web.auth import LoginGate, Logins, SecurityHeaders, csrf_ok
 from services.bus.web.bridge import RUN_ID, Bridge, Operator
 from services.bus.web.live import FRAME_S, LiveView
 
 STATIC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "web_static")
 KEEPALIVE_S = 15.0  # a comment line this often: proxies keep the stream open, a gone browser is noticed
 MAX_SCENARIO_BYTES = 1_000_000
+MAX_LOGIN_BYTES = 4096
 LOOPBACK_HOSTS = ["127.0.0.1", "localhost"]
+MAX_STREAMS = 64  # open /events at once (each browser tab holds one)
+SEND_TIMEOUT_S = 5.0  # a browser that takes no piece of an event for this long is dropped
+PIECE_BYTES = 16384  # an event leaves in pieces: a stalled browser holds at most one beyond uvicorn's 64 KB
+GIVE_BACK_S = 2.0  # after streams ended, free heap pages go back to the system this often at most
+STREAM_HEADERS = [(b"content-type", b"text/event-stream; charset=utf-8"), (b"cache-control", b"no-store"),
+                  (b"x-accel-buffering", b"no")]
 
 
 class _Frames:
@@ -40,6 +56,7 @@ class _Frames:
         self.view = view
         self.event = asyncio.Event()
         self.closing = False
+        self.hello: tuple | None = None  # (epoch, seq, encoded at (monotonic s), the event's bytes)
 
     async def run(self) -> None:
         loop = asyncio.get_running_loop()
@@ -60,6 +77,47 @@ class _Frames:
             return False
         return True
 
+    def encoded_hello(self) -> tuple[int, int, bytes]:
+        """(epoch, seq, event) of a ``hello``: the one encoded for this frame in the last `FRAME_S`
+        (so its ``sent_unix`` is that close) when there is one, shared by every stream that asks."""
+        now = time.monotonic()
+        cached = self.hello
+        if cached is None or cached[:2] != (self.view.epoch, self.view.seq) or now - cached[2] > FRAME_S:
+            doc = self.view.hello()
+            cached = self.hello = (doc["epoch"], doc["seq"], now, _sse("hello", doc))
+        return cached[0], cached[1], cached[3]
+
+
+class _Streams:
+    """The open ``/events`` streams: at most ``limit``; how many ended, and were dropped for not
+    reading."""
+
+    def __init__(self, limit: int):
+        self.limit = limit
+        self.open = 0
+        self.ended = 0
+        self.dropped = 0
+
+    async def give_back(self) -> None:
+        """After streams ended, hand the heap's free pages back to the system: the events and buffers
+        of a crowd of browsers are freed when they go, but glibc keeps the pages (``malloc_trim``)."""
+        trim = _malloc_trim()
+        seen = self.ended
+        while trim is not None:
+            await asyncio.sleep(GIVE_BACK_S)
+            if self.ended != seen:
+                seen = self.ended
+                trim(0)
+
+
+def _malloc_trim():
+    """glibc's ``malloc_trim`` (None on another C library)."""
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):
+        return None
+
 
 def _sse(kind: str, doc: dict) -> bytes:
     """One event; ``sent_unix``: when it left (wall clock, s), for a client's own latency figures."""
@@ -67,59 +125,131 @@ def _sse(kind: str, doc: dict) -> bytes:
     return b"event: " + kind.encode() + b"\ndata: " + orjson.dumps(doc) + b"\n\n"
 
 
-def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
-               allowed_hosts: list[str] | None = None) -> Starlette:
-    """The Starlette app. ``operator`` None: a viewer (start and stop answer 403);
-    ``allowed_hosts``: Host headers accepted (against DNS rebinding on loopback; None: any)."""
+class _EventStream:
+    """The ASGI response of one ``/events``: events of `_Frames` until the browser goes (then at once,
+    not at the next event) or is dropped for not reading."""
+
+    def __init__(self, frames: _Frames, streams: _Streams, bridge: Bridge):
+        self.frames, self.streams, self.bridge = frames, streams, bridge
+
+    async def __call__(self, scope, receive, send) -> None:
+        self.bridge.viewers += 1
+        try:
+            await send({"type": "http.response.start", "status": 200, "headers": STREAM_HEADERS})
+            producer = asyncio.create_task(self._produce(send))
+            gone = asyncio.create_task(_disconnected(receive))
+            try:
+                await asyncio.wait({producer, gone}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                producer.cancel()
+            if not gone.done() and producer.result():  # shutting down: end the body
+                gone.cancel()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(send({"type": "http.response.body", "body": b""}), SEND_TIMEOUT_S)
+            else:  # dropped (nothing more is sent or kept for it: its slot is held, so such connections
+                await gone  # stay at most `MAX_STREAMS`), or gone; the connection ends with the browser
+        finally:
+            self.streams.open -= 1
+            self.streams.ended += 1
+            self.bridge.viewers -= 1
+
+    async def _produce(self, send) -> bool:
+        """Send events until the service closes (True) or the browser stops taking them (False)."""
+        loop, frames = asyncio.get_running_loop(), self.frames
+        epoch, seq, event = frames.encoded_hello()
+        sent = loop.time()
+        while await self._send(send, event):
+            event = None
+            while event is None:
+                if frames.closing:
+                    return True
+                if not await frames.next(seq):
+                    event = b": keepalive\n\n"
+                    continue
+                # Events of one stream leave at least FRAME_S apart, also after a stall.
+                await asyncio.sleep(max(0.0, sent + FRAME_S - loop.time()))
+                if frames.closing:
+                    return True
+                if frames.view.epoch != epoch:
+                    epoch, seq, event = frames.encoded_hello()
+                else:
+                    doc = frames.view.delta(seq, epoch)
+                    epoch, seq, event = doc["epoch"], doc["seq"], _sse(doc["type"], doc)
+                sent = loop.time()
+        self.streams.dropped += 1
+        return False
+
+    @staticmethod
+    async def _send(send, event: bytes) -> bool:
+        view = memoryview(event)
+        for a in range(0, len(event), PIECE_BYTES):
+            piece = bytes(view[a:a + PIECE_BYTES])
+            message = {"type": "http.response.body", "body": piece, "more_body": True}
+            try:
+                await asyncio.wait_for(send(message), SEND_TIMEOUT_S)
+            except TimeoutError:
+                return False
+        return True
+
+
+async def _disconnected(receive) -> None:
+    while (await receive())["type"] != "http.disconnect":
+        pass
+
+
+def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins: Logins,
+               allowed_hosts: list[str] | None = None, max_streams: int = MAX_STREAMS) -> Starlette:
+    """The Starlette app. ``operator`` None: a viewer (start and stop answer 403); ``logins``: who may
+    ask; ``allowed_hosts``: Host headers accepted (against DNS rebinding; None: any);
+    ``max_streams``: open ``/events`` streams at most."""
     frames = _Frames(view)
-    role = "operator" if operator is not None else "viewer"
+    streams = _Streams(max_streams)
 
     @contextlib.asynccontextmanager
     async def lifespan(app):
         frames.event = asyncio.Event()  # bound to uvicorn's loop
-        task = asyncio.create_task(frames.run())
+        tasks = [asyncio.create_task(frames.run()), asyncio.create_task(streams.give_back())]
         try:
             yield
         finally:
             frames.closing = True
             frames.event.set()
-            task.cancel()
+            for task in tasks:
+                task.cancel()
 
     async def page(request: Request) -> Response:
         return FileResponse(os.path.join(STATIC, "index.html"), headers={"Cache-Control": "no-cache"})
 
-    async def events(request: Request) -> Response:
-        async def stream():
-            loop = asyncio.get_running_loop()
-            bridge.viewers += 1
-            try:
-                doc = view.hello()
-                sent = loop.time()
-                yield _sse("hello", doc)
-                while not frames.closing:
-                    if not await frames.next(doc["seq"]):
-                        yield b": keepalive\n\n"
-                        continue
-                    # Events of one stream leave at least FRAME_S apart, also after a stall.
-                    await asyncio.sleep(max(0.0, sent + FRAME_S - loop.time()))
-                    if frames.closing:
-                        return
-                    doc = view.delta(doc["seq"], doc["epoch"])
-                    sent = loop.time()
-                    yield _sse(doc["type"], doc)
-            finally:
-                bridge.viewers -= 1
+    async def login_page(request: Request) -> Response:
+        return _login_form("", 200)
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+    async def login(request: Request) -> Response:
+        refused = _other_site(request, "login")
+        if refused is not None:
+            return refused
+        body = await _body(request, MAX_LOGIN_BYTES)
+        form = dict(parse_qsl((body or b"").decode("utf-8", "replace"), keep_blank_values=True))
+        token, user, password = (form.get(k, "") for k in ("token", "user", "password"))
+        role = logins.by_token(token) if token else logins.by_password(user, password)
+        if role is None:
+            return _login_form("That did not log you in: wrong token, or wrong user or password.", 401)
+        return logins.logged_in(logins.open(role), "/")
+
+    async def events(request: Request) -> Response:
+        if streams.open >= streams.limit:
+            return _error(503, f"/events: {streams.limit} streams are open, the most this service keeps; "
+                               "close a page and try again", {"Retry-After": "5"})
+        streams.open += 1
+        return _EventStream(frames, streams, bridge)
 
     async def view_doc(request: Request) -> Response:
         current = view.map
-        doc = {"role": role, "frame_s": FRAME_S, "run": view.run,
+        session = request.state.session
+        doc = {"role": _role(session, operator), "csrf": session.csrf, "frame_s": FRAME_S, "run": view.run,
                "map": None if current is None else {
                    "version": current["version"], "info": current["info"], "grid": current["grid"].to_dict(),
                    "scale": bridge.map_scale, "png": f"/api/map.png?v={current['version']}"}}
-        return JSONResponse(doc)
+        return JSONResponse(doc, headers={"Cache-Control": "no-store"})
 
     async def map_png(request: Request) -> Response:
         if bridge.map_png is None:
@@ -150,7 +280,7 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
             operator.check("start", params)
         except VrsimError as exc:
             return _error(400, str(exc))
-        body = await _body(request)
+        body = await _body(request, MAX_SCENARIO_BYTES)
         if body is None:
             return _error(413, f"/api/start: the scenario is larger than {MAX_SCENARIO_BYTES} bytes")
         return await _bus(operator.request, "start", body, params)
@@ -165,6 +295,8 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
 
     routes = [
         Route("/", page),
+        Route("/login", login_page),
+        Route("/login", login, methods=["POST"]),
         Route("/favicon.ico", lambda request: Response(status_code=204)),
         Route("/events", events),
         Route("/api/view", view_doc),
@@ -176,8 +308,14 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None,
         Route("/api/stop", api_stop, methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts)] if allowed_hosts else []
-    return Starlette(routes=routes, middleware=middleware, lifespan=lifespan)
+    # Outermost first: every answer (a refused Host's too) carries the frame and content headers.
+    middleware = [Middleware(SecurityHeaders)]
+    if allowed_hosts:
+        middleware.append(Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts))
+    middleware.append(Middleware(LoginGate, logins=logins))
+    app = Starlette(routes=routes, middleware=middleware, lifespan=lifespan)
+    app.state.streams = streams
+    return app
 
 
 async def _bus(fn, *args) -> Response:
@@ -190,29 +328,55 @@ async def _bus(fn, *args) -> Response:
         return _error(502, str(exc))
 
 
-def _error(status: int, message: str) -> Response:
-    return JSONResponse({"error": message}, status_code=status)
+def _error(status: int, message: str, headers: dict | None = None) -> Response:
+    return JSONResponse({"error": message}, status_code=status, headers=headers)
 
 
-def _refuse_operator(request: Request, operator: Operator | None, verb: str) -> Response | None:
-    """403 for a viewer; 403 for a request a page of another site made (its Origin is not ours:
-    without this any site open in the same browser could stop a run on 127.0.0.1)."""
-    if operator is None:
-        return _error(403, f"/api/{verb}: this web service is a viewer (start it with --operator to "
-                           "start and stop runs)")
+def _login_form(message: str, status: int) -> Response:
+    with open(os.path.join(STATIC, "login.html"), encoding="utf-8") as fh:
+        html = fh.read().replace("<!--message-->", message)  # our own fixed sentences, never the request's
+    return HTMLResponse(html, status_code=status, headers={"Cache-Control": "no-store"})
+
+
+def _role(session, operator: Operator | None) -> str:
+    """What the session may do here: operator only with an operator's login on a service that has one."""
+    return "operator" if operator is not None and session.role == "operator" else "viewer"
+
+
+def _other_site(request: Request, verb: str) -> Response | None:
+    """403 for a request a page of another site made (its Origin is not ours)."""
     origin = request.headers.get("origin")
     if origin is not None and origin != f"{request.url.scheme}://{request.headers.get('host', '')}":
-        return _error(403, f"/api/{verb}: refused a request from the page of another site ({origin[:80]})")
+        return _error(403, f"/{verb}: refused a request from the page of another site ({origin[:80]})")
     return None
 
 
-async def _body(request: Request) -> bytes | None:
-    """The request body, or None beyond `MAX_SCENARIO_BYTES` (counted while reading, not trusted
-    from Content-Length)."""
+def _refuse_operator(request: Request, operator: Operator | None, verb: str) -> Response | None:
+    """403 on a viewer service, for a viewer's session, for another site's page (without this any
+    site open in the same browser could stop a run on 127.0.0.1), and without the session's CSRF
+    token in ``X-CSRF-Token``."""
+    if operator is None:
+        return _error(403, f"/api/{verb}: this web service is a viewer (start it with --operator to "
+                           "start and stop runs)")
+    session = request.state.session
+    if session.role != "operator":
+        return _error(403, f"/api/{verb}: this login is a viewer's (log in as operator, or with the "
+                           "token printed at start, to start and stop runs)")
+    refused = _other_site(request, f"api/{verb}")
+    if refused is not None:
+        return refused
+    if not csrf_ok(session, request.headers):
+        return _error(403, f"/api/{verb}: missing or wrong X-CSRF-Token (the page sends its session's)")
+    return None
+
+
+async def _body(request: Request, limit: int) -> bytes | None:
+    """The request body, or None beyond ``limit`` bytes (counted while reading, not trusted from
+    Content-Length)."""
     chunks, size = [], 0
     async for chunk in request.stream():
         size += len(chunk)
-        if size > MAX_SCENARIO_BYTES:
+        if size > limit:
             return None
         chunks.append(chunk)
     return b"".join(chunks)

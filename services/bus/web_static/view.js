@@ -1,6 +1,7 @@
 // vrsim live view: one page, plain JavaScript and canvas, everything from this server (no network).
-// Data: GET /api/view (role, map geometry, colour scale), GET /api/map.png (the prescription),
-// /events (Server-Sent Events: `hello` = everything, then `frame` = what changed, at most 20 a second).
+// Data: GET /api/view (role, CSRF token, map geometry, colour scale), GET /api/map.png (the
+// prescription), /events (Server-Sent Events: `hello` = everything, then `frame` = what changed, at most
+// 20 a second). The session is an HttpOnly cookie; without one (401) the page goes to /login.
 // State for scripts and tests: window.vrsimView.
 "use strict";
 (() => {
@@ -25,6 +26,7 @@
   let points = [];
   let trail = [];
   let viewRequests = 0;
+  let csrf = ""; // the session's CSRF token (from /api/view), sent with every POST
   let dirty = true;
 
   // ------------------------------------------------------------------ events
@@ -79,10 +81,14 @@
     S.mapVersion = version;
     values = null; // deltas wait in `pending` until the new grid is there
     const request = ++viewRequests;
-    fetch("/api/view").then((r) => r.json()).then((doc) => {
+    fetch("/api/view").then((r) => {
+      if (r.status === 401) window.location.assign("/login");
+      return r.json();
+    }).then((doc) => {
       if (request !== viewRequests) return; // a later request is on its way: its answer counts
       view = doc;
       S.role = doc.role;
+      csrf = doc.csrf;
       $("ops").hidden = doc.role !== "operator";
       if (!doc.map) return;
       grid = doc.map.grid;
@@ -344,7 +350,8 @@
       const file = $("scenario").files[0];
       body = file ? await file.text() : "";
     }
-    const r = await fetch(url, { method: "POST", body, headers: { "Content-Type": "text/plain" } });
+    const r = await fetch(url, { method: "POST", body,
+      headers: { "Content-Type": "text/plain", "X-CSRF-Token": csrf } });
     const doc = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
     if (!r.ok) $("opmsg").textContent = doc.error || `HTTP ${r.status}`;
   }

@@ -21,8 +21,8 @@ import numpy as np
 from common import ScenarioError
 from services.sim import scenario as scenario_mod
 from services.sim.overrides import key_parts
-from services.sim.scenario import _no_unknown, _typed  # the scenario loader's own checks and messages
 from services.sim.sweep.stats import METRIC_SENSE
+from services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
 
 SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "set", "axes", "report")
 RANGE_KEYS = ("min", "max", "n", "log")
@@ -121,28 +121,28 @@ def parse_sweep(text: str, source: str = "<sweep>", base_dir: str = ".") -> Swee
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
-    _no_unknown(doc, SWEEP_KEYS, source, "")
-    design = _typed(doc, "design", str, source, "", default="grid")
+    no_unknown(doc, SWEEP_KEYS, source, "")
+    design = typed(doc, "design", str, source, "", default="grid")
     if design not in DESIGNS:
         raise ScenarioError(f"{source}: design must be one of {', '.join(DESIGNS)}, got {design!r}")
-    samples = _typed(doc, "samples", int, source, "")
+    samples = typed(doc, "samples", int, source, "")
     if design == "grid" and samples is not None:
         raise ScenarioError(f"{source}: samples is for design random or lhs (design is 'grid'), "
                             f"got {samples!r}")
     if design != "grid" and (samples is None or samples < 1):
         raise ScenarioError(f"{source}: design {design!r} needs samples = N >= 1, got {samples!r}")
-    axes = _axes(_typed(doc, "axes", dict, source, "", default={}), source, design)
+    axes = _axes(typed(doc, "axes", dict, source, "", default={}), source, design)
     if design != "grid" and not axes:
         raise ScenarioError(f"{source}: design {design!r} needs at least one axis in [axes]")
-    fixed = tuple(_flatten(_typed(doc, "set", dict, source, "", default={}), ranges=False).items())
+    fixed = tuple(_flatten(typed(doc, "set", dict, source, "", default={}), ranges=False).items())
     for key, _ in fixed:
         key_parts(key, f"{source}: [set] {key!r}")
         if key in {a.key for a in axes}:
             raise ScenarioError(f"{source}: [set] {key!r} is also an axis; set it in one place")
     return Sweep(source=source, scenarios=_scenarios(doc, source, base_dir), seeds=_seeds(doc, source),
                  design=design, samples=samples,
-                 design_seed=_typed(doc, "design_seed", int, source, "", default=0), fixed=fixed,
-                 axes=axes, pareto=_pareto(_typed(doc, "report", dict, source, "", default={}), source))
+                 design_seed=typed(doc, "design_seed", int, source, "", default=0), fixed=fixed,
+                 axes=axes, pareto=_pareto(typed(doc, "report", dict, source, "", default={}), source))
 
 
 def _scenarios(doc: dict, source: str, base_dir: str) -> tuple[BaseScenario, ...]:
@@ -254,7 +254,7 @@ def _range_axis(key: str, spec: dict, where: str, design: str) -> Axis:
 
 
 def _pareto(report: dict, source: str) -> tuple[str, str] | None:
-    _no_unknown(report, REPORT_KEYS, source, "report")
+    no_unknown(report, REPORT_KEYS, source, "report")
     if "pareto" not in report:
         return None
     pair = report["pareto"]

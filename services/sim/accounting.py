@@ -1,0 +1,252 @@
+"""A run's accounting, once: what its ticks put on the ground becomes its figures (`Accounts`).
+
+Every path that reports a run's figures comes here: the in-process run and `vrsim run`'s streamed run
+(`services.sim.run.accounted`), the monitor's report rebuilt from its records (the same), controller
+variants, many mass columns at once (`services.sim.variants`), and the error split's reference meters
+(`map_figures`, the map part alone). The summary is the rows of `services.sim.metrics.METRICS` read off
+the `Accounts` (`metrics.summary`): a new figure is a row there and its formula, nothing else.
+
+The parts:
+
+- `Setting`: what every mass column of one drive shares (the world, the track, where each tick's
+  product lands, the field's cells, the worked area, the machine-limited ticks, the machine check);
+- `Deposit`: what one mass column put on the ground (the as-applied raster's figures, its applied rate
+  per tick at the landing point, where the machine-limited product landed);
+- `StageTimer`: the wall time of each stage, read once into the `Timing` of the accounts;
+- `account`: figures of deposits in a setting, each column's share of the time in its timer.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from maps import Grid
+from services.sim.landing import M2_PER_HA, Landing
+from services.sim.limits import MachineCheck, machine_check, working_speeds
+from services.sim.metrics import (
+    LimitMetrics,
+    MapMetrics,
+    OverlapMetrics,
+    TransitionMetrics,
+    limit_metrics,
+    map_metrics,
+    overlap_metrics,
+    rate_steps,
+    transitions,
+)
+from services.sim.section_landing import worked_fraction
+from services.sim.world import World
+
+
+def cells_in_field(grid: Grid, polygon) -> np.ndarray:
+    """Boolean (rows, cols): cells whose centre (`maps.Grid.cell_centres`) lies inside the polygon."""
+    import shapely
+
+    x, y = grid.cell_centres()
+    return shapely.contains_xy(polygon, x[None, :], y[:, None])
+
+
+def check_world(world: World, in_field: np.ndarray | None = None) -> MachineCheck:
+    """Whether the scenario's machine can apply its map at its working speeds (`limits.machine_check`
+    over the prescription's cells inside the field)."""
+    sc = world.scenario
+    if in_field is None:
+        in_field = cells_in_field(world.grid, world.field.polygon)
+    return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Wall time of a run: per stage (``build_s``, ``control_s``, ``metrics_s``, ...) and in all, s."""
+
+    stage_s: dict
+    wall_time_s: float
+
+
+class StageTimer:
+    """The wall time of a run's stages, read once into its `Timing` (`timing`).
+
+    Parameters
+    ----------
+    stage_s : dict, optional
+        Stages already timed (a drive's), s.
+    started_s : float, optional
+        `time.perf_counter` when the run began; default: now less `stage_s` (as if they had just run).
+    wall_time_s : float, optional
+        The run's wall time when it was not this process's clock (a services run, by its records).
+    shares : bool
+        The stages are shares of work done for many runs at once (controller variants): the wall time
+        is their sum.
+    """
+
+    def __init__(self, stage_s: dict | None = None, started_s: float | None = None,
+                 wall_time_s: float | None = None, shares: bool = False):
+        self.stage_s = dict(stage_s or {})
+        self._started_s = time.perf_counter() - sum(self.stage_s.values()) if started_s is None else started_s
+        self._wall_time_s = wall_time_s
+        self._shares = shares
+
+    @contextmanager
+    def stage(self, name: str):
+        """Add the time of the ``with`` block to stage `name`."""
+        clock = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.add(name, time.perf_counter() - clock)
+
+    def add(self, name: str, seconds: float) -> None:
+        """Add `seconds` to stage `name` (a new stage comes last)."""
+        self.stage_s[name] = self.stage_s.get(name, 0.0) + seconds
+
+    def timing(self) -> Timing:
+        """The stages so far and the run's wall time."""
+        if self._wall_time_s is not None:
+            wall_s = self._wall_time_s
+        elif self._shares:
+            wall_s = sum(self.stage_s.values())
+        else:
+            wall_s = time.perf_counter() - self._started_s
+        return Timing(dict(self.stage_s), wall_s)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What every mass column over one drive shares (nothing in it depends on the metered product).
+
+    Attributes
+    ----------
+    world : World
+    track : dict
+        The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record).
+    landing : Landing
+        Where each tick's product lands (its applied rates are a column's own: `Deposit.rate_kg_ha`).
+    in_field : ndarray of bool, shape (rows, cols)
+        Cells whose centre lies inside the field.
+    worked_fraction : ndarray, shape (rows, cols)
+        Share of each cell the plan's working width swept (`section_landing.worked_fraction`).
+    limited, applying : ndarray of bool, shape (ticks,)
+        Ticks whose target shaft speed was clipped to the shaft's range with a gate open, and ticks with
+        a gate open.
+    steps : ndarray of int
+        The prescription's rate steps under the landing point (`metrics.rate_steps`).
+    check : MachineCheck
+    """
+
+    world: World
+    track: dict
+    landing: Landing
+    in_field: np.ndarray
+    worked_fraction: np.ndarray
+    limited: np.ndarray
+    applying: np.ndarray
+    steps: np.ndarray
+    check: MachineCheck
+
+    @classmethod
+    def of(cls, world: World, track: dict, control: dict, landing: Landing) -> Setting:
+        """The setting of a drive and its targets (`control`: ``width_on_m``, ``target_shaft_rpm``)."""
+        grid, implement = world.grid, world.scenario.implement
+        in_field = cells_in_field(grid, world.field.polygon)
+        applying = control["width_on_m"] > 0
+        return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
+                   implement.shaft_limited(control["target_shaft_rpm"]) & applying, applying,
+                   rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
+                   check_world(world, in_field))
+
+
+@dataclass(frozen=True)
+class Deposit:
+    """What one mass column put on the ground.
+
+    Attributes
+    ----------
+    metered_kg, rate_kg_ha : ndarray, shape (ticks,)
+        Product through the meter per tick, kg, and its applied rate at the landing point, kg/ha
+        (`landing.applied_rate_kg_ha`).
+    applied_kg_ha, coverage_fraction, overlap_fraction, overlap_kg : ndarray, shape (rows, cols)
+        The as-applied raster: product per cell area, the share of each cell product landed on, the
+        share more than one pass put product on, and the product beyond the first pass (kg).
+    outside_kg : float
+        Product that landed off the grid, kg.
+    limited_coverage : ndarray, shape (rows, cols)
+        Share of each cell that product metered in machine-limited ticks landed on.
+    """
+
+    metered_kg: np.ndarray
+    rate_kg_ha: np.ndarray
+    applied_kg_ha: np.ndarray
+    coverage_fraction: np.ndarray
+    overlap_fraction: np.ndarray
+    overlap_kg: np.ndarray
+    outside_kg: float
+    limited_coverage: np.ndarray
+
+
+@dataclass(frozen=True)
+class Accounts:
+    """A run's accounts: what `services.sim.metrics.METRICS`' rows read their figures from.
+
+    Attributes
+    ----------
+    setting : Setting
+    deposit : Deposit
+    map : MapMetrics
+    transitions : TransitionMetrics
+    overlap : OverlapMetrics
+    limits : LimitMetrics
+    timing : Timing
+    """
+
+    setting: Setting
+    deposit: Deposit
+    map: MapMetrics
+    transitions: TransitionMetrics
+    overlap: OverlapMetrics
+    limits: LimitMetrics
+    timing: Timing
+
+
+def map_figures(grid: Grid, in_field: np.ndarray, applied_kg_ha, coverage_fraction, metered_kg: float,
+                outside_kg: float) -> MapMetrics:
+    """`metrics.map_metrics` of a raster on `grid` (its cells of `maps.Grid.cell_area_m2`); `metered_kg`
+    is all product metered, `outside_kg` what landed off the grid."""
+    return map_metrics(grid.rates_kg_ha, applied_kg_ha, coverage_fraction, in_field,
+                       grid.cell_area_m2 / M2_PER_HA, metered_kg, outside_kg)
+
+
+def account(setting: Setting, deposits: Sequence[Deposit], timers: Sequence[StageTimer]) -> list[Accounts]:
+    """The accounts of each deposit in `setting` (controller variants: many at once).
+
+    Parameters
+    ----------
+    setting : Setting
+    deposits : sequence of Deposit
+    timers : sequence of StageTimer
+        One per deposit: each gets its share of this call's time as ``metrics_s``, then is read into
+        its accounts' `Timing`.
+    """
+    clock = time.perf_counter()
+    parts = [_figures(setting, d) for d in deposits]
+    share_s = (time.perf_counter() - clock) / max(len(parts), 1)
+    out = []
+    for deposit, figures, timer in zip(deposits, parts, timers, strict=True):
+        timer.add("metrics_s", share_s)
+        out.append(Accounts(setting, deposit, *figures, timing=timer.timing()))
+    return out
+
+
+def _figures(s: Setting, d: Deposit) -> tuple[MapMetrics, TransitionMetrics, OverlapMetrics, LimitMetrics]:
+    """The figures of one deposit, by part."""
+    cover, landing = d.coverage_fraction, s.landing
+    return (map_figures(s.world.grid, s.in_field, d.applied_kg_ha, cover, float(d.metered_kg.sum()),
+                        d.outside_kg),
+            transitions(s.track["time_s"], landing.distance_m, landing.prescribed_kg_ha, d.rate_kg_ha,
+                        np.asarray(s.track["implement_on"], bool), s.steps),
+            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field),
+            limit_metrics(s.limited, s.applying, d.limited_coverage, cover, s.in_field))
