@@ -183,8 +183,10 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
     resolved, before anything opens it; returns the resolved path.
 
     What a reader may open along with it is checked too: a folder's entries (and those of its
-    ``TASKDATA`` subfolder, as an ISOXML reader looks there) and a file's siblings ``x.*`` (a
-    shapefile's ``.dbf``, GDAL's ``.aux.xml``). The message names the path as given (``label``) and
+    ``TASKDATA`` subfolder, as an ISOXML reader looks there; for a ``TASKDATA.XML``, its folder's),
+    and a file's siblings ``x.*`` (a shapefile's ``.dbf``, GDAL's ``.aux.xml``) beside the path as
+    given and beside its resolved target; a raster's side files that would lead GDAL to another file
+    are refused (`_refuse_raster_sidecar`). The message names the path as given (``label``) and
     says nothing of whether it exists or what it holds.
     """
     label = label or path
@@ -204,12 +206,99 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
         for folder in folders:
             for name in _names(folder):
                 refuse_outside(os.path.join(folder, name))
-    else:
-        folder, stem = os.path.dirname(real), os.path.splitext(os.path.basename(real))[0].lower()
-        for name in _names(folder):
-            if name.lower().startswith(stem + "."):
-                refuse_outside(os.path.join(folder, name))
+        return real
+    # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target;
+    # an ISOXML reader given TASKDATA.XML opens the grid and log files its folder holds.
+    given = os.path.abspath(path)
+    near = _siblings if kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
+    for sibling in {*near(given), *near(real)}:
+        refuse_outside(sibling)
+        if kind_of(real) == "geotiff":
+            _refuse_raster_sidecar(sibling, label, error)
     return real
+
+
+def _siblings(path: str) -> list[str]:
+    """The entries beside ``path`` named ``x.*`` or ``x_rpc.txt`` (GDAL's and pyshp's side files)."""
+    folder, stem = os.path.dirname(path), os.path.splitext(os.path.basename(path))[0].lower()
+    return [os.path.join(folder, name) for name in _names(folder)
+            if name.lower().startswith(stem + ".") or name.lower() == stem + "_rpc.txt"]
+
+
+TIFF_SIGNATURES = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")  # classic and BigTIFF, both byte orders
+# What in a GDAL ``.aux.xml`` (or HFA ``.aux``) makes GDAL open another file: external overviews, a
+# dependent file, a VRT-like source.
+_SIDECAR_REFERENCES = (b"overview_file", b"sourcefilename", b"dependentfile", b"/vsi")
+
+
+def _refuse_raster_sidecar(sibling: str, label: str, error) -> None:
+    """Refuse a raster from the data root whose side files would send GDAL to another file: external
+    overviews or masks (``.ovr``, ``.msk``) that are not TIFFs, and an ``.aux.xml``/``.aux`` naming a
+    file. vrsim's readers never open side files (`GDAL_READ_ENV`); this says so rather than ignoring
+    them, as they were written to lead somewhere."""
+    lower = sibling.lower()
+    if os.path.isdir(sibling) or not lower.endswith((".ovr", ".msk", ".aux.xml", ".aux")):
+        return
+    if lower.endswith((".ovr", ".msk")):
+        if head_bytes(sibling, 4, error) not in TIFF_SIGNATURES:
+            raise error(f"{label}: its side file {os.path.basename(sibling)} (external overviews or mask) is "
+                        "not a TIFF; refused without reading it")
+        return
+    text = read_bytes(sibling, "xml", error).lower()
+    if any(ref in text for ref in _SIDECAR_REFERENCES):
+        raise error(f"{label}: its side file {os.path.basename(sibling)} names another file (external "
+                    "overviews or a source); refused without reading it")
+
+
+def head_bytes(path: str, n: int, error=VrsimError) -> bytes:
+    """The first ``n`` bytes of a regular file (checked as `check_file` checks it), to tell its format
+    by its signature before a library guesses it."""
+    fd = _open(path, error)
+    try:
+        _check_stat(path, os.fstat(fd), None, float("inf"), error)
+        os.set_blocking(fd, True)
+        return os.pread(fd, n, 0)
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+
+
+# ------------------------------------------------------------------------------------------- GDAL
+# GDAL opens more than the file it is given: side files it finds by listing the folder (.aux.xml,
+# .ovr, .msk, world files), any file or URL a VRT names, the network behind /vsicurl/. vrsim reads
+# only the file itself, through a named driver (rasterio's ``driver=``; pyogrio cannot restrict the
+# driver, so the vector readers check the file's signature first).
+GDAL_READ_ENV = {
+    "GDAL_DISABLE_READDIR_ON_OPEN": "EMPTY_DIR",  # no folder listing: no side file is found
+    "GDAL_PAM_ENABLED": "NO",  # nor an .aux.xml opened by name
+    "CPL_VSIL_CURL_ALLOWED_EXTENSIONS": ".vrsim-reads-no-url",  # /vsicurl/ finds no file it may fetch
+    "GDAL_HTTP_MAX_RETRY": "0",
+    "GDAL_HTTP_TIMEOUT": "1",
+    "GDAL_HTTP_CONNECTTIMEOUT": "1",
+    "GDAL_VRT_ENABLE_PYTHON": "NO",
+}
+
+
+def gdal_path(path: str, error=VrsimError) -> str:
+    """The path to give GDAL for a local file: absolute with symlinks resolved, so that no prefix in
+    it (``/vsicurl/``, ``GTIFF_DIR:``, a URL) means anything to GDAL. A path naming a GDAL virtual
+    file system (``/vsi...``) is refused: vrsim builds ``/vsizip/`` paths itself, from checked zips."""
+    refuse_vsi(path, error)
+    real = os.path.realpath(path)
+    refuse_vsi(real, error, label=path)  # a symlink to /vsicurl/... would be followed by GDAL
+    return real
+
+
+def refuse_vsi(path: str, error=VrsimError, label: str | None = None) -> None:
+    """Refuse a path naming a GDAL virtual file system (``/vsicurl/``, ``/vsizip/``, ...)."""
+    if path.lower().startswith("/vsi"):
+        raise error(f"{label or path}: a GDAL virtual file system path (/vsi...); vrsim reads local "
+                    "files only")
+
+
+def _names_in(folder: str) -> list[str]:
+    return [os.path.join(folder, name) for name in _names(folder)]
 
 
 def _names(folder: str) -> list[str]:

@@ -1,4 +1,4 @@
-"""GeoTIFF (and any single-band raster GDAL reads) prescription maps, via rasterio."""
+"""GeoTIFF prescription maps, via rasterio (the GTiff driver only)."""
 
 from __future__ import annotations
 
@@ -19,8 +19,12 @@ from maps.warn import MapWarning
 
 NODATA_OUT = -9999.0
 # GDAL's block cache defaults to 5 % of RAM; reading straight into our array needs none, and a big
-# cache would double the peak memory of a large read.
-_READ_ENV = {"GDAL_CACHEMAX": 16}
+# cache would double the peak memory of a large read. No side files, VRT sources or network
+# (`common.files.GDAL_READ_ENV`).
+_READ_ENV = {"GDAL_CACHEMAX": 16, **files.GDAL_READ_ENV}
+# The GDAL driver a raster map is opened with: vrsim reads GeoTIFF only (a VRT, or any other format,
+# under a .tif name is refused, not opened).
+DRIVER = "GTiff"
 
 
 def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
@@ -43,12 +47,18 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
     rates, unless the raster says it holds differences of rates (tag ``quantity=difference``, as
     vrsim writes ``error.tif``, or a band description with "difference" in it): then the grid's
     `quantity` is ``"difference"``. The file and the files GDAL may open beside it must be regular
-    files within their byte caps (`common.files`).
+    files within their byte caps (`common.files`). The file must be a TIFF, opened with the GTiff
+    driver only, without its side files (``.aux.xml``, ``.ovr``), VRT sources or network access; a
+    ``/vsi...`` path is refused.
     """
+    real = files.gdal_path(path, MapError)
     files.check_file(path, "geotiff", MapError)
     files.check_siblings(path, MapError)
+    if files.head_bytes(path, 4, MapError) not in files.TIFF_SIGNATURES:
+        raise MapError(f"{path}: cannot read as a raster: not a GeoTIFF (no TIFF header); vrsim reads "
+                       ".tif files as GeoTIFF only, not a GDAL VRT or another format under that name")
     try:
-        with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
+        with rasterio.Env(**_READ_ENV), rasterio.open(real, driver=DRIVER) as src:
             check_size(src.height, src.width, max_cells, path)
             if src.count > 1:
                 warnings.warn(f"{path}: {src.count} bands; reading band 1 as the rate", MapWarning,
@@ -63,7 +73,7 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
             if len(bands) == 1:
                 checks = [_read_band(src, rates, bands[0], nodata)]
             else:
-                checks = _read_parallel(path, rates, bands, nodata)
+                checks = _read_parallel(real, rates, bands, nodata)
     except RasterioError as exc:
         raise MapError(f"{path}: cannot read as a raster: {exc}") from None
     for r0, nan_found, low in checks:
@@ -108,7 +118,7 @@ def _read_parallel(path: str, rates: np.ndarray, bands: list, nodata) -> list:
     workers = max(1, min(4, os.cpu_count() or 1))
 
     def work(part):
-        with rasterio.Env(**_READ_ENV), rasterio.open(path) as src:
+        with rasterio.Env(**_READ_ENV), rasterio.open(path, driver=DRIVER) as src:
             return [_read_band(src, rates, band, nodata) for band in part]
 
     with ThreadPoolExecutor(max_workers=workers) as pool:

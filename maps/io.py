@@ -38,6 +38,7 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
         For every unreadable, inconsistent or unsupported input, naming the file and the problem.
     """
     path = os.fspath(path)
+    files.refuse_vsi(path, MapError)
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
     lower = path.lower()

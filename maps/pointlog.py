@@ -206,6 +206,7 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
         CRS of a file that does not declare one.
     """
     path = os.fspath(path)
+    files.refuse_vsi(path, MapError)
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
     from maps.taskdata import is_taskdata, read_taskdata_log
@@ -219,16 +220,13 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
 
 
 def _read_vector(path, rate_field, target_field, time_field, unit, crs) -> PointLog:
-    import pyogrio
     import shapely
-    from pyogrio.errors import DataLayerError, DataSourceError
+
+    from maps.vector import read_vector
 
     files.check_file(path, error=MapError)  # GDAL opens by name: a FIFO or a device would hang it
     files.check_siblings(path, MapError)
-    try:
-        meta, _, geometry, columns = pyogrio.raw.read(path)
-    except (DataSourceError, DataLayerError, OSError) as exc:
-        raise MapError(f"{path}: cannot read as a vector file: {exc}") from None
+    meta, _, geometry, columns = read_vector(path)  # its signature checked, as GDAL will see it
     fields = dict(zip((str(f) for f in meta["fields"]), columns, strict=True))
     points = shapely.from_wkb(geometry)
     kinds = shapely.get_type_id(points)  # 0: point, -1: no geometry

@@ -104,6 +104,8 @@ class Field:
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
             WGS84 if the coordinates look like degrees.
         """
+        if isinstance(path, (str, os.PathLike)):
+            files.refuse_vsi(os.fspath(path), VehicleError, label=f"field file {path}")  # no GDAL /vsi path
         if not isinstance(path, (str, os.PathLike)) or not os.path.exists(path):
             raise VehicleError(f"field file {path}: not found")
         path = os.fspath(path)

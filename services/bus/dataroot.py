@@ -3,9 +3,13 @@
 ``vrsim serve --data-root DIR`` (default: the folder ``serve`` runs in). Every file a scenario
 received over the bus names (``[field] file``, ``[map] file``, and what a reader opens along with
 them: a shapefile's ``.dbf``, an ISOXML folder's files) must resolve, symlinks and ``..`` followed,
-under DIR and outside the private state folder. Anything else is refused before it is opened, with a
-message that names the path as given and says nothing of whether it exists. `vrsim run` and the other
-local commands read local files as they always did.
+under DIR and outside the private state folder; side files beside a symlinked file are checked where
+a reader opens them (beside the link), and a raster whose side files would lead GDAL elsewhere (a VRT
+``.ovr``, an ``.aux.xml`` naming an overview file) is refused (`common.files.check_within`). Anything
+else is refused before it is opened, with a message that names the path as given and says nothing of
+whether it exists. The readers then open each file only as what it claims to be (a ``.tif`` with the
+GTiff driver, no VRT, no side files, no network; docs/security.md). `vrsim run` and the other local
+commands read local files as they always did, with those same readers.
 """
 
 from __future__ import annotations

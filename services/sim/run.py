@@ -24,7 +24,6 @@ import numpy as np
 from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
-from services.sim.as_run import as_run
 from services.sim.accounting import (
     Accounts,
     Deposit,
@@ -34,6 +33,7 @@ from services.sim.accounting import (
     cells_in_field,
     check_world,
 )
+from services.sim.as_run import as_run
 from services.sim.core import ControlCore
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
