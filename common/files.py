@@ -210,10 +210,10 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
     # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target;
     # an ISOXML reader given TASKDATA.XML opens the grid and log files its folder holds.
     given = os.path.abspath(path)
-    near = _siblings if kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
+    near = _siblings if _kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
     for sibling in {*near(given), *near(real)}:
         refuse_outside(sibling)
-        if kind_of(real) == "geotiff":
+        if _kind_of(real) == "geotiff":
             _refuse_raster_sidecar(sibling, label, error)
     return real
 
