@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import sys
 from dataclasses import dataclass
 
 from common import ServiceError
@@ -103,6 +104,8 @@ class ZenohOptions:
             conf.insert_json5("mode", json.dumps(mode))
             conf.insert_json5("listen/endpoints", json.dumps(listen))
             conf.insert_json5("connect/endpoints", json.dumps(connect))
+        if mode == "router":
+            _warn_plain_beyond_loopback(self._router_listen(conf))
         if self.insecure:
             return conf
         if mode == "router":
@@ -180,6 +183,40 @@ class ZenohOptions:
         if self.config_file is None:
             return ()
         return tuple(self._router_listen(self._base()))
+
+
+PLAIN_PROTOCOLS = ("tcp", "udp", "ws")  # what crosses a network unencrypted (tls and quic do not)
+
+
+def _plain_beyond_loopback(endpoints) -> list[str]:
+    """The endpoints of ``endpoints`` a router would listen on in plain text beyond this machine: a
+    plain protocol on any address but a loopback one (``0.0.0.0``, ``[::]``, a LAN address or a host
+    name other than ``localhost``)."""
+    import ipaddress
+
+    found = []
+    for endpoint in endpoints:
+        protocol, _, address = endpoint.partition("/")
+        if protocol not in PLAIN_PROTOCOLS:
+            continue
+        host = re.split(r"[?#]", address, maxsplit=1)[0].rsplit(":", 1)[0].strip("[]")
+        try:
+            loopback = ipaddress.ip_address(host).is_loopback
+        except ValueError:
+            loopback = host == "localhost"
+        if not loopback:
+            found.append(endpoint)
+    return found
+
+
+def _warn_plain_beyond_loopback(endpoints) -> None:
+    """One line on stderr when a router would listen in plain text beyond this machine: logins and
+    every message (poses, maps, scenarios) would cross the network readable and forgeable."""
+    plain = _plain_beyond_loopback(endpoints)
+    if plain:
+        print(f"vrsim serve: warning: the router listens on {', '.join(plain)} in plain text beyond this "
+              "machine: passwords and every message cross the network unencrypted (use --tls, or a "
+              "loopback address)", file=sys.stderr, flush=True)
 
 
 def add_arguments(parser, user_help: str = "log in as this user (default: the service's own)") -> None:
@@ -351,7 +388,7 @@ class ServiceConfig:
     rate_field: str | None = None
     cell_size_m: float | None = None
     crs: str | None = None
-    db: str | None = None  # monitor: its SQLite file (None: runs/monitor-<prefix>-<machine>.sqlite)
+    db: str | None = None  # monitor: its SQLite file (None: runs/monitor/<prefix>-<machine>.sqlite)
     web_listen: str | None = None  # web: HOST:PORT of the page (None: 127.0.0.1:8448)
     operator: ZenohOptions | None = None  # web: the session that may start and stop runs (None: viewer)
     # controller: folders whose Python files a scenario's [controller] kind = "python" may run (a

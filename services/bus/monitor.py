@@ -54,16 +54,13 @@ class MonitorStore:
     Parameters
     ----------
     path : str
-        Database file; created with its folder if missing.
+        Database file; created with its folder if missing, the file 0600 and a new folder 0700 (it holds
+        every pose and every scenario's text: `private_db`).
     """
 
     def __init__(self, path: str):
         self.path = path
-        folder = os.path.dirname(os.path.abspath(path))
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError as exc:
-            raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+        private_db(path)
         try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
@@ -340,8 +337,41 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
 
 
 def default_db(options) -> str:
-    """``runs/monitor-<prefix>-<machine>.sqlite``: one database per prefix and machine."""
-    return os.path.join("runs", f"monitor-{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+    """``runs/monitor/<prefix>-<machine>.sqlite``: one database per prefix and machine, in a folder of
+    the monitor's own (made 0700 by `private_db`)."""
+    return os.path.join(DEFAULT_DB_FOLDER, f"{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
+
+
+DEFAULT_DB_FOLDER = os.path.join("runs", "monitor")
+_DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it gives them its mode)
+
+
+def private_db(path: str) -> None:
+    """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
+    default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
+    an older database's files (0644 before) tightened to 0600 where they can be. A symlink is refused."""
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        if folder == os.path.abspath(DEFAULT_DB_FOLDER):
+            os.chmod(folder, 0o700)
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create its folder {folder}: {exc.strerror}") from None
+    try:
+        if not os.path.lexists(path):
+            flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+            os.close(os.open(path, flags, 0o600))
+    except OSError as exc:
+        raise ServiceError(f"--db {path}: cannot create it as a private file: {exc.strerror}") from None
+    if os.path.islink(path):
+        raise ServiceError(f"--db {path}: is a symlink; give the database file itself")
+    for name in (path + suffix for suffix in _DB_FILES if os.path.isfile(path + suffix)):
+        st = os.stat(name)
+        if st.st_mode & 0o077 and st.st_uid == os.getuid():
+            try:
+                os.chmod(name, 0o600)
+            except OSError:  # a database on a read-only mount, read by `vrsim report`: as it is
+                pass
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

@@ -62,14 +62,18 @@ def _parse(argv: list[str]) -> argparse.Namespace:
     """Parse the command line; exits 2 with a usage message on a bad command or option.
 
     A command's options and positionals may interleave (``vrsim query KEY --body F NAME=VALUE``):
-    what the first pass leaves over is parsed again by the command's own parser, intermixed.
+    what the first pass leaves over is parsed again by the command's own parser, intermixed (a command
+    with actions, ``vrsim map info``, plainly: argparse cannot intermix subcommands, and an unknown
+    option there is a usage error too, exit 2).
     """
     # A known command first: only its module is imported (a tenth of a second for all of them).
     parser, commands = _build_parser((argv[0],) if argv and argv[0] in COMMANDS else COMMANDS)
     args, rest = parser.parse_known_args(argv)
     if rest:
         own = argv[argv.index(args.command) + 1:]
-        args = commands[args.command].parse_intermixed_args(own)
+        command = commands[args.command]
+        with_actions = any(isinstance(a, argparse._SubParsersAction) for a in command._actions)
+        args = command.parse_args(own) if with_actions else command.parse_intermixed_args(own)
     return args
 
 

@@ -119,9 +119,34 @@ def _convert(args) -> int:
     grid = _read(args)
     if args.to_crs:
         grid = grid.reproject(args.to_crs, cell_size_m=args.to_cell_size)
-    maps.write_map(grid, args.out)
+    _write_whole(lambda path: maps.write_map(grid, path), args.out)
     print(f"wrote {args.out} ({grid.rows} x {grid.cols} cells)")
     return 0
+
+
+def _write_whole(write, out: str) -> None:
+    """``write(path)`` for `out`, whole or not at all: a file or a new folder under a temporary name
+    (`common.files.written`); an ISOXML export into a folder that exists (beside other exports) in
+    place, what it added removed again if it fails."""
+    import os
+
+    from common.written import write_failure, written
+
+    folder = os.path.dirname(out) or "." if out.lower().endswith(".xml") else out
+    if not os.path.isdir(folder):
+        with written(out, MapError) as temp:
+            write(temp)
+        return
+    before = set(os.listdir(folder))
+    try:
+        write(out)
+    except Exception as exc:
+        failure = write_failure(exc, os.path.abspath(folder), MapError)
+        for name in set(os.listdir(folder)) - before:
+            os.remove(os.path.join(folder, name))
+        if failure is not None:
+            raise failure from None
+        raise
 
 
 def _plot(args) -> int:
@@ -129,6 +154,10 @@ def _plot(args) -> int:
 
     if not args.out.lower().endswith(".png"):
         raise MapError(f"map plot: output {args.out!r} must end in .png")
-    plot_map(_read(args), args.out)
+    from common.written import written
+
+    grid = _read(args)
+    with written(args.out, MapError) as temp:
+        plot_map(grid, temp)
     print(f"wrote {args.out}")
     return 0

@@ -55,7 +55,7 @@ def configure(parser) -> None:
     parser.add_argument("--cell-size", type=float, default=None, metavar="M", help="map file: cell size, m")
     parser.add_argument("--crs", default=None, help="map file: its CRS when the file does not say")
     parser.add_argument("--db", metavar="FILE", default=None,
-                        help="monitor: SQLite database (default runs/monitor-<prefix>-<machine>.sqlite)")
+                        help="monitor: SQLite database (default runs/monitor/<prefix>-<machine>.sqlite)")
     parser.add_argument("--allow-user-code", metavar="DIR", action="append", default=[],
                         help="controller: run user-defined controllers (kind = \"python\") from Python files "
                              "in this folder (repeatable; default none; `all SCENARIO` allows the folder of "

@@ -27,7 +27,7 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
     """
     log = _run_log(result)
     implement = result.world.scenario.implement
-    folder = prepare_as_applied(out_dir)
+    folder = _prepare_as_applied(out_dir)
     paths = {"taskdata": write_taskdata(log, folder,
                                         [implement.section_width_m] * implement.sections,
                                         task=result.world.scenario.name, device="vrsim implement")}
@@ -38,7 +38,15 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
     return paths
 
 
-def prepare_as_applied(out_dir: str) -> str:
+def check_as_applied(out_dir: str) -> None:
+    """Refuse (`common.MapError`) a taskdata/ in `out_dir` that holds another TASKDATA than an earlier
+    run's log, before anything is written; changes nothing."""
+    folder = os.path.join(out_dir, "taskdata")
+    if os.path.isdir(folder) and set(os.listdir(folder)) != _OWN:
+        prepare_folder(folder)  # refuses it; or, holding no TASKDATA.XML, leaves it as it is
+
+
+def _prepare_as_applied(out_dir: str) -> str:
     """The run's taskdata/ folder in `out_dir`, emptied of an earlier run's log and created; refused
     (`common.MapError`) if it holds anything else (`maps.taskdata.prepare_folder`)."""
     folder = os.path.join(out_dir, "taskdata")
@@ -47,8 +55,10 @@ def prepare_as_applied(out_dir: str) -> str:
     return folder
 
 
+_OWN = {"TASKDATA.XML", f"{TLG_NAME}.xml", f"{TLG_NAME}.bin"}  # the files of a run's log
+
+
 def _remove_earlier_run(folder: str) -> None:
-    own = {"TASKDATA.XML", f"{TLG_NAME}.xml", f"{TLG_NAME}.bin"}
-    if os.path.isdir(folder) and set(os.listdir(folder)) == own:
-        for name in own:
+    if os.path.isdir(folder) and set(os.listdir(folder)) == _OWN:
+        for name in _OWN:
             os.remove(os.path.join(folder, name))

@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from common import VrsimError
+from common.written import staged
 from services.outputs.plots import figure
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
@@ -70,10 +70,12 @@ def _directions() -> str:
 
 def write_page(comparison: Comparison, out_dir: str) -> str:
     """Write ``compare.html`` (table, time series, error maps; pictures embedded) into `out_dir`."""
-    try:
-        os.makedirs(out_dir, exist_ok=True)
-    except OSError as exc:
-        raise VrsimError(f"--out {out_dir!r}: cannot create the directory ({exc.strerror})") from None
+    with staged(out_dir, last=("compare.html",)) as stage:  # the page and its pictures, whole or not at all
+        _write_page(comparison, stage)
+    return os.path.join(out_dir, "compare.html")
+
+
+def _write_page(comparison: Comparison, out_dir: str) -> None:
     pictures = [os.path.join(out_dir, "compare_timeseries.png"), os.path.join(out_dir, "compare_errors.png")]
     _plot_timeseries(comparison, pictures[0])
     _plot_errors(comparison, pictures[1])
@@ -94,7 +96,6 @@ Best of each column in bold ({html.escape(_directions())}).</p>
 """
     with open(path, "w") as fh:
         fh.write(page)
-    return path
 
 
 def _table_html(comparison: Comparison) -> str:

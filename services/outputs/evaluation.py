@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 
+from common.written import staged
 from maps import Grid, write_map
 from services.outputs.encode import dumps_text
 from services.outputs.plots import figure
@@ -34,10 +35,14 @@ def text_evaluation(ev: Evaluation) -> str:
 
 
 def write_evaluation(ev: Evaluation, errors: Grid, out_dir: str) -> dict[str, str]:
-    """Write every file of an evaluation into `out_dir` (created); {name: path}."""
-    os.makedirs(out_dir, exist_ok=True)
-    paths = {name: os.path.join(out_dir, name) for name in
-             ("evaluation.json", "error.tif", "error_map.png", "timeseries.png", "report.html")}
+    """Write every file of an evaluation into `out_dir` (created), whole or not at all; {name: path}."""
+    names = ("evaluation.json", "error.tif", "error_map.png", "timeseries.png", "report.html")
+    with staged(out_dir, last=("evaluation.json",)) as stage:
+        _write_evaluation(ev, errors, {name: os.path.join(stage, name) for name in names})
+    return {name: os.path.join(out_dir, name) for name in names}
+
+
+def _write_evaluation(ev: Evaluation, errors: Grid, paths: dict[str, str]) -> None:
     with open(paths["evaluation.json"], "w") as fh:
         fh.write(dumps_text(ev.summary(), indent=True) + "\n")
     write_map(errors, paths["error.tif"])
@@ -55,7 +60,6 @@ def write_evaluation(ev: Evaluation, errors: Grid, out_dir: str) -> dict[str, st
                 f"{ev.unit}; nodata where no point was compared).")
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
-    return paths
 
 
 def _plot_error_map(ev: Evaluation, errors: Grid, path: str) -> None:

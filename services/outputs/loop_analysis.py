@@ -9,6 +9,7 @@ import os
 import numpy as np
 
 from common import VrsimError
+from common.written import staged
 
 STEP_RPM = 100.0       # the step of step.png, from rest, as in the paper's bench test
 STEP_DURATION_S = 5.0
@@ -22,17 +23,12 @@ def write_pictures(report, out_dir: str) -> list[str]:
     """Write ``bode.png`` (open loop with its margins; only for a linear controller) and ``step.png``
     (a 100 rpm step from rest: the simulated loop at 1 ms with saturation, and the linear closed loop
     if there is one) into `out_dir`; return their paths."""
-    try:
-        os.makedirs(out_dir, exist_ok=True)
-    except OSError as exc:
-        raise VrsimError(f"--out {out_dir!r}: cannot create the directory ({exc.strerror})") from None
-    paths = []
-    if report.loop is not None:
-        paths.append(os.path.join(out_dir, "bode.png"))
-        _save(_bode(report.loop), paths[-1])
-    paths.append(os.path.join(out_dir, "step.png"))
-    _save(_step(report), paths[-1])
-    return paths
+    names = ["bode.png", "step.png"] if report.loop is not None else ["step.png"]
+    with staged(out_dir) as stage:  # both pictures or neither
+        if report.loop is not None:
+            _save(_bode(report.loop), os.path.join(stage, "bode.png"))
+        _save(_step(report), os.path.join(stage, "step.png"))
+    return [os.path.join(out_dir, name) for name in names]
 
 
 def _save(fig, path: str) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from common.written import written
+
 PLOT_S = 8.0  # seconds of response shown: all of the paper's settling times fit
 
 
@@ -80,4 +82,5 @@ def plot(run, path: str) -> None:
     axes[-1].set_xlim(0, PLOT_S)
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with written(path) as temp:
+        fig.savefig(temp, dpi=110)

@@ -13,6 +13,7 @@ import math
 import numpy as np
 from matplotlib.ticker import NullFormatter
 
+from common.written import written
 from services.outputs.plots import figure
 from services.outputs.summary import summary_rows
 from services.sim.sweep import (
@@ -181,5 +182,5 @@ td,th{{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left}}img{{max-w
 <p>Every run is a row of results.parquet and results.csv beside this page.</p>
 </body></html>
 """
-    with open(path, "w", encoding="utf-8") as fh:
+    with written(path) as temp, open(temp, "w", encoding="utf-8") as fh:
         fh.write(page)

@@ -14,6 +14,7 @@ import os
 import time
 
 from common import ScenarioError
+from common.written import written
 from services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"
@@ -44,19 +45,16 @@ def _write_parquet(rows: list[dict], path: str) -> None:
 
     names = _columns(rows)
     table = pa.table({name: pa.array([row.get(name) for row in rows]) for name in names})
-    tmp = f"{path}.{os.getpid()}.tmp"
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    with written(path) as temp:
+        pq.write_table(table, temp)
 
 
 def _write_csv(rows: list[dict], path: str) -> None:
     """CSV with a header; floats as Python writes them (round-trip exact), nulls as empty fields."""
-    tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with written(path) as temp, open(temp, "w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=_columns(rows), restval="")
         writer.writeheader()
         writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
-    os.replace(tmp, path)
 
 
 class ResultsTable:

@@ -9,6 +9,7 @@ import json
 import math
 import os
 
+from common.written import staged
 from controller.config import PID_KEYS
 from services.sim.metrics import METRICS
 from services.sim.tune import TuneResult
@@ -23,6 +24,8 @@ def _toml_value(value) -> str:
         return repr(float(value)) if isinstance(value, float) else str(value)
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple)):     # a user's class may take lists (a gain schedule's breakpoints)
+        return "[" + ", ".join(map(_toml_value, value)) + "]"
     return json.dumps(str(value))   # a TOML basic string is a JSON string
 
 
@@ -42,16 +45,16 @@ def controller_table(result: TuneResult) -> str:
 
 def write_tune(result: TuneResult, out_dir: str) -> dict[str, str]:
     """Write best_controller.toml and history.csv into `out_dir`; their paths."""
-    os.makedirs(out_dir, exist_ok=True)
-    paths = {"best_controller": os.path.join(out_dir, "best_controller.toml"),
-             "history": os.path.join(out_dir, "history.csv")}
-    with open(paths["best_controller"], "w", encoding="utf-8") as fh:
-        fh.write(controller_table(result))
-    with open(paths["history"], "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(result.history[0]) if result.history else ["evaluation"])
-        writer.writeheader()
-        writer.writerows(result.history)
-    return paths
+    names = {"best_controller": "best_controller.toml", "history": "history.csv"}
+    with staged(out_dir, last=("best_controller.toml",)) as stage:  # both files or neither
+        with open(os.path.join(stage, names["best_controller"]), "w", encoding="utf-8") as fh:
+            fh.write(controller_table(result))
+        with open(os.path.join(stage, names["history"]), "w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(result.history[0]) if result.history
+                                    else ["evaluation"])
+            writer.writeheader()
+            writer.writerows(result.history)
+    return {key: os.path.join(out_dir, name) for key, name in names.items()}
 
 
 def _fmt(value) -> str:

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import os
 
-from services.outputs.aslog import prepare_as_applied, write_as_applied
+from common import MapError
+from common.written import staged
+from services.outputs.aslog import check_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
 from services.outputs.summary import summary_json
 from services.outputs.track_csv import write_track_csv
@@ -26,7 +28,9 @@ def outputs_line(out_dir: str) -> str:
 
 
 def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, str]:
-    """Write every output file into `out_dir`; returns {name: path}.
+    """Write every output file into `out_dir`, all of them or none (`common.written.staged`: a full
+    disk or a read-only folder is a `common.MapError` naming the folder, and changes no file of
+    `out_dir`); returns {name: path}.
 
     Parameters
     ----------
@@ -40,35 +44,61 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
     """
     from services.outputs import plots
 
-    os.makedirs(out_dir, exist_ok=True)
     paths = {name: os.path.join(out_dir, name) for name in FILES}
     output = result.world.scenario.output
-    prepare_as_applied(out_dir)  # first: a taskdata/ of something else refuses the folder
-    jobs = []
-    if output.plots:  # next: the pictures take longest, in the worker
-        jobs = [("draw_maps", plots.map_picture(result), paths["map.png"]),
-                ("draw_sections", plots.sections_picture(result), paths["sections.png"]),
-                ("draw_timeseries", plots.series_picture(result), paths["timeseries.png"])]
-        for job in jobs if plotter is not None else ():
-            plotter.submit(*job)
-    else:
+    check_as_applied(out_dir)  # first: a taskdata/ of something else refuses the folder
+    if not output.plots:
         for name in PICTURES:
             del paths[name]
-    paths.update(write_as_applied(result, out_dir))
+    if not output.html:
+        del paths["report.html"]
+    # Everything is written into a folder of its own inside out_dir, then moved in, summary.json last:
+    # a folder with a summary.json holds a whole run, and a failed write changes no file of out_dir.
+    with staged(out_dir, last=("summary.json",), error=MapError) as stage:
+        staged_paths = {name: os.path.join(stage, name) for name in paths}
+        jobs = []
+        if output.plots:  # next: the pictures take longest, in the worker
+            jobs = [("draw_maps", plots.map_picture(result), staged_paths["map.png"]),
+                    ("draw_sections", plots.sections_picture(result), staged_paths["sections.png"]),
+                    ("draw_timeseries", plots.series_picture(result), staged_paths["timeseries.png"])]
+            for job in jobs if plotter is not None else ():
+                plotter.submit(*job)
+        try:
+            logs = _write_files(result, stage, staged_paths, jobs, plotter)
+        except BaseException:
+            _drain(plotter, jobs)  # no picture may still be drawn into the folder when it is removed
+            raise
+    paths.update({name: os.path.join(out_dir, os.path.relpath(path, stage)) for name, path in logs.items()})
+    return paths
+
+
+def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: list, plotter) -> dict[str, str]:
+    """Every file into the staging folder; the as-applied log's {name: path}."""
+    from services.outputs import plots
+
+    logs = write_as_applied(result, stage)
     with open(paths["summary.json"], "w") as fh:
         fh.write(summary_json(with_settings(result)) + "\n")
     write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"],
                   paths["passes.tif"])
     write_track_csv(result, paths["track.csv"])
-    for drawing, picture, path in jobs:
+    while jobs:
+        drawing, picture, path = jobs.pop(0)
         if plotter is not None:
             plotter.result()  # waits; what went wrong in the worker is raised here
         else:
             getattr(plots, drawing)(picture, path)
-    if output.html:
+    if "report.html" in paths:
         from services.outputs.report import write_html
 
         write_html(result, paths)
-    else:
-        del paths["report.html"]
-    return paths
+    return logs
+
+
+def _drain(plotter, jobs: list) -> None:
+    """Wait for the pictures still being drawn (their errors are the failure's own)."""
+    for _ in jobs if plotter is not None else ():
+        try:
+            plotter.result()
+        except RuntimeError:
+            pass

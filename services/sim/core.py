@@ -12,6 +12,7 @@ import numpy as np
 
 from common import ControllerError, ScenarioError
 from controller import PlantParams, build_loop
+from controller.context import ContextTrack
 from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.scenario import Scenario, as_dict
@@ -53,6 +54,8 @@ class ControlCore:
        latencies and the delivery delay), so they do not depend on the rate's look-ahead.
     2. the closed loop (PID, valve, motor; or any controller kind, `controller.build_loop`) over the
        targets, one control period per tick (sequential by nature: one lifted matrix product per period).
+       A controller that takes the context gets the sensed ground speed, the prescription and the
+       sections of each tick (`context_track`).
 
     Parameters
     ----------
@@ -157,7 +160,8 @@ class ControlCore:
                     rec = {k: v[:keep] for k, v in rec.items()}
                     args = tuple(a[:keep] for a in args)
                     self.last_rate_kg_ha = float(rec["prescribed_kg_ha"][-1])
-            out = self.loop.run(rec["target_shaft_rpm"])
+            ticks = len(rec["target_shaft_rpm"])
+            out = self.loop.run(rec["target_shaft_rpm"], context=context_track(rec, track[3][part][:ticks]))
             rec.update(shaft_rpm=out.shaft_rpm[:, 0], shaft_rev=out.shaft_rev[:, 0],
                        current_a=out.current_a[:, 0])
             if self.tuner is not None and len(rec["shaft_rev"]):
@@ -176,6 +180,13 @@ class ControlCore:
         # (it does not lift product off the ground), so only forward revolutions count.
         forward = np.maximum(shaft_rev, 0.0)
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
+
+
+def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:
+    """The drive's part of the controllers' context (`controller.context`) for ticks `part` of stage 1's
+    `rec` (`ControlCore.targets`' keys): the sensed ground speed [m/s] the targets were computed with
+    (all ticks of `rec`), the prescription [kg/ha] and the sections' gates (ticks, sections)."""
+    return ContextTrack(np.asarray(speed_m_s)[part], rec["prescribed_kg_ha"][part], rec["sections_on"][part])
 
 
 class _SectionsAhead:

@@ -41,7 +41,7 @@ from controller import ControllerConfig, build_variant_loops
 from maps import AppliedColumns, StripMap
 from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import RUN_CHUNK, ControlCore, plant_for
+from services.sim.core import RUN_CHUNK, ControlCore, context_track, plant_for
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
@@ -159,7 +159,9 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
             part = slice(lo, lo + RUN_CHUNK)
             target = rec["target_shaft_rpm"][part]
             targets = np.broadcast_to(target[:, None], (len(target), loop.n)) if loop.n > 1 else target
-            metered[part, idx] = shared.core._metered_kg(loop.run(targets).shaft_rev, applying[part])
+            context = context_track(rec, drive.measured_speed_m_s, part)
+            metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
+                                                         applying[part])
     control_s = time.perf_counter() - clock
     # A variant's wall time is the sum of its shares of the work done for it.
     timers = [StageTimer({**drive.stage_s, "control_s": shared.control_s + control_s / len(cfgs),

@@ -154,6 +154,27 @@ def test_an_existing_table_is_not_overwritten_without_resume(local):
     assert len(p.stderr.strip().splitlines()) == 1
 
 
+def test_a_report_that_does_not_fit_exits_2_and_leaves_the_table_whole(local, tmp_path):
+    from tests.integration.test_whole_outputs import refused, tmpfs
+
+    folder, _, rows = local
+    sizes = {name: -(-(folder / "out" / name).stat().st_size // 4096) * 4096  # whole pages of the tmpfs
+             for name in ("results.parquet", "results.csv", "report.html")}
+    room = 2 * (sizes["results.parquet"] + sizes["results.csv"])  # the table and its rewritten copy
+    assert sizes["report.html"] > 2 * 4096  # the page does not fit in what is left
+    with tmpfs(tmp_path / "full", f"{room // 1024 + 4}k", inside=("out",)) as mount:
+        out = os.path.join(mount, "out")
+        _write_parquet(rows, os.path.join(out, "results.parquet"))
+        p = vrsim("sweep", str(folder / "s.toml"), "--no-dashboard", "--quiet", "--resume", "--out", out)
+        refused(p, "sweep", out, "no space left on the device")
+        names = set(os.listdir(out))  # the CSV too, unless the disk filled before it was written
+        assert names in ({"results.parquet"}, {"results.parquet", "results.csv"})  # no report, no temporary
+        assert _read_rows(os.path.join(out, "results.parquet")) == rows
+        if "results.csv" in names:
+            with open(os.path.join(out, "results.csv"), newline="") as fh:
+                assert len(list(csv.DictReader(fh))) == len(rows)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

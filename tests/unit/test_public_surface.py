@@ -59,6 +59,7 @@ ALLOWED = {
     ("services.bus.monitor", "MonitorService"): "services/bus/monitor.py",
     ("services.bus.monitor", "default_db"): "services/bus/monitor.py",
     ("services.bus.monitor", "missing_ticks"): "services/bus/monitor.py",
+    ("services.bus.monitor", "private_db"): "services/bus/monitor.py",
     ("services.bus.monitor", "run_world"): "services/bus/monitor.py",
     ("services.bus.web.live", "AppliedLayer"): "services/bus/web/live.py",
     ("services.outputs.report", "settings_table"): "services/outputs/report.py",
