@@ -67,7 +67,6 @@ ALLOWED = {
     ("services.sim.as_run", "resolved_controller"): "services/sim/as_run.py",
     ("services.outputs.tune", "controller_table"): "services/outputs/tune.py",
     ("services.sim.compare", "builtin_specs"): "services/sim/compare.py",
-    ("services.sim.compare", "resolve_spec"): "services/sim/compare.py",
     ("services.sim.error_split", "reference_metered_kg"): "services/sim/error_split.py",
     ("services.sim.metrics", "Errors"): "services/sim/metrics.py",
     ("services.sim.metrics", "Metric"): "services/sim/metrics.py",
