@@ -127,7 +127,7 @@ def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
     assert parts[0].share_pct > 50  # obliquely crossed squares: most of the error is geometry
     ideal = error_split(run(with_changes(oblique(), controller={"kind": "ideal"})))
     # The ideal meter meters exactly: nothing left for metering (to rounding: the references land
-    # through maps.StripMap, the run through maps.AsApplied, summing in another order).
+    # through maps.ColumnDeposit, the run through maps.AsApplied, summing in another order).
     assert ideal[2].mass_balance_pct == pytest.approx(0.0, abs=1e-9)
     assert ideal[2].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
 
