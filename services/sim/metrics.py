@@ -24,9 +24,9 @@ share of working time and covered area where the meter could not turn at the spe
 
 In time (per tick, along the track, `transitions`): a rate step's transition ends where the applied
 rate settles: enters and stays within 10 % of the new rate for ``SETTLE_HOLD_S`` (1 s) or until the
-step's window closes, at the next step or where the implement goes off (a turn, the end of a pass). Steps into zero rate
-(sections closing) and steps whose window closes before the rate settles are counted apart and left
-out of the mean and the percentiles, so that both describe the same steps.
+step's window closes, at the next step or where the implement goes off (a turn, the end of a pass).
+Steps into zero rate (sections closing) and steps whose window closes before the rate settles are
+counted apart and left out of the mean and the percentiles, so that both describe the same steps.
 
 `METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
 tolerance the accuracy library holds it to, and how it comes from a run's accounts
@@ -422,9 +422,9 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
     rate stays within `TRANSITION_TOLERANCE` of the new rate for `SETTLE_HOLD_S` or to the window's
     end (zero when it does so from the step on; an overshoot that leaves the band and comes back ends
     where it comes back; a rate that leaves the band later, at the end of the pass say, is a new
-    disturbance, not this step's). A step into zero rate is counted in ``transitions_to_zero``; one whose window ends outside
-    the band in ``transitions_cut`` (unfinished, not fast or slow); neither is in the mean or the
-    percentiles.
+    disturbance, not this step's). A step into zero rate is counted in ``transitions_to_zero``; one
+    whose window ends outside the band in ``transitions_cut`` (unfinished, not fast or slow); neither
+    is in the mean or the percentiles.
     """
     t = np.asarray(time_s, dtype=float)
     d = np.asarray(distance_m, dtype=float)
@@ -434,8 +434,8 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
     n = len(rx)
     steps = rate_steps(rx, on) if steps is None else np.asarray(steps, dtype=int)
     ticks = np.arange(n)
-    # First tick at or after each tick with the implement off (n: none), last tick at or before each
-    # tick outside the band (-1: none).
+    # For each tick: the first tick at or after it with the implement off (n: none), the last tick at
+    # or before it outside the band (-1: none) and the first at or after it outside the band (n: none).
     next_off = np.minimum.accumulate(np.where(on, n, ticks)[::-1])[::-1]
     ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
     last_out = np.maximum.accumulate(np.where(ok, -1, ticks))
