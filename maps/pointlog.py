@@ -15,6 +15,7 @@ time_s      seconds since the first record
 hdg_deg     heading, degrees clockwise from north
 speed_m_s   ground speed, m/s
 width_m     working (swath) width in use, m
+work        implement work state, 1 on, 0 off (ISO 11783 DDI 141)
 sections    number of sections on
 target      target (setpoint) rate, in ``rate_unit``
 applied     applied (actual) rate, in ``rate_unit``
@@ -180,6 +181,7 @@ TEXT_TIME_NAMES = ("isotime", "timestamp", "datetime", "date_time", "time")
 HEADING_NAMES = ("hdg_deg", "heading", "heading_deg", "course")
 SPEED_NAMES = ("speed_m_s", "speed")
 WIDTH_NAMES = ("width_m", "swathwidth", "swath_width", "swathwidt", "width")
+WORK_NAMES = ("work", "work_on", "work_state", "implement_on")
 DEERE_UNIT = re.compile(r"([A-Za-z]+)(-?\d+)")
 
 
@@ -251,7 +253,7 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs) -> Point
         target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
-        width_m=_length(path, fields, WIDTH_NAMES, units), source=path,
+        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=_work_on(path, fields), source=path,
         format="gpkg" if path.lower().endswith(".gpkg") else "shapefile")
 
 
@@ -291,6 +293,12 @@ def _is_number(value) -> bool:
 def _optional(path, fields: dict, names) -> np.ndarray | None:
     name = _find(fields, names)
     return None if name is None else _numbers(path, fields[name], name)
+
+
+def _work_on(path, fields: dict) -> np.ndarray | None:
+    """The implement's work state (a value other than 0 is on; not logged: on)."""
+    state = _optional(path, fields, WORK_NAMES)
+    return None if state is None else ~(state == 0)
 
 
 def _length(path, fields: dict, names, units: dict) -> np.ndarray | None:
@@ -469,7 +477,8 @@ def _fields(log: PointLog, keep: np.ndarray, text_time: bool) -> dict[str, np.nd
     if time is not None:
         out["time"] = np.datetime_as_string(time[keep], unit="ms") if text_time else time[keep]
     out.update(time_s=log.time_s[keep], hdg_deg=log.heading_deg[keep], speed_m_s=log.speed_m_s[keep],
-               width_m=log.width_m[keep], sections=log.sections_on.sum(axis=1)[keep].astype(np.int32),
+               width_m=log.width_m[keep], work=log.work_on[keep].astype(np.int32),
+               sections=log.sections_on.sum(axis=1)[keep].astype(np.int32),
                target=log.target[keep], applied=log.applied[keep],
                rate_unit=np.full(int(keep.sum()), log.unit, dtype=object),
                gnss=log.gnss_status[keep].astype(np.int32))

@@ -1,6 +1,6 @@
 """`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--field BOUNDARY]
-[--delay-s S] [--unit UNIT] [--crs CRS] [--json] [--out DIR]`: the accuracy of a machine's as-applied
-log (`services.sim.evaluate`)."""
+[--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS] [--json] [--out DIR]`: the accuracy
+of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -25,6 +25,9 @@ def configure(parser) -> None:
     parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
                         help="delivery delay: product metered at a record's time lands S s later, where the "
                              "machine is then; compared with the prescription there (default 0)")
+    parser.add_argument("--include-zero-target", action="store_true",
+                        help="also compare records whose target is 0 (left out by default: the machine was "
+                             "told not to apply there)")
     parser.add_argument("--unit", help="unit of the rates when the log does not say (kg/ha, t/ha, lb/ac, "
                                        "L/ha, gal/ac, floz/ac)")
     parser.add_argument("--crs", help="CRS of a shapefile without .prj")
@@ -48,7 +51,8 @@ def run(args) -> int:
         log = replace(log, unit=args.unit)
     rx = maps.read_map(args.prescription) if args.prescription else None
     field = _field(args.field) if args.field else None
-    ev = evaluate(log, rx, field=field, delay_s=args.delay_s)
+    ev = evaluate(log, rx, field=field, delay_s=args.delay_s,
+                  include_zero_target=args.include_zero_target)
     if args.out:
         write_evaluation(ev, error_grid(ev, rx), args.out)
     print(dumps_text(ev.summary(), indent=True) if args.json else text_evaluation(ev))

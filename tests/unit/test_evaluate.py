@@ -66,7 +66,7 @@ def test_point_transitions_are_the_runs_own():
 def test_logged_target_and_summary_keys():
     ev = evaluate(_east_log([100.0, 105.0, 95.0, 100.0], [100.0] * 4))
     s = ev.summary()
-    assert list(s) == ["points", "unit", *[m.key for m in POINT_METRICS if m.key != "points"]]
+    assert list(s) == ["points", "unit", *[m.key for m in POINT_METRICS if m.key != "points"], "excluded"]
     assert s["points"] == 4 and s["unit"] == "kg/ha" and s["mae"] == pytest.approx(2.5)
     assert ev.against == "logged target"
 
@@ -94,7 +94,10 @@ def test_field_section_states_and_units():
     sections = np.zeros((n, 2), bool)
     sections[5:, 0] = True
     log = _east_log(np.full(n, 90.0), np.full(n, 100.0), sections_on=sections)
-    assert evaluate(log).metrics.points == 5  # work on but no section on: not applying
+    ev = evaluate(log)
+    assert ev.metrics.points == 5  # work on but no section on: not applying
+    assert ev.excluded == {"implement_off": 0, "no_section_on": 5, "target_0": 0, "no_applied_rate": 0,
+                           "no_target": 0, "outside_field": 0}
     outside = Field.rectangle(50.0, 50.0, lat=52.1, lon=10.1)
     with pytest.raises(MapError, match="no point to compare.*inside the field"):
         evaluate(log, field=outside)
@@ -124,3 +127,18 @@ def test_error_grid_on_the_prescription_and_without():
 
 def test_compass_heading():
     assert compass_deg(np.array([0.0, np.pi / 2, np.pi, -np.pi / 2])).tolist() == [90.0, 0.0, 270.0, 180.0]
+
+
+def test_target_0_width_0_and_implement_off_are_left_out_by_reason():
+    target = np.array([100.0, 0.0, 100.0, 100.0, 100.0, 0.0])
+    applied = np.array([100.0, 50.0, 80.0, 90.0, np.nan, 0.0])
+    width = np.array([12.0, 12.0, 0.0, 12.0, 12.0, 12.0])
+    work = np.array([True, True, True, False, True, True])
+    log = _east_log(applied, target, width_m=width, work_on=work)
+    ev = evaluate(log)
+    assert ev.metrics.points == 1 and ev.compared.tolist() == [True] + [False] * 5
+    assert ev.excluded == {"implement_off": 1, "no_section_on": 1, "target_0": 2, "no_applied_rate": 1,
+                           "no_target": 0, "outside_field": 0}
+    ev = evaluate(log, include_zero_target=True)
+    assert ev.metrics.points == 3 and ev.metrics.mae == pytest.approx(50.0 / 3)
+    assert ev.excluded["target_0"] == 0
