@@ -42,8 +42,12 @@ MAX_SECTIONS = DDI.SECTIONS_PER_CONDENSED * DDI.MAX_CONDENSED_DDIS
 
 
 def is_taskdata(path: str) -> bool:
-    """True for a folder, a ``.xml`` file, or a zip archive holding a TASKDATA.XML."""
-    if os.path.isdir(path) or path.lower().endswith(".xml"):
+    """True for a folder (unless it holds shapefiles and no TASKDATA.XML), a ``.xml`` file, or a zip
+    archive holding a TASKDATA.XML."""
+    if os.path.isdir(path):
+        names = [n.lower() for n in os.listdir(path)]
+        return "taskdata.xml" in names or "taskdata" in names or not any(n.endswith(".shp") for n in names)
+    if path.lower().endswith(".xml"):
         return True
     if path.lower().endswith(".zip"):
         with files.open_zip(path, MapError) as z:  # a regular file, members counted and sized first

@@ -1,6 +1,6 @@
-"""`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--field BOUNDARY]
-[--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS] [--json] [--out DIR]`: the accuracy
-of a machine's as-applied log (`services.sim.evaluate`)."""
+"""`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--layer NAME]
+[--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS] [--json]
+[--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,9 @@ def configure(parser) -> None:
     parser.add_argument("--target-field", metavar="NAME",
                         help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
                              "DDI 6, else 1)")
+    parser.add_argument("--layer", metavar="NAME",
+                        help="the layer of a zip, folder or GeoPackage holding several (they are listed "
+                             "when none is named)")
     parser.add_argument("--field", metavar="BOUNDARY",
                         help="field boundary (GeoJSON or shapefile): only points inside it are compared")
     parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
@@ -46,7 +49,7 @@ def run(args) -> int:
     from services.sim.evaluate import error_grid, evaluate
 
     log = maps.read_point_log(args.log, rate_field=args.rate_field, target_field=args.target_field,
-                              unit=args.unit, crs=args.crs)
+                              unit=args.unit, crs=args.crs, layer=args.layer)
     if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=args.unit)
     rx = maps.read_map(args.prescription) if args.prescription else None

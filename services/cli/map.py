@@ -20,6 +20,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         p.add_argument("file", help="map file: GeoTIFF, ISOXML TASKDATA (folder, TASKDATA.XML, .zip), "
                                     "shapefile (.shp/.zip), GeoJSON, CSV")
         p.add_argument("--rate-field", help="attribute holding the rate (kg/ha) in zone/point files")
+        p.add_argument("--layer", metavar="NAME",
+                       help="the shapefile of a zip or folder holding several (listed when none is named)")
+        p.add_argument("--product", metavar="NAME|PDTn",
+                       help="the product of a TASKDATA grid holding several (listed when none is named)")
         p.add_argument("--cell-size", type=float, metavar="M", help="cell size for zone files, m")
         p.add_argument("--crs", help="CRS of a file that does not state one (e.g. a shapefile without .prj)")
         p.add_argument("--max-cells", type=int, default=200_000_000, metavar="N",
@@ -54,7 +58,7 @@ def _read(args):
     import maps
 
     return maps.read_map(args.file, rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
-                         max_cells=args.max_cells or None)
+                         max_cells=args.max_cells or None, layer=args.layer, product=args.product)
 
 
 def _warnings_as_lines() -> None:

@@ -1,0 +1,112 @@
+"""Farm files with several layers or products, through the real executable: a zip or folder of
+several shapefiles is listed and read by `--layer`, a TASKDATA grid of two products by `--product`;
+nothing is chosen silently and a name that does not exist exits 2 with one line listing what exists."""
+
+import json
+import os
+import re
+import subprocess
+import zipfile
+
+import numpy as np
+import pytest
+from affine import Affine
+
+from maps import Grid, read_map, write_map
+from tests.conftest import VRSIM
+
+DEERE = os.path.join("data", "asapplied", "jd-gen4-application-point-onehertz.zip")
+LAYERS = ("Tank Mix Rate-Tank Mix", "Seeding-Corn", "Harvest-Yield", "Application-Product2")
+
+
+def vrsim(*args):
+    return subprocess.run([VRSIM, *map(str, args)], capture_output=True, text=True, timeout=120)
+
+
+def one_line_exit_2(p, *needles):
+    assert p.returncode == 2, (p.stdout, p.stderr)
+    assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    for needle in needles:
+        assert needle in p.stderr, (needle, p.stderr)
+
+
+@pytest.fixture()
+def four_layers(shared_dir, tmp_path):
+    """An Operations Center style zip of four point layers (the Deere export under four names), the
+    third with every target doubled."""
+    source = zipfile.ZipFile(os.path.join(shared_dir, DEERE))
+    path = tmp_path / "four.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        for layer in LAYERS:
+            for name in source.namelist():
+                z.writestr(name.replace("--------Tank Mix Rate-Tank Mix", layer), source.read(name))
+    return path
+
+
+def test_a_zip_of_four_layers_is_listed_and_read_by_layer(four_layers, tmp_path):
+    p = vrsim("evaluate", four_layers)
+    listed = (f"'{x}' (780 records; fields Time" for x in LAYERS)
+    one_line_exit_2(p, "four.zip", "4 layers", "--layer", *listed)
+    p = vrsim("evaluate", four_layers, "--layer", "Harvest-Yield", "--json")
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    assert got["points"] == 780 and got["unit"] == "gal/ac"  # its own Deere metadata gives the unit
+    one_line_exit_2(vrsim("evaluate", four_layers, "--layer", "Nope"), "no layer 'Nope'", "'Seeding-Corn'")
+    folder = tmp_path / "export"
+    folder.mkdir()
+    zipfile.ZipFile(four_layers).extractall(folder)
+    one_line_exit_2(vrsim("evaluate", folder), "4 layers")
+    p = vrsim("evaluate", folder, "--layer", "seeding-corn", "--json")
+    assert p.returncode == 0 and json.loads(p.stdout) == got, p.stderr
+
+
+def test_a_zip_of_two_zone_layers_is_read_by_layer(tmp_path):
+    """`vrsim map` on a zip of two rate-zone shapefiles: listed without --layer, each read by name."""
+    import pyogrio
+    import shapely
+
+    square = shapely.box(500_000, 5_800_000, 500_100, 5_800_100)
+    path = tmp_path / "zones.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        for name, rate in (("north", 120.0), ("south", 80.0)):
+            shp = tmp_path / f"{name}.shp"
+            pyogrio.raw.write(str(shp), shapely.to_wkb(np.array([square])), [np.array([rate])], ["Rate"],
+                              driver="ESRI Shapefile", geometry_type="Polygon", crs="EPSG:32632")
+            for ext in (".shp", ".shx", ".dbf", ".prj"):
+                z.write(tmp_path / f"{name}{ext}", f"{name}{ext}")
+    one_line_exit_2(vrsim("map", "info", path), "2 layers", "'north' (1 records; fields Rate)", "'south'")
+    p = vrsim("map", "info", path, "--layer", "south", "--json")
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["max_rate_kg_ha"] == 80.0
+    one_line_exit_2(vrsim("map", "info", path, "--layer", "east"), "no layer 'east'", "'north'")
+
+
+def two_products(tmp_path):
+    """A TASKDATA grid (type 2) with DDI 6 of two products: PDT1 'Urea' 100 kg/ha, PDT2 'KAS' 250."""
+    grid = Grid(np.full((3, 4), 100.0), Affine(1e-4, 0, 10.0, 0, -1e-4, 52.0), "EPSG:4326", product="Urea")
+    folder = tmp_path / "TASKDATA"
+    write_map(grid, folder)
+    xml = (folder / "TASKDATA.XML").read_text()
+    first = '<PDV A="0006" B="0" E="VPN1" C="PDT1" />'
+    xml = xml.replace(first, first + '\n      <PDV A="0006" B="0" E="VPN1" C="PDT2" />')
+    xml = xml.replace('<PDT A="PDT1" B="Urea" />', '<PDT A="PDT1" B="Urea" />\n  <PDT A="PDT2" B="KAS" />')
+    assert xml.count("PDT2") == 2, xml
+    cells = np.stack([np.full(12, 10_000), np.full(12, 25_000)], axis=1).astype("<i4")
+    xml = re.sub(r'H="\d+"', f'H="{cells.nbytes}"', xml)
+    (folder / "TASKDATA.XML").write_text(xml)
+    (folder / "GRD00001.BIN").write_bytes(cells.tobytes())
+    return folder
+
+
+def test_a_taskdata_of_two_products_is_listed_and_read_by_product(tmp_path):
+    folder = two_products(tmp_path)
+    one_line_exit_2(vrsim("map", "info", folder), "2 products", "PDT1 'Urea'", "PDT2 'KAS'", "--product")
+    for choice, rate, name in (("PDT2", 250.0, "KAS"), ("kas", 250.0, "KAS"), ("Urea", 100.0, "Urea")):
+        p = vrsim("map", "info", folder, "--product", choice, "--json")
+        assert p.returncode == 0, p.stderr
+        info = json.loads(p.stdout)
+        assert info["max_rate_kg_ha"] == rate and info["product"] == name, info
+    p = vrsim("map", "info", folder, "--rate-field", "PDT2", "--json")  # --rate-field names it too
+    assert p.returncode == 0 and json.loads(p.stdout)["product"] == "KAS", p.stderr
+    one_line_exit_2(vrsim("map", "info", folder, "--product", "PDT3"), "no product 'PDT3'", "PDT1 'Urea'")
+    assert read_map(folder, product="PDT1").product == "Urea"
