@@ -54,6 +54,11 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
         return _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells)
     if os.path.isdir(path) or lower.endswith(".xml"):
         from maps.isoxml import read_isoxml
+        from maps.timelog import is_lone_timelog
+
+        if is_lone_timelog(path):
+            raise MapError(f"{path}: a TimeLog (what a machine logged), not a prescription map; "
+                           "`vrsim evaluate` reads it")
 
         return read_isoxml(path, max_cells=max_cells, product=product or rate_field)
     if lower.endswith(".zip"):

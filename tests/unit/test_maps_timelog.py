@@ -253,3 +253,24 @@ def test_read_taskdata_log_chooses_ddis(shared_dir):
     assert parse_ddi("0x00A1") == 161 and parse_ddi(7) == 7
     with pytest.raises(MapError, match="not a number"):
         parse_ddi("seven")
+
+
+def test_a_lone_timelog_is_read_from_its_header(shared_dir, tmp_path):
+    """TLG00001.xml alone (its .bin beside it, no TASKDATA.XML): the known values of the terminal's log;
+    where it logs no rate, the message says what it logs; vrsim's own TimeLog reads as its TASKDATA."""
+    src = valid_logs(shared_dir)
+    for name in ("TLG00001.xml", "TLG00001.bin"):
+        shutil.copy(os.path.join(src, name), tmp_path / name)
+    (t,) = read_timelogs(tmp_path / "TLG00001.xml")
+    assert (t.records, t.count(0x8D), t.count(0x94), t.task) == (4716, 4716, 560, "")
+    assert str(t.time[1]).startswith("2020-01-02")
+    with pytest.raises(MapError, match="TLG00001.xml: no TimeLog logs an applied rate .*008D.*--rate-field"):
+        read_taskdata_log(tmp_path / "TLG00001.xml")
+    os.remove(tmp_path / "TLG00001.bin")
+    with pytest.raises(MapError, match=r"TLG00001.xml: the TimeLog file TLG00001.BIN is missing beside it"):
+        read_timelogs(tmp_path / "TLG00001.xml")
+    path = write_taskdata(run_log(), tmp_path / "taskdata", [2.0] * 6)
+    whole = read_taskdata_log(path)
+    lone = read_taskdata_log(tmp_path / "taskdata" / "TLG00001.xml")
+    for name in ("applied", "target", "time_s", "x", "y", "work_on", "sections_on"):
+        np.testing.assert_array_equal(getattr(lone, name), getattr(whole, name))
