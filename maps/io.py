@@ -12,7 +12,7 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid
 READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
                "zipped), GeoJSON zones or points (.geojson/.json), CSV points (.csv)"
 WRITE_FORMATS = ".tif/.tiff (GeoTIFF), a TASKDATA folder, .../TASKDATA.XML or .zip (ISOXML grid type 2), " \
-                ".geojson/.csv (points)"
+                ".shp/.shp.zip (shapefile zones), .geojson/.csv (points)"
 
 
 def read_map(path, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
@@ -127,20 +127,29 @@ def _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells) -> Grid:
     return replace(grid, source=f"{path}:{posixpath.basename(stem)}")
 
 
-def write_map(grid: Grid, path) -> None:
-    """Write a grid; the format follows the extension.
+def write_map(grid: Grid, path, like: str | None = None) -> None:
+    """Write a grid; the format follows the extension (of `like` if given: the final name of a file
+    written under a temporary one).
 
     ``.tif``/``.tiff``: GeoTIFF. A folder (a path without extension, or an existing folder) or
     ``.../TASKDATA.XML``: ISOXML TASKDATA.XML + a GRDnnnnn.BIN beside it (grid type 2, DDI 6, WGS84;
     other CRSs are reprojected; never overwriting, see `maps.isoxml.write_isoxml`). ``.zip``: the
-    same in an archive. ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre.
+    same in an archive. ``.shp`` or ``.shp.zip``: a polygon shapefile prescription, zipped or not
+    (`maps.shapefile_rx`). ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre.
     """
+    from maps.shapefile_rx import is_shapefile_path
+
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise MapError(f"{path}: folder {folder} does not exist")
-    lower = path.lower()
-    if lower.endswith((".tif", ".tiff")):
+    lower = os.fspath(like or path).lower()
+    if is_shapefile_path(lower):
+        from maps.shapefile_rx import write_shapefile
+
+        def writer(grid, path):
+            write_shapefile(grid, path, like=like)
+    elif lower.endswith((".tif", ".tiff")):
         from maps.geotiff import write_geotiff as writer
     elif lower.endswith((".xml", ".zip")) or os.path.isdir(path) or not os.path.splitext(path)[1]:
         from maps.isoxml import write_isoxml as writer

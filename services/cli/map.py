@@ -45,7 +45,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("convert", help="write the map in another format (by OUT's extension)")
     reading(p)
     p.add_argument("out", help="output: .tif; a folder, .../TASKDATA.XML or .zip (ISOXML grid type 2, never "
-                               "overwriting); .geojson (WGS84); .csv")
+                               "overwriting); .shp.zip or .shp (shapefile zones, a rate attribute named "
+                               "with its unit, e.g. Rate_kg_ha); .geojson (WGS84); .csv")
     p.add_argument("--to-crs", help="reproject first (nearest neighbour), e.g. EPSG:32632")
     p.add_argument("--to-cell-size", type=float, metavar="M", help="cell size when reprojecting, m")
 
@@ -123,7 +124,7 @@ def _convert(args) -> int:
     grid = _read(args)
     if args.to_crs:
         grid = grid.reproject(args.to_crs, cell_size_m=args.to_cell_size)
-    _write_whole(lambda path: maps.write_map(grid, path), args.out)
+    _write_whole(lambda path: maps.write_map(grid, path, like=args.out), args.out)
     print(f"wrote {args.out} ({grid.rows} x {grid.cols} cells)")
     return 0
 

@@ -110,3 +110,35 @@ def test_a_taskdata_of_two_products_is_listed_and_read_by_product(tmp_path):
     assert p.returncode == 0 and json.loads(p.stdout)["product"] == "KAS", p.stderr
     one_line_exit_2(vrsim("map", "info", folder, "--product", "PDT3"), "no product 'PDT3'", "PDT1 'Urea'")
     assert read_map(folder, product="PDT1").product == "Urea"
+
+
+def test_convert_writes_a_zipped_shapefile_prescription_read_back_by_vrsim_and_pyogrio(tmp_path):
+    """Three zones (one with a hole of nodata) on 10 m cells: one polygon per zone, the rate attribute
+    named with its unit, a .prj; vrsim reads the same rates back on the same cells, nodata kept."""
+    import pyogrio
+    import shapely
+
+    rates = np.full((6, 8), 120.0)
+    rates[:, 5:] = 80.555
+    rates[2:4, 1:3] = np.nan  # a hole in the 120 zone: no polygon, so the terminal applies nothing
+    rates[5, 0] = 150.0
+    transform = Affine(10, 0, 500_000, 0, -10, 5_800_060)
+    write_map(Grid(rates, transform, "EPSG:32632"), tmp_path / "rx.tif")
+    p = vrsim("map", "convert", tmp_path / "rx.tif", tmp_path / "rx.shp.zip")
+    assert p.returncode == 0, p.stderr
+    assert sorted(zipfile.ZipFile(tmp_path / "rx.shp.zip").namelist()) == [
+        "rx.cpg", "rx.dbf", "rx.prj", "rx.shp", "rx.shx"]
+    meta, _, geometry, (values,) = pyogrio.raw.read(f"/vsizip/{tmp_path / 'rx.shp.zip'}/rx.shp")
+    assert list(meta["fields"]) == ["Rate_kg_ha"] and pyogrio.read_info(
+        f"/vsizip/{tmp_path / 'rx.shp.zip'}/rx.shp")["crs"] == "EPSG:32632"
+    polygons = shapely.from_wkb(geometry)
+    assert sorted(values.tolist()) == [80.56, 120.0, 150.0]  # one polygon per zone, 0.01 kg/ha
+    by_rate = dict(zip(values.tolist(), polygons, strict=True))
+    assert len(by_rate[120.0].interiors) == 1 and by_rate[120.0].area == pytest.approx((30 - 4 - 1) * 100)
+    back = read_map(tmp_path / "rx.shp.zip", cell_size_m=10.0)
+    assert back.unit == "kg/ha" and back.rates_kg_ha.shape == rates.shape
+    np.testing.assert_allclose(back.rates_kg_ha, np.round(rates, 2), equal_nan=True)
+    error = Grid(rates - 100.0, transform, "EPSG:32632", quantity="difference")
+    write_map(error, tmp_path / "error.tif")
+    one_line_exit_2(vrsim("map", "convert", tmp_path / "error.tif", tmp_path / "e.shp.zip"),
+                    "e.shp.zip", "differences")
