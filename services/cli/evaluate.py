@@ -24,7 +24,8 @@ def configure(parser) -> None:
                         help="the layer of a zip, folder or GeoPackage holding several (they are listed "
                              "when none is named)")
     parser.add_argument("--field", metavar="BOUNDARY",
-                        help="field boundary (GeoJSON or shapefile): only points inside it are compared")
+                        help="field boundary (GeoJSON, shapefile, KML/KMZ or an ISOXML TASKDATA's partfield; "
+                             "holes kept): only points inside it are compared")
     parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
                         help="delivery delay: product metered at a record's time lands S s later, where the "
                              "machine is then; compared with the prescription there (default 0)")
