@@ -142,3 +142,32 @@ def test_convert_writes_a_zipped_shapefile_prescription_read_back_by_vrsim_and_p
     write_map(error, tmp_path / "error.tif")
     one_line_exit_2(vrsim("map", "convert", tmp_path / "error.tif", tmp_path / "e.shp.zip"),
                     "e.shp.zip", "differences")
+
+
+def test_evaluate_field_from_kml_with_a_hole_and_bad_kml(shared_dir, tmp_path):
+    """`--field` a KML around every point of the Deere export with a hole over its southern half: about
+    half the points are compared; a KML with no polygon exits 2 naming the file."""
+    import maps
+
+    path = os.path.join(shared_dir, DEERE)
+    log = maps.read_point_log(path)
+    west, east = log.x.min() - 0.001, log.x.max() + 0.001
+    south, north = log.y.min() - 0.001, log.y.max() + 0.001
+    mid = float(np.median(log.y))
+
+    def coords(w, s, e, n):
+        return " ".join(f"{x},{y}" for x, y in ((w, s), (e, s), (e, n), (w, n), (w, s)))
+
+    kml = tmp_path / "field.kml"
+    kml.write_text('<kml xmlns="http://www.opengis.net/kml/2.2"><Placemark><Polygon><outerBoundaryIs>'
+                   "<LinearRing>"
+                   f"<coordinates>{coords(west, south, east, north)}</coordinates></LinearRing></outerBoundaryIs>"
+                   "<innerBoundaryIs><LinearRing><coordinates>"
+                   f"{coords(west + 1e-4, south + 1e-4, east - 1e-4, mid)}</coordinates></LinearRing>"
+                   "</innerBoundaryIs></Polygon></Placemark></kml>")
+    p = vrsim("evaluate", path, "--field", kml, "--json")
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    assert 300 < got["points"] < 480 and got["excluded"]["outside_field"] == 780 - got["points"]
+    kml.write_text("<kml><Placemark><Point><coordinates>10,52</coordinates></Point></Placemark></kml>")
+    one_line_exit_2(vrsim("evaluate", path, "--field", kml), "field.kml", "no Polygon")
