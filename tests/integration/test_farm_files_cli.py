@@ -160,8 +160,8 @@ def test_evaluate_field_from_kml_with_a_hole_and_bad_kml(shared_dir, tmp_path):
 
     kml = tmp_path / "field.kml"
     kml.write_text('<kml xmlns="http://www.opengis.net/kml/2.2"><Placemark><Polygon><outerBoundaryIs>'
-                   "<LinearRing>"
-                   f"<coordinates>{coords(west, south, east, north)}</coordinates></LinearRing></outerBoundaryIs>"
+                   f"<LinearRing><coordinates>{coords(west, south, east, north)}</coordinates>"
+                   "</LinearRing></outerBoundaryIs>"
                    "<innerBoundaryIs><LinearRing><coordinates>"
                    f"{coords(west + 1e-4, south + 1e-4, east - 1e-4, mid)}</coordinates></LinearRing>"
                    "</innerBoundaryIs></Polygon></Placemark></kml>")
