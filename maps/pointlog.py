@@ -257,7 +257,8 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
         target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
-        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=_work_on(path, fields), source=path,
+        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=_work_on(path, fields),
+        source=f"{path}:{layer}" if layer else path,
         format="gpkg" if path.lower().endswith(".gpkg") else "shapefile")
 
 

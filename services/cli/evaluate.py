@@ -1,6 +1,6 @@
-"""`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--layer NAME]
-[--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS] [--json]
-[--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
+"""`vrsim evaluate LOG [--prescription RX [--product NAME|PDTn]] [--rate-field NAME] [--target-field NAME]
+[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS]
+[--json] [--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,9 @@ def configure(parser) -> None:
     parser.add_argument("--prescription", metavar="RX",
                         help="compare with this map at each point (any map vrsim reads) instead of the "
                              "logged target")
+    parser.add_argument("--product", metavar="NAME|PDTn",
+                        help="the product of a TASKDATA prescription holding the rates of several (listed "
+                             "when none is named)")
     parser.add_argument("--rate-field", metavar="NAME",
                         help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
                              "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
@@ -53,7 +56,7 @@ def run(args) -> int:
                               unit=args.unit, crs=args.crs, layer=args.layer)
     if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=args.unit)
-    rx = maps.read_map(args.prescription) if args.prescription else None
+    rx = maps.read_map(args.prescription, product=args.product) if args.prescription else None
     field = _field(args.field) if args.field else None
     ev = evaluate(log, rx, field=field, delay_s=args.delay_s,
                   include_zero_target=args.include_zero_target)

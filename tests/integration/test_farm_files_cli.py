@@ -171,3 +171,22 @@ def test_evaluate_field_from_kml_with_a_hole_and_bad_kml(shared_dir, tmp_path):
     assert 300 < got["points"] < 480 and got["excluded"]["outside_field"] == 780 - got["points"]
     kml.write_text("<kml><Placemark><Point><coordinates>10,52</coordinates></Point></Placemark></kml>")
     one_line_exit_2(vrsim("evaluate", path, "--field", kml), "field.kml", "no Polygon")
+
+
+def test_evaluate_against_a_two_product_prescription_takes_product(tmp_path):
+    import pyogrio
+    import shapely
+
+    folder = two_products(tmp_path)
+    n = 20
+    lon, lat = 10.00005 + np.linspace(0, 3e-4, n), np.full(n, 51.99985)
+    log = tmp_path / "log.gpkg"
+    pyogrio.raw.write(str(log), shapely.to_wkb(shapely.points(lon, lat)),
+                      [np.full(n, 250.0), np.full(n, 250.0), np.full(n, "kg/ha", dtype=object)],
+                      ["applied", "target", "rate_unit"], driver="GPKG", geometry_type="Point",
+                      crs="EPSG:4326")
+    one_line_exit_2(vrsim("evaluate", log, "--prescription", folder), "2 products", "PDT2 'KAS'")
+    p = vrsim("evaluate", log, "--prescription", folder, "--product", "KAS", "--json")
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    assert got["points"] == n and got["mae"] == 0.0
