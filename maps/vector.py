@@ -119,6 +119,7 @@ def _sources(path: str) -> list[tuple[str, str, str | None]]:
             raise MapError(f"{path}: the folder holds no shapefile (.shp)")
         for name in shps:
             files.check_file(os.path.join(path, name), error=MapError)
+            files.check_siblings(os.path.join(path, name), MapError)  # the .dbf, .shx, .prj GDAL opens
             _check_head(os.path.join(path, name), ".shp")
         return [(name[:-4], os.path.join(real, name), None) for name in shps]
     ext = os.path.splitext(path)[1].lower()

@@ -142,3 +142,38 @@ def test_target_0_width_0_and_implement_off_are_left_out_by_reason():
     ev = evaluate(log, include_zero_target=True)
     assert ev.metrics.points == 3 and ev.metrics.mae == pytest.approx(50.0 / 3)
     assert ev.excluded["target_0"] == 0
+
+
+def test_forty_thousand_point_export_evaluates_in_under_5_s(tmp_path):
+    """A zipped point shapefile of 40,000 records with ISO 8601 text times (the slow path of the reader),
+    read and evaluated in under 5 s (the issue's bound; about 1 s on an idle machine)."""
+    import time
+    import zipfile
+
+    import pyogrio
+    import shapely
+
+    from maps import read_point_log
+
+    n = 40_000
+    rng = np.random.default_rng(3)
+    t = np.arange(n)
+    target = np.where(rng.random(n) < 0.05, 0.0, rng.choice([100.0, 150.0, 200.0], n))
+    stamps = np.datetime64("2026-05-01T10:00:00", "ms") + t.astype("timedelta64[s]")
+    folder = tmp_path / "export"
+    folder.mkdir()
+    pyogrio.raw.write(str(folder / "big.shp"), shapely.to_wkb(shapely.points(10 + (t % 400) * 2e-5,
+                                                                            52 + (t // 400) * 1e-4)),
+                      [np.datetime_as_string(stamps).astype(object), target + rng.normal(0, 3, n), target,
+                       np.full(n, 12.0), np.full(n, "kg/ha", dtype=object)],
+                      ["IsoTime", "AppliedRat", "TargetRate", "SWATHWIDTH", "rate_unit"],
+                      driver="ESRI Shapefile", geometry_type="Point", crs="EPSG:4326")
+    with zipfile.ZipFile(tmp_path / "big.zip", "w") as z:
+        for name in sorted(p.name for p in folder.iterdir()):
+            z.write(folder / name, name)
+    began = time.perf_counter()
+    ev = evaluate(read_point_log(tmp_path / "big.zip"))
+    took_s = time.perf_counter() - began
+    print(f"40,000 points: {took_s:.2f} s")
+    assert ev.metrics.points == (target > 0).sum() and ev.excluded["target_0"] == (target == 0).sum()
+    assert took_s < 5.0
