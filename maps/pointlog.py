@@ -252,12 +252,13 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
     target_name = _pick(path, fields, target_field, TARGET_NAMES, "target rate", "--target-field")
     rate_unit = unit or _rate_unit(path, fields, units, applied_name)
     time_s, start = _times(path, fields, time_field)
+    work = _optional(path, fields, WORK_NAMES)  # the work state: other than 0 is on; not logged: on
     return PointLog(
         xy[:, 0], xy[:, 1], src_crs, applied=_numbers(path, fields[applied_name], applied_name),
         target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
-        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=_work_on(path, fields),
+        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=None if work is None else work != 0,
         source=f"{path}:{layer}" if layer else path,
         format="gpkg" if path.lower().endswith(".gpkg") else "shapefile")
 
@@ -298,12 +299,6 @@ def _is_number(value) -> bool:
 def _optional(path, fields: dict, names) -> np.ndarray | None:
     name = _find(fields, names)
     return None if name is None else _numbers(path, fields[name], name)
-
-
-def _work_on(path, fields: dict) -> np.ndarray | None:
-    """The implement's work state (a value other than 0 is on; not logged: on)."""
-    state = _optional(path, fields, WORK_NAMES)
-    return None if state is None else ~(state == 0)
 
 
 def _length(path, fields: dict, names, units: dict) -> np.ndarray | None:
