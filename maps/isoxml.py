@@ -44,7 +44,7 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
 
 
-class _Folder:
+class TaskdataFolder:
     """The TASKDATA's files, from a folder or a zip archive; names matched case-insensitively."""
 
     def __init__(self, path: str):
@@ -75,7 +75,7 @@ class _Folder:
             self._dir = os.path.dirname(os.path.abspath(self.xml_name))
             self._names = {n.upper(): os.path.join(self._dir, n) for n in os.listdir(self._dir)}
 
-    def __enter__(self) -> _Folder:
+    def __enter__(self) -> TaskdataFolder:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -105,7 +105,12 @@ class _Folder:
         return files.read_bytes(member, error=MapError, limit=limit)
 
 
-def _attr(el, key: str, kind, where: str, required: bool = True):
+def typed_attr(el, key: str, kind, where: str, required: bool = True):
+    """The XML attribute `key` of element `el` as `kind` (a type, or "hex": a hexadecimal DDI).
+
+    Missing: None, or a `MapError` naming `where`, the element and the key if `required`; a value
+    that does not convert is a `MapError` too (the TASKDATA reader's and the TimeLog reader's messages).
+    """
     raw = el.get(key)
     if raw is None:
         if required:
@@ -120,7 +125,8 @@ def _attr(el, key: str, kind, where: str, required: bool = True):
 
 def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
     """(DDI, value, product id) of each PDV of a TZN, in file order."""
-    return [(_attr(p, "A", "hex", where), _attr(p, "B", int, where), p.get("C")) for p in tzn.findall("PDV")]
+    return [(typed_attr(p, "A", "hex", where), typed_attr(p, "B", int, where), p.get("C"))
+            for p in tzn.findall("PDV")]
 
 
 def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None) -> Grid:
@@ -129,7 +135,7 @@ def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: s
     `product` (a PDT's id ``PDT2`` or its name) chooses among the rates of a grid with several
     products; without it such a grid is refused, listing them (`MapError`): none is chosen silently.
     """
-    with _Folder(path) as folder:
+    with TaskdataFolder(path) as folder:
         return _read_taskdata(folder, path, max_cells, product)
 
 
@@ -150,7 +156,7 @@ def parse_xml(data: bytes, where: str, name: str, root_tag: str):
     return root
 
 
-def _read_taskdata(folder: _Folder, path: str, max_cells: int | None, product: str | None) -> Grid:
+def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None, product: str | None) -> Grid:
     where = path
     root = parse_xml(folder.read_xml(), where, "TASKDATA.XML", "ISO11783_TaskData")
     tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
@@ -161,11 +167,11 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None, product: s
                       MapWarning, stacklevel=3)
     task = tasks[0]
     grd = task.find("GRD")
-    south, west = _attr(grd, "A", float, where), _attr(grd, "B", float, where)
-    dlat, dlon = _attr(grd, "C", float, where), _attr(grd, "D", float, where)
-    cols, rows = _attr(grd, "E", int, where), _attr(grd, "F", int, where)
-    name, declared = grd.get("G"), _attr(grd, "H", int, where, required=False)
-    gtype, zone_code = _attr(grd, "I", int, where), _attr(grd, "J", int, where, required=False)
+    south, west = typed_attr(grd, "A", float, where), typed_attr(grd, "B", float, where)
+    dlat, dlon = typed_attr(grd, "C", float, where), typed_attr(grd, "D", float, where)
+    cols, rows = typed_attr(grd, "E", int, where), typed_attr(grd, "F", int, where)
+    name, declared = grd.get("G"), typed_attr(grd, "H", int, where, required=False)
+    gtype, zone_code = typed_attr(grd, "I", int, where), typed_attr(grd, "J", int, where, required=False)
     if not (-90.0 <= south <= 90.0 and -180.0 <= west <= 180.0):
         raise MapError(f"{where}: GRD A={south!r}, B={west!r} is not a WGS84 latitude/longitude")
     for key, value in (("C", dlat), ("D", dlon)):
@@ -181,7 +187,7 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None, product: s
     if folder.size(name + ".BIN") is None:
         raise MapError(f"{where}: the grid's binary file {name}.BIN (GRD G={name!r}) is missing beside "
                        "TASKDATA.XML")
-    zones = {_attr(z, "A", int, where): _zone_values(z, where) for z in task.findall("TZN")}
+    zones = {typed_attr(z, "A", int, where): _zone_values(z, where) for z in task.findall("TZN")}
 
     if gtype == 2:
         if zone_code is None or zone_code not in zones:
@@ -193,7 +199,7 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None, product: s
             raise MapError(f"{where}: treatment zone {zone_code} holds DDI {ddi_list(ddis) or 'none'}; "
                            f"vrsim needs DDI 0006 ({NAMES[6]})")
         rate_layers = [i for i, d in enumerate(ddis) if d == DDI_MASS_PER_AREA]
-        product_ref = choose_product(root, [layers[i][2] for i in rate_layers], product, where)
+        product_ref = _choose_product(root, [layers[i][2] for i in rate_layers], product, where)
         layer = next(i for i in rate_layers if layers[i][2] == product_ref)
         cell_bytes = 4 * len(layers)
     else:
@@ -210,14 +216,14 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None, product: s
     else:
         codes = np.frombuffer(data, dtype=np.uint8).reshape(rows, cols)
         refs = [ref for values in zones.values() for d, _, ref in values if d == DDI_MASS_PER_AREA]
-        product_ref = choose_product(root, refs, product, where) if refs else None
+        product_ref = _choose_product(root, refs, product, where) if refs else None
         rates = _type1_rates(codes, zones, product_ref, where)
     transform = Affine(dlon, 0.0, west, 0.0, -dlat, south + rows * dlat)
     return Grid(rates[::-1], transform, WGS84, product=_product_name(root, product_ref), source=path,
                 format="isoxml")
 
 
-def _read_binary(folder: _Folder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
+def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
     fname = name + ".BIN"
     size = folder.size(fname)
     if size != expected:
@@ -252,7 +258,7 @@ def _type1_rates(codes: np.ndarray, zones: dict, product_ref: str | None, where:
     return table[codes]
 
 
-def choose_product(root, refs: list, product: str | None, where: str) -> str | None:
+def _choose_product(root, refs: list, product: str | None, where: str) -> str | None:
     """The product reference (PDV C) among `refs` (in file order) that `product` names, by id (``PDT2``)
     or name (case-insensitive); without `product`, the only one. MapError listing them otherwise."""
     products = list(dict.fromkeys(refs))
@@ -293,7 +299,7 @@ def write_isoxml(grid: Grid, path: str) -> None:
         what = "differences of rates" if grid.quantity != "rate" else "rates"
         raise MapError(f"{path}: an ISOXML prescription holds rates in kg/ha; {grid.source or 'the grid'} "
                        f"holds {what} in {grid.unit}")
-    folder = None if path.lower().endswith(".zip") else taskdata_folder(path)
+    folder = None if path.lower().endswith(".zip") else _taskdata_folder(path)
     if not (grid.crs.is_geographic and grid.crs == WGS84):
         grid = grid.reproject(WGS84)
     rates = grid.rates_kg_ha
@@ -321,7 +327,7 @@ def write_isoxml(grid: Grid, path: str) -> None:
             raise MapError(f"{path}: {fname} already exists in {folder}; vrsim does not overwrite") from None
 
 
-def taskdata_folder(path: str) -> str:
+def _taskdata_folder(path: str) -> str:
     """The folder an ISOXML TASKDATA is written to: `path` itself, or the folder of its TASKDATA.XML.
 
     Refuses other ``.xml`` names (the standard names the file TASKDATA.XML) and a folder that

@@ -28,13 +28,13 @@ def is_shapefile_path(path: str) -> bool:
     return path.lower().endswith((".shp", ZIPPED))
 
 
-def rate_field_name(unit: str) -> str:
+def _rate_field_name(unit: str) -> str:
     """The rate attribute named with its unit: ``Rate_kg_ha``, ``Rate_L_ha``, ``R_gal_ac`` (<= 10 chars)."""
     name = "Rate_" + unit.replace("/", "_")
     return name if len(name) <= 10 else ("R_" + unit.replace("/", "_"))[:10]
 
 
-def zone_polygons(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
+def _zone_polygons(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     """(polygons as WKB, rate of each) of the grid's connected runs of cells of one rate."""
     import shapely
     from rasterio.features import shapes
@@ -69,10 +69,10 @@ def write_shapefile(grid: Grid, path: str, like: str | None = None) -> str:
     if grid.quantity != "rate":
         raise MapError(f"{final}: a prescription holds rates; {grid.source or 'the grid'} holds differences "
                        "of rates")
-    polygons, rates = zone_polygons(grid)
+    polygons, rates = _zone_polygons(grid)
     if not rates.size:
         raise MapError(f"{final}: {grid.source or 'the grid'} has no cell with a rate: nothing to write")
-    field = rate_field_name(grid.unit)
+    field = _rate_field_name(grid.unit)
     crs = grid.crs.to_wkt()
 
     def write(shp: str) -> None:

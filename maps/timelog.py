@@ -48,7 +48,7 @@ import numpy as np
 
 from common import MapError, files
 from maps.ddi import ddi_list
-from maps.isoxml import _attr, _Folder, parse_xml
+from maps.isoxml import TaskdataFolder, parse_xml, typed_attr
 
 MAX_TLG_BYTES = 256 * 1024 * 1024  # default cap on one binary: ~3 M records of 20 values
 EPOCH = np.datetime64("1980-01-01T00:00:00", "ms")
@@ -183,9 +183,9 @@ def read_timelogs(path, max_bytes: int = MAX_TLG_BYTES) -> list[TimeLog]:
         raise MapError(f"{path}: no such file or folder")
     if is_lone_timelog(path):
         name = os.path.splitext(os.path.basename(path))[0]
-        with _Folder(path) as folder:
+        with TaskdataFolder(path) as folder:
             return [_read_one(folder, path, "", ET.Element("TLG", A=name, C="1"), max_bytes)]
-    with _Folder(path) as folder:
+    with TaskdataFolder(path) as folder:
         root = parse_xml(folder.read_xml(), path, "TASKDATA.XML", "ISO11783_TaskData")
         refs = [(task.get("A") or "", tlg) for task in root.iter("TSK") for tlg in task.findall("TLG")]
         if not refs:
@@ -199,7 +199,7 @@ def is_lone_timelog(path: str) -> bool:
     return not os.path.isdir(path) and re.fullmatch(r"TLG\d{5}\.XML", name) is not None
 
 
-def _read_one(folder: _Folder, path: str, task: str, tlg, max_bytes: int) -> TimeLog:
+def _read_one(folder: TaskdataFolder, path: str, task: str, tlg, max_bytes: int) -> TimeLog:
     name = tlg.get("A")
     if not name:
         raise MapError(f"{path}: task {task}: TLG has no file name (attribute A)")
@@ -231,10 +231,10 @@ def _header(tim, where: str):
             raw = ptns[0].get(key)
             if raw is None:
                 continue
-            layout[key] = None if raw == "" else _attr(ptns[0], key, float, f"{where}.XML")
+            layout[key] = None if raw == "" else typed_attr(ptns[0], key, float, f"{where}.XML")
     dlvs = []
     for i, dlv in enumerate(tim.findall("DLV")):
-        ddi = _attr(dlv, "A", "hex", f"{where}.XML: DLV {i}")
+        ddi = typed_attr(dlv, "A", "hex", f"{where}.XML: DLV {i}")
         dlvs.append((ddi, dlv.get("C") or ""))
     if len(dlvs) > 255:
         raise MapError(f"{where}.XML: {len(dlvs)} DLVs; a record can index at most 255")

@@ -9,7 +9,7 @@ names inside the checked archive itself (``/vsizip/<resolved zip>/<member>``). O
 (``DRIVERS``) recognizes such a file. No side-file scan, no network (`common.files.GDAL_READ_ENV`).
 
 A zip or folder holding several shapefiles, or a GeoPackage with several layers (an Operations Center
-export holds one per product or operation), is never read by a guess: `layers` lists them and the
+export holds one per product or operation), is never read by a guess: `_layers` lists them and the
 caller names one (``layer=``, ``--layer``).
 """
 
@@ -30,7 +30,7 @@ GPKG_IDS = (b"GPKG", b"GP10", b"GP11")  # application_id at byte 68 (GeoPackage 
 
 
 @dataclass(frozen=True)
-class Layer:
+class _Layer:
     """One layer of a vector file: its name (a shapefile's name without ``.shp``), record count, fields."""
 
     name: str
@@ -46,7 +46,7 @@ def read_vector(path: str, layer: str | None = None):
     ----------
     path : str
     layer : str, optional
-        The layer to read where the file holds several (see `layers`); required then.
+        The layer to read where the file holds several (see `_layers`); required then.
 
     Returns
     -------
@@ -71,7 +71,7 @@ def read_vector(path: str, layer: str | None = None):
         raise MapError(f"{path}: cannot read as a vector file ({driver}): {exc}") from None
 
 
-def layers(path: str) -> list[Layer]:
+def _layers(path: str) -> list[_Layer]:
     """Every layer of a ``.zip`` (its shapefiles), a folder (its shapefiles) or a ``.gpkg``, in name order."""
     import pyogrio
     from pyogrio.errors import DataLayerError, DataSourceError
@@ -83,11 +83,11 @@ def layers(path: str) -> list[Layer]:
             info = pyogrio.read_info(source, layer=inner)
         except (DataSourceError, DataLayerError, OSError) as exc:
             raise MapError(f"{path}: cannot read layer {name!r}: {exc}") from None
-        found.append(Layer(name, int(info["features"]), tuple(str(f) for f in info["fields"])))
+        found.append(_Layer(name, int(info["features"]), tuple(str(f) for f in info["fields"])))
     return found
 
 
-def describe(found: list[Layer]) -> str:
+def _describe(found: list[_Layer]) -> str:
     """``"A (780 records; fields Time, Heading), B (...)"``: layers for a one-line message."""
     return "; ".join(f"{x.name!r} ({x.records:,} records; fields {', '.join(x.fields) or 'none'})"
                      for x in found)
@@ -99,11 +99,11 @@ def gdal_source(path: str, layer: str | None = None) -> tuple[str, str, str | No
     sources = _sources(path)
     if layer is None and len(sources) > 1:
         raise MapError(f"{path}: holds {len(sources)} layers; name one with --layer NAME: "
-                       f"{describe(layers(path))}")
+                       f"{_describe(_layers(path))}")
     if layer is not None:
         chosen = [s for s in sources if s[0].lower() == layer.lower()]
         if not chosen:
-            raise MapError(f"{path}: no layer {layer!r}; layers: {describe(layers(path))}")
+            raise MapError(f"{path}: no layer {layer!r}; layers: {_describe(_layers(path))}")
         sources = chosen[:1]
     _, source, inner = sources[0]
     ext = ".shp" if os.path.isdir(path) else os.path.splitext(path)[1].lower()

@@ -23,6 +23,15 @@ import orjson
 from common import ServiceError
 from services.outputs.encode import dumps
 
+# The API a Zenoh client in Python uses: the messages, their codecs and the limits they check.
+__all__ = [
+    "Message", "Pose", "ShaftState", "RateSample", "MapRate", "RunStart", "StepAck", "RunStatus",
+    "MonitorStatus",
+    "encode_batch", "decode_batch", "decode_columns", "decode_points", "encode_rates",
+    "MAX_MESSAGE_BYTES", "MAX_BATCH_RECORDS", "MAX_POINTS", "MAX_POINTS_BYTES", "CLOCKS", "SPEED_RANGE",
+    "TICKS_PER_MESSAGE_RANGE", "NAN",
+]
+
 NAN = math.nan
 
 

@@ -32,14 +32,14 @@ STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hang
 DEFAULT_TICKS_PER_MESSAGE = 50
 
 
-def new_run_id(name: str, counter: int) -> str:
+def _new_run_id(name: str, counter: int) -> str:
     """``<name>-<UTC time>-<pid>-<counter>``; characters that would break a selector parameter
     (``;`` ``#`` ``?`` ``&`` spaces ...) in the scenario's name become ``_``."""
     safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "run"
     return f"{safe}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{counter}"
 
 
-class ScenarioService:
+class _ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
     def __init__(self, session, keys: Keys, data: DataRoot):
@@ -92,7 +92,7 @@ class ScenarioService:
                 raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
                                    f"stop it first ({self.keys.scenario('stop')})")
             self.counter += 1
-            start = dataclasses.replace(start, run_id=new_run_id(sc.name, self.counter))
+            start = dataclasses.replace(start, run_id=_new_run_id(sc.name, self.counter))
             body = start.to_json()
             for load, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
                                (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
@@ -167,7 +167,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
             "see docs/api.md")
 
     def declare(session):
-        svc = ScenarioService(session, keys, DataRoot.of(config))
+        svc = _ScenarioService(session, keys, DataRoot.of(config))
         return [serve(session, keys.scenario_ns, svc.handlers(), f"{keys.prefix}/scenario/", "scenario"),
                 # <prefix>/<one chunk> is no vrsim key: answer so, rather than leave the caller in silence
                 serve(session, keys.top_ns, {}, f"{keys.prefix}/", "scenario", hint=hint)]

@@ -143,7 +143,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
                       float(delay_s), figures, excluded)
 
 
-def section_on(log: PointLog) -> np.ndarray:
+def _section_on(log: PointLog) -> np.ndarray:
     """Records with a section on (where the log has section states), else with a working width above 0
     (where it logs one; a width not logged does not exclude)."""
     if log.sections_on.shape[1]:
@@ -154,7 +154,7 @@ def section_on(log: PointLog) -> np.ndarray:
 def _select(log: PointLog, target, inside, include_zero_target: bool):
     """(compared, excluded): the records compared and the others counted by their first `EXCLUSIONS`."""
     with np.errstate(invalid="ignore"):
-        keep = {"implement_off": log.work_on, "no_section_on": section_on(log),
+        keep = {"implement_off": log.work_on, "no_section_on": _section_on(log),
                 "target_0": ~(target <= 0) | include_zero_target, "no_applied_rate": np.isfinite(log.applied),
                 "no_target": np.isfinite(target), "outside_field": np.asarray(inside, bool)}
     compared = np.ones(log.points, dtype=bool)

@@ -12,7 +12,7 @@ import pytest
 from common import ServiceError
 from services.bus import messages
 from services.bus.web import parse_listen, picture
-from services.bus.web.bridge import decode
+from services.bus.web.bridge import _decode
 from services.bus.web.live import (
     FIELDS,
     RECORD_FIELDS,
@@ -42,7 +42,7 @@ def shaft(run, tick):
 def batch(records, fields=FIELDS) -> Batch:
     """Records as the bridge decodes them off the bus."""
     stream = {messages.Pose: "pose", messages.ShaftState: "shaft", messages.RateSample: "rate"}
-    return decode(stream[type(records[0])], messages.encode_batch(records), fields[stream[type(records[0])]])
+    return _decode(stream[type(records[0])], messages.encode_batch(records), fields[stream[type(records[0])]])
 
 
 SIX = SectionGeometry(np.full(6, 2.0), np.arange(5.0, -6.0, -2.0))  # six 2 m sections, left to right
