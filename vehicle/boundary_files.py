@@ -1,7 +1,8 @@
 """Field boundaries as terminals and Google Earth keep them: KML/KMZ and the ISOXML partfield.
 
-* KML (``.kml``) or KMZ (``.kmz``, a zip holding one ``.kml``): the first ``Polygon`` of the document,
-  its ``outerBoundaryIs`` ring and its ``innerBoundaryIs`` rings (holes), ``lon,lat[,alt]`` in WGS84.
+* KML (``.kml``) or KMZ (``.kmz``, a zip holding one ``.kml``): the ``Polygon`` of the document (of
+  one placemark), its ``outerBoundaryIs`` ring and its ``innerBoundaryIs`` rings (holes),
+  ``lon,lat[,alt]`` in WGS84.
 * ISOXML TASKDATA (a folder, its ``TASKDATA.XML`` or a ``.zip`` holding one): the partfield (``PFD``)
   boundary, a ``PLN`` of type 1 whose line strings (``LSG``) are the exterior ring (type 1) and the
   interior rings (type 2), points ``PNT`` C (north, latitude) and D (east, longitude) in WGS84. An
@@ -21,7 +22,7 @@ from xml.etree.ElementTree import ParseError
 import numpy as np
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as DET
-from shapely.geometry import Polygon
+from shapely.geometry import MultiPolygon, Polygon
 
 from common import files
 from common.errors import VehicleError
@@ -30,14 +31,37 @@ PLN_BOUNDARY = "1"  # PLN A: partfield boundary
 LSG_EXTERIOR, LSG_INTERIOR = "1", "2"  # LSG A: polygon exterior / interior
 
 
-def read_kml(path: str) -> Polygon:
-    """The first polygon (holes included) of a ``.kml`` or ``.kmz``, in WGS84 degrees."""
+def read_kml(path: str, placemark: str | None = None):
+    """The polygon (holes included) of a ``.kml`` or ``.kmz``, in WGS84 degrees.
+
+    A document whose polygons lie in several placemarks is refused, listing their names, unless
+    `placemark` names one; a placemark of several polygons (a MultiGeometry) gives a MultiPolygon.
+    """
     root = _parse(_kml_bytes(path), path)
-    polygons = [el for el in root.iter() if _local(el.tag) == "Polygon"]
-    if not polygons:
+    marks = [el for el in root.iter() if _local(el.tag) == "Placemark"] or [root]
+    found = [(_kml_name(mark), [el for el in mark.iter() if _local(el.tag) == "Polygon"]) for mark in marks]
+    found = [(name, polygons) for name, polygons in found if polygons]
+    if not found:
         raise VehicleError(f"field file {path}: no Polygon in the KML (a boundary must be a polygon, not "
                            "a point or a line)")
-    polygon = polygons[0]
+    listed = ", ".join(repr(name) for name, _ in found)
+    if placemark is not None:
+        found = [(name, polygons) for name, polygons in found if name == placemark]
+        if not found:
+            raise VehicleError(f"field file {path}: no placemark {placemark!r} with a polygon; placemarks: "
+                               f"{listed}")
+    if len(found) > 1:
+        raise VehicleError(f"field file {path}: {len(found)} placemarks have polygons: {listed}; a boundary "
+                           "is one (keep one in the file)")
+    polygons = [_kml_polygon(polygon, path) for polygon in found[0][1]]
+    return polygons[0] if len(polygons) == 1 else MultiPolygon(polygons)
+
+
+def _kml_name(mark) -> str:
+    return next(((c.text or "").strip() for c in mark if _local(c.tag) == "name"), "")
+
+
+def _kml_polygon(polygon, path: str) -> Polygon:
     outer = [_kml_ring(el, path) for el in _children(polygon, "outerBoundaryIs")]
     if len(outer) != 1:
         raise VehicleError(f"field file {path}: the Polygon has {len(outer)} outerBoundaryIs rings; it "

@@ -108,7 +108,8 @@ class Field:
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
             WGS84 if the coordinates look like degrees (KML and ISOXML: WGS84).
         partfield : str, optional
-            The partfield (``PFDn`` or its designator) of a TASKDATA with several.
+            The partfield (``PFDn`` or its designator) of a TASKDATA with several, or the placemark
+            (its name) of a KML with several.
         """
         from vehicle import boundary_files
         if isinstance(path, (str, os.PathLike)):
@@ -122,7 +123,7 @@ class Field:
         if ext in (".geojson", ".json"):
             geom, file_crs = _read_geojson(path)
         elif ext in (".kml", ".kmz"):
-            geom, file_crs = boundary_files.read_kml(path), WGS84
+            geom, file_crs = boundary_files.read_kml(path, partfield), WGS84
         elif boundary_files.is_taskdata(path):
             geom, file_crs = boundary_files.read_partfield(path, partfield), WGS84
         elif ext in (".shp", ".zip"):

@@ -137,3 +137,16 @@ def test_geojson_ring_that_does_not_close(tmp_path):
     with pytest.raises(VehicleError, match=r"open.geojson: a ring does not close: it starts at \(10.0, 52.0\)"
                        ):
         Field.from_file(str(path))
+
+
+def test_kml_with_several_placemarks_is_not_read_by_a_guess(tmp_path):
+    one = kml(ring(WEST, SOUTH, EAST, NORTH), [ring(*HOLE)])
+    mark = one[one.index("<Placemark>"):one.index("</Placemark>") + len("</Placemark>")]
+    other = mark.replace("North field", "South field")
+    path = tmp_path / "two.kml"
+    path.write_text(one.replace(mark, mark + other))
+    with pytest.raises(VehicleError, match="two.kml: 2 placemarks have polygons: 'North field', 'South"):
+        Field.from_file(str(path))
+    assert_holed(Field.from_file(str(path), partfield="South field"))
+    with pytest.raises(VehicleError, match="no placemark 'East' with a polygon; placemarks: 'North field'"):
+        Field.from_file(str(path), partfield="East")
