@@ -187,7 +187,7 @@ DEERE_UNIT = re.compile(r"([A-Za-z]+)(-?\d+)")
 
 def read_point_log(path, rate_field: str | None = None, target_field: str | None = None,
                    time_field: str | None = None, unit: str | None = None, crs=None,
-                   layer: str | None = None) -> PointLog:
+                   layer: str | None = None, product: str | None = None) -> PointLog:
     """Read an as-applied log: a TASKDATA with TimeLogs, a point shapefile (zipped or not) or GeoPackage.
 
     Parameters
@@ -209,6 +209,8 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
         CRS of a file that does not declare one.
     layer : str, optional
         The layer of a zip, folder or GeoPackage holding several (listed when none is named); required then.
+    product : str, optional
+        For a TASKDATA logging the rate of several products: the one to read (`read_taskdata_log`).
     """
     path = os.fspath(path)
     files.refuse_vsi(path, MapError)
@@ -217,7 +219,7 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
     from maps.taskdata import is_taskdata, read_taskdata_log
 
     if is_taskdata(path):
-        return read_taskdata_log(path, rate_ddi=rate_field, target_ddi=target_field)
+        return read_taskdata_log(path, rate_ddi=rate_field, target_ddi=target_field, product=product)
     if not (os.path.isdir(path) or path.lower().endswith((".shp", ".zip", ".gpkg"))):
         raise MapError(f"{path}: an as-applied log must be a TASKDATA, a point shapefile (.shp or .zip) or a "
                        "GeoPackage (.gpkg)")

@@ -1,4 +1,4 @@
-"""`vrsim evaluate LOG [--prescription RX [--product NAME|PDTn]] [--rate-field NAME] [--target-field NAME]
+"""`vrsim evaluate LOG [--prescription RX] [--product NAME|PDTn] [--rate-field NAME] [--target-field NAME]
 [--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS]
 [--json] [--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
 
@@ -15,8 +15,9 @@ def configure(parser) -> None:
                         help="compare with this map at each point (any map vrsim reads) instead of the "
                              "logged target")
     parser.add_argument("--product", metavar="NAME|PDTn",
-                        help="the product of a TASKDATA prescription holding the rates of several (listed "
-                             "when none is named)")
+                        help="the product of a TASKDATA (the log's, logging the rates of several on their "
+                             "device elements, or the prescription's) holding several (listed when none is "
+                             "named)")
     parser.add_argument("--rate-field", metavar="NAME",
                         help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
                              "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
@@ -53,7 +54,7 @@ def run(args) -> int:
     from services.sim.evaluate import error_grid, evaluate
 
     log = maps.read_point_log(args.log, rate_field=args.rate_field, target_field=args.target_field,
-                              unit=args.unit, crs=args.crs, layer=args.layer)
+                              unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
     if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=args.unit)
     rx = maps.read_map(args.prescription, product=args.product) if args.prescription else None
