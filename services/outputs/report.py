@@ -27,7 +27,8 @@ SETTINGS = (("controller", "Controller"), ("implement", "Implement"), ("gnss", "
 STYLE = """body{font-family:sans-serif;margin:2em;max-width:1500px}
 table{border-collapse:collapse;margin-bottom:1em}
 td,th{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}
-td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}"""
+td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}
+.incomplete{background:#fdd;border:2px solid #c00;padding:.5em 1em;font-weight:bold}"""
 
 
 def versions() -> dict[str, str]:
@@ -78,9 +79,21 @@ def _sections(sections) -> list[str]:
     return [f"<h2>{html.escape(heading)}</h2>\n{body}" for heading, body in sections]
 
 
-def page(title: str, intro: str, sections, images, after, files_note: str) -> str:
-    """The page: `sections`, then the PNGs at `images` (embedded), then `after`; sections are
-    (heading, HTML) pairs."""
+def incomplete_note(summary: dict) -> str | None:
+    """``incomplete: N of M ticks stored; reason R`` for a services run the monitor does not have whole
+    (`services.bus.monitor.completeness`), None for a complete one or a `vrsim run` (no such keys)."""
+    if summary.get("complete", True):
+        return None
+    missing = sum(last - first + 1 for first, last in summary["missing_ticks"])
+    reason = summary.get("end_reason", "unknown")
+    stored, total = summary["ticks"], summary["ticks"] + missing
+    after = " (no end announced: ticks after the last stored one not counted)" if reason == "unknown" else ""
+    return f"incomplete: {stored:,} of {total:,} ticks stored; reason {reason}{after}"
+
+
+def page(title: str, intro: str, sections, images, after, files_note: str, banner: str | None = None) -> str:
+    """The page: `banner` (a warning shown first, e.g. `incomplete_note`), `sections`, then the PNGs at
+    `images` (embedded), then `after`; sections are (heading, HTML) pairs."""
     parts = _sections(sections)
     for path in images:
         if os.path.isfile(path):
@@ -89,10 +102,11 @@ def page(title: str, intro: str, sections, images, after, files_note: str) -> st
             name = html.escape(os.path.basename(path))
             parts.append(f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>')
     joined = "\n".join(parts + _sections(after))
+    warning = f'<p class="incomplete">{html.escape(banner)}</p>\n' if banner else ""
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>{STYLE}</style>
-</head><body><h1>{html.escape(title)}</h1>
+</head><body>{warning}<h1>{html.escape(title)}</h1>
 <p>{html.escape(intro)}</p>
 {joined}
 <p>{html.escape(files_note)}</p>
@@ -145,7 +159,8 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                  f'<pre>{scenario_file}</pre></details>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
-                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE)
+                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE,
+                banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
