@@ -32,7 +32,7 @@ from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
 from services.bus.reads import REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
-from services.bus.serving import Params, guarded, payload_bytes, run_service, serve
+from services.bus.serving import Later, Params, guarded, payload_bytes, run_service, serve
 from services.outputs.encode import dumps
 
 NAN = float("nan")
@@ -321,9 +321,11 @@ class MonitorService:
         count = params.integer("count", 1, MAX_RECORDS, MAX_RECORDS)
         return messages.encode_batch(self.store.records(stream, run["run_id"], from_tick, count))
 
-    def report(self, params: Params, payload: bytes | None) -> bytes:
+    def report(self, params: Params, payload: bytes | None) -> bytes | Later:
         params.only("run_id")
-        self.limit.take(params.key)
+        refused = self.limit.admit(params.key)
+        if refused is not None:
+            return refused
         run_id = self.store.run(params.text("run_id"))["run_id"]
         key = (self.store.stored.get(run_id, 0), self.store.end(run_id))
         cached = self.reports.get(run_id)

@@ -15,11 +15,14 @@ import time
 from dataclasses import dataclass
 
 from common import ServiceError
+from services.bus.serving import Later
 
 REPORT_LIVE_EVERY_S = 5.0  # a live run's report is rebuilt at most this often ...
 REPORT_LIVE_DUTY = 0.05  # ... and at most this share of the time (a 1 s rebuild: every 20 s)
 REPORT_RATE_PER_S = 5.0  # report queries a second the monitor answers, over every querier
 REPORT_BURST = 10
+REFUSAL_DELAY_S = 0.5  # a refusal is answered this late, so a querier asking in a loop asks slowly
+MAX_DELAYED = 16  # refusals waiting at once (a thread each); beyond, they are answered at once
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,7 @@ class RateLimit:
         self.rate_per_s, self.burst = rate_per_s, burst
         self.tokens, self.t = float(burst), time.monotonic()
         self.lock = threading.Lock()
+        self.delayed = threading.BoundedSemaphore(MAX_DELAYED)
 
     def take(self, key: str) -> None:
         """One query's token, or a `ServiceError` saying to ask again later."""
@@ -63,3 +67,24 @@ class RateLimit:
                 raise ServiceError(f"{key}: too many report queries (at most {self.rate_per_s:g} a second "
                                    f"across all clients, {self.burst} at once); ask again in a moment")
             self.tokens -= 1.0
+
+    def admit(self, key: str) -> Later | None:
+        """None when the query may go on (`take`); else a `Later` that answers the refusal after
+        `REFUSAL_DELAY_S`: refused at once, a querier in a loop would ask hundreds of times a second
+        and take the run's CPU in the router and here instead."""
+        try:
+            self.take(key)
+            return None
+        except ServiceError as exc:
+            refusal = exc
+        if not self.delayed.acquire(blocking=False):
+            raise refusal
+
+        def late() -> bytes:
+            try:
+                time.sleep(REFUSAL_DELAY_S)
+            finally:
+                self.delayed.release()
+            raise refusal
+
+        return Later(late)

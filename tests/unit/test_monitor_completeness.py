@@ -134,3 +134,14 @@ def test_the_rate_limit_refuses_beyond_its_burst_and_refills(monkeypatch):
     limit.take("k/report")
     with pytest.raises(ServiceError):
         limit.take("k/report")
+
+
+def test_a_refusal_is_answered_late_so_a_loop_asks_slowly(monkeypatch):
+    monkeypatch.setattr(reads, "REFUSAL_DELAY_S", 0.05)
+    limit = reads.RateLimit(0.001, 1)
+    assert limit.admit("k/report") is None
+    late = limit.admit("k/report")
+    t0 = reads.time.monotonic()
+    with pytest.raises(ServiceError, match="too many report queries"):
+        late.work()
+    assert reads.time.monotonic() - t0 >= 0.05
