@@ -157,3 +157,32 @@ def test_a_viewer_reading_report_in_a_loop_barely_slows_a_lockstep_run(net):
           f"{loop / alone - 1:+.1%}; replies {replies}")
     assert all(r["ok"] > 0 and r["refused"] > 0 for r in replies)
     assert loop <= alone * (1 + SLOWDOWN) + NOISE_S
+
+
+def test_a_run_whose_vehicle_dies_is_interrupted(net):
+    run = start(net, "clock=realtime", "speed=5")
+    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["monitor_ticks"] >= 100)
+    os.kill(net.children()["vehicle"], signal.SIGKILL)
+    net.wait_status(lambda s: "vehicle" in s["missing"], timeout_s=10)  # scenario control sees it go
+    got = report(net, run["run_id"])
+    print(f"vehicle killed mid-run: complete {got['complete']}, missing_ticks {got['missing_ticks']}, "
+          f"end_reason {got['end_reason']}, {got['ticks']:,} ticks stored")
+    assert (got["complete"], got["end_reason"]) == (False, "interrupted") and got["ticks"] >= 100
+
+
+def test_a_router_crash_mid_run_leaves_the_end_unknown(net, tmp_path):
+    net.extra.append(net.serve("vehicle"))  # the one killed above, started again by hand
+    net.wait_status(lambda s: "vehicle" in s["alive"], timeout_s=60)
+    run = start(net, "clock=realtime", "speed=5")
+    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["monitor_ticks"] >= 100)
+    os.kill(net.proc.pid, signal.SIGKILL)  # `vrsim serve all` is the router (and scenario control)
+    net.proc.wait(timeout=10)
+    time.sleep(1.0)
+    cli = subprocess.run([VRSIM, "report", "--db", net.db, "--run", run["run_id"], "--out",
+                          str(tmp_path / "report"), "--json"], capture_output=True, text=True, timeout=120)
+    assert cli.returncode == 0, cli.stderr
+    summary = json.loads(cli.stdout)
+    print(f"router killed mid-run: complete {summary['complete']}, missing_ticks {summary['missing_ticks']}, "
+          f"end_reason {summary['end_reason']}, {summary['ticks']:,} ticks stored")
+    assert (summary["complete"], summary["end_reason"]) == (False, "unknown") and summary["ticks"] >= 100
+    assert "(no end announced" in cli.stderr
