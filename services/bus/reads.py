@@ -48,8 +48,8 @@ class CachedReport:
 class RateLimit:
     """A token bucket: at most ``rate_per_s`` a second on average, ``burst`` at once.
 
-    Zenoh does not tell a queryable which user asked, so on the bus this is one bucket for every
-    querier of this monitor (the web page limits per logged-in user before it asks)."""
+    Zenoh does not tell a queryable which user asked (a query carries no login, and its source id is
+    the querier's to set), so on the bus this is one bucket for every querier of this monitor."""
 
     def __init__(self, rate_per_s: float, burst: int):
         self.rate_per_s, self.burst = rate_per_s, burst
