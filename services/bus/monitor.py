@@ -31,7 +31,7 @@ from common.section_masks import sections_from_masks
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
-from services.bus.reads import REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
+from services.bus.reads import MAX_CACHED_REPORTS, REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
 from services.bus.serving import Later, Params, guarded, payload_bytes, run_service, serve
 from services.outputs.encode import dumps
 
@@ -260,7 +260,8 @@ class MonitorService:
         self.data = data
         self.worlds: dict[str, object] = {}  # run_id -> World, rebuilt once per run from its text
         self.report_lock = threading.Lock()
-        self.reports: dict[str, CachedReport] = {}  # run_id -> its last report (one run kept)
+        # run_id -> its last report: every run's (a few kB each), so asking for runs in turn makes each once
+        self.reports: dict[str, CachedReport] = {}
         self.limit = RateLimit(REPORT_RATE_PER_S, REPORT_BURST)
         self.runs = store.run_ids()  # the runs announced by monitor/load: records of others are dropped
 
@@ -348,7 +349,10 @@ class MonitorService:
             return cached.body
         t0 = time.monotonic()
         body = summary_json(with_settings(self._report(run_id))).encode()
-        self.reports = {run_id: CachedReport(key, body, time.monotonic(), time.monotonic() - t0)}
+        self.reports.pop(run_id, None)
+        while len(self.reports) >= MAX_CACHED_REPORTS:  # the oldest made first out
+            self.reports.pop(next(iter(self.reports)))
+        self.reports[run_id] = CachedReport(key, body, time.monotonic(), time.monotonic() - t0)
         return body
 
     def _report(self, run_id: str | None):

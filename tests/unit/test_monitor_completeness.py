@@ -145,3 +145,26 @@ def test_a_refusal_is_answered_late_so_a_loop_asks_slowly(monkeypatch):
     with pytest.raises(ServiceError, match="too many report queries"):
         late.work()
     assert reads.time.monotonic() - t0 >= 0.05
+
+
+def test_the_monitor_makes_a_report_once_per_change_and_refuses_a_flood(tmp_path, monkeypatch):
+    from services.bus.dataroot import DataRoot
+    from services.bus.monitor import MonitorService
+    from services.bus.serving import Later, Params
+
+    monkeypatch.setattr("services.sim.as_run.with_settings", lambda result: result)
+    monkeypatch.setattr("services.outputs.summary.summary_json", lambda result: str(result))
+    store = stored(tmp_path, range(10), messages.RunEnd("r", "finished", 20, 1.0, ""))
+    svc = MonitorService(store, DataRoot(str(tmp_path)))
+    made = []
+    monkeypatch.setattr(svc, "_report", lambda run_id: made.append(run_id) or len(made))
+
+    def ask():
+        return svc.report(Params("k/report", [("run_id", "r")]), None)
+
+    assert ask() == ask() == b"1" and made == ["r"]
+    for table, recs in records("r", range(10, 20)).items():  # late records: made again, once
+        store.add(table, recs)
+    assert ask() == ask() == b"2"
+    replies = [ask() for _ in range(10)]
+    assert isinstance(replies[-1], Later) and len(made) == 2
