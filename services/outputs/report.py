@@ -27,8 +27,9 @@ SETTINGS = (("controller", "Controller"), ("implement", "Implement"), ("gnss", "
 STYLE = """body{font-family:sans-serif;margin:2em;max-width:1500px}
 table{border-collapse:collapse;margin-bottom:1em}
 td,th{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}
-td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}
-.incomplete{background:#fdd;border:2px solid #c00;padding:.5em 1em;font-weight:bold}"""
+td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}"""
+# The banner of a run the monitor does not hold whole; its style inline, so a whole run's page is as before.
+BANNER_STYLE = "background:#fdd;border:2px solid #c00;padding:.5em 1em;font-weight:bold"
 
 
 def versions() -> dict[str, str]:
@@ -102,7 +103,7 @@ def page(title: str, intro: str, sections, images, after, files_note: str, banne
             name = html.escape(os.path.basename(path))
             parts.append(f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>')
     joined = "\n".join(parts + _sections(after))
-    warning = f'<p class="incomplete">{html.escape(banner)}</p>\n' if banner else ""
+    warning = f'<p class="incomplete" style="{BANNER_STYLE}">{html.escape(banner)}</p>\n' if banner else ""
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>{STYLE}</style>

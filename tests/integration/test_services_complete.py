@@ -114,7 +114,8 @@ def test_a_monitor_killed_mid_run_and_restarted_after_it_names_the_tail(net, tmp
         (False, got["missing_ticks"], "finished")
     with open(tmp_path / "report" / "report.html") as fh:
         page = fh.read()
-    assert page.index('<p class="incomplete">incomplete: ') < page.index("<h1>")
+    banner = page.index(f'">{warning.split("warning: ", 1)[1]}</p>')  # the page's first lines
+    assert page.index('<p class="incomplete"') < banner < page.index("<h1>")
 
 
 def lockstep_drive_s(net) -> float:
