@@ -18,7 +18,7 @@ from common import ServiceError
 from services.bus.serving import Later
 
 REPORT_LIVE_EVERY_S = 5.0  # a live run's report is rebuilt at most this often ...
-REPORT_LIVE_DUTY = 0.05  # ... and at most this share of the time (a 1 s rebuild: every 20 s)
+REPORT_LIVE_DUTY = 0.025  # ... and at most this share of the time (a 1 s rebuild: every 40 s)
 REPORT_RATE_PER_S = 5.0  # report queries a second the monitor answers, over every querier
 REPORT_BURST = 10
 MAX_CACHED_REPORTS = 1000  # runs whose last report is kept (a few kB each)
