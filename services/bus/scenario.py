@@ -20,6 +20,7 @@ import re
 import sys
 import threading
 import time
+import traceback
 
 from common import ServiceError
 from services.bus import client, messages
@@ -115,13 +116,16 @@ class RunEnds:
 
     def _watch(self) -> None:
         while not self.closed.wait(WATCH_S):
-            if self.live is not None:
-                status = self.vehicle_status()
-                alive = None if status is not None else client.alive_services(self.session, self.keys,
-                                                                              STATUS_TIMEOUT_S)
-                self.observe(status, alive)
-            if self.pending:
-                self.flush()
+            try:
+                if self.live is not None:
+                    status = self.vehicle_status()
+                    alive = None if status is not None else client.alive_services(self.session, self.keys,
+                                                                                  STATUS_TIMEOUT_S)
+                    self.observe(status, alive)
+                if self.pending:
+                    self.flush()
+            except Exception:  # noqa: BLE001 - a bug (or a closing session): the watch goes on
+                traceback.print_exc(file=sys.stderr)
 
     def close(self) -> None:
         self.closed.set()
