@@ -19,16 +19,16 @@ import sys
 import tempfile
 import time
 
-from services.sim import run as field_run
+from services.sim import run as run_field
 from services.sim import scenario
 
 
 def _in_process(name: str) -> dict:
     sc = scenario.load(name)
-    field_run.run(sc)  # warm: the SUMO network cache and lazy imports
+    run_field(sc)  # warm: the SUMO network cache and lazy imports
     best = None
     for _ in range(2):
-        result = field_run.run(sc)
+        result = run_field(sc)
         if best is None or result.summary["wall_time_s"] < best.summary["wall_time_s"]:
             best = result
     return best.summary

@@ -59,7 +59,7 @@ def set_byte_caps(**caps: int) -> None:
     BYTE_CAPS.update(caps)
 
 
-def kind_of(path: str, default: str | None = None) -> str | None:
+def _kind_of(path: str, default: str | None = None) -> str | None:
     """The format (a `BYTE_CAPS` key) of a file, by its extension (``.aux.xml`` is xml)."""
     return KIND_BY_EXTENSION.get(os.path.splitext(path)[1].lower(), default)
 
@@ -110,13 +110,13 @@ def check_file(path: str, kind: str | None = None, error=VrsimError, limit: int 
     path : str
         The file (symlinks are followed: the target is what is checked).
     kind : str, optional
-        Its format, a `BYTE_CAPS` key; default: by extension (`kind_of`).
+        Its format, a `BYTE_CAPS` key; default: by extension (`_kind_of`).
     error : type
         The `VrsimError` subclass to raise (MapError, VehicleError, ...).
     limit : int, optional
         A cap in bytes for this call instead of the format's.
     """
-    kind = kind or kind_of(path)
+    kind = kind or _kind_of(path)
     fd = _open(path, error)
     try:
         return _check_stat(path, os.fstat(fd), kind, cap_for(kind, limit), error)
@@ -127,7 +127,7 @@ def check_file(path: str, kind: str | None = None, error=VrsimError, limit: int 
 def read_bytes(path: str, kind: str | None = None, error=VrsimError, limit: int | None = None) -> bytes:
     """The whole file, checked as `check_file` checks it and never read past the cap (a file that
     grows while being read is refused too)."""
-    kind = kind or kind_of(path)
+    kind = kind or _kind_of(path)
     cap = cap_for(kind, limit)
     fd = _open(path, error)
     try:
@@ -168,7 +168,7 @@ def check_siblings(path: str, error=VrsimError) -> None:
             raise error(f"{sibling}: cannot stat: {exc.strerror}") from None
         if stat.S_ISDIR(st.st_mode) or (st.st_dev, st.st_ino) == (main.st_dev, main.st_ino):
             continue
-        kind = kind_of(sibling)
+        kind = _kind_of(sibling)
         _check_stat(sibling, st, kind, cap_for(kind) if kind in SIDECARS_READ_WHOLE else float("inf"), error)
 
 
@@ -210,10 +210,10 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
     # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target;
     # an ISOXML reader given TASKDATA.XML opens the grid and log files its folder holds.
     given = os.path.abspath(path)
-    near = _siblings if kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
+    near = _siblings if _kind_of(real) != "xml" else lambda p: _names_in(os.path.dirname(p))
     for sibling in {*near(given), *near(real)}:
         refuse_outside(sibling)
-        if kind_of(real) == "geotiff":
+        if _kind_of(real) == "geotiff":
             _refuse_raster_sidecar(sibling, label, error)
     return real
 
@@ -333,7 +333,7 @@ _EOCD = b"PK\x05\x06"
 _ZIP64_LOCATOR = b"PK\x06\x07"
 
 
-def zip_members(path: str, error=VrsimError) -> int:
+def _zip_members(path: str, error=VrsimError) -> int:
     """The member count a zip archive declares, read from its end record before anything else
     parses it (a central directory of millions of entries would take gigabytes as ZipInfo objects)."""
     fd = _open(path, error)
@@ -366,7 +366,7 @@ def open_zip(path: str, error=VrsimError):
     inflated (zipfile never inflates a member past its declared size)."""
     import zipfile
 
-    zip_members(path, error)
+    _zip_members(path, error)
     try:
         archive = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError, ValueError) as exc:
@@ -375,7 +375,7 @@ def open_zip(path: str, error=VrsimError):
     for info in archive.infolist():
         if info.is_dir():
             continue
-        kind = kind_of(info.filename)
+        kind = _kind_of(info.filename)
         cap = cap_for(kind)
         if info.file_size > cap:
             archive.close()
@@ -391,7 +391,7 @@ def read_member(archive, name: str, path: str, error=VrsimError, limit: int | No
     """One member of an archive from `open_zip`, never inflated past its cap."""
     import zipfile
 
-    kind = kind_of(name)
+    kind = _kind_of(name)
     cap = cap_for(kind, limit)
     try:
         with archive.open(name) as fh:
@@ -404,7 +404,7 @@ def read_member(archive, name: str, path: str, error=VrsimError, limit: int | No
 
 
 # -------------------------------------------------------------------------------------- grid memory
-def available_memory_bytes(meminfo: str = "/proc/meminfo") -> int | None:
+def _available_memory_bytes(meminfo: str = "/proc/meminfo") -> int | None:
     """``MemAvailable`` of the machine (Linux), None where it cannot be read."""
     try:
         with open(meminfo, "rb") as fh:
@@ -432,7 +432,7 @@ def check_memory(need_bytes: float, what: str, where: str, error=VrsimError,
     if need_bytes > cap:
         raise error(f"{where}: {what} needs about {need_bytes / GiB:,.1f} GB, over the "
                     f"{cap / GiB:,.1f} GB cap")
-    available = available_memory_bytes()
+    available = _available_memory_bytes()
     if available is not None and need_bytes > available:
         raise error(f"{where}: {what} needs about {need_bytes / GiB:,.1f} GB, more than the "
                     f"{available / GiB:,.1f} GB of memory available")

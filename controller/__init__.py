@@ -6,6 +6,7 @@ package's data; knows nothing of maps, SUMO or Zenoh.
 """
 
 from controller.config import ControllerConfig
+from controller.context import ContextTrack, ControlContext
 from controller.experiment import PaperRun, paper_experiment, run_paper
 from controller.factory import build_controller, build_loop, build_variant_loops, loop_info, resolve_gains
 from controller.gains import PidGains, paper_gains, ziegler_nichols
@@ -31,7 +32,8 @@ from controller.tuning import (
 )
 
 __all__ = [
-    "KINDS", "ClosedLoop", "Controller", "ControllerConfig", "IdealLoop", "LoopInfo", "PaperRun", "PidGains",
+    "KINDS", "ClosedLoop", "ContextTrack", "ControlContext", "Controller", "ControllerConfig", "IdealLoop",
+    "LoopInfo", "PaperRun", "PidGains",
     "PlantLoop", "PlantParams", "RelayResult", "SensorFit", "SimResult", "StepMetrics", "StepOutput",
     "UltimateResult", "UserCodeError", "assumptions", "build_controller", "build_loop", "build_variant_loops",
     "fit_sensor",

@@ -6,6 +6,13 @@ of shape (n,), and returns the valve current to hold over the next period [A], s
 
     current_a = controller.step(target_rpm, measured_rpm)
 
+A controller whose ``step`` takes a third argument gets, besides, the period's context (ground speed,
+prescribed rate, sections on, time, the plant's nominal gain: `controller.context.ControlContext`)::
+
+    current_a = controller.step(target_rpm, measured_rpm, context)
+
+The loop reads the step's arity once, when it is built; a two-argument ``step`` is called as above.
+
 The loop around it (`controller.PlantLoop`) clips the targets to ``[0, shaft_rpm_max]`` before the
 call and the returned current to ``[current_min_a, current_max_a]`` after it, then advances the
 plant by one period. A controller that needs to know what was really applied (anti-windup) clips
@@ -105,7 +112,10 @@ class Controller(abc.ABC):
 
     @abc.abstractmethod
     def step(self, target_rpm: np.ndarray, measured_rpm: np.ndarray) -> np.ndarray:
-        """Valve current for the next period [A], shape (n,), from targets and readings [rpm], (n,)."""
+        """Valve current for the next period [A], shape (n,), from targets and readings [rpm], (n,).
+
+        A subclass may take a third argument, ``context`` (`controller.context.ControlContext`), to be
+        given the period's ground speed, rate, sections, time and plant gain."""
 
     @abc.abstractmethod
     def reset(self) -> None:

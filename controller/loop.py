@@ -10,7 +10,8 @@ augmented state per loop, ``s = [plant x (5), sensor delay line (D), pid (5)]``,
 
 PID memory ``[acc, e1, e2, y1, y2]`` (volts): ``acc`` is the previous saturated output u(n-1) for the
 incremental form (which is its anti-windup) and the error sum for the positional form (whose clamping
-anti-windup is the one nonlinear correction after the product).
+anti-windup is the one nonlinear correction after the product). The law's rows, saturation and
+anti-windup are `controller.pid_law`'s.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from common import ControllerError
 from controller.discretize import Lifted, delay_split, lift
 from controller.gains import FORMS, PidGains
+from controller.pid_law import clamped, pid_rows, pid_terms, saturate
 from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
 N_PID = 5
@@ -54,37 +56,6 @@ class StepOutput:
     def __repr__(self):
         return (f"StepOutput(shaft_rpm={self.shaft_rpm}, shaft_rev={self.shaft_rev}, "
                 f"current_a={self.current_a}, measured_rpm={self.measured_rpm})")
-
-
-def _pid_rows(kp: np.ndarray, ki: np.ndarray, kd: np.ndarray, form: str, dom: bool,
-              sample_s: float) -> np.ndarray:
-    """Coefficients of u(n) on [acc, e, e1, e2, y, y1, y2] (volts), shape (n, 7), from gains (n,)."""
-    return _rows_of(np.ones_like(kp), kp, ki * sample_s, kd / sample_s, form, dom)
-
-
-def _pid_terms(kp: np.ndarray, ki: np.ndarray, kd: np.ndarray, form: str, dom: bool,
-               sample_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """`_pid_rows` as (n, 4) weights of (4, 7) basis rows: the rows are linear in (1, kp, ki T, kd / T),
-    so the n loops' PID outputs are n weighted sums of four outputs every loop shares."""
-    weights = np.column_stack([np.ones_like(kp), kp, ki * sample_s, kd / sample_s])
-    return weights, _rows_of(*np.eye(4), form, dom)
-
-
-def _rows_of(one, kp, ki_t, kd_t, form: str, dom: bool) -> np.ndarray:
-    """`_pid_rows` of the terms: `one` (1 per loop), kp, ki T and kd / T, each shape (n,)."""
-    zero = np.zeros_like(kp)
-    if form == "incremental":
-        # u(n) = u(n-1) + A e - B e1 + C e2 (paper eq. 16); on measurement D acts on -y.
-        if dom:
-            cols = (one, kp + ki_t, -kp, zero, -kd_t, 2 * kd_t, -kd_t)
-        else:
-            cols = (one, kp + ki_t + kd_t, -(kp + 2 * kd_t), kd_t, zero, zero, zero)
-    # positional: u(n) = kp e + ki T (sum_{j<n} e + e) + D
-    elif dom:
-        cols = (ki_t, kp + ki_t, zero, zero, -kd_t, kd_t, zero)
-    else:
-        cols = (ki_t, kp + ki_t + kd_t, -kd_t, zero, zero, zero, zero)
-    return np.column_stack(cols)
 
 
 class _Layout:
@@ -138,7 +109,7 @@ def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: floa
 
 
 def _gain_vectors(rows: np.ndarray, ks: np.ndarray, lay: _Layout) -> tuple[np.ndarray, np.ndarray]:
-    """Turn `_pid_rows` into (g over the state (n, ns), g_r on the target (n,)), substituting
+    """Turn `pid_rows` into (g over the state (n, ns), g_r on the target (n,)), substituting
     e = Ks r - Ks y_m and y = Ks y_m."""
     a_acc, a_e, a_e1, a_e2, a_y, a_y1, a_y2 = rows.T
     g = np.zeros((rows.shape[0], lay.ns))
@@ -215,9 +186,9 @@ class ClosedLoop:
         self._ilo, self._ihi = _values(ps, "current_min_a", n), _values(ps, "current_max_a", n)
         self._rmax = _values(ps, "shaft_rpm_max", n)
         kp, ki, kd = _values(gs, "kp", n), _values(gs, "ki", n), _values(gs, "kd", n)
-        rows = _pid_rows(kp, ki, kd, form, derivative_on_measurement, control_period_s)
+        rows = pid_rows(kp, ki, kd, form, derivative_on_measurement, control_period_s)
         self._g, self._gr = _gain_vectors(rows, self._ks, lay)
-        self._terms = _pid_terms(kp, ki, kd, form, derivative_on_measurement, control_period_s)
+        self._terms = pid_terms(kp, ki, kd, form, derivative_on_measurement, control_period_s)
         self._scalar = n == 1 and shared
         # With one plant and one set of gains, g . s' (the state part of the next tick's PID output) is one
         # more row of M: a tick is then one product plus a few elementwise operations.
@@ -295,7 +266,7 @@ class ClosedLoop:
         return StepOutput(out[:, o + OUT_RPM], out[:, o + OUT_REV], out[:, o + OUT_CURRENT],
                           out[:, o + OUT_MEASURED])
 
-    def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
+    def run(self, targets_rpm, load_torque_nm=0.0, context=None) -> StepOutput:
         """Advance one control period per row of `targets_rpm`; the same as calling `step` per row.
 
         Parameters
@@ -305,6 +276,8 @@ class ClosedLoop:
             (``np.broadcast_to(t[:, None], (K, n))``) is taken as such, without a copy per loop.
         load_torque_nm : float or ndarray, shape (n,)
             Load torque held over the whole run [N m].
+        context : controller.context.ContextTrack, optional
+            The drive's context (`controller.PlantLoop.run`); the PID's law reads none of it.
 
         Returns
         -------
@@ -332,7 +305,7 @@ class ClosedLoop:
         The state is held transposed (a row per entry, a column per loop: each tick writes contiguous
         rows and the product goes into a spare buffer), and the PID output is a weighted sum of four
         rows the product computes for every loop alike: the loops' gain rows are linear in
-        (1, kp, ki T, kd / T) (`_pid_terms`), so g . s + g_r r is those weights times four shared
+        (1, kp, ki T, kd / T) (`pid_terms`), so g . s + g_r r is those weights times four shared
         basis outputs, which the product yields from the state and the next tick's target (an extra
         input). Equal to `_advance` per tick to rounding (the sums are taken in another order).
         """
@@ -364,14 +337,14 @@ class ClosedLoop:
         cur = v[ns + IN_CURRENT]
         for k in range(len(r_all)):
             unsat = np.einsum("bj,bj->j", kc, v[w0:])
-            np.minimum(np.maximum(unsat, ilo, out=cur), ihi, out=cur)
+            saturate(unsat, ilo, ihi, out=cur)
             v[ns + IN_TARGET:ns + 4:2] = pairs[k]
             if with_load:
                 v[ns + IN_LOAD] = load
             out = np.dot(mx, v[:nin], out=spare)
             if positional:      # clamping anti-windup: the error sum and the basis outputs after it
                 e = ks * (pairs[k, 0] - v[ring0])
-                frozen = ((unsat > ihi) & (e > 0)) | ((unsat < ilo) & (e < 0))
+                frozen = clamped(unsat, e, ilo, ihi)
                 if frozen.any():
                     held = np.where(frozen, e, 0.0)
                     out[acc] -= held
@@ -388,35 +361,15 @@ class ClosedLoop:
 
     def _run_per_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:
         """`_advance` over the rows of `t` (K, n) for n loops of their own plants (one product each),
-        its arithmetic unchanged, with the targets clipped at once and the per-tick lookups hoisted."""
+        its arithmetic unchanged, with the targets clipped at once."""
         r_all = np.minimum(np.maximum(t, 0.0), self._rmax)
         if np.isnan(r_all).any():
             raise ControllerError("target_shaft_rpm must be numbers, got NaN")
-        ns, o, iu = self._ns, self._ns + 3, self._iu
-        g, gr, ka, ilo, ihi, MT = self._g, self._gr, self._ka, self._ilo, self._ihi, self._MT
-        cached, positional = self._cached_u, self.form == "positional"
-        with_load = isinstance(load, np.ndarray) or bool(load)
-        ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
+        o = self._ns + 3
         v = np.atleast_2d(self._v)
         for k in range(t.shape[0]):
-            r = r_all[k]
-            u = v[:, iu] if cached else np.einsum("ij,ij->i", v[:, :ns], g)
-            unsat = ka * (u + gr * r)
-            cur = np.minimum(np.maximum(unsat, ilo), ihi)
-            v[:, ns + IN_CURRENT] = cur
-            v[:, ns + IN_TARGET] = r
-            if with_load:
-                v[:, ns + IN_LOAD] = load
-            out = np.matmul(v[:, None, :ns + 3], MT)[:, 0, :]
-            if positional:
-                e = self._ks * (r - v[:, ring0])
-                frozen = ((unsat > ihi) & (e > 0)) | ((unsat < ilo) & (e < 0))
-                if frozen.any():
-                    out[:, acc] -= np.where(frozen, e, 0.0)
-                    if cached:
-                        out[:, iu] -= np.where(frozen, g[0, acc] * e, 0.0)
-            rec[k] = out[:, o:o + 4].T
-            v = out
+            v = self._tick(v, r_all[k], load)
+            rec[k] = v[:, o:o + 4].T
         self._v = v
 
     def step_fine(self, target_shaft_rpm, load_torque_nm=0.0) -> tuple[StepOutput, np.ndarray]:
@@ -443,6 +396,8 @@ class ClosedLoop:
                 r = 0.0
             elif r > rmax:
                 r = rmax
+            # `pid_law.saturate` and `clamped` inline: a call costs a tenth of this tick (proven equal
+            # by tests/unit/test_controller_law.py)
             unsat = ka * (v[self._iu] + gr * r)
             cur = ilo if unsat < ilo else ihi if unsat > ihi else unsat
             v[ns] = cur
@@ -457,12 +412,17 @@ class ClosedLoop:
                     out[self._iu] -= g_acc * e
             self._v = out
             return out
-        r = self._targets(target)
-        v = np.atleast_2d(v)
+        out = self._tick(np.atleast_2d(v), self._targets(target), load)
+        self._v = out[0] if self._scalar else out
+        return self._v
+
+    def _tick(self, v: np.ndarray, r: np.ndarray, load) -> np.ndarray:
+        """One period of n loops: `v` (n, R) the last product (its input slots are written), `r` (n,)
+        clipped targets [rpm]; the new product (n, R). The law's output stage is `pid_law`'s."""
+        ns = self._ns
         u = v[:, self._iu] if self._cached_u else np.einsum("ij,ij->i", v[:, :ns], self._g)
         unsat = self._ka * (u + self._gr * r)
-        cur = np.minimum(np.maximum(unsat, self._ilo), self._ihi)
-        v[:, ns + IN_CURRENT] = cur
+        v[:, ns + IN_CURRENT] = saturate(unsat, self._ilo, self._ihi)
         v[:, ns + IN_TARGET] = r
         if isinstance(load, np.ndarray) or load:
             v[:, ns + IN_LOAD] = load
@@ -470,13 +430,13 @@ class ClosedLoop:
         out = vin @ self._MT if self._MT.ndim == 2 else np.matmul(vin[:, None, :], self._MT)[:, 0, :]
         if self.form == "positional":
             e = self._ks * (r - v[:, self._lay.ring0])
-            frozen = ((unsat > self._ihi) & (e > 0)) | ((unsat < self._ilo) & (e < 0))
-            if frozen.any():
-                out[:, self._lay.pid0 + ACC] -= np.where(frozen, e, 0.0)
+            frozen = clamped(unsat, e, self._ilo, self._ihi)
+            if frozen.any():     # the error sum (and the cached PID term after it) without this error
+                acc = self._lay.pid0 + ACC
+                out[:, acc] -= np.where(frozen, e, 0.0)
                 if self._cached_u:
-                    out[:, self._iu] -= np.where(frozen, self._g[0, self._lay.pid0 + ACC] * e, 0.0)
-        self._v = out[0] if self._scalar else out
-        return self._v
+                    out[:, self._iu] -= np.where(frozen, self._g[0, acc] * e, 0.0)
+        return out
 
     def _targets(self, target) -> np.ndarray:
         return clip_targets(target, self.n, self._rmax)

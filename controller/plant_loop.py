@@ -6,7 +6,8 @@ control period T (`controller.discretize.lift`, exact ZOH of the 1 ms model), an
 called once per period with arrays of all n loops. One period is
 
 1. ``y_m`` = head of the sensor delay line (the shaft speed at ``k T - tau``),
-2. ``I = clip(controller.step(clip(r), y_m))``,
+2. ``I = clip(controller.step(clip(r), y_m))`` (``step(clip(r), y_m, context)`` for a controller whose
+   step takes the context, `controller.context`),
 3. ``[x', rev, sample, rpm] = L [x, I, T_L]`` (one product for all loops), and the new sensor sample
    (taken inside this period, at the delay's offset) enters the delay line's tail.
 
@@ -19,9 +20,12 @@ states and currents. It agrees with the n-loop path to rounding (1e-12).
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from common import ControllerError
+from controller.context import ContextTrack, ControlContext, takes_context
 from controller.discretize import lift
 from controller.interface import LoopInfo, state_arrays
 from controller.loop import StepOutput, clip_targets, targets_matrix
@@ -48,7 +52,8 @@ class PlantLoop:
     Notes
     -----
     Same outputs, `state`/`set_state`, `reset`, `run` and `step_fine` as `controller.ClosedLoop`;
-    its state is a dict ``{"plant_x": (n, 5), "delay_rpm": (n, d), "controller": {...}}``.
+    its state is a dict ``{"plant_x": (n, 5), "delay_rpm": (n, d), "periods": int, "controller": {...}}``
+    (``periods`` since the start: the context's time).
     """
 
     def __init__(self, info: LoopInfo, controller, n: int = 1, record_fine: bool = False):
@@ -74,26 +79,31 @@ class PlantLoop:
         self._z = np.zeros((n, N_STATES + 2))                   # [x, current, load] of this period
         self._ring = np.zeros((n, lifted.delay_periods))        # sensor readings, oldest first
         self._rmax, self._ilo, self._ihi = p.shaft_rpm_max, p.current_min_a, p.current_max_a
+        self._with_context = takes_context(controller.step)     # once, never per period
+        self._periods = 0
 
     # -- state -------------------------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to rest: plant, delay line and controller."""
         self._z[:] = 0.0
         self._ring[:] = 0.0
+        self._periods = 0
         self.controller.reset()
 
     @property
     def state(self) -> dict:
         """Plant state, sensor delay line and the controller's state, as plain data (copies)."""
         return {"plant_x": self._z[:, :N_STATES].copy(), "delay_rpm": self._ring.copy(),
-                "controller": self.controller.state()}
+                "periods": self._periods, "controller": self.controller.state()}
 
     def set_state(self, state: dict) -> None:
         """Restore a state obtained from `state` (arrays may be lists, as after JSON)."""
         got = state_arrays(state, {"plant_x": (self.n, N_STATES), "delay_rpm": self._ring.shape}, "loop")
-        if "controller" not in state:
-            raise ControllerError("loop state has no 'controller'")
+        for key in ("controller", "periods"):
+            if key not in state:
+                raise ControllerError(f"loop state has no {key!r}")
         self.controller.set_state(state["controller"])
+        self._periods = int(state["periods"])
         self._z[:, :N_STATES] = got["plant_x"]
         self._ring[:] = got["delay_rpm"]
 
@@ -104,25 +114,48 @@ class PlantLoop:
 
     # -- stepping ----------------------------------------------------------------------------------------
     def step(self, target_shaft_rpm, load_torque_nm=0.0) -> StepOutput:
-        """Advance one control period; arguments and result as `controller.ClosedLoop.step`."""
+        """Advance one control period; arguments and result as `controller.ClosedLoop.step` (a
+        context-taking controller gets no drive: NaN speed and rate, `run` gives one)."""
         r = clip_targets(target_shaft_rpm, self.n, self._rmax)
-        out, cur, measured = self._advance(r, load_torque_nm)
+        drive = tuple(a[0] for a in self._drive(None, 1)) if self._with_context else None
+        out, cur, measured = self._advance(r, load_torque_nm, drive)
         return StepOutput(out[:, OUT_RPM], out[:, OUT_REV], cur, measured)
 
-    def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
-        """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n)."""
+    def run(self, targets_rpm, load_torque_nm=0.0, context: ContextTrack | None = None) -> StepOutput:
+        """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n).
+
+        `context` is the drive's part of a context-taking controller's `ControlContext` for these K
+        periods (None: unknown, NaN); other controllers never see it.
+        """
         t = targets_matrix(targets_rpm, self.n)
         r_all = clip_targets(t.ravel(), t.size, self._rmax).reshape(t.shape)
+        drive = self._drive(context, t.shape[0])
         if self.n == 1:
-            return self._run_one(r_all[:, 0], float(np.broadcast_to(load_torque_nm, (1,))[0]))
+            return self._run_one(r_all[:, 0], float(np.broadcast_to(load_torque_nm, (1,))[0]), drive)
         rec = np.empty((4, t.shape[0], self.n))
         advance = self._advance
-        for k in range(t.shape[0]):
-            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm)
+        rows = zip(*drive, strict=True) if drive else itertools.repeat(None)    # period k's context rows
+        for k, row in zip(range(t.shape[0]), rows, strict=False):   # repeat(None) has no end
+            out, rec[2, k], rec[3, k] = advance(r_all[k], load_torque_nm, row)
             rec[0, k], rec[1, k] = out[:, OUT_RPM], out[:, OUT_REV]
         return StepOutput(rec[0], rec[1], rec[2], rec[3])
 
-    def _run_one(self, r_all: np.ndarray, load: float) -> StepOutput:
+    def _drive(self, context: ContextTrack | None, periods: int) -> tuple:
+        """The drive's context per period and loop ((K, n), (K, n), (K, n, S)); () for a controller
+        that takes none."""
+        if not self._with_context:
+            return ()
+        track = ContextTrack.unknown(periods) if context is None else context
+        if len(track.speed_m_s) != periods:
+            raise ControllerError(f"context must cover the {periods} periods, got {len(track.speed_m_s)}")
+        return track.per_loop(self.n)
+
+    def _context(self, period: int, r, measured, speed, rate, sections) -> ControlContext:
+        """The context of period `period` since the start (its time) for targets `r` and readings."""
+        return ControlContext(r, measured, speed, rate, sections, period * self.control_period_s,
+                              self.info.plant.shaft_rpm_per_a)
+
+    def _run_one(self, r_all: np.ndarray, load: float, drive: tuple) -> StepOutput:
         """`run` for one loop: per period the controller and ``[x', sample] = [x, I] N`` only."""
         k_all = len(r_all)
         xi = np.empty((k_all, N_STATES + 2))           # [x, I, load] at the start of each period
@@ -135,13 +168,19 @@ class PlantLoop:
         next_t, load_term = self._next_T, self._next_load * load
         ilo, ihi = self._ilo, self._ihi
         ctrl = self.controller
-        one = getattr(ctrl, "step_one", None)
+        one = None if drive else getattr(ctrl, "step_one", None)
+        start = self._periods
         for k, r in enumerate(r_all.tolist()):
             m = ring[head]
             if one is not None:
                 cur = one(r, m)
             else:
-                out = ctrl.step(np.array((r,)), np.array((m,)))
+                if drive:
+                    target, reading = np.array((r,)), np.array((m,))
+                    context = self._context(start + k, target, reading, *(a[k] for a in drive))
+                    out = ctrl.step(target, reading, context)
+                else:
+                    out = ctrl.step(np.array((r,)), np.array((m,)))
                 if not (isinstance(out, np.ndarray) and out.shape == (1,)):
                     out = as_loop_currents(out, 1, ctrl)
                 cur = float(out[0])
@@ -153,6 +192,7 @@ class PlantLoop:
             z[:N_STATES] = new[:N_STATES]
             ring[head] = float(new[N_STATES])
             head = head + 1 if head + 1 < depth else 0
+        self._periods = start + k_all
         self._z[0, :N_STATES + 1] = z
         self._z[0, N_STATES + 1] = load
         self._ring[0] = ring[head:] + ring[:head]
@@ -168,10 +208,16 @@ class PlantLoop:
         z0[:, N_STATES:] = self._z[:, N_STATES:]   # this period's current and load
         return so, z0 @ self._FT
 
-    def _advance(self, r, load):
-        """One period with clipped targets `r`: (product output, applied current, reading used)."""
+    def _advance(self, r, load, drive=None):
+        """One period with clipped targets `r` and, for a controller that takes it, the drive's context
+        (speed, rate, sections: a row of each of `_drive`'s arrays): (product output, applied current,
+        reading used)."""
         measured = self._ring[:, 0].copy()
-        cur = self.controller.step(r, measured)
+        if drive is None:
+            cur = self.controller.step(r, measured)
+        else:
+            cur = self.controller.step(r, measured, self._context(self._periods, r, measured, *drive))
+        self._periods += 1
         if not (isinstance(cur, np.ndarray) and cur.shape == (self.n,)):
             cur = as_loop_currents(cur, self.n, self.controller)
         cur = np.minimum(np.maximum(cur, self._ilo), self._ihi)

@@ -1,16 +1,19 @@
 """vrsim maps: prescription grids from the formats farm software writes, CRS-correct lookup,
-synthetic maps, rate policies off the map, as-applied accumulation, and as-applied logs (ISO 11783
-TimeLogs in TASKDATA, point shapefiles and GeoPackages) in and out.
+synthetic maps, rate policies off the map, the deposition engine (as-applied rasters through a
+machine's footprint: `AsApplied`, `ColumnDeposit`, the footprint kinds of `maps.footprint`), and
+as-applied logs (ISO 11783 TimeLogs in TASKDATA, point shapefiles and GeoPackages) in and out.
 
->>> from maps import Grid, read_map, write_map, synthetic, AsApplied, RatePolicy
+>>> from maps import Grid, read_map, write_map, synthetic, AsApplied, Strips, RatePolicy
 >>> from maps import PointLog, read_point_log, write_points, write_taskdata, read_timelogs
 """
 
 import importlib
 
 from maps import synthetic
-from maps.as_applied import AppliedColumns, AsApplied, StripMap
+from maps.as_applied import AsApplied
+from maps.columns import AppliedColumns, ColumnDeposit
 from maps.crs import utm_crs_for
+from maps.footprint import FOOTPRINTS, Footprint, Samples, Strips, footprint_kind, register_footprint
 from maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
 from maps.io import read_map, write_map
 from maps.policy import RatePolicy
@@ -35,7 +38,13 @@ __all__ = [
     "synthetic",
     "AsApplied",
     "AppliedColumns",
-    "StripMap",
+    "ColumnDeposit",
+    "Footprint",
+    "Samples",
+    "Strips",
+    "FOOTPRINTS",
+    "footprint_kind",
+    "register_footprint",
     "RatePolicy",
     "utm_crs_for",
     "grid_from_bounds",

@@ -315,7 +315,7 @@ class Grid:
 
         A zone map (at most 64 distinct rates) is resampled nearest-neighbour (zone edges stay
         sharp); a continuous one bilinearly, or by area-weighted average onto coarser cells (see
-        `maps.reproject.resampling_for`).
+        `maps.reproject._resampling_for`).
 
         Parameters
         ----------

@@ -44,7 +44,7 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.warn import MapWarning
 
 
-class _Folder:
+class TaskdataFolder:
     """The TASKDATA's files, from a folder or a zip archive; names matched case-insensitively."""
 
     def __init__(self, path: str):
@@ -75,7 +75,7 @@ class _Folder:
             self._dir = os.path.dirname(os.path.abspath(self.xml_name))
             self._names = {n.upper(): os.path.join(self._dir, n) for n in os.listdir(self._dir)}
 
-    def __enter__(self) -> _Folder:
+    def __enter__(self) -> TaskdataFolder:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -105,7 +105,12 @@ class _Folder:
         return files.read_bytes(member, error=MapError, limit=limit)
 
 
-def _attr(el, key: str, kind, where: str, required: bool = True):
+def typed_attr(el, key: str, kind, where: str, required: bool = True):
+    """The XML attribute `key` of element `el` as `kind` (a type, or "hex": a hexadecimal DDI).
+
+    Missing: None, or a `MapError` naming `where`, the element and the key if `required`; a value
+    that does not convert is a `MapError` too (the TASKDATA reader's and the TimeLog reader's messages).
+    """
     raw = el.get(key)
     if raw is None:
         if required:
@@ -120,12 +125,13 @@ def _attr(el, key: str, kind, where: str, required: bool = True):
 
 def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
     """(DDI, value, product id) of each PDV of a TZN, in file order."""
-    return [(_attr(p, "A", "hex", where), _attr(p, "B", int, where), p.get("C")) for p in tzn.findall("PDV")]
+    return [(typed_attr(p, "A", "hex", where), typed_attr(p, "B", int, where), p.get("C"))
+            for p in tzn.findall("PDV")]
 
 
 def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
-    with _Folder(path) as folder:
+    with TaskdataFolder(path) as folder:
         return _read_taskdata(folder, path, max_cells)
 
 
@@ -146,7 +152,7 @@ def parse_xml(data: bytes, where: str, name: str, root_tag: str):
     return root
 
 
-def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
+def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None) -> Grid:
     where = path
     root = parse_xml(folder.read_xml(), where, "TASKDATA.XML", "ISO11783_TaskData")
     tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
@@ -157,11 +163,11 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
                       MapWarning, stacklevel=3)
     task = tasks[0]
     grd = task.find("GRD")
-    south, west = _attr(grd, "A", float, where), _attr(grd, "B", float, where)
-    dlat, dlon = _attr(grd, "C", float, where), _attr(grd, "D", float, where)
-    cols, rows = _attr(grd, "E", int, where), _attr(grd, "F", int, where)
-    name, declared = grd.get("G"), _attr(grd, "H", int, where, required=False)
-    gtype, zone_code = _attr(grd, "I", int, where), _attr(grd, "J", int, where, required=False)
+    south, west = typed_attr(grd, "A", float, where), typed_attr(grd, "B", float, where)
+    dlat, dlon = typed_attr(grd, "C", float, where), typed_attr(grd, "D", float, where)
+    cols, rows = typed_attr(grd, "E", int, where), typed_attr(grd, "F", int, where)
+    name, declared = grd.get("G"), typed_attr(grd, "H", int, where, required=False)
+    gtype, zone_code = typed_attr(grd, "I", int, where), typed_attr(grd, "J", int, where, required=False)
     if not (-90.0 <= south <= 90.0 and -180.0 <= west <= 180.0):
         raise MapError(f"{where}: GRD A={south!r}, B={west!r} is not a WGS84 latitude/longitude")
     for key, value in (("C", dlat), ("D", dlon)):
@@ -177,7 +183,7 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
     if folder.size(name + ".BIN") is None:
         raise MapError(f"{where}: the grid's binary file {name}.BIN (GRD G={name!r}) is missing beside "
                        "TASKDATA.XML")
-    zones = {_attr(z, "A", int, where): _zone_values(z, where) for z in task.findall("TZN")}
+    zones = {typed_attr(z, "A", int, where): _zone_values(z, where) for z in task.findall("TZN")}
 
     if gtype == 2:
         if zone_code is None or zone_code not in zones:
@@ -209,7 +215,7 @@ def _read_taskdata(folder: _Folder, path: str, max_cells: int | None) -> Grid:
                 format="isoxml")
 
 
-def _read_binary(folder: _Folder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
+def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
     fname = name + ".BIN"
     size = folder.size(fname)
     if size != expected:
@@ -269,7 +275,7 @@ def write_isoxml(grid: Grid, path: str) -> None:
         what = "differences of rates" if grid.quantity != "rate" else "rates"
         raise MapError(f"{path}: an ISOXML prescription holds rates in kg/ha; {grid.source or 'the grid'} "
                        f"holds {what} in {grid.unit}")
-    folder = None if path.lower().endswith(".zip") else taskdata_folder(path)
+    folder = None if path.lower().endswith(".zip") else _taskdata_folder(path)
     if not (grid.crs.is_geographic and grid.crs == WGS84):
         grid = grid.reproject(WGS84)
     rates = grid.rates_kg_ha
@@ -297,7 +303,7 @@ def write_isoxml(grid: Grid, path: str) -> None:
             raise MapError(f"{path}: {fname} already exists in {folder}; vrsim does not overwrite") from None
 
 
-def taskdata_folder(path: str) -> str:
+def _taskdata_folder(path: str) -> str:
     """The folder an ISOXML TASKDATA is written to: `path` itself, or the folder of its TASKDATA.XML.
 
     Refuses other ``.xml`` names (the standard names the file TASKDATA.XML) and a folder that

@@ -323,7 +323,7 @@ def _rate_unit(path, fields: dict, units: dict, applied_name: str) -> str:
     return ""
 
 
-def deere_unit(code: str) -> str:
+def _deere_unit(code: str) -> str:
     """A John Deere metadata unit code as vrsim writes units: ``"gal1ac-1"`` -> ``"gal/ac"``."""
     parts = DEERE_UNIT.findall(code)
     if not parts or "".join(u + e for u, e in parts) != code:
@@ -350,7 +350,7 @@ def _deere_units(path: str) -> dict[str, str]:
         raise MapError(f"{path}: the Deere metadata JSON is not readable: {exc}") from None
     units = {}
     for name, code in pairs:
-        units[str(name).lower()] = units[str(name)[:10].lower()] = deere_unit(str(code))
+        units[str(name).lower()] = units[str(name)[:10].lower()] = _deere_unit(str(code))
     return units
 
 

@@ -35,7 +35,7 @@ def rasterize_rings(x: np.ndarray, y: np.ndarray, ring_start: np.ndarray, ring_o
         Grid shape.
     """
     out = np.full((rows, cols), -1, dtype=np.int32)
-    srow, c0, c1, sown = ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
+    srow, c0, c1, sown = _ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
     if srow.size:
         _fill(out, srow, c0, c1, sown, _overlapping(srow, c0, c1))
     return out
@@ -46,13 +46,13 @@ def fill_rings(out: np.ndarray, x: np.ndarray, y: np.ndarray, ring_start: np.nda
     """OR `value` into the cells of `out` (rows, cols; bool or integer, contiguous) whose centre is
     inside any feature, in place; the other arguments are those of `rasterize_rings`."""
     rows, cols = out.shape
-    srow, c0, c1, _ = ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
+    srow, c0, c1, _ = _ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
     flat = out.reshape(-1)  # a view
     for idx, _ in _span_cells(srow, c0, c1, cols):
         flat[idx] |= value
 
 
-def ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols):
+def _ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols):
     """Row spans of cells whose centre lies inside each feature (even-odd rule over its rings).
 
     Arguments as `rasterize_rings`. Returns ``(row, c0, c1, owner)``, int arrays of one entry per

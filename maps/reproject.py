@@ -20,7 +20,7 @@ M_PER_DEG_LAT = 110_574.0
 M_PER_DEG_LON = 111_320.0
 
 
-def cell_size_metres(grid: Grid) -> tuple[float, float]:
+def _cell_size_metres(grid: Grid) -> tuple[float, float]:
     """(x, y) cell size in metres; for a lon/lat grid, at its centre latitude."""
     factor = metres_per_unit(grid.crs)
     dx, dy = grid.cell_size
@@ -34,7 +34,7 @@ def cell_size_metres(grid: Grid) -> tuple[float, float]:
 def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -> Grid:
     """See `Grid.reproject`."""
     if cell_size_m is None:
-        cell_size_m = min(cell_size_metres(grid))
+        cell_size_m = min(_cell_size_metres(grid))
     check_positive(cell_size_m, "reproject: cell_size_m", MapError)
     west, south, east, north = transformer(grid.crs, dst_crs).transform_bounds(*grid.bounds, densify_pts=21)
     if not all(map(math.isfinite, (west, south, east, north))):
@@ -53,7 +53,7 @@ def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -
     rasterio.warp.reproject(grid.rates_kg_ha, out.rates_kg_ha, src_transform=grid.transform,
                             src_crs=CRS.from_wkt(grid.crs.to_wkt()), src_nodata=np.nan,
                             dst_transform=out.transform, dst_crs=CRS.from_wkt(dst_crs.to_wkt()),
-                            dst_nodata=np.nan, resampling=resampling_for(grid, cell_size_m),
+                            dst_nodata=np.nan, resampling=_resampling_for(grid, cell_size_m),
                             num_threads=WARP_THREADS)
     return out
 
@@ -64,7 +64,7 @@ WARP_THREADS = 2
 ZONE_LEVELS = 64  # a map with at most this many distinct rates is a zone map
 
 
-def resampling_for(grid: Grid, cell_size_m: float):
+def _resampling_for(grid: Grid, cell_size_m: float):
     """How to resample `grid` onto cells of `cell_size_m`.
 
     * A zone map (at most `ZONE_LEVELS` distinct rates): nearest neighbour, so every cell keeps one
@@ -76,7 +76,7 @@ def resampling_for(grid: Grid, cell_size_m: float):
     """
     if _is_zone_map(grid.rates_kg_ha):
         return Resampling.nearest
-    if cell_size_m > min(cell_size_metres(grid)) * (1.0 + 1e-6):
+    if cell_size_m > min(_cell_size_metres(grid)) * (1.0 + 1e-6):
         return Resampling.average
     return Resampling.bilinear
 

@@ -15,6 +15,9 @@ from common import MapError, check_number, check_positive
 from maps.crs import as_crs, metres_per_unit
 from maps.grid import Grid, grid_from_bounds
 
+# The generators a scenario names (`[map] synthetic = "zones"`, looked up by name).
+__all__ = ["uniform", "zones", "gradient", "random_field", "checkerboard"]
+
 
 def _blank(kind: str, bounds, crs, cell_size_m: float) -> tuple[Grid, np.ndarray, np.ndarray]:
     """An all-zero grid and its cell-centre coordinates (x: (1, cols), y: (rows, 1)) in metres."""

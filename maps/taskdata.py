@@ -140,7 +140,7 @@ def _records(log: PointLog, sections: np.ndarray):
         (DDI.ACTUAL_WORK_STATE, (log.work_on.astype(np.int64), np.ones(n, dtype=bool))),
         (DDI.ACTUAL_WORKING_WIDTH, _int_or_missing(log.width_m * 1000.0, "working width")),
     ]
-    for g, state in enumerate(condensed_work_states(sections)):
+    for g, state in enumerate(_condensed_work_states(sections)):
         columns.append((DDI.ACTUAL_CONDENSED_WORK_STATE_1_16 + g, (state, np.ones(n, dtype=bool))))
     ddis = [d for d, _ in columns]
     values = np.column_stack([v for _, (v, _) in columns]).astype(np.int32)
@@ -157,7 +157,7 @@ def _int_or_missing(values: np.ndarray, what: str):
     return np.where(ok, np.rint(np.where(ok, values, 0.0)), 0).astype(np.int64), ok
 
 
-def condensed_work_states(sections: np.ndarray) -> list[np.ndarray]:
+def _condensed_work_states(sections: np.ndarray) -> list[np.ndarray]:
     """DDI 161, 162, ... values (int32 bit patterns) of per-section states (n, s), s <= 256.
 
     Two bits per section, section 1 (the leftmost) in the lowest two bits of DDI 161: 01 on, 00 off;
@@ -173,7 +173,7 @@ def condensed_work_states(sections: np.ndarray) -> list[np.ndarray]:
     return [words[:, g].view(np.int32) for g in range(groups)]
 
 
-def sections_from_condensed(words: list[np.ndarray]) -> np.ndarray:
+def _sections_from_condensed(words: list[np.ndarray]) -> np.ndarray:
     """Per-section on/off (n, s) from condensed work states; trailing never-installed sections dropped."""
     if not words:
         return np.zeros((0, 0), dtype=bool)
@@ -263,7 +263,7 @@ def _iso(t: np.datetime64) -> str:
 
 
 # ---------------------------------------------------------------------- reading
-def parse_ddi(text) -> int:
+def _parse_ddi(text) -> int:
     """A DDI as a user names it: decimal (``"7"``) or hexadecimal with ``0x`` (``"0x0007"``)."""
     try:
         value = int(str(text), 16) if str(text).lower().startswith("0x") else int(str(text))
@@ -282,7 +282,7 @@ def read_taskdata_log(path, rate_ddi=None, target_ddi=None) -> PointLog:
     path : str or os.PathLike
         The TASKDATA (folder, TASKDATA.XML or .zip).
     rate_ddi, target_ddi : int or str, optional
-        DDI of the applied and of the target rate (see `parse_ddi`). Default: DDI 7 (actual mass per
+        DDI of the applied and of the target rate (see `_parse_ddi`). Default: DDI 7 (actual mass per
         area, in kg/ha) if a TimeLog logs it, else DDI 2 (actual volume per area, in L/ha); the target
         is then the matching setpoint (6 or 1). Other DDIs are read in their own units (unit "").
 
@@ -295,9 +295,9 @@ def read_taskdata_log(path, rate_ddi=None, target_ddi=None) -> PointLog:
     """
     path = os.fspath(path)
     logs = read_timelogs(path)
-    rate = parse_ddi(rate_ddi) if rate_ddi is not None else _default_rate(path, logs)
+    rate = _parse_ddi(rate_ddi) if rate_ddi is not None else _default_rate(path, logs)
     setpoint, unit, factor = DDI.RATES.get(rate, (None, "", 1.0))
-    target = parse_ddi(target_ddi) if target_ddi is not None else setpoint
+    target = _parse_ddi(target_ddi) if target_ddi is not None else setpoint
     used = [t for t in logs if rate in t.ddi]
     if not used:
         found = sorted({int(d) for t in logs for d in t.ddi})
@@ -342,7 +342,7 @@ def _timelog_columns(t, rate: int, target: int | None, factor: float) -> dict:
         "work": t.value(DDI.ACTUAL_WORK_STATE, hold=True) == 1 if DDI.ACTUAL_WORK_STATE in has
         else np.ones(n, dtype=bool),
         "status": np.where(np.isnan(status), NOT_AVAILABLE, status).astype(np.uint8),
-        "sections": sections_from_condensed(words) if words else np.zeros((n, 0), dtype=bool),
+        "sections": _sections_from_condensed(words) if words else np.zeros((n, 0), dtype=bool),
     }
 
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from common import MapError, files
 from maps.ddi import ddi_list
-from maps.isoxml import _attr, _Folder, parse_xml
+from maps.isoxml import TaskdataFolder, parse_xml, typed_attr
 
 MAX_TLG_BYTES = 256 * 1024 * 1024  # default cap on one binary: ~3 M records of 20 values
 EPOCH = np.datetime64("1980-01-01T00:00:00", "ms")
@@ -178,7 +178,7 @@ def read_timelogs(path, max_bytes: int = MAX_TLG_BYTES) -> list[TimeLog]:
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
-    with _Folder(path) as folder:
+    with TaskdataFolder(path) as folder:
         root = parse_xml(folder.read_xml(), path, "TASKDATA.XML", "ISO11783_TaskData")
         refs = [(task.get("A") or "", tlg) for task in root.iter("TSK") for tlg in task.findall("TLG")]
         if not refs:
@@ -186,7 +186,7 @@ def read_timelogs(path, max_bytes: int = MAX_TLG_BYTES) -> list[TimeLog]:
         return [_read_one(folder, path, task, tlg, max_bytes) for task, tlg in refs]
 
 
-def _read_one(folder: _Folder, path: str, task: str, tlg, max_bytes: int) -> TimeLog:
+def _read_one(folder: TaskdataFolder, path: str, task: str, tlg, max_bytes: int) -> TimeLog:
     name = tlg.get("A")
     if not name:
         raise MapError(f"{path}: task {task}: TLG has no file name (attribute A)")
@@ -218,10 +218,10 @@ def _header(tim, where: str):
             raw = ptns[0].get(key)
             if raw is None:
                 continue
-            layout[key] = None if raw == "" else _attr(ptns[0], key, float, f"{where}.XML")
+            layout[key] = None if raw == "" else typed_attr(ptns[0], key, float, f"{where}.XML")
     dlvs = []
     for i, dlv in enumerate(tim.findall("DLV")):
-        ddi = _attr(dlv, "A", "hex", f"{where}.XML: DLV {i}")
+        ddi = typed_attr(dlv, "A", "hex", f"{where}.XML: DLV {i}")
         dlvs.append((ddi, dlv.get("C") or ""))
     if len(dlvs) > 255:
         raise MapError(f"{where}.XML: {len(dlvs)} DLVs; a record can index at most 255")

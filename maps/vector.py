@@ -41,7 +41,7 @@ def read_vector(path: str):
     import pyogrio
     from pyogrio.errors import DataLayerError, DataSourceError
 
-    source, driver = gdal_source(path)
+    source, driver = _gdal_source(path)
     pyogrio.set_gdal_config_options(files.GDAL_READ_ENV)  # process-wide: pyogrio has no scoped Env
     try:
         return pyogrio.raw.read(source)
@@ -49,7 +49,7 @@ def read_vector(path: str):
         raise MapError(f"{path}: cannot read as a vector file ({driver}): {exc}") from None
 
 
-def gdal_source(path: str) -> tuple[str, str]:
+def _gdal_source(path: str) -> tuple[str, str]:
     """The path to give GDAL for ``path`` and the driver its content was checked for."""
     real = files.gdal_path(path, MapError)
     ext = os.path.splitext(path)[1].lower()

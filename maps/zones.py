@@ -38,7 +38,7 @@ MAX_FINE_CELLS = 16_000_000  # 64 MB of int32 zone indices
 
 
 @dataclass
-class Rings:
+class _Rings:
     """Polygon rings of many features as flat arrays (see `maps.rasterize.rasterize_rings`)."""
 
     x: np.ndarray
@@ -47,7 +47,7 @@ class Rings:
     ring_owner: np.ndarray  # (r,) feature of each ring
 
     @classmethod
-    def from_lists(cls, rings: list[np.ndarray], owners: list[int]) -> Rings:
+    def from_lists(cls, rings: list[np.ndarray], owners: list[int]) -> _Rings:
         """From a list of (n, 2) vertex arrays and the feature index of each."""
         if not rings:
             return cls(np.empty(0), np.empty(0), np.zeros(1, dtype=np.int64), np.empty(0, dtype=np.int64))
@@ -82,10 +82,10 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
         raise MapError(f"{path}: no polygon features")
     field_name = _pick_rate_field(path, fields, rate_field)
     rates = _rates(path, values_of(field_name), field_name)
-    return rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
+    return _rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
 
 
-def rasterize_zones(rings: Rings, rates, crs, cell_size_m: float | None = None, source: str = "zones",
+def _rasterize_zones(rings: _Rings, rates, crs, cell_size_m: float | None = None, source: str = "zones",
                     format: str = "zones", max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
     """Rasterize polygon rings (in `crs`) with per-feature rates (kg/ha) to an area-weighted grid."""
     cell = DEFAULT_CELL_SIZE_M if cell_size_m is None else cell_size_m
@@ -183,7 +183,7 @@ def _shapefile_rings(path: str, crs):
             raise MapError(f"{path}: damaged .dbf: {exc}") from None
         return [column[i] for i in keep]
 
-    return Rings.from_lists(rings, owners), values_of, fields, src_crs
+    return _Rings.from_lists(rings, owners), values_of, fields, src_crs
 
 
 def _parse_shp(data: bytes, path: str):
@@ -319,5 +319,5 @@ def _geojson_rings(path: str):
         for key, value in props.items():
             is_num = isinstance(value, (int, float)) and not isinstance(value, bool)
             fields[key] = fields.get(key, True) and is_num
-    return (Rings.from_lists(rings, owners), lambda name: [rec.get(name) for rec in records], fields,
+    return (_Rings.from_lists(rings, owners), lambda name: [rec.get(name) for rec in records], fields,
             geojson_crs(doc, path))

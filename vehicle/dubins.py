@@ -53,7 +53,7 @@ def _words(alpha: float, beta: float, d: float):
         yield "LRL", (t, p, _mod(_mod(beta) - alpha - t + p))
 
 
-def shortest_word(start, end, radius_m: float):
+def _shortest_word(start, end, radius_m: float):
     """The shortest Dubins word from pose ``start`` to pose ``end``.
 
     Parameters
@@ -83,7 +83,7 @@ def dubins_xy(start, end, radius_m: float, step_m: float = 0.25) -> np.ndarray:
     ndarray, shape (k, 2)
         Points from ``start`` to exactly ``end`` (both included), metres.
     """
-    word, lengths = shortest_word(start, end, radius_m)
+    word, lengths = _shortest_word(start, end, radius_m)
     x, y, h = float(start[0]), float(start[1]), float(start[2])
     pieces = [np.array([[x, y]])]
     for kind, length in zip(word, lengths, strict=True):

@@ -30,7 +30,7 @@ MAX_FIELD_AREA_HA = 10_000.0
 MAX_FIELD_SIDE_M = 50_000.0  # bounding-box side; UTM's scale error also grows past a few tens of km
 
 
-def utm_crs(lon: float, lat: float) -> pyproj.CRS:
+def _utm_crs(lon: float, lat: float) -> pyproj.CRS:
     """The WGS84 / UTM zone CRS holding (lon, lat) in degrees (EPSG 326xx north, 327xx south)."""
     zone = int((lon + 180.0) // 6.0) % 60 + 1
     return pyproj.CRS.from_epsg((32600 if lat >= 0 else 32700) + zone)
@@ -87,7 +87,7 @@ class Field:
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (lat, lon)) \
                 or not (-80.0 <= lat <= 84.0 and -180.0 <= lon <= 180.0):
             raise VehicleError(f"field rectangle: lat={lat!r}, lon={lon!r} is outside UTM coverage")
-        crs = utm_crs(lon, lat)
+        crs = _utm_crs(lon, lat)
         x0, y0 = pyproj.Transformer.from_crs(WGS84, crs, always_xy=True).transform(lon, lat)
         return cls(shapely.box(x0, y0, x0 + width_m, y0 + length_m), crs, name)
 
@@ -144,7 +144,7 @@ class Field:
         lon, lat = to_wgs.transform(*geom.centroid.coords[0])
         if not (math.isfinite(lon) and math.isfinite(lat)):
             raise VehicleError(f"{where}: centroid {geom.centroid.coords[0]} does not map to WGS84")
-        crs = utm_crs(lon, lat)
+        crs = _utm_crs(lon, lat)
         if not geom.is_valid:  # name the defect before projecting can change it
             raise VehicleError(f"{where}: boundary is invalid: {explain_validity(geom)}")
         to_utm = pyproj.Transformer.from_crs(src_crs, crs, always_xy=True)

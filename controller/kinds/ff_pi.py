@@ -29,6 +29,7 @@ from controller.gains import PidGains
 from controller.interface import LawController, LoopInfo, state_arrays
 from controller.lti import pid_lti
 from controller.params import KindParams, param
+from controller.pid_law import clamped, saturate
 from controller.registry import register
 
 FEEDFORWARDS = ("valve_cal", "model")
@@ -121,6 +122,6 @@ class FfPi(LawController):
         total = self.error_sum_v + e
         unsat = self.feedforward_a(target_rpm) + info.amplifier_gain_a_per_v * (
             p.kp * e + p.ki * info.control_period_s * total)
-        frozen = ((unsat > info.current_max_a) & (e > 0)) | ((unsat < info.current_min_a) & (e < 0))
+        frozen = clamped(unsat, e, info.current_min_a, info.current_max_a)
         self.error_sum_v = ops.where(frozen, total - e, total)
-        return ops.clip(unsat, info.current_min_a, info.current_max_a)
+        return saturate(unsat, info.current_min_a, info.current_max_a)

@@ -32,6 +32,7 @@ from controller.gains import GAIN_SOURCES, PidGains
 from controller.interface import LawController, LoopInfo
 from controller.lti import pid_lti
 from controller.params import KindParams, param
+from controller.pid_law import saturate
 from controller.registry import register
 from controller.tuning import gains_from_source
 
@@ -194,7 +195,7 @@ class FuzzyPid(LawController):
         e, e1, e2 = ks * (target_rpm - measured_rpm), self.e1_v, self.e2_v
         kp, ki, kd = self._gains(e / ks, (e - e1) / ks)
         u = self.u_v + kp * (e - e1) + ki * t * e + kd / t * (e - 2.0 * e1 + e2)
-        current = ops.clip(info.amplifier_gain_a_per_v * u, info.current_min_a, info.current_max_a)
+        current = saturate(info.amplifier_gain_a_per_v * u, info.current_min_a, info.current_max_a)
         self.u_v = current / info.amplifier_gain_a_per_v
         self.e2_v, self.e1_v = e1, e
         return current

@@ -64,9 +64,9 @@ class IdealLoop:
         """One period at exactly the target (load torque has no effect)."""
         return self._periods(clip_targets(target_shaft_rpm, self.n, self.info.plant.shaft_rpm_max))
 
-    def run(self, targets_rpm, load_torque_nm=0.0) -> StepOutput:
+    def run(self, targets_rpm, load_torque_nm=0.0, context=None) -> StepOutput:
         """`step` once per row of `targets_rpm` ((K,) for n = 1, or (K, n)); outputs of shape (K, n),
-        computed at once (nothing feeds back)."""
+        computed at once (nothing feeds back; the drive's `context` changes nothing)."""
         t = targets_matrix(targets_rpm, self.n)
         return self._periods(clip_targets(t.ravel(), t.size, self.info.plant.shaft_rpm_max).reshape(t.shape))
 

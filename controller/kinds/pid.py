@@ -22,6 +22,7 @@ from controller.interface import LawController, LoopInfo, state_arrays
 from controller.loop import ClosedLoop
 from controller.lti import pid_lti
 from controller.params import KindParams, param
+from controller.pid_law import clamped, saturate
 from controller.registry import register
 from controller.tuning import gains_from_source
 
@@ -80,7 +81,8 @@ class PidParams(KindParams):
 
 
 class PidLaw:
-    """The discrete PID law for n loops (floats when n = 1), with the fast path's memory and anti-windup.
+    """The discrete PID law for n loops (floats when n = 1), with the fast path's memory and anti-windup
+    (the output stage is `controller.pid_law`'s `saturate` and `clamped`).
 
     Memory (volts): ``acc`` is the previous saturated output for the incremental form and the error
     sum for the positional form; ``e1, e2`` the last two errors, ``y1, y2`` the last two readings.
@@ -128,8 +130,7 @@ class PidLaw:
         if self.incremental:
             self.acc = current_a / self.ka
         else:
-            frozen = ((unsat_a > self.ihi) & (e > 0)) | ((unsat_a < self.ilo) & (e < 0))
-            self.acc = self.acc + ops.where(frozen, 0.0, e)
+            self.acc = self.acc + ops.where(clamped(unsat_a, e, self.ilo, self.ihi), 0.0, e)
         self.e2, self.e1 = self.e1, e
         self.y2, self.y1 = self.y1, y
 
@@ -138,7 +139,7 @@ class PidLaw:
         e = self.ks * (target_rpm - measured_rpm)
         y = self.ks * measured_rpm
         unsat = self.ka * self.output_v(e, y)
-        current = ops.clip(unsat, self.ilo, self.ihi)
+        current = saturate(unsat, self.ilo, self.ihi)
         self.commit(e, y, unsat, current)
         return current
 

@@ -3,7 +3,9 @@
 ``[controller] kind = "python"``, ``file = "my_controller.py"`` (relative to the scenario's folder),
 ``class = "MyController"``, ``params = {...}``. The class follows `controller.interface`
 (``__init__(params, loop, n)``, ``step``, ``reset``, ``state``, ``set_state``); ``params`` reaches
-its constructor as a dict, unchecked. It runs in the same `PlantLoop` as the built-in kinds.
+its constructor as a dict, unchecked. It runs in the same `PlantLoop` as the built-in kinds; a
+``step(target_rpm, measured_rpm, context)`` gets the `controller.context.ControlContext` each
+period, a two-argument ``step`` does not (decided once, when the class is loaded).
 
 Errors name the user's file and line:
 
@@ -25,6 +27,7 @@ import traceback
 from dataclasses import dataclass, field
 
 from common import ControllerError
+from controller.context import takes_context
 from controller.interface import LoopInfo, check_controller_class
 from controller.params import KindParams, param
 from controller.plant_loop import as_loop_currents
@@ -132,6 +135,8 @@ class UserController:
         except Exception as exc:  # noqa: BLE001 - a crash in user code, reported with its line
             raise self._crash(exc, "__init__") from exc
         self._step = self.impl.step
+        # the wrapper's step has the user's arity, so that `PlantLoop` sees whether it takes the context
+        self.step = self._step_with_context if takes_context(self._step) else self._step_plain
 
     def _crash(self, exc: Exception, method: str) -> UserCodeError:
         line = _line_in(exc, self.file, self._class_line)
@@ -139,9 +144,16 @@ class UserController:
         return UserCodeError(f"{self.file}:{line}: {cls}.{method} raised {type(exc).__name__}: {exc}",
                              self.file, line, "".join(traceback.format_exception(exc)))
 
-    def step(self, target_rpm, measured_rpm):
+    def _step_plain(self, target_rpm, measured_rpm):
         try:
             current = self._step(target_rpm, measured_rpm)
+        except Exception as exc:  # noqa: BLE001
+            raise self._crash(exc, "step") from exc
+        return as_loop_currents(current, len(target_rpm), self)
+
+    def _step_with_context(self, target_rpm, measured_rpm, context):
+        try:
+            current = self._step(target_rpm, measured_rpm, context)
         except Exception as exc:  # noqa: BLE001
             raise self._crash(exc, "step") from exc
         return as_loop_currents(current, len(target_rpm), self)

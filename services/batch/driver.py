@@ -105,7 +105,7 @@ def _local_cluster(workers: int, dashboard: bool):
                             scheduler_kwargs={"allowed_failures": ALLOWED_FAILURES, **http})
 
 
-def describe_failure(exc: BaseException) -> str:
+def _describe_failure(exc: BaseException) -> str:
     """A task's exception as one line for its failed row."""
     from distributed import KilledWorker
 
@@ -151,6 +151,6 @@ def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callabl
             try:
                 result, error = future.result(), None
             except Exception as exc:  # any failure of the task becomes its row's error
-                result, error = None, describe_failure(exc)
+                result, error = None, _describe_failure(exc)
         future.release()
         on_done(item, result, error)

@@ -105,7 +105,7 @@ class ZenohOptions:
             conf.insert_json5("listen/endpoints", json.dumps(listen))
             conf.insert_json5("connect/endpoints", json.dumps(connect))
         if mode == "router":
-            warn_plain_beyond_loopback(self._router_listen(conf))
+            _warn_plain_beyond_loopback(self._router_listen(conf))
         if self.insecure:
             return conf
         if mode == "router":
@@ -188,7 +188,7 @@ class ZenohOptions:
 PLAIN_PROTOCOLS = ("tcp", "udp", "ws")  # what crosses a network unencrypted (tls and quic do not)
 
 
-def plain_beyond_loopback(endpoints) -> list[str]:
+def _plain_beyond_loopback(endpoints) -> list[str]:
     """The endpoints of ``endpoints`` a router would listen on in plain text beyond this machine: a
     plain protocol on any address but a loopback one (``0.0.0.0``, ``[::]``, a LAN address or a host
     name other than ``localhost``)."""
@@ -209,10 +209,10 @@ def plain_beyond_loopback(endpoints) -> list[str]:
     return found
 
 
-def warn_plain_beyond_loopback(endpoints) -> None:
+def _warn_plain_beyond_loopback(endpoints) -> None:
     """One line on stderr when a router would listen in plain text beyond this machine: logins and
     every message (poses, maps, scenarios) would cross the network readable and forgeable."""
-    plain = plain_beyond_loopback(endpoints)
+    plain = _plain_beyond_loopback(endpoints)
     if plain:
         print(f"vrsim serve: warning: the router listens on {', '.join(plain)} in plain text beyond this "
               "machine: passwords and every message cross the network unencrypted (use --tls, or a "

@@ -34,7 +34,7 @@ from services.outputs.encode import dumps
 from services.sim.landing import applied_rate_kg_ha
 
 
-class ControllerService:
+class _ControllerService:
     """The handlers of the controller service; publishes through ``publish(key, payload)``."""
 
     def __init__(self, keys, publish, data: DataRoot, user_code_dirs: tuple[str, ...] = ()):
@@ -138,7 +138,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
         # BLOCK: a slow subscriber (the monitor) slows the run down instead of losing records.
         pubs = {k: session.declare_publisher(k, congestion_control=zenoh.CongestionControl.BLOCK)
                 for k in (keys.shaft, keys.rate)}
-        svc = ControllerService(keys, lambda key, payload: pubs[key].put(payload), DataRoot.of(config),
+        svc = _ControllerService(keys, lambda key, payload: pubs[key].put(payload), DataRoot.of(config),
                                 config.user_code_dirs)
         queryable = serve(session, keys.control_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/control/",
                           "controller")

@@ -19,7 +19,7 @@ from services.bus.serving import Params, body_limit, run_service, serve
 from services.outputs.encode import dumps
 
 
-class MapService:
+class _MapService:
     """The handlers of the map service over one `maps.Grid` (swapped whole on `load`)."""
 
     def __init__(self, grid, fixed: bool, data: DataRoot):
@@ -59,7 +59,7 @@ class MapService:
         start = messages.RunStart.from_json(payload)
         if self.fixed:
             return dumps({"loaded": False, "reason": "the map service serves a fixed --map file"})
-        grid = scenario_grid(self.data.scenario(start.scenario_text, start.source, start.base_dir))
+        grid = _scenario_grid(self.data.scenario(start.scenario_text, start.source, start.base_dir))
         self.grid = grid
         return dumps({"loaded": True, "source": grid.source, "rows": grid.rows, "cols": grid.cols})
 
@@ -72,14 +72,14 @@ def _no_body(params: Params, payload: bytes | None) -> None:
         raise ServiceError(f"{params.key}: takes no body")
 
 
-def scenario_grid(sc):
+def _scenario_grid(sc):
     """The scenario's prescription on the field's metric grid (what `ControlCore` looks up)."""
     from services.sim.world import field_and_grid
 
     return field_and_grid(sc)[1]
 
 
-def configured_grid(config: ServiceConfig):
+def _configured_grid(config: ServiceConfig):
     """The map to serve and whether it is fixed: ``config.map_file``, else the prescription of
     ``config.scenario`` (a file or built-in name; None: the built-in default)."""
     if config.map_file is not None:
@@ -89,12 +89,12 @@ def configured_grid(config: ServiceConfig):
                              crs=config.crs), True
     from services.sim import scenario
 
-    return scenario_grid(scenario.load(config.scenario)), False
+    return _scenario_grid(scenario.load(config.scenario)), False
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the configured map until SIGINT/SIGTERM (or ``stop``)."""
-    svc = MapService(*configured_grid(config), DataRoot.of(config))
+    svc = _MapService(*_configured_grid(config), DataRoot.of(config))
     keys = config.zenoh.keys
 
     def declare(session):

@@ -23,6 +23,15 @@ import orjson
 from common import ServiceError
 from services.outputs.encode import dumps
 
+# The API a Zenoh client in Python uses: the messages, their codecs and the limits they check.
+__all__ = [
+    "Message", "Pose", "ShaftState", "RateSample", "MapRate", "RunStart", "StepAck", "RunStatus",
+    "MonitorStatus",
+    "encode_batch", "decode_batch", "decode_columns", "decode_points", "encode_rates",
+    "MAX_MESSAGE_BYTES", "MAX_BATCH_RECORDS", "MAX_POINTS", "MAX_POINTS_BYTES", "CLOCKS", "SPEED_RANGE",
+    "TICKS_PER_MESSAGE_RANGE", "NAN",
+]
+
 NAN = math.nan
 
 
@@ -369,9 +378,9 @@ class RunStart(Message):
                                f"got {self.ticks_per_message!r}")
 
 
-END_REASONS = ("finished", "stopped", "failed", "interrupted")
-MAX_RUN_TICKS = 10**10  # far beyond any run (the default's 177,002 ticks; a field's cap, 10,000 ha)
-MAX_END_ERROR_CHARS = 2000
+_END_REASONS = ("finished", "stopped", "failed", "interrupted")
+_MAX_RUN_TICKS = 10**10  # far beyond any run (the default's 177,002 ticks; a field's cap, 10,000 ha)
+_MAX_END_ERROR_CHARS = 2000
 
 
 @_message
@@ -391,14 +400,14 @@ class RunEnd(Message):
     error: str  # why it failed or was interrupted ("" otherwise)
 
     def __post_init__(self):
-        if self.reason not in END_REASONS:
-            raise ServiceError(f"RunEnd: reason must be one of {', '.join(END_REASONS)}, got {self.reason!r}")
-        if not 0 <= self.ticks <= MAX_RUN_TICKS:
-            raise ServiceError(f"RunEnd: ticks must be within [0, {MAX_RUN_TICKS}], got {self.ticks!r}")
+        if self.reason not in _END_REASONS:
+            raise ServiceError(f"RunEnd: reason must be one of {', '.join(_END_REASONS)}, got {self.reason!r}")
+        if not 0 <= self.ticks <= _MAX_RUN_TICKS:
+            raise ServiceError(f"RunEnd: ticks must be within [0, {_MAX_RUN_TICKS}], got {self.ticks!r}")
         if not (math.isfinite(self.sim_time_s) and self.sim_time_s >= 0.0):
             raise ServiceError(f"RunEnd: sim_time_s must be a finite number >= 0, got {self.sim_time_s!r}")
-        if len(self.error) > MAX_END_ERROR_CHARS:
-            raise ServiceError(f"RunEnd: error is over {MAX_END_ERROR_CHARS} characters")
+        if len(self.error) > _MAX_END_ERROR_CHARS:
+            raise ServiceError(f"RunEnd: error is over {_MAX_END_ERROR_CHARS} characters")
 
 
 @_message

@@ -41,7 +41,7 @@ MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
 SCHEMA_VERSION = 3  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
 #                     pose, section mask for the offset in rate
 # A run's announced end (`messages.RunEnd`), NULL until scenario control announces it.
-END_COLUMNS = (("end_reason", "TEXT"), ("end_ticks", "INTEGER"), ("end_sim_time_s", "REAL"),
+_END_COLUMNS = (("end_reason", "TEXT"), ("end_ticks", "INTEGER"), ("end_sim_time_s", "REAL"),
                ("end_error", "TEXT"), ("ended_unix", "REAL"))
 MEASURED = ("measured_x_m", "measured_y_m", "measured_speed_m_s")  # what the controller read, per tick
 
@@ -93,7 +93,7 @@ class MonitorStore:
                    "run_id TEXT UNIQUE, scenario_text TEXT, source TEXT, base_dir TEXT, clock TEXT, "
                    "started_unix REAL, last_unix REAL)")
         have = {row[1] for row in db.execute("PRAGMA table_info(runs)")}
-        for name, kind in END_COLUMNS:  # added to an older file in place: it opens as it was, no end
+        for name, kind in _END_COLUMNS:  # added to an older file in place: it opens as it was, no end
             if name not in have:
                 db.execute(f"ALTER TABLE runs ADD COLUMN {name} {kind}")
         for table, cls in STREAMS.items():

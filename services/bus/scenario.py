@@ -9,7 +9,7 @@ runs in a thread of its own, at most `BUILD_TIMEOUT_S`, so ``status`` and ``stop
 services are alive (liveliness tokens, so a killed service shows within milliseconds);
 ``<prefix>/scenario/stop`` stops the vehicle. ``<prefix>/<anything>`` else at the top level gets an
 error reply naming the keys that exist. Scenario control owns the runs it starts, so it also tells the
-monitor how each ended (`RunEnds`: finished, stopped, failed or interrupted, and the last tick).
+monitor how each ended (`_RunEnds`: finished, stopped, failed or interrupted, and the last tick).
 """
 
 from __future__ import annotations
@@ -35,26 +35,26 @@ STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hang
 DEFAULT_TICKS_PER_MESSAGE = 50
 
 
-def new_run_id(name: str, counter: int) -> str:
+def _new_run_id(name: str, counter: int) -> str:
     """``<name>-<UTC time>-<pid>-<counter>``; characters that would break a selector parameter
     (``;`` ``#`` ``?`` ``&`` spaces ...) in the scenario's name become ``_``."""
     safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", name) or "run"
     return f"{safe}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{counter}"
 
 
-WATCH_S = 0.5  # how often scenario control looks at a live run's vehicle
-END_RETRY_S = 600.0  # an end the monitor did not take (it was down) is offered again this long
-END_STATES = ("finished", "stopped", "failed")  # the vehicle's states that end a run
+_WATCH_S = 0.5  # how often scenario control looks at a live run's vehicle
+_END_RETRY_S = 600.0  # an end the monitor did not take (it was down) is offered again this long
+_END_STATES = ("finished", "stopped", "failed")  # the vehicle's states that end a run
 
 
-class RunEnds:
+class _RunEnds:
     """Announces each run's end to the monitor (``monitor/end``, `messages.RunEnd`): scenario control
     starts runs, so it watches the one it started until the vehicle says it ended (finished, stopped,
     failed) or the vehicle service is gone or restarted (interrupted), then tells the monitor; an end
-    the monitor does not take (down at the time) is offered again for `END_RETRY_S`.
+    the monitor does not take (down at the time) is offered again for `_END_RETRY_S`.
 
     `observe` takes every vehicle status scenario control reads (its ``status`` too, so a client that
-    saw ``finished`` there gets a report that knows it); a thread looks every `WATCH_S` meanwhile.
+    saw ``finished`` there gets a report that knows it); a thread looks every `_WATCH_S` meanwhile.
     """
 
     def __init__(self, session, keys: Keys, vehicle_status):
@@ -79,7 +79,7 @@ class RunEnds:
             if live is None:
                 return
             if status is not None and status["run_id"] == live.run_id:
-                if status["state"] not in END_STATES:
+                if status["state"] not in _END_STATES:
                     self.live = dataclasses.replace(live, ticks=status["ticks"],
                                                     sim_time_s=status["sim_time_s"])
                     return
@@ -106,7 +106,7 @@ class RunEnds:
                     client.request(self.session, self.keys.monitor_end, end.to_json(), STATUS_TIMEOUT_S,
                                    what=f"{self.keys.monitor_end}: the monitor")
                 except ServiceError as exc:
-                    if "no reply" in str(exc) and time.monotonic() - when < END_RETRY_S:
+                    if "no reply" in str(exc) and time.monotonic() - when < _END_RETRY_S:
                         kept.append((when, end))  # the monitor is down: offered again later
                     else:
                         print(f"vrsim serve scenario: the end of run {end.run_id} ({end.reason}) was not "
@@ -115,7 +115,7 @@ class RunEnds:
                 self.pending = kept + self.pending
 
     def _watch(self) -> None:
-        while not self.closed.wait(WATCH_S):
+        while not self.closed.wait(_WATCH_S):
             try:
                 if self.live is not None:
                     status = self.vehicle_status()
@@ -132,7 +132,7 @@ class RunEnds:
         self.thread.join(timeout=5.0)
 
 
-class ScenarioService:
+class _ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
     def __init__(self, session, keys: Keys, data: DataRoot):
@@ -140,7 +140,7 @@ class ScenarioService:
         self.lock = threading.Lock()  # one start or stop at a time
         self.building = threading.Lock()  # one world being built at a time (held until it is done)
         self.counter = 0
-        self.ends = RunEnds(session, keys, self._vehicle_status)
+        self.ends = _RunEnds(session, keys, self._vehicle_status)
 
     def start(self, params: Params, payload: bytes | None) -> Later:
         params.only("source", "base_dir", "clock", "speed", "ticks_per_message")
@@ -187,7 +187,7 @@ class ScenarioService:
                 raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
                                    f"stop it first ({self.keys.scenario('stop')})")
             self.counter += 1
-            start = dataclasses.replace(start, run_id=new_run_id(sc.name, self.counter))
+            start = dataclasses.replace(start, run_id=_new_run_id(sc.name, self.counter))
             body = start.to_json()
             for load, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
                                (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
@@ -266,7 +266,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
             "see docs/api.md")
 
     def declare(session):
-        svc = ScenarioService(session, keys, DataRoot.of(config))
+        svc = _ScenarioService(session, keys, DataRoot.of(config))
         return [svc.ends,
                 serve(session, keys.scenario_ns, svc.handlers(), f"{keys.prefix}/scenario/", "scenario"),
                 # <prefix>/<one chunk> is no vrsim key: answer so, rather than leave the caller in silence

@@ -17,9 +17,9 @@ that someone else owns is refused. It holds
 
 Users: one per service (`SERVICE_USERS`) and two people roles, ``operator`` (start and stop runs,
 query every key, subscribe to everything) and ``viewer`` (query the read-only keys and subscribe;
-nothing that changes state). What each user may do is its role's list of `Grant`; `ROLES` is the
+nothing that changes state). What each user may do is its role's list of `_Grant`; `ROLES` is the
 registry, `USER_ROLES` maps a user to its role (``web`` is a viewer narrowed to what its page shows:
-`web_keys`, the three streams and its liveliness token; its start and stop log in as ``operator``).
+`_web_keys`, the three streams and its liveliness token; its start and stop log in as ``operator``).
 
 How the ACL is evaluated (zenoh 1.x, ``zenoh/src/net/routing/interceptor/authorization.rs``): the
 router checks each message against the rules of the session it enters from (ingress) or leaves
@@ -58,7 +58,7 @@ MESSAGE_OVERHEAD_BYTES = 1024 * 1024  # a message's key expression, parameters a
 
 # ------------------------------------------------------------------------------------------ grants
 @dataclass(frozen=True)
-class Grant:
+class _Grant:
     """One ACL allow rule: these message kinds, in these flows, on key expressions these include."""
 
     messages: tuple[str, ...]
@@ -66,121 +66,121 @@ class Grant:
     key_exprs: tuple[str, ...]
 
 
-def everything(k: Keys) -> str:
+def _everything(k: Keys) -> str:
     """Every key under the prefix."""
     return f"{k.prefix}/**"
 
 
-def publish(k: Keys, *keys: str) -> list[Grant]:
+def _publish(k: Keys, *keys: str) -> list[_Grant]:
     """Put on ``keys``. The router must also pass the publisher the subscribers' declarations
     (egress declare_subscriber): a zenoh client sends a put only when it knows of a matching
     subscriber, and a subscriber may declare a wildcard, so every declaration under the prefix."""
-    return [Grant(("put",), ("ingress",), keys),
-            Grant(("declare_subscriber",), ("egress",), (everything(k),))]
+    return [_Grant(("put",), ("ingress",), keys),
+            _Grant(("declare_subscriber",), ("egress",), (_everything(k),))]
 
 
-def subscribe(*keys: str) -> list[Grant]:
+def _subscribe(*keys: str) -> list[_Grant]:
     """Subscribe to ``keys`` and receive their puts."""
-    return [Grant(("declare_subscriber",), ("ingress",), keys), Grant(("put",), ("egress",), keys)]
+    return [_Grant(("declare_subscriber",), ("ingress",), keys), _Grant(("put",), ("egress",), keys)]
 
 
-def serve(*keys: str) -> list[Grant]:
+def _serve(*keys: str) -> list[_Grant]:
     """Declare a queryable on ``keys``, receive the queries on them and reply."""
-    return [Grant(("declare_queryable", "reply"), ("ingress",), keys), Grant(("query",), ("egress",), keys)]
+    return [_Grant(("declare_queryable", "reply"), ("ingress",), keys), _Grant(("query",), ("egress",), keys)]
 
 
-def ask(k: Keys, *keys: str) -> list[Grant]:
+def _ask(k: Keys, *keys: str) -> list[_Grant]:
     """Query ``keys`` and receive the replies. A zenoh querier sends a query only when it knows of a
     matching queryable, so it also gets the queryables' declarations (which name only a key
     expression, as docs/api.md does) under the prefix."""
-    return [Grant(("query",), ("ingress",), keys), Grant(("reply",), ("egress",), keys),
-            Grant(("declare_queryable",), ("egress",), (everything(k),))]
+    return [_Grant(("query",), ("ingress",), keys), _Grant(("reply",), ("egress",), keys),
+            _Grant(("declare_queryable",), ("egress",), (_everything(k),))]
 
 
-def alive(keys: Keys, service: str) -> list[Grant]:
+def _alive(keys: Keys, service: str) -> list[_Grant]:
     """Declare this service's liveliness token."""
-    return [Grant(("liveliness_token",), ("ingress",), (keys.alive(service),))]
+    return [_Grant(("liveliness_token",), ("ingress",), (keys.alive(service),))]
 
 
-def watch_alive(keys: Keys) -> list[Grant]:
+def _watch_alive(keys: Keys) -> list[_Grant]:
     """List and watch the liveliness tokens (``<prefix>/alive/*``)."""
-    return [Grant(("liveliness_query", "declare_liveliness_subscriber"), ("ingress",), (keys.alive_all,)),
-            Grant(("liveliness_token",), ("egress",), (keys.alive_all,))]
+    return [_Grant(("liveliness_query", "declare_liveliness_subscriber"), ("ingress",), (keys.alive_all,)),
+            _Grant(("liveliness_token",), ("egress",), (keys.alive_all,))]
 
 
-ROLES: dict[str, Callable[[Keys], list[Grant]]] = {}
+ROLES: dict[str, Callable[[Keys], list[_Grant]]] = {}
 
 
-def role(name: str):
+def _role(name: str):
     """Register a role: a function of the `Keys` returning its grants."""
 
-    def register(fn: Callable[[Keys], list[Grant]]):
+    def register(fn: Callable[[Keys], list[_Grant]]):
         ROLES[name] = fn
         return fn
 
     return register
 
 
-@role("vehicle")
-def _vehicle(k: Keys) -> list[Grant]:
-    return [*publish(k, k.pose), *serve(k.vehicle_ns), *ask(k, k.control_step), *alive(k, "vehicle")]
+@_role("vehicle")
+def _vehicle(k: Keys) -> list[_Grant]:
+    return [*_publish(k, k.pose), *_serve(k.vehicle_ns), *_ask(k, k.control_step), *_alive(k, "vehicle")]
 
 
-@role("controller")
-def _controller(k: Keys) -> list[Grant]:
-    return [*publish(k, k.shaft, k.rate), *serve(k.control_ns), *alive(k, "controller")]
+@_role("controller")
+def _controller(k: Keys) -> list[_Grant]:
+    return [*_publish(k, k.shaft, k.rate), *_serve(k.control_ns), *_alive(k, "controller")]
 
 
-@role("monitor")
-def _monitor(k: Keys) -> list[Grant]:
+@_role("monitor")
+def _monitor(k: Keys) -> list[_Grant]:
     # machine_ns (<prefix>/<machine>/*) serves `report` and answers unknown one-chunk keys there.
-    return [*subscribe(k.pose, k.shaft, k.rate), *serve(k.machine_ns, k.monitor_ns), *alive(k, "monitor")]
+    return [*_subscribe(k.pose, k.shaft, k.rate), *_serve(k.machine_ns, k.monitor_ns), *_alive(k, "monitor")]
 
 
-@role("map")
-def _map(k: Keys) -> list[Grant]:
-    return [*serve(k.map_ns), *alive(k, "map")]
+@_role("map")
+def _map(k: Keys) -> list[_Grant]:
+    return [*_serve(k.map_ns), *_alive(k, "map")]
 
 
-@role("scenario")
-def _scenario(k: Keys) -> list[Grant]:
+@_role("scenario")
+def _scenario(k: Keys) -> list[_Grant]:
     controls = (k.map_load, k.control_load, k.monitor_load, k.monitor_end, k.monitor_status,
                 k.vehicle("start"), k.vehicle("stop"), k.vehicle("status"))
     # top_ns (<prefix>/*) answers unknown top-level keys with the list of vrsim keys.
-    return [*serve(k.scenario_ns, k.top_ns), *ask(k, *controls), *watch_alive(k), *alive(k, "scenario")]
+    return [*_serve(k.scenario_ns, k.top_ns), *_ask(k, *controls), *_watch_alive(k), *_alive(k, "scenario")]
 
 
-def read_only_keys(k: Keys) -> tuple[str, ...]:
+def _read_only_keys(k: Keys) -> tuple[str, ...]:
     """The keys whose queries change nothing: what a viewer may ask."""
-    return (*web_keys(k), k.vehicle("status"))
+    return (*_web_keys(k), k.vehicle("status"))
 
 
-def web_keys(k: Keys) -> tuple[str, ...]:
+def _web_keys(k: Keys) -> tuple[str, ...]:
     """The read-only keys the web page asks (its map, the run's status, report and stored records)."""
     return (k.map_info, k.map_rate, k.report, k.monitor_status, k.monitor_run, k.monitor_records,
             k.scenario("status"))
 
 
-@role("operator")
-def _operator(k: Keys) -> list[Grant]:
-    return [*ask(k, everything(k)), *subscribe(everything(k)), *watch_alive(k)]
+@_role("operator")
+def _operator(k: Keys) -> list[_Grant]:
+    return [*_ask(k, _everything(k)), *_subscribe(_everything(k)), *_watch_alive(k)]
 
 
-@role("viewer")
-def _viewer(k: Keys) -> list[Grant]:
-    return [*ask(k, *read_only_keys(k)), *subscribe(everything(k)), *watch_alive(k)]
+@_role("viewer")
+def _viewer(k: Keys) -> list[_Grant]:
+    return [*_ask(k, *_read_only_keys(k)), *_subscribe(_everything(k)), *_watch_alive(k)]
 
 
-@role("web")
-def _web(k: Keys) -> list[Grant]:
+@_role("web")
+def _web(k: Keys) -> list[_Grant]:
     # A viewer narrowed to what the page shows; its start and stop go through an operator session.
-    return [*ask(k, *web_keys(k)), *subscribe(k.pose, k.shaft, k.rate), *alive(k, "web")]
+    return [*_ask(k, *_web_keys(k)), *_subscribe(k.pose, k.shaft, k.rate), *_alive(k, "web")]
 
 
 USER_ROLES: dict[str, str] = {**{s: s for s in SERVICE_USERS}, "operator": "operator", "viewer": "viewer"}
 
 
-def acl_config(keys: Keys, user_roles: Mapping[str, str] | None = None) -> dict:
+def _acl_config(keys: Keys, user_roles: Mapping[str, str] | None = None) -> dict:
     """The router's ``access_control`` section: default deny, one subject and policy per user.
 
     Parameters
@@ -252,7 +252,7 @@ def prepare_state(folder: str = DEFAULT_STATE_DIR, tls: bool = False, rotate: bo
     passwords = {} if rotate else _read_dictionary(folder)
     for user in users:
         passwords.setdefault(user, secrets.token_urlsafe(PASSWORD_BYTES))
-    write_private(os.path.join(folder, DICTIONARY),
+    _write_private(os.path.join(folder, DICTIONARY),
                   "".join(f"{u}:{p}\n" for u, p in passwords.items()).encode())
     if tls:
         _private_dir(os.path.join(folder, TLS_DIR), create=True)
@@ -295,7 +295,7 @@ def _check_private(path: str, st: os.stat_result, fix: str) -> None:
                            "or choose another --state-dir")
 
 
-def write_private(path: str, data: bytes) -> None:
+def _write_private(path: str, data: bytes) -> None:
     """Write ``data`` to ``path`` as a 0600 file, atomically, never through a symlink."""
     tmp = f"{path}.tmp-{os.getpid()}"
     try:
@@ -372,9 +372,9 @@ def _write_tls(folder: str) -> None:
             .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
             .sign(ca_key, hashes.SHA256()))
     pem = serialization.Encoding.PEM
-    write_private(os.path.join(folder, "ca.pem"), ca.public_bytes(pem))
-    write_private(os.path.join(folder, "router.pem"), cert.public_bytes(pem))
-    write_private(os.path.join(folder, "router-key.pem"), key.private_bytes(
+    _write_private(os.path.join(folder, "ca.pem"), ca.public_bytes(pem))
+    _write_private(os.path.join(folder, "router.pem"), cert.public_bytes(pem))
+    _write_private(os.path.join(folder, "router-key.pem"), key.private_bytes(
         pem, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()))
 
 
@@ -393,9 +393,9 @@ def router_settings(state: SecurityState, keys: Keys, listen: list[str],
         "mode": "router",
         "listen/endpoints": list(listen),
         "transport/auth/usrpwd/dictionary_file": state.dictionary_file,
-        "access_control": acl_config(keys, user_roles),
+        "access_control": _acl_config(keys, user_roles),
         "low_pass_filter": [{"id": "vrsim-bodies", "messages": ["put", "query"],
-                             "key_exprs": [everything(keys)], "size_limit": max_body_bytes}],
+                             "key_exprs": [_everything(keys)], "size_limit": max_body_bytes}],
         # A message is reassembled from its fragments before any filter sees it: past this size the
         # router drops the fragments instead of buffering them (zenoh's default is 1 GiB).
         "transport/link/rx/max_message_size": max_body_bytes + MESSAGE_OVERHEAD_BYTES,
@@ -406,7 +406,7 @@ def router_settings(state: SecurityState, keys: Keys, listen: list[str],
     return out
 
 
-def client_settings(state: SecurityState, user: str, connect: list[str]) -> dict[str, object]:
+def _client_settings(state: SecurityState, user: str, connect: list[str]) -> dict[str, object]:
     """Configuration entries (path -> JSON value) that make a zenoh client of ``connect`` logged in
     as ``user``."""
     _check_endpoints(state, connect, "connect")
@@ -452,7 +452,7 @@ def apply_settings(conf, settings: Mapping[str, object]):
     return conf
 
 
-def settings_document(settings: Mapping[str, object]) -> dict:
+def _settings_document(settings: Mapping[str, object]) -> dict:
     """``settings`` as one nested JSON5 (here: JSON) document, what `zenoh.Config.from_file` reads."""
     doc: dict = {}
     for path, value in settings.items():
@@ -476,7 +476,7 @@ def write_client_configs(state: SecurityState, connect: list[str],
     """
     out = {}
     for user in users:
-        doc = settings_document({**BASE_SETTINGS, **client_settings(state, user, connect)})
+        doc = _settings_document({**BASE_SETTINGS, **_client_settings(state, user, connect)})
         out[user] = state.config_file(user)
-        write_private(out[user], (json.dumps(doc, indent=2) + "\n").encode())
+        _write_private(out[user], (json.dumps(doc, indent=2) + "\n").encode())
     return out

@@ -20,7 +20,7 @@ from services.outputs.encode import dumps
 
 
 # ---------------------------------------------------------------------------------------- errors
-def error_payload(message: str) -> bytes:
+def _error_payload(message: str) -> bytes:
     return dumps({"error": message})
 
 
@@ -187,7 +187,7 @@ def payload_bytes(payload, key: str, max_bytes: int) -> bytes | None:
 
 def _reply_err(query, message: str) -> None:
     try:
-        query.reply_err(error_payload(message))
+        query.reply_err(_error_payload(message))
     except Exception:  # noqa: BLE001 - the querier may be gone; nothing else to tell
         traceback.print_exc(file=sys.stderr)
 

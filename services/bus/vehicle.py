@@ -5,7 +5,7 @@ scenario control through ``<prefix>/<machine>/vehicle/start`` (body: `messages.R
 thread then steps `vehicle.SumoDriver` one control period at a time, reads the sensors per tick
 (`vehicle.Gnss.fix`, `vehicle.SpeedSensor.read`: the same numbers as the vectorized ``measure`` of
 ``vrsim run``), publishes ``<prefix>/<machine>/pose`` and sends the same poses to
-``.../control/step`` (at most one batch ahead of the replies, see `StepPipe`). Clocks: ``lockstep``
+``.../control/step`` (at most one batch ahead of the replies, see `_StepPipe`). Clocks: ``lockstep``
 batches ``ticks_per_message`` ticks per message and runs as fast as the controller answers;
 ``realtime`` sends every tick when simulation time, divided by the speed factor, reaches the wall
 clock.
@@ -27,7 +27,7 @@ from services.bus.serving import Params, error_message, run_service, serve
 STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
 
 
-class VehicleService:
+class _VehicleService:
     """Run state and handlers of the vehicle service; the drive loop runs in a worker thread."""
 
     def __init__(self, session, keys, publish_pose, data: DataRoot | None = None):
@@ -119,7 +119,7 @@ class VehicleService:
         realtime = start.clock == "realtime"
         per_message = 1 if realtime else start.ticks_per_message
         querier = self.session.declare_querier(self.keys.control_step, timeout=STEP_TIMEOUT_S)
-        pipe = StepPipe(querier, self.publish_pose, self.keys.control_step)
+        pipe = _StepPipe(querier, self.publish_pose, self.keys.control_step)
         try:
             with driving(sc, world.path) as driver:  # the time limit of `vrsim run`, enforced by the driver
                 gnss, speed_sensor = sensors(sc)  # seeded as `vrsim run` seeds them
@@ -152,7 +152,7 @@ class VehicleService:
             querier.undeclare()
 
 
-class StepPipe:
+class _StepPipe:
     """Sends pose batches to ``control/step``, never more than one batch ahead of the replies.
 
     The vehicle drives the next batch while the controller works on this one (nearly twice the
@@ -199,7 +199,7 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
 
     def declare(session):
         pub = session.declare_publisher(keys.pose, congestion_control=zenoh.CongestionControl.BLOCK)
-        svc = VehicleService(session, keys, pub.put, DataRoot.of(config))
+        svc = _VehicleService(session, keys, pub.put, DataRoot.of(config))
         queryable = serve(session, keys.vehicle_ns, svc.handlers(), f"{keys.prefix}/{keys.machine}/vehicle/",
                           "vehicle")
         return [queryable, svc, pub]

@@ -25,7 +25,7 @@ def configure(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
 
 
-def look_ahead_arg(text: str | None):
+def _look_ahead_arg(text: str | None):
     """``--look-ahead``: None, "auto" or seconds (the scenario's rules check the range)."""
     from common import ScenarioError
     from controller.config import LOOK_AHEAD_AUTO
@@ -54,7 +54,7 @@ def run(args) -> int:
         if done >= total:
             bar.close()
 
-    result = compare(sc, args.controller, look_ahead_arg(args.look_ahead), progress)
+    result = compare(sc, args.controller, _look_ahead_arg(args.look_ahead), progress)
     out_dir = args.out or default_out_dir(sc.name, "compare")
     page = write_page(result, out_dir)
     if args.json:

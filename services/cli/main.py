@@ -41,7 +41,7 @@ def _available_commands(names=COMMANDS):
         yield name, module
 
 
-def build_parser(names=COMMANDS) -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
+def _build_parser(names=COMMANDS) -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
     """The parser of `names`' commands (all of them by default: what ``vrsim --help`` lists)."""
     parser = argparse.ArgumentParser(
         prog="vrsim",
@@ -58,7 +58,7 @@ def build_parser(names=COMMANDS) -> tuple[argparse.ArgumentParser, dict[str, arg
     return parser, commands
 
 
-def parse(argv: list[str]) -> argparse.Namespace:
+def _parse(argv: list[str]) -> argparse.Namespace:
     """Parse the command line; exits 2 with a usage message on a bad command or option.
 
     A command's options and positionals may interleave (``vrsim query KEY --body F NAME=VALUE``):
@@ -67,7 +67,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     option there is a usage error too, exit 2).
     """
     # A known command first: only its module is imported (a tenth of a second for all of them).
-    parser, commands = build_parser((argv[0],) if argv and argv[0] in COMMANDS else COMMANDS)
+    parser, commands = _build_parser((argv[0],) if argv and argv[0] in COMMANDS else COMMANDS)
     args, rest = parser.parse_known_args(argv)
     if rest:
         own = argv[argv.index(args.command) + 1:]
@@ -81,8 +81,8 @@ def console() -> None:
     """The `vrsim` executable: `main`, then the exit. A command whose module sets ``EXIT_AT_ONCE``
     (everything it wrote is closed when it returns) exits without the interpreter's teardown of the
     libraries it loaded (GDAL, Arrow, PROJ: a fifth of a second of `vrsim run`)."""
-    args = parse(sys.argv[1:])
-    code = run_command(args)
+    args = _parse(sys.argv[1:])
+    code = _run_command(args)
     if args._exit_at_once:
         for stream in (sys.stdout, sys.stderr):
             try:
@@ -95,10 +95,10 @@ def console() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line `argv` (default: this process's); returns the exit code."""
-    return run_command(parse(sys.argv[1:] if argv is None else argv))
+    return _run_command(_parse(sys.argv[1:] if argv is None else argv))
 
 
-def run_command(args: argparse.Namespace) -> int:
+def _run_command(args: argparse.Namespace) -> int:
     """Run a parsed command; `common.VrsimError` and bugs become exit codes and one line on stderr."""
     try:
         return int(args._run(args) or 0)

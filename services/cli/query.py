@@ -42,7 +42,7 @@ def configure(parser) -> None:
     add_arguments(parser, user_help="log in as this user: operator (default), viewer, ...")
 
 
-def full_key(key: str, keys: Keys) -> str:
+def _full_key(key: str, keys: Keys) -> str:
     """KEY with the prefix (and, for the per-machine keys, the machine) filled in."""
     key = key.strip("/")
     if not key:
@@ -55,7 +55,7 @@ def full_key(key: str, keys: Keys) -> str:
     return f"{keys.prefix}/{key}"
 
 
-def selector(key: str, params: list[str]) -> str:
+def _selector(key: str, params: list[str]) -> str:
     pairs = []
     for item in params:
         name, sep, value = item.partition("=")
@@ -88,13 +88,13 @@ def run(args) -> int:
     if args.watch and (args.params or args.body is not None):
         raise ServiceError("--watch subscribes to KEY: it takes no NAME=VALUE parameters and no --body")
     options = options_from_args(args)
-    key = full_key(args.key, options.keys)
+    key = _full_key(args.key, options.keys)
     body = _body(args.body)
     user = None if options.insecure else options.user or "operator"
     with open_session(options, "client", default_user="operator") as session:
         if args.watch:
             return _watch(session, key, args.count, args.timeout)
-        reply = request(session, selector(key, args.params), body, args.timeout, what=key, user=user)
+        reply = request(session, _selector(key, args.params), body, args.timeout, what=key, user=user)
     sys.stdout.write(reply.decode("utf-8", "replace").rstrip("\n") + "\n")
     return 0
 

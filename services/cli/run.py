@@ -62,7 +62,7 @@ class Progress:
 
 def run(args) -> int:
     if args.check:
-        return check(args)
+        return _check(args)
     # SUMO's process starts first: it imports while this one does and loads the scenario.
     from services.sim.drive_worker import DriveWorker
 
@@ -117,7 +117,7 @@ def _scenario(args):
     return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
 
 
-def check(args) -> int:
+def _check(args) -> int:
     """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving)."""
     import dataclasses
 

@@ -86,7 +86,7 @@ INSECURE_WARNING = ("vrsim serve {name}: WARNING: --insecure: no authentication 
 
 
 def run(args) -> int:
-    config = service_config(args)
+    config = _service_config(args)
     apply_input_cap(args)
     files.show_content(False)  # files are named by others over the bus: messages never quote them
     if config.zenoh.insecure and not os.environ.get(PARENT_ENV):  # serve all warns for its children
@@ -97,11 +97,11 @@ def run(args) -> int:
                            "sends each service the run's scenario (give it to `vrsim serve all` or "
                            "scenario/start)")
     if args.service == "all":
-        return serve_all(args, config.zenoh)
+        return _serve_all(args, config.zenoh)
     return importlib.import_module(f"services.bus.{args.service}").main(config)
 
 
-def service_config(args) -> ServiceConfig:
+def _service_config(args) -> ServiceConfig:
     if not os.path.isdir(args.data_root):
         raise ServiceError(f"--data-root {args.data_root}: not a folder")
     web_listen = None
@@ -149,7 +149,7 @@ def _abs_if_file(spec: str) -> str:
     return os.path.abspath(spec) if os.path.exists(spec) else spec
 
 
-def serve_all(args, options: ZenohOptions) -> int:
+def _serve_all(args, options: ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
     if args.web:

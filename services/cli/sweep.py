@@ -30,7 +30,7 @@ def configure(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress line on stderr")
 
 
-class SweepProgress:
+class _SweepProgress:
     """One line on stderr, on a terminal only: done/total, failures, rate and time left."""
 
     def __init__(self, total: int, enabled: bool):
@@ -124,7 +124,7 @@ def run(args) -> int:
     table = ResultsTable(out_dir, resume=args.resume)
     done = table.done
     todo = [s for s in specs if s.key not in done]
-    progress = SweepProgress(len(todo), enabled=not args.quiet)
+    progress = _SweepProgress(len(todo), enabled=not args.quiet)
     tasks_for = functools.partial(_tasks, sweep, todo, args, out_dir)
     workers = _run_on_dask(args, tasks_for, table, progress) if todo else 0
     table.flush()

@@ -1,4 +1,4 @@
-"""`vrsim tune SCENARIO --controller KIND --param NAME=LOW:HIGH ... --objective METRIC [--budget N]
+"""`vrsim tune SCENARIO [--controller KIND|FILE] --param NAME=LOW:HIGH ... --objective METRIC [--budget N]
 [--seed S] [--out DIR] [--json]`: search a controller's parameters for the best figure on a field."""
 
 from __future__ import annotations
@@ -10,11 +10,13 @@ HELP = "search a controller's parameters for the best figure on a field (differe
 
 def configure(parser) -> None:
     parser.add_argument("scenario", help="scenario TOML file or built-in name (default, large)")
-    parser.add_argument("--controller", metavar="KIND", required=True,
-                        help="the kind to tune: P, PI, PID, aog_pi, ff_pi, smith, fuzzy_pid, ...")
+    parser.add_argument("--controller", metavar="KIND|FILE", default=None,
+                        help="the controller to tune: a kind with its defaults (P, PI, PID, aog_pi, ff_pi, "
+                             "smith, fuzzy_pid, ...) or a TOML file with a [controller] table (any kind, "
+                             "python included); default: the scenario's own controller")
     parser.add_argument("--param", metavar="NAME=LOW:HIGH", action="append", required=True,
                         help="a parameter and its range (kp, ki, kd for P/PI/PID; the kind's params "
-                             "otherwise; look_ahead_s for any); repeat for each")
+                             "otherwise, a python class's too; look_ahead_s for any); repeat for each")
     parser.add_argument("--objective", metavar="METRIC", required=True,
                         help="the figure to optimise, minimised, maximised or brought to zero by its "
                              "sense (mae_kg_ha, within_10pct_area_pct, bias_kg_ha, ...)")

@@ -13,7 +13,7 @@ from services.sim.run import RunResult
 POINT_FILES = {"gpkg": "as_applied_points.gpkg", "shp": "as_applied_points.zip"}
 
 
-def run_log(result: RunResult) -> PointLog:
+def _run_log(result: RunResult) -> PointLog:
     """The run's as-applied log (see `services.sim.aslog`)."""
     return run_point_log(result.world, result.track, result.control, result.landing.applied_kg_ha,
                          result.started_unix, result.world.scenario.output.log_rate_hz)
@@ -25,9 +25,9 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
     A run into the same folder again replaces the earlier run's taskdata/, as it does every other
     file; a taskdata/ that holds anything else is refused (`maps.write_taskdata` never overwrites).
     """
-    log = run_log(result)
+    log = _run_log(result)
     implement = result.world.scenario.implement
-    folder = prepare_as_applied(out_dir)
+    folder = _prepare_as_applied(out_dir)
     paths = {"taskdata": write_taskdata(log, folder,
                                         [implement.section_width_m] * implement.sections,
                                         task=result.world.scenario.name, device="vrsim implement")}
@@ -46,7 +46,7 @@ def check_as_applied(out_dir: str) -> None:
         prepare_folder(folder)  # refuses it; or, holding no TASKDATA.XML, leaves it as it is
 
 
-def prepare_as_applied(out_dir: str) -> str:
+def _prepare_as_applied(out_dir: str) -> str:
     """The run's taskdata/ folder in `out_dir`, emptied of an earlier run's log and created; refused
     (`common.MapError`) if it holds anything else (`maps.taskdata.prepare_folder`)."""
     folder = os.path.join(out_dir, "taskdata")

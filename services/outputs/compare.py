@@ -77,8 +77,8 @@ def write_page(comparison: Comparison, out_dir: str) -> str:
 
 def _write_page(comparison: Comparison, out_dir: str) -> None:
     pictures = [os.path.join(out_dir, "compare_timeseries.png"), os.path.join(out_dir, "compare_errors.png")]
-    plot_timeseries(comparison, pictures[0])
-    plot_errors(comparison, pictures[1])
+    _plot_timeseries(comparison, pictures[0])
+    _plot_errors(comparison, pictures[1])
     path = os.path.join(out_dir, "compare.html")
     title = html.escape(f"vrsim compare: {comparison.scenario.name}")
     page = f"""<!doctype html>
@@ -90,7 +90,7 @@ td.best{{font-weight:bold;background:#e6f4e6}}img{{max-width:100%}}</style>
 <p>{html.escape(comparison.scenario.description)}</p>
 <p>One drive (seed {comparison.scenario.seed}: the same SUMO track and sensor noise) for every controller.
 Best of each column in bold ({html.escape(_directions())}).</p>
-{table_html(comparison)}
+{_table_html(comparison)}
 {"".join(embedded_png(p) for p in pictures)}
 </body></html>
 """
@@ -98,7 +98,7 @@ Best of each column in bold ({html.escape(_directions())}).</p>
         fh.write(page)
 
 
-def table_html(comparison: Comparison) -> str:
+def _table_html(comparison: Comparison) -> str:
     """The table as HTML: controllers in rows, figures in columns, the best of each column marked."""
     summaries = comparison.summaries()
     best = best_rows(summaries, DECIMALS)
@@ -111,7 +111,7 @@ def table_html(comparison: Comparison) -> str:
     return f"<table><tr><th>controller</th>{head}</tr>\n" + "\n".join(rows) + "\n</table>"
 
 
-def step_windows(result, count: int = STEP_PANELS) -> list[int]:
+def _step_windows(result, count: int = STEP_PANELS) -> list[int]:
     """Ticks of up to `count` rate steps (on the true landing path) whose window around them holds no
     other step, spread over the run: the steps every controller's time series are shown at."""
     t = result.track["time_s"]
@@ -127,11 +127,11 @@ def step_windows(result, count: int = STEP_PANELS) -> list[int]:
     return [clean[i] for i in np.linspace(0, len(clean) - 1, count).round().astype(int)]
 
 
-def plot_timeseries(comparison: Comparison, path: str) -> None:
+def _plot_timeseries(comparison: Comparison, path: str) -> None:
     """Shaft speed and applied rate of every controller around the same rate steps (the drive is
     shared, so the steps are the same for all), time from each step; target and prescription in black."""
     first = comparison.results[0]
-    steps = step_windows(first)
+    steps = _step_windows(first)
     t = first.track["time_s"]
     cols = max(1, len(steps))
     fig = figure(4.2 * cols + 1.5, 7, layout="constrained")
@@ -161,7 +161,7 @@ def plot_timeseries(comparison: Comparison, path: str) -> None:
     fig.savefig(path, dpi=90)
 
 
-def plot_errors(comparison: Comparison, path: str) -> None:
+def _plot_errors(comparison: Comparison, path: str) -> None:
     """Applied minus prescribed (kg/ha) inside the field, one map per controller, one colour scale."""
     grid = comparison.results[0].world.grid
     west, south, east, north = grid.bounds

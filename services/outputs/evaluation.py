@@ -20,7 +20,7 @@ from services.sim.metrics import LOG_UNIT, POINT_METRICS
 MAX_PLOT_POINTS = 20_000
 
 
-def rows(unit: str):
+def _rows(unit: str):
     """The report's rows (label, key, unit) of `POINT_METRICS`, rate figures in `unit`."""
     return tuple((m.label, m.key, unit if m.unit == LOG_UNIT else m.unit) for m in POINT_METRICS)
 
@@ -30,7 +30,7 @@ def text_evaluation(ev: Evaluation) -> str:
     summary = ev.summary()
     lines = [f"vrsim evaluate: {ev.log.source} ({ev.log.points:,} records, {ev.log.format}) against "
              f"{ev.against}" + (f", delay {ev.delay_s:g} s" if ev.delay_s else "")]
-    lines += [f"  {label:<38} {fmt(summary[key]):>14} {unit}" for label, key, unit in rows(ev.unit)]
+    lines += [f"  {label:<38} {fmt(summary[key]):>14} {unit}" for label, key, unit in _rows(ev.unit)]
     return "\n".join(lines)
 
 
@@ -46,14 +46,14 @@ def _write_evaluation(ev: Evaluation, errors: Grid, paths: dict[str, str]) -> No
     with open(paths["evaluation.json"], "w") as fh:
         fh.write(dumps_text(ev.summary(), indent=True) + "\n")
     write_map(errors, paths["error.tif"])
-    plot_error_map(ev, errors, paths["error_map.png"])
-    plot_log_timeseries(ev, paths["timeseries.png"])
+    _plot_error_map(ev, errors, paths["error_map.png"])
+    _plot_log_timeseries(ev, paths["timeseries.png"])
     info = {"log": ev.log.source, "format": ev.log.format, "records": ev.log.points,
             "start": str(ev.log.start) if ev.log.start is not None else "not logged",
             "compared with": ev.against, "delay_s": ev.delay_s, **versions()}
     text = page(f"vrsim evaluate: {os.path.basename(os.path.normpath(ev.log.source))}",
                 "An as-applied log against its targets.",
-                [("Figures", figures_table(rows(ev.unit), ev.summary())), ("The log", key_values(info))],
+                [("Figures", figures_table(_rows(ev.unit), ev.summary())), ("The log", key_values(info))],
                 [paths["error_map.png"], paths["timeseries.png"]],
                 [("What the figures mean", definitions(POINT_METRICS, ev.unit))],
                 "Files beside this page: evaluation.json, error.tif (GeoTIFF, applied minus target per cell, "
@@ -62,7 +62,7 @@ def _write_evaluation(ev: Evaluation, errors: Grid, paths: dict[str, str]) -> No
         fh.write(text)
 
 
-def plot_error_map(ev: Evaluation, errors: Grid, path: str) -> None:
+def _plot_error_map(ev: Evaluation, errors: Grid, path: str) -> None:
     west, south, east, north = errors.bounds
     data = errors.rates_kg_ha
     emax = float(np.nanpercentile(np.abs(data), 98)) if np.isfinite(data).any() else 1.0
@@ -83,7 +83,7 @@ def plot_error_map(ev: Evaluation, errors: Grid, path: str) -> None:
     fig.savefig(path, dpi=90)
 
 
-def plot_log_timeseries(ev: Evaluation, path: str) -> None:
+def _plot_log_timeseries(ev: Evaluation, path: str) -> None:
     log = ev.log
     step = max(1, log.points // MAX_PLOT_POINTS)
     t = log.time_s[::step]

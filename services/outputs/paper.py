@@ -33,7 +33,7 @@ def table(summary: dict) -> str:
                          f"{_fmt(e['overshoot_pct'], '.2f'):>8}{_fmt(e['overshoot_pct_50ms_mean'], '.2f'):>8}"
                          f"{_fmt(e['paper_settling_s'], '.3f'):>12}{_fmt(e['settling_s'], '.3f'):>12}")
     lines += ["", "(50ms: overshoot of the speed averaged over each control period)", ""]
-    lines += loop_table(summary)
+    lines += _loop_table(summary)
     lines += ["", "Findings:"]
     lines += [f"- {f}" for f in summary["findings"]]
     lines += ["", "Assumptions (value, unit):"]
@@ -42,7 +42,7 @@ def table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def loop_table(summary: dict) -> list[str]:
+def _loop_table(summary: dict) -> list[str]:
     """Each controller's loop margins, crossover and bandwidth (``summary[kind]["loop"]``)."""
     lines = [f"{'loop margins (T = 50 ms)':<28}{'gain margin':>16}{'phase margin':>14}"
              f"{'crossover':>12}{'bandwidth':>12}",

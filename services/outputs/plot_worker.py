@@ -90,7 +90,7 @@ class PlotWorker:
             self.proc = None
 
 
-def serve(stdin_fd: int, stdout) -> None:
+def _serve(stdin_fd: int, stdout) -> None:
     """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
     child (`common.forked.Forked` of `_drawn`); the replies, ("ok", path) or ("error", text), go out in
     the jobs' order."""
@@ -149,7 +149,7 @@ if __name__ == "__main__":
     # (control here, SUMO in the drive worker) leave of the two cores, not their share.
     os.nice(10)
     try:
-        serve(sys.stdin.fileno(), sys.stdout.buffer)
+        _serve(sys.stdin.fileno(), sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
         pass
     # Every reply is flushed and every picture closed: skip the interpreter's teardown of matplotlib

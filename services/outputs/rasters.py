@@ -25,10 +25,10 @@ def write_rasters(result: RunResult, prescription_path: str, as_applied_path: st
     write_map(replace(grid, rates_kg_ha=applied, product="as-applied"), as_applied_path)
     write_map(replace(grid, rates_kg_ha=applied - grid.rates_kg_ha, product="applied minus prescribed",
                       quantity="difference"), error_path)
-    write_passes(result, passes_path)
+    _write_passes(result, passes_path)
 
 
-def write_passes(result: RunResult, path: str) -> None:
+def _write_passes(result: RunResult, path: str) -> None:
     """passes.tif: per cell, how many passes put product on at least half of it
     (`maps.AsApplied.pass_count`), uint16 on the prescription's grid (0: no product); tagged
     ``unit=passes`` (a count, not a rate: not a `maps.Grid`)."""

@@ -59,7 +59,7 @@ def _positions(values: list) -> tuple[np.ndarray, list | None]:
     return np.array([cats.index(str(v)) for v in values], dtype=float), cats
 
 
-def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
+def _plot_axis(configs: list[Configuration], axis_key: str, log: bool):
     """One figure: every ranked metric against one axis, a point per configuration (mean over seeds,
     bar: 95 % interval) and a line through the mean per axis value, a colour per scenario."""
     metrics = list(METRIC_SENSE)
@@ -105,7 +105,7 @@ def plot_axis(configs: list[Configuration], axis_key: str, log: bool):
     return fig
 
 
-def plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
+def _plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
     """The two metrics of each configuration (means over seeds, bars: 95 % intervals), the Pareto
     front highlighted and numbered; returns the figure and the front's configurations in that
     numbering (along the first metric)."""
@@ -164,13 +164,13 @@ def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
     if configs:
         parts.append("<h2>Best configurations per metric</h2>" + _best_table(configs))
         if sweep.pareto:
-            fig, front = plot_pareto(configs, sweep.pareto)
+            fig, front = _plot_pareto(configs, sweep.pareto)
             items = "".join(f"<li>{html.escape(c.label())}</li>" for c in front)
             parts.append(f"<h2>Pareto front: {html.escape(' vs '.join(sweep.pareto))}</h2>"
                          + _png(fig) + f"<ol>{items}</ol>")
         for axis in sweep.axes:
             parts.append(f"<h2>Against {html.escape(axis.key)}</h2>"
-                         + _png(plot_axis(configs, axis.key, axis.log)))
+                         + _png(_plot_axis(configs, axis.key, axis.log)))
     parts.append("<h2>Failed runs</h2>" + _failed_table(rows, axis_keys))
     title = html.escape(f"vrsim sweep: {sweep.source}")
     page = f"""<!doctype html>

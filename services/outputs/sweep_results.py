@@ -21,7 +21,7 @@ PARQUET = "results.parquet"
 CSV = "results.csv"
 
 
-def columns(rows: list[dict]) -> list[str]:
+def _columns(rows: list[dict]) -> list[str]:
     """The table's columns: identity first, status last, the rest in first-seen order."""
     middle = {}
     for row in rows:
@@ -29,7 +29,7 @@ def columns(rows: list[dict]) -> list[str]:
     return [*ROW_FIRST, *middle, *ROW_LAST]
 
 
-def read_rows(path: str) -> list[dict]:
+def _read_rows(path: str) -> list[dict]:
     """The rows of a results.parquet (nulls as None)."""
     import pyarrow.parquet as pq
 
@@ -39,20 +39,20 @@ def read_rows(path: str) -> list[dict]:
         raise ScenarioError(f"{path}: cannot read the results table: {exc}") from None
 
 
-def write_parquet(rows: list[dict], path: str) -> None:
+def _write_parquet(rows: list[dict], path: str) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    names = columns(rows)
+    names = _columns(rows)
     table = pa.table({name: pa.array([row.get(name) for row in rows]) for name in names})
     with written(path) as temp:
         pq.write_table(table, temp)
 
 
-def write_csv(rows: list[dict], path: str) -> None:
+def _write_csv(rows: list[dict], path: str) -> None:
     """CSV with a header; floats as Python writes them (round-trip exact), nulls as empty fields."""
     with written(path) as temp, open(temp, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns(rows), restval="")
+        writer = csv.DictWriter(fh, fieldnames=_columns(rows), restval="")
         writer.writeheader()
         writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
 
@@ -81,7 +81,7 @@ class ResultsTable:
             raise ScenarioError(f"{self.parquet} exists: add --resume to go on with that sweep, or choose "
                                 f"another --out")
         if exists:
-            self.rows = read_rows(self.parquet)
+            self.rows = _read_rows(self.parquet)
         self._flushed = time.monotonic()
 
     @property
@@ -98,8 +98,8 @@ class ResultsTable:
         """Write both files now (and create `out_dir`: nothing is created before the first flush)."""
         os.makedirs(self.out_dir, exist_ok=True)
         if self.rows:
-            write_parquet(self.rows, self.parquet)
-            write_csv(self.rows, self.csv)
+            _write_parquet(self.rows, self.parquet)
+            _write_csv(self.rows, self.csv)
         self._flushed = time.monotonic()
 
 

@@ -24,6 +24,8 @@ def _toml_value(value) -> str:
         return repr(float(value)) if isinstance(value, float) else str(value)
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple)):     # a user's class may take lists (a gain schedule's breakpoints)
+        return "[" + ", ".join(map(_toml_value, value)) + "]"
     return json.dumps(str(value))   # a TOML basic string is a JSON string
 
 

@@ -29,6 +29,10 @@ SCENARIO_DIR = os.path.join(LIBRARY_DIR, "scenarios")
 EXPECTED = os.path.join(LIBRARY_DIR, "expected.json")
 CHANGELOG = os.path.join(LIBRARY_DIR, "CHANGELOG.md")
 
+# What `vrsim accuracy` and the accuracy tests use: the runner, the comparison and the library's files.
+__all__ = ["Check", "scenario_names", "run_scenario", "run_library", "load_expected", "compare", "table",
+           "update", "TOLERANCES", "LIBRARY_DIR", "SCENARIO_DIR", "EXPECTED", "CHANGELOG"]
+
 # Held metrics and their tolerance (absolute floor, share of the value), from the metrics table.
 TOLERANCES = {m.key: m.tolerance for m in METRICS if m.tolerance is not None}
 
@@ -79,7 +83,7 @@ def load_expected() -> dict:
         return json.load(fh)
 
 
-def tolerance(metric: str, value: float | None) -> float:
+def _tolerance(metric: str, value: float | None) -> float:
     floor, share = TOLERANCES[metric]
     return floor + share * abs(value) if value is not None else floor
 
@@ -120,13 +124,13 @@ def table(checks: list[Check], only_moved: bool = False) -> str:
     return "\n".join(rows)
 
 
-def expected_from(results: dict[str, dict]) -> dict:
+def _expected_from(results: dict[str, dict]) -> dict:
     out = {}
     for name, summary in sorted(results.items()):
         out[name] = {}
         for metric in TOLERANCES:
             value = _num(summary.get(metric))
-            out[name][metric] = {"value": value, "tol": round(tolerance(metric, value), 6)}
+            out[name][metric] = {"value": value, "tol": round(_tolerance(metric, value), 6)}
     return out
 
 
@@ -136,7 +140,7 @@ def update(results: dict[str, dict], reason: str) -> None:
     if not reason.strip():
         raise ScenarioError("--update needs --reason TEXT saying why the figures change")
     old = load_expected()
-    new = {**old, **expected_from(results)}
+    new = {**old, **_expected_from(results)}
     lines = [f"\n## {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}: {reason.strip()}\n"]
     for name in sorted(set(old) | set(new)):
         for metric in TOLERANCES:

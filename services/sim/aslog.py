@@ -26,7 +26,7 @@ from maps import PointLog
 SIMULATE_MODE = 8  # ISO 11783 position status "simulate mode"
 
 
-def compass_deg(heading_rad) -> np.ndarray:
+def _compass_deg(heading_rad) -> np.ndarray:
     """Heading in degrees clockwise from north, [0, 360), from radians counter-clockwise from east."""
     return np.mod(90.0 - np.degrees(np.asarray(heading_rad, dtype=float)), 360.0)
 
@@ -54,7 +54,7 @@ def run_point_log(world, track: dict, control: dict, applied_kg_ha, started_unix
         track["x_m"], track["y_m"], world.field.crs, applied=np.where(width_on > 0, applied_kg_ha, 0.0),
         target=control["prescribed_kg_ha"], unit="kg/ha", time_s=track["time_s"],
         start=np.datetime64(round(started_unix * 1000.0), "ms"),
-        heading_deg=compass_deg(track["heading_rad"]),
+        heading_deg=_compass_deg(track["heading_rad"]),
         speed_m_s=track["speed_m_s"], width_m=width_on, work_on=np.asarray(track["implement_on"], bool),
         sections_on=np.asarray(control["sections_on"], bool), gnss_status=SIMULATE_MODE,
         source=world.scenario.name, format="run")

@@ -12,10 +12,12 @@ import numpy as np
 
 from common import ControllerError, ScenarioError
 from controller import PlantParams, build_loop
+from controller.context import ContextTrack
 from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.scenario import Scenario, as_dict
 from services.sim.sections import SectionStates, SectionSwitch
+from services.sim.sections.motion import Motion
 
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
@@ -47,12 +49,15 @@ class ControlCore:
        policy off the map), which sections apply (`services.sim.sections.SectionSwitch`, stateful:
        coverage control remembers where product landed) and the target shaft speed for the width
        whose gates are open. No feedback, so vectorized over ticks. The landing point is predicted
-       by dead reckoning from the fix: product metered now lands `delivery_delay_s` later, when the
-       implement has moved ``speed * delay`` along its heading; the look-ahead adds the loop's lag
+       from the fix: product metered now lands `delivery_delay_s` later, where the sensed speed,
+       acceleration and yaw rate take the implement (`services.sim.sections.motion`, the same
+       prediction as the sections'); the look-ahead adds the loop's lag
        if asked to (`services.sim.look_ahead`). The sections decide on their own look-ahead (their
        latencies and the delivery delay), so they do not depend on the rate's look-ahead.
     2. the closed loop (PID, valve, motor; or any controller kind, `controller.build_loop`) over the
        targets, one control period per tick (sequential by nature: one lifted matrix product per period).
+       A controller that takes the context gets the sensed ground speed, the prescription and the
+       sections of each tick (`context_track`).
 
     Parameters
     ----------
@@ -113,13 +118,13 @@ class ControlCore:
 
         `s_m` is the distance along the planned path (coverage section control needs it)."""
         states = self.switch.step(x_m, y_m, heading_rad, speed_m_s, implement_on, s_m)
-        return self._targets(x_m, y_m, heading_rad, speed_m_s, states)
+        return self._targets(states)
 
-    def _targets(self, x_m, y_m, heading_rad, speed_m_s, states: SectionStates) -> dict[str, np.ndarray]:
-        """Stage 1 with the sections' states of these ticks known; advances the policy's memory."""
-        lead_m = np.asarray(speed_m_s) * self.look_ahead_s
-        lx = x_m + lead_m * np.cos(heading_rad)
-        ly = y_m + lead_m * np.sin(heading_rad)
+    def _targets(self, states: SectionStates) -> dict[str, np.ndarray]:
+        """Stage 1 with the sections' states of these ticks known (with the motion the terminal
+        sensed, `SectionStates.motion`); advances the policy's memory."""
+        speed_m_s = states.motion.speed_m_s
+        lx, ly, _, _ = states.motion.ahead(self.look_ahead_s)
         found = self.grid.lookup(lx, ly)
         rate = self.policy.apply(found.rate_kg_ha, found.inside, self.last_rate_kg_ha)
         if rate.size:
@@ -148,7 +153,7 @@ class ControlCore:
         parts, start = [], 0
         while not parts or start < n:   # once at least, so that an empty track gives empty arrays
             part = slice(start, min(n, start + chunk))
-            rec = self._targets(*(a[part] for a in track), sections.states(part))
+            rec = self._targets(sections.states(part))
             if self.tuner is not None:
                 args = (rec["prescribed_kg_ha"], rec["target_shaft_rpm"], rec["width_on_m"],
                         np.asarray(implement_on, bool)[part])
@@ -157,7 +162,8 @@ class ControlCore:
                     rec = {k: v[:keep] for k, v in rec.items()}
                     args = tuple(a[:keep] for a in args)
                     self.last_rate_kg_ha = float(rec["prescribed_kg_ha"][-1])
-            out = self.loop.run(rec["target_shaft_rpm"])
+            ticks = len(rec["target_shaft_rpm"])
+            out = self.loop.run(rec["target_shaft_rpm"], context=context_track(rec, track[3][part][:ticks]))
             rec.update(shaft_rpm=out.shaft_rpm[:, 0], shaft_rev=out.shaft_rev[:, 0],
                        current_a=out.current_a[:, 0])
             if self.tuner is not None and len(rec["shaft_rev"]):
@@ -176,6 +182,13 @@ class ControlCore:
         # (it does not lift product off the ground), so only forward revolutions count.
         forward = np.maximum(shaft_rev, 0.0)
         return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
+
+
+def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:
+    """The drive's part of the controllers' context (`controller.context`) for ticks `part` of stage 1's
+    `rec` (`ControlCore.targets`' keys): the sensed ground speed [m/s] the targets were computed with
+    (all ticks of `rec`), the prescription [kg/ha] and the sections' gates (ticks, sections)."""
+    return ContextTrack(np.asarray(speed_m_s)[part], rec["prescribed_kg_ha"][part], rec["sections_on"][part])
 
 
 class _SectionsAhead:
@@ -206,12 +219,14 @@ def _join(states: list[SectionStates]) -> SectionStates:
     known = all(s.commanded is not None for s in states)
     commanded = np.concatenate([s.commanded for s in states]) if known else None
     return SectionStates(np.concatenate([s.actual for s in states]), states[0].widths_m, states[0].offsets_m,
-                         np.concatenate([s.pass_index for s in states]), commanded)
+                         np.concatenate([s.pass_index for s in states]), commanded,
+                         Motion.join([s.motion for s in states]))
 
 
 def _slice(states: SectionStates, part: slice) -> SectionStates:
     return SectionStates(states.actual[part], states.widths_m, states.offsets_m, states.pass_index[part],
-                         None if states.commanded is None else states.commanded[part])
+                         None if states.commanded is None else states.commanded[part],
+                         states.motion.part(part))
 
 
 # Per tick, shape (n,); ``sections_on`` and ``sections_commanded`` are (n, sections): each section's gate

@@ -86,7 +86,7 @@ class DriveWorker:
             pipe.close()
 
 
-def serve(stdin, stdout) -> None:
+def _serve(stdin, stdout) -> None:
     """Drive the `DriveJob` that arrives on `stdin`, writing the messages above to `stdout`."""
     import libsumo  # noqa: F401 - the heaviest import, done while the caller loads the scenario
 
@@ -113,7 +113,7 @@ def serve(stdin, stdout) -> None:
 
 if __name__ == "__main__":
     try:
-        serve(sys.stdin.buffer, sys.stdout.buffer)
+        _serve(sys.stdin.buffer, sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
         pass
     os._exit(0)  # every message is flushed and SUMO closed: skip the interpreter's teardown

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AppliedColumns, StripMap
+from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
@@ -77,7 +77,7 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     (`services.sim.streamed`).
 
     The strips lie where the run's did, whatever they carry, so their geometry is worked out once
-    (`StripPlan`) and mapped to the raster once for both meters (`maps.StripMap`); their figures are
+    (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
     the accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
     metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
@@ -94,8 +94,7 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
 
 def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> AppliedColumns:
     """The as-applied rasters of the columns `metered_kg` (ticks, n) along the plan's strips."""
-    s = plan.strips
-    return StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m).apply(plan.mass_kg(metered_kg))
+    return ColumnDeposit(grid, plan.strips.footprint()).apply(plan.mass_kg(metered_kg))
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:

@@ -104,7 +104,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
                            f"({prescription.unit}): {exc}") from None
     x_m, y_m, crs = _metric_positions(log)
     lx, ly = _delayed(log, x_m, y_m, delay_s, where)
-    compared = applying(log) & np.isfinite(log.applied)
+    compared = _applying(log) & np.isfinite(log.applied)
     if prescription is not None:
         target = prescription.lookup(lx, ly, crs=crs).rate_kg_ha
         against = prescription.source or "prescription"
@@ -129,7 +129,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
                       float(delay_s), figures)
 
 
-def applying(log: PointLog) -> np.ndarray:
+def _applying(log: PointLog) -> np.ndarray:
     """Records where the machine applied: work state on and, where the log has section states, a
     section on."""
     sections = log.sections_on

@@ -5,7 +5,7 @@ core reads is on average ``latency_s + 0.5 / rate_hz`` old (sample and hold at t
 latency); a loop that lags its target by a mean time λ meters the new rate on average λ after the
 target changed. So the rate should be looked up ``L = delivery_delay_s + fix age + λ`` ahead for the
 middle of each rate transition to land on the boundary (`ControlCore.targets` predicts the point
-``speed x L`` ahead of the fix along the heading).
+L ahead of the fix from the sensed speed, acceleration and yaw rate: `services.sim.sections.motion`).
 
 ``[controller] look_ahead_s`` chooses L (`initial_look_ahead_s`):
 
@@ -40,7 +40,7 @@ TUNE_MIN_CHANGE = 0.05        # target change below this share of the larger lev
 TUNE_MIN_CHANGE_RPM = 1.0     # ... or below this many rpm
 
 
-def loop_lag_s(plant: PlantParams, cfg: ControllerConfig, control_period_s: float,
+def _loop_lag_s(plant: PlantParams, cfg: ControllerConfig, control_period_s: float,
                plant_step_s: float) -> float:
     """The loop's mean lag behind its target [s] (`controller.response.ResponseTime.look_ahead_s`)."""
     from controller.response import response_time
@@ -62,7 +62,7 @@ def initial_look_ahead_s(scenario: Scenario, plant: PlantParams) -> float:
     if cfg.look_ahead_s is None:
         return float(scenario.implement.delivery_delay_s)
     if cfg.look_ahead_s == LOOK_AHEAD_AUTO:
-        return known_delay_s(scenario) + loop_lag_s(plant, cfg, timing.control_period_s, timing.plant_step_s)
+        return known_delay_s(scenario) + _loop_lag_s(plant, cfg, timing.control_period_s, timing.plant_step_s)
     return float(cfg.look_ahead_s)
 
 

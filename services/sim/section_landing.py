@@ -8,8 +8,9 @@ cell long (their ends meet exactly; this blurs per-cell figures far below the ce
 the raster work many-fold); a strip ends where the section switches or the pass changes, so every
 strip has one section, one pass and product all along.
 
-With `maps.AsApplied`'s pass accounting and the plan's worked area (`worked_fraction`) this gives
-the overlap and skip figures (`services.sim.metrics.overlap_metrics`).
+The strips are the deposition engine's ``section_strips`` footprint (`maps.Strips`); with its pass
+accounting (`maps.AsApplied`) and the plan's worked area (`worked_fraction`) they give the overlap
+and skip figures (`services.sim.metrics.overlap_metrics`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AsApplied, Grid, StripMap
+from maps import AsApplied, ColumnDeposit, Grid, Strips
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
@@ -40,10 +41,13 @@ class SectionStrips:
     pass_index: np.ndarray
     section: np.ndarray
 
+    def footprint(self) -> Strips:
+        """Where the strips put product: the deposition engine's ``section_strips`` footprint."""
+        return Strips(self.x0_m, self.y0_m, self.x1_m, self.y1_m, self.width_m)
+
     def add_to(self, as_applied: AsApplied) -> None:
         """Accumulate the strips onto an as-applied raster, with their passes."""
-        as_applied.add_strips(self.x0_m, self.y0_m, self.x1_m, self.y1_m, self.width_m, self.mass_kg,
-                              pass_index=self.pass_index)
+        as_applied.deposit(self.footprint(), self.mass_kg, pass_index=self.pass_index)
 
 
 def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: float, period_s: float,
@@ -157,10 +161,10 @@ def limited_coverage(track: dict, metered_kg: np.ndarray, states: SectionStates,
 @dataclass(frozen=True)
 class LimitedStrips:
     """The strips of the machine-limited ticks, for any number of metered columns: the strips are the
-    same for every column; a column's product decides only which of them sweep (`maps.StripMap`)."""
+    same for every column; a column's product decides only which of them sweep (`maps.ColumnDeposit`)."""
 
     plan: StripPlan | None      # None: no limited tick
-    strip_map: StripMap | None
+    columns: ColumnDeposit | None
     shape: tuple[int, int]      # the grid's (rows, cols)
 
     @classmethod
@@ -170,14 +174,13 @@ class LimitedStrips:
         if not limited.any():
             return cls(None, None, (grid.rows, grid.cols))
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
-        s = plan.strips
-        return cls(plan, StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m), (grid.rows, grid.cols))
+        return cls(plan, ColumnDeposit(grid, plan.strips.footprint()), (grid.rows, grid.cols))
 
     def coverage(self, metered_kg: np.ndarray) -> np.ndarray:
         """`limited_coverage` of the columns `metered_kg` (ticks, m): shape (m, rows, cols)."""
         if self.plan is None:
             return np.zeros((metered_kg.shape[1], *self.shape))
-        return self.strip_map.coverage_fraction(self.plan.mass_kg(metered_kg))
+        return self.columns.coverage_fraction(self.plan.mass_kg(metered_kg))
 
 
 def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:

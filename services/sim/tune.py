@@ -1,8 +1,13 @@
 """`vrsim tune`: search a controller's parameters for the best figure on one field.
 
+Any controller: the scenario's own (``[controller]``, a user's ``python`` class included), a kind with
+its defaults, or a controller spec file (a TOML with a ``[controller]`` table, as `vrsim compare`
+takes: `services.sim.compare.resolve_spec`).
+
 scipy's `differential_evolution` with ``vectorized=True`` and ``updating="deferred"`` proposes a whole
 population at a time; every population is one batch of controller variants over one shared drive
-(`services.sim.variants.run_variants`: the PID family on its lifted-matrix fast path). The objective
+(`services.sim.variants.run_variants`: the PID family on its lifted-matrix fast path with gains per
+loop, every other kind one loop after another, which is all a kind that cannot batch can do). The objective
 is a figure of `METRICS` with a sense (``min``, ``max`` or ``zero``: its magnitude is minimised), a
 figure that does not exist for a candidate (no rate step settled) counts as the worst.
 
@@ -16,14 +21,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from common import ControllerError, ScenarioError
-from controller import ControllerConfig, resolve_gains
-from controller.config import PID_KINDS
+from controller import ControllerConfig, build_controller, resolve_gains
+from controller.config import PID_KINDS, USER_KIND
+from services.sim.compare import resolve_spec
 from services.sim.core import plant_for
 from services.sim.metrics import METRICS
 from services.sim.run import drive as drive_of
@@ -84,20 +91,33 @@ def check_objective(metric: str) -> str:
     return SENSES[metric]
 
 
-def base_config(scenario: Scenario, kind: str) -> ControllerConfig:
-    """The configuration candidates start from: `kind` with its defaults and the scenario's look-ahead
-    keys; for P, PI and PID manual gains at the paper's values (so an untuned gain keeps them)."""
-    keep = {k: getattr(scenario.controller, k) for k in KIND_INDEPENDENT_KEYS}
+def base_config(scenario: Scenario, controller: str | None = None) -> ControllerConfig:
+    """The configuration candidates start from.
+
+    `controller`: None for the scenario's own ``[controller]``; a TOML file with a ``[controller]``
+    table (`services.sim.compare.resolve_spec`: its ``file`` relative to that TOML file); or a kind
+    with its defaults and the scenario's look-ahead keys. For P, PI and PID the gains become manual
+    at the values they resolve to (so an untuned gain keeps them).
+    """
+    if controller is not None and os.path.isfile(controller):
+        cfg = resolve_spec(controller, scenario).config
+    elif controller is None:
+        cfg = scenario.controller
+    else:
+        keep = {k: getattr(scenario.controller, k) for k in KIND_INDEPENDENT_KEYS}
+        try:
+            cfg = ControllerConfig(kind=controller, **keep)
+        except ControllerError as exc:
+            raise ScenarioError(f"--controller {controller!r}: {exc}") from None
+    if cfg.kind not in PID_KINDS:
+        return cfg
     try:
-        cfg = ControllerConfig(kind=kind, **keep)
-        if kind in PID_KINDS:
-            g = resolve_gains(cfg, plant_for(scenario), scenario.timing.control_period_s)
-            terms = PID_KINDS[kind]
-            cfg = dataclasses.replace(cfg, gains="manual", kp=g.kp, ki=g.ki if "I" in terms else None,
-                                      kd=g.kd if "D" in terms else None)
+        g = resolve_gains(cfg, plant_for(scenario), scenario.timing.control_period_s)
     except ControllerError as exc:
-        raise ScenarioError(f"--controller {kind!r}: {exc}") from None
-    return cfg
+        raise ScenarioError(f"--controller {controller or cfg.kind!r}: {exc}") from None
+    terms = PID_KINDS[cfg.kind]
+    return dataclasses.replace(cfg, gains="manual", kp=g.kp, ki=g.ki if "I" in terms else None,
+                               kd=g.kd if "D" in terms else None)
 
 
 def config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> ControllerConfig:
@@ -110,8 +130,12 @@ def config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> Co
     return dataclasses.replace(base, **top)
 
 
-def check_params(base: ControllerConfig, params: Sequence[TuneParam]) -> None:
-    """Each parameter is a number the kind takes, at both ends of its range; `ScenarioError` otherwise."""
+def check_params(base: ControllerConfig, params: Sequence[TuneParam], scenario: Scenario) -> None:
+    """Each parameter is a number the kind takes, at both ends of its range; `ScenarioError` otherwise.
+
+    A user's class (kind ``python``) checks its own params: it is built once at each end.
+    """
+    timing = scenario.timing
     for p in params:
         if base.kind in PID_KINDS and p.name not in PID_TUNABLE + TOP_LEVEL:
             raise ScenarioError(f"--param {p.name!r}: kind {base.kind!r} tunes "
@@ -120,7 +144,9 @@ def check_params(base: ControllerConfig, params: Sequence[TuneParam]) -> None:
             raise ScenarioError(f"--param {p.name!r}: kind {base.kind!r} has no such term")
         for end in (p.low, p.high):
             try:
-                config_at(base, [p], [end])
+                cfg = config_at(base, [p], [end])
+                if cfg.kind == USER_KIND:
+                    build_controller(cfg, plant_for(scenario), timing.control_period_s, timing.plant_step_s)
             except (ControllerError, TypeError) as exc:
                 raise ScenarioError(f"--param {p.name}={p.low:g}:{p.high:g}: kind {base.kind!r}: "
                                     f"{exc}") from None
@@ -133,15 +159,16 @@ def generations_for(budget: int, dims: int) -> tuple[int, int]:
     return m, max(0, budget // population - 1)
 
 
-def tune(scenario: Scenario, kind: str, params: Sequence[TuneParam], objective: str, budget: int,
-         seed: int = 0, progress: Callable[[int, float], None] | None = None) -> TuneResult:
-    """Search `params` of controller `kind` for the best `objective` on `scenario`'s field.
+def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam], objective: str,
+         budget: int, seed: int = 0, progress: Callable[[int, float], None] | None = None) -> TuneResult:
+    """Search `params` of a controller for the best `objective` on `scenario`'s field.
 
     Parameters
     ----------
     scenario : Scenario
-    kind : str
-        A controller kind (``PID``, ``PI``, ``P``, ``aog_pi``, ...).
+    controller : str or None
+        None: the scenario's own controller; a controller kind (``PID``, ``PI``, ``P``, ``aog_pi``,
+        ...) with its defaults; or a TOML file with a ``[controller]`` table (`base_config`).
     params : sequence of TuneParam
         The searched parameters and their ranges (names as in ``[controller]``, or its ``params`` for
         kinds other than P, PI, PID; ``look_ahead_s`` for any kind).
@@ -157,7 +184,8 @@ def tune(scenario: Scenario, kind: str, params: Sequence[TuneParam], objective: 
     Raises
     ------
     ScenarioError
-        Unknown kind, parameter or metric, an empty or reversed range, a budget below 1.
+        Unknown kind, a spec file that does not load, an unknown parameter or metric, an empty or
+        reversed range, a budget below 1.
     """
     from scipy.optimize import differential_evolution
 
@@ -169,8 +197,8 @@ def tune(scenario: Scenario, kind: str, params: Sequence[TuneParam], objective: 
     names = [p.name for p in params]
     if len(set(names)) < len(names):
         raise ScenarioError(f"--param: a parameter is given twice: {names}")
-    base = base_config(scenario, kind)
-    check_params(base, params)
+    base = base_config(scenario, controller)
+    check_params(base, params, scenario)
     shared = drive_of(scenario)
     history: list[dict] = []
     best = [math.inf]

@@ -10,7 +10,7 @@ those once and then
    one after another);
 2. lands every variant's metered product at once: the applied rate per tick is a column per variant,
    the joined strips' masses too, and the as-applied rasters come from one sparse map from strips to
-   cells (`maps.StripMap`) applied to all mass columns;
+   cells (`maps.ColumnDeposit`) applied to all mass columns;
 3. accounts for each variant's deposit with the run's own accounting (`services.sim.accounting`).
 
 The controller-free work (the targets, the strips and their sparse map, the landing geometry, the
@@ -38,10 +38,10 @@ import numpy as np
 
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, build_variant_loops
-from maps import AppliedColumns, StripMap
+from maps import AppliedColumns, ColumnDeposit
 from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import RUN_CHUNK, ControlCore, plant_for
+from services.sim.core import RUN_CHUNK, ControlCore, context_track, plant_for
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
@@ -110,7 +110,7 @@ class _Shared:
     core: ControlCore
     setting: Setting          # its landing's applied rates are each variant's own
     plan: StripPlan
-    strip_map: StripMap
+    strip_map: ColumnDeposit
     limited_strips: LimitedStrips
     control_s: float          # each variant's share of the shared stage 1
     metrics_s: float          # ... and of the shared geometry
@@ -136,10 +136,9 @@ class _Shared:
         return shared
 
 
-def _strip_map(grid, plan: StripPlan) -> StripMap:
+def _strip_map(grid, plan: StripPlan) -> ColumnDeposit:
     """The sparse map from the plan's strips (with their passes) to the grid's cells."""
-    s = plan.strips
-    return StripMap(grid, s.x0_m, s.y0_m, s.x1_m, s.y1_m, s.width_m, pass_index=s.pass_index)
+    return ColumnDeposit(grid, plan.strips.footprint(), pass_index=plan.strips.pass_index)
 
 
 def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
@@ -159,7 +158,9 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
             part = slice(lo, lo + RUN_CHUNK)
             target = rec["target_shaft_rpm"][part]
             targets = np.broadcast_to(target[:, None], (len(target), loop.n)) if loop.n > 1 else target
-            metered[part, idx] = shared.core._metered_kg(loop.run(targets).shaft_rev, applying[part])
+            context = context_track(rec, drive.measured_speed_m_s, part)
+            metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
+                                                         applying[part])
     control_s = time.perf_counter() - clock
     # A variant's wall time is the sum of its shares of the work done for it.
     timers = [StageTimer({**drive.stage_s, "control_s": shared.control_s + control_s / len(cfgs),

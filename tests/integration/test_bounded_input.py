@@ -49,7 +49,7 @@ def hostile_cases(folder: str) -> list:
         os.symlink("/dev/zero", zero)
         os.mkfifo(fifo)
         with open(big, "wb") as fh:
-            fh.truncate(files.BYTE_CAPS[files.kind_of(big)] + 1)  # sparse: no disk used
+            fh.truncate(files.BYTE_CAPS[files._kind_of(big)] + 1)  # sparse: no disk used
         cases += [(f"map /dev/zero as {ext}", "map", zero), (f"map FIFO as {ext}", "map", fifo),
                   (f"map oversize {ext}", "map", big)]
     bomb_shp, bomb_xml = os.path.join(folder, "bomb_shp.zip"), os.path.join(folder, "bomb_xml.zip")

@@ -13,8 +13,7 @@ import rasterio
 
 import maps
 from services.outputs.write import write_outputs
-from services.sim import run as field_run
-from services.sim import scenario
+from services.sim import run, scenario
 from services.sim.metrics import METRICS, point_metrics
 from tests.conftest import VRSIM
 
@@ -53,7 +52,7 @@ def scenario_file(folder, output="") -> str:
 def farm_run(tmp_path_factory):
     """One run in process, its outputs written as `vrsim run` writes them: (result, out folder)."""
     folder = tmp_path_factory.mktemp("farm")
-    result = field_run.run(scenario.load(scenario_file(str(folder))))
+    result = run(scenario.load(scenario_file(str(folder))))
     out = folder / "out"
     write_outputs(result, str(out))  # no plot worker: the pictures are drawn in this process
     return result, out

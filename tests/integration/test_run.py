@@ -13,8 +13,7 @@ from PIL import Image
 
 from maps import write_map
 from services.outputs.encode import dumps_text
-from services.sim import run as field_run
-from services.sim import scenario
+from services.sim import run, scenario
 from services.sim.core import ControlCore
 from services.sim.world import build_world
 from tests.conftest import VRSIM
@@ -91,7 +90,7 @@ def test_uniform_map_at_constant_speed_balances_within_one_percent(tmp_path):
     """Metering, plant and landing conserve product: what lands equals 150 kg/ha over the strips the
     implement swept while on (overlaps counted twice, as the product is) to within 1 %."""
     sc = scenario.load(quick(tmp_path, "uniform", "{ rate_kg_ha = 150.0 }", variation=0.0, plots=False))
-    result = field_run.run(sc)
+    result = run(sc)
     on = np.asarray(result.track["implement_on"], bool)
     swept_ha = (result.landing.strip_length_m[on] * sc.implement.width_m).sum() / 1e4
     asked_kg = 150.0 * swept_ha
@@ -133,7 +132,7 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
             "tuned": with_tuned_smith(tmp_path)}[policy]
     sc = scenario.load(path)
     assert sc.map.policy == ("hold" if policy == "hold" else "off")
-    result = field_run.run(sc)
+    result = run(sc)
     core = ControlCore(result.world.grid, sc, result.world.field.polygon, result.world.path)
     t = result.track
     n = len(t["time_s"])

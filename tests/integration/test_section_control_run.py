@@ -2,6 +2,7 @@
 the error split, the machine check, and the outputs and refusals of `vrsim run`."""
 
 import json
+import os
 import subprocess
 
 import numpy as np
@@ -10,9 +11,10 @@ import rasterio
 
 from common.section_masks import sections_from_masks
 from services.outputs.write import write_outputs
+from services.sim import accuracy
 from services.sim.error_split import error_split
 from services.sim.run import run
-from services.sim.scenario import parse, with_changes
+from services.sim.scenario import load, parse, with_changes
 from tests.conftest import VRSIM
 
 FIELD = """
@@ -61,6 +63,41 @@ def test_uniform_map_with_the_ideal_meter_lands_the_map():
     assert s["skip_area_pct"] < 1.0 and abs(s["mass_balance_pct"]) < 1.0, s
 
 
+@pytest.fixture(scope="module")
+def rectangle_ideal():
+    """The accuracy library's plain rectangle, uniform map, ideal meter, turns at the default 1.2 m/s
+    (the tractor speeds up to 2.5 m/s out of each headland turn)."""
+    return run(load(os.path.join(accuracy.SCENARIO_DIR, "rectangle_uniform_ideal.toml")))
+
+
+def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
+    """Each section's product starts landing within half a map cell (1 m) of the treated headland's
+    inner edge at every swath start: the look-ahead follows the turn's end and the speed-up (with the
+    heading and speed held, the outer sections started up to 2.5 m late)."""
+    result = rectangle_ideal
+    track, gates = result.track, result.sections.actual
+    time_s, y_m = np.asarray(track["time_s"]), np.asarray(track["y_m"])
+    _, south, _, north = result.world.field.polygon.bounds
+    headland_m = result.world.scenario.implement.width_m
+    delay_s = result.world.scenario.implement.delivery_delay_s
+    starts = np.flatnonzero(~gates[:-1].any(axis=1) & gates[1:].any(axis=1)) + 1
+    late_m = []
+    for start in starts[1:]:   # the first is the headland pass's own start
+        first = start + np.argmax(gates[start:], axis=0)   # each section's first open tick
+        landed_y = np.interp(time_s[first] + delay_s, time_s, y_m)
+        from_south = landed_y.mean() < (south + north) / 2
+        late_m.append(landed_y - (south + headland_m) if from_south else (north - headland_m) - landed_y)
+    late_m = np.array(late_m)
+    assert len(late_m) >= 6 and np.abs(late_m).max() <= 1.0, late_m.round(2)
+
+
+@pytest.mark.xfail(strict=True, reason="issue #25's goal, not reached by the look-ahead alone: the ideal "
+                   "meter over-applies where the tractor slows before each swath end (product metered at "
+                   "the speed before landing at the slower one) and in the headland pass's corners")
+def test_rectangle_ideal_reaches_99_pct_within_10_pct(rectangle_ideal):
+    assert rectangle_ideal.summary["within_10pct_area_pct"] >= 99.0
+
+
 def test_oblique_headland_needs_coverage_control():
     """Swaths at 35 degrees to the headland, 6 sections, the paper's PID: coverage control keeps the
     mass balance within 3 %; the boundary rule (a section on while its centre is in the field)
@@ -74,10 +111,14 @@ def test_oblique_headland_needs_coverage_control():
 
 
 def test_longer_latencies_give_more_overlap_and_skips():
+    """Skips grow with the latency throughout; overlap up to 3 s. Beyond, the look-ahead extrapolates
+    the acceleration and yaw rate of a moment over seconds in which the tractor has long changed them
+    (8.8 s ahead: a turn's yaw rate turns the predicted strip by 100 degrees), and where product lands
+    twice is no longer ordered by the latency; that it is far off shows in the skips."""
     figures = [run(with_changes(oblique(section_on_delay_s=d, section_off_delay_s=d),
                                 controller={"kind": "ideal"})).summary for d in (0.3, 1.0, 3.0, 8.0)]
-    for key in ("overlap_area_pct", "skip_area_pct", "overlap_kg"):
-        values = [f[key] for f in figures]
+    for key, upto in (("overlap_area_pct", 3), ("skip_area_pct", 4), ("overlap_kg", 3)):
+        values = [f[key] for f in figures[:upto]]
         assert np.all(np.diff(values) > 0), (key, values)
 
 
@@ -127,7 +168,7 @@ def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
     assert parts[0].share_pct > 50  # obliquely crossed squares: most of the error is geometry
     ideal = error_split(run(with_changes(oblique(), controller={"kind": "ideal"})))
     # The ideal meter meters exactly: nothing left for metering (to rounding: the references land
-    # through maps.StripMap, the run through maps.AsApplied, summing in another order).
+    # through maps.ColumnDeposit, the run through maps.AsApplied, summing in another order).
     assert ideal[2].mass_balance_pct == pytest.approx(0.0, abs=1e-9)
     assert ideal[2].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
 

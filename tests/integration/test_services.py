@@ -362,15 +362,15 @@ def test_serve_all_from_a_zenoh_config_file(files, tmp_path):
 
 def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     """Stopped 3 ticks into a batch of 7: status counts every tick sent to the controller."""
+    import importlib
     import types
 
     import services.sim.drive_job
-    import services.sim.run
     from services.bus import messages
     from services.bus.config import Keys
-    from services.bus.vehicle import VehicleService
+    from services.bus.vehicle import _VehicleService
 
-    svc = VehicleService(None, Keys(), lambda payload: None)
+    svc = _VehicleService(None, Keys(), lambda payload: None)
     sent = []
 
     class Driver:
@@ -399,7 +399,8 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
     speed = types.SimpleNamespace(read=lambda t, v: v)
     monkeypatch.setattr(services.sim.drive_job, "SumoDriver", Driver)
-    monkeypatch.setattr(services.sim.run, "sensors", lambda sc: (gnss, speed))
+    # The module: `services.sim.run` is the function (the package's API).
+    monkeypatch.setattr(importlib.import_module("services.sim.run"), "sensors", lambda sc: (gnss, speed))
     timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
     scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1, source="s.toml")
     world = types.SimpleNamespace(scenario=scenario, path=None)
@@ -411,9 +412,9 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
 def test_run_id_is_safe_in_a_selector_parameter():
     import zenoh
 
-    from services.bus.scenario import new_run_id
+    from services.bus.scenario import _new_run_id
 
-    run_id = new_run_id("north field; v2#b?", 3)
+    run_id = _new_run_id("north field; v2#b?", 3)
     assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id
     params = zenoh.Selector(f"vrsim/tractor1/report?run_id={run_id}").parameters
     assert list(params) == [("run_id", run_id)]
@@ -428,9 +429,8 @@ def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
     from common import ScenarioError
     from services.bus import messages
     from services.bus.config import Keys
-    from services.bus.vehicle import VehicleService
-    from services.sim import run as field_run
-    from services.sim import scenario
+    from services.bus.vehicle import _VehicleService
+    from services.sim import run, scenario
     from services.sim.world import build_world
 
     path = tmp_path / "short.toml"
@@ -438,10 +438,10 @@ def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
                     '[map]\nsynthetic = "uniform"\n[timing]\nmax_sim_time_s = 160.0\n')
     sc = scenario.load(str(path))
     with pytest.raises(ScenarioError) as ran:
-        field_run.run(sc)
+        run(sc)
     assert str(path) in str(ran.value) and "within max_time_s=160 s" in str(ran.value)
 
-    svc = VehicleService(None, Keys(), lambda payload: None)
+    svc = _VehicleService(None, Keys(), lambda payload: None)
     ok = types.SimpleNamespace(ok=object())
     querier = types.SimpleNamespace(get=lambda payload: [ok], undeclare=lambda: None)
     svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)

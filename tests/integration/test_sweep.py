@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from services.outputs.sweep_results import read_rows, write_parquet
+from services.outputs.sweep_results import _read_rows, _write_parquet
 from tests.conftest import ROOT, VRSIM
 
 SCENARIO = """
@@ -70,7 +70,7 @@ def local(tmp_path_factory):
     (folder / "q.toml").write_text(SCENARIO)
     (folder / "s.toml").write_text(SWEEP)
     outcome = sweep(folder, "--workers", "2", "--out", str(folder / "out"))
-    return folder, outcome, read_rows(str(folder / "out" / "results.parquet"))
+    return folder, outcome, _read_rows(str(folder / "out" / "results.parquet"))
 
 
 def test_rows_equal_vrsim_run_of_the_same_combination(local, tmp_path):
@@ -126,7 +126,7 @@ def test_resume_reruns_nothing(local):
     folder, _, rows = local
     outcome = sweep(folder, "--resume", "--out", str(folder / "out"))
     assert (outcome["planned"], outcome["skipped"], outcome["ran"], outcome["workers"]) == (4, 4, 0, 0)
-    assert read_rows(str(folder / "out" / "results.parquet")) == rows
+    assert _read_rows(str(folder / "out" / "results.parquet")) == rows
 
 
 def test_resume_runs_only_what_is_missing_and_run_outputs_are_written_when_asked(local):
@@ -134,10 +134,10 @@ def test_resume_runs_only_what_is_missing_and_run_outputs_are_written_when_asked
     out = folder / "partial"
     out.mkdir()
     missing = next(r for r in rows if r["status"] == "ok" and r["controller.kp"] == 0.8)
-    write_parquet([r for r in rows if r is not missing], str(out / "results.parquet"))
+    _write_parquet([r for r in rows if r is not missing], str(out / "results.parquet"))
     outcome = sweep(folder, "--resume", "--out", str(out), "--workers", "1", "--run-outputs")
     assert (outcome["skipped"], outcome["ran"], outcome["ok"]) == (3, 1, 1)
-    again = {r["key"]: r for r in read_rows(str(out / "results.parquet"))}
+    again = {r["key"]: r for r in _read_rows(str(out / "results.parquet"))}
     assert set(again) == {r["key"] for r in rows}
     for row in rows:
         assert same_figures(again[row["key"]], row, ignore={"outputs_wall_s"}) == {}
@@ -164,12 +164,12 @@ def test_a_report_that_does_not_fit_exits_2_and_leaves_the_table_whole(local, tm
     assert sizes["report.html"] > 2 * 4096  # the page does not fit in what is left
     with tmpfs(tmp_path / "full", f"{room // 1024 + 4}k", inside=("out",)) as mount:
         out = os.path.join(mount, "out")
-        write_parquet(rows, os.path.join(out, "results.parquet"))
+        _write_parquet(rows, os.path.join(out, "results.parquet"))
         p = vrsim("sweep", str(folder / "s.toml"), "--no-dashboard", "--quiet", "--resume", "--out", out)
         refused(p, "sweep", out, "no space left on the device")
         names = set(os.listdir(out))  # the CSV too, unless the disk filled before it was written
         assert names in ({"results.parquet"}, {"results.parquet", "results.csv"})  # no report, no temporary
-        assert read_rows(os.path.join(out, "results.parquet")) == rows
+        assert _read_rows(os.path.join(out, "results.parquet")) == rows
         if "results.csv" in names:
             with open(os.path.join(out, "results.csv"), newline="") as fh:
                 assert len(list(csv.DictReader(fh))) == len(rows)
@@ -222,7 +222,7 @@ def test_a_separately_started_scheduler_and_worker_give_the_same_table(local, tm
         for proc in (worker, scheduler):
             if proc is not None:
                 _stop(proc)
-    remote = {r["key"]: r for r in read_rows(str(tmp_path / "out" / "results.parquet"))}
+    remote = {r["key"]: r for r in _read_rows(str(tmp_path / "out" / "results.parquet"))}
     assert set(remote) == {r["key"] for r in rows}
     for row in rows:
         assert same_figures(remote[row["key"]], row) == {}

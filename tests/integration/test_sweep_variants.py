@@ -10,7 +10,7 @@ import subprocess
 
 import pytest
 
-from services.outputs.sweep_results import read_rows
+from services.outputs.sweep_results import _read_rows
 from services.sim.sweep import load_sweep, plan, run_group, variant_groups
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_sweep import SCENARIO
@@ -43,7 +43,7 @@ def sweep(folder, name, out, *args):
                         "--workers", "2", "--out", str(out), *args],
                        capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
-    return json.loads(p.stdout), read_rows(str(out / "results.parquet"))
+    return json.loads(p.stdout), _read_rows(str(out / "results.parquet"))
 
 
 def assert_same_figures(row: dict, want: dict) -> None:

@@ -3,8 +3,7 @@ without a [timing] table (the old fixed default stopped at 36,000 s of simulated
 
 import pytest
 
-from services.sim import run as field_run
-from services.sim import scenario
+from services.sim import run, scenario
 
 FIELD_500_HA = """
 name = "field_500ha"
@@ -32,7 +31,7 @@ def test_500_ha_with_a_24_m_boom_at_3_m_s_runs_without_a_timing_table(tmp_path):
     path.write_text(FIELD_500_HA)
     sc = scenario.load(str(path))
     assert sc.timing.max_sim_time_s is None  # no [timing] table: the driver derives the limit
-    result = field_run.run(sc)
+    result = run(sc)
     s = result.summary
     assert s["field_area_ha"] == pytest.approx(500.0)
     assert s["sim_time_s"] > 36000.0  # beyond the old fixed limit: ~20 h of driving

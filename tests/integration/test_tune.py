@@ -3,6 +3,7 @@ scenario can include and the objective's history; bad input exits 2 naming what.
 
 import csv
 import json
+import os
 import subprocess
 import tomllib
 
@@ -10,7 +11,7 @@ import pytest
 
 from services.sim import scenario
 from services.sim.run import run
-from tests.conftest import VRSIM
+from tests.conftest import ROOT, VRSIM
 from tests.integration.test_variants import FIELD
 
 
@@ -54,3 +55,56 @@ def test_bad_input_exits_2_naming_what(args, message):
     p = vrsim("tune", "default", *args)
     assert p.returncode == 2, p.stderr
     assert message in p.stderr and len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
+
+
+MY_CONTROLLER = os.path.join(ROOT, "scenarios", "my_controller.toml")
+KP = ["--param", "kp_a_per_rpm=0.0005:0.005", "--objective", "mae_kg_ha", "--budget", "8", "--json"]
+
+
+def _best_python_controller(out_dir) -> dict:
+    cfg = tomllib.loads((out_dir / "best_controller.toml").read_text())["controller"]
+    assert cfg["kind"] == "python" and cfg["class"] == "MyController" and os.path.isfile(cfg["file"])
+    assert 0.0005 <= cfg["params"]["kp_a_per_rpm"] <= 0.005 and cfg["params"]["ki_a_per_rpm_s"] == 0.008
+    return cfg
+
+
+def test_tune_searches_the_scenarios_own_python_controller(tmp_path):
+    p = vrsim("tune", MY_CONTROLLER, *KP, "--out", str(tmp_path / "out"))
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["controller"] == "python" and 1 <= out["evaluations"] <= 8
+    assert out["tuned"]["mae_kg_ha"] <= out["baseline"]["mae_kg_ha"] + 1e-9
+    assert out["best"]["kp_a_per_rpm"] == _best_python_controller(tmp_path / "out")["params"]["kp_a_per_rpm"]
+
+
+def test_tune_takes_a_controller_spec_file_whose_best_a_scenario_runs_to_the_same_figure(tmp_path):
+    (tmp_path / "f.toml").write_text(FIELD)
+    p = vrsim("tune", str(tmp_path / "f.toml"), "--controller", MY_CONTROLLER, *KP,
+              "--out", str(tmp_path / "out"))
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    _best_python_controller(tmp_path / "out")
+    table = (tmp_path / "out" / "best_controller.toml").read_text()
+    (tmp_path / "tuned.toml").write_text(FIELD + "\n" + table)
+    again = run(scenario.load(str(tmp_path / "tuned.toml")))     # one at a time, as a field run
+    assert again.summary["mae_kg_ha"] == pytest.approx(out["best_objective"], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_tune_the_default_field_with_the_example_spec_file(tmp_path):
+    """The issue's command as given (the default field's 177,000 ticks through a Python class)."""
+    p = vrsim("tune", "default", "--controller", MY_CONTROLLER, *KP, "--out", str(tmp_path / "out"))
+    assert p.returncode == 0, p.stderr
+    _best_python_controller(tmp_path / "out")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--controller", "nope.toml"], "nope.toml"),
+    (["--param", "kq_a_per_rpm=0.1:1"], "rejected its params"),
+])
+def test_a_python_controllers_bad_input_exits_2(tmp_path, args, message):
+    if "--param" not in args:
+        args = [*args, "--param", "kp_a_per_rpm=0.001:0.002"]
+    p = vrsim("tune", MY_CONTROLLER, *args, "--objective", "mae_kg_ha")
+    assert p.returncode == 2, p.stderr
+    assert message in p.stderr and len(p.stderr.strip().splitlines()) == 1

@@ -62,8 +62,9 @@ def test_the_wheel_ships_the_builtin_scenarios_and_no_tests(installed):
 
 
 def test_installed_vrsim_runs_the_builtin_default_from_any_folder(installed):
-    code = "import common, controller, maps, services.sim.run, vehicle as v; print(maps.__file__); " \
-           "print(services.sim.run.__file__); print(v.__file__); print(common.__file__, controller.__file__)"
+    code = "import common, controller, maps, services.sim.scenario, vehicle as v; print(maps.__file__); " \
+           "print(services.sim.scenario.__file__); print(v.__file__); " \
+           "print(common.__file__, controller.__file__)"
     where = sh(str(installed["python"]), "-c", code, cwd=installed["work"])
     files = where.stdout.split()
     assert len(files) == 5 and all(f.startswith(installed["site"]) for f in files), where  # not the checkout

@@ -8,7 +8,7 @@ import stat
 import pytest
 
 from common import ServiceError
-from services.bus.config import ZenohOptions, plain_beyond_loopback
+from services.bus.config import ZenohOptions, _plain_beyond_loopback
 from services.bus.monitor import DEFAULT_DB_FOLDER, MonitorStore, default_db
 
 
@@ -55,7 +55,7 @@ def test_plain_endpoints_beyond_loopback_are_found():
     endpoints = ["tcp/127.0.0.1:7448", "tcp/[::1]:7448", "tcp/localhost:7448", "tls/0.0.0.0:7448",
                  "quic/0.0.0.0:7448", "tcp/0.0.0.0:7448", "tcp/[::]:7448", "tcp/192.168.1.20:7448",
                  "udp/10.0.0.1:7448", "tcp/farm-pc:7448", "tcp/127.0.0.2:7448#iface=lo"]
-    assert plain_beyond_loopback(endpoints) == ["tcp/0.0.0.0:7448", "tcp/[::]:7448", "tcp/192.168.1.20:7448",
+    assert _plain_beyond_loopback(endpoints) == ["tcp/0.0.0.0:7448", "tcp/[::]:7448", "tcp/192.168.1.20:7448",
                                                 "udp/10.0.0.1:7448", "tcp/farm-pc:7448"]
 
 

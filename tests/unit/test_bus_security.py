@@ -60,7 +60,7 @@ def test_load_state_names_what_is_missing_and_never_echoes_a_password(tmp_path):
         security.load_state(str(tmp_path / "none"))
     folder = tmp_path / "state"
     state = security.prepare_state(str(folder))
-    security.write_private(state.dictionary_file, b"operator:secret-value\nbroken-line-secret\n")
+    security._write_private(state.dictionary_file, b"operator:secret-value\nbroken-line-secret\n")
     with pytest.raises(ServiceError, match="line 2 is not user:password") as err:
         security.load_state(str(folder))
     assert "secret" not in str(err.value).replace(str(folder), "")
@@ -69,38 +69,38 @@ def test_load_state_names_what_is_missing_and_never_echoes_a_password(tmp_path):
 
 
 def test_acl_gives_each_user_its_own_subject_and_denies_by_default():
-    acl = security.acl_config(Keys("vrsim", "tractor1"))
+    acl = security._acl_config(Keys("vrsim", "tractor1"))
     assert acl["enabled"] and acl["default_permission"] == "deny"
     assert [s["usernames"] for s in acl["subjects"]] == [[u] for u in security.USER_ROLES]
     rules = {r["id"]: r for r in acl["rules"]}
     viewer = [rules[i] for p in acl["policies"] if p["subjects"] == ["viewer"] for i in p["rules"]]
     asked = {k for r in viewer if "query" in r["messages"] for k in r["key_exprs"]}
-    assert asked == set(security.read_only_keys(Keys()))
+    assert asked == set(security._read_only_keys(Keys()))
     assert not any("put" in r["messages"] and "ingress" in r["flows"] for r in viewer)
     vehicle_puts = {k for p in acl["policies"] if p["subjects"] == ["vehicle"] for i in p["rules"]
                     for k in rules[i]["key_exprs"] if "put" in rules[i]["messages"]}
     assert vehicle_puts == {"vrsim/tractor1/pose"}
     with pytest.raises(ServiceError, match="unknown role 'root'"):
-        security.acl_config(Keys(), {"eve": "root"})
+        security._acl_config(Keys(), {"eve": "root"})
 
 
 def test_the_web_user_gets_exactly_what_its_page_shows():
     k = Keys("vrsim", "tractor1")
-    acl = security.acl_config(k)
+    acl = security._acl_config(k)
     rules = {r["id"]: r for r in acl["rules"]}
     web = [rules[i] for p in acl["policies"] if p["subjects"] == ["web"] for i in p["rules"]]
 
     def keys(message, flow):
         return {e for r in web if message in r["messages"] and flow in r["flows"] for e in r["key_exprs"]}
 
-    assert keys("query", "ingress") == set(security.web_keys(k)) == {
+    assert keys("query", "ingress") == set(security._web_keys(k)) == {
         "vrsim/map/info", "vrsim/map/rate", "vrsim/tractor1/report", "vrsim/tractor1/monitor/status",
         "vrsim/tractor1/monitor/run", "vrsim/tractor1/monitor/records", "vrsim/scenario/status"}
     assert keys("declare_subscriber", "ingress") == {"vrsim/tractor1/pose", "vrsim/tractor1/shaft",
                                                      "vrsim/tractor1/rate"}
     assert keys("liveliness_token", "ingress") == {"vrsim/alive/web"}
     assert not keys("put", "ingress") and not keys("declare_queryable", "ingress")
-    assert {k.monitor_run, k.monitor_records} <= set(security.read_only_keys(k))
+    assert {k.monitor_run, k.monitor_records} <= set(security._read_only_keys(k))
 
 
 def test_router_and_client_settings_with_tls(tmp_path):
@@ -117,10 +117,10 @@ def test_router_and_client_settings_with_tls(tmp_path):
         security.router_settings(state, Keys(), ["tcp/127.0.0.1:7448"])
     router = security.router_settings(state, Keys(), ["tls/127.0.0.1:7448"])
     assert router["transport/link/tls/listen_private_key"] == state.tls_file("router-key.pem")
-    client = security.client_settings(state, "viewer", ["tls/127.0.0.1:7448"])
+    client = security._client_settings(state, "viewer", ["tls/127.0.0.1:7448"])
     assert client["transport/link/tls/root_ca_certificate"] == state.tls_file("ca.pem")
     assert client["transport/auth/usrpwd/password"] == state.passwords["viewer"]
-    doc = security.settings_document(client)
+    doc = security._settings_document(client)
     assert doc["transport"]["auth"]["usrpwd"]["user"] == "viewer" and doc["mode"] == "client"
 
 

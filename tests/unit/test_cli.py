@@ -32,10 +32,10 @@ def test_bad_option_exits_2():
 
 
 def test_options_and_parameters_may_interleave():
-    from services.cli.main import parse
+    from services.cli.main import _parse
 
-    args = parse(["query", "scenario/start", "--body", "f.toml", "source=f.toml", "base_dir=/x"])
+    args = _parse(["query", "scenario/start", "--body", "f.toml", "source=f.toml", "base_dir=/x"])
     assert args.command == "query" and args.body == "f.toml"
     assert args.params == ["source=f.toml", "base_dir=/x"]
-    args = parse(["run", "--json", "s.toml", "--quiet"])
+    args = _parse(["run", "--json", "s.toml", "--quiet"])
     assert args.scenario == "s.toml" and args.json and args.quiet

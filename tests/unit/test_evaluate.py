@@ -9,7 +9,7 @@ from affine import Affine
 
 from common import MapError
 from maps import Grid, PointLog
-from services.sim.aslog import compass_deg
+from services.sim.aslog import _compass_deg
 from services.sim.evaluate import error_grid, evaluate
 from services.sim.metrics import POINT_METRICS, point_metrics
 from vehicle import Field
@@ -123,4 +123,4 @@ def test_error_grid_on_the_prescription_and_without():
 
 
 def test_compass_heading():
-    assert compass_deg(np.array([0.0, np.pi / 2, np.pi, -np.pi / 2])).tolist() == [90.0, 0.0, 270.0, 180.0]
+    assert _compass_deg(np.array([0.0, np.pi / 2, np.pi, -np.pi / 2])).tolist() == [90.0, 0.0, 270.0, 180.0]

@@ -115,5 +115,5 @@ def test_grid_memory_is_estimated_before_allocating(tmp_path):
         files.check_grid_memory(100_000, 100_000, 16, "huge", MapError)
     meminfo = tmp_path / "meminfo"
     meminfo.write_text("MemTotal:       24684816 kB\nMemAvailable:   1048576 kB\n")
-    assert files.available_memory_bytes(str(meminfo)) == files.GiB
-    assert files.available_memory_bytes(str(tmp_path / "none")) is None
+    assert files._available_memory_bytes(str(meminfo)) == files.GiB
+    assert files._available_memory_bytes(str(tmp_path / "none")) is None

@@ -168,11 +168,11 @@ def test_pass_overlapping_itself_and_strips_without_pass():
     assert part.pass_count.max() == 0 and part.coverage_fraction[:, 0] == pytest.approx(0.25)
 
 
-# ---------------------------------------------------------------------- StripMap: many mass columns
+# ---------------------------------------------------------------------- ColumnDeposit: many mass columns
 def test_strip_map_equals_add_strips_per_column():
     """Oblique, axis-aligned, zero-length and off-grid strips; columns with zero-mass strips (which
     sweep no coverage there): each column's rasters equal AsApplied.add_strips of that column."""
-    from maps import StripMap
+    from maps import ColumnDeposit, Strips
 
     g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
     rng = np.random.default_rng(3)
@@ -186,7 +186,7 @@ def test_strip_map_equals_add_strips_per_column():
     width = rng.uniform(0.5, 12.0, k)
     mass = rng.uniform(0.0, 2.0, (k, 3))
     mass[rng.random((k, 3)) < 0.2] = 0.0
-    strip_map = StripMap(g, x0, y0, x1, y1, width)
+    strip_map = ColumnDeposit(g, Strips(x0, y0, x1, y1, width))
     cols = strip_map.apply(mass)
     for j in range(3):
         acc = AsApplied(g)
@@ -203,7 +203,7 @@ def test_strip_map_pass_figures_equal_add_strips_with_passes():
     """Strips in passes (two passes overlapping, one sweeping ground twice) carrying columns of mass,
     some strips empty in some columns: pass count, overlap share and overlap kg, coverage and applied
     rate equal AsApplied.add_strips of each column with the same passes."""
-    from maps import StripMap
+    from maps import ColumnDeposit, Strips
 
     g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
     rng = np.random.default_rng(5)
@@ -219,7 +219,7 @@ def test_strip_map_pass_figures_equal_add_strips_with_passes():
     mass[:, 1] = mass[:, 0]                         # columns 0 and 1: one pattern; 2, 3: gaps
     mass[rng.random(x0.size) < 0.1, 2] = 0.0
     mass[:40, 3] = 0.0
-    cols = StripMap(g, x0, y0, x1, y1, width, pass_index=passes).apply(mass)
+    cols = ColumnDeposit(g, Strips(x0, y0, x1, y1, width), pass_index=passes).apply(mass)
     for j in range(mass.shape[1]):
         acc = AsApplied(g)
         acc.add_strips(x0, y0, x1, y1, width, mass[:, j], pass_index=passes)
@@ -228,5 +228,14 @@ def test_strip_map_pass_figures_equal_add_strips_with_passes():
             np.testing.assert_allclose(getattr(cols, name)[j], getattr(acc, name), rtol=1e-12, atol=1e-12,
                                        err_msg=name)
     assert cols.overlap_kg[0].sum() > 0 and cols.pass_count.max() == 2
-    np.testing.assert_allclose(StripMap(g, x0, y0, x1, y1, width).coverage_fraction(mass),
+    np.testing.assert_allclose(ColumnDeposit(g, Strips(x0, y0, x1, y1, width)).coverage_fraction(mass),
                                cols.coverage_fraction, rtol=0, atol=0)
+
+
+def test_applied_kg_in_a_window_is_that_window_of_applied_kg_open_pass_included():
+    acc = AsApplied(field(), subcells=3)
+    acc.add_strips(500_025.0, 5_300_000.0, 500_031.0, 5_300_100.0, 20.0, 20.0, pass_index=0)
+    acc.add_strips(500_045.0, 5_300_010.0, 500_040.0, 5_300_060.0, 12.0, 7.0, pass_index=1)  # open
+    whole = acc.applied_kg
+    for rows, cols in ((slice(2, 9), slice(3, 12)), (slice(0, 20), slice(0, 20)), (slice(5, 5), slice(0, 4))):
+        np.testing.assert_array_equal(acc.applied_kg_in(rows, cols), whole[rows, cols])

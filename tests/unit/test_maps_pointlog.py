@@ -10,7 +10,7 @@ import pytest
 
 from common import MapError
 from maps import MapWarning
-from maps.pointlog import PointLog, convert_rate, deere_unit, read_point_log, write_points
+from maps.pointlog import PointLog, _deere_unit, convert_rate, read_point_log, write_points
 
 START = np.datetime64("2026-05-04T10:00:00.250", "ms")
 
@@ -122,8 +122,8 @@ def test_read_refusals(tmp_path):
 
 
 def test_units():
-    assert deere_unit("gal1ac-1") == "gal/ac" and deere_unit("kg1ha-1") == "kg/ha"
-    assert deere_unit("ft") == "ft" and deere_unit("m2s-2") == "m^2/s^2"
+    assert _deere_unit("gal1ac-1") == "gal/ac" and _deere_unit("kg1ha-1") == "kg/ha"
+    assert _deere_unit("ft") == "ft" and _deere_unit("m2s-2") == "m^2/s^2"
     assert convert_rate([1.0], "lb/ac", "kg/ha")[0] == pytest.approx(1.12085, rel=1e-5)
     assert convert_rate([10.0], "gal/ac", "L/ha")[0] == pytest.approx(93.5396, rel=1e-5)
     with pytest.raises(MapError, match="without the product's density"):

@@ -7,7 +7,7 @@ from affine import Affine
 from rasterio.features import rasterize
 
 from maps.rasterize import fill_rings, rasterize_rings
-from maps.zones import Rings
+from maps.zones import _Rings
 
 
 def rings_of(geoms):
@@ -18,7 +18,7 @@ def rings_of(geoms):
             for ring in [poly.exterior, *poly.interiors]:
                 rings.append(np.asarray(ring.coords))
                 owners.append(i)
-    return Rings.from_lists(rings, owners)
+    return _Rings.from_lists(rings, owners)
 
 
 def star(rng, cx, cy, r, n=9):
@@ -56,23 +56,23 @@ def _args(r):
 def test_square_exact_and_unclosed_ring():
     # A 4 x 4 square with corners on cell edges: exactly 16 cells, whether the ring is closed or not.
     for ring in ([(1, 1), (5, 1), (5, 5), (1, 5), (1, 1)], [(1, 1), (5, 1), (5, 5), (1, 5)]):
-        out = rasterize_rings(*_args(Rings.from_lists([np.array(ring, float)], [0])), 0.0, 6.0, 1.0, 6, 6)
+        out = rasterize_rings(*_args(_Rings.from_lists([np.array(ring, float)], [0])), 0.0, 6.0, 1.0, 6, 6)
         assert (out == 0).sum() == 16 and (out[1:5, 1:5] == 0).all()
 
 
 def test_later_feature_wins_overlap():
     a = np.array([(0, 0), (4, 0), (4, 4), (0, 4)], float)
     b = a + 2.0
-    out = rasterize_rings(*_args(Rings.from_lists([a, b], [0, 1])), 0.0, 6.0, 1.0, 6, 6)
+    out = rasterize_rings(*_args(_Rings.from_lists([a, b], [0, 1])), 0.0, 6.0, 1.0, 6, 6)
     assert out[2, 2] == 1 and out[5, 0] == 0 and out[0, 5] == 1 and out[0, 0] == -1
 
 
 def test_polygon_outside_or_partly_outside_grid():
     ring = np.array([(-5, -5), (3, -5), (3, 3), (-5, 3)], float)
-    out = rasterize_rings(*_args(Rings.from_lists([ring], [0])), 0.0, 6.0, 1.0, 6, 6)
+    out = rasterize_rings(*_args(_Rings.from_lists([ring], [0])), 0.0, 6.0, 1.0, 6, 6)
     assert (out == 0).sum() == 9 and (out[3:, :3] == 0).all()
     far = np.array([(50, 50), (60, 50), (60, 60)], float)
-    out = rasterize_rings(*_args(Rings.from_lists([far], [0])), 0.0, 6.0, 1.0, 6, 6)
+    out = rasterize_rings(*_args(_Rings.from_lists([far], [0])), 0.0, 6.0, 1.0, 6, 6)
     assert (out == -1).all()
 
 

@@ -12,10 +12,10 @@ import pytest
 from common import MapError
 from maps.pointlog import PointLog
 from maps.taskdata import (
-    condensed_work_states,
-    parse_ddi,
+    _condensed_work_states,
+    _parse_ddi,
+    _sections_from_condensed,
     read_taskdata_log,
-    sections_from_condensed,
     write_taskdata,
 )
 from maps.timelog import encode_records, header_xml, read_timelogs
@@ -179,15 +179,15 @@ def test_encode_records_round_trip(tmp_path):
 
 def test_condensed_work_states():
     sections = np.array([[True, False, True], [False, False, False]])
-    (word,) = condensed_work_states(sections)
+    (word,) = _condensed_work_states(sections)
     # sections 1..3: 01 00 01, sections 4..16 not installed (11).
     expected = (0b01 | 0b00 << 2 | 0b01 << 4) | sum(3 << 2 * k for k in range(3, 16))
     assert word[0].view(np.uint32) == expected
-    np.testing.assert_array_equal(sections_from_condensed([word]), sections)
+    np.testing.assert_array_equal(_sections_from_condensed([word]), sections)
     many = np.random.default_rng(1).random((5, 40)) < 0.5
-    words = condensed_work_states(many)
+    words = _condensed_work_states(many)
     assert len(words) == 3
-    np.testing.assert_array_equal(sections_from_condensed(words), many)
+    np.testing.assert_array_equal(_sections_from_condensed(words), many)
 
 
 def run_log(n=120, sections=6):
@@ -250,6 +250,6 @@ def test_read_taskdata_log_chooses_ddis(shared_dir):
     log = read_taskdata_log(valid_logs(shared_dir), rate_ddi="141")
     assert log.unit == "" and log.points == 61314 and np.isnan(log.target).all()
     assert np.all(np.diff(log.time_s) >= 0)
-    assert parse_ddi("0x00A1") == 161 and parse_ddi(7) == 7
+    assert _parse_ddi("0x00A1") == 161 and _parse_ddi(7) == 7
     with pytest.raises(MapError, match="not a number"):
-        parse_ddi("seven")
+        _parse_ddi("seven")

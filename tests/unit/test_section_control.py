@@ -87,12 +87,13 @@ def test_boundary_mode_is_the_centre_in_field_rule():
     # GNSS 3 m off to the east (and noisy): the outer sections seem outside on the east edges.
     measured = (measured[0] + 3.0, measured[1], measured[2])
     states = switch_sections(track, imp, field.polygon, None, MAP_CELL_M, measured)
-    # Before coverage control: the landing point dead-reckoned from the measured fix, and a section
-    # on while the implement is on and its centre there lies inside the field.
-    lead = measured[2] * imp.delivery_delay_s
-    h = track["heading_rad"]
-    lx, ly = measured[0] + lead * np.cos(h), measured[1] + lead * np.sin(h)
-    expected = imp.sections_on(field.polygon, lx, ly, h, track["implement_on"])
+    # Before coverage control: the landing point predicted from the measured fix, speed, acceleration
+    # and yaw rate (`Motion.ahead`, tested in test_look_ahead_motion), and a section on while the
+    # implement is on and its centre there lies inside the field.
+    motion = states.motion
+    np.testing.assert_array_equal(motion.x_m, measured[0])
+    lx, ly, cos, sin = motion.ahead(imp.delivery_delay_s)
+    expected = imp.sections_on(field.polygon, lx, ly, np.arctan2(sin, cos), track["implement_on"])
     assert np.array_equal(states.actual, expected) and np.array_equal(states.commanded, expected)
     np.testing.assert_array_equal(states.width_on_m, expected.sum(axis=1) * imp.section_width_m)
     working = track["implement_on"]
@@ -129,7 +130,7 @@ def test_coverage_mode_switches_sections_off_over_the_headland(heading_deg):
 
 def test_longer_latencies_give_more_overlap_and_skips():
     field = rectangle()
-    # Speed varying by +-20 % makes dead reckoning over the look-ahead err, as in the field.
+    # Speed varying by +-20 % makes the prediction over the look-ahead err, as in the field.
     track = planned_track(field, heading_deg=35.0, speed_wave=0.2)
     figures = []
     for delay_s in (0.5, 1.0, 2.0, 4.0):

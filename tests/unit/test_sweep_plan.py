@@ -17,9 +17,9 @@ from services.sim.sweep import (
     pareto_front,
     parse_sweep,
     plan,
-    scenario_key,
     variant_groups,
 )
+from services.sim.sweep.design import _scenario_key
 from tests.conftest import ROOT
 
 BASE = """
@@ -242,8 +242,8 @@ def test_run_key_is_the_resolved_scenario(folder):
     path = str(folder / "base.toml")
     plain = scenario.load(path)
     explicit = scenario.load(path, [("implement.width_m", 12.0), ("seed", 7)])  # the defaults, spelled out
-    assert scenario_key(plain) == scenario_key(explicit)
-    assert scenario_key(plain) != scenario_key(scenario.load(path, [("seed", 8)]))
+    assert _scenario_key(plain) == _scenario_key(explicit)
+    assert _scenario_key(plain) != _scenario_key(scenario.load(path, [("seed", 8)]))
 
 
 # --- bad input ---------------------------------------------------------------------------------------

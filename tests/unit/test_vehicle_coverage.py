@@ -8,7 +8,7 @@ import shapely
 from common.errors import VehicleError
 from tests.conftest import ROOT
 from vehicle import Field, plan_coverage
-from vehicle.dubins import dubins_xy, shortest_word
+from vehicle.dubins import _shortest_word, dubins_xy
 
 DATA = os.path.join(ROOT, "tests", "data", "vehicle")
 
@@ -67,9 +67,9 @@ def test_swaths_parallel_to_heading_and_serpentine():
 
 def test_u_turn_or_bulb_by_spacing():
     start = (0.0, 0.0, math.pi / 2)
-    assert shortest_word(start, (12.0, 0.0, -math.pi / 2), 6.0)[0] == "RSR"
-    assert shortest_word(start, (-12.0, 0.0, -math.pi / 2), 6.0)[0] == "LSL"
-    assert shortest_word(start, (-8.0, 0.0, -math.pi / 2), 6.0)[0] == "RLR"  # bulb: 8 m < 2 r
+    assert _shortest_word(start, (12.0, 0.0, -math.pi / 2), 6.0)[0] == "RSR"
+    assert _shortest_word(start, (-12.0, 0.0, -math.pi / 2), 6.0)[0] == "LSL"
+    assert _shortest_word(start, (-8.0, 0.0, -math.pi / 2), 6.0)[0] == "RLR"  # bulb: 8 m < 2 r
     for end in [(-12.0, 0.0, -math.pi / 2), (-8.0, 3.0, -math.pi / 2), (30.0, 40.0, 1.0)]:
         xy = dubins_xy(start, end, 6.0, step_m=0.1)
         assert np.allclose(xy[-1], end[:2]) and np.allclose(xy[0], start[:2])

@@ -12,7 +12,7 @@ import json
 from services.bus import messages
 from services.bus.web.app import create_app
 from services.bus.web.auth import Logins
-from services.bus.web.bridge import decode
+from services.bus.web.bridge import _decode
 from services.bus.web.live import FIELDS, FRAME_S, LiveView, ViewGrid
 
 INFO = {"bounds": [1000.0, 5000.0, 1100.0, 5060.0], "cell_size": [2.0, 2.0], "rows": 30, "cols": 50}
@@ -75,8 +75,8 @@ async def stalled_browser(view: LiveView, stall_s: float):
                              2.5, True, tick * 0.1)
         rate = messages.RateSample("r", tick, tick * 0.05, 1010.0 + tick * 0.1, 5030.0, 150.0, 160.0, 0.01,
                                    12.0, "0x3f", True)
-        view.on_pose(decode("pose", messages.encode_batch([pose]), FIELDS["pose"]))
-        view.on_rate(decode("rate", messages.encode_batch([rate]), FIELDS["rate"]))
+        view.on_pose(_decode("pose", messages.encode_batch([pose]), FIELDS["pose"]))
+        view.on_rate(_decode("rate", messages.encode_batch([rate]), FIELDS["rate"]))
 
     drive(0)  # the run is under way when the browser comes
     await asyncio.sleep(2 * FRAME_S)

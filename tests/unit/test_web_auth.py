@@ -10,7 +10,7 @@ import json
 
 import pytest
 
-from services.bus.web import allowed_hosts
+from services.bus.web import _allowed_hosts
 from services.bus.web import app as web_app
 from services.bus.web.app import create_app
 from services.bus.web.auth import Logins
@@ -157,7 +157,7 @@ def test_an_operators_password_on_a_viewer_service_is_a_viewer():
 
 
 def test_every_answer_forbids_framing():
-    app, logins, _ = service(allowed_hosts=allowed_hosts("0.0.0.0"))
+    app, logins, _ = service(allowed_hosts=_allowed_hosts("0.0.0.0"))
     viewer, _ = session(app, logins, "viewer")
     answers = [call(app, "GET", "/"), call(app, "GET", "/login"), call(app, "GET", "/api/status"),
                call(app, "GET", "/api/status", viewer), call(app, "GET", "/", viewer),
@@ -170,7 +170,7 @@ def test_every_answer_forbids_framing():
 @pytest.mark.parametrize("listen, host", [("0.0.0.0", "127.0.0.1"), ("127.0.0.2", "127.0.0.2"),
                                           ("127.0.0.1", "localhost"), ("::1", "[::1]")])
 def test_a_forged_host_is_refused_on_every_listen_address(listen, host):
-    app, logins, _ = service(allowed_hosts=allowed_hosts(listen))
+    app, logins, _ = service(allowed_hosts=_allowed_hosts(listen))
     operator, csrf = session(app, logins, "operator")
     forged = {**operator, "x-csrf-token": csrf, "host": "evil.example:8448", "origin": "http://evil.example:8448"}
     status, _, _ = call(app, "POST", "/api/start", forged)

@@ -12,7 +12,7 @@ import pytest
 from common import ServiceError
 from services.bus import messages
 from services.bus.web import parse_listen, picture
-from services.bus.web.bridge import decode
+from services.bus.web.bridge import _decode
 from services.bus.web.live import (
     FIELDS,
     RECORD_FIELDS,
@@ -42,7 +42,7 @@ def shaft(run, tick):
 def batch(records, fields=FIELDS) -> Batch:
     """Records as the bridge decodes them off the bus."""
     stream = {messages.Pose: "pose", messages.ShaftState: "shaft", messages.RateSample: "rate"}
-    return decode(stream[type(records[0])], messages.encode_batch(records), fields[stream[type(records[0])]])
+    return _decode(stream[type(records[0])], messages.encode_batch(records), fields[stream[type(records[0])]])
 
 
 SIX = SectionGeometry(np.full(6, 2.0), np.arange(5.0, -6.0, -2.0))  # six 2 m sections, left to right
@@ -82,13 +82,16 @@ def test_view_grid_refuses_map_info_that_does_not_fit(change, needle):
         ViewGrid.from_info(dict(INFO, **change))
 
 
-def test_view_grid_index_of_centres_is_their_cell_and_outside_is_minus_one():
+def test_view_grid_as_a_maps_grid_finds_the_cell_of_each_centre_and_nothing_outside():
     grid = ViewGrid.from_info(INFO)
     x, y = grid.centres()
-    np.testing.assert_array_equal(grid.index(x, y), np.arange(grid.cells))
-    assert grid.index(np.array([999.9, 1100.1, 1050.0, np.nan]),
-                      np.array([5030.0, 5030.0, 5060.1, 5030.0])).tolist() == [-1, -1, -1, -1]
-    assert grid.index(np.array([1000.0]), np.array([5060.0])).tolist() == [0]  # north-west corner
+    found = grid.as_grid().lookup(x, y)
+    np.testing.assert_array_equal(found.row * grid.cols + found.col, np.arange(grid.cells))
+    outside = grid.as_grid().lookup(np.array([999.9, 1100.1, 1050.0, np.nan]),
+                                    np.array([5030.0, 5030.0, 5060.1, 5030.0]))
+    assert outside.row.tolist() == [-1, -1, -1, -1] and not outside.inside.any()
+    corner = grid.as_grid().lookup(np.array([1000.0]), np.array([5060.0]))  # north-west corner
+    assert (corner.row.tolist(), corner.col.tolist()) == ([0], [0])
 
 
 # ---------------------------------------------------------------------------------------- layer
@@ -96,19 +99,19 @@ def test_a_sample_paints_across_its_width_perpendicular_to_the_heading():
     layer = AppliedLayer(ViewGrid.from_info(INFO))
     # Heading east at y = 5031 (row 14): a 12 m width spans y 5025..5037, rows 11..17, one column.
     layer.paint(1, [1051.0], [5031.0], [0.0], [12.0], [0.0], [160.0])
-    rows, cols = np.divmod(np.flatnonzero(layer.samples), 50)
+    rows, cols = np.divmod(np.flatnonzero(layer.line_m), 50)
     assert sorted(set(rows.tolist())) == list(range(11, 18)) and set(cols.tolist()) == {25}
     # Heading north: across is east-west, x 1045..1057, columns 22..28, one row.
     layer = AppliedLayer(ViewGrid.from_info(INFO))
     layer.paint(1, [1051.0], [5031.0], [math.pi / 2], [12.0], [0.0], [160.0])
-    rows, cols = np.divmod(np.flatnonzero(layer.samples), 50)
+    rows, cols = np.divmod(np.flatnonzero(layer.line_m), 50)
     assert set(rows.tolist()) == {14} and sorted(set(cols.tolist())) == list(range(22, 29))
 
 
 def test_offset_shifts_the_strip_to_the_left_of_the_heading():
     layer = AppliedLayer(ViewGrid.from_info(INFO))
     layer.paint(1, [1051.0], [5031.0], [0.0], [2.0], [6.0], [160.0])  # east: left is north
-    rows, _ = np.divmod(np.flatnonzero(layer.samples), 50)
+    rows, _ = np.divmod(np.flatnonzero(layer.line_m), 50)
     assert set(rows.tolist()) == {11}  # y 5036..5038
 
 
@@ -121,6 +124,17 @@ def test_cells_show_the_mean_of_their_samples_and_unusable_samples_are_left_out(
     assert touched == 0 and layer.since(1) == {"i": [], "v": []}
 
 
+def test_a_cell_weighs_each_sample_by_its_line_across_it_and_shows_zero_rates():
+    layer = AppliedLayer(ViewGrid.from_info(INFO))
+    # Heading east in column 25: one 2 m line fills row 14 (y 5030..5032) at 90 kg/ha, another
+    # (y 5029..5031) crosses it for 1 m at 180 kg/ha: (2 * 90 + 1 * 180) / 3 = 120.
+    layer.paint(1, [1051.0, 1051.0], [5031.0, 5030.0], [0.0, 0.0], [2.0, 2.0], [0.0, 0.0], [90.0, 180.0])
+    painted = layer.since(-1)
+    assert dict(zip(painted["i"], painted["v"], strict=True)) == {14 * 50 + 25: 120.0, 15 * 50 + 25: 180.0}
+    layer.paint(2, [1061.0], [5031.0], [0.0], [2.0], [0.0], [0.0])  # sections open, nothing metered
+    assert layer.since(1) == {"i": [14 * 50 + 30], "v": [0.0]}
+
+
 def test_section_masks_paint_the_open_sections_once_the_implement_is_known():
     view = view_with_map()
     view.on_pose(batch([pose("r", 0, 1051.0, 5031.0)]))
@@ -131,7 +145,7 @@ def test_section_masks_paint_the_open_sections_once_the_implement_is_known():
     assert view.layer.painted == 0  # waits for the run's implement
     known(view, "r")
     view.frame()
-    rows, cols = np.divmod(np.flatnonzero(view.layer.samples), 50)
+    rows, cols = np.divmod(np.flatnonzero(view.layer.line_m), 50)
     assert sorted(set(rows.tolist())) == [11, 12, 16, 17] and set(cols.tolist()) == {25}
     # A mask that is not one of six sections paints nothing; all gates closed neither.
     view.on_pose(batch([pose("r", t, 1071.0, 5031.0) for t in (1, 2)]))
@@ -139,7 +153,7 @@ def test_section_masks_paint_the_open_sections_once_the_implement_is_known():
                         rate("r", 2, 1071.0, 5031.0, mask="0x3f")]))
     view.on_rate(batch([rate("r", 3, 1081.0, 5031.0, mask="0x0", width=0.0)]))
     view.frame()
-    assert (np.flatnonzero(view.layer.samples) % 50 == 25).all()
+    assert (np.flatnonzero(view.layer.line_m) % 50 == 25).all()
 
 
 # ---------------------------------------------------------------------------------------- view
@@ -252,7 +266,7 @@ def test_ticks_held_back_when_the_runs_grid_comes_are_painted_once_from_the_reco
     known(live, "r")
     live.on_rate(batch(rates))
     live.frame()
-    assert view.layer.samples.tolist() == live.layer.samples.tolist()
+    assert view.layer.line_m.tolist() == live.layer.line_m.tolist()
     assert view.layer.since(-1) == live.layer.since(-1) and view.layer.painted > 0
 
 

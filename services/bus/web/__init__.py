@@ -38,7 +38,7 @@ def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int
     return host, int(port)
 
 
-def bind(host: str, port: int) -> socket.socket:
+def _bind(host: str, port: int) -> socket.socket:
     """A listening socket, bound before anything else starts, so a taken port is a clear error."""
     try:
         info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
@@ -51,7 +51,7 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-class HttpServer:
+class _HttpServer:
     """uvicorn serving ``app`` on ``sock`` in a thread; ``stop`` is set if it ends by itself."""
 
     def __init__(self, app, sock: socket.socket, stop: threading.Event, tls: tuple[str, str] | None = None):
@@ -81,7 +81,7 @@ class HttpServer:
         self.thread.join(timeout=5.0)
 
 
-def allowed_hosts(host: str) -> list[str]:
+def _allowed_hosts(host: str) -> list[str]:
     """Host headers the page answers when listening on ``host`` (others: 400, against DNS rebinding):
     the loopback names, and the address listened on or, on a wildcard, this machine's names and
     addresses."""
@@ -106,7 +106,7 @@ def check_listen(host: str, port: int, tls: bool, insecure: bool) -> None:
                            "...`), or listen on 127.0.0.1")
 
 
-def page_tls(config, host: str, port: int):
+def _page_tls(config, host: str, port: int):
     """(the state folder's passwords or None, (certificate, key) for TLS or None) for a page on
     ``host``: beyond loopback the page is served over TLS with the bus's certificate (its CA signed
     it: ``vrsim serve all --tls``); an ``--insecure`` bus has neither, and says so."""
@@ -139,8 +139,8 @@ def main(config, stop: threading.Event | None = None) -> int:
     from services.bus.web.live import LiveView
 
     host, port = parse_listen(config.web_listen or DEFAULT_LISTEN)
-    sock = bind(host, port)  # first: a taken port is the clearest error
-    passwords, tls = page_tls(config, host, port)
+    sock = _bind(host, port)  # first: a taken port is the clearest error
+    passwords, tls = _page_tls(config, host, port)
     stop = stop or threading.Event()
     if host not in LOOPBACK:
         print(f"vrsim serve web: listening on {host}:{port}, beyond this machine: anyone who reaches it "
@@ -153,7 +153,7 @@ def main(config, stop: threading.Event | None = None) -> int:
         operator = Operator(config.operator) if config.operator is not None else None
         logins = Logins("operator" if operator else "viewer", passwords, f"vrsim_session_{port}",
                         secure=tls is not None)
-        http = HttpServer(create_app(view, bridge, operator, logins, allowed_hosts(host)), sock, stop, tls)
+        http = _HttpServer(create_app(view, bridge, operator, logins, _allowed_hosts(host)), sock, stop, tls)
         bridge.start()
         role = "operator: start and stop allowed" if operator else "viewer"
         shown = {"0.0.0.0": "127.0.0.1", "::": "[::1]"}.get(host, f"[{host}]" if ":" in host else host)

@@ -49,7 +49,7 @@ STREAM_HEADERS = [(b"content-type", b"text/event-stream; charset=utf-8"), (b"cac
                   (b"x-accel-buffering", b"no")]
 
 
-class Frames:
+class _Frames:
     """Closes frames at most every `FRAME_S` and wakes the streams waiting for one."""
 
     def __init__(self, view: LiveView):
@@ -84,11 +84,11 @@ class Frames:
         cached = self.hello
         if cached is None or cached[:2] != (self.view.epoch, self.view.seq) or now - cached[2] > FRAME_S:
             doc = self.view.hello()
-            cached = self.hello = (doc["epoch"], doc["seq"], now, sse("hello", doc))
+            cached = self.hello = (doc["epoch"], doc["seq"], now, _sse("hello", doc))
         return cached[0], cached[1], cached[3]
 
 
-class Streams:
+class _Streams:
     """The open ``/events`` streams: at most ``limit``; how many ended, and were dropped for not
     reading."""
 
@@ -119,17 +119,17 @@ def _malloc_trim():
         return None
 
 
-def sse(kind: str, doc: dict) -> bytes:
+def _sse(kind: str, doc: dict) -> bytes:
     """One event; ``sent_unix``: when it left (wall clock, s), for a client's own latency figures."""
     doc["sent_unix"] = time.time()
     return b"event: " + kind.encode() + b"\ndata: " + orjson.dumps(doc) + b"\n\n"
 
 
-class EventStream:
-    """The ASGI response of one ``/events``: events of `Frames` until the browser goes (then at once,
+class _EventStream:
+    """The ASGI response of one ``/events``: events of `_Frames` until the browser goes (then at once,
     not at the next event) or is dropped for not reading."""
 
-    def __init__(self, frames: Frames, streams: Streams, bridge: Bridge):
+    def __init__(self, frames: _Frames, streams: _Streams, bridge: Bridge):
         self.frames, self.streams, self.bridge = frames, streams, bridge
 
     async def __call__(self, scope, receive, send) -> None:
@@ -174,7 +174,7 @@ class EventStream:
                     epoch, seq, event = frames.encoded_hello()
                 else:
                     doc = frames.view.delta(seq, epoch)
-                    epoch, seq, event = doc["epoch"], doc["seq"], sse(doc["type"], doc)
+                    epoch, seq, event = doc["epoch"], doc["seq"], _sse(doc["type"], doc)
                 sent = loop.time()
         self.streams.dropped += 1
         return False
@@ -202,8 +202,8 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
     """The Starlette app. ``operator`` None: a viewer (start and stop answer 403); ``logins``: who may
     ask; ``allowed_hosts``: Host headers accepted (against DNS rebinding; None: any);
     ``max_streams``: open ``/events`` streams at most."""
-    frames = Frames(view)
-    streams = Streams(max_streams)
+    frames = _Frames(view)
+    streams = _Streams(max_streams)
 
     @contextlib.asynccontextmanager
     async def lifespan(app):
@@ -240,7 +240,7 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
             return _error(503, f"/events: {streams.limit} streams are open, the most this service keeps; "
                                "close a page and try again", {"Retry-After": "5"})
         streams.open += 1
-        return EventStream(frames, streams, bridge)
+        return _EventStream(frames, streams, bridge)
 
     async def view_doc(request: Request) -> Response:
         current = view.map

@@ -79,7 +79,7 @@ class Bridge:
 
     def _on_message(self, stream: str, handler):
         def on_sample(sample) -> None:
-            batch = decode(stream, sample.payload.to_bytes(), FIELDS[stream])
+            batch = _decode(stream, sample.payload.to_bytes(), FIELDS[stream])
             new_run = handler(batch)
             if new_run is not None:
                 self._follow(new_run, catch_up=batch.tick[0] > 0)
@@ -212,7 +212,7 @@ class Bridge:
         world = build_world(parse(text, source, base_dir))
         implement = world.scenario.implement
         self.view.set_run_info(run_id, {"scenario": world.scenario.name, "clock": run.get("clock"),
-                                        "field": field_geometry(world)},
+                                        "field": _field_geometry(world)},
                                SectionGeometry(implement.section_widths, implement.section_offsets_m))
 
     def catch_up(self, run_id: str) -> None:
@@ -256,7 +256,7 @@ class Bridge:
         raw = client.request(self.session, selector, timeout_s=60.0)
         if raw.strip() == b"[]":
             return Batch(run_id, {f: np.zeros(0) for f in RECORD_FIELDS[stream]})
-        batch = decode(stream, raw, RECORD_FIELDS[stream], max_len=count)
+        batch = _decode(stream, raw, RECORD_FIELDS[stream], max_len=count)
         if batch.run_id != run_id:
             return Batch(run_id, {k: v[:0] for k, v in batch.cols.items()})
         before = np.maximum.accumulate(np.concatenate([[start - 1], batch.tick[:-1]]))
@@ -299,7 +299,7 @@ class Operator:
         self.session.close()
 
 
-def decode(stream: str, payload: bytes, fields: tuple[str, ...], max_len: int = 100_000) -> Batch:
+def _decode(stream: str, payload: bytes, fields: tuple[str, ...], max_len: int = 100_000) -> Batch:
     """One message of ``stream`` as a `Batch` of ``fields``, checked by the stream's schema and
     refused when its records are of several runs (a publisher sends one run's ticks per message)."""
     cols, last = messages.decode_columns(DECODERS[stream], payload, ("run_id", *fields), max_len)
@@ -309,7 +309,7 @@ def decode(stream: str, payload: bytes, fields: tuple[str, ...], max_len: int = 
     return Batch(run_ids[0], cols, last.to_dict())
 
 
-def field_geometry(world) -> dict:
+def _field_geometry(world) -> dict:
     """Field boundary rings and coverage path in the field's CRS, cm precision, the path simplified to
     10 cm (a page draws it, nobody measures on it)."""
     from shapely.geometry import LineString

@@ -11,10 +11,10 @@ second while a lockstep run carries some 15,000 rate samples a second: only the 
 It is the live view's layer, not the report's: each rate sample's applied rate (metered kg over the
 area its sections covered in the period) is spread across each section whose gate was open (the
 sample's ``section_mask``, placed with the implement's section widths: samples wait until the run's
-scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, and a
-cell shows the mean of the samples that touched it. The report's raster (product put where it really
-landed on the true path, area-weighted) is what the monitor computes the metrics on; the two agree
-to within the GNSS error and a cell's edge.
+scenario is known, `LiveView.set_run_info`), at the landing point the controller predicted, through
+the run's deposition engine (`services.bus.web.layer`); a cell shows the mean of the samples over it.
+The report's raster (product put where it really landed on the true path, area-weighted) is what the
+monitor computes the metrics on; the two agree to within the GNSS error and a cell's edge.
 """
 
 from __future__ import annotations
@@ -26,17 +26,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ServiceError
 from common.section_masks import sections_from_masks
+from services.bus.web.layer import AppliedLayer, ViewGrid
 
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
-MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
 HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second
 HEADING_RING = 1 << 18  # ticks of pose heading kept to orient the rate samples that follow them: on a
 # loaded machine the rate stream can lag the pose stream by seconds of lockstep ticks (8,192, half a
 # second at 15,000 ticks/s, lost samples under load); 4 MB for about 17 s
 UNSECTIONED_TICKS = 65536  # rate samples kept until the run's sections are known (then the oldest go)
-MAX_ACROSS = 256  # sample points across one working width (a 12 m width at 2 m cells needs 12)
 STREAMS = ("pose", "shaft", "rate")
 
 
@@ -70,64 +68,6 @@ class Batch:
                      other.last)
 
 
-@dataclass(frozen=True)
-class ViewGrid:
-    """The raster the page shows, in the map's CRS: the map's own grid, or every ``stride``-th cell of
-    it when the map has more than `MAX_VIEW_CELLS` cells. Row 0 is the north row."""
-
-    west_m: float
-    north_m: float
-    cell_x_m: float
-    cell_y_m: float
-    rows: int
-    cols: int
-    stride: int = 1
-
-    @classmethod
-    def from_info(cls, info, max_cells: int = MAX_VIEW_CELLS) -> ViewGrid:
-        """From a ``map/info`` reply (untrusted: every field used is checked)."""
-        if not isinstance(info, dict):
-            raise ServiceError(f"map/info: expected a JSON object, got {type(info).__name__}")
-        bounds, cell = info.get("bounds"), info.get("cell_size")
-        rows, cols = info.get("rows"), info.get("cols")
-        if not (_numbers(bounds, 4) and _numbers(cell, 2) and min(cell) > 0):
-            raise ServiceError(f"map/info: bounds {bounds!r} and cell_size {cell!r} must be 4 and 2 finite "
-                               "numbers, cell sizes > 0")
-        if not all(type(v) is int and v > 0 for v in (rows, cols)) or rows * cols > 10**10:
-            raise ServiceError(f"map/info: rows {rows!r} and cols {cols!r} must be positive integers")
-        stride = max(1, math.ceil(math.sqrt(rows * cols / max_cells)))
-        return cls(float(bounds[0]), float(bounds[3]), cell[0] * stride, cell[1] * stride,
-                   math.ceil(rows / stride), math.ceil(cols / stride), stride)
-
-    @property
-    def cells(self) -> int:
-        return self.rows * self.cols
-
-    def centres(self) -> tuple[np.ndarray, np.ndarray]:
-        """x and y of every cell's centre, row-major, shape (rows * cols,)."""
-        x = self.west_m + (np.arange(self.cols) + 0.5) * self.cell_x_m
-        y = self.north_m - (np.arange(self.rows) + 0.5) * self.cell_y_m
-        return np.tile(x, self.rows), np.repeat(y, self.cols)
-
-    def index(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Flat cell index of each point (row * cols + col), -1 off the grid or not finite."""
-        with np.errstate(invalid="ignore"):
-            col = np.floor((np.asarray(x) - self.west_m) / self.cell_x_m)
-            row = np.floor((self.north_m - np.asarray(y)) / self.cell_y_m)
-            inside = (col >= 0) & (col < self.cols) & (row >= 0) & (row < self.rows)
-        return np.where(inside, np.where(inside, row, 0) * self.cols + np.where(inside, col, 0), -1
-                        ).astype(np.int64)
-
-    def to_dict(self) -> dict:
-        return {"west_m": self.west_m, "north_m": self.north_m, "cell_x_m": self.cell_x_m,
-                "cell_y_m": self.cell_y_m, "rows": self.rows, "cols": self.cols, "stride": self.stride}
-
-
-def _numbers(value, n: int) -> bool:
-    return (isinstance(value, list) and len(value) == n
-            and all(type(v) in (int, float) and math.isfinite(v) for v in value))
-
-
 def _take(column, which):
     """``column[which]`` for an array or a list (str fields come as lists, `messages.decode_columns`)."""
     if isinstance(column, list):
@@ -154,54 +94,6 @@ class SectionGeometry:
         on &= (np.asarray(width_on_m, dtype=np.float64) > 0)[:, None]
         sample, section = np.nonzero(on)
         return sample, self.widths_m[section], self.offsets_m[section]
-
-
-class AppliedLayer:
-    """The live as-applied layer on a `ViewGrid`: per cell the mean applied rate (kg/ha) of the rate
-    samples whose working width touched it, and the frame in which it last changed."""
-
-    def __init__(self, grid: ViewGrid):
-        self.grid = grid
-        self.sum_kg_ha = np.zeros(grid.cells)
-        self.samples = np.zeros(grid.cells, dtype=np.int64)
-        self.stamp = np.full(grid.cells, -1, dtype=np.int64)  # frame seq of the last change
-
-    def paint(self, seq: int, x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha) -> int:
-        """Add samples (arrays of one length); returns the number of cells touched.
-
-        Each sample is a line across the heading, ``width_m`` long, centred ``offset_m`` to the left
-        of (x, y), sampled every half cell; a sample counts once in each cell it touches. Samples with
-        a non-finite value, or no width, are left out (sections off, standstill, off the map).
-        """
-        x, y, h, w, off, rate = (np.asarray(a, dtype=np.float64) for a in
-                                 (x_m, y_m, heading_rad, width_m, offset_m, applied_kg_ha))
-        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(h) & np.isfinite(off) & np.isfinite(rate) \
-            & np.isfinite(w) & (w > 0)
-        if not ok.any():
-            return 0
-        x, y, h, w, off, rate = x[ok], y[ok], h[ok], w[ok], off[ok], rate[ok]
-        spacing = 0.5 * min(self.grid.cell_x_m, self.grid.cell_y_m)
-        k = int(min(MAX_ACROSS, max(1, math.ceil(float(w.max()) / spacing))))
-        across = off[:, None] + ((np.arange(k) + 0.5) / k - 0.5)[None, :] * w[:, None]
-        left_x, left_y = -np.sin(h), np.cos(h)  # the left normal of a heading counter-clockwise from east
-        cell = self.grid.index(x[:, None] + left_x[:, None] * across, y[:, None] + left_y[:, None] * across)
-        sample = np.broadcast_to(np.arange(len(x))[:, None], cell.shape)
-        on = cell >= 0
-        pairs = np.unique(sample[on] * self.grid.cells + cell[on])  # each sample once per cell
-        cells, inverse = np.unique(pairs % self.grid.cells, return_inverse=True)
-        self.sum_kg_ha[cells] += np.bincount(inverse, weights=rate[pairs // self.grid.cells])
-        self.samples[cells] += np.bincount(inverse)
-        self.stamp[cells] = seq
-        return len(cells)
-
-    def since(self, seq: int) -> dict:
-        """Cells changed after frame ``seq``: ``{"i": flat indices, "v": mean kg/ha}`` (-1: all)."""
-        i = np.flatnonzero(self.stamp > seq)
-        return {"i": i.tolist(), "v": np.round(self.sum_kg_ha[i] / self.samples[i], 2).tolist()}
-
-    @property
-    def painted(self) -> int:
-        return int(np.count_nonzero(self.samples))
 
 
 class LiveView:

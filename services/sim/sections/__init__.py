@@ -6,9 +6,10 @@ returns `SectionStates`: per tick and section whether the gate is open (``actual
 in the tick passes it and lands ``delivery_delay_s`` later) and what the terminal commanded.
 
 Modules: `switching` (the modes and the states), `passes` (runs of work, numbered), `gates`
-(commands and their latencies, in ticks), `coverage` (the terminal's coverage map) and `strips`
-(where a section's strip lies, m). The sections-on mask of the outputs (``"0x3f"``) is
-`common.section_masks`.
+(commands and their latencies, in ticks), `coverage` (the terminal's coverage map), `strips`
+(where a section's strip lies, m) and `motion` (the look-ahead: where the implement and each section
+will be, from the sensed speed, acceleration and yaw rate). The sections-on mask of the outputs
+(``"0x3f"``) is `common.section_masks`.
 """
 
 from services.sim.sections.gates import command, gate

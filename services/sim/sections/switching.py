@@ -18,6 +18,7 @@ import numpy as np
 
 from services.sim.sections.coverage import CoverageRaster, coverage_cell_m
 from services.sim.sections.gates import GateLine, command
+from services.sim.sections.motion import Motion, MotionTrend
 from services.sim.sections.passes import PassTracker, pass_index
 from services.sim.sections.strips import Poses, Strip
 from vehicle import CoveragePath, Implement
@@ -42,6 +43,9 @@ class SectionStates:
     commanded : ndarray of bool, shape (n, sections), or None
         The terminal's command at each tick; None where only the gates are known (a run's records
         rebuilt by the monitor).
+    motion : Motion, optional
+        What the terminal knew of the motion at each tick (pose, speed, acceleration, yaw rate), from
+        which it looked ahead; None where only the gates are known.
     """
 
     actual: np.ndarray
@@ -49,6 +53,7 @@ class SectionStates:
     offsets_m: np.ndarray
     pass_index: np.ndarray
     commanded: np.ndarray | None = None
+    motion: Motion | None = None
 
     @property
     def width_on_m(self) -> np.ndarray:
@@ -84,6 +89,7 @@ class SectionSwitch:
                  period_s: float = 0.05, map_cell_m: float | None = None):
         self.implement = implement
         self.passes = PassTracker()
+        self.trend = MotionTrend(period_s)
         self.engine = SWITCHING[implement.section_control](implement, field_polygon, path, period_s,
                                                            map_cell_m)
         self.tick = 0
@@ -104,22 +110,24 @@ class SectionSwitch:
         """
         on = np.asarray(implement_on, bool)
         passes = self.passes.step(heading_rad, on)
-        sensed = _Sensed.of(x_m, y_m, speed_m_s, heading_rad)
-        commanded, actual = self.engine.step(sensed, on, s_m, passes, self.tick)
+        motion = self.trend.step(x_m, y_m, heading_rad, speed_m_s)
+        commanded, actual = self.engine.step(motion, on, s_m, passes, self.tick)
         self.tick += on.size
         imp = self.implement
-        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded)
+        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded, motion)
 
     def state(self) -> dict:
         """What the switch carries from one `step` to the next, as plain data (JSON-safe): the tick,
-        the pass tracker and the switching's own memory (coverage: the coverage map, packed, the last
-        commands, the gates, what landed since the last pass ended)."""
-        return {"tick": self.tick, "passes": self.passes.state(), "engine": self.engine.state()}
+        the pass tracker, the motion trend and the switching's own memory (coverage: the coverage map,
+        packed, the last commands, the gates, what landed since the last pass ended)."""
+        return {"tick": self.tick, "passes": self.passes.state(), "trend": self.trend.state(),
+                "engine": self.engine.state()}
 
     def set_state(self, state: dict) -> None:
         """Continue from what `state` returned (also after JSON: lists for arrays)."""
         self.tick = int(state["tick"])
         self.passes.set_state(state["passes"])
+        self.trend.set_state(state["trend"])
         self.engine.set_state(state["engine"])
 
 
@@ -179,21 +187,22 @@ class _AllOn(_Memoryless):
     def __init__(self, implement, polygon, path, period_s, map_cell_m):
         self.sections = implement.sections
 
-    def step(self, sensed, on, s_m, passes, tick):
+    def step(self, motion, on, s_m, passes, tick):
         actual = np.repeat(on[:, None], self.sections, axis=1)
         return actual, actual
 
 
 class _Boundary(_Memoryless):
-    """``"boundary"``: a section applies while the implement is on and its centre, at the control
-    core's predicted landing point, lies inside the field (no latency)."""
+    """``"boundary"``: a section applies while the implement is on and its centre, where the
+    implement will be when product metered now lands (`Motion.ahead`), lies inside the field (no
+    latency)."""
 
     def __init__(self, implement, polygon, path, period_s, map_cell_m):
         self.implement, self.polygon = implement, polygon
 
-    def step(self, sensed, on, s_m, passes, tick):
-        lx, ly = sensed.ahead(self.implement.delivery_delay_s)
-        actual = self.implement.sections_on(self.polygon, lx, ly, sensed.heading_rad, on)
+    def step(self, motion, on, s_m, passes, tick):
+        lx, ly, cos, sin = motion.ahead(self.implement.delivery_delay_s)
+        actual = self.implement.sections_on(self.polygon, lx, ly, np.arctan2(sin, cos), on)
         return actual, actual
 
 
@@ -203,12 +212,12 @@ class _Coverage:
     A section switches off when more than ``section_overlap_pct`` of its strip would land on treated
     ground, more than ``boundary_overlap_pct`` outside the field, or beyond the planned path's
     working stretch (in a turn), and on again over untreated ground in the field. It decides ahead
-    by its own latency plus the delivery delay: where its strip will be is dead-reckoned from the
-    sensed pose and speed, whether the path works there is read off the plan at the distance
-    travelled by then. The gates follow the commands after ``section_on_delay_s`` /
-    ``section_off_delay_s`` (`GateLine`). Exact at constant speed on straight lines; where speed or
-    heading change within the look-ahead, longer latencies leave more skips and overlap, as the
-    terminals' manuals warn.
+    by its own latency plus the delivery delay: where its strip will be is predicted from the
+    sensed pose, speed, acceleration and yaw rate (`Motion.ahead`: each section by its own ground
+    speed), whether the path works there is read off the plan at the distance travelled by then.
+    The gates follow the commands after ``section_on_delay_s`` / ``section_off_delay_s``
+    (`GateLine`). Exact at constant acceleration and yaw rate; where they change within the
+    look-ahead, longer latencies leave more skips and overlap, as the terminals' manuals warn.
 
     Vectorized: the coverage raster changes only where a pass ends (`PassTracker`), when all that
     landed since the previous end is marked, so the decisions of all ticks between two ends are read
@@ -240,13 +249,14 @@ class _Coverage:
         self.poses: list[np.ndarray] = []
         self.gate_rows: list[np.ndarray] = [np.zeros((0, sections), bool)]
 
-    def step(self, sensed, on, s_m, passes, tick):
+    def step(self, motion, on, s_m, passes, tick):
         m, sections = on.size, self.implement.sections
         if s_m is None:
             raise ValueError("coverage section control needs s_m, the distance along the planned path")
         s_m = np.asarray(s_m, float)
-        self.poses.append(np.stack([sensed.x_m, sensed.y_m, sensed.cos, sensed.sin]))
-        ahead = [(sensed.ahead(lead), self._working(s_m + sensed.speed_m_s * lead))
+        heading = motion.heading_rad
+        self.poses.append(np.stack([motion.x_m, motion.y_m, np.cos(heading), np.sin(heading)]))
+        ahead = [(motion.ahead(lead), self._working(s_m + motion.travel(lead)[0]))
                  for lead in (self.lead_on_s, self.lead_off_s)]
         before = np.concatenate(([self.last_pass], passes[:-1]))
         ends = np.flatnonzero((before >= 0) & (passes != before))
@@ -256,7 +266,7 @@ class _Coverage:
                 self._mark(tick + int(a))
             if b <= a:
                 continue
-            won, woff = (self._wanted(xy, work, sensed, a, b) for xy, work in ahead)
+            won, woff = (self._wanted(pose, work, a, b) for pose, work in ahead)
             commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
             self.last_command = commanded[b - 1]
             actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
@@ -286,12 +296,14 @@ class _Coverage:
         """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
         return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
 
-    def _wanted(self, xy, working, sensed, a, b):
+    def _wanted(self, pose, working, a, b):
+        """Whether each section's product is wanted across the predicted `pose` (x, y, cos, sin) of
+        ticks [a, b): bool (b - a, sections)."""
         out = np.zeros((b - a, self.implement.sections), bool)
         for lo in range(a, b, _MAX_WANTED_TICKS):
             hi = min(b, lo + _MAX_WANTED_TICKS)
-            out[lo - a:hi - a] = self.raster.wanted(self.strip, xy[0][lo:hi], xy[1][lo:hi], sensed.cos[lo:hi],
-                                                    sensed.sin[lo:hi], *self.limits) & working[lo:hi, None]
+            out[lo - a:hi - a] = self.raster.wanted(self.strip, *(p[lo:hi] for p in pose),
+                                                    *self.limits) & working[lo:hi, None]
         return out
 
     def _mark(self, end: int) -> None:
@@ -311,29 +323,6 @@ class _Coverage:
 # The ways of switching by ``[implement] section_control``: name -> class.
 SWITCHING = {"coverage": _Coverage, "boundary": _Boundary, "off": _AllOn}
 assert set(SWITCHING) == set(SECTION_CONTROL_MODES)
-
-
-@dataclass(frozen=True)
-class _Sensed:
-    """The pose and speed the terminal knows, and its dead-reckoned look-ahead."""
-
-    x_m: np.ndarray
-    y_m: np.ndarray
-    speed_m_s: np.ndarray
-    heading_rad: np.ndarray
-    cos: np.ndarray
-    sin: np.ndarray
-
-    @classmethod
-    def of(cls, x_m, y_m, speed_m_s, heading_rad) -> _Sensed:
-        x, y, v, h = (np.asarray(a, float) for a in (x_m, y_m, speed_m_s, heading_rad))
-        return cls(x, y, v, h, np.cos(h), np.sin(h))
-
-    def ahead(self, delay_s: float):
-        """Where the implement will be `delay_s` later, straight ahead at the sensed speed: (x, y).
-        The same arithmetic as the control core's landing point, so boundary mode matches it."""
-        lead_m = self.speed_m_s * delay_s
-        return self.x_m + lead_m * self.cos, self.y_m + lead_m * self.sin
 
 
 def _period_s(time_s: np.ndarray) -> float:

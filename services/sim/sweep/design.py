@@ -1,36 +1,16 @@
-"""Sweeps: many runs of base scenarios over axes of dotted keys, a design and seeds.
+"""A sweep's plan: the sweep file read and checked, its design's points, one `RunSpec` per run.
 
-No cluster and no files written here, and all of it pure and deterministic but the task.
-`load_sweep` reads and checks a sweep file,
-`plan` expands it into `RunSpec` s (plain data, one per run, each keyed by a hash of its resolved
-scenario), `run_row` is the task that runs one spec and returns one result row, and
-`configurations`, `mean_ci95`, `best` and `pareto_front` are the statistics of the sweep's report.
-`services.batch` runs the specs on Dask; `services.outputs.sweep_results` and
-`services.outputs.sweep_report` write the table and the report.
-
-A sweep file (see ``scenarios/README.md``)::
-
-    scenarios = ["my_field.toml", "default"]   # files (relative to this file) or built-in names
-    seeds = [1, 2, 3]                          # each combination runs once per seed
-    design = "grid"                            # grid | random | lhs (random and lhs take samples = N)
-    [axes]
-    "controller.kp" = [0.4, 0.6, 0.8]
-    "implement.delivery_delay_s" = { min = 0.4, max = 1.6, n = 4 }
-    [set]                                      # the same in every run (not a column)
-    "controller.gains" = "manual"
-    [report]
-    pareto = ["within_10pct_area_pct", "transition_distance_m_mean"]
+Pure and deterministic: a run's scenario is resolved (and checked, each error naming the sweep
+file, the scenario, the axis values and the loader's message) when it is planned, not when it runs.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import itertools
 import json
 import math
 import os
-import time
 import tomllib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -38,24 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from common import ScenarioError, VrsimError
+from common import ScenarioError
 from services.sim import scenario as scenario_mod
-from services.sim.metrics import METRICS
 from services.sim.overrides import key_parts
+from services.sim.sweep.stats import METRIC_SENSE
 from services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
 
 SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "set", "axes", "report")
 RANGE_KEYS = ("min", "max", "n", "log")
 REPORT_KEYS = ("pareto",)
-ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
-ROW_LAST = ("wall_s", "status", "error")
-# A group of controller variants is cut into parts (one task each) of at least this many: each part
-# drives once (about 2 s on the default scenario), which this many variants outweigh.
-MIN_PART_VARIANTS = 64
-
-# Which way is better ("min", "max" or "zero"), for the accuracy figures the report ranks: the
-# METRICS table's sense.
-METRIC_SENSE = {m.key: m.sense for m in METRICS if m.sense is not None}
 
 
 @dataclass(frozen=True)
@@ -130,8 +101,6 @@ class RunSpec:
 
     def load(self) -> scenario_mod.Scenario:
         return scenario_mod.parse(self.text, self.source, self.base_dir, self.overrides())
-
-
 # ---------------------------------------------------------------------------------------------------
 # The sweep file
 
@@ -295,22 +264,21 @@ def _pareto(report: dict, source: str) -> tuple[str, str] | None:
                             f"{', '.join(METRIC_SENSE)}, got {pair!r}")
     return tuple(pair)
 
-
 # ---------------------------------------------------------------------------------------------------
 # The design and the plan
 
 
-def grid_points(axes: Sequence[Axis], samples: int | None, rng: np.random.Generator) -> list[tuple]:
+def _grid_points(axes: Sequence[Axis], samples: int | None, rng: np.random.Generator) -> list[tuple]:
     """Every combination of the axes' values (one point, of no values, without axes)."""
     return list(itertools.product(*(a.values for a in axes)))
 
 
-def random_points(axes: Sequence[Axis], samples: int, rng: np.random.Generator) -> list[tuple]:
+def _random_points(axes: Sequence[Axis], samples: int, rng: np.random.Generator) -> list[tuple]:
     """`samples` points, each axis drawn independently and uniformly."""
     return _points(axes, rng.random((samples, len(axes))))
 
 
-def lhs_points(axes: Sequence[Axis], samples: int, rng: np.random.Generator) -> list[tuple]:
+def _lhs_points(axes: Sequence[Axis], samples: int, rng: np.random.Generator) -> list[tuple]:
     """`samples` points of a Latin hypercube: each axis's range cut into `samples` equal strata, each
     stratum used once (scipy's `LatinHypercube`)."""
     from scipy.stats import qmc
@@ -325,17 +293,17 @@ def _points(axes: Sequence[Axis], u: np.ndarray) -> list[tuple]:
 
 # The designs a sweep file may name: (axes, samples, rng) -> points, one value per axis each.
 DESIGNS: dict[str, Callable[[Sequence[Axis], int | None, np.random.Generator], list[tuple]]] = {
-    "grid": grid_points, "random": random_points, "lhs": lhs_points,
+    "grid": _grid_points, "random": _random_points, "lhs": _lhs_points,
 }
 
 
-def design_points(sweep: Sweep) -> list[tuple]:
+def _design_points(sweep: Sweep) -> list[tuple]:
     """The design's points (one value per axis, in axis order), deterministic for a `design_seed`."""
     rng = np.random.default_rng(sweep.design_seed)
     return DESIGNS[sweep.design](sweep.axes, sweep.samples, rng)
 
 
-def scenario_key(sc: scenario_mod.Scenario) -> str:
+def _scenario_key(sc: scenario_mod.Scenario) -> str:
     """A hash of a resolved scenario: every value after overrides and defaults (not the file's name
     or path, which do not change what runs; the folder relative paths resolve against does)."""
     doc = scenario_mod.as_dict(sc)
@@ -355,7 +323,7 @@ def plan(sweep: Sweep) -> list[RunSpec]:
         values and the loader's message (file, table, key, value).
     """
     keys = [a.key for a in sweep.axes]
-    points = design_points(sweep)
+    points = _design_points(sweep)
     specs: dict[str, RunSpec] = {}
     for base in sweep.scenarios:
         _check_range_ends(sweep, base, points[0] if points else ())
@@ -364,7 +332,7 @@ def plan(sweep: Sweep) -> list[RunSpec]:
             for seed in sweep.seeds or (None,):
                 overrides = [*sweep.fixed, *values, *([("seed", seed)] if seed is not None else [])]
                 sc = _checked(sweep, base, overrides)
-                spec = RunSpec(key=scenario_key(sc), scenario=base.label, seed=sc.seed, axes=values,
+                spec = RunSpec(key=_scenario_key(sc), scenario=base.label, seed=sc.seed, axes=values,
                                text=base.text, source=base.source, base_dir=base.base_dir,
                                fixed=sweep.fixed)
                 specs.setdefault(spec.key, spec)
@@ -388,177 +356,3 @@ def _checked(sweep: Sweep, base: BaseScenario, overrides: list) -> scenario_mod.
     except ScenarioError as exc:
         combo = ", ".join(f"{k} = {v!r}" for k, v in overrides) or "no overrides"
         raise ScenarioError(f"{sweep.source}: scenario {base.label!r} with {combo}: {exc}") from None
-
-
-# ---------------------------------------------------------------------------------------------------
-# The task: one run, one row
-
-
-def numeric_figures(summary: dict) -> dict[str, float | int | None]:
-    """The numbers of a run's summary (`vrsim run --json` keys whose value is a number; a non-finite
-    figure is None, as ``null`` there)."""
-    out = {}
-    for key, value in summary.items():
-        if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
-            value = value.item() if isinstance(value, np.generic) else value
-            out[key] = value if math.isfinite(value) else None
-    return out
-
-
-def identity(spec: RunSpec) -> dict:
-    """The columns that say which run a row is: key, scenario, seed and one per axis."""
-    return {"key": spec.key, "scenario": spec.scenario, "seed": spec.seed, **dict(spec.axes)}
-
-
-def failed_row(spec: RunSpec, error: str, wall_s: float | None = None) -> dict:
-    return {**identity(spec), "wall_s": wall_s, "status": "failed", "error": error}
-
-
-def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
-    """Run one spec in this process and return its row; never raises for a run that fails.
-
-    Parameters
-    ----------
-    spec : RunSpec
-    after : callable, optional
-        ``after(spec, result)`` runs after a successful run (e.g. writing its output files); it may add
-        figures to ``result.summary``; what it raises fails the row.
-
-    Returns
-    -------
-    dict
-        `identity`, the run's `numeric_figures`, ``wall_s`` (this task's wall time, s), ``status``
-        (``"ok"`` or ``"failed"``) and ``error`` (None, or the message).
-    """
-    from services.sim import run as field_run  # imports SUMO: only where a run happens
-
-    t0 = time.perf_counter()
-    try:
-        result = field_run.run(spec.load())
-        if after is not None:
-            after(spec, result)
-    except VrsimError as exc:
-        return failed_row(spec, str(exc), time.perf_counter() - t0)
-    except Exception as exc:  # noqa: BLE001 - one run's bug is that run's failed row, not the sweep's end
-        return failed_row(spec, f"internal error: {type(exc).__name__}: {exc}", time.perf_counter() - t0)
-    figures = numeric_figures(result.summary)
-    return {**identity(spec), **figures, "wall_s": time.perf_counter() - t0, "status": "ok", "error": None}
-
-
-def controller_only(sweep: Sweep) -> bool:
-    """True if every axis is a ``controller.*`` key: the runs of one scenario and seed then share
-    their drive and can take the batched fast path (`run_group`)."""
-    return bool(sweep.axes) and all(a.key.startswith("controller.") for a in sweep.axes)
-
-
-def variant_groups(specs: Sequence[RunSpec], workers: int = 1,
-                   min_part: int = MIN_PART_VARIANTS) -> list[tuple[RunSpec, ...]]:
-    """The specs grouped by base scenario and seed, in first-seen order (one drive per group), each
-    group cut into consecutive parts of about equal size when there are fewer groups than `workers`:
-    as many parts as it takes for every worker to have one, each of at least `min_part` specs.
-
-    Each part is its own `run_group` task and drives on its own: with a core per worker the parts'
-    drives run side by side, so the wall time is one drive plus a part's variants, as when one drive
-    is shipped to every worker, without a task that waits for another or a drive in transit.
-    """
-    groups: dict[tuple[str, int], list[RunSpec]] = {}
-    for spec in specs:
-        groups.setdefault((spec.scenario, spec.seed), []).append(spec)
-    wanted = -(-workers // max(len(groups), 1))   # parts per group for every worker to have one
-    parts = []
-    for group in groups.values():
-        k = max(1, min(wanted, len(group) // max(min_part, 1)))
-        bounds = [len(group) * i // k for i in range(k + 1)]
-        parts += [tuple(group[lo:hi]) for lo, hi in itertools.pairwise(bounds)]
-    return parts
-
-
-def run_group(specs: Sequence[RunSpec]) -> list[dict]:
-    """The rows of specs that differ only in ``controller.*`` keys (a group or a part of one, from
-    `variant_groups`), through the fast path: one drive, then all controllers as one batch
-    (`services.sim.variants.run_variants`).
-
-    Rows have the form of `run_row`'s, ``wall_s`` each run's share of the group's wall time. If the
-    batch fails (a controller the run refuses), every spec runs alone through `run_row`, so a failed
-    row is that run's own, with its own message.
-    """
-    from services.sim.run import drive
-    from services.sim.variants import run_variants
-
-    t0 = time.perf_counter()
-    try:
-        scenarios = [spec.load() for spec in specs]
-        summaries = run_variants(drive(scenarios[0]), [sc.controller for sc in scenarios])
-    except Exception:  # noqa: BLE001 - each run on its own then says which one failed, and why
-        return [run_row(spec) for spec in specs]
-    wall_s = (time.perf_counter() - t0) / len(specs)
-    return [{**identity(spec), **numeric_figures(summary), "wall_s": wall_s, "status": "ok", "error": None}
-            for spec, summary in zip(specs, summaries, strict=True)]
-
-
-# ---------------------------------------------------------------------------------------------------
-# Statistics for the report
-
-
-@dataclass
-class Configuration:
-    """The ok runs of one scenario at one point of the design (its seeds are the replicates)."""
-
-    scenario: str
-    axes: tuple[tuple[str, Any], ...]
-    rows: list[dict] = dataclasses.field(default_factory=list)
-
-    def values(self, metric: str) -> np.ndarray:
-        got = [r.get(metric) for r in self.rows]
-        return np.array([v for v in got if v is not None and math.isfinite(v)], dtype=float)
-
-    def label(self) -> str:
-        return ", ".join([self.scenario, *(f"{k}={v}" for k, v in self.axes)])
-
-
-def configurations(rows: Sequence[dict], axis_keys: Sequence[str]) -> list[Configuration]:
-    """The ok rows grouped by scenario and axis values, in first-seen order."""
-    groups: dict[tuple, Configuration] = {}
-    for row in rows:
-        if row.get("status") != "ok":
-            continue
-        axes = tuple((k, row.get(k)) for k in axis_keys)
-        groups.setdefault((row["scenario"], axes), Configuration(row["scenario"], axes)).rows.append(row)
-    return list(groups.values())
-
-
-def mean_ci95(values: np.ndarray) -> tuple[float, float]:
-    """Mean and the half-width of its 95 % confidence interval (Student's t over the replicates;
-    NaN half-width for fewer than two, NaN mean for none)."""
-    from scipy import stats
-
-    n = len(values)
-    if n == 0:
-        return math.nan, math.nan
-    mean = float(np.mean(values))
-    if n < 2:
-        return mean, math.nan
-    return mean, float(stats.t.ppf(0.975, n - 1) * np.std(values, ddof=1) / math.sqrt(n))
-
-
-def badness(metric: str, value: np.ndarray | float):
-    """Smaller is better: the metric's value turned by its `METRIC_SENSE`."""
-    sense = METRIC_SENSE[metric]
-    return -value if sense == "max" else (np.abs(value) if sense == "zero" else value)
-
-
-def best(configs: Sequence[Configuration], metric: str, k: int = 3):
-    """The `k` best configurations by their mean `metric`: [(configuration, mean, ci95 half-width)]."""
-    scored = [(c, *mean_ci95(c.values(metric))) for c in configs]
-    scored = [s for s in scored if math.isfinite(s[1])]
-    return sorted(scored, key=lambda s: badness(metric, s[1]))[:k]
-
-
-def pareto_front(x: np.ndarray, y: np.ndarray, metric_x: str, metric_y: str) -> np.ndarray:
-    """Boolean mask of the points no other point beats on both metrics (at least as good on both and
-    better on one), each metric turned by its sense; NaN points are never on the front."""
-    bx, by = badness(metric_x, np.asarray(x, float)), badness(metric_y, np.asarray(y, float))
-    ok = np.isfinite(bx) & np.isfinite(by)
-    no_worse = (bx[None, :] <= bx[:, None]) & (by[None, :] <= by[:, None]) & ok[None, :]
-    better = (bx[None, :] < bx[:, None]) | (by[None, :] < by[:, None])
-    return ok & ~(no_worse & better).any(axis=1)

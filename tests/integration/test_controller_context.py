@@ -1,0 +1,84 @@
+"""A field run hands a context-taking controller the drive's context (real SUMO on a small field): the
+sensed ground speed, the prescription and the sections of each tick, and the time; the variants'
+batch (sweeps, `vrsim tune`) hands it the same, so both give the same figures."""
+
+import hashlib
+import os
+import sys
+
+import numpy as np
+import pytest
+
+from controller import ControllerConfig
+from services.sim import scenario
+from services.sim.run import control_and_account, drive
+from services.sim.variants import run_variants
+from tests.conftest import ROOT
+from tests.integration.test_variants import FIELD, assert_same_summary
+
+RECORDER = '''
+import numpy as np
+
+
+class Recorder:
+    """A P controller on the schedule of speed that keeps the context of every period."""
+
+    seen = []
+
+    def __init__(self, params, loop, n):
+        self.n = n
+
+    def step(self, target_rpm, measured_rpm, context):
+        c = context
+        Recorder.seen.append((c.speed_m_s[0], c.prescribed_kg_ha[0], c.sections_on[0].copy(), c.time_s))
+        kp = np.interp(context.speed_m_s, [1.0, 3.0], [0.004, 0.001])
+        return target_rpm / context.shaft_rpm_per_a + kp * (target_rpm - measured_rpm)
+
+    def reset(self):
+        pass
+
+    def state(self):
+        return {}
+
+    def set_state(self, state):
+        pass
+'''
+
+
+@pytest.fixture(scope="module")
+def shared_drive():
+    return drive(scenario.parse(FIELD, "context.toml", "."))
+
+
+def _recorded(path: str) -> list:
+    """What the class loaded last from `path` recorded (`controller.kinds.python` names its module)."""
+    return sys.modules[f"vrsim_user_{hashlib.sha1(path.encode()).hexdigest()[:12]}"].Recorder.seen
+
+
+def test_a_field_run_gives_the_controller_each_ticks_speed_rate_sections_and_time(shared_drive, tmp_path):
+    path = str(tmp_path / "recorder.py")
+    with open(path, "w") as fh:
+        fh.write(RECORDER)
+    cfg = ControllerConfig(kind="python", file=path, class_name="Recorder")
+    result = control_and_account(shared_drive, cfg)
+    seen = _recorded(path)
+    ticks = len(result.control["target_shaft_rpm"])
+    assert len(seen) == ticks
+    speed, rate, sections, time_s = (np.array(column) for column in zip(*seen, strict=True))
+    np.testing.assert_array_equal(speed, shared_drive.measured_speed_m_s)
+    np.testing.assert_array_equal(rate, result.control["prescribed_kg_ha"])
+    np.testing.assert_array_equal(sections, result.control["sections_on"])
+    assert sections.shape[1] == 4 and sections.any() and not sections.all()
+    np.testing.assert_allclose(time_s, np.arange(ticks) * 0.05, atol=1e-9)
+    # the variants' batch passes the same context: the same figures as the field run
+    fast = run_variants(shared_drive, [cfg, ControllerConfig(kind="PID")])[0]
+    assert_same_summary(fast, result.summary)
+
+
+def test_the_docs_gain_schedule_runs_a_field(shared_drive):
+    example = os.path.join(ROOT, "scenarios", "speed_scheduled_pi.py")
+    cfg = ControllerConfig(kind="python", file=example, class_name="SpeedScheduledPI")
+    flat = ControllerConfig(kind="python", file=example, class_name="SpeedScheduledPI",
+                            params={"kp_a_per_rpm": [0.0015, 0.0015], "ki_a_per_rpm_s": [0.006, 0.006]})
+    scheduled, fixed = run_variants(shared_drive, [cfg, flat])
+    assert scheduled["mae_kg_ha"] < 20.0 and scheduled["mae_kg_ha"] != fixed["mae_kg_ha"]
