@@ -401,7 +401,8 @@ class RunEnd(Message):
 
     def __post_init__(self):
         if self.reason not in _END_REASONS:
-            raise ServiceError(f"RunEnd: reason must be one of {', '.join(_END_REASONS)}, got {self.reason!r}")
+            raise ServiceError(f"RunEnd: reason must be one of {', '.join(_END_REASONS)}, "
+                               f"got {self.reason!r}")
         if not 0 <= self.ticks <= _MAX_RUN_TICKS:
             raise ServiceError(f"RunEnd: ticks must be within [0, {_MAX_RUN_TICKS}], got {self.ticks!r}")
         if not (math.isfinite(self.sim_time_s) and self.sim_time_s >= 0.0):
