@@ -48,15 +48,6 @@ PROTOCOLS = {
 # test below says which entries are no longer needed). (module, name): the file that owns it.
 ALLOWED = {
     # Public but used only in their own module (rule b).
-    ("controller.analysis", "closed_loop_bandwidth"): "controller/analysis.py",
-    ("controller.analysis", "open_loop"): "controller/analysis.py",
-    ("controller.discretize", "fine_steps"): "controller/discretize.py",
-    ("controller.discretize", "zoh"): "controller/discretize.py",
-    ("controller.kinds.fuzzy_pid", "fuzzify"): "controller/kinds/fuzzy_pid.py",
-    ("controller.kinds.fuzzy_pid", "load_rules"): "controller/kinds/fuzzy_pid.py",
-    ("controller.kinds.python", "load_user_class"): "controller/kinds/python.py",
-    ("controller.ops", "minimum"): "controller/ops.py",
-    ("maps.as_applied", "checked_mass"): "maps/as_applied.py",
     ("services.bus.monitor", "MonitorService"): "services/bus/monitor.py",
     ("services.bus.monitor", "default_db"): "services/bus/monitor.py",
     ("services.bus.monitor", "missing_ticks"): "services/bus/monitor.py",
@@ -64,23 +55,9 @@ ALLOWED = {
     ("services.bus.monitor", "run_world"): "services/bus/monitor.py",
     ("services.outputs.report", "settings_table"): "services/outputs/report.py",
     ("services.outputs.report", "split_table"): "services/outputs/report.py",
-    ("services.outputs.tune", "controller_table"): "services/outputs/tune.py",
-    ("services.sim.as_run", "resolved_controller"): "services/sim/as_run.py",
-    ("services.sim.compare", "builtin_specs"): "services/sim/compare.py",
-    ("services.sim.error_split", "reference_metered_kg"): "services/sim/error_split.py",
     ("services.sim.metrics", "Errors"): "services/sim/metrics.py",
     ("services.sim.metrics", "Metric"): "services/sim/metrics.py",
     ("services.sim.metrics", "errors"): "services/sim/metrics.py",
-    ("services.sim.overrides", "parse_value"): "services/sim/overrides.py",
-    ("services.sim.scenario", "synthetic_params"): "services/sim/scenario.py",
-    ("services.sim.section_landing", "landing_pass"): "services/sim/section_landing.py",
-    ("services.sim.tune", "base_config"): "services/sim/tune.py",
-    ("services.sim.tune", "check_params"): "services/sim/tune.py",
-    ("services.sim.tune", "config_at"): "services/sim/tune.py",
-    ("services.sim.tune", "generations_for"): "services/sim/tune.py",
-    ("services.sim.world", "build_field"): "services/sim/world.py",
-    ("services.sim.world", "build_prescription"): "services/sim/world.py",
-    ("services.sim.world", "check_run_size"): "services/sim/world.py",
 }
 
 
