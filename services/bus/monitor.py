@@ -8,7 +8,7 @@ so a monitor that is killed and restarted on the same ``--db`` has lost nothing 
 as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
 ``missing_ticks``, ``complete`` and ``end_reason``: the ticks it did not get (a monitor that was down for
 a while, the tail after it went down) and how the run ended, as scenario control announced it on
-``monitor/end`` (`completeness`: complete only for a finished run with every tick stored). Reports are
+``monitor/end`` (`_completeness`: complete only for a finished run with every tick stored). Reports are
 kept and answered again while they hold (`services.bus.reads`).
 That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
 
@@ -415,11 +415,11 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     summary = result.summary
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
-    summary.update(completeness(track["tick"], store.end(run["run_id"])))
+    summary.update(_completeness(track["tick"], store.end(run["run_id"])))
     return result
 
 
-def completeness(ticks: np.ndarray, end: dict | None) -> dict:
+def _completeness(ticks: np.ndarray, end: dict | None) -> dict:
     """``missing_ticks``, ``complete`` and ``end_reason`` of a run whose stored complete ticks are
     ``ticks`` (sorted) and whose announced end is ``end`` (`MonitorStore.end`; None: none announced).
 

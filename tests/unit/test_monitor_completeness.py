@@ -10,7 +10,7 @@ import pytest
 
 from common import ServiceError
 from services.bus import messages, reads
-from services.bus.monitor import MonitorStore, completeness
+from services.bus.monitor import MonitorStore, _completeness
 from services.outputs.report import incomplete_note
 from tests.unit.test_monitor_integrity import records, start
 
@@ -27,7 +27,7 @@ def stored(tmp_path, ticks, end: messages.RunEnd | None = None) -> MonitorStore:
 
 def facts(store: MonitorStore) -> dict:
     track, _ = store.arrays("r", sections=1)
-    return completeness(track["tick"], store.end("r"))
+    return _completeness(track["tick"], store.end("r"))
 
 
 def test_a_finished_run_with_every_tick_is_complete(tmp_path):
