@@ -67,7 +67,7 @@ class MonitorStore:
 
     def __init__(self, path: str):
         self.path = path
-        private_db(path)
+        _private_db(path)
         try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
@@ -242,7 +242,7 @@ class MonitorStore:
         return track, control
 
 
-def missing_ticks(ticks: np.ndarray) -> list[list[int]]:
+def _missing_ticks(ticks: np.ndarray) -> list[list[int]]:
     """The ticks in 0..max(ticks) that ``ticks`` (sorted, unique) lacks, as [first, last] ranges."""
     ticks = np.asarray(ticks, dtype=np.int64)
     if len(ticks) == 0:
@@ -252,7 +252,7 @@ def missing_ticks(ticks: np.ndarray) -> list[list[int]]:
     return [[int(before[i]) + 1, int(ticks[i]) - 1] for i in gaps]
 
 
-class MonitorService:
+class _MonitorService:
     """Handlers of the monitor: ingest the streams, report, status, load a run."""
 
     def __init__(self, store: MonitorStore, data: DataRoot):
@@ -361,7 +361,7 @@ class MonitorService:
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
         if world is None:
-            world = run_world(run, self.data)
+            world = _run_world(run, self.data)
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
         return world
 
@@ -373,7 +373,7 @@ class MonitorService:
                 "records": self.records}
 
 
-def run_world(run: dict, data: DataRoot | None = None):
+def _run_world(run: dict, data: DataRoot | None = None):
     """The world of a recorded run, rebuilt from the scenario text the run was started with (its files
     confined to `data`'s root when given: the monitor's scenarios came over the bus; ``vrsim report``
     reads local files as ``vrsim run`` does)."""
@@ -384,7 +384,7 @@ def run_world(run: dict, data: DataRoot | None = None):
     return build_world(parse(run["scenario_text"], run["source"], run["base_dir"]))
 
 
-def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
+def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
     """A services run as a `services.sim.run.RunResult`, rebuilt from its records over the complete
     ticks with `services.sim.run.accounted`, the function ``vrsim run`` uses: the monitor's report is its
     summary, and ``vrsim report`` writes its files with ``vrsim run``'s writers.
@@ -428,7 +428,7 @@ def _completeness(ticks: np.ndarray, end: dict | None) -> dict:
     ``unknown`` (no end announced: the run is live, or the monitor or scenario control was down when
     it ended; the ticks after the last stored one cannot be named then).
     """
-    gaps = missing_ticks(ticks)
+    gaps = _missing_ticks(ticks)
     stored_to = int(ticks[-1]) + 1 if len(ticks) else 0
     if end is not None and end["ticks"] > stored_to:
         gaps.append([stored_to, int(end["ticks"]) - 1])
@@ -436,7 +436,7 @@ def _completeness(ticks: np.ndarray, end: dict | None) -> dict:
     return {"missing_ticks": gaps, "complete": reason == "finished" and not gaps, "end_reason": reason}
 
 
-def default_db(options) -> str:
+def _default_db(options) -> str:
     """``runs/monitor/<prefix>-<machine>.sqlite``: one database per prefix and machine, in a folder of
     the monitor's own (made 0700 by `private_db`)."""
     return os.path.join(DEFAULT_DB_FOLDER, f"{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
@@ -446,7 +446,7 @@ DEFAULT_DB_FOLDER = os.path.join("runs", "monitor")
 _DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it gives them its mode)
 
 
-def private_db(path: str) -> None:
+def _private_db(path: str) -> None:
     """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
     default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
     an older database's files (0644 before) tightened to 0600 where they can be. A symlink is refused."""
@@ -478,8 +478,8 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the monitor on ``config.db`` (default `default_db`) until SIGINT/SIGTERM (or ``stop``)."""
     import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
-    store = MonitorStore(config.db or default_db(config.zenoh))
-    svc = MonitorService(store, DataRoot.of(config))
+    store = MonitorStore(config.db or _default_db(config.zenoh))
+    svc = _MonitorService(store, DataRoot.of(config))
     keys = config.zenoh.keys
     base = f"{keys.prefix}/{keys.machine}/"
 

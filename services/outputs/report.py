@@ -58,7 +58,7 @@ def key_values(doc: dict) -> str:
     return f"<table>{body}</table>"
 
 
-def settings_table(table: dict) -> str:
+def _settings_table(table: dict) -> str:
     """A two-column table of a scenario table's keys and values as a scenario file writes them
     (`services.sim.scenario.toml_value`: every digit of a number), "unset" for None."""
     body = "".join(f"<tr><td>{html.escape(str(k))}</td><td><code>"
@@ -123,7 +123,7 @@ def embedded_png(path: str) -> str:
     return f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
 
 
-def split_table(result: RunResult) -> str:
+def _split_table(result: RunResult) -> str:
     """The error split into its causes (`services.sim.error_split`) as an HTML table and what it means."""
     rows = "\n".join(f"<tr><td>{html.escape(p.cause)}</td><td>{p.mass_balance_pct:+.2f}</td>"
                      f"<td>{p.mae_kg_ha:+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
@@ -145,7 +145,7 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
-    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{settings_table(config[key])}</div>"
+    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{_settings_table(config[key])}</div>"
                        for key, label in SETTINGS)
     scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
@@ -154,7 +154,7 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
                 ("Figures", figures_table(summary_rows(), summary)),
-                ("Where the error comes from", split_table(result)),
+                ("Where the error comes from", _split_table(result)),
                 ("Settings as run", f'<div class="cols">{settings}</div>\n<details><summary>The scenario '
                  f'as run, as a scenario file (<code>vrsim run</code> reruns it)</summary>'
                  f'<pre>{scenario_file}</pre></details>'),

@@ -149,13 +149,13 @@ def test_a_refusal_is_answered_late_so_a_loop_asks_slowly(monkeypatch):
 
 def test_the_monitor_makes_a_report_once_per_change_and_refuses_a_flood(tmp_path, monkeypatch):
     from services.bus.dataroot import DataRoot
-    from services.bus.monitor import MonitorService
+    from services.bus.monitor import _MonitorService
     from services.bus.serving import Later, Params
 
     monkeypatch.setattr("services.sim.as_run.with_settings", lambda result: result)
     monkeypatch.setattr("services.outputs.summary.summary_json", lambda result: str(result))
     store = stored(tmp_path, range(10), messages.RunEnd("r", "finished", 20, 1.0, ""))
-    svc = MonitorService(store, DataRoot(str(tmp_path)))
+    svc = _MonitorService(store, DataRoot(str(tmp_path)))
     made = []
     monkeypatch.setattr(svc, "_report", lambda run_id: made.append(run_id) or len(made))
 
