@@ -48,13 +48,6 @@ PROTOCOLS = {
 # test below says which entries are no longer needed). (module, name): the file that owns it.
 ALLOWED = {
     # Public but used only in their own module (rule b).
-    ("services.bus.monitor", "MonitorService"): "services/bus/monitor.py",
-    ("services.bus.monitor", "default_db"): "services/bus/monitor.py",
-    ("services.bus.monitor", "missing_ticks"): "services/bus/monitor.py",
-    ("services.bus.monitor", "private_db"): "services/bus/monitor.py",
-    ("services.bus.monitor", "run_world"): "services/bus/monitor.py",
-    ("services.outputs.report", "settings_table"): "services/outputs/report.py",
-    ("services.outputs.report", "split_table"): "services/outputs/report.py",
     ("services.sim.metrics", "Errors"): "services/sim/metrics.py",
     ("services.sim.metrics", "Metric"): "services/sim/metrics.py",
     ("services.sim.metrics", "errors"): "services/sim/metrics.py",
