@@ -6,7 +6,7 @@ import subprocess
 
 import pytest
 
-from services.cli.main import COMMANDS, build_parser, parse
+from services.cli.main import COMMANDS, _build_parser, parse
 from tests.conftest import VRSIM
 
 
@@ -32,7 +32,7 @@ def _required(parser: argparse.ArgumentParser) -> list[str]:
 def _command_lines() -> list[list[str]]:
     """One line per subcommand and per action of a subcommand with actions (`map info`, ...), and per
     choice of an ACTION/SERVICE positional (`controller analyze`, `serve all`, ...)."""
-    _, commands = build_parser(COMMANDS)
+    _, commands = _build_parser(COMMANDS)
     lines = []
     for name, parser in commands.items():
         actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
