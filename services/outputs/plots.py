@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.metrics import rate_steps
+from services.sim.transitions import rate_steps
 
 TIMESERIES_WINDOW_S = 60.0
 MAX_TRACK_POINTS = 20_000  # the path over the prescription: more points draw the same line

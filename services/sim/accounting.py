@@ -32,14 +32,12 @@ from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,
-    TransitionMetrics,
     limit_metrics,
     map_metrics,
     overlap_metrics,
-    rate_steps,
-    transitions,
 )
 from services.sim.section_landing import worked_fraction
+from services.sim.transitions import TransitionMetrics, rate_steps, transitions
 from services.sim.world import World
 
 
@@ -134,7 +132,7 @@ class Setting:
         Ticks whose target shaft speed was clipped to the shaft's range with a gate open, and ticks with
         a gate open.
     steps : ndarray of int
-        The prescription's rate steps under the landing point (`metrics.rate_steps`).
+        The prescription's rate steps under the landing point (`services.sim.transitions.rate_steps`).
     check : MachineCheck
     """
 

@@ -9,13 +9,11 @@ from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,
-    TransitionMetrics,
     map_metrics,
     overlap_metrics,
-    rate_steps,
     summary,
-    transitions,
 )
+from services.sim.transitions import TransitionMetrics, rate_steps, transitions
 
 
 def _grid(rows=10, cols=10, rate=100.0):
