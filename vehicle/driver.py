@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import os
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -152,6 +153,24 @@ class SpeedVariation:
         return factor
 
 
+def import_libsumo():
+    """libsumo, imported without its side effect on the process's PROJ settings.
+
+    Imported, libsumo points ``PROJ_LIB`` and ``PROJ_DATA`` at SUMO's own proj.db (an older layout)
+    when neither is set; every CRS look-up of rasterio (and of GDAL through pyogrio) in the same process
+    imported after it then fails ("proj.db ... comes from another PROJ installation"). vrsim's SUMO
+    networks are in plain metres with no projection, so SUMO needs no PROJ data: the variables are put
+    back as they were.
+    """
+    unset = not os.environ.get("PROJ_LIB") and not os.environ.get("PROJ_DATA")
+    import libsumo
+
+    if unset:
+        os.environ.pop("PROJ_LIB", None)
+        os.environ.pop("PROJ_DATA", None)
+    return libsumo
+
+
 class SumoDriver:
     """Drive a `CoveragePath` in SUMO through libsumo; one open driver per process.
 
@@ -219,8 +238,7 @@ class SumoDriver:
         if SumoDriver._open is not None:
             raise VehicleError("SumoDriver: another SUMO simulation is open in this process "
                                "(libsumo runs one per process); close it first")
-        import libsumo  # heavy; imported only when a simulation starts
-
+        libsumo = import_libsumo()  # heavy; imported only when a simulation starts
         SumoDriver._open = self
         self._ls = libsumo
         try:

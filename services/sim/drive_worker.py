@@ -88,8 +88,9 @@ class DriveWorker:
 
 def _serve(stdin, stdout) -> None:
     """Drive the `DriveJob` that arrives on `stdin`, writing the messages above to `stdout`."""
-    import libsumo  # noqa: F401 - the heaviest import, done while the caller loads the scenario
+    from vehicle.driver import import_libsumo
 
+    import_libsumo()  # the heaviest import, done while the caller loads the scenario
     from common import VrsimError
     from services.sim import drive_job  # noqa: F401 - the job's classes, before it arrives
 

@@ -69,3 +69,20 @@ def test_speed_sensor_validation():
         SpeedSensorConfig(rate_hz=0)
     with pytest.raises(VehicleError, match="strictly increasing"):
         SpeedSensor().measure([1.0, 1.0], [2.0, 2.0])
+
+
+def test_libsumo_leaves_the_process_proj_settings_as_they_were():
+    """libsumo sets PROJ_DATA to SUMO's older proj.db when unset; imported through vehicle.driver it
+    does not, so rasterio imported after it still resolves an EPSG code (a fresh process: the setting
+    is process-wide)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("from vehicle.driver import import_libsumo; import_libsumo(); import os, rasterio;"
+            "from rasterio.crs import CRS; assert 'PROJ_DATA' not in os.environ;"
+            "print(CRS.from_string('EPSG:2227').to_epsg())")
+    env = {k: v for k, v in os.environ.items() if k not in ("PROJ_DATA", "PROJ_LIB")}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "2227"
