@@ -7,7 +7,11 @@ embedded cluster has one process per worker and one thread each.
 Retries: a task that raises is run once more (``retries=1``); a worker that dies running a task gets
 the task rescheduled once (the embedded scheduler's ``allowed_failures=1``; an existing cluster
 applies its own ``distributed.scheduler.allowed-failures``, 3 by default); after that the task is
-reported failed (`KilledWorker`) and the rest go on.
+reported lost (`KilledWorker`) and the rest go on.
+
+Failed or lost: a task that raised its own exception *failed* (run it again and it fails again); a
+task the cluster dropped is *lost* (cancelled, its scheduler gone, its worker dead, a broken
+connection): nothing is known about it, and running it again may well succeed.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -30,6 +35,8 @@ ALLOWED_FAILURES = 1  # embedded cluster: a task whose worker died is reschedule
 # nothing by not being prefetched.
 WORKER_SATURATION = 1.0
 CONNECT_TIMEOUT_S = 10.0
+NO_WORKER_NOTICE_S = 10.0  # a cluster without a worker this long is said so (`run_tasks`)
+_POLL_S = 0.2  # how often `run_tasks` looks for finished tasks and at the cluster's workers
 
 
 DASHBOARD_ADDRESS = "127.0.0.1:8787"
@@ -110,18 +117,63 @@ def _describe_failure(exc: BaseException) -> str:
     from distributed import KilledWorker
 
     if isinstance(exc, KilledWorker):
-        return (f"worker died while running this task ({exc.allowed_failures + 1} attempts); "
+        return (f"lost: worker died while running this task ({exc.allowed_failures + 1} attempts); "
                 f"KilledWorker on {exc.last_worker.address}")
     return f"{type(exc).__name__}: {exc}"
 
 
-def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callable[[T], str],
-              on_done: Callable[[T, Any, str | None], None], retries: int = TASK_RETRIES) -> None:
-    """Run ``task(item)`` for every item on the cluster; call ``on_done(item, result, error)`` in this
-    process as each finishes, in the order they finish (`distributed.as_completed`).
+def _outcome(future) -> tuple[Any, str | None, bool]:
+    """(result, error, lost) of a finished future: `lost` when the cluster dropped the task rather than
+    the task raising its own exception (then `future.status` is ``"error"``, `KilledWorker` aside)."""
+    from distributed import KilledWorker
 
-    A task that failed (raised twice, its worker died twice, or was cancelled) comes back with
-    ``result=None`` and `error` its one-line description; the others keep running.
+    if future.status == "cancelled":
+        return None, "lost: the cluster cancelled this task (its scheduler gone or the connection lost)", True
+    # Not `future.status` alone: a result held by a worker that died since is "lost" and is being
+    # recomputed; `result()` waits for that, and raises the task's own failure.
+    try:
+        return future.result(), None, False
+    except Exception as exc:  # any failure of the task becomes its row's error
+        own = future.status == "error" and not isinstance(exc, KilledWorker)
+        error = _describe_failure(exc)
+        return None, error if own or error.startswith("lost: ") else f"lost: {error}", not own
+
+
+class _NoWorkerWatch:
+    """Tells how long a cluster has had no worker: `say(seconds)` once, `notice_s` into each spell
+    without one; `expired` once `timeout_s` (None: never) has passed."""
+
+    def __init__(self, client, notice_s: float, timeout_s: float | None, say: Callable[[float], None]):
+        self.client, self.notice_s, self.timeout_s, self.say = client, notice_s, timeout_s, say
+        self.since: float | None = None
+        self.said = False
+
+    def expired(self) -> bool:
+        # The client refreshes the scheduler's identity every 2 s; a client that lost its scheduler
+        # has had its tasks cancelled already, which `run_tasks` reports as lost.
+        info = self.client.scheduler_info() if self.client.status == "running" else None
+        if info is None or info.get("n_workers", len(info.get("workers", {}))) > 0:
+            self.since, self.said = None, False
+            return False
+        now = time.monotonic()
+        self.since = now if self.since is None else self.since
+        idle_s = now - self.since
+        if not self.said and idle_s >= min(self.notice_s, self.timeout_s or self.notice_s):
+            self.say(idle_s)
+            self.said = True
+        return self.timeout_s is not None and idle_s >= self.timeout_s
+
+
+def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callable[[T], str],
+              on_done: Callable[[T, Any, str | None, bool], None], retries: int = TASK_RETRIES,
+              no_worker_timeout_s: float | None = None, on_no_worker: Callable[[float], None] | None = None,
+              no_worker_notice_s: float = NO_WORKER_NOTICE_S) -> None:
+    """Run ``task(item)`` for every item on the cluster; call ``on_done(item, result, error, lost)`` in
+    this process as each finishes, in the order they finish (`distributed.as_completed`).
+
+    A task that raised (twice) comes back with ``result=None``, `error` its one-line description and
+    ``lost=False``; one the cluster dropped (cancelled, scheduler gone, its worker died twice, a
+    broken connection) with ``lost=True`` and an error starting ``"lost: "``. The others keep running.
 
     Parameters
     ----------
@@ -133,24 +185,37 @@ def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callabl
     key : callable
         The task's Dask key for an item (unique within the batch).
     on_done : callable
-        Gets each item, its result (or None) and its error (or None).
+        Gets each item, its result (or None), its error (or None) and whether it was lost.
     retries : int
         Extra runs of a task that raises.
+    no_worker_timeout_s : float, optional
+        With no worker on the cluster this long, s, the tasks not done are cancelled and come back
+        lost; None waits for a worker however long it takes.
+    on_no_worker : callable, optional
+        ``on_no_worker(seconds)``, once per spell without a worker, after `no_worker_notice_s` (or
+        `no_worker_timeout_s` if shorter).
+    no_worker_notice_s : float
+        See `on_no_worker`, s.
     """
     from distributed import as_completed
 
     futures = {client.submit(task, item, key=key(item), retries=retries, pure=False): item
                for item in items}
-    for future in as_completed(list(futures)):
-        item = futures.pop(future)
-        if future.status == "cancelled":
-            result, error = None, "cancelled: the cluster dropped this task"
-        else:
-            # Not `future.status`: a result held by a worker that died since is "lost" and is being
-            # recomputed; `result()` waits for that, and raises the task's own failure.
-            try:
-                result, error = future.result(), None
-            except Exception as exc:  # any failure of the task becomes its row's error
-                result, error = None, _describe_failure(exc)
-        future.release()
-        on_done(item, result, error)
+    watch = _NoWorkerWatch(client, no_worker_notice_s, no_worker_timeout_s, on_no_worker or (lambda s: None))
+    done = as_completed(list(futures))
+    while futures:
+        if not done.has_ready():
+            if watch.expired():
+                break
+            time.sleep(_POLL_S)
+            continue
+        for future in done.next_batch(block=False):
+            item = futures.pop(future)
+            result, error, lost = _outcome(future)
+            future.release()
+            on_done(item, result, error, lost)
+    if not futures:
+        return
+    client.cancel(list(futures))  # left by a cluster without a worker: cancelled, reported lost
+    for item in futures.values():
+        on_done(item, None, f"lost: no worker on the cluster for {no_worker_timeout_s:g} s", True)

@@ -264,10 +264,10 @@ def test_bad_input_is_one_line_and_exit_2(local, args, message):
     assert not (folder / "never").exists()
 
 
-def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
+def test_a_worker_that_dies_gets_its_task_retried_once_then_lost(tmp_path):
     """Real worker processes killed mid-task (os._exit in the task): once -> the retry succeeds;
-    every time -> a failed result after the retry; a task that raises runs twice, then fails; the
-    other tasks finish either way."""
+    every time -> a lost result after the retry; a task that raises runs twice, then fails (not
+    lost); the other tasks finish either way."""
     from services.batch.driver import open_client, run_tasks
     from tests.integration.sweep_support import square_or_die
 
@@ -276,10 +276,10 @@ def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
     done = {}
     with open_client(workers=2, dashboard=False) as client:
         run_tasks(client, items, square_or_die, key=lambda item: f"square-{item[0]}",
-                  on_done=lambda item, result, error: done.__setitem__(item[0], (result, error)))
-    assert done[1] == (1, None) and done[2] == (4, None) and done[4] == (16, None)
+                  on_done=lambda item, *outcome: done.__setitem__(item[0], outcome))
+    assert done[1] == (1, None, False) and done[2] == (4, None, False) and done[4] == (16, None, False)
     assert (tmp_path / "died-once").exists()
-    result, error = done[3]
-    assert result is None and "worker died while running this task (2 attempts)" in error
-    assert done[5] == (None, "ValueError: no square of 5 today")
+    result, error, lost = done[3]
+    assert result is None and lost and error.startswith("lost: worker died while running this task (2 attempts)")
+    assert done[5] == (None, "ValueError: no square of 5 today", False)
     assert (tmp_path / "attempts").read_text() == "attempt\n" * 2
