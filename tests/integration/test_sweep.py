@@ -147,6 +147,21 @@ def test_resume_runs_only_what_is_missing_and_run_outputs_are_written_when_asked
     assert saved["mae_kg_ha"] == missing["mae_kg_ha"] and saved["scenario_config"]["controller"]["kp"] == 0.8
 
 
+def test_retry_failed_reruns_the_failed_runs_and_resume_alone_does_not(local):
+    folder, _, rows = local
+    out = folder / "retry"
+    out.mkdir()
+    _write_parquet(rows, str(out / "results.parquet"))
+    failed = {r["key"] for r in rows if r["status"] == "failed"}
+    outcome = sweep(folder, "--resume", "--retry-failed", "--out", str(out), "--workers", "1")
+    assert (outcome["skipped"], outcome["ran"], outcome["failed"], outcome["lost"]) == (2, 2, 2, 0)
+    again = _read_rows(str(out / "results.parquet"))
+    assert [r["key"] for r in again[:2]] == [r["key"] for r in rows if r["key"] not in failed]
+    assert {r["key"] for r in again[2:]} == failed  # run again, at the end of the table, not twice
+    for row in again[2:]:
+        assert row["status"] == "failed" and "headland_passes=30" in row["error"]
+
+
 def test_an_existing_table_is_not_overwritten_without_resume(local):
     folder, _, _ = local
     p = vrsim("sweep", str(folder / "s.toml"), "--out", str(folder / "out"), "--no-dashboard")
@@ -280,6 +295,7 @@ def test_a_worker_that_dies_gets_its_task_retried_once_then_lost(tmp_path):
     assert done[1] == (1, None, False) and done[2] == (4, None, False) and done[4] == (16, None, False)
     assert (tmp_path / "died-once").exists()
     result, error, lost = done[3]
-    assert result is None and lost and error.startswith("lost: worker died while running this task (2 attempts)")
+    assert result is None and lost
+    assert error.startswith("lost: worker died while running this task (2 attempts)")
     assert done[5] == (None, "ValueError: no square of 5 today", False)
     assert (tmp_path / "attempts").read_text() == "attempt\n" * 2
