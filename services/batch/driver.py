@@ -84,6 +84,28 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
         with _local_cluster(workers or os.cpu_count() or 1, dashboard) as cluster, Client(cluster) as client:
             yield client
         return
+    with _quiet_dask():
+        yield from _remote_client(Client, scheduler, timeout_s)
+
+
+@contextmanager
+def _quiet_dask():
+    """Dask's own log quiet (as the embedded cluster's `silence_logs`): a lost scheduler is the rows'
+    `lost` and the command's one line, not the client's tracebacks of each reconnection."""
+    # Dask's logging config gives its client's logger a level of its own: the package's is not enough.
+    logs = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for log, level in zip(logs, levels, strict=True):
+            log.setLevel(level)
+
+
+def _remote_client(Client, scheduler: str, timeout_s: float) -> Iterator[Any]:
+    """`open_client`'s client on an existing scheduler (see there)."""
     try:
         client = Client(scheduler, timeout=f"{timeout_s}s")
     except (ValueError, TypeError) as exc:
