@@ -11,7 +11,7 @@ function current -> sensor reading of the 1 ms ZOH plant held over T, sensor del
 (`controller.lti.plant_lti`). `analyze_loop` returns its gain and phase margins
 (`control.stability_margins`), the gain-crossover ("crossover") and phase-crossover frequencies,
 and the -3 dB bandwidth of the closed loop ``L / (1 + L)`` from target to reading
-(`closed_loop_bandwidth`). `services.outputs.loop_analysis` draws the Bode plot and step responses.
+(`_closed_loop_bandwidth`). `services.outputs.loop_analysis` draws the Bode plot and step responses.
 
 The saturation of the valve current is outside this small-signal view: a loop with good margins can
 still wind up on large steps (``vrsim controller analyze`` plots the simulated step beside the linear one).
@@ -89,7 +89,7 @@ class LoopAnalysis:
         return out
 
 
-def open_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05):
+def _open_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float = 0.05):
     """``L(z) = Ka Ks C(z) G(z)`` of `cfg` on `plant` (a python-control system, dt = T).
 
     Raises `NotLinear` (a `ControllerError`) for a kind without a linear model (``aog_pi``: deadband
@@ -107,7 +107,7 @@ def open_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: float
     return control.series(model(), k * plant_lti(plant, control_period_s))
 
 
-def closed_loop_bandwidth(closed, control_period_s: float, dbdrop: float = -3.0) -> float:
+def _closed_loop_bandwidth(closed, control_period_s: float, dbdrop: float = -3.0) -> float:
     """First frequency where the discrete system `closed`'s gain is `dbdrop` dB below its DC gain
     [rad/s] (inf: not below Nyquist).
 
@@ -138,11 +138,11 @@ def analyze_loop(plant: PlantParams, cfg: ControllerConfig, control_period_s: fl
     """Margins, crossovers and bandwidth of `cfg`'s loop on `plant` (see `LoopAnalysis`)."""
     import control
 
-    loop = open_loop(plant, cfg, control_period_s)
+    loop = _open_loop(plant, cfg, control_period_s)
     gm, pm, _sm, w_pc, w_gc, _wms = control.stability_margins(loop)
     closed = control.feedback(loop, 1)
     stable = bool(all(abs(p) < 1.0 for p in closed.poles()))
-    bandwidth = closed_loop_bandwidth(closed, control_period_s) if stable else math.nan
+    bandwidth = _closed_loop_bandwidth(closed, control_period_s) if stable else math.nan
     return LoopAnalysis(
         kind=cfg.kind, gain_margin=float(gm), gain_margin_db=20 * math.log10(gm) if gm > 0 else -math.inf,
         phase_margin_deg=float(pm), phase_crossover_rad_s=float(w_pc), crossover_rad_s=float(w_gc),

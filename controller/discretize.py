@@ -16,6 +16,8 @@ import numpy as np
 
 from common import ControllerError, check_positive
 
+__all__ = ["zoh", "fine_steps", "delay_split", "Lifted", "lift"]
+
 
 def zoh(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Exact ZOH discretization over `h` seconds via the augmented matrix exponential.

@@ -37,7 +37,7 @@ def where(cond, a, b):
     return a if cond else b
 
 
-def minimum(a, b):
+def _minimum(a, b):
     """Element-wise smaller of `a` and `b`."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return np.minimum(a, b)

@@ -156,7 +156,7 @@ class AsApplied:
             pass come together, passes one after another (across calls too); a pass ends where the
             index changes.
         """
-        mass = checked_mass(mass_kg, footprint.items)
+        mass = _checked_mass(mass_kg, footprint.items)
         step, unit = self.raster.step, metres_per_unit(self.grid.crs)
         if pass_index is None:
             self._target = self._acc
@@ -289,7 +289,7 @@ def checked_raster(grid: Grid, subcells: int, who: str) -> SubcellRaster:
     return SubcellRaster(grid, subcells)
 
 
-def checked_mass(mass_kg, items: int) -> np.ndarray:
+def _checked_mass(mass_kg, items: int) -> np.ndarray:
     """Each item's product as a flat float array of `items`; `MapError` if one is negative or not
     finite."""
     mass = np.broadcast_to(np.asarray(mass_kg, dtype=np.float64).ravel(), (items,))

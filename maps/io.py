@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import posixpath
+import tempfile
 
 from common import MapError, files
 from maps.grid import DEFAULT_MAX_CELLS, Grid
@@ -10,11 +12,12 @@ from maps.grid import DEFAULT_MAX_CELLS, Grid
 READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
                "zipped), GeoJSON zones or points (.geojson/.json), CSV points (.csv)"
 WRITE_FORMATS = ".tif/.tiff (GeoTIFF), a TASKDATA folder, .../TASKDATA.XML or .zip (ISOXML grid type 2), " \
-                ".geojson/.csv (points)"
+                ".shp/.shp.zip (shapefile zones), .geojson/.csv (points)"
 
 
 def read_map(path, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
-             max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+             max_cells: int | None = DEFAULT_MAX_CELLS, layer: str | None = None,
+             product: str | None = None) -> Grid:
     """Read a prescription map in any supported format into a `Grid`.
 
     Parameters
@@ -31,6 +34,11 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
         x/y without .prj).
     max_cells : int or None
         Refuse grids larger than this (default 200 million cells); None: no cap.
+    layer : str, optional
+        The shapefile of a zip or folder holding several (required then: they are listed).
+    product : str, optional
+        The product (``PDTn`` or its name) of a TASKDATA grid holding several (required then); a
+        TASKDATA takes `rate_field` as the product when `product` is not given.
 
     Raises
     ------
@@ -42,12 +50,19 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
     lower = path.lower()
+    if os.path.isdir(path) and not _is_taskdata_folder(path):
+        return _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells)
     if os.path.isdir(path) or lower.endswith(".xml"):
         from maps.isoxml import read_isoxml
+        from maps.timelog import is_lone_timelog
 
-        return read_isoxml(path, max_cells=max_cells)
+        if is_lone_timelog(path):
+            raise MapError(f"{path}: a TimeLog (what a machine logged), not a prescription map; "
+                           "`vrsim evaluate` reads it")
+
+        return read_isoxml(path, max_cells=max_cells, product=product or rate_field)
     if lower.endswith(".zip"):
-        return _read_zip(path, rate_field, cell_size_m, crs, max_cells)
+        return _read_zip(path, rate_field, cell_size_m, crs, max_cells, layer, product)
     if lower.endswith((".tif", ".tiff", ".gtiff")):
         from maps.geotiff import read_geotiff
 
@@ -71,35 +86,70 @@ def read_map(path, rate_field: str | None = None, cell_size_m: float | None = No
     raise MapError(f"{path}: unknown map format (by extension); vrsim reads {READ_FORMATS}")
 
 
-def _read_zip(path, rate_field, cell_size_m, crs, max_cells) -> Grid:
+def _read_zip(path, rate_field, cell_size_m, crs, max_cells, layer, product) -> Grid:
     """A .zip is an ISOXML TASKDATA or a zipped shapefile: tell by what it holds."""
     with files.open_zip(path, MapError) as z:
         names = [n.lower() for n in z.namelist()]
     if any(os.path.basename(n) == "taskdata.xml" for n in names):
         from maps.isoxml import read_isoxml
 
-        return read_isoxml(path, max_cells=max_cells)
+        return read_isoxml(path, max_cells=max_cells, product=product or rate_field)
     if any(n.endswith(".shp") for n in names):
-        from maps.zones import read_zones
-
-        return read_zones(path, rate_field, cell_size_m, crs, max_cells)
+        return _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells)
     raise MapError(f"{path}: the zip archive holds neither a TASKDATA.XML nor a .shp")
 
 
-def write_map(grid: Grid, path) -> None:
-    """Write a grid; the format follows the extension.
+def _is_taskdata_folder(path: str) -> bool:
+    """A folder read as a TASKDATA: one with a TASKDATA.XML (or a TASKDATA folder), or no shapefile."""
+    names = [n.lower() for n in os.listdir(path)]
+    return "taskdata.xml" in names or "taskdata" in names or not any(n.endswith(".shp") for n in names)
+
+
+def _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells) -> Grid:
+    """The rate zones of one shapefile of a zip or folder: the only one, or `layer` (several: named)."""
+    from dataclasses import replace
+
+    from maps.vector import gdal_source
+    from maps.zones import read_zones
+
+    source, _, _ = gdal_source(path, layer)  # refuses several layers and none named, or a wrong name
+    if os.path.isdir(path) or layer is None:  # a folder's shapefile, or a zip's only one
+        return read_zones(source if os.path.isdir(path) else path, rate_field, cell_size_m, crs, max_cells)
+    member = source.split(f"{os.path.realpath(path)}/", 1)[1]
+    with tempfile.TemporaryDirectory(prefix="vrsim-layer-") as tmp:
+        stem = member[:-4]
+        with files.open_zip(path, MapError) as z:
+            for name in z.namelist():
+                if name[:-4] == stem and name[-4:].lower() in (".shp", ".shx", ".dbf", ".prj", ".cpg"):
+                    with open(os.path.join(tmp, "layer" + name[-4:].lower()), "wb") as fh:
+                        fh.write(files.read_member(z, name, path, MapError))
+        grid = read_zones(os.path.join(tmp, "layer.shp"), rate_field, cell_size_m, crs, max_cells)
+    return replace(grid, source=f"{path}:{posixpath.basename(stem)}")
+
+
+def write_map(grid: Grid, path, like: str | None = None) -> None:
+    """Write a grid; the format follows the extension (of `like` if given: the final name of a file
+    written under a temporary one).
 
     ``.tif``/``.tiff``: GeoTIFF. A folder (a path without extension, or an existing folder) or
     ``.../TASKDATA.XML``: ISOXML TASKDATA.XML + a GRDnnnnn.BIN beside it (grid type 2, DDI 6, WGS84;
     other CRSs are reprojected; never overwriting, see `maps.isoxml.write_isoxml`). ``.zip``: the
-    same in an archive. ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre.
+    same in an archive. ``.shp`` or ``.shp.zip``: a polygon shapefile prescription, zipped or not
+    (`maps.shapefile_rx`). ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre.
     """
+    from maps.shapefile_rx import is_shapefile_path
+
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise MapError(f"{path}: folder {folder} does not exist")
-    lower = path.lower()
-    if lower.endswith((".tif", ".tiff")):
+    lower = os.fspath(like or path).lower()
+    if is_shapefile_path(lower):
+        from maps.shapefile_rx import write_shapefile
+
+        def writer(grid, path):
+            write_shapefile(grid, path, like=like)
+    elif lower.endswith((".tif", ".tiff")):
         from maps.geotiff import write_geotiff as writer
     elif lower.endswith((".xml", ".zip")) or os.path.isdir(path) or not os.path.splitext(path)[1]:
         from maps.isoxml import write_isoxml as writer

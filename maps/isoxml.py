@@ -129,10 +129,14 @@ def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
             for p in tzn.findall("PDV")]
 
 
-def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
-    """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84)."""
+def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None) -> Grid:
+    """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84).
+
+    `product` (a PDT's id ``PDT2`` or its name) chooses among the rates of a grid with several
+    products; without it such a grid is refused, listing them (`MapError`): none is chosen silently.
+    """
     with TaskdataFolder(path) as folder:
-        return _read_taskdata(folder, path, max_cells)
+        return _read_taskdata(folder, path, max_cells, product)
 
 
 def parse_xml(data: bytes, where: str, name: str, root_tag: str):
@@ -152,7 +156,7 @@ def parse_xml(data: bytes, where: str, name: str, root_tag: str):
     return root
 
 
-def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None) -> Grid:
+def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None, product: str | None) -> Grid:
     where = path
     root = parse_xml(folder.read_xml(), where, "TASKDATA.XML", "ISO11783_TaskData")
     tasks = [t for t in root.iter("TSK") if t.find("GRD") is not None]
@@ -194,22 +198,26 @@ def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None) -> 
         if DDI_MASS_PER_AREA not in ddis:
             raise MapError(f"{where}: treatment zone {zone_code} holds DDI {ddi_list(ddis) or 'none'}; "
                            f"vrsim needs DDI 0006 ({NAMES[6]})")
+        rate_layers = [i for i, d in enumerate(ddis) if d == DDI_MASS_PER_AREA]
+        product_ref = _choose_product(root, [layers[i][2] for i in rate_layers], product, where)
+        layer = next(i for i in rate_layers if layers[i][2] == product_ref)
         cell_bytes = 4 * len(layers)
     else:
         cell_bytes = 1
     data = _read_binary(folder, name, rows * cols * cell_bytes, declared, where,
                         f"{cols} columns x {rows} rows x {cell_bytes} byte{'s' * (cell_bytes > 1)} per cell")
     if gtype == 2:
-        raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., ddis.index(6)]
+        raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., layer]
         if (raw < 0).any():
             r, c = np.argwhere(raw < 0)[0]
             raise MapError(f"{where}: negative rate {files.shown(int(raw[r, c]))} mg/m^2 in {name} at "
                            f"row {r} (from south), column {c}")
         rates = raw.astype(np.float64) * KG_HA_PER_MG_M2
-        product_ref = layers[ddis.index(6)][2]
     else:
         codes = np.frombuffer(data, dtype=np.uint8).reshape(rows, cols)
-        rates, product_ref = _type1_rates(codes, zones, where)
+        refs = [ref for values in zones.values() for d, _, ref in values if d == DDI_MASS_PER_AREA]
+        product_ref = _choose_product(root, refs, product, where) if refs else None
+        rates = _type1_rates(codes, zones, product_ref, where)
     transform = Affine(dlon, 0.0, west, 0.0, -dlat, south + rows * dlat)
     return Grid(rates[::-1], transform, WGS84, product=_product_name(root, product_ref), source=path,
                 format="isoxml")
@@ -227,18 +235,17 @@ def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, whe
     return folder.read(fname, expected)
 
 
-def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray, str | None]:
-    """Rates from per-cell treatment-zone codes: a 256-entry table, NaN for zones without DDI 6."""
+def _type1_rates(codes: np.ndarray, zones: dict, product_ref: str | None, where: str) -> np.ndarray:
+    """Rates of `product_ref` from per-cell treatment-zone codes: a 256-entry table, NaN for zones
+    without its DDI 6."""
     table = np.full(256, np.nan)
-    product_ref = None
     for code, values in zones.items():
         for ddi, value, product in values:
-            if ddi == DDI_MASS_PER_AREA and 0 <= code <= 255:
+            if ddi == DDI_MASS_PER_AREA and product == product_ref and 0 <= code <= 255:
                 if value < 0:
                     raise MapError(f"{where}: treatment zone {code} has a negative rate "
                                    f"{files.shown(value)} mg/m^2")
                 table[code] = value * KG_HA_PER_MG_M2
-                product_ref = product_ref or product
     if np.isnan(table).all():
         ddis = sorted({d for values in zones.values() for d, _, _ in values})
         raise MapError(f"{where}: no treatment zone holds DDI 0006 ({NAMES[6]}); found DDI "
@@ -248,7 +255,24 @@ def _type1_rates(codes: np.ndarray, zones: dict, where: str) -> tuple[np.ndarray
     if undefined:
         warnings.warn(f"{where}: grid cells name treatment zones {undefined} that have no DDI 0006 rate in "
                       "TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=4)
-    return table[codes], product_ref
+    return table[codes]
+
+
+def _choose_product(root, refs: list, product: str | None, where: str) -> str | None:
+    """The product reference (PDV C) among `refs` (in file order) that `product` names, by id (``PDT2``)
+    or name (case-insensitive); without `product`, the only one. MapError listing them otherwise."""
+    products = list(dict.fromkeys(refs))
+    listed = ", ".join(f"{ref} {_product_name(root, ref)!r}" if ref else "(no product)" for ref in products)
+    if product is None:
+        if len(products) > 1:
+            raise MapError(f"{where}: the grid holds the rates of {len(products)} products: {listed}; "
+                           "choose one with --product NAME|PDTn")
+        return products[0]
+    wanted = product.strip().lower()
+    for ref in products:
+        if ref and wanted in (ref.lower(), _product_name(root, ref).lower()):
+            return ref
+    raise MapError(f"{where}: no product {product!r} in the grid; products: {listed}")
 
 
 def _product_name(root, ref: str | None) -> str:

@@ -15,6 +15,7 @@ time_s      seconds since the first record
 hdg_deg     heading, degrees clockwise from north
 speed_m_s   ground speed, m/s
 width_m     working (swath) width in use, m
+work        implement work state, 1 on, 0 off (ISO 11783 DDI 141)
 sections    number of sections on
 target      target (setpoint) rate, in ``rate_unit``
 applied     applied (actual) rate, in ``rate_unit``
@@ -180,18 +181,20 @@ TEXT_TIME_NAMES = ("isotime", "timestamp", "datetime", "date_time", "time")
 HEADING_NAMES = ("hdg_deg", "heading", "heading_deg", "course")
 SPEED_NAMES = ("speed_m_s", "speed")
 WIDTH_NAMES = ("width_m", "swathwidth", "swath_width", "swathwidt", "width")
+WORK_NAMES = ("work", "work_on", "work_state", "implement_on")
 DEERE_UNIT = re.compile(r"([A-Za-z]+)(-?\d+)")
 
 
 def read_point_log(path, rate_field: str | None = None, target_field: str | None = None,
-                   time_field: str | None = None, unit: str | None = None, crs=None) -> PointLog:
+                   time_field: str | None = None, unit: str | None = None, crs=None,
+                   layer: str | None = None, product: str | None = None) -> PointLog:
     """Read an as-applied log: a TASKDATA with TimeLogs, a point shapefile (zipped or not) or GeoPackage.
 
     Parameters
     ----------
     path : str or os.PathLike
         A TASKDATA (folder, TASKDATA.XML or a .zip holding one), ``.shp``, ``.zip`` holding a
-        ``.shp``, or ``.gpkg``.
+        ``.shp``, a folder of shapefiles, or ``.gpkg``.
     rate_field, target_field : str, optional
         The attributes holding the applied and target rate; found by name when None
         (``AppliedRate``/``AppliedRat``, ``TargetRate``, vrsim's ``applied``/``target``, ...). For a
@@ -204,6 +207,10 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
         a ``rate_unit`` attribute, or the TASKDATA's DDI say it).
     crs : pyproj.CRS or str, optional
         CRS of a file that does not declare one.
+    layer : str, optional
+        The layer of a zip, folder or GeoPackage holding several (listed when none is named); required then.
+    product : str, optional
+        For a TASKDATA logging the rate of several products: the one to read (`read_taskdata_log`).
     """
     path = os.fspath(path)
     files.refuse_vsi(path, MapError)
@@ -212,21 +219,22 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
     from maps.taskdata import is_taskdata, read_taskdata_log
 
     if is_taskdata(path):
-        return read_taskdata_log(path, rate_ddi=rate_field, target_ddi=target_field)
-    if not path.lower().endswith((".shp", ".zip", ".gpkg")):
+        return read_taskdata_log(path, rate_ddi=rate_field, target_ddi=target_field, product=product)
+    if not (os.path.isdir(path) or path.lower().endswith((".shp", ".zip", ".gpkg"))):
         raise MapError(f"{path}: an as-applied log must be a TASKDATA, a point shapefile (.shp or .zip) or a "
                        "GeoPackage (.gpkg)")
-    return _read_vector(path, rate_field, target_field, time_field, unit, crs)
+    return _read_vector(path, rate_field, target_field, time_field, unit, crs, layer)
 
 
-def _read_vector(path, rate_field, target_field, time_field, unit, crs) -> PointLog:
+def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=None) -> PointLog:
     import shapely
 
-    from maps.vector import read_vector
+    from maps.vector import gdal_source, read_vector
 
-    files.check_file(path, error=MapError)  # GDAL opens by name: a FIFO or a device would hang it
-    files.check_siblings(path, MapError)
-    meta, _, geometry, columns = read_vector(path)  # its signature checked, as GDAL will see it
+    if not os.path.isdir(path):  # a folder's shapefiles are checked as `read_vector` lists them
+        files.check_file(path, error=MapError)  # GDAL opens by name: a FIFO or a device would hang it
+        files.check_siblings(path, MapError)
+    meta, _, geometry, columns = read_vector(path, layer)  # its signature checked, as GDAL will see it
     fields = dict(zip((str(f) for f in meta["fields"]), columns, strict=True))
     points = shapely.from_wkb(geometry)
     kinds = shapely.get_type_id(points)  # 0: point, -1: no geometry
@@ -241,17 +249,19 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs) -> Point
         if crs is None:
             raise MapError(f"{path}: the file has no CRS (no .prj); give one (crs= / --crs)")
         src_crs = as_crs(crs, "crs")
-    units = _deere_units(path)
+    units = _deere_units(path, os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0])
     applied_name = _pick(path, fields, rate_field, APPLIED_NAMES, "applied rate", "--rate-field")
     target_name = _pick(path, fields, target_field, TARGET_NAMES, "target rate", "--target-field")
     rate_unit = unit or _rate_unit(path, fields, units, applied_name)
     time_s, start = _times(path, fields, time_field)
+    work = _optional(path, fields, WORK_NAMES)  # the work state: other than 0 is on; not logged: on
     return PointLog(
         xy[:, 0], xy[:, 1], src_crs, applied=_numbers(path, fields[applied_name], applied_name),
         target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
-        width_m=_length(path, fields, WIDTH_NAMES, units), source=path,
+        width_m=_length(path, fields, WIDTH_NAMES, units), work_on=None if work is None else work != 0,
+        source=f"{path}:{layer}" if layer else path,
         format="gpkg" if path.lower().endswith(".gpkg") else "shapefile")
 
 
@@ -333,13 +343,14 @@ def _deere_unit(code: str) -> str:
     return "/".join(["".join(up) or "1", *down])
 
 
-def _deere_units(path: str) -> dict[str, str]:
-    """Attribute name (lower case) -> unit, from a ``...-Deere-Metadata.json`` beside or in the archive.
+def _deere_units(path: str, stem: str) -> dict[str, str]:
+    """Attribute name (lower case) -> unit, from the ``<stem>-Deere-Metadata.json`` of the shapefile
+    `stem` (its name without ``.shp``) beside it or in the archive.
 
     The shapefile cuts attribute names to 10 characters (AppliedRat) while the metadata names them in
     full (AppliedRate), so each unit is filed under its full name and under its first 10 characters.
     """
-    text = _metadata_text(path)
+    text = _metadata_text(path, stem)
     if text is None:
         return {}
     try:
@@ -354,16 +365,16 @@ def _deere_units(path: str) -> dict[str, str]:
     return units
 
 
-def _metadata_text(path: str) -> str | None:
+def _metadata_text(path: str, stem: str) -> str | None:
     suffix = "-deere-metadata.json"
+    stem = stem.lower()
     if path.lower().endswith(".zip"):
         with files.open_zip(path, MapError) as z:
-            names = [n for n in z.namelist() if n.lower().endswith(suffix)]
+            names = [n for n in z.namelist() if os.path.basename(n).lower() == stem + suffix]
             if len(names) != 1:
                 return None
             return files.read_member(z, names[0], path, MapError).decode("utf-8", "replace")
-    folder = os.path.dirname(os.path.abspath(path))
-    stem = os.path.splitext(os.path.basename(path))[0].lower()
+    folder = path if os.path.isdir(path) else os.path.dirname(os.path.abspath(path))
     for name in os.listdir(folder):
         if name.lower() == stem + suffix:
             data = files.read_bytes(os.path.join(folder, name), "geojson", MapError)
@@ -469,7 +480,8 @@ def _fields(log: PointLog, keep: np.ndarray, text_time: bool) -> dict[str, np.nd
     if time is not None:
         out["time"] = np.datetime_as_string(time[keep], unit="ms") if text_time else time[keep]
     out.update(time_s=log.time_s[keep], hdg_deg=log.heading_deg[keep], speed_m_s=log.speed_m_s[keep],
-               width_m=log.width_m[keep], sections=log.sections_on.sum(axis=1)[keep].astype(np.int32),
+               width_m=log.width_m[keep], work=log.work_on[keep].astype(np.int32),
+               sections=log.sections_on.sum(axis=1)[keep].astype(np.int32),
                target=log.target[keep], applied=log.applied[keep],
                rate_unit=np.full(int(keep.sum()), log.unit, dtype=object),
                gnss=log.gnss_status[keep].astype(np.int32))

@@ -42,8 +42,12 @@ MAX_SECTIONS = DDI.SECTIONS_PER_CONDENSED * DDI.MAX_CONDENSED_DDIS
 
 
 def is_taskdata(path: str) -> bool:
-    """True for a folder, a ``.xml`` file, or a zip archive holding a TASKDATA.XML."""
-    if os.path.isdir(path) or path.lower().endswith(".xml"):
+    """True for a folder (unless it holds shapefiles and no TASKDATA.XML), a ``.xml`` file, or a zip
+    archive holding a TASKDATA.XML."""
+    if os.path.isdir(path):
+        names = [n.lower() for n in os.listdir(path)]
+        return "taskdata.xml" in names or "taskdata" in names or not any(n.endswith(".shp") for n in names)
+    if path.lower().endswith(".xml"):
         return True
     if path.lower().endswith(".zip"):
         with files.open_zip(path, MapError) as z:  # a regular file, members counted and sized first
@@ -274,7 +278,7 @@ def _parse_ddi(text) -> int:
     return value
 
 
-def read_taskdata_log(path, rate_ddi=None, target_ddi=None) -> PointLog:
+def read_taskdata_log(path, rate_ddi=None, target_ddi=None, product: str | None = None) -> PointLog:
     """The as-applied log in a TASKDATA's TimeLogs, as one `PointLog` in WGS84.
 
     Parameters
@@ -285,6 +289,10 @@ def read_taskdata_log(path, rate_ddi=None, target_ddi=None) -> PointLog:
         DDI of the applied and of the target rate (see `_parse_ddi`). Default: DDI 7 (actual mass per
         area, in kg/ha) if a TimeLog logs it, else DDI 2 (actual volume per area, in L/ha); the target
         is then the matching setpoint (6 or 1). Other DDIs are read in their own units (unit "").
+    product : str, optional
+        Where the rate is logged on several device elements (one per product, e.g. per bin): the
+        product (``PDTn`` or its name, allocated to its element by the task's ``PAN``) or the element
+        (``DET-n``) to read; such a log is refused without it, listing them.
 
     Notes
     -----
@@ -302,7 +310,8 @@ def read_taskdata_log(path, rate_ddi=None, target_ddi=None) -> PointLog:
     if not used:
         found = sorted({int(d) for t in logs for d in t.ddi})
         raise MapError(f"{path}: no TimeLog logs DDI {rate:04X}; they log DDI {DDI.ddi_list(found)}")
-    parts = [_timelog_columns(t, rate, target, factor) for t in used]
+    element = _rate_element(path, used, rate, product)
+    parts = [_timelog_columns(t, rate, target, factor, element) for t in used]
     cols = {key: np.concatenate([p[key] for p in parts]) for key in parts[0] if key != "sections"}
     order = np.argsort(cols["time"], kind="stable")
     start = cols["time"][order[0]]
@@ -323,7 +332,40 @@ def _default_rate(path: str, logs) -> int:
                    f"{DDI.ddi_list(found)}; name the rate's DDI (rate_field= / --rate-field)")
 
 
-def _timelog_columns(t, rate: int, target: int | None, factor: float) -> dict:
+def _rate_element(path: str, logs, rate: int, product: str | None) -> str | None:
+    """The device element whose rate is read: None where the rate is logged on one only (and no
+    product named); else the element of `product` (MapError listing the elements and their products)."""
+    elements = sorted({e for t in logs for d, e in zip(t.ddi, t.element, strict=True) if d == rate})
+    if product is None and len(elements) <= 1:
+        return None
+    products = _products_by_element(path)
+    listed = ", ".join(f"{e} ({products[e][0]} {products[e][1]!r})" if e in products else e for e in elements)
+    if product is None:
+        raise MapError(f"{path}: DDI {rate:04X} is logged on {len(elements)} device elements, one per "
+                       f"product: {listed}; choose one with --product NAME|PDTn")
+    wanted = product.strip().lower()
+    for element in elements:
+        pdt, name = products.get(element, ("", ""))
+        if wanted in (element.lower(), pdt.lower(), name.lower()):
+            return element
+    raise MapError(f"{path}: no product {product!r} logs DDI {rate:04X}; logged on: {listed}")
+
+
+def _products_by_element(path: str) -> dict[str, tuple[str, str]]:
+    """{device element: (PDT id, product name)} from the tasks' product allocations (PAN A, E)."""
+    from maps.isoxml import TaskdataFolder, parse_xml
+    from maps.timelog import is_lone_timelog
+
+    if is_lone_timelog(path):
+        return {}
+    with TaskdataFolder(path) as folder:
+        root = parse_xml(folder.read_xml(), path, "TASKDATA.XML", "ISO11783_TaskData")
+    names = {pdt.get("A"): pdt.get("B") or "" for pdt in root.iter("PDT")}
+    return {pan.get("E"): (pan.get("A"), names.get(pan.get("A"), "")) for pan in root.iter("PAN")
+            if pan.get("E") and pan.get("A")}
+
+
+def _timelog_columns(t, rate: int, target: int | None, factor: float, element: str | None = None) -> dict:
     lat, lon = t.lat_deg.copy(), t.lon_deg.copy()
     no_fix = (lat == 0) & (lon == 0)
     lat[no_fix] = lon[no_fix] = np.nan
@@ -335,8 +377,8 @@ def _timelog_columns(t, rate: int, target: int | None, factor: float) -> dict:
     status = t.position["status"]
     return {
         "time": t.time, "lat": lat, "lon": lon,
-        "applied": t.value(rate, hold=True) * factor,
-        "target": t.value(target, hold=True) * factor if target in has else np.full(n, np.nan),
+        "applied": t.value(rate, element, hold=True) * factor,
+        "target": t.value(target, element, hold=True) * factor if target in has else np.full(n, np.nan),
         "width": t.value(DDI.ACTUAL_WORKING_WIDTH, hold=True) / 1000.0 if DDI.ACTUAL_WORKING_WIDTH in has
         else np.full(n, np.nan),
         "work": t.value(DDI.ACTUAL_WORK_STATE, hold=True) == 1 if DDI.ACTUAL_WORK_STATE in has

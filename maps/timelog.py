@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
@@ -160,12 +161,14 @@ class TimeLog:
 
 # ---------------------------------------------------------------------- reading
 def read_timelogs(path, max_bytes: int = MAX_TLG_BYTES) -> list[TimeLog]:
-    """Read every TimeLog that a TASKDATA's tasks reference, in document order.
+    """Read every TimeLog that a TASKDATA's tasks reference, in document order, or one lone TimeLog.
 
     Parameters
     ----------
     path : str or os.PathLike
-        The TASKDATA: a folder, its TASKDATA.XML, or a .zip holding one.
+        The TASKDATA: a folder, its TASKDATA.XML, or a .zip holding one; or a lone TimeLog header
+        ``TLGnnnnn.xml`` with its ``.bin`` beside it (positions and DDIs from its header; its task
+        unknown, ``""``).
     max_bytes : int
         Refuse a TimeLog binary larger than this (default 256 MiB).
 
@@ -178,12 +181,22 @@ def read_timelogs(path, max_bytes: int = MAX_TLG_BYTES) -> list[TimeLog]:
     path = os.fspath(path)
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
+    if is_lone_timelog(path):
+        name = os.path.splitext(os.path.basename(path))[0]
+        with TaskdataFolder(path) as folder:
+            return [_read_one(folder, path, "", ET.Element("TLG", A=name, C="1"), max_bytes)]
     with TaskdataFolder(path) as folder:
         root = parse_xml(folder.read_xml(), path, "TASKDATA.XML", "ISO11783_TaskData")
         refs = [(task.get("A") or "", tlg) for task in root.iter("TSK") for tlg in task.findall("TLG")]
         if not refs:
             raise MapError(f"{path}: no task (TSK) references a TimeLog (TLG): nothing was logged")
         return [_read_one(folder, path, task, tlg, max_bytes) for task, tlg in refs]
+
+
+def is_lone_timelog(path: str) -> bool:
+    """True for a file named like a TimeLog header, ``TLGnnnnn.xml`` (any letter case)."""
+    name = os.path.basename(path).upper()
+    return not os.path.isdir(path) and re.fullmatch(r"TLG\d{5}\.XML", name) is not None
 
 
 def _read_one(folder: TaskdataFolder, path: str, task: str, tlg, max_bytes: int) -> TimeLog:
@@ -195,8 +208,8 @@ def _read_one(folder: TaskdataFolder, path: str, task: str, tlg, max_bytes: int)
         raise MapError(f"{path}: {name}: TLG C={kind!r}: only binary TimeLogs (C=1) are defined")
     for ext in (".XML", ".BIN"):
         if folder.size(name + ext) is None:
-            raise MapError(f"{path}: the TimeLog file {name}{ext} (task {task}) is missing beside "
-                           "TASKDATA.XML")
+            beside = f"(task {task}) is missing beside TASKDATA.XML" if task else "is missing beside it"
+            raise MapError(f"{path}: the TimeLog file {name}{ext} {beside}")
     where = f"{path}: {name}"
     header = parse_xml(folder.read(name + ".XML", files.cap_for("xml")), path, f"{name}.XML", "TIM")
     ptn, dlvs = _header(header, where)

@@ -1,8 +1,10 @@
 """A field: its boundary polygon in a local metric CRS (the UTM zone of its centroid).
 
-Boundaries come from GeoJSON, a shapefile (``.shp`` or a zipped one), a list of WGS84 vertices, or a
-rectangle by size. Everything downstream (coverage path, SUMO network, GNSS) works in metres in
-``field.crs``; `Field.to_wgs84` / `Field.from_wgs84` convert positions for output.
+Boundaries come from GeoJSON, a shapefile (``.shp`` or a zipped one), KML/KMZ, an ISOXML TASKDATA's
+partfield (`vehicle.boundary_files`), a list of WGS84 vertices, or a rectangle by size; holes (inner
+rings) are kept, and the coverage path and the field's cells leave them out. Everything downstream
+(coverage path, SUMO network, GNSS) works in metres in ``field.crs``; `Field.to_wgs84` /
+`Field.from_wgs84` convert positions for output.
 """
 
 from __future__ import annotations
@@ -92,32 +94,43 @@ class Field:
         return cls(shapely.box(x0, y0, x0 + width_m, y0 + length_m), crs, name)
 
     @classmethod
-    def from_file(cls, path: str, crs=None) -> Field:
-        """Read a boundary from GeoJSON (``.geojson``/``.json``) or a shapefile (``.shp`` or ``.zip``).
+    def from_file(cls, path: str, crs=None, partfield: str | None = None) -> Field:
+        """Read a boundary from GeoJSON (``.geojson``/``.json``), a shapefile (``.shp`` or ``.zip``),
+        KML (``.kml``/``.kmz``) or an ISOXML TASKDATA (folder, ``TASKDATA.XML`` or a ``.zip`` holding
+        one: its partfield boundary).
 
         Parameters
         ----------
         path : str
-            The file. One polygon (or a multipolygon with one part, or a collection whose first
-            polygon feature is used).
+            The file. One polygon, holes included (or a multipolygon with one part, or a collection
+            whose first polygon feature is used).
         crs : anything `pyproj.CRS.from_user_input` takes, optional
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
-            WGS84 if the coordinates look like degrees.
+            WGS84 if the coordinates look like degrees (KML and ISOXML: WGS84).
+        partfield : str, optional
+            The partfield (``PFDn`` or its designator) of a TASKDATA with several, or the placemark
+            (its name) of a KML with several.
         """
+        from vehicle import boundary_files
         if isinstance(path, (str, os.PathLike)):
             files.refuse_vsi(os.fspath(path), VehicleError, label=f"field file {path}")  # no GDAL /vsi path
         if not isinstance(path, (str, os.PathLike)) or not os.path.exists(path):
             raise VehicleError(f"field file {path}: not found")
         path = os.fspath(path)
-        files.check_file(path, error=VehicleError)  # a regular file within its byte cap, or refused
+        if not os.path.isdir(path):
+            files.check_file(path, error=VehicleError)  # a regular file within its byte cap, or refused
         ext = os.path.splitext(path)[1].lower()
         if ext in (".geojson", ".json"):
             geom, file_crs = _read_geojson(path)
+        elif ext in (".kml", ".kmz"):
+            geom, file_crs = boundary_files.read_kml(path, partfield), WGS84
+        elif boundary_files.is_taskdata(path):
+            geom, file_crs = boundary_files.read_partfield(path, partfield), WGS84
         elif ext in (".shp", ".zip"):
             geom, file_crs = _read_shapefile(path)
         else:
-            raise VehicleError(f"field file {path}: unknown extension {ext!r} "
-                               "(want .geojson, .json, .shp or .zip)")
+            raise VehicleError(f"field file {path}: unknown extension {ext!r} (want .geojson, .json, .shp, "
+                               ".zip, .kml, .kmz or an ISOXML TASKDATA)")
         if crs is not None:
             try:
                 file_crs = pyproj.CRS.from_user_input(crs)
@@ -234,8 +247,14 @@ def _read_geojson(path: str):
         raise VehicleError(f"field file {path}: no Polygon or MultiPolygon geometry in it")
     try:
         geom = shape(polys[0])
-    except (ValueError, TypeError, AttributeError, IndexError) as exc:
+        rings = [np.asarray(ring, dtype=float) for part in ([polys[0]["coordinates"]] if polys[0]["type"] ==
+                 "Polygon" else polys[0]["coordinates"]) for ring in part]
+    except (ValueError, TypeError, AttributeError, IndexError, KeyError) as exc:
         raise VehicleError(f"field file {path}: bad polygon coordinates: {exc}") from None
+    for ring in rings:  # GeoJSON repeats a ring's first position last; shapely would close it silently
+        if ring.ndim == 2 and len(ring) and not np.array_equal(ring[0], ring[-1]):
+            raise VehicleError(f"field file {path}: a ring does not close: it starts at "
+                               f"{tuple(ring[0].tolist())} and ends at {tuple(ring[-1].tolist())}")
     return geom, crs
 
 

@@ -41,7 +41,7 @@ TABLES = ("delta_kp", "delta_ki", "delta_kd")
 DEFAULT_RULES = "fuzzy_pid_rules.toml"
 
 
-def load_rules(path: str | None = None) -> np.ndarray:
+def _load_rules(path: str | None = None) -> np.ndarray:
     """The three 7x7 rule tables as consequent centres in [-3, 3], shape (3, 7, 7) (kp, ki, kd; rows e,
     columns ec), from `path` or the package's ``data/fuzzy_pid_rules.toml``."""
     where = path or f"controller/data/{DEFAULT_RULES}"
@@ -72,7 +72,7 @@ def load_rules(path: str | None = None) -> np.ndarray:
     return np.array(tables)
 
 
-def fuzzify(x):
+def _fuzzify(x):
     """The two terms x (on [-3, 3], saturating) belongs to: index i of the lower one (0 = NB) and
     membership w of the upper one (the lower has 1 - w). Seven unit-spaced triangles overlap only
     pairwise, so these two are all of x's memberships. Floats or arrays."""
@@ -141,7 +141,7 @@ class FuzzyPid(LawController):
         super().__init__(params, loop, n)
         self.base = gains_from_source(params.gains, "PID", loop.plant, loop.control_period_s,
                                       params.kp, params.ki, params.kd)
-        self.rules = load_rules(params.rules_file)
+        self.rules = _load_rules(params.rules_file)
         # consequent centres times the gain's span / 3: the rules' correction of (kp, ki, kd) directly
         spans = np.array([params.dkp_span, params.dki_span_per_s, params.dkd_span_s]) / 3.0
         self._scaled = self.rules * spans[:, None, None]
@@ -161,8 +161,8 @@ class FuzzyPid(LawController):
     def _gains(self, error_rpm, change_rpm) -> tuple:
         """(kp, ki, kd): each the base gain plus the strength-weighted mean of the (at most) four rules
         that fire, e's lower/upper term with ec's lower/upper term, floored at 0."""
-        ie, we = fuzzify(self._e_scale * error_rpm)
-        ic, wc = fuzzify(self._ec_scale * change_rpm)
+        ie, we = _fuzzify(self._e_scale * error_rpm)
+        ic, wc = _fuzzify(self._ec_scale * change_rpm)
         ve, vc = 1.0 - we, 1.0 - wc
         if isinstance(ie, np.ndarray):
             s_ll, s_lu = np.minimum(ve, vc), np.minimum(ve, wc)

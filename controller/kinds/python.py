@@ -64,7 +64,7 @@ def _line_in(exc: BaseException, path: str, fallback: int) -> int:
     return frames[-1].lineno if frames else fallback
 
 
-def load_user_class(path: str, class_name: str):
+def _load_user_class(path: str, class_name: str):
     """Load class `class_name` from the Python file `path` (absolute) and check it is a controller.
 
     Raises `ControllerError` naming the file (and line) when the file is missing, does not load, or
@@ -121,7 +121,7 @@ class UserController:
     """Runs a user's controller class; turns its exceptions into errors that name its file and line."""
 
     def __init__(self, params: PythonParams, loop: LoopInfo, n: int):
-        cls = load_user_class(params.file, params.class_name)
+        cls = _load_user_class(params.file, params.class_name)
         self.file = params.file
         self.name = f"{os.path.basename(params.file)}:{params.class_name}"
         self._class_line = inspect.getsourcelines(cls)[1]

@@ -324,6 +324,10 @@ class Keys:
         return self._m("monitor/load")
 
     @property
+    def monitor_end(self) -> str:
+        return self._m("monitor/end")
+
+    @property
     def monitor_status(self) -> str:
         return self._m("monitor/status")
 

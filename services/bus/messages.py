@@ -378,6 +378,39 @@ class RunStart(Message):
                                f"got {self.ticks_per_message!r}")
 
 
+_END_REASONS = ("finished", "stopped", "failed", "interrupted")
+_MAX_RUN_TICKS = 10**10  # far beyond any run (the default's 177,002 ticks; a field's cap, 10,000 ha)
+_MAX_END_ERROR_CHARS = 2000
+
+
+@_message
+class RunEnd(Message):
+    """What scenario control sends the monitor (``<prefix>/<machine>/monitor/end``) when a run ends: the
+    run's last tick and why it ended, so the monitor's report can tell a whole run from a partial one.
+
+    ``reason``: ``finished`` (the vehicle drove the whole path), ``stopped`` (``scenario/stop``),
+    ``failed`` (the run failed: ``error`` says why, e.g. the controller died) or ``interrupted`` (the
+    vehicle service went away or restarted mid-run: ``ticks`` is the last count scenario control saw).
+    """
+
+    run_id: str
+    reason: str
+    ticks: int  # ticks driven: 0 .. ticks - 1
+    sim_time_s: float
+    error: str  # why it failed or was interrupted ("" otherwise)
+
+    def __post_init__(self):
+        if self.reason not in _END_REASONS:
+            raise ServiceError(f"RunEnd: reason must be one of {', '.join(_END_REASONS)}, "
+                               f"got {self.reason!r}")
+        if not 0 <= self.ticks <= _MAX_RUN_TICKS:
+            raise ServiceError(f"RunEnd: ticks must be within [0, {_MAX_RUN_TICKS}], got {self.ticks!r}")
+        if not (math.isfinite(self.sim_time_s) and self.sim_time_s >= 0.0):
+            raise ServiceError(f"RunEnd: sim_time_s must be a finite number >= 0, got {self.sim_time_s!r}")
+        if len(self.error) > _MAX_END_ERROR_CHARS:
+            raise ServiceError(f"RunEnd: error is over {_MAX_END_ERROR_CHARS} characters")
+
+
 @_message
 class StepAck(Message):
     """Reply of ``<prefix>/<machine>/control/step``: the controller has processed these ticks."""

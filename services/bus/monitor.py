@@ -6,7 +6,10 @@ so a monitor that is killed and restarted on the same ``--db`` has lost nothing 
 ``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and accounts for them with
 `services.sim.run.accounted`, as ``vrsim run`` does, so it replies with the same JSON keys
 as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
-``missing_ticks`` and ``complete``: the ticks it did not get (a monitor that was down for a while).
+``missing_ticks``, ``complete`` and ``end_reason``: the ticks it did not get (a monitor that was down for
+a while, the tail after it went down) and how the run ended, as scenario control announced it on
+``monitor/end`` (`_completeness`: complete only for a finished run with every tick stored). Reports are
+kept and answered again while they hold (`services.bus.reads`).
 That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
 
 Integrity: a record is stored only for a run announced by ``monitor/load`` (scenario control; the
@@ -28,7 +31,8 @@ from common.section_masks import sections_from_masks
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
-from services.bus.serving import Params, guarded, payload_bytes, run_service, serve
+from services.bus.reads import MAX_CACHED_REPORTS, REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
+from services.bus.serving import Later, Params, guarded, payload_bytes, run_service, serve
 from services.outputs.encode import dumps
 
 NAN = float("nan")
@@ -36,6 +40,9 @@ STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages
 MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
 SCHEMA_VERSION = 3  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
 #                     pose, section mask for the offset in rate
+# A run's announced end (`messages.RunEnd`), NULL until scenario control announces it.
+_END_COLUMNS = (("end_reason", "TEXT"), ("end_ticks", "INTEGER"), ("end_sim_time_s", "REAL"),
+               ("end_error", "TEXT"), ("ended_unix", "REAL"))
 MEASURED = ("measured_x_m", "measured_y_m", "measured_speed_m_s")  # what the controller read, per tick
 
 
@@ -60,7 +67,7 @@ class MonitorStore:
 
     def __init__(self, path: str):
         self.path = path
-        private_db(path)
+        _private_db(path)
         try:
             self.db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
             self.db.execute("PRAGMA journal_mode=WAL")
@@ -70,6 +77,9 @@ class MonitorStore:
         except sqlite3.Error as exc:
             raise ServiceError(f"--db {path}: cannot open the monitor database: {exc}") from None
         self.lock = threading.Lock()  # subscriber threads and the report query share the connection
+        self.stored: dict[str, int] = {}  # run_id -> records stored by this process (a report's cache key)
+        self._reader = None  # the reports' own connection (WAL: reading does not hold up ingest)
+        self.read_lock = threading.Lock()
 
     def _create(self) -> None:
         db = self.db
@@ -82,6 +92,10 @@ class MonitorStore:
         db.execute("CREATE TABLE IF NOT EXISTS runs (seq INTEGER PRIMARY KEY AUTOINCREMENT, "
                    "run_id TEXT UNIQUE, scenario_text TEXT, source TEXT, base_dir TEXT, clock TEXT, "
                    "started_unix REAL, last_unix REAL)")
+        have = {row[1] for row in db.execute("PRAGMA table_info(runs)")}
+        for name, kind in _END_COLUMNS:  # added to an older file in place: it opens as it was, no end
+            if name not in have:
+                db.execute(f"ALTER TABLE runs ADD COLUMN {name} {kind}")
         for table, cls in STREAMS.items():
             cols = ", ".join(_sql_types(cls))
             db.execute(f"CREATE TABLE IF NOT EXISTS {table} (run_id TEXT, tick INTEGER, {cols}, "
@@ -109,7 +123,9 @@ class MonitorStore:
             self.db.execute("BEGIN")
             try:
                 insert = f"INSERT OR IGNORE INTO {table} VALUES ({marks})"
-                if self.db.executemany(insert, rows).rowcount > 0:  # ticks already stored change nothing
+                added = self.db.executemany(insert, rows).rowcount
+                if added > 0:  # ticks already stored change nothing
+                    self.stored[records[0].run_id] = self.stored.get(records[0].run_id, 0) + added
                     self.db.execute("UPDATE runs SET last_unix = ? WHERE run_id = ?",
                                     (time.time(), records[0].run_id))
                 self.db.execute("COMMIT")
@@ -130,6 +146,24 @@ class MonitorStore:
             raise ServiceError(f"monitor: {what} in {self.path}")
         return dict(zip(("run_id", "scenario_text", "source", "base_dir", "clock", "started_unix",
                          "last_unix"), row, strict=True))
+
+    def set_end(self, end: messages.RunEnd) -> dict:
+        """Store a run's announced end; the first announcement stays (a second changes nothing).
+        Returns the end stored (`end`)."""
+        with self.lock:
+            self.db.execute("UPDATE runs SET end_reason = ?, end_ticks = ?, end_sim_time_s = ?, "
+                            "end_error = ?, ended_unix = ? WHERE run_id = ? AND end_reason IS NULL",
+                            (end.reason, end.ticks, end.sim_time_s, end.error, time.time(), end.run_id))
+        return self.end(end.run_id)
+
+    def end(self, run_id: str) -> dict | None:
+        """The run's announced end as ``{"reason", "ticks", "sim_time_s", "error"}``, None if none was."""
+        with self.lock:
+            row = self.db.execute("SELECT end_reason, end_ticks, end_sim_time_s, end_error FROM runs "
+                                  "WHERE run_id = ?", (run_id,)).fetchone()
+        if row is None or row[0] is None:
+            return None
+        return dict(zip(("reason", "ticks", "sim_time_s", "error"), row, strict=True))
 
     def counts(self, run_id: str) -> dict[str, int]:
         """Records per stream, and ``complete``: ticks with all three stored."""
@@ -166,6 +200,18 @@ class MonitorStore:
         return [cls(run_id, tick, *(NAN if v is None else kind(v)
                                     for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
 
+    def reader(self) -> sqlite3.Connection:
+        """The connection reports read through (made on first use): a report's whole-run query runs
+        beside the ingest's writes instead of holding their lock for a second."""
+        if self._reader is None:
+            self._reader = sqlite3.connect(self.path, check_same_thread=False)
+        return self._reader
+
+    def close(self) -> None:
+        for conn in (self.db, self._reader):
+            if conn is not None:
+                conn.close()
+
     def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.accounted` takes; the track also holds
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
@@ -176,8 +222,8 @@ class MonitorStore:
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")
         select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
                            + [f"r.{c}" for c in rate_cols])
-        with self.lock:
-            rows = self.db.execute(
+        with self.read_lock:
+            rows = self.reader().execute(
                 f"SELECT p.tick, {select}, r.section_mask FROM pose p JOIN shaft s USING (run_id, tick) "
                 "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
         masks = [row[-1] for row in rows]
@@ -196,7 +242,7 @@ class MonitorStore:
         return track, control
 
 
-def missing_ticks(ticks: np.ndarray) -> list[list[int]]:
+def _missing_ticks(ticks: np.ndarray) -> list[list[int]]:
     """The ticks in 0..max(ticks) that ``ticks`` (sorted, unique) lacks, as [first, last] ranges."""
     ticks = np.asarray(ticks, dtype=np.int64)
     if len(ticks) == 0:
@@ -206,7 +252,7 @@ def missing_ticks(ticks: np.ndarray) -> list[list[int]]:
     return [[int(before[i]) + 1, int(ticks[i]) - 1] for i in gaps]
 
 
-class MonitorService:
+class _MonitorService:
     """Handlers of the monitor: ingest the streams, report, status, load a run."""
 
     def __init__(self, store: MonitorStore, data: DataRoot):
@@ -214,6 +260,9 @@ class MonitorService:
         self.data = data
         self.worlds: dict[str, object] = {}  # run_id -> World, rebuilt once per run from its text
         self.report_lock = threading.Lock()
+        # run_id -> its last report: every run's (a few kB each), so asking for runs in turn makes each once
+        self.reports: dict[str, CachedReport] = {}
+        self.limit = RateLimit(REPORT_RATE_PER_S, REPORT_BURST)
         self.runs = store.run_ids()  # the runs announced by monitor/load: records of others are dropped
 
     def ingest(self, table: str):
@@ -231,6 +280,15 @@ class MonitorService:
                                    "monitor/load announced")
 
         return on_sample
+
+    def end(self, params: Params, payload: bytes | None) -> bytes:
+        """Store a run's announced end (scenario control sends it; the access rules let no viewer)."""
+        params.only()
+        end = messages.RunEnd.from_json(payload)
+        if end.run_id not in self.runs:
+            raise ServiceError(f"{params.key}: no run {end.run_id!r} was announced by monitor/load")
+        stored = self.store.set_end(end)
+        return dumps({"ended": True, "run_id": end.run_id, **stored})
 
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
@@ -264,13 +322,38 @@ class MonitorService:
         count = params.integer("count", 1, MAX_RECORDS, MAX_RECORDS)
         return messages.encode_batch(self.store.records(stream, run["run_id"], from_tick, count))
 
-    def report(self, params: Params, payload: bytes | None) -> bytes:
+    def report(self, params: Params, payload: bytes | None) -> bytes | Later:
+        params.only("run_id")
+        refused = self.limit.admit(params.key)
+        if refused is not None:
+            return refused
+        run_id = self.store.run(params.text("run_id"))["run_id"]
+        key = (self.store.stored.get(run_id, 0), self.store.end(run_id))
+        cached = self.reports.get(run_id)
+        if cached is not None and cached.fresh(key):
+            return cached.body
+        # One report at a time (each rebuilds whole-run arrays): meanwhile the others get the last one.
+        if not self.report_lock.acquire(blocking=cached is None):
+            return cached.body
+        try:
+            return self._recompute(run_id, key)
+        finally:
+            self.report_lock.release()
+
+    def _recompute(self, run_id: str, key: tuple) -> bytes:
         from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
         from services.sim.as_run import with_settings
 
-        params.only("run_id")
-        with self.report_lock:  # one report at a time: each rebuilds whole-run arrays
-            return summary_json(with_settings(self._report(params.text("run_id")))).encode()
+        cached = self.reports.get(run_id)
+        if cached is not None and cached.fresh(key):  # made while this query waited for the lock
+            return cached.body
+        t0 = time.monotonic()
+        body = summary_json(with_settings(self._report(run_id))).encode()
+        self.reports.pop(run_id, None)
+        while len(self.reports) >= MAX_CACHED_REPORTS:  # the oldest made first out
+            self.reports.pop(next(iter(self.reports)))
+        self.reports[run_id] = CachedReport(key, body, time.monotonic(), time.monotonic() - t0)
+        return body
 
     def _report(self, run_id: str | None):
         return recorded_run(self.store, self.store.run(run_id), self._world)
@@ -278,7 +361,7 @@ class MonitorService:
     def _world(self, run: dict):
         world = self.worlds.get(run["run_id"])
         if world is None:
-            world = run_world(run, self.data)
+            world = _run_world(run, self.data)
             self.worlds = {run["run_id"]: world}  # keep one: worlds hold whole grids
         return world
 
@@ -286,10 +369,11 @@ class MonitorService:
         return {"report": self.report}
 
     def handlers(self) -> dict:
-        return {"load": self.load, "status": self.status, "run": self.run_info, "records": self.records}
+        return {"load": self.load, "end": self.end, "status": self.status, "run": self.run_info,
+                "records": self.records}
 
 
-def run_world(run: dict, data: DataRoot | None = None):
+def _run_world(run: dict, data: DataRoot | None = None):
     """The world of a recorded run, rebuilt from the scenario text the run was started with (its files
     confined to `data`'s root when given: the monitor's scenarios came over the bus; ``vrsim report``
     reads local files as ``vrsim run`` does)."""
@@ -300,7 +384,7 @@ def run_world(run: dict, data: DataRoot | None = None):
     return build_world(parse(run["scenario_text"], run["source"], run["base_dir"]))
 
 
-def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
+def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
     """A services run as a `services.sim.run.RunResult`, rebuilt from its records over the complete
     ticks with `services.sim.run.accounted`, the function ``vrsim run`` uses: the monitor's report is its
     summary, and ``vrsim report`` writes its files with ``vrsim run``'s writers.
@@ -331,12 +415,28 @@ def recorded_run(store: MonitorStore, run: dict, world_of=run_world):
     summary = result.summary
     summary["outputs_wall_s"] = 0.0
     summary["out_dir"] = store.path  # where the records are (the monitor writes no other output)
-    summary["missing_ticks"] = missing_ticks(track["tick"])
-    summary["complete"] = not summary["missing_ticks"]
+    summary.update(_completeness(track["tick"], store.end(run["run_id"])))
     return result
 
 
-def default_db(options) -> str:
+def _completeness(ticks: np.ndarray, end: dict | None) -> dict:
+    """``missing_ticks``, ``complete`` and ``end_reason`` of a run whose stored complete ticks are
+    ``ticks`` (sorted) and whose announced end is ``end`` (`MonitorStore.end`; None: none announced).
+
+    The missing ticks are the gaps and, when the end is known, the unstored tail up to its last tick;
+    ``complete`` only for a finished run with every tick stored. ``end_reason`` is the end's reason, or
+    ``unknown`` (no end announced: the run is live, or the monitor or scenario control was down when
+    it ended; the ticks after the last stored one cannot be named then).
+    """
+    gaps = _missing_ticks(ticks)
+    stored_to = int(ticks[-1]) + 1 if len(ticks) else 0
+    if end is not None and end["ticks"] > stored_to:
+        gaps.append([stored_to, int(end["ticks"]) - 1])
+    reason = "unknown" if end is None else end["reason"]
+    return {"missing_ticks": gaps, "complete": reason == "finished" and not gaps, "end_reason": reason}
+
+
+def _default_db(options) -> str:
     """``runs/monitor/<prefix>-<machine>.sqlite``: one database per prefix and machine, in a folder of
     the monitor's own (made 0700 by `private_db`)."""
     return os.path.join(DEFAULT_DB_FOLDER, f"{options.prefix.replace('/', '_')}-{options.machine}.sqlite")
@@ -346,7 +446,7 @@ DEFAULT_DB_FOLDER = os.path.join("runs", "monitor")
 _DB_FILES = ("", "-wal", "-shm", "-journal")  # SQLite's files of a database (it gives them its mode)
 
 
-def private_db(path: str) -> None:
+def _private_db(path: str) -> None:
     """Make ``path`` a database file only its owner reads: its folder created 0700 if missing (the
     default folder tightened to 0700 if it is not), the file created 0600 before SQLite opens it, and
     an older database's files (0644 before) tightened to 0600 where they can be. A symlink is refused."""
@@ -378,8 +478,8 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the monitor on ``config.db`` (default `default_db`) until SIGINT/SIGTERM (or ``stop``)."""
     import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
-    store = MonitorStore(config.db or default_db(config.zenoh))
-    svc = MonitorService(store, DataRoot.of(config))
+    store = MonitorStore(config.db or _default_db(config.zenoh))
+    svc = _MonitorService(store, DataRoot.of(config))
     keys = config.zenoh.keys
     base = f"{keys.prefix}/{keys.machine}/"
 
@@ -393,5 +493,5 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     try:
         run_service("monitor", config.zenoh, declare, stop=stop)
     finally:
-        store.db.close()
+        store.close()
     return 0

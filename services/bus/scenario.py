@@ -8,7 +8,8 @@ runs in a thread of its own, at most `BUILD_TIMEOUT_S`, so ``status`` and ``stop
 ``<prefix>/scenario/status`` says how far the run is, what the monitor has stored, and which
 services are alive (liveliness tokens, so a killed service shows within milliseconds);
 ``<prefix>/scenario/stop`` stops the vehicle. ``<prefix>/<anything>`` else at the top level gets an
-error reply naming the keys that exist.
+error reply naming the keys that exist. Scenario control owns the runs it starts, so it also tells the
+monitor how each ended (`_RunEnds`: finished, stopped, failed or interrupted, and the last tick).
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from __future__ import annotations
 import dataclasses
 import os
 import re
+import sys
 import threading
 import time
+import traceback
 
 from common import ServiceError
 from services.bus import client, messages
@@ -39,6 +42,96 @@ def _new_run_id(name: str, counter: int) -> str:
     return f"{safe}-{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.getpid()}-{counter}"
 
 
+_WATCH_S = 0.5  # how often scenario control looks at a live run's vehicle
+_END_RETRY_S = 600.0  # an end the monitor did not take (it was down) is offered again this long
+_END_STATES = ("finished", "stopped", "failed")  # the vehicle's states that end a run
+
+
+class _RunEnds:
+    """Announces each run's end to the monitor (``monitor/end``, `messages.RunEnd`): scenario control
+    starts runs, so it watches the one it started until the vehicle says it ended (finished, stopped,
+    failed) or the vehicle service is gone or restarted (interrupted), then tells the monitor; an end
+    the monitor does not take (down at the time) is offered again for `_END_RETRY_S`.
+
+    `observe` takes every vehicle status scenario control reads (its ``status`` too, so a client that
+    saw ``finished`` there gets a report that knows it); a thread looks every `_WATCH_S` meanwhile.
+    """
+
+    def __init__(self, session, keys: Keys, vehicle_status):
+        self.session, self.keys, self.vehicle_status = session, keys, vehicle_status
+        self.lock = threading.Lock()
+        self.sending = threading.Lock()  # one announcer at a time, so an end goes out once
+        self.live: messages.RunEnd | None = None  # the run started, as far as it was seen to get
+        self.pending: list[tuple[float, messages.RunEnd]] = []  # (when it ended, end) not yet taken
+        self.closed = threading.Event()
+        self.thread = threading.Thread(target=self._watch, name="vrsim-run-ends", daemon=True)
+        self.thread.start()
+
+    def started(self, run_id: str) -> None:
+        with self.lock:
+            self.live = messages.RunEnd(run_id, "interrupted", 0, 0.0, "")
+
+    def observe(self, status: dict | None, alive: list[str] | None = None) -> None:
+        """Decide from a vehicle status (None: no answer) and the services alive (None: not asked)
+        whether the live run ended; announce it if so."""
+        with self.lock:
+            live = self.live
+            if live is None:
+                return
+            if status is not None and status["run_id"] == live.run_id:
+                if status["state"] not in _END_STATES:
+                    self.live = dataclasses.replace(live, ticks=status["ticks"],
+                                                    sim_time_s=status["sim_time_s"])
+                    return
+                end = messages.RunEnd(live.run_id, status["state"], status["ticks"], status["sim_time_s"],
+                                      status["error"])
+            elif status is not None:  # a vehicle that knows nothing of the run: it restarted
+                end = dataclasses.replace(live, error="the vehicle service restarted during the run")
+            elif alive and "vehicle" not in alive:  # the bus answers, the vehicle is gone
+                end = dataclasses.replace(live, error="the vehicle service went away during the run")
+            else:  # no answer at all (the router is down, say): not known yet
+                return
+            self.live = None
+            self.pending.append((time.monotonic(), end))
+        self.flush()
+
+    def flush(self) -> None:
+        """Offer the monitor every end it has not taken yet."""
+        with self.sending:
+            with self.lock:
+                pending, self.pending = self.pending, []
+            kept = []
+            for when, end in pending:
+                try:
+                    client.request(self.session, self.keys.monitor_end, end.to_json(), STATUS_TIMEOUT_S,
+                                   what=f"{self.keys.monitor_end}: the monitor")
+                except ServiceError as exc:
+                    if "no reply" in str(exc) and time.monotonic() - when < _END_RETRY_S:
+                        kept.append((when, end))  # the monitor is down: offered again later
+                    else:
+                        print(f"vrsim serve scenario: the end of run {end.run_id} ({end.reason}) was not "
+                              f"stored: {exc}", file=sys.stderr, flush=True)
+            with self.lock:
+                self.pending = kept + self.pending
+
+    def _watch(self) -> None:
+        while not self.closed.wait(_WATCH_S):
+            try:
+                if self.live is not None:
+                    status = self.vehicle_status()
+                    alive = None if status is not None else client.alive_services(self.session, self.keys,
+                                                                                  STATUS_TIMEOUT_S)
+                    self.observe(status, alive)
+                if self.pending:
+                    self.flush()
+            except Exception:  # noqa: BLE001 - a bug (or a closing session): the watch goes on
+                traceback.print_exc(file=sys.stderr)
+
+    def close(self) -> None:
+        self.closed.set()
+        self.thread.join(timeout=5.0)
+
+
 class _ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
@@ -47,6 +140,7 @@ class _ScenarioService:
         self.lock = threading.Lock()  # one start or stop at a time
         self.building = threading.Lock()  # one world being built at a time (held until it is done)
         self.counter = 0
+        self.ends = _RunEnds(session, keys, self._vehicle_status)
 
     def start(self, params: Params, payload: bytes | None) -> Later:
         params.only("source", "base_dir", "clock", "speed", "ticks_per_message")
@@ -88,6 +182,7 @@ class _ScenarioService:
                 raise ServiceError(f"{key}: cannot start, service(s) not alive: {', '.join(missing)} "
                                    f"(liveliness {self.keys.alive('*')})")
             state = self._vehicle_status()
+            self.ends.observe(state)  # the run before this one ended, if it had not been seen to
             if state is not None and state["state"] in ("starting", "running"):
                 raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
                                    f"stop it first ({self.keys.scenario('stop')})")
@@ -97,6 +192,7 @@ class _ScenarioService:
             for load, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
                                (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
                 client.request(self.session, load, body, LOAD_TIMEOUT_S, what=f"{key}: the {name} service")
+            self.ends.started(start.run_id)
         return dumps({"run_id": start.run_id, "state": "running", "scenario": sc.name, "clock": start.clock})
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
@@ -123,6 +219,7 @@ class _ScenarioService:
         params.only()
         alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
         vehicle = self._vehicle_status() if "vehicle" in alive else None
+        self.ends.observe(vehicle, alive)
         monitor = None
         if "monitor" in alive and vehicle is not None and vehicle["run_id"]:
             try:
@@ -152,8 +249,10 @@ class _ScenarioService:
     def stop(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         with self.lock:
-            return client.request(self.session, self.keys.vehicle("stop"), timeout_s=10.0,
-                              what=f"{params.key}: the vehicle service")
+            reply = client.request(self.session, self.keys.vehicle("stop"), timeout_s=10.0,
+                                   what=f"{params.key}: the vehicle service")
+        self.ends.observe(messages.RunStatus.from_json(reply).to_dict())
+        return reply
 
     def handlers(self) -> dict:
         return {"start": self.start, "status": self.status, "stop": self.stop}
@@ -168,7 +267,8 @@ def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
 
     def declare(session):
         svc = _ScenarioService(session, keys, DataRoot.of(config))
-        return [serve(session, keys.scenario_ns, svc.handlers(), f"{keys.prefix}/scenario/", "scenario"),
+        return [svc.ends,
+                serve(session, keys.scenario_ns, svc.handlers(), f"{keys.prefix}/scenario/", "scenario"),
                 # <prefix>/<one chunk> is no vrsim key: answer so, rather than leave the caller in silence
                 serve(session, keys.top_ns, {}, f"{keys.prefix}/", "scenario", hint=hint)]
 

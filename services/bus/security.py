@@ -144,7 +144,7 @@ def _map(k: Keys) -> list[_Grant]:
 
 @_role("scenario")
 def _scenario(k: Keys) -> list[_Grant]:
-    controls = (k.map_load, k.control_load, k.monitor_load, k.monitor_status,
+    controls = (k.map_load, k.control_load, k.monitor_load, k.monitor_end, k.monitor_status,
                 k.vehicle("start"), k.vehicle("stop"), k.vehicle("status"))
     # top_ns (<prefix>/*) answers unknown top-level keys with the list of vrsim keys.
     return [*_serve(k.scenario_ns, k.top_ns), *_ask(k, *controls), *_watch_alive(k), *_alive(k, "scenario")]

@@ -1,6 +1,6 @@
-"""`vrsim evaluate LOG [--prescription RX] [--rate-field NAME] [--target-field NAME] [--field BOUNDARY]
-[--delay-s S] [--unit UNIT] [--crs CRS] [--json] [--out DIR]`: the accuracy of a machine's as-applied
-log (`services.sim.evaluate`)."""
+"""`vrsim evaluate LOG [--prescription RX] [--product NAME|PDTn] [--rate-field NAME] [--target-field NAME]
+[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS]
+[--json] [--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -14,17 +14,28 @@ def configure(parser) -> None:
     parser.add_argument("--prescription", metavar="RX",
                         help="compare with this map at each point (any map vrsim reads) instead of the "
                              "logged target")
+    parser.add_argument("--product", metavar="NAME|PDTn",
+                        help="the product of a TASKDATA (the log's, logging the rates of several on their "
+                             "device elements, or the prescription's) holding several (listed when none is "
+                             "named)")
     parser.add_argument("--rate-field", metavar="NAME",
                         help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
                              "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
     parser.add_argument("--target-field", metavar="NAME",
                         help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
                              "DDI 6, else 1)")
+    parser.add_argument("--layer", metavar="NAME",
+                        help="the layer of a zip, folder or GeoPackage holding several (they are listed "
+                             "when none is named)")
     parser.add_argument("--field", metavar="BOUNDARY",
-                        help="field boundary (GeoJSON or shapefile): only points inside it are compared")
+                        help="field boundary (GeoJSON, shapefile, KML/KMZ or an ISOXML TASKDATA's partfield; "
+                             "holes kept): only points inside it are compared")
     parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
                         help="delivery delay: product metered at a record's time lands S s later, where the "
                              "machine is then; compared with the prescription there (default 0)")
+    parser.add_argument("--include-zero-target", action="store_true",
+                        help="also compare records whose target is 0 (left out by default: the machine was "
+                             "told not to apply there)")
     parser.add_argument("--unit", help="unit of the rates when the log does not say (kg/ha, t/ha, lb/ac, "
                                        "L/ha, gal/ac, floz/ac)")
     parser.add_argument("--crs", help="CRS of a shapefile without .prj")
@@ -43,12 +54,13 @@ def run(args) -> int:
     from services.sim.evaluate import error_grid, evaluate
 
     log = maps.read_point_log(args.log, rate_field=args.rate_field, target_field=args.target_field,
-                              unit=args.unit, crs=args.crs)
+                              unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
     if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=args.unit)
-    rx = maps.read_map(args.prescription) if args.prescription else None
+    rx = maps.read_map(args.prescription, product=args.product) if args.prescription else None
     field = _field(args.field) if args.field else None
-    ev = evaluate(log, rx, field=field, delay_s=args.delay_s)
+    ev = evaluate(log, rx, field=field, delay_s=args.delay_s,
+                  include_zero_target=args.include_zero_target)
     if args.out:
         write_evaluation(ev, error_grid(ev, rx), args.out)
     print(dumps_text(ev.summary(), indent=True) if args.json else text_evaluation(ev))

@@ -20,6 +20,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         p.add_argument("file", help="map file: GeoTIFF, ISOXML TASKDATA (folder, TASKDATA.XML, .zip), "
                                     "shapefile (.shp/.zip), GeoJSON, CSV")
         p.add_argument("--rate-field", help="attribute holding the rate (kg/ha) in zone/point files")
+        p.add_argument("--layer", metavar="NAME",
+                       help="the shapefile of a zip or folder holding several (listed when none is named)")
+        p.add_argument("--product", metavar="NAME|PDTn",
+                       help="the product of a TASKDATA grid holding several (listed when none is named)")
         p.add_argument("--cell-size", type=float, metavar="M", help="cell size for zone files, m")
         p.add_argument("--crs", help="CRS of a file that does not state one (e.g. a shapefile without .prj)")
         p.add_argument("--max-cells", type=int, default=200_000_000, metavar="N",
@@ -41,7 +45,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("convert", help="write the map in another format (by OUT's extension)")
     reading(p)
     p.add_argument("out", help="output: .tif; a folder, .../TASKDATA.XML or .zip (ISOXML grid type 2, never "
-                               "overwriting); .geojson (WGS84); .csv")
+                               "overwriting); .shp.zip or .shp (shapefile zones, a rate attribute named "
+                               "with its unit, e.g. Rate_kg_ha); .geojson (WGS84); .csv")
     p.add_argument("--to-crs", help="reproject first (nearest neighbour), e.g. EPSG:32632")
     p.add_argument("--to-cell-size", type=float, metavar="M", help="cell size when reprojecting, m")
 
@@ -54,7 +59,7 @@ def _read(args):
     import maps
 
     return maps.read_map(args.file, rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
-                         max_cells=args.max_cells or None)
+                         max_cells=args.max_cells or None, layer=args.layer, product=args.product)
 
 
 def _warnings_as_lines() -> None:
@@ -119,7 +124,7 @@ def _convert(args) -> int:
     grid = _read(args)
     if args.to_crs:
         grid = grid.reproject(args.to_crs, cell_size_m=args.to_cell_size)
-    _write_whole(lambda path: maps.write_map(grid, path), args.out)
+    _write_whole(lambda path: maps.write_map(grid, path, like=args.out), args.out)
     print(f"wrote {args.out} ({grid.rows} x {grid.cols} cells)")
     return 0
 

@@ -1,9 +1,12 @@
 """`vrsim report --db MONITOR.sqlite [--run RUN_ID] --out DIR [--json]`: the files of `vrsim run` for a
-run through the Zenoh services, from the monitor's database (`services.bus.monitor.recorded_run`)."""
+run through the Zenoh services, from the monitor's database (`services.bus.monitor.recorded_run`). A run
+the database does not hold whole (ticks missing, or not announced as finished) gets one warning line on
+stderr; its summary says ``complete: false``, ``missing_ticks`` and ``end_reason``."""
 
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 HELP = "write a services run's report, maps, track and TimeLog from the monitor's database"
@@ -20,6 +23,7 @@ def configure(parser) -> None:
 def run(args) -> int:
     from common import ServiceError
     from services.bus.monitor import MonitorStore, recorded_run
+    from services.outputs.report import incomplete_note
     from services.outputs.summary import summary_json, text_summary
     from services.outputs.write import outputs_line, write_outputs
     from services.sim.as_run import with_settings
@@ -30,7 +34,7 @@ def run(args) -> int:
     try:
         result = recorded_run(store, store.run(args.run))
     finally:
-        store.db.close()
+        store.close()
     t0 = time.perf_counter()
     write_outputs(result, args.out)
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
@@ -38,4 +42,7 @@ def run(args) -> int:
     print(summary_json(with_settings(result)) if args.json else text_summary(result.summary))
     if not args.json:
         print(outputs_line(args.out))
+    note = incomplete_note(result.summary)
+    if note is not None:  # the files are written all the same: they are what the monitor stored
+        print(f"vrsim report: warning: {note}", file=sys.stderr)
     return 0

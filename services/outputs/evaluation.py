@@ -31,7 +31,15 @@ def text_evaluation(ev: Evaluation) -> str:
     lines = [f"vrsim evaluate: {ev.log.source} ({ev.log.points:,} records, {ev.log.format}) against "
              f"{ev.against}" + (f", delay {ev.delay_s:g} s" if ev.delay_s else "")]
     lines += [f"  {label:<38} {fmt(summary[key]):>14} {unit}" for label, key, unit in _rows(ev.unit)]
+    left = sum(ev.excluded.values())
+    lines.append(f"  {'Records left out':<38} {left:>14,} {_excluded_text(ev.excluded)}")
     return "\n".join(lines)
+
+
+def _excluded_text(excluded: dict) -> str:
+    """``"(68 implement off, 1,158 no section on)"``: the reasons records were left out, or ``""``."""
+    parts = [f"{n:,} {reason.replace('_', ' ')}" for reason, n in excluded.items() if n]
+    return f"({', '.join(parts)})" if parts else ""
 
 
 def write_evaluation(ev: Evaluation, errors: Grid, out_dir: str) -> dict[str, str]:
@@ -50,7 +58,8 @@ def _write_evaluation(ev: Evaluation, errors: Grid, paths: dict[str, str]) -> No
     _plot_log_timeseries(ev, paths["timeseries.png"])
     info = {"log": ev.log.source, "format": ev.log.format, "records": ev.log.points,
             "start": str(ev.log.start) if ev.log.start is not None else "not logged",
-            "compared with": ev.against, "delay_s": ev.delay_s, **versions()}
+            "compared with": ev.against, "delay_s": ev.delay_s,
+            "records left out": f"{sum(ev.excluded.values()):,} {_excluded_text(ev.excluded)}", **versions()}
     text = page(f"vrsim evaluate: {os.path.basename(os.path.normpath(ev.log.source))}",
                 "An as-applied log against its targets.",
                 [("Figures", figures_table(_rows(ev.unit), ev.summary())), ("The log", key_values(info))],

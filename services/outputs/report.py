@@ -28,6 +28,8 @@ STYLE = """body{font-family:sans-serif;margin:2em;max-width:1500px}
 table{border-collapse:collapse;margin-bottom:1em}
 td,th{padding:2px 10px;border-bottom:1px solid #ddd;text-align:left;vertical-align:top}
 td.n{text-align:right}img{max-width:100%}.cols{display:flex;flex-wrap:wrap;gap:2em}"""
+# The banner of a run the monitor does not hold whole; its style inline, so a whole run's page is as before.
+BANNER_STYLE = "background:#fdd;border:2px solid #c00;padding:.5em 1em;font-weight:bold"
 
 
 def versions() -> dict[str, str]:
@@ -56,7 +58,7 @@ def key_values(doc: dict) -> str:
     return f"<table>{body}</table>"
 
 
-def settings_table(table: dict) -> str:
+def _settings_table(table: dict) -> str:
     """A two-column table of a scenario table's keys and values as a scenario file writes them
     (`services.sim.scenario.toml_value`: every digit of a number), "unset" for None."""
     body = "".join(f"<tr><td>{html.escape(str(k))}</td><td><code>"
@@ -78,9 +80,21 @@ def _sections(sections) -> list[str]:
     return [f"<h2>{html.escape(heading)}</h2>\n{body}" for heading, body in sections]
 
 
-def page(title: str, intro: str, sections, images, after, files_note: str) -> str:
-    """The page: `sections`, then the PNGs at `images` (embedded), then `after`; sections are
-    (heading, HTML) pairs."""
+def incomplete_note(summary: dict) -> str | None:
+    """``incomplete: N of M ticks stored; reason R`` for a services run the monitor does not have whole
+    (`services.bus.monitor.completeness`), None for a complete one or a `vrsim run` (no such keys)."""
+    if summary.get("complete", True):
+        return None
+    missing = sum(last - first + 1 for first, last in summary["missing_ticks"])
+    reason = summary.get("end_reason", "unknown")
+    stored, total = summary["ticks"], summary["ticks"] + missing
+    after = " (no end announced: ticks after the last stored one not counted)" if reason == "unknown" else ""
+    return f"incomplete: {stored:,} of {total:,} ticks stored; reason {reason}{after}"
+
+
+def page(title: str, intro: str, sections, images, after, files_note: str, banner: str | None = None) -> str:
+    """The page: `banner` (a warning shown first, e.g. `incomplete_note`), `sections`, then the PNGs at
+    `images` (embedded), then `after`; sections are (heading, HTML) pairs."""
     parts = _sections(sections)
     for path in images:
         if os.path.isfile(path):
@@ -89,10 +103,11 @@ def page(title: str, intro: str, sections, images, after, files_note: str) -> st
             name = html.escape(os.path.basename(path))
             parts.append(f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>')
     joined = "\n".join(parts + _sections(after))
+    warning = f'<p class="incomplete" style="{BANNER_STYLE}">{html.escape(banner)}</p>\n' if banner else ""
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>{STYLE}</style>
-</head><body><h1>{html.escape(title)}</h1>
+</head><body>{warning}<h1>{html.escape(title)}</h1>
 <p>{html.escape(intro)}</p>
 {joined}
 <p>{html.escape(files_note)}</p>
@@ -108,7 +123,7 @@ def embedded_png(path: str) -> str:
     return f'<figure><img alt="{name}" src="data:image/png;base64,{data}"></figure>\n'
 
 
-def split_table(result: RunResult) -> str:
+def _split_table(result: RunResult) -> str:
     """The error split into its causes (`services.sim.error_split`) as an HTML table and what it means."""
     rows = "\n".join(f"<tr><td>{html.escape(p.cause)}</td><td>{p.mass_balance_pct:+.2f}</td>"
                      f"<td>{p.mae_kg_ha:+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
@@ -130,7 +145,7 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
-    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{settings_table(config[key])}</div>"
+    settings = "".join(f"<div><h3>{html.escape(label)}</h3>{_settings_table(config[key])}</div>"
                        for key, label in SETTINGS)
     scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
@@ -139,13 +154,14 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
                 ("Figures", figures_table(summary_rows(), summary)),
-                ("Where the error comes from", split_table(result)),
+                ("Where the error comes from", _split_table(result)),
                 ("Settings as run", f'<div class="cols">{settings}</div>\n<details><summary>The scenario '
                  f'as run, as a scenario file (<code>vrsim run</code> reruns it)</summary>'
                  f'<pre>{scenario_file}</pre></details>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
-                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE)
+                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE,
+                banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 

@@ -29,7 +29,7 @@ def _toml_value(value) -> str:
     return json.dumps(str(value))   # a TOML basic string is a JSON string
 
 
-def controller_table(result: TuneResult) -> str:
+def _controller_table(result: TuneResult) -> str:
     """The best controller as TOML text: a comment saying where it comes from and a [controller] table."""
     cfg = result.best
     keys = ["kind", *PID_KEYS, "params", "file", "class_name", "look_ahead_s", "look_ahead_tune"]
@@ -48,7 +48,7 @@ def write_tune(result: TuneResult, out_dir: str) -> dict[str, str]:
     names = {"best_controller": "best_controller.toml", "history": "history.csv"}
     with staged(out_dir, last=("best_controller.toml",)) as stage:  # both files or neither
         with open(os.path.join(stage, names["best_controller"]), "w", encoding="utf-8") as fh:
-            fh.write(controller_table(result))
+            fh.write(_controller_table(result))
         with open(os.path.join(stage, names["history"]), "w", newline="", encoding="utf-8") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(result.history[0]) if result.history
                                     else ["evaluation"])

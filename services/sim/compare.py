@@ -34,7 +34,7 @@ BETTER = {m.key: _WORDS[m.sense] for m in METRICS
 COLUMNS = tuple(m for m in METRICS if m.key in BETTER)
 
 
-def builtin_specs() -> list[str]:
+def _builtin_specs() -> list[str]:
     """Every built-in kind, the default set of `vrsim compare`: ``pid`` (the paper's PID, the reference)
     first, then the others as registered."""
     return ["pid", *(k for k in KINDS if k not in ("pid", USER_KIND))]
@@ -66,7 +66,7 @@ def resolve_spec(spec: str, scenario: Scenario, look_ahead=None) -> ControllerSp
     elif os.path.isfile(spec):
         table, source, base = _spec_table(spec), spec, os.path.dirname(os.path.abspath(spec))
     else:
-        known = ", ".join([*builtin_specs(), "P", "PI", "PID"])
+        known = ", ".join([*_builtin_specs(), "P", "PI", "PID"])
         raise ScenarioError(f"controller spec {spec!r}: neither a kind ({known}) nor a TOML file")
     full = {**{k: v for k, v in kept.items() if v is not None}, **table, **override}
     return ControllerSpec(spec, controller_from_table(full, source, base))
@@ -120,7 +120,7 @@ def compare(scenario: Scenario, specs: list[str] | None = None, look_ahead=None,
     progress : callable, optional
         ``progress(label, done_ticks, total_ticks)`` during each control loop.
     """
-    labels = list(specs) if specs else builtin_specs()
+    labels = list(specs) if specs else _builtin_specs()
     resolved = [resolve_spec(s, scenario, look_ahead) for s in labels]   # all checked before driving
     shared = drive(scenario)
     results = []

@@ -56,7 +56,7 @@ class ErrorPart:
     share_pct: float
 
 
-def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
+def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
     """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
     the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for."""
     imp, period_s = world.scenario.implement, world.scenario.timing.control_period_s
@@ -80,7 +80,7 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
     the accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
-    metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
+    metered = np.column_stack([_reference_metered_kg(world, control, measured_speed_m_s, clipped)
                                for clipped in (False, True)])
     plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
                         world.scenario.timing.control_period_s, min(grid.cell_size))

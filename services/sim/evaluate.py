@@ -2,7 +2,9 @@
 
 A log (`maps.PointLog`: a TASKDATA's TimeLogs, a John Deere point export, a run's own taskdata/) is
 compared point by point either with the target rate it logged or with a prescription map looked up at
-each point. With ``delay_s``, the product metered at a record's time lands ``delay_s`` later, where
+each point. Only records where the machine was applying to a target count (implement on, a
+section on or a width above 0, a target above 0); the others are counted by reason (`EXCLUSIONS`).
+With ``delay_s``, the product metered at a record's time lands ``delay_s`` later, where
 the machine is then (its position interpolated along the log at ``time_s + delay_s``): the applied
 rate of the record is compared with the prescription there. The figures are `metrics.point_metrics`
 (what each means: `metrics.POINT_METRICS`).
@@ -24,6 +26,9 @@ from services.sim.metrics import POINT_METRICS, PointMetrics, point_metrics
 
 ERROR_CELL_M = 5.0  # cell of the error map without a prescription: about a point's spacing at 1 Hz
 MAX_DELAY_S = 30.0  # as `vehicle.Implement.delivery_delay_s`
+# Why a record is not compared, in the order it is asked (a record counts under the first that holds).
+EXCLUSIONS = ("implement_off", "no_section_on", "target_0", "no_applied_rate", "no_target",
+              "outside_field")
 
 
 @dataclass
@@ -49,6 +54,8 @@ class Evaluation:
         Distance travelled along the logged positions up to each point.
     delay_s : float
     metrics : PointMetrics
+    excluded : dict of str -> int
+        Records not compared, by reason (`EXCLUSIONS`; each record under its first reason).
     """
 
     log: PointLog
@@ -62,15 +69,19 @@ class Evaluation:
     distance_m: np.ndarray
     delay_s: float
     metrics: PointMetrics
+    excluded: dict
 
     def summary(self) -> dict:
-        """``points``, ``unit``, then the other `POINT_METRICS` figures (the JSON `vrsim evaluate` prints)."""
+        """``points``, ``unit``, the other `POINT_METRICS` figures, then ``excluded`` (records left out,
+        by reason): the JSON `vrsim evaluate` prints."""
         figures = dataclasses.asdict(self.metrics)
         return {"points": figures["points"], "unit": self.unit,
-                **{m.key: figures[m.key] for m in POINT_METRICS if m.key != "points"}}
+                **{m.key: figures[m.key] for m in POINT_METRICS if m.key != "points"},
+                "excluded": dict(self.excluded)}
 
 
-def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_s: float = 0.0) -> Evaluation:
+def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_s: float = 0.0,
+             include_zero_target: bool = False) -> Evaluation:
     """Compare a log's applied rates with its logged targets, or with `prescription` at each point.
 
     Parameters
@@ -83,6 +94,8 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
         Only points inside its boundary are compared.
     delay_s : float
         Delivery delay from meter to ground, s (>= 0): see the module docstring.
+    include_zero_target : bool
+        Also compare records whose target is 0 (or below): the machine was told not to apply there.
 
     Raises
     ------
@@ -104,36 +117,53 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
                            f"({prescription.unit}): {exc}") from None
     x_m, y_m, crs = _metric_positions(log)
     lx, ly = _delayed(log, x_m, y_m, delay_s, where)
-    compared = _applying(log) & np.isfinite(log.applied)
     if prescription is not None:
         target = prescription.lookup(lx, ly, crs=crs).rate_kg_ha
         against = prescription.source or "prescription"
     else:
         target = log.target
         against = "logged target"
+    inside = np.ones(log.points, dtype=bool)
     if field is not None:
         fx, fy = transform_xy(lx, ly, crs, field.crs)
         import shapely
 
-        compared &= shapely.contains_xy(field.polygon, fx, fy)
-    compared &= np.isfinite(target)
+        inside = shapely.contains_xy(field.polygon, fx, fy)
+    compared, excluded = _select(log, target, inside, include_zero_target)
     if not compared.any():
+        left = ", ".join(f"{n} {r.replace('_', ' ')}" for r, n in excluded.items() if n)
         raise MapError(f"{where}: no point to compare ({log.points} records; none with the implement on, "
                        f"an applied rate and a target{' on the map' if prescription is not None else ''}"
-                       f"{' inside the field' if field is not None else ''})")
+                       f"{' inside the field' if field is not None else ''}; left out: {left})")
     distance = _distance_m(x_m, y_m)
     time_s = np.where(np.isfinite(log.time_s), log.time_s, np.arange(log.points, dtype=float))
     scale = float(convert_rate(1.0, log.unit, base_unit(log.unit)))
     figures = point_metrics(log.applied, target, time_s, distance, compared, step_scale=scale)
     return Evaluation(log, log.unit, against, np.asarray(target, float), compared, lx, ly, crs, distance,
-                      float(delay_s), figures)
+                      float(delay_s), figures, excluded)
 
 
-def _applying(log: PointLog) -> np.ndarray:
-    """Records where the machine applied: work state on and, where the log has section states, a
-    section on."""
-    sections = log.sections_on
-    return log.work_on & (sections.any(axis=1) if sections.shape[1] else True)
+def _section_on(log: PointLog) -> np.ndarray:
+    """Records with a section on (where the log has section states), else with a working width above 0
+    (where it logs one; a width not logged does not exclude)."""
+    if log.sections_on.shape[1]:
+        return log.sections_on.any(axis=1)
+    return ~(log.width_m <= 0)
+
+
+def _select(log: PointLog, target, inside, include_zero_target: bool):
+    """(compared, excluded): the records compared and the others counted by their first `EXCLUSIONS`."""
+    with np.errstate(invalid="ignore"):
+        keep = {"implement_off": log.work_on, "no_section_on": _section_on(log),
+                "target_0": ~(target <= 0) | include_zero_target, "no_applied_rate": np.isfinite(log.applied),
+                "no_target": np.isfinite(target), "outside_field": np.asarray(inside, bool)}
+    compared = np.ones(log.points, dtype=bool)
+    excluded = {}
+    for reason in EXCLUSIONS:
+        out = compared & ~keep[reason]
+        excluded[reason] = int(out.sum())
+        compared &= keep[reason]
+    return compared, excluded
 
 
 def _metric_positions(log: PointLog):

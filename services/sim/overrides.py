@@ -32,7 +32,7 @@ def key_parts(key: str, where: str) -> list[str]:
     return parts
 
 
-def parse_value(text: str) -> Any:
+def _parse_value(text: str) -> Any:
     """A command-line value read as a TOML value (``0.8``, ``12``, ``true``, ``"x"``, ``[1, 2]``,
     ``{ a = 1 }``); text that is not a TOML value is taken as a string (``dgps``)."""
     try:
@@ -48,7 +48,7 @@ def parse_assignment(text: str) -> Override:
         raise ScenarioError(f"--set {text!r}: expected KEY=VALUE, e.g. controller.kp=0.8")
     key = key.strip()
     key_parts(key, f"--set {text!r}")
-    return key, parse_value(value.strip())
+    return key, _parse_value(value.strip())
 
 
 def apply(doc: dict, overrides: Iterable[Override], source: str) -> dict:

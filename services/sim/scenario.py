@@ -341,7 +341,7 @@ def _check_map(spec: MapSpec, source: str) -> None:
         if spec.synthetic not in SYNTHETIC_KINDS:
             raise ScenarioError(f"{source}: [map] synthetic must be one of {', '.join(SYNTHETIC_KINDS)}, "
                                 f"got {spec.synthetic!r}")
-        no_unknown(spec.params, synthetic_params(spec.synthetic), source, "map.params")
+        no_unknown(spec.params, _synthetic_params(spec.synthetic), source, "map.params")
     if spec.policy not in POLICIES:
         raise ScenarioError(f"{source}: [map] policy must be one of {', '.join(POLICIES)}, "
                             f"got {spec.policy!r}")
@@ -351,7 +351,7 @@ def _check_map(spec: MapSpec, source: str) -> None:
         raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
 
 
-def synthetic_params(kind: str) -> set[str]:
+def _synthetic_params(kind: str) -> set[str]:
     """The `[map] params` keys a synthetic map of `kind` takes (`zones_gradient`: the zones' keys and
     the gradient's prefixed with ``gradient_``)."""
     def own(name):

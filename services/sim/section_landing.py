@@ -100,7 +100,7 @@ class StripPlan:
         width_on = actual @ states.widths_m
         share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
                           where=actual & (width_on[:, None] > 0))
-        passes = landing_pass(time_s, states.pass_index, delay_s, idx)
+        passes = _landing_pass(time_s, states.pass_index, delay_s, idx)
         typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
         join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
         # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
@@ -204,7 +204,7 @@ def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
     return mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
 
 
-def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
+def _landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
     """The pass of the product metered in each tick (of `ticks`, default all): that of the pose where
     it starts landing, a turn counting with the pass before it (the first pass for anything before it)."""
     time_s = np.asarray(time_s, float)

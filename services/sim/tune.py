@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ControllerError, ScenarioError
-from controller import ControllerConfig, build_controller, resolve_gains
+from controller import ControllerConfig, build_controller
 from controller.config import PID_KINDS, USER_KIND
+from services.sim.as_run import resolved_controller
 from services.sim.compare import resolve_spec
 from services.sim.core import plant_for
 from services.sim.metrics import METRICS
@@ -91,7 +92,7 @@ def check_objective(metric: str) -> str:
     return SENSES[metric]
 
 
-def base_config(scenario: Scenario, controller: str | None = None) -> ControllerConfig:
+def _base_config(scenario: Scenario, controller: str | None = None) -> ControllerConfig:
     """The configuration candidates start from.
 
     `controller`: None for the scenario's own ``[controller]``; a TOML file with a ``[controller]``
@@ -111,16 +112,13 @@ def base_config(scenario: Scenario, controller: str | None = None) -> Controller
             raise ScenarioError(f"--controller {controller!r}: {exc}") from None
     if cfg.kind not in PID_KINDS:
         return cfg
-    try:
-        g = resolve_gains(cfg, plant_for(scenario), scenario.timing.control_period_s)
+    try:   # the gains as the run resolves them (`services.sim.as_run`), manual from here on
+        return resolved_controller(cfg, plant_for(scenario), scenario.timing.control_period_s)
     except ControllerError as exc:
         raise ScenarioError(f"--controller {controller or cfg.kind!r}: {exc}") from None
-    terms = PID_KINDS[cfg.kind]
-    return dataclasses.replace(cfg, gains="manual", kp=g.kp, ki=g.ki if "I" in terms else None,
-                               kd=g.kd if "D" in terms else None)
 
 
-def config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> ControllerConfig:
+def _config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> ControllerConfig:
     """`base` with each parameter set to its value (`ControllerError` if the kind refuses one)."""
     top, inner = {}, {}
     for p, v in zip(params, values, strict=True):
@@ -130,7 +128,7 @@ def config_at(base: ControllerConfig, params: Sequence[TuneParam], values) -> Co
     return dataclasses.replace(base, **top)
 
 
-def check_params(base: ControllerConfig, params: Sequence[TuneParam], scenario: Scenario) -> None:
+def _check_params(base: ControllerConfig, params: Sequence[TuneParam], scenario: Scenario) -> None:
     """Each parameter is a number the kind takes, at both ends of its range; `ScenarioError` otherwise.
 
     A user's class (kind ``python``) checks its own params: it is built once at each end.
@@ -144,7 +142,7 @@ def check_params(base: ControllerConfig, params: Sequence[TuneParam], scenario: 
             raise ScenarioError(f"--param {p.name!r}: kind {base.kind!r} has no such term")
         for end in (p.low, p.high):
             try:
-                cfg = config_at(base, [p], [end])
+                cfg = _config_at(base, [p], [end])
                 if cfg.kind == USER_KIND:
                     build_controller(cfg, plant_for(scenario), timing.control_period_s, timing.plant_step_s)
             except (ControllerError, TypeError) as exc:
@@ -152,7 +150,7 @@ def check_params(base: ControllerConfig, params: Sequence[TuneParam], scenario: 
                                     f"{exc}") from None
 
 
-def generations_for(budget: int, dims: int) -> tuple[int, int]:
+def _generations_for(budget: int, dims: int) -> tuple[int, int]:
     """(popsize multiplier, scipy's maxiter) for about `budget` evaluations (see the module docstring)."""
     m = int(min(MAX_POPSIZE, max(1, budget // (GENERATIONS * dims))))
     population = max(5, m * dims)
@@ -168,7 +166,7 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
     scenario : Scenario
     controller : str or None
         None: the scenario's own controller; a controller kind (``PID``, ``PI``, ``P``, ``aog_pi``,
-        ...) with its defaults; or a TOML file with a ``[controller]`` table (`base_config`).
+        ...) with its defaults; or a TOML file with a ``[controller]`` table (`_base_config`).
     params : sequence of TuneParam
         The searched parameters and their ranges (names as in ``[controller]``, or its ``params`` for
         kinds other than P, PI, PID; ``look_ahead_s`` for any kind).
@@ -197,8 +195,8 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
     names = [p.name for p in params]
     if len(set(names)) < len(names):
         raise ScenarioError(f"--param: a parameter is given twice: {names}")
-    base = base_config(scenario, controller)
-    check_params(base, params, scenario)
+    base = _base_config(scenario, controller)
+    _check_params(base, params, scenario)
     shared = drive_of(scenario)
     history: list[dict] = []
     best = [math.inf]
@@ -211,7 +209,7 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
 
     def evaluate(x: np.ndarray) -> np.ndarray:      # x: (params, population)
         columns = np.atleast_2d(x).T
-        summaries = run_variants(shared, [config_at(base, params, v) for v in columns])
+        summaries = run_variants(shared, [_config_at(base, params, v) for v in columns])
         scores = np.array([score(s) for s in summaries])
         generation = 1 + max((h["generation"] for h in history), default=0)
         for v, s, sc in zip(columns, summaries, scores, strict=True):
@@ -223,11 +221,11 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
             progress(len(history), _unscore(best[0], sense))
         return scores
 
-    popsize, maxiter = generations_for(budget, len(params))
+    popsize, maxiter = _generations_for(budget, len(params))
     found = differential_evolution(evaluate, [(p.low, p.high) for p in params], popsize=popsize,
                                    maxiter=maxiter, vectorized=True, updating="deferred", polish=False,
                                    rng=np.random.default_rng(seed))
-    best_cfg = config_at(base, params, found.x)
+    best_cfg = _config_at(base, params, found.x)
     tuned, baseline = run_variants(shared, [best_cfg, scenario.controller])
     return TuneResult(scenario=scenario.name, objective=objective, sense=sense, params=tuple(params),
                       best=best_cfg, best_values=dict(zip(names, map(float, found.x), strict=True)),

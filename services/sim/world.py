@@ -34,7 +34,7 @@ class World:
     grid: Grid  # the prescription, in the field's metric CRS
 
 
-def build_field(scenario: Scenario) -> Field:
+def _build_field(scenario: Scenario) -> Field:
     spec = scenario.field
     if spec.file is not None:
         return Field.from_file(scenario.path(spec.file), crs=spec.crs)
@@ -44,7 +44,7 @@ def build_field(scenario: Scenario) -> Field:
     return Field.from_lonlat([tuple(p) for p in spec.polygon_lonlat])
 
 
-def build_prescription(scenario: Scenario, field: Field) -> Grid:
+def _build_prescription(scenario: Scenario, field: Field) -> Grid:
     """The prescription on a grid in the field's CRS; refuses a map that misses the field."""
     spec = scenario.map
     if spec.synthetic is not None:
@@ -92,7 +92,7 @@ def build_world(scenario: Scenario, planned: tuple[Field, CoveragePath] | None =
     consumes and its outputs show; errors name the scenario file and its table."""
     field, path = planned or plan_path(scenario)
     try:
-        grid = build_prescription(scenario, field)
+        grid = _build_prescription(scenario, field)
     except MapError as exc:
         raise ScenarioError(f"{scenario.source}: [map] {exc}") from None
     return World(scenario=as_run(scenario), field=field, path=path, grid=grid)
@@ -101,12 +101,12 @@ def build_world(scenario: Scenario, planned: tuple[Field, CoveragePath] | None =
 def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:
     """The field and the coverage path over it: all that SUMO drives.
 
-    Refused before the path is planned: a run whose arrays would not fit in memory (`check_run_size`);
+    Refused before the path is planned: a run whose arrays would not fit in memory (`_check_run_size`);
     after: a time limit the tractor cannot meet even at its top speed."""
     spec = scenario.field
     try:
-        field = build_field(scenario)
-        check_run_size(scenario, field)
+        field = _build_field(scenario)
+        _check_run_size(scenario, field)
         path = plan_coverage(field, scenario.implement.width_m, headland_passes=spec.headland_passes,
                              heading_deg=spec.heading_deg, turn_radius_m=spec.turn_radius_m)
     except VehicleError as exc:
@@ -115,7 +115,7 @@ def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:
     return field, path
 
 
-def check_run_size(scenario: Scenario, field: Field) -> None:
+def _check_run_size(scenario: Scenario, field: Field) -> None:
     """Refuse a run whose per-tick arrays would not fit in memory, from the path length a field of
     this area and perimeter needs at this working width (swaths plus headland passes)."""
     drive, period = scenario.tractor, scenario.timing.control_period_s
@@ -139,8 +139,8 @@ def _check_time_limit(scenario: Scenario, path: CoveragePath) -> None:
 def field_and_grid(scenario: Scenario) -> tuple[Field, Grid]:
     """The scenario's field and its prescription on the field's metric grid, without planning a
     path (what the map and controller services need)."""
-    field = build_field(scenario)
-    return field, build_prescription(scenario, field)
+    field = _build_field(scenario)
+    return field, _build_prescription(scenario, field)
 
 
 def driving(scenario: Scenario, path: CoveragePath):

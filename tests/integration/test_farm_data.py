@@ -340,3 +340,59 @@ def test_evaluate_bad_input_exits_2_naming_file_and_field(shared_dir, tmp_path, 
         assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
         for needle in needles:
             assert needle in p.stderr, (needle, p.stderr)
+
+
+def test_points_and_taskdata_of_one_run_evaluate_alike(tmp_path):
+    """`vrsim run --out`'s as_applied_points.gpkg and its taskdata/ give the same points and figures (the
+    TimeLog rounds rates to 0.01 kg/ha), and both leave out the same records for the same reasons."""
+    out = tmp_path / "out"
+    p = vrsim("run", scenario_file(str(tmp_path)), "--quiet", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    got = []
+    for log in (out / "as_applied_points.gpkg", out / "taskdata"):
+        p = vrsim("evaluate", str(log), "--json")
+        assert p.returncode == 0, p.stderr
+        got.append(json.loads(p.stdout))
+    points, timelog = got
+    print(points, timelog)
+    assert points["points"] == timelog["points"] > 0
+    assert points["excluded"] == timelog["excluded"] and sum(points["excluded"].values()) > 0
+    for key in ("applied_mean", "target_mean", "mae", "rmse", "bias"):
+        assert points[key] == pytest.approx(timelog[key], abs=0.01), key
+
+
+def test_evaluate_leaves_out_target_0_and_sections_off(tmp_path):
+    """A layer with target-0 records and records with no width in use: `vrsim evaluate` gives what numpy
+    gives over the records with a target above 0 and a section on; --include-zero-target adds the
+    target-0 records back."""
+    import pyogrio
+    import shapely
+
+    rng = np.random.default_rng(7)
+    n = 400
+    target = np.where(rng.random(n) < 0.2, 0.0, rng.choice([120.0, 150.0, 180.0], n))
+    applied = np.where(target > 0, target + rng.normal(0, 5, n), rng.uniform(0, 300, n))
+    width = np.where(rng.random(n) < 0.1, 0.0, 12.0)
+    lon, lat = 10.0 + np.arange(n) * 2e-5, np.full(n, 52.0)
+    stamps = np.datetime64("2026-05-01T10:00:00", "ms") + np.arange(n).astype("timedelta64[s]")
+    path = tmp_path / "zeros.gpkg"
+    pyogrio.raw.write(str(path), shapely.to_wkb(shapely.points(lon, lat)),
+                      [stamps, applied, target, width, np.full(n, "kg/ha", dtype=object)],
+                      ["time", "AppliedRate", "TargetRate", "width_m", "rate_unit"], driver="GPKG",
+                      geometry_type="Point", crs="EPSG:4326")
+    p = vrsim("evaluate", str(path), "--json")
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    keep = (target > 0) & (width > 0)
+    error = applied[keep] - target[keep]
+    assert got["points"] == keep.sum()
+    assert got["mae"] == pytest.approx(np.abs(error).mean())
+    assert got["rmse"] == pytest.approx(np.sqrt((error ** 2).mean()))
+    assert got["bias"] == pytest.approx(error.mean())
+    assert got["applied_mean"] == pytest.approx(applied[keep].mean())
+    assert got["excluded"]["no_section_on"] == (width == 0).sum()
+    assert got["excluded"]["target_0"] == ((width > 0) & (target == 0)).sum()
+    p = vrsim("evaluate", str(path), "--json", "--include-zero-target")
+    assert json.loads(p.stdout)["points"] == (width > 0).sum()
+    p = vrsim("evaluate", str(path))
+    assert "Records left out" in p.stdout and "target 0" in p.stdout, p.stdout

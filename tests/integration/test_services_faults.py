@@ -91,6 +91,12 @@ def test_killed_controller_is_reported_within_2s_and_records_stay(net):
     assert stored["pose_records"] - stored["ticks"] in (0, 1, 2)
     report = report_without_clock(net)
     assert report["ticks"] == stored["ticks"]
+    print(f"controller killed mid-run: complete {report['complete']}, "
+          f"missing_ticks {report['missing_ticks']}, "
+          f"end_reason {report['end_reason']}, {report['ticks']:,} of {status['ticks']:,} stored")
+    # Not complete: the run failed; ticks the vehicle drove past the last controlled one are missing.
+    assert (report["complete"], report["end_reason"]) == (False, "failed")
+    assert report["ticks"] + sum(b - a + 1 for a, b in report["missing_ticks"]) == status["ticks"]
 
 
 def test_hung_vehicle_is_reported_as_silent_not_dead(net):

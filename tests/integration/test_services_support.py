@@ -18,7 +18,7 @@ from tests.conftest import VRSIM
 
 # Keys of a summary whose values depend on the wall clock, not on the simulation.
 WALL_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
-MONITOR_KEYS = frozenset({"missing_ticks", "complete"})  # a monitor's report says which ticks it lacks
+MONITOR_KEYS = frozenset({"missing_ticks", "complete", "end_reason"})  # which ticks it lacks, how it ended
 # Where a run's scenario was read from: a file's path for `vrsim run`, the name it came by over the bus.
 ORIGIN_KEYS = {"source", "base_dir"}
 CELL_M = 2.0

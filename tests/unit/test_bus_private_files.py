@@ -9,7 +9,7 @@ import pytest
 
 from common import ServiceError
 from services.bus.config import ZenohOptions, _plain_beyond_loopback
-from services.bus.monitor import DEFAULT_DB_FOLDER, MonitorStore, default_db
+from services.bus.monitor import DEFAULT_DB_FOLDER, MonitorStore, _default_db
 
 
 def _mode(path) -> int:
@@ -38,7 +38,7 @@ def test_the_default_database_is_in_a_folder_of_its_own_made_0700(tmp_path, monk
     monkeypatch.chdir(tmp_path)
     os.makedirs(DEFAULT_DB_FOLDER, mode=0o755)
     os.chmod(DEFAULT_DB_FOLDER, 0o755)
-    path = default_db(ZenohOptions())
+    path = _default_db(ZenohOptions())
     assert os.path.dirname(path) == DEFAULT_DB_FOLDER
     MonitorStore(path).db.close()
     assert _mode(DEFAULT_DB_FOLDER) == 0o700 and _mode(path) == 0o600

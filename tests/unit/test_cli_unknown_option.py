@@ -6,7 +6,7 @@ import subprocess
 
 import pytest
 
-from services.cli.main import COMMANDS, build_parser, parse
+from services.cli.main import COMMANDS, _build_parser, _parse
 from tests.conftest import VRSIM
 
 
@@ -32,7 +32,7 @@ def _required(parser: argparse.ArgumentParser) -> list[str]:
 def _command_lines() -> list[list[str]]:
     """One line per subcommand and per action of a subcommand with actions (`map info`, ...), and per
     choice of an ACTION/SERVICE positional (`controller analyze`, `serve all`, ...)."""
-    _, commands = build_parser(COMMANDS)
+    _, commands = _build_parser(COMMANDS)
     lines = []
     for name, parser in commands.items():
         actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
@@ -62,7 +62,7 @@ def test_every_subcommand_and_action_is_listed():
 @pytest.mark.parametrize("line", LINES, ids=[" ".join(line[:2]) for line in LINES])
 def test_an_unknown_option_is_a_usage_error(line, capsys):
     with pytest.raises(SystemExit) as exit_:
-        parse([*line, "--bogus"])
+        _parse([*line, "--bogus"])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     errors = [text for text in err.splitlines() if ": error: " in text]

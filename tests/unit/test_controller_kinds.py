@@ -20,7 +20,7 @@ from controller import (
 from controller.calibration import valve_calibration
 from controller.factory import loop_info
 from controller.kinds.aog_pi import AogPiParams
-from controller.kinds.fuzzy_pid import load_rules
+from controller.kinds.fuzzy_pid import _load_rules
 from controller.plant_loop import PlantLoop
 
 P = PlantParams()
@@ -108,7 +108,7 @@ def test_fuzzy_pid_settles_faster_than_the_papers_pid_it_starts_from():
 
 
 def test_fuzzy_rules_come_from_the_data_file():
-    rules = load_rules()
+    rules = _load_rules()
     assert rules.shape == (3, 7, 7)
     assert rules[0, 0, 0] == 3 and rules[0, 6, 6] == -3     # Kp: PB for e NB/ec NB, NB for e PB/ec PB
     assert rules[2, 4].tolist() == [0.0] * 7                 # Kd: ZO all along e = PS
@@ -117,7 +117,7 @@ def test_fuzzy_rules_come_from_the_data_file():
 
 def test_fuzzy_inference_equals_the_weighted_mean_over_all_49_rules():
     ctrl = build_controller(ControllerConfig(kind="fuzzy_pid"), P, n=6)
-    p, rules = ctrl.params, load_rules()
+    p, rules = ctrl.params, _load_rules()
     error = np.array([-80.0, -7.5, 0.0, 3.3, 15.0, 200.0])
     change = np.array([10.0, -60.0, 0.0, 12.5, -20.0, 1.0])
 

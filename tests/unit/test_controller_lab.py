@@ -18,7 +18,7 @@ from controller.response import response_time
 from services.outputs.loop_analysis import text, write_pictures
 from services.sim import scenario
 from services.sim.analyze import analyze_controller
-from services.sim.compare import BETTER, best_rows, builtin_specs, resolve_spec
+from services.sim.compare import BETTER, _builtin_specs, best_rows, resolve_spec
 from services.sim.core import plant_for
 from services.sim.look_ahead import TUNE_WINDOW_S, LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.scenario import with_changes
@@ -233,7 +233,7 @@ def test_fuzzy_gains_on_floats_equal_those_on_arrays():
 # ----------------------------------------------------------------------------------- compare
 def test_compare_specs_kinds_and_files(folder):
     sc = scenario.load(write_scenario(folder, 'kind = "PID"\ngains = "textbook"\nlook_ahead_s = 1.1'))
-    specs = builtin_specs()
+    specs = _builtin_specs()
     assert specs[0] == "pid" and sorted(specs) == ["aog_pi", "ff_pi", "fuzzy_pid", "ideal", "pid", "smith"]
     pid = resolve_spec("pid", sc)
     assert (pid.config.kind, pid.config.gains, pid.config.look_ahead_s) == ("pid", "paper", 1.1)

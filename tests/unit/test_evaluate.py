@@ -66,7 +66,7 @@ def test_point_transitions_are_the_runs_own():
 def test_logged_target_and_summary_keys():
     ev = evaluate(_east_log([100.0, 105.0, 95.0, 100.0], [100.0] * 4))
     s = ev.summary()
-    assert list(s) == ["points", "unit", *[m.key for m in POINT_METRICS if m.key != "points"]]
+    assert list(s) == ["points", "unit", *[m.key for m in POINT_METRICS if m.key != "points"], "excluded"]
     assert s["points"] == 4 and s["unit"] == "kg/ha" and s["mae"] == pytest.approx(2.5)
     assert ev.against == "logged target"
 
@@ -94,7 +94,10 @@ def test_field_section_states_and_units():
     sections = np.zeros((n, 2), bool)
     sections[5:, 0] = True
     log = _east_log(np.full(n, 90.0), np.full(n, 100.0), sections_on=sections)
-    assert evaluate(log).metrics.points == 5  # work on but no section on: not applying
+    ev = evaluate(log)
+    assert ev.metrics.points == 5  # work on but no section on: not applying
+    assert ev.excluded == {"implement_off": 0, "no_section_on": 5, "target_0": 0, "no_applied_rate": 0,
+                           "no_target": 0, "outside_field": 0}
     outside = Field.rectangle(50.0, 50.0, lat=52.1, lon=10.1)
     with pytest.raises(MapError, match="no point to compare.*inside the field"):
         evaluate(log, field=outside)
@@ -124,3 +127,53 @@ def test_error_grid_on_the_prescription_and_without():
 
 def test_compass_heading():
     assert _compass_deg(np.array([0.0, np.pi / 2, np.pi, -np.pi / 2])).tolist() == [90.0, 0.0, 270.0, 180.0]
+
+
+def test_target_0_width_0_and_implement_off_are_left_out_by_reason():
+    target = np.array([100.0, 0.0, 100.0, 100.0, 100.0, 0.0])
+    applied = np.array([100.0, 50.0, 80.0, 90.0, np.nan, 0.0])
+    width = np.array([12.0, 12.0, 0.0, 12.0, 12.0, 12.0])
+    work = np.array([True, True, True, False, True, True])
+    log = _east_log(applied, target, width_m=width, work_on=work)
+    ev = evaluate(log)
+    assert ev.metrics.points == 1 and ev.compared.tolist() == [True] + [False] * 5
+    assert ev.excluded == {"implement_off": 1, "no_section_on": 1, "target_0": 2, "no_applied_rate": 1,
+                           "no_target": 0, "outside_field": 0}
+    ev = evaluate(log, include_zero_target=True)
+    assert ev.metrics.points == 3 and ev.metrics.mae == pytest.approx(50.0 / 3)
+    assert ev.excluded["target_0"] == 0
+
+
+def test_forty_thousand_point_export_evaluates_in_under_5_s(tmp_path):
+    """A zipped point shapefile of 40,000 records with ISO 8601 text times (the slow path of the reader),
+    read and evaluated in under 5 s (the issue's bound; about 1 s on an idle machine)."""
+    import time
+    import zipfile
+
+    import pyogrio
+    import shapely
+
+    from maps import read_point_log
+
+    n = 40_000
+    rng = np.random.default_rng(3)
+    t = np.arange(n)
+    target = np.where(rng.random(n) < 0.05, 0.0, rng.choice([100.0, 150.0, 200.0], n))
+    stamps = np.datetime64("2026-05-01T10:00:00", "ms") + t.astype("timedelta64[s]")
+    folder = tmp_path / "export"
+    folder.mkdir()
+    pyogrio.raw.write(str(folder / "big.shp"), shapely.to_wkb(shapely.points(10 + (t % 400) * 2e-5,
+                                                                            52 + (t // 400) * 1e-4)),
+                      [np.datetime_as_string(stamps).astype(object), target + rng.normal(0, 3, n), target,
+                       np.full(n, 12.0), np.full(n, "kg/ha", dtype=object)],
+                      ["IsoTime", "AppliedRat", "TargetRate", "SWATHWIDTH", "rate_unit"],
+                      driver="ESRI Shapefile", geometry_type="Point", crs="EPSG:4326")
+    with zipfile.ZipFile(tmp_path / "big.zip", "w") as z:
+        for name in sorted(p.name for p in folder.iterdir()):
+            z.write(folder / name, name)
+    began = time.perf_counter()
+    ev = evaluate(read_point_log(tmp_path / "big.zip"))
+    took_s = time.perf_counter() - began
+    print(f"40,000 points: {took_s:.2f} s")
+    assert ev.metrics.points == (target > 0).sum() and ev.excluded["target_0"] == (target == 0).sum()
+    assert took_s < 5.0

@@ -23,7 +23,7 @@ from maps import read_map
 from maps.pointlog import read_point_log
 from services.bus import messages
 from services.bus.dataroot import DataRoot
-from services.bus.map import MapService
+from services.bus.map import _MapService
 from services.bus.serving import Params
 from tests.conftest import VRSIM
 from vehicle.field import Field
@@ -109,7 +109,7 @@ def watch(tmp_path):
 def _load(root, text: str):
     """The map service's ``load`` handler (an exception becomes the bus's error reply) for a scenario
     received over the bus whose files resolve under ``root``."""
-    svc = MapService(None, False, DataRoot(str(root)))
+    svc = _MapService(None, False, DataRoot(str(root)))
     start = messages.RunStart(run_id="r1", scenario_text=text, source="bus.toml", base_dir=str(root),
                               clock="lockstep", speed=1.0, ticks_per_message=1)
     return svc.load(Params("vrsim/map/load", []), start.to_json())

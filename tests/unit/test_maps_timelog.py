@@ -253,3 +253,50 @@ def test_read_taskdata_log_chooses_ddis(shared_dir):
     assert _parse_ddi("0x00A1") == 161 and _parse_ddi(7) == 7
     with pytest.raises(MapError, match="not a number"):
         _parse_ddi("seven")
+
+
+def test_a_lone_timelog_is_read_from_its_header(shared_dir, tmp_path):
+    """TLG00001.xml alone (its .bin beside it, no TASKDATA.XML): the known values of the terminal's log;
+    where it logs no rate, the message says what it logs; vrsim's own TimeLog reads as its TASKDATA."""
+    src = valid_logs(shared_dir)
+    for name in ("TLG00001.xml", "TLG00001.bin"):
+        shutil.copy(os.path.join(src, name), tmp_path / name)
+    (t,) = read_timelogs(tmp_path / "TLG00001.xml")
+    assert (t.records, t.count(0x8D), t.count(0x94), t.task) == (4716, 4716, 560, "")
+    assert str(t.time[1]).startswith("2020-01-02")
+    with pytest.raises(MapError, match="TLG00001.xml: no TimeLog logs an applied rate .*008D.*--rate-field"):
+        read_taskdata_log(tmp_path / "TLG00001.xml")
+    os.remove(tmp_path / "TLG00001.bin")
+    with pytest.raises(MapError, match=r"TLG00001.xml: the TimeLog file TLG00001.BIN is missing beside it"):
+        read_timelogs(tmp_path / "TLG00001.xml")
+    path = write_taskdata(run_log(), tmp_path / "taskdata", [2.0] * 6)
+    whole = read_taskdata_log(path)
+    lone = read_taskdata_log(tmp_path / "taskdata" / "TLG00001.xml")
+    for name in ("applied", "target", "time_s", "x", "y", "work_on", "sections_on"):
+        np.testing.assert_array_equal(getattr(lone, name), getattr(whole, name))
+
+
+def test_a_timelog_of_two_products_is_read_by_product(tmp_path):
+    """DDI 6 and 7 logged on two bins (DET-3: PDT1 'Urea', DET-4: PDT2 'KAS', allocated by the task's
+    PAN): refused without a product, listing both; read by id, name or element."""
+    n = 5
+    time = START + np.arange(n) * np.timedelta64(1, "s")
+    values = np.tile([10_000, 9_900, 25_000, 25_500], (n, 1))
+    folder = tmp_path / "TASKDATA"
+    folder.mkdir()
+    (folder / "TLG00001.xml").write_bytes(header_xml([6, 7, 6, 7], ["DET-3", "DET-3", "DET-4", "DET-4"]))
+    (folder / "TLG00001.bin").write_bytes(encode_records(time, np.full(n, 52.0), np.full(n, 10.0), 4, values,
+                                                         np.ones((n, 4), bool)))
+    (folder / "TASKDATA.XML").write_text(
+        '<?xml version="1.0"?><ISO11783_TaskData VersionMajor="4" VersionMinor="3" DataTransferOrigin="2">'
+        '<TSK A="TSK1" G="4"><TLG A="TLG00001" C="1"/>'
+        '<PAN A="PDT1" E="DET-3"/><PAN A="PDT2" E="DET-4"/></TSK>'
+        '<PDT A="PDT1" B="Urea"/><PDT A="PDT2" B="KAS"/></ISO11783_TaskData>')
+    with pytest.raises(MapError, match=r"logged on 2 device elements.*DET-3 \(PDT1 'Urea'\), DET-4 \(PDT2 "
+                                       r"'KAS'\); choose one with --product"):
+        read_taskdata_log(folder)
+    for product, applied, target in (("PDT2", 255.0, 250.0), ("urea", 99.0, 100.0), ("DET-4", 255.0, 250.0)):
+        log = read_taskdata_log(folder, product=product)
+        assert (log.applied == applied).all() and (log.target == target).all(), product
+    with pytest.raises(MapError, match="no product 'PDT3' logs DDI 0007; logged on: DET-3 \\(PDT1 'Urea'\\)"):
+        read_taskdata_log(folder, product="PDT3")

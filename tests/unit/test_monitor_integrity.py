@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from services.bus import messages
-from services.bus.monitor import MonitorStore, missing_ticks
+from services.bus.monitor import MonitorStore, _missing_ticks
 
 
 def start(run_id: str) -> messages.RunStart:
@@ -30,7 +30,7 @@ def records(run_id: str, ticks, x_m: float = 1.0):
     ([], []),
 ])
 def test_missing_ticks_are_ranges_up_to_the_last_stored(ticks, gaps):
-    assert missing_ticks(np.array(ticks)) == gaps
+    assert _missing_ticks(np.array(ticks)) == gaps
 
 
 def test_a_second_record_of_a_tick_never_replaces_the_first(tmp_path):
@@ -68,4 +68,4 @@ def test_arrays_hold_every_complete_tick_across_gaps(tmp_path):
     track, control = store.arrays("r", sections=1)
     assert track["tick"].tolist() == stored
     assert len(control["metered_kg"]) == len(stored)
-    assert missing_ticks(track["tick"]) == [[100, 249]]
+    assert _missing_ticks(track["tick"]) == [[100, 249]]

@@ -55,8 +55,8 @@ def sweep_of(folder, body: str):
     ("{ mean_kg_ha = 150.0 }", {"mean_kg_ha": 150.0}), ("my run", "my run"),
 ])
 def test_set_values_are_toml_values_or_else_strings(text, value):
-    assert overrides.parse_value(text) == value
-    assert type(overrides.parse_value(text)) is type(value)
+    assert overrides._parse_value(text) == value
+    assert type(overrides._parse_value(text)) is type(value)
 
 
 def test_set_reaches_top_level_tables_and_nested_tables(folder):

@@ -75,9 +75,13 @@ def test_damaged_shapefile_is_a_vehicle_error(tmp_path, name):
 
 
 def test_bad_extension_and_bad_json(tmp_path):
-    p = tmp_path / "f.kml"
+    p = tmp_path / "f.gml"
     p.write_text("x")
     with pytest.raises(VehicleError, match="unknown extension"):
+        Field.from_file(str(p))
+    p = tmp_path / "f.kml"
+    p.write_text("x")
+    with pytest.raises(VehicleError, match="f.kml: not well-formed XML"):
         Field.from_file(str(p))
     p = tmp_path / "f.geojson"
     p.write_text("{not json")
