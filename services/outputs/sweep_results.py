@@ -22,6 +22,9 @@ from services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"
 CSV = "results.csv"
+# The errors that tables written before the `lost` status gave rows the cluster dropped: they are read
+# as lost, so `--resume` runs them again.
+_OLD_LOST_ERRORS = ("cancelled: the cluster dropped this task", "worker died while running this task")
 
 
 def _columns(rows: list[dict]) -> list[str]:
@@ -40,6 +43,13 @@ def _read_rows(path: str) -> list[dict]:
         return pq.read_table(path).to_pylist()
     except (OSError, ValueError) as exc:
         raise ScenarioError(f"{path}: cannot read the results table: {exc}") from None
+
+
+def _status(row: dict) -> str:
+    """A row's status, a dropped task's of an older table `lost`."""
+    if row.get("status") == "failed" and str(row.get("error")).startswith(_OLD_LOST_ERRORS):
+        return "lost"
+    return row.get("status")
 
 
 def _write_parquet(rows: list[dict], path: str) -> None:
@@ -89,7 +99,7 @@ class ResultsTable:
                                 f"another --out")
         if exists:
             kept = ("ok",) if retry_failed else ("ok", "failed")
-            self.rows = [row for row in _read_rows(self.parquet) if row.get("status") in kept]
+            self.rows = [row for row in _read_rows(self.parquet) if _status(row) in kept]
         self._flushed = time.monotonic()
 
     @property

@@ -87,7 +87,9 @@ def _row(key, status):
 
 
 def test_resume_keeps_ok_and_failed_rows_and_drops_lost_ones(tmp_path):
-    rows = [_row("a", "ok"), _row("b", "failed"), _row("c", "lost")]
+    # d: a task the cluster dropped, as tables written before the lost status said it
+    old = {**_row("d", "failed"), "error": "cancelled: the cluster dropped this task"}
+    rows = [_row("a", "ok"), _row("b", "failed"), _row("c", "lost"), old]
     _write_parquet(rows, str(tmp_path / "results.parquet"))
     assert ResultsTable(str(tmp_path), resume=True).done == {"a", "b"}
     assert ResultsTable(str(tmp_path), resume=True, retry_failed=True).done == {"a"}
