@@ -96,15 +96,18 @@ def _run_on_dask(args, tasks_for, table, progress) -> int:
         try:
             run_tasks(client, items, task, key=key, on_done=on_done,
                       no_worker_timeout_s=args.no_worker_timeout,
-                      on_no_worker=functools.partial(_say_no_worker, args.no_worker_timeout))
+                      on_no_worker=functools.partial(_say_no_worker, args.no_worker_timeout, progress))
         finally:
             table.flush()
             progress.close()
     return workers
 
 
-def _say_no_worker(timeout_s: float | None, idle_s: float) -> None:
-    """The one line of a cluster without a worker (`services.batch.driver.run_tasks`)."""
+def _say_no_worker(timeout_s: float | None, progress: _SweepProgress, idle_s: float) -> None:
+    """The one line of a cluster without a worker (`services.batch.driver.run_tasks`), below the
+    progress line if one is shown."""
+    if progress.enabled and progress.done:
+        sys.stderr.write("\n")
     then = (f"the sweep ends if none joins within {timeout_s:g} s (--no-worker-timeout)" if timeout_s
             else "waiting for one (--no-worker-timeout SECONDS ends the sweep instead)")
     print(f"vrsim sweep: no worker on the cluster for {idle_s:.0f} s: {then}", file=sys.stderr, flush=True)
