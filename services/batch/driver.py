@@ -37,6 +37,7 @@ WORKER_SATURATION = 1.0
 CONNECT_TIMEOUT_S = 10.0
 NO_WORKER_NOTICE_S = 10.0  # a cluster without a worker this long is said so (`run_tasks`)
 _POLL_S = 0.2  # how often `run_tasks` looks for finished tasks and at the cluster's workers
+_RESULT_WAIT_S = 2.0  # longest wait for a finished task's result before `run_tasks` looks around again
 
 
 DASHBOARD_ADDRESS = "127.0.0.1:8787"
@@ -144,19 +145,23 @@ def _describe_failure(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"
 
 
-def _outcome(future) -> tuple[Any, str | None, bool]:
-    """(result, error, lost) of a finished future: `lost` when the cluster dropped the task rather than
+def _outcome(future, wait_s: float = _RESULT_WAIT_S) -> tuple[Any, str | None, bool] | None:
+    """(result, error, lost) of a finished future, or None if its result did not come within `wait_s`:
+    a result held by a worker that died since is recomputed, which needs a worker (`run_tasks` asks
+    again, and watches the cluster meanwhile). `lost` when the cluster dropped the task rather than
     the task raising its own exception (then `future.status` is ``"error"``, `KilledWorker` aside)."""
     from distributed import KilledWorker
 
+    cancelled = None, "lost: the cluster cancelled this task (its scheduler gone, or the link lost)", True
     if future.status == "cancelled":
-        return None, "lost: the cluster cancelled this task (its scheduler gone or the connection lost)", True
-    # Not `future.status` alone: a result held by a worker that died since is "lost" and is being
-    # recomputed; `result()` waits for that, and raises the task's own failure.
+        return cancelled
     try:
-        return future.result(), None, False
+        return future.result(timeout=wait_s), None, False
     except Exception as exc:  # any failure of the task becomes its row's error
-        own = future.status == "error" and not isinstance(exc, KilledWorker)
+        status = future.status
+        if isinstance(exc, TimeoutError) and status != "error":  # not the task's own TimeoutError
+            return cancelled if status == "cancelled" else None
+        own = status == "error" and not isinstance(exc, KilledWorker)
         error = _describe_failure(exc)
         return None, error if own or error.startswith("lost: ") else f"lost: {error}", not own
 
@@ -225,17 +230,23 @@ def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callabl
                for item in items}
     watch = _NoWorkerWatch(client, no_worker_notice_s, no_worker_timeout_s, on_no_worker or (lambda s: None))
     done = as_completed(list(futures))
+    waiting: list = []  # finished, but their results are being recomputed: asked again as they finish
     while futures:
-        if not done.has_ready():
+        ready = done.next_batch(block=False) if done.has_ready() else []
+        ready += [f for f in waiting if f.done()]
+        waiting = [f for f in waiting if f not in ready]
+        for future in ready:
+            outcome = _outcome(future)
+            if outcome is None:
+                waiting.append(future)
+                continue
+            item = futures.pop(future)
+            future.release()
+            on_done(item, *outcome)
+        if not ready or all(f in waiting for f in ready):
             if watch.expired():
                 break
             time.sleep(_POLL_S)
-            continue
-        for future in done.next_batch(block=False):
-            item = futures.pop(future)
-            result, error, lost = _outcome(future)
-            future.release()
-            on_done(item, result, error, lost)
     if not futures:
         return
     client.cancel(list(futures))  # left by a cluster without a worker: cancelled, reported lost

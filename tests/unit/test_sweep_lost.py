@@ -12,7 +12,7 @@ class _Future:
     def __init__(self, status, result=None, exc=None):
         self.status, self._result, self._exc = status, result, exc
 
-    def result(self):
+    def result(self, timeout=None):
         if self._exc is not None:
             raise self._exc
         return self._result
@@ -29,6 +29,9 @@ def test_a_task_that_raised_failed_and_one_the_cluster_dropped_is_lost():
     assert driver._outcome(_Future("error", exc=OSError("disk"))) == (None, "OSError: disk", False)
     assert driver._outcome(_Future("pending", exc=CommClosedError("gone"))) == \
         (None, "lost: CommClosedError: gone", True)
+    # A result being recomputed (its worker died) is asked again later, not waited for here.
+    assert driver._outcome(_Future("lost", exc=TimeoutError())) is None
+    assert driver._outcome(_Future("error", exc=TimeoutError("slow"))) == (None, "TimeoutError: slow", False)
 
 
 class _Client:
