@@ -50,7 +50,7 @@ def run() -> dict:
         applied = AsApplied(grid)
         section_strips(track, metered, states, imp.delivery_delay_s, period_s, cell_m).add_to(applied)
         overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg,
-                        worked_fraction(track, imp.width_m, grid), in_field)
+                        worked_fraction(track, imp.width_m, grid), in_field, grid.rates_kg_ha)
 
     figures["sections_landing_default_s"] = _best(per_section)
     return figures

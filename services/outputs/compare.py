@@ -13,7 +13,7 @@ from common.written import staged
 from services.outputs.plots import figure
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
-from services.sim.metrics import rate_steps
+from services.sim.transitions import rate_steps
 
 BEST = "*"
 DECIMALS = 3    # figures shown, and compared for "best", to three decimals

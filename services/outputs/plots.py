@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.metrics import rate_steps
+from services.sim.transitions import rate_steps
 
 TIMESERIES_WINDOW_S = 60.0
 MAX_TRACK_POINTS = 20_000  # the path over the prescription: more points draw the same line
@@ -101,7 +101,8 @@ def sections_picture(result) -> SectionsPicture:
     cover = result.as_applied.coverage_fraction
     s = result.summary
     titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg",
-              f"Skipped: {s['skip_area_pct']:.2f} % of worked area",
+              f"Skipped: {s['skip_area_pct']:.2f} % of worked area asking for product\n"
+              f"bare as prescribed (rate 0): {s['off_as_prescribed_area_pct']:.2f} % of worked area",
               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area")
     widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
     return SectionsPicture(result.as_applied.overlap_fraction,

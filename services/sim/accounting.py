@@ -32,14 +32,12 @@ from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,
-    TransitionMetrics,
     limit_metrics,
     map_metrics,
     overlap_metrics,
-    rate_steps,
-    transitions,
 )
 from services.sim.section_landing import worked_fraction
+from services.sim.transitions import TransitionMetrics, rate_steps, transitions
 from services.sim.world import World
 
 
@@ -134,7 +132,7 @@ class Setting:
         Ticks whose target shaft speed was clipped to the shaft's range with a gate open, and ticks with
         a gate open.
     steps : ndarray of int
-        The prescription's rate steps under the landing point (`metrics.rate_steps`).
+        The prescription's rate steps under the landing point (`services.sim.transitions.rate_steps`).
     check : MachineCheck
     """
 
@@ -248,5 +246,6 @@ def _figures(s: Setting, d: Deposit) -> tuple[MapMetrics, TransitionMetrics, Ove
                         d.outside_kg),
             transitions(s.track["time_s"], landing.distance_m, landing.prescribed_kg_ha, d.rate_kg_ha,
                         np.asarray(s.track["implement_on"], bool), s.steps),
-            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field),
+            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field,
+                            s.world.grid.rates_kg_ha),
             limit_metrics(s.limited, s.applying, d.limited_coverage, cover, s.in_field))

@@ -32,8 +32,8 @@ import numpy as np
 
 from controller import ControllerConfig, PlantParams
 from controller.config import LOOK_AHEAD_AUTO, LOOK_AHEAD_MAX_S
-from services.sim.metrics import rate_steps
 from services.sim.scenario import Scenario
+from services.sim.transitions import rate_steps
 
 TUNE_WINDOW_S = 3.0           # a step is measured over this long after it
 TUNE_MIN_CHANGE = 0.05        # target change below this share of the larger level: not measured
@@ -71,7 +71,7 @@ class LookAheadTuner:
 
     The rule, with T the control period and N = `TUNE_WINDOW_S` / T:
 
-    1. A *rate step* at tick s is what the accuracy metrics call one (`metrics.rate_steps`), here on
+    1. A *rate step* at tick s is what the accuracy metrics call one (`transitions.rate_steps`), here on
        the prescription the core looked up (the terminal's own view, not the true landing point).
     2. It is measured over the ticks s .. s+N-1, if during them the implement stays on, the working
        width stays as it was at s (and at s-1), and no other rate step comes; otherwise it is dropped.

@@ -17,9 +17,16 @@ On the map (per grid cell, all cells of equal area ``cell_area_ha``):
 - off_target_kg: product landing outside the field or off the grid, plus product on zero-rate cells;
 - coverage_pct: share of the field's cells that are covered.
 
-Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap and skipped area,
-product beyond the first pass, and the share of working time and covered area where the meter could
-not turn at the speed the map asked for. In time (per tick, along the track): `transitions`.
+Section control and the machine (see `overlap_metrics`, `limit_metrics`): overlap area, skipped area
+(worked ground whose prescription asks for product that got none), zero-rate ground left bare (off as
+prescribed: closing the sections there is right, not a skip), product beyond the first pass, and the
+share of working time and covered area where the meter could not turn at the speed the map asked for.
+
+In time (per tick, along the track, `services.sim.transitions`): a rate step's transition ends where
+the applied rate settles: enters and stays within 10 % of the new rate for ``SETTLE_HOLD_S`` (1 s) or
+until the step's window closes, at the next step or where the implement goes off (a turn, the end of a pass).
+Steps into zero rate (sections closing) and steps whose window closes before the rate settles are
+counted apart and left out of the mean and the percentiles, so that both describe the same steps.
 
 `METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
 tolerance the accuracy library holds it to, and how it comes from a run's accounts
@@ -37,13 +44,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from services.sim.transitions import transitions
+
 if TYPE_CHECKING:
     from services.sim.accounting import Accounts
 
+__all__ = ["COVERED_FRACTION", "Metric", "METRICS", "summary", "MapMetrics", "map_metrics", "OverlapMetrics",
+           "overlap_metrics", "LimitMetrics", "limit_metrics", "LOG_UNIT", "POINT_METRICS", "PointMetrics",
+           "point_metrics"]
+
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
-TRANSITION_TOLERANCE = 0.10  # "within 10 % of the new rate"
-STEP_MIN_RELATIVE = 0.10  # a rate change of more than 10 % ...
-STEP_MIN_KG_HA = 5.0  # ... and more than 5 kg/ha is a rate step
 
 
 @dataclass(frozen=True)
@@ -120,15 +130,24 @@ METRICS = (
            "share of covered cells within 10 % of a positive prescription", (1.0, 0.0), sense="max",
            of="map.within_10pct_area_pct"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
-           "from a rate step until the applied rate is within 10 % of the new rate", (0.05, 0.05),
+           "from a rate step to a non-zero rate until the applied rate settles (enters and stays within "
+           "10 % of the new rate), over the steps that settle", (0.05, 0.05),
            sense="min", of="transitions.transition_time_s_mean"),
-    Metric("transition_time_s_p95", "s", "Transition time, 95th percentile", "as above, 95th percentile",
-           (0.05, 0.05), sense="min", of="transitions.transition_time_s_p95"),
+    Metric("transition_time_s_p95", "s", "Transition time, 95th percentile",
+           "as above (the same steps), 95th percentile", (0.05, 0.05), sense="min",
+           of="transitions.transition_time_s_p95"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the landing path over the transition", (0.1, 0.05), sense="min",
            of="transitions.transition_distance_m_mean"),
     Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
            "as above, 95th percentile", (0.1, 0.05), sense="min", of="transitions.transition_distance_m_p95"),
+    Metric("transitions_to_zero", "", "Rate steps to zero",
+           "rate steps into a zero rate (sections closing), not in the transition figures",
+           of="transitions.transitions_to_zero"),
+    Metric("transitions_cut", "", "Rate steps cut",
+           "rate steps to a non-zero rate whose window closed (the implement went off or the next step "
+           "came) before the applied rate settled, not in the transition figures",
+           of="transitions.transitions_cut"),
     Metric("off_target_kg", "kg", "Off-target product",
            "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min",
            of="map.off_target_kg"),
@@ -138,8 +157,12 @@ METRICS = (
            "share of the covered field area that received product from more than one pass", (0.3, 0.03),
            sense="min", of="overlap.overlap_area_pct"),
     Metric("skip_area_pct", "%", "Skipped area",
-           "share of the worked field area (swept by the working width along working stretches) that "
-           "received no product", (0.3, 0.03), sense="min", of="overlap.skip_area_pct"),
+           "share of the worked field area (swept by the working width along working stretches) whose "
+           "prescription is above 0 that received no product", (0.3, 0.03), sense="min",
+           of="overlap.skip_area_pct"),
+    Metric("off_as_prescribed_area_pct", "%", "Off as prescribed",
+           "share of the worked field area whose prescription is 0 (or none) that received no product: "
+           "sections rightly closed, not skipped", (0.3, 0.03), of="overlap.off_as_prescribed_area_pct"),
     Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
            (0.2, 0.03), sense="min", of="overlap.overlap_kg"),
     Metric("limited_time_pct", "%", "Machine-limited time",
@@ -161,7 +184,8 @@ METRICS = (
            of="map.rmse_pct"),
     Metric("bias_pct", "%", "", "bias over the mean prescription of the covered cells", sense="zero",
            of="map.bias_pct"),
-    Metric("transitions", "", "", "rate steps whose transition settled", of="transitions.transitions"),
+    Metric("transitions", "", "", "rate steps to a non-zero rate whose transition settled: the steps of the "
+           "transition figures", of="transitions.transitions"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
     Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
            of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
@@ -193,21 +217,12 @@ class MapMetrics:
     covered_cells: int
 
 
-@dataclass(frozen=True)
-class TransitionMetrics:
-    transitions: int
-    transition_time_s_mean: float
-    transition_time_s_p95: float
-    transition_distance_m_mean: float
-    transition_distance_m_p95: float
-
-
 def _pct(part: float, whole: float) -> float:
     return float(100.0 * part / whole) if whole > 0 else float("nan")
 
 
 @dataclass(frozen=True)
-class Errors:
+class _Errors:
     """Applied against target over paired values (map cells or logged points)."""
 
     mean_target: float
@@ -218,7 +233,7 @@ class Errors:
     within_10pct_pct: float
 
 
-def errors(applied, target) -> Errors:
+def _errors(applied, target) -> _Errors:
     """``e = applied - target``: mean |e|, sqrt(mean e^2), mean e, and the share of the values with a
     positive target where |e| <= 5 % (10 %) of it; NaN for no values.
 
@@ -231,7 +246,7 @@ def errors(applied, target) -> Errors:
     nan = float("nan")
     positive = target > 0
     rel = np.abs(err[positive]) / target[positive]
-    return Errors(
+    return _Errors(
         mean_target=float(target.mean()) if err.size else nan,
         mae=float(np.abs(err).mean()) if err.size else nan,
         rmse=float(np.sqrt((err**2).mean())) if err.size else nan,
@@ -266,7 +281,7 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
         raise ValueError("prescribed, applied, coverage and in_field must have the same shape")
     rx0 = np.nan_to_num(rx, nan=0.0)
     covered = field & (cover >= COVERED_FRACTION) & np.isfinite(rx)
-    e = errors(applied[covered], rx[covered])
+    e = _errors(applied[covered], rx[covered])
     prescribed_kg = float((rx0[field] * np.minimum(cover[field], 1.0)).sum() * cell_area_ha)
     applied_kg_cells = applied * cell_area_ha
     off_target = float(applied_kg_cells[~field].sum() + applied_kg_cells[field & (rx0 <= 0)].sum()
@@ -293,11 +308,12 @@ def map_metrics(prescribed_kg_ha, applied_kg_ha, coverage_fraction, in_field, ce
 class OverlapMetrics:
     overlap_area_pct: float
     skip_area_pct: float
+    off_as_prescribed_area_pct: float
     overlap_kg: float
 
 
-def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_fraction,
-                    in_field) -> OverlapMetrics:
+def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_fraction, in_field,
+                    prescribed_kg_ha) -> OverlapMetrics:
     """Overlap and skips over the field's cells.
 
     Parameters
@@ -312,17 +328,23 @@ def overlap_metrics(coverage_fraction, overlap_fraction, overlap_kg, worked_frac
         area, `services.sim.section_landing.worked_fraction`).
     in_field : ndarray of bool, shape (rows, cols)
         Cells whose centre lies inside the field.
+    prescribed_kg_ha : ndarray, shape (rows, cols)
+        The prescription (NaN on nodata).
 
-    ``overlap_area_pct`` is over the covered area, ``skip_area_pct`` over the worked area: the
-    worked share of a cell that product did not cover.
+    ``overlap_area_pct`` is over the covered area. The worked share of a cell that product did not
+    cover is bare: ``skip_area_pct`` is the bare area of cells whose prescription is above 0 over
+    their worked area, ``off_as_prescribed_area_pct`` the bare area of the other cells (zero rate or
+    nodata: the sections rightly closed there) over the whole worked area.
     """
     field = np.asarray(in_field, bool)
     covered = np.asarray(coverage_fraction, float)[field]
     worked = np.minimum(np.asarray(worked_fraction, float)[field], 1.0)
-    skipped = np.maximum(worked - covered, 0.0)
+    bare = np.maximum(worked - covered, 0.0)
+    asks = np.asarray(prescribed_kg_ha, float)[field] > 0  # NaN (nodata): asks for nothing
     return OverlapMetrics(
         overlap_area_pct=_pct(np.asarray(overlap_fraction, float)[field].sum(), covered.sum()),
-        skip_area_pct=_pct(skipped.sum(), worked.sum()),
+        skip_area_pct=_pct(bare[asks].sum(), worked[asks].sum()),
+        off_as_prescribed_area_pct=_pct(bare[~asks].sum(), worked.sum()),
         overlap_kg=float(np.asarray(overlap_kg, float)[field].sum()),
     )
 
@@ -354,68 +376,6 @@ def limit_metrics(limited, applying, limited_coverage, coverage_fraction, in_fie
     )
 
 
-def rate_steps(prescribed_kg_ha, active) -> np.ndarray:
-    """Tick indices where the prescription under the landing point steps to a new rate.
-
-    A step is a change between consecutive active ticks of more than `STEP_MIN_RELATIVE` of the
-    larger rate and more than `STEP_MIN_KG_HA`.
-    """
-    rx = np.asarray(prescribed_kg_ha, dtype=float)
-    on = np.asarray(active, dtype=bool)
-    prev, cur = rx[:-1], rx[1:]
-    change = np.abs(cur - prev)
-    big = np.fmax(np.abs(prev), np.abs(cur))
-    is_step = (on[:-1] & on[1:] & np.isfinite(change)
-               & (change > STEP_MIN_KG_HA) & (change > STEP_MIN_RELATIVE * big))
-    return np.flatnonzero(is_step) + 1
-
-
-def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, steps=None) -> TransitionMetrics:
-    """Time and distance from each rate step until the applied rate is within 10 % of the new rate.
-
-    Parameters
-    ----------
-    time_s, distance_m : ndarray, shape (n,)
-        Time of each tick and distance travelled by the landing point up to it (monotone).
-    prescribed_kg_ha, applied_kg_ha : ndarray, shape (n,)
-        Prescription under the landing point and the applied rate there, per tick (NaN where the
-        rate is undefined, e.g. standing still).
-    active : ndarray of bool, shape (n,)
-        Ticks where the implement is on.
-    steps : ndarray of int, optional
-        ``rate_steps(prescribed_kg_ha, active)`` when already known (many applied rates over one
-        prescription).
-
-    A step whose rate changes again before the applied rate settles is not counted (its transition
-    is unfinished, not fast or slow); one where the applied rate is already within tolerance at
-    the step counts as zero.
-    """
-    t = np.asarray(time_s, dtype=float)
-    d = np.asarray(distance_m, dtype=float)
-    rx = np.asarray(prescribed_kg_ha, dtype=float)
-    applied = np.asarray(applied_kg_ha, dtype=float)
-    steps = rate_steps(rx, active) if steps is None else steps
-    ok = np.abs(applied - rx) <= TRANSITION_TOLERANCE * np.abs(rx)
-    ok_idx = np.flatnonzero(ok)
-    ends = np.append(steps[1:], len(rx))  # a step's window closes at the next step
-    first_ok = ok_idx[np.minimum(np.searchsorted(ok_idx, steps), max(len(ok_idx) - 1, 0))] \
-        if ok_idx.size else np.full(len(steps), len(rx))
-    settled = (first_ok >= steps) & (first_ok < ends) if ok_idx.size else np.zeros(len(steps), bool)
-    k, j = steps[settled], first_ok[settled]
-    times, dists = t[j] - t[k], d[j] - d[k]
-    if times.size == 0:
-        nan = float("nan")
-        return TransitionMetrics(0, nan, nan, nan, nan)
-    return TransitionMetrics(
-        transitions=int(times.size),
-        transition_time_s_mean=float(times.mean()),
-        transition_time_s_p95=float(np.percentile(times, 95)),
-        transition_distance_m_mean=float(dists.mean()),
-        transition_distance_m_p95=float(np.percentile(dists, 95)),
-    )
-
-
-# ------------------------------------------------------------------------------ per point (a log)
 LOG_UNIT = "(log unit)"  # a figure in the unit of the log's rates (`vrsim evaluate`)
 
 # The figures of `vrsim evaluate` over the points of an as-applied log, in the order it prints them.
@@ -441,9 +401,11 @@ POINT_METRICS = (
            "share of the points with a positive target where |applied - target| <= 10 % of it"),
     Metric("transitions", "", "Rate steps settled",
            "steps of the target between consecutive points compared (more than 10 % and 5 kg/ha, or 5 L/ha "
-           "for a volume rate) after which the applied rate came within 10 % before the next step"),
+           "for a volume rate) to a non-zero target after which the applied rate settled (entered and stayed "
+           "within 10 %) before the next step or a point not compared"),
     Metric("transition_time_s_mean", "s", "Transition time, mean",
-           "from a step until the applied rate is within 10 % of the new target (to the log's interval)"),
+           "from a step until the applied rate settles within 10 % of the new target (to the log's "
+           "interval), over the steps settled"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the logged positions over the transition"),
 )
@@ -482,7 +444,7 @@ def point_metrics(applied, target, time_s, distance_m, compared, step_scale: flo
     a = np.asarray(applied, dtype=float)
     t = np.asarray(target, dtype=float)
     use = np.asarray(compared, dtype=bool) & np.isfinite(a) & np.isfinite(t)
-    e = errors(a[use], t[use])
+    e = _errors(a[use], t[use])
     tm = transitions(time_s, distance_m, t * step_scale, a * step_scale, use)
     return PointMetrics(
         points=int(np.count_nonzero(use)),

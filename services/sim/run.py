@@ -37,10 +37,11 @@ from services.sim.as_run import as_run
 from services.sim.core import ControlCore
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
-from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics, TransitionMetrics
+from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
 from services.sim.scenario import Scenario
 from services.sim.section_landing import limited_coverage, section_strips
 from services.sim.sections import SectionStates, run_section_states
+from services.sim.transitions import TransitionMetrics
 from services.sim.world import World, build_world, driving
 from vehicle import Gnss, SpeedSensor
 

@@ -9,12 +9,11 @@ from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,
-    TransitionMetrics,
     map_metrics,
-    rate_steps,
+    overlap_metrics,
     summary,
-    transitions,
 )
+from services.sim.transitions import TransitionMetrics, rate_steps, transitions
 
 
 def _grid(rows=10, cols=10, rate=100.0):
@@ -89,13 +88,77 @@ def test_transition_time_and_distance():
     assert m.transition_distance_m_mean == pytest.approx(3.0)
 
 
-def test_unsettled_step_is_not_counted():
+def test_unsettled_step_is_cut():
     t = np.arange(8) * 1.0
     rx = np.array([100, 100, 200, 200, 100, 100, 100, 100], float)
     applied = np.array([100, 100, 110, 120, 110, 100, 100, 100], float)
     m = transitions(t, t, rx, applied, np.ones(8, bool))
     assert m.transitions == 1  # the step at 2 never settles before the step back at 4
+    assert m.transitions_cut == 1
     assert m.transition_time_s_mean == 0.0
+
+
+def _track_of_steps():
+    """One track at 0.5 s a tick, 2 m/s, of four rate steps (each 10 ticks apart) and their applied rates:
+
+    - tick 5, 100 -> 200, a normal step: within 10 % (>= 180) from tick 8 on: 1.5 s; the sections
+      closing at tick 13 (more than `SETTLE_HOLD_S` later) do not undo it;
+    - tick 15, 200 -> 0, into zero: the sections close (applied NaN);
+    - tick 25, 0 -> 300, cut: the implement turns off at tick 29 before the rate comes near 300;
+    - tick 35, 100 -> 50 (after the turn), an overshoot: in the band at 37 (for less than the hold),
+      out at 38-39 (40 < 45), back from 40 on: 2.5 s, not 1.
+    """
+    n = 50
+    t = np.arange(n) * 0.5
+    rx = np.full(n, 100.0)
+    rx[5:15], rx[15:25], rx[25:30], rx[35:] = 200.0, 0.0, 300.0, 50.0
+    applied = rx.copy()
+    applied[5:8] = (120.0, 150.0, 170.0)
+    applied[13:25] = np.nan
+    applied[25:29] = (60.0, 150.0, 200.0, 240.0)
+    applied[35:41] = (90.0, 60.0, 52.0, 40.0, 42.0, 46.0)
+    on = np.ones(n, bool)
+    on[29:31] = False  # a turn
+    return t, 2.0 * t, rx, applied, on  # 2 m/s
+
+
+def test_transitions_settle_and_leave_out_steps_into_zero_and_cut_steps():
+    t, d, rx, applied, on = _track_of_steps()
+    assert list(rate_steps(rx, on)) == [5, 15, 25, 35]
+    m = transitions(t, d, rx, applied, on)
+    assert (m.transitions, m.transitions_to_zero, m.transitions_cut) == (2, 1, 1)
+    assert m.transition_time_s_mean == pytest.approx((1.5 + 2.5) / 2)
+    assert m.transition_distance_m_mean == pytest.approx(2 * (1.5 + 2.5) / 2)
+    # The mean and the 95th percentile describe the same two steps: mean <= p95 <= max here.
+    assert m.transition_time_s_p95 == pytest.approx(np.percentile([1.5, 2.5], 95))
+    assert 1.5 <= m.transition_time_s_mean <= m.transition_time_s_p95 <= 2.5
+    assert m.transition_distance_m_p95 == pytest.approx(2 * m.transition_time_s_p95)
+
+
+def test_a_step_within_the_band_at_once_takes_zero_and_none_gives_nan():
+    t, d, rx, _, on = _track_of_steps()
+    m = transitions(t, d, rx, rx.copy(), on)  # applied = prescribed: every non-zero step settles at once
+    assert (m.transitions, m.transitions_to_zero, m.transitions_cut) == (3, 1, 0)
+    assert m.transition_time_s_mean == m.transition_time_s_p95 == 0.0
+    flat = transitions(t, d, np.full(t.size, 100.0), np.full(t.size, 100.0), on)
+    assert (flat.transitions, flat.transitions_to_zero, flat.transitions_cut) == (0, 0, 0)
+    assert np.isnan(flat.transition_time_s_mean) and np.isnan(flat.transition_time_s_p95)
+
+
+def test_skipped_area_counts_only_ground_that_asks_for_product():
+    # Ten columns worked; columns 0-5 ask for 100 kg/ha, 6-9 for 0. Product on columns 0-4 and 9
+    # (a zero-rate column that got product anyway); column 5 is a skip, 6-8 are off as prescribed.
+    rx = np.zeros((4, 10))
+    rx[:, :6] = 100.0
+    rx[0, 7] = np.nan  # nodata asks for nothing either
+    covered = np.zeros((4, 10))
+    covered[:, :5] = covered[:, 9] = 1.0
+    m = overlap_metrics(covered, np.zeros((4, 10)), np.zeros((4, 10)), np.ones((4, 10)),
+                        np.ones((4, 10), bool), rx)
+    assert m.skip_area_pct == pytest.approx(100 * 1 / 6)  # 1 of the 6 columns that ask
+    assert m.off_as_prescribed_area_pct == pytest.approx(100 * 3 / 10)  # 3 of the 10 worked
+    # Together they are the old figure, bare over worked: (1 + 3) / 10.
+    assert m.skip_area_pct * 6 / 10 + m.off_as_prescribed_area_pct == pytest.approx(100 * 4 / 10)
 
 
 def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():

@@ -67,7 +67,7 @@ def apply(field, track, implement, heading_deg=None):
     xs, ys = grid.cell_centres()
     in_field = shapely.contains_xy(field.polygon, *np.meshgrid(xs, ys))
     figures = overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg, worked,
-                              in_field)
+                              in_field, grid.rates_kg_ha)
     return applied, figures, states, in_field
 
 
@@ -290,7 +290,7 @@ def test_overlap_and_skip_figures():
     applied.add_strips(50.0, 0.0, 50.0, 100.0, 40.0, 40.0, pass_index=1)
     worked.add_strips(40.0, 0.0, 40.0, 100.0, 80.0, 1.0)
     figures = overlap_metrics(applied.coverage_fraction, applied.overlap_fraction, applied.overlap_kg,
-                              worked.coverage_fraction, np.ones((20, 20), bool))
+                              worked.coverage_fraction, np.ones((20, 20), bool), np.full((20, 20), 100.0))
     assert figures.overlap_area_pct == pytest.approx(100 * 10 / 70)  # of the 70 m covered, 10 m twice
     assert figures.skip_area_pct == pytest.approx(100 * 10 / 80)  # x 70-80 worked but bare
     assert figures.overlap_kg == pytest.approx(10.0)  # 10 m x 100 m at 100 kg/ha from the second pass
