@@ -7,7 +7,11 @@ embedded cluster has one process per worker and one thread each.
 Retries: a task that raises is run once more (``retries=1``); a worker that dies running a task gets
 the task rescheduled once (the embedded scheduler's ``allowed_failures=1``; an existing cluster
 applies its own ``distributed.scheduler.allowed-failures``, 3 by default); after that the task is
-reported failed (`KilledWorker`) and the rest go on.
+reported lost (`KilledWorker`) and the rest go on.
+
+Failed or lost: a task that raised its own exception *failed* (run it again and it fails again); a
+task the cluster dropped is *lost* (cancelled, its scheduler gone, its worker dead, a broken
+connection): nothing is known about it, and running it again may well succeed.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, TypeVar
@@ -30,6 +35,9 @@ ALLOWED_FAILURES = 1  # embedded cluster: a task whose worker died is reschedule
 # nothing by not being prefetched.
 WORKER_SATURATION = 1.0
 CONNECT_TIMEOUT_S = 10.0
+NO_WORKER_NOTICE_S = 10.0  # a cluster without a worker this long is said so (`run_tasks`)
+_POLL_S = 0.2  # how often `run_tasks` looks for finished tasks and at the cluster's workers
+_RESULT_WAIT_S = 2.0  # longest wait for a finished task's result before `run_tasks` looks around again
 
 
 DASHBOARD_ADDRESS = "127.0.0.1:8787"
@@ -77,6 +85,28 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
         with _local_cluster(workers or os.cpu_count() or 1, dashboard) as cluster, Client(cluster) as client:
             yield client
         return
+    with _quiet_dask():
+        yield from _remote_client(Client, scheduler, timeout_s)
+
+
+@contextmanager
+def _quiet_dask():
+    """Dask's own log quiet (as the embedded cluster's `silence_logs`): a lost scheduler is the rows'
+    `lost` and the command's one line, not the client's tracebacks of each reconnection."""
+    # Dask's logging config gives its client's logger a level of its own: the package's is not enough.
+    logs = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
+    levels = [log.level for log in logs]
+    for log in logs:
+        log.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for log, level in zip(logs, levels, strict=True):
+            log.setLevel(level)
+
+
+def _remote_client(Client, scheduler: str, timeout_s: float) -> Iterator[Any]:
+    """`open_client`'s client on an existing scheduler (see there)."""
     try:
         client = Client(scheduler, timeout=f"{timeout_s}s")
     except (ValueError, TypeError) as exc:
@@ -110,18 +140,67 @@ def _describe_failure(exc: BaseException) -> str:
     from distributed import KilledWorker
 
     if isinstance(exc, KilledWorker):
-        return (f"worker died while running this task ({exc.allowed_failures + 1} attempts); "
+        return (f"lost: worker died while running this task ({exc.allowed_failures + 1} attempts); "
                 f"KilledWorker on {exc.last_worker.address}")
     return f"{type(exc).__name__}: {exc}"
 
 
-def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callable[[T], str],
-              on_done: Callable[[T, Any, str | None], None], retries: int = TASK_RETRIES) -> None:
-    """Run ``task(item)`` for every item on the cluster; call ``on_done(item, result, error)`` in this
-    process as each finishes, in the order they finish (`distributed.as_completed`).
+def _outcome(future, wait_s: float = _RESULT_WAIT_S) -> tuple[Any, str | None, bool] | None:
+    """(result, error, lost) of a finished future, or None if its result did not come within `wait_s`:
+    a result held by a worker that died since is recomputed, which needs a worker (`run_tasks` asks
+    again, and watches the cluster meanwhile). `lost` when the cluster dropped the task rather than
+    the task raising its own exception (then `future.status` is ``"error"``, `KilledWorker` aside)."""
+    from distributed import KilledWorker
 
-    A task that failed (raised twice, its worker died twice, or was cancelled) comes back with
-    ``result=None`` and `error` its one-line description; the others keep running.
+    cancelled = None, "lost: the cluster cancelled this task (its scheduler gone, or the link lost)", True
+    if future.status == "cancelled":
+        return cancelled
+    try:
+        return future.result(timeout=wait_s), None, False
+    except Exception as exc:  # any failure of the task becomes its row's error
+        status = future.status
+        if isinstance(exc, TimeoutError) and status != "error":  # not the task's own TimeoutError
+            return cancelled if status == "cancelled" else None
+        own = status == "error" and not isinstance(exc, KilledWorker)
+        error = _describe_failure(exc)
+        return None, error if own or error.startswith("lost: ") else f"lost: {error}", not own
+
+
+class _NoWorkerWatch:
+    """Tells how long a cluster has had no worker: `say(seconds)` once, `notice_s` into each spell
+    without one; `expired` once `timeout_s` (None: never) has passed."""
+
+    def __init__(self, client, notice_s: float, timeout_s: float | None, say: Callable[[float], None]):
+        self.client, self.notice_s, self.timeout_s, self.say = client, notice_s, timeout_s, say
+        self.since: float | None = None
+        self.said = False
+
+    def expired(self) -> bool:
+        # The client refreshes the scheduler's identity every 2 s; a client that lost its scheduler
+        # has had its tasks cancelled already, which `run_tasks` reports as lost.
+        info = self.client.scheduler_info() if self.client.status == "running" else None
+        if info is None or info.get("n_workers", len(info.get("workers", {}))) > 0:
+            self.since, self.said = None, False
+            return False
+        now = time.monotonic()
+        self.since = now if self.since is None else self.since
+        idle_s = now - self.since
+        if not self.said and idle_s >= min(self.notice_s, self.timeout_s or self.notice_s):
+            self.say(idle_s)
+            self.said = True
+        return self.timeout_s is not None and idle_s >= self.timeout_s
+
+
+def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callable[[T], str],
+              on_done: Callable[[T, Any, str | None, bool], None], retries: int = TASK_RETRIES,
+              no_worker_timeout_s: float | None = None, on_no_worker: Callable[[float], None] | None = None,
+              no_worker_notice_s: float = NO_WORKER_NOTICE_S) -> None:
+    """Run ``task(item)`` for every item on the cluster; call ``on_done(item, result, error, lost)`` in
+    this process as each finishes, in the order they finish (`distributed.as_completed`).
+
+    A task that raised (twice) comes back with ``result=None``, `error` its one-line description and
+    ``lost=False``; one the cluster dropped (cancelled, scheduler gone, its worker died twice, a
+    broken connection) with ``lost=True`` and an error starting ``"lost: "``. The others keep running.
 
     Parameters
     ----------
@@ -133,24 +212,43 @@ def run_tasks(client, items: Sequence[T], task: Callable[[T], Any], key: Callabl
     key : callable
         The task's Dask key for an item (unique within the batch).
     on_done : callable
-        Gets each item, its result (or None) and its error (or None).
+        Gets each item, its result (or None), its error (or None) and whether it was lost.
     retries : int
         Extra runs of a task that raises.
+    no_worker_timeout_s : float, optional
+        With no worker on the cluster this long, s, the tasks not done are cancelled and come back
+        lost; None waits for a worker however long it takes.
+    on_no_worker : callable, optional
+        ``on_no_worker(seconds)``, once per spell without a worker, after `no_worker_notice_s` (or
+        `no_worker_timeout_s` if shorter).
+    no_worker_notice_s : float
+        See `on_no_worker`, s.
     """
     from distributed import as_completed
 
     futures = {client.submit(task, item, key=key(item), retries=retries, pure=False): item
                for item in items}
-    for future in as_completed(list(futures)):
-        item = futures.pop(future)
-        if future.status == "cancelled":
-            result, error = None, "cancelled: the cluster dropped this task"
-        else:
-            # Not `future.status`: a result held by a worker that died since is "lost" and is being
-            # recomputed; `result()` waits for that, and raises the task's own failure.
-            try:
-                result, error = future.result(), None
-            except Exception as exc:  # any failure of the task becomes its row's error
-                result, error = None, _describe_failure(exc)
-        future.release()
-        on_done(item, result, error)
+    watch = _NoWorkerWatch(client, no_worker_notice_s, no_worker_timeout_s, on_no_worker or (lambda s: None))
+    done = as_completed(list(futures))
+    waiting: list = []  # finished, but their results are being recomputed: asked again as they finish
+    while futures:
+        ready = done.next_batch(block=False) if done.has_ready() else []
+        ready += [f for f in waiting if f.done()]
+        waiting = [f for f in waiting if f not in ready]
+        for future in ready:
+            outcome = _outcome(future)
+            if outcome is None:
+                waiting.append(future)
+                continue
+            item = futures.pop(future)
+            future.release()
+            on_done(item, *outcome)
+        if not ready or all(f in waiting for f in ready):
+            if watch.expired():
+                break
+            time.sleep(_POLL_S)
+    if not futures:
+        return
+    client.cancel(list(futures))  # left by a cluster without a worker: cancelled, reported lost
+    for item in futures.values():
+        on_done(item, None, f"lost: no worker on the cluster for {no_worker_timeout_s:g} s", True)

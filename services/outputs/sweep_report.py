@@ -140,15 +140,17 @@ def _best_table(configs: list[Configuration]) -> str:
 
 
 def _failed_table(rows: list[dict], axis_keys: list[str]) -> str:
+    """The runs without a result: failed (the run's own error) or lost (dropped by the cluster)."""
     failed = [r for r in rows if r.get("status") != "ok"]
     if not failed:
-        return "<p>No run failed.</p>"
+        return "<p>No run failed or was lost.</p>"
     body = "\n".join(
         f"<tr><td>{html.escape(str(r['scenario']))}</td><td>{r['seed']}</td>"
         f"<td>{html.escape(', '.join(f'{k}={r.get(k)}' for k in axis_keys))}</td>"
+        f"<td>{html.escape(str(r.get('status')))}</td>"
         f"<td>{html.escape(str(r.get('error')))}</td></tr>" for r in failed)
-    return ("<table><tr><th>scenario</th><th>seed</th><th>axes</th><th>error</th></tr>" + body
-            + "</table>")
+    return ("<table><tr><th>scenario</th><th>seed</th><th>axes</th><th>status</th><th>error</th></tr>"
+            + body + "</table>")
 
 
 def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
@@ -156,7 +158,10 @@ def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
     axis_keys = [a.key for a in sweep.axes]
     configs = configurations(rows, axis_keys)
     n_ok = sum(r.get("status") == "ok" for r in rows)
-    parts = [f"<p>{len(rows)} runs: {n_ok} ok, {len(rows) - n_ok} failed; {len(configs)} configurations; "
+    n_lost = sum(r.get("status") == "lost" for r in rows)
+    lost = (f", {n_lost} lost to the cluster (<code>--resume</code> runs them again)" if n_lost else "")
+    parts = [f"<p>{len(rows)} runs: {n_ok} ok, {len(rows) - n_ok - n_lost} failed{lost}; "
+             f"{len(configs)} configurations; "
              f"design {html.escape(sweep.design)}"
              + (f" ({sweep.samples} samples)" if sweep.samples else "")
              + f"; seeds {html.escape(str(list(sweep.seeds)) if sweep.seeds else 'of each scenario')}; "
@@ -171,7 +176,7 @@ def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
         for axis in sweep.axes:
             parts.append(f"<h2>Against {html.escape(axis.key)}</h2>"
                          + _png(_plot_axis(configs, axis.key, axis.log)))
-    parts.append("<h2>Failed runs</h2>" + _failed_table(rows, axis_keys))
+    parts.append("<h2>Failed and lost runs</h2>" + _failed_table(rows, axis_keys))
     title = html.escape(f"vrsim sweep: {sweep.source}")
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>

@@ -4,7 +4,10 @@ the optional per-run output files of a sweep.
 Both files are rewritten whole (to a temporary file, then renamed over the old one) at most once per
 `flush_every_s` and at the end, so a reader or a ``--resume`` after a crash always finds a complete
 table, at most that much behind. Columns: ``key, scenario, seed``, one per axis (its dotted key), the
-run's numeric figures, then ``wall_s, status, error``; a failed run's figures are null.
+run's numeric figures, then ``wall_s, status, error``; a failed or lost run's figures are null.
+
+``status``: ``ok``; ``failed`` (the run itself failed, and would again: kept by ``--resume`` unless
+``--retry-failed``); ``lost`` (the cluster dropped it: ``--resume`` runs it again).
 """
 
 from __future__ import annotations
@@ -19,6 +22,9 @@ from services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"
 CSV = "results.csv"
+# The errors that tables written before the `lost` status gave rows the cluster dropped: they are read
+# as lost, so `--resume` runs them again.
+_OLD_LOST_ERRORS = ("cancelled: the cluster dropped this task", "worker died while running this task")
 
 
 def _columns(rows: list[dict]) -> list[str]:
@@ -37,6 +43,13 @@ def _read_rows(path: str) -> list[dict]:
         return pq.read_table(path).to_pylist()
     except (OSError, ValueError) as exc:
         raise ScenarioError(f"{path}: cannot read the results table: {exc}") from None
+
+
+def _status(row: dict) -> str:
+    """A row's status, a dropped task's of an older table `lost`."""
+    if row.get("status") == "failed" and str(row.get("error")).startswith(_OLD_LOST_ERRORS):
+        return "lost"
+    return row.get("status")
 
 
 def _write_parquet(rows: list[dict], path: str) -> None:
@@ -64,13 +77,17 @@ class ResultsTable:
     ----------
     out_dir : str
     resume : bool
-        Keep the rows of an existing results.parquet (their keys are `done`); without it, an existing
-        table is an error rather than overwritten.
+        Keep the ok and failed rows of an existing results.parquet (their keys are `done`); its lost
+        rows are dropped, to be run again. Without it, an existing table is an error rather than
+        overwritten.
+    retry_failed : bool
+        On `resume`, drop the failed rows too.
     flush_every_s : float
         Rewrite the files at most this often while rows come in, s.
     """
 
-    def __init__(self, out_dir: str, resume: bool = False, flush_every_s: float = 1.0):
+    def __init__(self, out_dir: str, resume: bool = False, flush_every_s: float = 1.0,
+                 retry_failed: bool = False):
         self.out_dir = out_dir
         self.parquet = os.path.join(out_dir, PARQUET)
         self.csv = os.path.join(out_dir, CSV)
@@ -81,7 +98,8 @@ class ResultsTable:
             raise ScenarioError(f"{self.parquet} exists: add --resume to go on with that sweep, or choose "
                                 f"another --out")
         if exists:
-            self.rows = _read_rows(self.parquet)
+            kept = ("ok",) if retry_failed else ("ok", "failed")
+            self.rows = [row for row in _read_rows(self.parquet) if _status(row) in kept]
         self._flushed = time.monotonic()
 
     @property

@@ -147,6 +147,21 @@ def test_resume_runs_only_what_is_missing_and_run_outputs_are_written_when_asked
     assert saved["mae_kg_ha"] == missing["mae_kg_ha"] and saved["scenario_config"]["controller"]["kp"] == 0.8
 
 
+def test_retry_failed_reruns_the_failed_runs_and_resume_alone_does_not(local):
+    folder, _, rows = local
+    out = folder / "retry"
+    out.mkdir()
+    _write_parquet(rows, str(out / "results.parquet"))
+    failed = {r["key"] for r in rows if r["status"] == "failed"}
+    outcome = sweep(folder, "--resume", "--retry-failed", "--out", str(out), "--workers", "1")
+    assert (outcome["skipped"], outcome["ran"], outcome["failed"], outcome["lost"]) == (2, 2, 2, 0)
+    again = _read_rows(str(out / "results.parquet"))
+    assert [r["key"] for r in again[:2]] == [r["key"] for r in rows if r["key"] not in failed]
+    assert {r["key"] for r in again[2:]} == failed  # run again, at the end of the table, not twice
+    for row in again[2:]:
+        assert row["status"] == "failed" and "headland_passes=30" in row["error"]
+
+
 def test_an_existing_table_is_not_overwritten_without_resume(local):
     folder, _, _ = local
     p = vrsim("sweep", str(folder / "s.toml"), "--out", str(folder / "out"), "--no-dashboard")
@@ -264,10 +279,10 @@ def test_bad_input_is_one_line_and_exit_2(local, args, message):
     assert not (folder / "never").exists()
 
 
-def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
+def test_a_worker_that_dies_gets_its_task_retried_once_then_lost(tmp_path):
     """Real worker processes killed mid-task (os._exit in the task): once -> the retry succeeds;
-    every time -> a failed result after the retry; a task that raises runs twice, then fails; the
-    other tasks finish either way."""
+    every time -> a lost result after the retry; a task that raises runs twice, then fails (not
+    lost); the other tasks finish either way."""
     from services.batch.driver import open_client, run_tasks
     from tests.integration.sweep_support import square_or_die
 
@@ -276,10 +291,11 @@ def test_a_worker_that_dies_gets_its_task_retried_once_then_failed(tmp_path):
     done = {}
     with open_client(workers=2, dashboard=False) as client:
         run_tasks(client, items, square_or_die, key=lambda item: f"square-{item[0]}",
-                  on_done=lambda item, result, error: done.__setitem__(item[0], (result, error)))
-    assert done[1] == (1, None) and done[2] == (4, None) and done[4] == (16, None)
+                  on_done=lambda item, *outcome: done.__setitem__(item[0], outcome))
+    assert done[1] == (1, None, False) and done[2] == (4, None, False) and done[4] == (16, None, False)
     assert (tmp_path / "died-once").exists()
-    result, error = done[3]
-    assert result is None and "worker died while running this task (2 attempts)" in error
-    assert done[5] == (None, "ValueError: no square of 5 today")
+    result, error, lost = done[3]
+    assert result is None and lost
+    assert error.startswith("lost: worker died while running this task (2 attempts)")
+    assert done[5] == (None, "ValueError: no square of 5 today", False)
     assert (tmp_path / "attempts").read_text() == "attempt\n" * 2

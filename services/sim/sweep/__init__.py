@@ -22,7 +22,7 @@ A sweep file (see ``scenarios/README.md``)::
     pareto = ["within_10pct_area_pct", "transition_distance_m_mean"]
 """
 
-from services.sim.sweep.design import RunSpec, Sweep, load_sweep, parse_sweep, plan
+from services.sim.sweep.design import RunSpec, Sweep, load_sweep, parse_sweep, plan, planned_runs
 from services.sim.sweep.stats import (
     METRIC_SENSE,
     Configuration,
@@ -42,7 +42,7 @@ from services.sim.sweep.tasks import (
 )
 
 __all__ = [
-    "RunSpec", "Sweep", "load_sweep", "parse_sweep", "plan",
+    "RunSpec", "Sweep", "load_sweep", "parse_sweep", "plan", "planned_runs",
     "METRIC_SENSE", "Configuration", "best", "configurations", "mean_ci95", "pareto_front",
     "ROW_FIRST", "ROW_LAST", "controller_only", "failed_row", "run_group", "run_row", "variant_groups",
 ]

@@ -312,6 +312,13 @@ def _scenario_key(sc: scenario_mod.Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+def planned_runs(sweep: Sweep) -> int:
+    """How many runs `plan` makes at most (before runs that resolve to the same scenario are merged),
+    counted without planning them: a big sweep's size, told before the seconds its plan takes."""
+    points = math.prod(len(a.values) for a in sweep.axes) if sweep.design == "grid" else sweep.samples
+    return points * len(sweep.scenarios) * len(sweep.seeds or (None,))
+
+
 def plan(sweep: Sweep) -> list[RunSpec]:
     """Every run of the sweep, each checked like a scenario file; runs that resolve to the same
     scenario (a design drawing the same point twice) are planned once.

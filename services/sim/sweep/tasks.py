@@ -40,8 +40,10 @@ def _identity(spec: RunSpec) -> dict:
     return {"key": spec.key, "scenario": spec.scenario, "seed": spec.seed, **dict(spec.axes)}
 
 
-def failed_row(spec: RunSpec, error: str, wall_s: float | None = None) -> dict:
-    return {**_identity(spec), "wall_s": wall_s, "status": "failed", "error": error}
+def failed_row(spec: RunSpec, error: str, wall_s: float | None = None, lost: bool = False) -> dict:
+    """The row of a run without figures: ``status`` ``"failed"`` (the run itself failed: it would
+    again) or, with `lost`, ``"lost"`` (the cluster dropped it: ``--resume`` runs it again)."""
+    return {**_identity(spec), "wall_s": wall_s, "status": "lost" if lost else "failed", "error": error}
 
 
 def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
