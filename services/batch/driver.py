@@ -105,6 +105,9 @@ def _quiet_dask():
             log.setLevel(level)
 
 
+CLOSE_TIMEOUT_S = 5.0  # s: how long a client on an existing scheduler may take to close
+
+
 def _remote_client(Client, scheduler: str, timeout_s: float) -> Iterator[Any]:
     """`open_client`'s client on an existing scheduler (see there)."""
     try:
@@ -120,7 +123,12 @@ def _remote_client(Client, scheduler: str, timeout_s: float) -> Iterator[Any]:
             raise ClusterError(f"--scheduler {scheduler}: no worker joined within {timeout_s:g} s") from None
         yield client
     finally:
-        client.close()
+        # Bounded: with its scheduler gone the client is still reconnecting, and an unbounded close
+        # waits for that (twice the connect timeout) before the sweep can report its lost rows.
+        try:
+            client.close(timeout=CLOSE_TIMEOUT_S)
+        except (TimeoutError, OSError):
+            pass
 
 
 def _local_cluster(workers: int, dashboard: bool):

