@@ -12,8 +12,12 @@ copies no import: matplotlib is loaded once), so the pictures are drawn side by 
 run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
 reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
-matplotlib and vrsim's drawing code; it is started as a plain subprocess, not through multiprocessing,
-whose spawn would re-import the caller's main module (its children are forked: they re-import nothing).
+matplotlib and vrsim's drawing code and draws a small map and a small time series (what matplotlib
+loads on a first drawing, fonts, colour maps, the PNG writer, is then loaded once, before the forks,
+not in each child), in a thread at a low priority while the run goes on; the children draw at the
+caller's priority, as the run's own work, which they are once the run is over. It is started as a
+plain subprocess, not through multiprocessing, whose spawn would re-import the caller's main module
+(its children are forked: they re-import nothing).
 """
 
 from __future__ import annotations
@@ -94,11 +98,10 @@ def _serve(stdin_fd: int, stdout) -> None:
     """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
     child (`common.forked.Forked` of `_drawn`); the replies, ("ok", path) or ("error", text), go out in
     the jobs' order."""
-    import matplotlib.figure  # noqa: F401 - imported before the first job arrives
-
     from common.forked import Forked
-    from services.outputs import plots
 
+    ready_to_draw = threading.Thread(target=_warm_up, name="plot-warm-up")
+    ready_to_draw.start()
     pending, children = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
     reading, jobs = True, 0
     while reading or children:
@@ -109,8 +112,9 @@ def _serve(stdin_fd: int, stdout) -> None:
             reading = bool(data)
             pending += data
             for job in _whole_jobs(pending):
+                ready_to_draw.join()   # no thread at the fork, and matplotlib loaded for the children
                 jobs += 1
-                children.append((Forked(_drawn, plots, job), f"job {jobs}"))
+                children.append((Forked(_drawn, job), f"job {jobs}"))
         if children and children[0][0] in ready:  # the oldest job's reply goes first
             child, label = children.pop(0)
             try:
@@ -132,8 +136,26 @@ def _whole_jobs(pending: bytearray):
         yield job
 
 
-def _drawn(plots, job: bytes) -> tuple[str, str]:
+def _warm_up() -> None:
+    """Import matplotlib and draw a small picture of each kind, in this thread at a low priority (a
+    Linux thread has its own nice value): it takes what the run's processes leave of the cores."""
+    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    import io
+
+    import numpy as np
+
+    from services.outputs import plots
+
+    cells, x, y = np.ones((4, 4)), np.array([0.0, 1.0]), np.array([0.0, 1.0])
+    plots.draw_maps(plots.MapPicture(cells, cells, cells > 0, (0, 4, 0, 4), (x, y), (x, y), "warm-up"),
+                    io.BytesIO())
+    plots.draw_timeseries(plots.SeriesPicture(x, y, y, y, y, "warm-up"), io.BytesIO())
+
+
+def _drawn(job: bytes) -> tuple[str, str]:
     """Draw one pickled job; its reply."""
+    from services.outputs import plots
+
     drawing, picture, path = pickle.loads(job)
     try:
         if drawing not in DRAWINGS:
@@ -145,9 +167,6 @@ def _drawn(plots, job: bytes) -> tuple[str, str]:
 
 
 if __name__ == "__main__":
-    # At a low priority: its matplotlib import, during the run, takes what the run's two processes
-    # (control here, SUMO in the drive worker) leave of the two cores, not their share.
-    os.nice(10)
     try:
         _serve(sys.stdin.fileno(), sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone
