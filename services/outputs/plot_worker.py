@@ -12,12 +12,13 @@ copies no import: matplotlib is loaded once), so the pictures are drawn side by 
 run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
 reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
-matplotlib and vrsim's drawing code and draws a small map and a small time series (what matplotlib
-loads on a first drawing, fonts, colour maps, the PNG writer, is then loaded once, before the forks,
-not in each child), in a thread at a low priority while the run goes on; the children draw at the
-caller's priority, as the run's own work, which they are once the run is over. It is started as a
-plain subprocess, not through multiprocessing, whose spawn would re-import the caller's main module
-(its children are forked: they re-import nothing).
+matplotlib and vrsim's drawing code in a thread at a low priority (a Linux thread has its own nice
+value), so the import takes what the run's processes leave of the cores; the children it forks draw
+at the caller's priority, as the run's own work, which they are once the run is over. (Drawing a
+small picture before the forks, so that what a first drawing loads is loaded once, saves the
+children 0.04 s of CPU and costs the worker 0.3 s: it is not done.) It is started as a plain
+subprocess, not through multiprocessing, whose spawn would re-import the caller's main module (its
+children are forked: they re-import nothing).
 """
 
 from __future__ import annotations
@@ -100,7 +101,7 @@ def _serve(stdin_fd: int, stdout) -> None:
     the jobs' order."""
     from common.forked import Forked
 
-    ready_to_draw = threading.Thread(target=_warm_up, name="plot-warm-up")
+    ready_to_draw = threading.Thread(target=_import_matplotlib, name="plot-imports")
     ready_to_draw.start()
     pending, children = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
     reading, jobs = True, 0
@@ -136,20 +137,12 @@ def _whole_jobs(pending: bytearray):
         yield job
 
 
-def _warm_up() -> None:
-    """Import matplotlib and draw a small picture of each kind, in this thread at a low priority (a
-    Linux thread has its own nice value): it takes what the run's processes leave of the cores."""
+def _import_matplotlib() -> None:
+    """Import matplotlib and the drawing code, in this thread at a low priority."""
     os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
-    import io
+    import matplotlib.figure  # noqa: F401 - what every drawing needs
 
-    import numpy as np
-
-    from services.outputs import plots
-
-    cells, x, y = np.ones((4, 4)), np.array([0.0, 1.0]), np.array([0.0, 1.0])
-    plots.draw_maps(plots.MapPicture(cells, cells, cells > 0, (0, 4, 0, 4), (x, y), (x, y), "warm-up"),
-                    io.BytesIO())
-    plots.draw_timeseries(plots.SeriesPicture(x, y, y, y, y, "warm-up"), io.BytesIO())
+    from services.outputs import plots  # noqa: F401
 
 
 def _drawn(job: bytes) -> tuple[str, str]:
