@@ -124,3 +124,12 @@ def test_sumo_step_of_the_period_is_the_plain_drive():
     assert job.step_s == 0.05 and job.tick_s is None
     job = DriveJob.of(scenario.load("default", [("timing.sumo_step_s", 0.15)]), field_path)
     assert job.step_s == 0.15 and job.tick_s == 0.05
+
+
+def test_any_part_size_gives_the_same_ticks(path, cache, coarser):
+    """A streamed run sends SUMO's drive in parts: each tick depends on its two samples only."""
+    with SumoDriver(path, DRIVE, seed=1, cache_dir=cache, step_s=0.1, tick_s=0.05) as drv:
+        parts = list(drv.run_parts(7))
+    assert max(len(p[0]) for p in parts) <= 7
+    for k in range(3):
+        assert np.array_equal(np.concatenate([p[k] for p in parts]), coarser[k])
