@@ -18,6 +18,7 @@ from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_
 from services.sim.scenario import Scenario, as_dict
 from services.sim.sections import SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
+from vehicle.product import metered_kg
 
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
@@ -88,6 +89,8 @@ class ControlCore:
         self._look_ahead_s = look_ahead_s
         self.switch = SectionSwitch(self.implement, field_polygon, path, self.period_s, min(grid.cell_size))
         self.last_rate_kg_ha = float("nan")
+        self.product, self.seed = scenario.product, scenario.seed
+        self.meter_rev = 0.0   # forward shaft revolutions so far: the product's flow factors run on it
 
     @property
     def look_ahead_s(self) -> float:
@@ -102,7 +105,7 @@ class ControlCore:
         map, commands and gates)."""
         return {"loop": self.loop.state, "last_rate_kg_ha": self.last_rate_kg_ha,
                 "tuner": None if self.tuner is None else self.tuner.state(),
-                "sections": self.switch.state()}
+                "sections": self.switch.state(), "meter_rev": self.meter_rev}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
@@ -112,6 +115,7 @@ class ControlCore:
         if self.tuner is not None:
             self.tuner.set_state(state["tuner"])
         self.switch.set_state(state["sections"])
+        self.meter_rev = float(state["meter_rev"])
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
@@ -180,8 +184,12 @@ class ControlCore:
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
         # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
         # (it does not lift product off the ground), so only forward revolutions count.
+        # The product's true constant and flow variability meter it (`vehicle.product`); the terminal
+        # computed the target with the configured constant. A closed gate's roller turns all the same.
         forward = np.maximum(shaft_rev, 0.0)
-        return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
+        kg, self.meter_rev = metered_kg(forward, self.implement.kg_per_rev, self.product, self.seed,
+                                        self.meter_rev)
+        return np.where(np.asarray(applying, bool), kg, 0.0)
 
 
 def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:

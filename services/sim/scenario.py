@@ -3,7 +3,7 @@
 Every table maps onto one configuration dataclass of the package that owns the concept
 (``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
 `vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
-`controller.PlantParams`), so a key is named and documented once, where it is used. Loading checks
+`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and documented once, where it is used. Loading checks
 every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
 `ScenarioError` that names the file, the table and key, and the value.
 
@@ -32,6 +32,7 @@ from services.sim.overrides import apply as apply_overrides
 from services.sim.tables import build, no_unknown, typed
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
+from vehicle.product import Product
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
@@ -118,6 +119,7 @@ class Scenario:
     plant: PlantParams
     timing: TimingSpec
     output: OutputSpec
+    product: Product = field(default_factory=Product)   # what the machine meters (its truth, too)
 
     def path(self, relative: str) -> str:
         """A path from the scenario file, resolved against the file's folder."""
@@ -126,7 +128,7 @@ class Scenario:
 
 # The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
 TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
-          "output")
+          "output", "product")
 TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
@@ -208,6 +210,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         plant=build(PlantParams, doc.get("plant", {}), source, "plant"),
         timing=build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=build(OutputSpec, doc.get("output", {}), source, "output"),
+        product=build(Product, doc.get("product", {}), source, "product"),
     )
     _machine_once(doc.get("plant", {}), source)
     _check(scenario)

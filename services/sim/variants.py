@@ -154,6 +154,7 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
     metered = np.empty((ticks, len(cfgs)))
     applying = (rec["width_on_m"] > 0)[:, None]
     for idx, loop in loops:
+        shared.core.meter_rev = 0.0   # each variant's shaft starts where the run's did (`vehicle.product`)
         for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
             part = slice(lo, lo + RUN_CHUNK)
             target = rec["target_shaft_rpm"][part]
