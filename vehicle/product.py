@@ -72,9 +72,10 @@ class Product:
             raise VehicleError(f"flow_cv_pct must be a number in [0, {MAX_FLOW_CV_PCT:g}] %, "
                                f"got {self.flow_cv_pct!r}")
         lo, hi = CALIBRATION_ERROR_PCT
-        if not (in_range(self.calibration_error_pct, lo, hi, lo_open=True) and self.calibration_error_pct < hi):
+        error = self.calibration_error_pct
+        if not (in_range(error, lo, hi, lo_open=True) and error < hi):
             raise VehicleError(f"calibration_error_pct must be a number in ({lo:g}, {hi:g}) %, "
-                               f"got {self.calibration_error_pct!r}")
+                               f"got {error!r}")
 
     def true_kg_per_rev(self, configured_kg_per_rev: float) -> float:
         """The product one shaft revolution really meters on average, kg/rev, for a configured one."""

@@ -26,7 +26,7 @@ from common import VrsimError, __version__  # noqa: E402
 
 # Order is the order `vrsim --help` lists them in.
 COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "report", "controller", "paper", "map", "serve",
-            "query", "accuracy")
+            "query", "accuracy", "calibrate")
 
 
 def _available_commands(names=COMMANDS):

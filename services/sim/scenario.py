@@ -3,9 +3,10 @@
 Every table maps onto one configuration dataclass of the package that owns the concept
 (``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
 `vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
-`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and documented once, where it is used. Loading checks
-every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
-`ScenarioError` that names the file, the table and key, and the value.
+`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and
+documented once, where it is used. Loading checks every key: unknown keys, wrong types and values
+the owning dataclass refuses all raise a `ScenarioError` that names the file, the table and key, and
+the value.
 
 See ``scenarios/README.md`` for the keys of each table and ``services/sim/scenarios/default.toml`` for
 the built-in default.
