@@ -123,19 +123,19 @@ def metered_kg(forward_rev, kg_per_rev: float, product: Product, seed: int, star
     """
     rev = np.asarray(forward_rev, dtype=float)
     true_kg_per_rev = product.true_kg_per_rev(kg_per_rev)
-    end_rev = start_rev + np.sum(rev, axis=0)
-    if product.flow_cv_pct == 0 or rev.size == 0:
-        return rev * true_kg_per_rev, end_rev
+    # The shaft's position after each tick, summed one tick after the other from `start_rev`: a batch
+    # that starts where the previous one ended sums in the same order, so it gives the same numbers.
+    first = np.broadcast_to(np.asarray(start_rev, dtype=float), (1, *rev.shape[1:]))
+    position = np.cumsum(np.concatenate([first, rev]), axis=0)
+    if product.flow_cv_pct == 0:
+        return rev * true_kg_per_rev, position[-1]
     # The product up to shaft position p is the integral of the piecewise-constant factor:
     # cumulative[k] (whole revolutions before k) + factor[k] x the part of revolution k turned.
-    position = start_rev + np.cumsum(rev, axis=0)
-    first = np.broadcast_to(np.asarray(start_rev, dtype=float), (1, *rev.shape[1:]))
-    before = np.concatenate([first, position[:-1]])
-    factors = flow_factors(product, seed, int(np.max(position, initial=0.0)) + 1, stream)
+    factors = flow_factors(product, seed, int(np.max(position)) + 1, stream)
     cumulative = np.concatenate([[0.0], np.cumsum(factors)])
 
     def integral(p):
         whole = np.floor(p).astype(int)
         return cumulative[whole] + factors[whole] * (p - whole)
 
-    return (integral(position) - integral(before)) * true_kg_per_rev, end_rev
+    return (integral(position[1:]) - integral(position[:-1])) * true_kg_per_rev, position[-1]

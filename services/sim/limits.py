@@ -85,7 +85,7 @@ class MachineCheck:
         return self.shaft_rpm_min <= self.rpm_min and self.rpm_max <= self.shaft_rpm_max
 
     def text(self) -> str:
-        """Two or three lines for the run's printout."""
+        """Two or three lines for the run's printout; two more naming what to change if it cannot."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
@@ -107,7 +107,7 @@ class MachineCheck:
 
     def _remedies(self) -> list[str]:
         """What to change so that the full width applies the whole map: the speeds, or the meter."""
-        speeds = (f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s")
+        speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
         if self.min_speed_m_s <= self.max_speed_m_s:
             lines = [f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
                      f"{self.max_speed_m_s:.2f} m/s, or"]
@@ -115,8 +115,10 @@ class MachineCheck:
             lines = [f"  No working speed applies it all: the map's rates span {self.rate_span:.1f}x, the "
                      f"shaft's speeds {self.shaft_span:.1f}x; narrow the map's range, or"]
         if self.kg_per_rev_min <= self.kg_per_rev_max:
-            upper = (f"-{self.kg_per_rev_max:.4g}" if math.isfinite(self.kg_per_rev_max) else " or more")
-            lines.append(f"  set [implement] kg_per_rev to {self.kg_per_rev_min:.4g}{upper} kg/rev (now "
+            lo = f"{self.kg_per_rev_min:.4g}"
+            constants = (f"{lo}-{self.kg_per_rev_max:.4g} kg/rev" if math.isfinite(self.kg_per_rev_max)
+                         else f"{lo} kg/rev or more")
+            lines.append(f"  set [implement] kg_per_rev to {constants} (now "
                          f"{self.kg_per_rev:g}: another roller or gear) to apply it at {speeds}.")
         else:
             lines.append(f"  no meter constant applies it at {speeds}: the map's rates and these speeds "
