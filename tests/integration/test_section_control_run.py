@@ -190,6 +190,10 @@ def test_machine_check_before_the_run_and_the_limited_figures(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "CANNOT apply the whole map" in p.stdout and "202.2 rpm of a 5-150 rpm shaft" in p.stdout
     assert "Above 2.67 m/s" in p.stdout
+    # What to change: the speeds at which it can, or a meter constant that can at these speeds.
+    assert "keep the working speeds within 0.17-2.67 m/s" in p.stdout, p.stdout
+    assert "set [implement] kg_per_rev to 0.6739-10.89 kg/rev" in p.stdout
+    assert "to apply it at 3.60-3.60 m/s" in p.stdout
     assert not (tmp_path / "runs").exists()
     p = vrsim("run", str(path), "--check", "--json")
     check = json.loads(p.stdout)
