@@ -82,7 +82,7 @@ class Product:
         return configured_kg_per_rev * (1.0 + self.calibration_error_pct / 100.0)
 
 
-def flow_factors(product: Product, seed: int, count: int, stream: int = _FLOW_STREAM) -> np.ndarray:
+def _flow_factors(product: Product, seed: int, count: int, stream: int = _FLOW_STREAM) -> np.ndarray:
     """The flow factors of shaft revolutions 0 .. `count` - 1: lognormal, mean 1, CV ``flow_cv_pct``.
 
     The first k factors are the same whatever `count` (a prefix of one seeded stream), so a batch
@@ -112,7 +112,7 @@ def metered_kg(forward_rev, kg_per_rev: float, product: Product, seed: int, star
     start_rev : float or array_like of shape (n,)
         Revolutions the shaft turned before the first tick (each column's).
     stream : int
-        The random stream (`flow_factors`).
+        The random stream (`_flow_factors`).
 
     Returns
     -------
@@ -131,7 +131,7 @@ def metered_kg(forward_rev, kg_per_rev: float, product: Product, seed: int, star
         return rev * true_kg_per_rev, position[-1]
     # The product up to shaft position p is the integral of the piecewise-constant factor:
     # cumulative[k] (whole revolutions before k) + factor[k] x the part of revolution k turned.
-    factors = flow_factors(product, seed, int(np.max(position)) + 1, stream)
+    factors = _flow_factors(product, seed, int(np.max(position)) + 1, stream)
     cumulative = np.concatenate([[0.0], np.cumsum(factors)])
 
     def integral(p):

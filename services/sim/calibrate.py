@@ -102,7 +102,7 @@ class Calibration:
         """The scenario keys to set after the test (dotted, as ``--set`` takes them): the measured
         constant and the error the same meter has left against it."""
         return {"implement.kg_per_rev": float(f"{self.measured_kg_per_rev:.6g}"),
-                "product.calibration_error_pct": float(f"{self.remaining_error_pct:.4g}")}
+                "product.calibration_error_pct": round(self.remaining_error_pct, 3) + 0.0}   # no -0
 
     def text(self) -> str:
         """What `vrsim calibrate` prints."""
@@ -115,7 +115,7 @@ class Calibration:
             f"  Weighed {self.weighed_kg:.3f} kg: {value} kg/rev measured against "
             f"{self.configured_kg_per_rev:g} kg/rev configured ({self.change_pct:+.2f} %).",
             f"  Put in the scenario: [implement] kg_per_rev = {kg:.6g}; the same meter's true "
-            f"{self.true_kg_per_rev:.6g} kg/rev then leaves [product] calibration_error_pct = {error:.4g}.",
+            f"{self.true_kg_per_rev:.6g} kg/rev then leaves [product] calibration_error_pct = {error:g}.",
             "  Or run with: " + " ".join(f"--set {k}={v:g}" for k, v in self.settings.items()),
         ])
 

@@ -5,8 +5,8 @@ import pytest
 
 from common import ScenarioError, VrsimError
 from services.sim import scenario
-from services.sim.calibrate import calibrate
-from vehicle.product import Product, flow_factors
+from services.sim.calibrate import _CATCH_STREAM, calibrate
+from vehicle.product import Product, _flow_factors
 
 
 def cal5(**product):
@@ -27,13 +27,13 @@ def test_a_perfect_scale_and_even_flow_measure_the_true_constant():
 def test_the_catch_is_the_flow_factors_of_its_revolutions_and_the_scale_reads_it_with_its_error():
     sc = cal5(flow_cv_pct=5.0)
     result = calibrate(sc, revolutions=40, scale_error_g=0.0)
-    factors = flow_factors(sc.product, sc.seed, 40, stream=0xCA1_0001)
+    factors = _flow_factors(sc.product, sc.seed, 40, stream=_CATCH_STREAM)
     assert result.caught_kg == pytest.approx(0.525 * factors.sum(), rel=1e-12)
     assert calibrate(sc, revolutions=40, scale_error_g=0.0) == result   # seeded
     weighed = calibrate(sc, revolutions=40, scale_error_g=50.0)
     assert weighed.caught_kg == result.caught_kg and 0 < abs(weighed.weighed_kg - weighed.caught_kg) < 0.25
     # The field's revolutions and the test's are different revolutions.
-    assert not np.array_equal(factors, flow_factors(sc.product, sc.seed, 40))
+    assert not np.array_equal(factors, _flow_factors(sc.product, sc.seed, 40))
 
 
 def test_more_revolutions_measure_the_constant_closer_over_many_seeds():

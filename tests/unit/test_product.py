@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from common.errors import VehicleError
-from vehicle.product import Product, flow_factors, metered_kg
+from vehicle.product import Product, _flow_factors, metered_kg
 
 REV = np.random.default_rng(0).uniform(0.0, 0.12, 4000)   # forward revolutions per tick (0-144 rpm at 20 Hz)
 
@@ -25,17 +25,17 @@ def test_a_calibration_error_scales_the_product_by_the_true_constant():
 
 
 def test_flow_factors_have_mean_one_and_the_cv_and_do_not_depend_on_how_many_are_drawn():
-    factors = flow_factors(Product(flow_cv_pct=8.0), seed=4, count=200_000)
+    factors = _flow_factors(Product(flow_cv_pct=8.0), seed=4, count=200_000)
     assert factors.mean() == pytest.approx(1.0, abs=0.001)
     assert factors.std() / factors.mean() == pytest.approx(0.08, rel=0.02)
     assert (factors > 0).all()
-    np.testing.assert_array_equal(flow_factors(Product(flow_cv_pct=8.0), seed=4, count=37), factors[:37])
-    assert not np.array_equal(flow_factors(Product(flow_cv_pct=8.0), seed=5, count=37), factors[:37])
+    np.testing.assert_array_equal(_flow_factors(Product(flow_cv_pct=8.0), seed=4, count=37), factors[:37])
+    assert not np.array_equal(_flow_factors(Product(flow_cv_pct=8.0), seed=5, count=37), factors[:37])
 
 
 def test_flow_variability_holds_per_revolution_and_keeps_the_total_of_whole_revolutions():
     product = Product(flow_cv_pct=10.0, calibration_error_pct=-3.0)
-    factors = flow_factors(product, seed=2, count=10)
+    factors = _flow_factors(product, seed=2, count=10)
     # Ticks of a quarter revolution: four ticks per revolution carry the same factor.
     kg, end = metered_kg(np.full(40, 0.25), 1.0, product, seed=2)
     np.testing.assert_allclose(kg.reshape(10, 4), np.repeat(factors[:, None], 4, axis=1) * 0.25 * 0.97,
