@@ -82,6 +82,21 @@ def test_variants_with_a_limited_machine_and_overlap_equal_one_at_a_time_runs():
     assert all(s["overlap_kg"] > 0 and s["overlap_area_pct"] > 0 and s["sections"] == 4 for s in fast)
 
 
+def test_variants_of_a_product_with_uneven_flow_equal_one_at_a_time_runs():
+    """A product whose flow varies revolution to revolution, 4 % off its configured constant: each
+    variant's shaft starts at rest as a run's does, also for PID loops batched in columns, so every
+    summary equals control_and_account's."""
+    uneven = drive(scenario.parse(FIELD + "[product]\nflow_cv_pct = 10.0\ncalibration_error_pct = -4.0\n",
+                                  "uneven.toml", "."))
+    cfgs = [ControllerConfig(kind="PID", gains="manual", kp=kp, ki=ki, kd=0.0) for kp, ki in ((0.2, 0.5),
+                                                                                            (0.573, 3.7))]
+    cfgs += [ControllerConfig(kind="PID"), ControllerConfig(kind="ideal")]
+    fast = run_variants(uneven, cfgs)
+    for cfg, summary in zip(cfgs, fast, strict=True):
+        assert_same_summary(summary, control_and_account(uneven, cfg).summary)
+    assert all(s["mass_balance_pct"] < -2 for s in fast)
+
+
 def test_a_bad_variant_is_a_scenario_error(shared_drive, tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("raise RuntimeError('no')\n")
