@@ -94,7 +94,7 @@ class FlowPlant:
         for name in ("boom_coeff_l_min_bar", "pressure_max_bar", "valve_time_constant_s", "current_max_a",
                      "meter_gain"):
             check_positive(getattr(self, name), f"flow plant {name}", ControllerError)
-        check_number(self.dead_band_a, "flow plant dead_band_a", ControllerError, lo=0.0, hi=self.current_max_a)
+        check_number(self.dead_band_a, "flow plant dead_band_a", ControllerError, lo=0.0)
         if self.dead_band_a >= self.current_max_a:
             raise ControllerError(f"flow plant dead_band_a must be below current_max_a "
                                   f"({self.current_max_a!r}), got {self.dead_band_a!r}")
@@ -188,7 +188,8 @@ def linearize(fp: FlowPlant, flow_l_min: float) -> FlowLinearization:
     ka = PlantParams().amplifier_gain_a_per_v
     plant = PlantParams(
         amplifier_gain_a_per_v=ka, valve_flow_gain_m3_s_per_a=1.0,
-        valve_natural_freq_rad_s=1.0 / math.sqrt(tau * eps), valve_damping=(tau + eps) / (2 * math.sqrt(tau * eps)),
+        valve_natural_freq_rad_s=1.0 / math.sqrt(tau * eps),
+        valve_damping=(tau + eps) / (2 * math.sqrt(tau * eps)),
         motor_natural_freq_rad_s=1.0 / eps, motor_damping=1.0,
         motor_displacement_m3_per_rad=RPM_PER_RAD_S / gain, transmission_ratio=1.0,
         current_min_a=i_min, current_max_a=i_max,

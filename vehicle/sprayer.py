@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.checks import check_number, check_positive
+from common.checks import check_number, check_positive, in_range
 from common.errors import VehicleError
 
 __all__ = ["NOZZLE_FLOW_L_MIN", "FlowMeter", "SprayerSpec", "applied_rate_l_ha", "boom_flow_l_min",
@@ -102,7 +102,7 @@ class FlowMeter:
         return np.floor(np.asarray(true_l_total, float) * self.pulses_per_l * self.gain + 1e-9)
 
     def metered_l(self, true_l_total):
-        """What the terminal counts [L] (cumulative, in whole pulses) when `true_l_total` litres have flowed."""
+        """Litres the terminal counts (cumulative, whole pulses) once `true_l_total` litres have flowed."""
         return self.pulses(true_l_total) / self.pulses_per_l
 
     def true_l(self, metered_l):
@@ -240,14 +240,15 @@ class SprayerSpec:
             q_lo, q_hi = self.nozzle_flow_range_l_min()
             raise VehicleError(f"sprayer: nozzle {self.nozzle!r} ({q_lo:.3g}-{q_hi:.3g} L/min per nozzle) "
                                f"cannot apply {rate_min_l_ha:g}-{rate_max_l_ha:g} L/ha at any speed: the "
-                               f"rates span {rate_max_l_ha / rate_min_l_ha:.3g}x, the nozzle {q_hi / q_lo:.3g}x")
+                               f"rates span {rate_max_l_ha / rate_min_l_ha:.3g}x, the nozzle "
+                               f"{q_hi / q_lo:.3g}x")
         return span
 
 
 def _pair(value, key: str, hi: float | None = None) -> tuple[float, float]:
     """A (low, high) pair of numbers with 0 < low < high (<= `hi`), or a `VehicleError` naming `key`."""
     ok = (isinstance(value, (list, tuple)) and len(value) == 2
-          and all(check_number(v, f"sprayer: {key}", VehicleError, lo=0.0, lo_open=True, hi=hi) for v in value)
+          and all(in_range(v, 0.0, hi, lo_open=True) for v in value)
           and value[0] < value[1])
     if not ok:
         raise VehicleError(f"sprayer: {key} must be [low, high] with 0 < low < high"
