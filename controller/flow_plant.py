@@ -20,9 +20,9 @@ follows the coil current), reduced to what a spray regulating valve needs:
 Defaults size pump and valve to the boom so that the valve's stroke spans the nozzles' pressure range
 (`docs/model.md`, "Sprayer").
 
-The controller kinds close this plant unchanged through `linearize`: the tangent model at an operating
-flow is a `PlantParams` whose "shaft rpm" is the metered flow in L/min (and "shaft revolutions" the
-metered litres); `FlowLoop` closes the same controller around the nonlinear plant (dead band,
+The controller kinds close this plant unchanged through `linearize_flow`: the tangent model at an
+operating flow is a `PlantParams` whose "shaft rpm" is the metered flow in L/min (and "shaft
+revolutions" the metered litres); `FlowLoop` closes the same controller around the nonlinear plant (dead band,
 curvature, saturation) to check that the linear design holds.
 """
 
@@ -37,7 +37,7 @@ from common import ControllerError, check_number, check_positive
 from controller.discretize import delay_split
 from controller.plant import RPM_PER_RAD_S, PlantParams
 
-__all__ = ["FlowLinearization", "FlowLoop", "FlowPlant", "linearize"]
+__all__ = ["FlowLinearization", "FlowLoop", "FlowPlant", "linearize_flow"]
 
 VALVES = ("bypass", "inline")
 FAST_POLE_S = 0.001          # the second pole of each first-order stage in PlantParams' 2nd-order slots
@@ -164,7 +164,7 @@ class FlowLinearization:
     slope_l_min_per_a: float
 
 
-def linearize(fp: FlowPlant, flow_l_min: float) -> FlowLinearization:
+def linearize_flow(fp: FlowPlant, flow_l_min: float) -> FlowLinearization:
     """The tangent model of `fp` at true boom flow `flow_l_min` [L/min] as a `PlantParams`.
 
     Valve: ``(tau s + 1)(eps s + 1)`` in the valve's 2nd-order slot, the "motor" ``(eps s + 1)^2``
