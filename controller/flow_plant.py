@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ControllerError, check_number, check_positive
+from controller.context import takes_context
 from controller.discretize import delay_split
 from controller.plant import RPM_PER_RAD_S, PlantParams
 
@@ -212,7 +213,8 @@ class FlowLoop:
     lin : FlowLinearization
         Where the controller was designed (its offset maps currents).
     controller
-        A controller of ``lin.plant`` for n loops (``controller.build_controller(cfg, lin.plant)``).
+        A controller of ``lin.plant`` for n loops (``controller.build_controller(cfg, lin.plant)``) whose
+        ``step`` takes target and reading only (the built-in kinds; no drive context here).
     control_period_s : float
     n : int
     substeps : int
@@ -221,6 +223,9 @@ class FlowLoop:
 
     def __init__(self, fp: FlowPlant, lin: FlowLinearization, controller, control_period_s: float = 0.05,
                  n: int = 1, substeps: int = 10):
+        if takes_context(controller.step):
+            raise ControllerError("FlowLoop runs controllers whose step takes (target, measured); "
+                                  f"{type(controller).__name__}.step asks for a context")
         self.fp, self.lin, self.controller, self.n = fp, lin, controller, n
         self.control_period_s = check_positive(control_period_s, "control_period_s", ControllerError)
         delay_periods, offset_s = delay_split(fp.meter_delay_s, control_period_s) if fp.meter_delay_s > 0 \

@@ -150,3 +150,10 @@ def test_bad_flow_plants():
     fp = FlowPlant(K_BOOM)
     with pytest.raises(ControllerError, match=r"boom flow 40\.0 L/min is outside"):
         linearize_flow(fp, 40.0)
+
+    class WantsContext(_Hold):
+        def step(self, target, measured, context):
+            return super().step(target, measured)
+
+    with pytest.raises(ControllerError, match="WantsContext.step asks for a context"):
+        FlowLoop(fp, linearize_flow(fp, Q0), WantsContext(0.5))
