@@ -123,13 +123,13 @@ def _outside_10_pct_by_place(result) -> dict[str, float]:
 
 def test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes(rectangle_ideal):
     """Where issue #25's 2 % lie (the ideal meter, so geometry and section control alone): the headland
-    pass's four corners, where one meter shares product by width in a 6 m-radius turn (the inner end
-    pivots, the outer moves at twice the centre's speed: only offsets within about 0.6 m of the centre
-    get within 10 % of the rate), 0.94 % of the covered area, a limit of the gated meter; the swath
-    ends' slow-down (product metered at 2.5 m/s lands during the slow-down to 1.2 m/s 0.8 s later,
-    +45 % on a row of cells), and the headland's edge where the sections open while the speed-up out
-    of the turn ends within their 1.8 s look-ahead. The rest is the headland pass's own end (its
-    slow-down for the turn into the first swath) and no more; the field between is clean."""
+    pass's four corners, 0.94 % of the covered area, where one meter shares product by width in a
+    6 m-radius turn (the inner end pivots, the outer moves at twice the centre's speed: only offsets
+    within about 0.6 m of the centre get within 10 % of the rate), a limit of the gated meter; the
+    swath ends' slow-down (product metered at 2.5 m/s lands during the slow-down to 1.2 m/s 0.8 s
+    later, about +45 % on a row of cells), and the headland's edge where the sections open while
+    the speed-up out of the turn ends within their 1.8 s look-ahead. The rest is the headland pass's
+    own end (its slow-down for the turn into the first swath) and no more; the field between is clean."""
     share = _outside_10_pct_by_place(rectangle_ideal)
     assert share["corners"] > 0.9 and share["band"] > 0.5 and share["edge"] > 0.2, share
     assert share["rest"] < 0.15, share
