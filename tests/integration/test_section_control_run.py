@@ -94,7 +94,8 @@ def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
 @pytest.mark.xfail(strict=True, reason="issue #25's goal is out of the gated meter's reach on this field: "
                    "its headland corners alone put 0.94 % of the covered area outside +-10 % (one meter "
                    "sharing product by width in a 6 m-radius turn); the rest is speed changes within the "
-                   "delivery delay and the sections' look-ahead (test_rectangle_ideal_outside_10_pct_...)")
+                   "delivery delay and the sections' look-ahead "
+                   "(test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes)")
 def test_rectangle_ideal_reaches_99_pct_within_10_pct(rectangle_ideal):
     assert rectangle_ideal.summary["within_10pct_area_pct"] >= 99.0
 
