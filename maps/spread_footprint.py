@@ -51,7 +51,7 @@ class SpinnerThrow:
             raise MapError("SpinnerThrow: side must be +1 (left disc) or -1 (right disc)")
         if not np.all(np.isfinite(reach) & (reach > 0)):
             i = int(np.argmax(~(np.isfinite(reach) & (reach > 0))))
-            raise MapError(f"SpinnerThrow: reach_m[{i}]={reach[i]!r} must be finite and > 0 (a side that "
+            raise MapError(f"SpinnerThrow: reach_m[{i}]={reach[i]:g} must be finite and > 0 (a side that "
                            "is off carries no product)")
         if not (np.isfinite(throw_distance_m) and throw_distance_m >= 0):
             raise MapError(f"SpinnerThrow: throw_distance_m={throw_distance_m!r} must be finite and >= 0")

@@ -51,11 +51,15 @@ def overlapped(offset_m, mass, driving_width_m: float, mode: str = "to_and_fro",
     Returns
     -------
     position_m, rate : ndarray, shape (points,)
-        Positions across one driving width from a pass's centre line (m, evenly spaced centres) and
-        the overlapped relative mass there (the profile's units).
+        Positions across one driving width centred on a pass's centre line (m, evenly spaced
+        centres, in (-w/2, w/2)) and the overlapped relative mass there (the profile's units). The
+        window holds half of the gap to each neighbour: to and fro, an uneven pattern's rate repeats
+        over two driving widths (the gaps on either side of a pass differ), and half of each gap is
+        one of each, so the figures do not depend on which way the first pass is driven. It is
+        where catch trays lie across a middle pass.
     """
     offset, mass, width = _checked_profile(offset_m, mass, driving_width_m, mode)
-    position = (np.arange(points) + 0.5) / points * width
+    position = ((np.arange(points) + 0.5) / points - 0.5) * width
     reach = max(abs(offset[0]), abs(offset[-1]))
     k = np.arange(-math.ceil(reach / width) - 1, math.ceil(reach / width) + 2)
     lateral = position[None, :] - k[:, None] * width  # each pass's offset of every position
@@ -72,9 +76,10 @@ def cv_pct(offset_m, mass, driving_width_m: float, mode: str = "to_and_fro") -> 
 
 
 def coefficient_of_variation_pct(values) -> float:
-    """Sample standard deviation (n - 1) over the mean of `values`, %."""
+    """Sample standard deviation (n - 1) over the mean of `values`, %; infinite where nothing lies."""
     values = np.asarray(values, dtype=float)
-    return float(np.std(values, ddof=1) / np.mean(values) * 100.0)
+    mean = float(np.mean(values))
+    return float(np.std(values, ddof=1) / mean * 100.0) if mean > 0 else math.inf
 
 
 def effective_width_m(offset_m, mass, limit_pct: float = CV_LIMIT_PCT, mode: str = "to_and_fro") -> float:
