@@ -186,7 +186,10 @@ def read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.nda
     VehicleError
         ``"pattern FILE: row N: ..."`` naming the row (the file's line) and the value.
     """
-    data = files.read_bytes(path, "csv", VehicleError)
+    try:
+        data = files.read_bytes(path, "csv", VehicleError)  # a regular file within the CSV cap
+    except VehicleError as exc:
+        raise VehicleError(f"pattern {exc}") from None
     try:
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
