@@ -106,7 +106,7 @@ class SpinnerSpec:
         if not os.path.splitext(path)[1].lower() == ".csv":
             raise VehicleError(f"SpinnerSpec: pattern must be one of {', '.join(PATTERN_SHAPES)} or a CSV "
                                f"file's path (.csv), got {self.pattern!r}")
-        offset, mass = read_profile_csv(path, h)
+        offset, mass = _read_profile_csv(path, h)
         return TransversePattern.normalized(offset, mass, path)
 
     def side_reach_m(self, room_m, at_boundary=False) -> np.ndarray:
@@ -176,7 +176,7 @@ def spinner_from_keys(keys: dict, width_m: float,
     return spec, spec.transverse_pattern(base_dir)
 
 
-def read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.ndarray]:
     """A catch-tray profile's (offsets m, relative masses) from a CSV (module docstring), checked:
     at least `MIN_PROFILE_ROWS` rows of two numbers, offsets increasing and within `half_width_m`
     (m) of the centre line, masses >= 0, not all zero, some on each side of the centre line.

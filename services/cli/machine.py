@@ -4,7 +4,7 @@ CV 15 %, and pattern.png, the transverse profile of three adjacent passes."""
 
 from __future__ import annotations
 
-HELP = "a machine's spread pattern: catch-tray CV, effective width at CV 15 %, pattern.png"
+HELP = "a spinner's spread pattern: catch-tray CV, effective working width, pattern.png"
 ACTIONS = ("pattern",)
 PICTURE = "pattern.png"
 

@@ -21,6 +21,9 @@ import numpy as np
 
 from common import VrsimError
 
+__all__ = ["CV_LIMIT_PCT", "OVERLAP_MODES", "TrayTest", "catch_tray_test", "cv_pct", "effective_width_m",
+           "overlapped"]
+
 CV_LIMIT_PCT = 15.0
 OVERLAP_MODES = ("to_and_fro", "racetrack")
 ACROSS_POINTS = 400  # points across one driving width at which the overlapped rate is read
@@ -72,10 +75,10 @@ def cv_pct(offset_m, mass, driving_width_m: float, mode: str = "to_and_fro") -> 
     """Coefficient of variation (%) of the overlapped rate across one driving width (`overlapped`):
     sample standard deviation over the mean, as EN 13739 computes it from its trays."""
     _, rate = overlapped(offset_m, mass, driving_width_m, mode)
-    return coefficient_of_variation_pct(rate)
+    return _sample_cv_pct(rate)
 
 
-def coefficient_of_variation_pct(values) -> float:
+def _sample_cv_pct(values) -> float:
     """Sample standard deviation (n - 1) over the mean of `values`, %; infinite where nothing lies."""
     values = np.asarray(values, dtype=float)
     mean = float(np.mean(values))
@@ -210,5 +213,5 @@ def catch_tray_test(spec, pattern, driving_width_m: float, tray_width_m: float =
     in_width = np.abs(offset) <= w / 2
     profile = pass_pct[middle]
     return TrayTest(w, tray, passes, offset, pass_pct, total, in_width,
-                    coefficient_of_variation_pct(total[in_width]),
+                    _sample_cv_pct(total[in_width]),
                     cv_pct(offset, profile, w, "racetrack"), effective_width_m(offset, profile))
