@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import VrsimError
+from vehicle.spinner import SpinnerSpec, TransversePattern
 
 __all__ = ["CV_LIMIT_PCT", "OVERLAP_MODES", "TrayTest", "catch_tray_test", "cv_pct", "effective_width_m",
            "overlapped"]
@@ -158,7 +159,8 @@ class TrayTest:
     effective_width_m: float
 
 
-def catch_tray_test(spec, pattern, driving_width_m: float, tray_width_m: float = 0.5) -> TrayTest:
+def catch_tray_test(spec: SpinnerSpec, pattern: TransversePattern, driving_width_m: float,
+                    tray_width_m: float = 0.5) -> TrayTest:
     """Drive a spinner over a row of catch trays: adjacent straight passes `driving_width_m` apart,
     to and fro, each disc's product per tick put down through the real footprint (`maps.SpinnerThrow`)
     by the deposition engine on a grid of `tray_width_m` cells, and the row across the passes read.
@@ -168,10 +170,12 @@ def catch_tray_test(spec, pattern, driving_width_m: float, tray_width_m: float =
 
     Parameters
     ----------
-    spec : vehicle.spinner.SpinnerSpec
-    pattern : vehicle.spinner.TransversePattern
+    spec : SpinnerSpec
+        The spinner (its spread width and throw distance).
+    pattern : TransversePattern
+        Its transverse pattern (`SpinnerSpec.transverse_pattern`).
     driving_width_m, tray_width_m : float
-        m (> 0).
+        Distance between the passes and each tray's width across them, m (0 < tray <= driving).
     """
     from maps import ColumnDeposit, SpinnerThrow, synthetic
 
