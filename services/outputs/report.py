@@ -136,7 +136,7 @@ def _split_table(result: RunResult) -> str:
             "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
             "to the shaft's range adds (the <code>ideal</code> controller); calibration: what the "
             "product's true meter constant and uneven flow add; metering: what the controller and plant "
-            "add. See vrsim's docs/model.md, sections 7 and 8.</p>")
+            "add. See vrsim's docs/model.md, sections 7 and 9.</p>")
 
 
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
