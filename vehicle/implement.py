@@ -65,7 +65,7 @@ class Implement:
         the delivery delay. Defaults as John Deere's terminals (1.0 s on, 0.6 s off).
     kind : str
         How the machine meters and where its product lands (`vehicle.machines`): "gated_meter" (one
-        shaft, a gate per section; the default).
+        shaft, a gate per section; the default) or "section_drives" (a drive per section).
     machine : vehicle.machines.MachineSpec or None
         The kind's own keys (a scenario's ``[implement]`` holds them beside the shared ones). None:
         the kind's defaults; filled in on construction.

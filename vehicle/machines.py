@@ -12,6 +12,12 @@ Kinds:
 - ``gated_meter`` (the default): one metering shaft for the whole width; each section's gate opens or
   closes its share of the width, and the shaft's product is shared between the open sections by
   width. No keys of its own.
+- ``section_drives``: one metering drive per section, each turning its own roller. The smallest
+  honest assumption about the rollers: section i's roller meters ``kg_per_rev * w_i / width_m`` per
+  revolution (the shaft's roller cut into the sections' widths), so each drive turns at the speed the
+  one shaft would for the same rate and ground speed, and the shaft's speed range holds for each.
+  ``turn_compensation`` (true): each drive's target follows its section's own ground speed, the
+  centre's minus the yaw rate times the section's offset; false: the centre's speed for all.
 """
 
 from __future__ import annotations
@@ -22,8 +28,8 @@ from typing import ClassVar
 
 from common.errors import VehicleError
 
-__all__ = ["DEFAULT_KIND", "SPECS", "GatedMeter", "MachineSpec", "key_owner", "register_spec",
-           "spec_class", "spec_keys"]
+__all__ = ["DEFAULT_KIND", "SPECS", "GatedMeter", "MachineSpec", "SectionDrives", "key_owner",
+           "register_spec", "spec_class", "spec_keys"]
 
 DEFAULT_KIND = "gated_meter"
 
@@ -76,3 +82,27 @@ class GatedMeter(MachineSpec):
     """``gated_meter``: one shaft, a gate per section (see the module's docstring). No keys."""
 
     KIND: ClassVar[str] = "gated_meter"
+
+
+@register_spec
+@dataclass(frozen=True)
+class SectionDrives(MachineSpec):
+    """``section_drives``: a metering drive per section (see the module's docstring).
+
+    Attributes
+    ----------
+    turn_compensation : bool
+        Each drive's target at its section's own ground speed (true) or the centre's (false).
+    """
+
+    KIND: ClassVar[str] = "section_drives"
+    # A drive and a control loop per section: planters with a drive per row unit have up to 48 rows,
+    # the most of any machine with a metering drive per section.
+    MAX_SECTIONS: ClassVar[int | None] = 48
+
+    turn_compensation: bool = True
+
+    def __post_init__(self):
+        if not isinstance(self.turn_compensation, bool):
+            raise VehicleError("Implement: turn_compensation must be true or false, "
+                               f"got {self.turn_compensation!r}")

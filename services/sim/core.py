@@ -183,15 +183,17 @@ class ControlCore:
         rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
         return {key: rec[key] for key in CONTROL_KEYS}
 
-    def _metered_kg(self, shaft_rev, applying) -> np.ndarray:
+    def _metered_kg(self, shaft_rev, applying, drive=None) -> np.ndarray:
         """Product metered, kg, from each drive's revolutions (n, drives) and whether its product
         reaches the ground (n, drives): the one place product comes from revolutions; each drive meters
-        its share of ``kg_per_rev`` (`services.sim.machines.Machine.drive_share`)."""
+        its share of ``kg_per_rev`` (`services.sim.machines.Machine.drive_share`). `drive`: which drive
+        each column is (sweeps' variants run a column per variant and drive); default one per drive."""
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
         # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
         # (it does not lift product off the ground), so only forward revolutions count.
         forward = np.maximum(shaft_rev, 0.0)
-        per_drive_kg = self.implement.mass_kg(forward) * self.machine.drive_share
+        share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
+        per_drive_kg = self.implement.mass_kg(forward) * share
         return np.where(np.asarray(applying, bool), per_drive_kg, 0.0)
 
 
