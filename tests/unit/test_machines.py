@@ -153,3 +153,14 @@ def test_an_unknown_kind_on_the_command_line_exits_2_with_one_line(tmp_path):
     assert len(out.stderr.strip().splitlines()) == 1
     assert "[implement] Implement: kind must be one of gated_meter" in out.stderr
     assert "hovercraft" in out.stderr
+
+
+def test_records_without_each_drives_product_share_the_product_by_width():
+    """The monitor rebuilds a run from the machine-level keys: each section gets its width's share."""
+    imp = Implement(width_m=12.0, section_widths_m=[2.0, 4.0, 6.0], kind="section_drives")
+    control = {"metered_kg": np.array([1.2, 0.6, 0.0]),
+               "sections_on": np.array([[True, True, True], [False, True, True], [False, False, False]])}
+    want_kg = np.array([[0.2, 0.4, 0.6], [0.0, 0.24, 0.36], [0.0, 0.0, 0.0]])
+    assert machine_for(imp).deposit_kg(control) == pytest.approx(want_kg)
+    with_drives = dict(control, drive_kg=np.ones((3, 3)))
+    assert (machine_for(imp).deposit_kg(with_drives) == 1).all()
