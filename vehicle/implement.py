@@ -141,7 +141,8 @@ class Implement:
         if self.machine is None:
             object.__setattr__(self, "machine", spec())
         elif type(self.machine) is not spec:
-            raise VehicleError(f"Implement: machine {self.machine!r} is not of kind {self.kind!r}")
+            raise VehicleError(f"Implement: machine {self.machine!r} is not of kind {self.kind!r} "
+                               "(machine=None takes the kind's defaults)")
         self.machine.check_sections(self.sections)
 
     # --- sections --------------------------------------------------------------------------------

@@ -146,13 +146,20 @@ def test_each_sections_strip_carries_its_own_drives_product():
         shut.mass_kg(drive_kg)
 
 
-def test_an_unknown_kind_on_the_command_line_exits_2_with_one_line(tmp_path):
-    out = subprocess.run([VRSIM, "run", "--quiet", "--set", "implement.kind=hovercraft", "--out",
-                          str(tmp_path)], capture_output=True, text=True, timeout=120)
+@pytest.mark.parametrize("settings, message", [
+    (["implement.kind=hovercraft"],
+     "[implement] Implement: kind must be one of gated_meter, section_drives, got 'hovercraft'"),
+    (["implement.turn_compensation=false"],
+     "[implement] turn_compensation is a key of kind 'section_drives', not of kind 'gated_meter'"),
+    (["implement.kind=section_drives", "implement.sections=49"],
+     "[implement] Implement: kind 'section_drives' supports at most 48 sections, got sections=49"),
+])
+def test_a_bad_machine_on_the_command_line_exits_2_with_one_line(tmp_path, settings, message):
+    sets = [arg for setting in settings for arg in ("--set", setting)]
+    out = subprocess.run([VRSIM, "run", "--quiet", *sets, "--out", str(tmp_path)], capture_output=True,
+                         text=True, timeout=120)
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert len(out.stderr.strip().splitlines()) == 1
-    assert "[implement] Implement: kind must be one of gated_meter" in out.stderr
-    assert "hovercraft" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and message in out.stderr
 
 
 def test_records_without_each_drives_product_share_the_product_by_width():
