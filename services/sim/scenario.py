@@ -28,6 +28,7 @@ from common import ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
+from services.sim.machines.keys import changed_implement, implement_from_table, implement_table
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
 from services.sim.tables import build, no_unknown, typed
@@ -203,7 +204,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         description=typed(doc, "description", str, source, "", default=""),
         field=build(FieldSpec, doc.get("field", {}), source, "field"),
         map=build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=build(Implement, doc.get("implement", {}), source, "implement"),
+        implement=implement_from_table(doc.get("implement", {}), source),
         tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
@@ -254,6 +255,9 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
             kept = {f.name: getattr(current, f.name) for f in dataclasses.fields(current) if f.init}
             if key == "controller":
                 top[key] = _changed_controller(current, kept, value, scenario)
+                continue
+            if key == "implement":
+                top[key] = changed_implement(current, value, source)
                 continue
             no_unknown(value, kept, source, key)
             if key == "plant":
@@ -406,7 +410,10 @@ def as_dict(scenario: Scenario) -> dict[str, Any]:
     out = {}
     for f in dataclasses.fields(scenario):
         value = getattr(scenario, f.name)
-        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        if f.name == "implement":
+            out[f.name] = implement_table(value)
+        else:
+            out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     return out
 
 
@@ -433,6 +440,8 @@ def _table(scenario: Scenario, key: str) -> dict:
     """Table `key` of `scenario` as a scenario file writes it (see `to_toml`)."""
     value = getattr(scenario, key)
     table = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.init}
+    if key == "implement":
+        table = implement_table(value)
     if key in ("field", "map") and table["file"] is not None:
         table["file"] = os.path.abspath(scenario.path(table["file"]))
     if key == "plant":
