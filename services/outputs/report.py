@@ -134,8 +134,9 @@ def _split_table(result: RunResult) -> str:
             f"<tr><td>the run</td><td>{s['mass_balance_pct']:+.2f}</td><td>{s['mae_kg_ha']:.2f}</td>"
             "<td>100</td></tr></table>\n<p>Geometry and section control: the same run with a meter whose "
             "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
-            "to the shaft's range adds (the <code>ideal</code> controller); metering: what the "
-            "controller and plant add. See vrsim's docs/model.md, section 7.</p>")
+            "to the shaft's range adds (the <code>ideal</code> controller); calibration: what the "
+            "product's true meter constant and uneven flow add; metering: what the controller and plant "
+            "add. See vrsim's docs/model.md, sections 7 and 9.</p>")
 
 
 def write_html(result: RunResult, paths: dict[str, str]) -> None:

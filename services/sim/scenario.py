@@ -3,9 +3,10 @@
 Every table maps onto one configuration dataclass of the package that owns the concept
 (``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
 `vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
-`controller.PlantParams`), so a key is named and documented once, where it is used. Loading checks
-every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
-`ScenarioError` that names the file, the table and key, and the value.
+`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and
+documented once, where it is used. Loading checks every key: unknown keys, wrong types and values
+the owning dataclass refuses all raise a `ScenarioError` that names the file, the table and key, and
+the value.
 
 See ``scenarios/README.md`` for the keys of each table and ``services/sim/scenarios/default.toml`` for
 the built-in default.
@@ -27,11 +28,13 @@ from common import ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
+from services.sim.machines.keys import changed_implement, implement_from_table, implement_table
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
 from services.sim.tables import build, no_unknown, typed
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
+from vehicle.product import Product
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
@@ -121,6 +124,7 @@ class Scenario:
     plant: PlantParams
     timing: TimingSpec
     output: OutputSpec
+    product: Product = field(default_factory=Product)   # what the machine meters (its truth, too)
 
     def path(self, relative: str) -> str:
         """A path from the scenario file, resolved against the file's folder."""
@@ -129,7 +133,7 @@ class Scenario:
 
 # The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
 TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
-          "output")
+          "output", "product")
 TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
@@ -203,7 +207,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         description=typed(doc, "description", str, source, "", default=""),
         field=build(FieldSpec, doc.get("field", {}), source, "field"),
         map=build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=build(Implement, doc.get("implement", {}), source, "implement"),
+        implement=implement_from_table(doc.get("implement", {}), source),
         tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
@@ -211,6 +215,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         plant=build(PlantParams, doc.get("plant", {}), source, "plant"),
         timing=build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=build(OutputSpec, doc.get("output", {}), source, "output"),
+        product=build(Product, doc.get("product", {}), source, "product"),
     )
     _machine_once(doc.get("plant", {}), source)
     _check(scenario)
@@ -253,6 +258,9 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
             kept = {f.name: getattr(current, f.name) for f in dataclasses.fields(current) if f.init}
             if key == "controller":
                 top[key] = _changed_controller(current, kept, value, scenario)
+                continue
+            if key == "implement":
+                top[key] = changed_implement(current, value, source)
                 continue
             no_unknown(value, kept, source, key)
             if key == "plant":
@@ -416,7 +424,10 @@ def as_dict(scenario: Scenario) -> dict[str, Any]:
     out = {}
     for f in dataclasses.fields(scenario):
         value = getattr(scenario, f.name)
-        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        if f.name == "implement":
+            out[f.name] = implement_table(value)
+        else:
+            out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     return out
 
 
@@ -443,6 +454,8 @@ def _table(scenario: Scenario, key: str) -> dict:
     """Table `key` of `scenario` as a scenario file writes it (see `to_toml`)."""
     value = getattr(scenario, key)
     table = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.init}
+    if key == "implement":
+        table = implement_table(value)
     if key in ("field", "map") and table["file"] is not None:
         table["file"] = os.path.abspath(scenario.path(table["file"]))
     if key == "plant":
