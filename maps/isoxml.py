@@ -40,7 +40,8 @@ from common import MapError, __version__, files
 from maps.crs import WGS84
 from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
 from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.grid import DEFAULT_MAX_CELLS, UNIT, Grid, check_size
+from maps.units import map_unit
 from maps.warn import MapWarning
 
 
@@ -129,12 +130,16 @@ def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
             for p in tzn.findall("PDV")]
 
 
-def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None) -> Grid:
+def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None,
+                unit: str | None = None) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84).
 
     `product` (a PDT's id ``PDT2`` or its name) chooses among the rates of a grid with several
     products; without it such a grid is refused, listing them (`MapError`): none is chosen silently.
+    The grid's DDI states the unit (DDI 0006, mass per area: read in kg/ha); a `unit` given must
+    agree with it.
     """
+    map_unit(path, UNIT, unit, f"DDI {DDI_MASS_PER_AREA:04X}")
     with TaskdataFolder(path) as folder:
         return _read_taskdata(folder, path, max_cells, product)
 
@@ -220,7 +225,7 @@ def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None, pro
         rates = _type1_rates(codes, zones, product_ref, where)
     transform = Affine(dlon, 0.0, west, 0.0, -dlat, south + rows * dlat)
     return Grid(rates[::-1], transform, WGS84, product=_product_name(root, product_ref), source=path,
-                format="isoxml")
+                format="isoxml", unit=UNIT)  # DDI 0006 in mg/m^2, read in kg/ha
 
 
 def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, where: str, shape: str) -> bytes:

@@ -1,40 +1,172 @@
-"""Application-rate units: what vrsim converts between, and how.
+"""Application-rate units: what vrsim converts between, and how (one `pint` registry).
 
-Mass per area (kg/ha, t/ha, lb/ac) and volume per area (L/ha, gal/ac (US), fl oz/ac); a mass rate
-and a volume rate do not convert without the product's density, which vrsim does not guess.
+Mass per area (kg/ha, t/ha, lb/ac, g/m2), volume per area (L/ha, gal/ac (US), fl oz/ac, mL/m2) and
+count per area (seeds/ha, seeds/ac); any other spelling pint reads as one of these kinds is accepted
+too (``"kg ha-1"``, ``"lbs/ac"``, ``"l/ha"``, ``"gallon/acre"``). Rates of different kinds convert only
+with the product's density (kg/L) or the mass of one seed (g), which vrsim never guesses. vrsim
+computes in kg/ha; a map's own unit is used to read it and to show its figures.
 """
 
 from __future__ import annotations
 
+import math
+import re
+
 import numpy as np
+import pint
 
 from common import MapError
 
-# unit -> (kind, factor to kg/ha or L/ha)
-_HA_PER_AC = 0.40468564224
-RATE_UNITS = {
-    "kg/ha": ("mass", 1.0),
-    "t/ha": ("mass", 1000.0),
-    "lb/ac": ("mass", 0.45359237 / _HA_PER_AC),
-    "L/ha": ("volume", 1.0),
-    "gal/ac": ("volume", 3.785411784 / _HA_PER_AC),
-    "floz/ac": ("volume", 0.0295735295625 / _HA_PER_AC),
-}
+REGISTRY = pint.UnitRegistry(on_redefinition="ignore")
+REGISTRY.define("ac = acre")  # farm files' acre; pint reads "ac" as an abcoulomb otherwise
+REGISTRY.define("seed = count = seeds")
+
+KG_HA = "kg/ha"  # the unit vrsim computes in
+# The spellings vrsim writes a unit in, first of each kind its base (what the run computes in).
+RATE_UNITS = ("kg/ha", "t/ha", "lb/ac", "g/m2", "L/ha", "gal/ac", "floz/ac", "mL/m2", "seeds/ha", "seeds/ac")
+_KINDS = {"[mass] / [length] ** 2": "mass", "[length]": "volume", "1 / [length] ** 2": "count"}
+BASE_UNITS = {"mass": "kg/ha", "volume": "L/ha", "count": "seeds/ha"}
+HINT = 'say its unit: [map] unit = "lb/ac" in the scenario or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
+# A unit at the end of an attribute name: "Rate_lb_ac", "rate_kg_ha", "Rate (lb/ac)", "RATE[L/ha]".
+_NAME_UNIT = re.compile(r"(?:^|[_ (\[])([A-Za-z]+)[_/]([A-Za-z0-9]+)[)\]]?$")
+_EXPONENT = re.compile(r"(?<=[A-Za-z])(-?\d+)\b")  # "m2" -> "m**2", "ha-1" -> "ha**-1"
 
 
-def convert_rate(values, unit: str, to_unit: str) -> np.ndarray:
-    """Rates in `unit` expressed in `to_unit` (both in `RATE_UNITS`, of the same kind)."""
-    known = sorted(RATE_UNITS)
-    if unit not in RATE_UNITS or to_unit not in RATE_UNITS:
-        bad = unit if unit not in RATE_UNITS else to_unit
-        raise MapError(f"rate unit {bad!r} is not one vrsim converts; known: {known}")
-    (kind, f_from), (kind_to, f_to) = RATE_UNITS[unit], RATE_UNITS[to_unit]
-    if kind != kind_to:
-        raise MapError(f"cannot convert a {kind} rate ({unit}) to a {kind_to} rate ({to_unit}) without the "
-                       "product's density")
-    return np.asarray(values, dtype=np.float64) * (f_from / f_to)
+def _quantity(unit: str) -> pint.Quantity:
+    """One `unit` as a pint quantity; raises `ValueError` when pint cannot read it."""
+    text = _EXPONENT.sub(r"**\1", unit.strip()).replace(" ", "*")
+    try:
+        return REGISTRY.Quantity(1.0, text)
+    except (pint.errors.PintError, AttributeError, TypeError, ValueError, SyntaxError) as exc:
+        raise ValueError(f"not a unit pint reads ({exc})") from None
+
+
+def _kind_of(quantity: pint.Quantity) -> str | None:
+    return _KINDS.get(str(quantity.dimensionality))
+
+
+def _si(quantity: pint.Quantity) -> float:
+    return float(quantity.to_base_units().magnitude)
+
+
+def rate_unit(unit, where: str = "unit") -> str:
+    """`unit` as vrsim writes it (``"lbs/ac"`` -> ``"lb/ac"``, ``"kg ha-1"`` -> ``"kg/ha"``).
+
+    Raises
+    ------
+    MapError
+        ``"{where}: ..."`` when pint cannot read `unit` or it is no mass, volume or count per area.
+    """
+    if not isinstance(unit, str) or not unit.strip():
+        raise MapError(f"{where}: {unit!r} is not a rate unit; {HINT}")
+    try:
+        quantity = _quantity(unit)
+    except ValueError as exc:
+        raise MapError(f"{where}: {unit!r} is {exc}; e.g. {', '.join(RATE_UNITS)}") from None
+    kind = _kind_of(quantity)
+    if kind is None:
+        raise MapError(f"{where}: {unit!r} is not a rate (mass, volume or count per area, e.g. kg/ha, L/ha, "
+                       f"seeds/ac); it is {quantity.dimensionality}")
+    si = _si(quantity)
+    return next((name for name in RATE_UNITS if _kind_of(_quantity(name)) == kind
+                 and math.isclose(_si(_quantity(name)), si, rel_tol=1e-9)), unit.strip())
+
+
+def is_rate_unit(unit) -> bool:
+    """True when `unit` is a rate unit `rate_unit` reads."""
+    try:
+        rate_unit(unit)
+    except MapError:
+        return False
+    return True
+
+
+def rate_kind(unit: str) -> str:
+    """``"mass"``, ``"volume"`` or ``"count"`` (per area) of a unit `rate_unit` reads."""
+    return _kind_of(_quantity(rate_unit(unit)))
 
 
 def base_unit(unit: str) -> str:
-    """kg/ha for a mass rate, L/ha for a volume rate (`unit` in `RATE_UNITS`)."""
-    return "kg/ha" if RATE_UNITS[unit][0] == "mass" else "L/ha"
+    """kg/ha for a mass rate, L/ha for a volume rate, seeds/ha for a count."""
+    return BASE_UNITS[rate_kind(unit)]
+
+
+# kg per unit of each kind's base: a volume (L) times kg/L, a count (seeds) times g per seed / 1000.
+def _kg_per_base(kind: str, density_kg_l: float | None, seed_mass_g: float | None) -> float | None:
+    if kind == "mass":
+        return 1.0
+    if kind == "volume":
+        return density_kg_l
+    return None if seed_mass_g is None else seed_mass_g / 1000.0
+
+
+def convert_rate(values, unit: str, to_unit: str, density_kg_l: float | None = None,
+                 seed_mass_g: float | None = None) -> np.ndarray:
+    """Rates in `unit` expressed in `to_unit`.
+
+    Parameters
+    ----------
+    values : array_like
+        Rates in `unit`.
+    unit, to_unit : str
+        Rate units (`rate_unit`).
+    density_kg_l : float, optional
+        The product's density (kg/L), needed between a volume rate and a mass or count rate.
+    seed_mass_g : float, optional
+        The mass of one seed (g), needed between a count rate and a mass or volume rate.
+
+    Raises
+    ------
+    MapError
+        For a unit that is no rate, or a conversion between kinds without what it needs.
+    """
+    q_from, q_to = _quantity(rate_unit(unit)), _quantity(rate_unit(to_unit))
+    kind, kind_to = _kind_of(q_from), _kind_of(q_to)
+    factor = _si(q_from) / _si(q_to)
+    if kind != kind_to:
+        per_from = _kg_per_base(kind, density_kg_l, seed_mass_g)
+        per_to = _kg_per_base(kind_to, density_kg_l, seed_mass_g)
+        if per_from is None or per_to is None:
+            need = "density (kg/L)" if "volume" in (kind, kind_to) else "seed mass (g)"
+            raise MapError(f"cannot convert a {kind} rate ({unit}) to a {kind_to} rate ({to_unit}) without "
+                           f"the product's {need}")
+        # SI of each kind (kg/m2, m3/m2, 1/m2) to its base (kg/ha, L/ha, seeds/ha), then through kg.
+        base_from, base_to = (_si(_quantity(BASE_UNITS[k])) for k in (kind, kind_to))
+        factor = _si(q_from) / base_from * per_from / per_to * base_to / _si(q_to)
+    return np.asarray(values, dtype=np.float64) * factor
+
+
+def to_kg_ha(values, unit: str, density_kg_l: float | None = None,
+             seed_mass_g: float | None = None) -> np.ndarray:
+    """Rates in `unit` in kg/ha (`convert_rate`)."""
+    return convert_rate(values, unit, KG_HA, density_kg_l, seed_mass_g)
+
+
+def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit") -> str:
+    """The unit of a map's rates: what the file states (`stated`, under `key`) or the user gives
+    (`given`: ``[map] unit``, ``--unit``; it must agree with a unit the file states, and stands in
+    for one pint cannot read); a map with neither is refused with `HINT`."""
+    if given is not None:
+        unit = rate_unit(given, f"{where}: unit")
+        if stated and is_rate_unit(stated) and rate_unit(stated) != unit:
+            raise MapError(f"{where}: the file states its rates in {rate_unit(stated)} ({key}), not in the "
+                           f"unit given, {given!r}")
+        return unit
+    if not stated:
+        raise MapError(f"{where}: the map does not state the unit of its rates; {HINT}")
+    return rate_unit(stated, f"{where}: {key}")
+
+
+def name_with_unit(unit: str, prefix: str = "rate") -> str:
+    """An attribute name that states `unit` (`unit_in_name` reads it back): ``rate_kg_ha``."""
+    return f"{prefix}_{unit.replace('/', '_')}"
+
+
+def unit_in_name(name: str) -> str | None:
+    """The rate unit an attribute name ends with (``"Rate_lb_ac"``, ``"Rate (lb/ac)"``,
+    ``"rate_kg_ha"``), or None when it names none."""
+    match = _NAME_UNIT.search(name.strip())
+    if match is None:
+        return None
+    unit = f"{match.group(1)}/{match.group(2)}"
+    return rate_unit(unit) if is_rate_unit(unit) else None

@@ -131,7 +131,7 @@ def test_write_never_overwrites_and_needs_a_folder(tmp_path):
     assert not (tmp_path / "GRD00001.BIN").exists()
     # An error map (differences) or a map in another unit is no prescription.
     for other, needle in ((replace(g, quantity="difference"), "differences of rates in kg/ha"),
-                          (replace(g, unit="gal/ac"), "holds rates in gal/ac")):
+                          (replace(g, unit="gal/ac", map_unit=None), "holds rates in gal/ac")):
         with pytest.raises(MapError, match=f"ISOXML prescription holds rates in kg/ha; .*{needle}"):
             write_map(other, tmp_path / "d")
 
