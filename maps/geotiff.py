@@ -88,8 +88,8 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS,
                            f"from row {r0}")
         if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
-            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} {unit} at row {row}, "
-                           f"column {col}")
+            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} {unit} at row "
+                           f"{row}, column {col}")
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
                 quantity=quantity, unit=unit)
 

@@ -129,7 +129,8 @@ def _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells, unit) -> G
 
     source, _, _ = gdal_source(path, layer)  # refuses several layers and none named, or a wrong name
     if os.path.isdir(path) or layer is None:  # a folder's shapefile, or a zip's only one
-        return read_zones(source if os.path.isdir(path) else path, rate_field, cell_size_m, crs, max_cells, unit)
+        return read_zones(source if os.path.isdir(path) else path, rate_field, cell_size_m, crs, max_cells,
+                          unit)
     member = source.split(f"{os.path.realpath(path)}/", 1)[1]
     with tempfile.TemporaryDirectory(prefix="vrsim-layer-") as tmp:
         stem = member[:-4]

@@ -45,8 +45,8 @@ GRID_CRS = "grid_crs"  # foreign member (RFC 7946, 6.1): the CRS of the x/y prop
 def write_geojson(grid: Grid, path: str) -> None:
     """Write one Point feature per cell, in WGS84 lon/lat as RFC 7946 requires (no ``crs`` member).
 
-    Properties: the rate named with its unit, ``rate_kg_ha`` (null on nodata), ``row``, ``col``, and the cell centre ``x``, ``y``
-    in the grid's own CRS, which the foreign member ``grid_crs`` names, so vrsim reads the exact grid
+    Properties: the rate named with its unit (``rate_kg_ha``; null on nodata), ``row``, ``col``,
+    and the cell centre ``x``, ``y`` in the grid's own CRS, which the foreign member ``grid_crs`` names, so vrsim reads the exact grid
     back while any GIS places the points right.
     """
     rows, cols, x, y, rate = _cells(grid)
@@ -70,7 +70,8 @@ def write_geojson(grid: Grid, path: str) -> None:
 
 
 def write_csv(grid: Grid, path: str) -> None:
-    """Write ``x,y,lon,lat,row,col,rate_kg_ha`` (the rate named with its unit) per cell (rate empty on nodata) and a ``.prj`` beside."""
+    """Write ``x,y,lon,lat,row,col,rate_kg_ha`` per cell (the rate named with its unit; empty on
+    nodata) and a ``.prj`` beside."""
     rows, cols, x, y, rate = _cells(grid)
     lon, lat = transform_xy(x, y, grid.crs, WGS84)
     try:

@@ -26,7 +26,7 @@ KG_HA = "kg/ha"  # the unit vrsim computes in
 RATE_UNITS = ("kg/ha", "t/ha", "lb/ac", "g/m2", "L/ha", "gal/ac", "floz/ac", "mL/m2", "seeds/ha", "seeds/ac")
 _KINDS = {"[mass] / [length] ** 2": "mass", "[length]": "volume", "1 / [length] ** 2": "count"}
 BASE_UNITS = {"mass": "kg/ha", "volume": "L/ha", "count": "seeds/ha"}
-HINT = 'say its unit: [map] unit = "lb/ac" in the scenario or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
+HINT = 'give it: [map] unit = "lb/ac" in the scenario, or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
 # A unit at the end of an attribute name: "Rate_lb_ac", "rate_kg_ha", "Rate (lb/ac)", "RATE[L/ha]".
 _NAME_UNIT = re.compile(r"(?:^|[_ (\[])([A-Za-z]+)[_/]([A-Za-z0-9]+)[)\]]?$")
 _EXPONENT = re.compile(r"(?<=[A-Za-z])(-?\d+)\b")  # "m2" -> "m**2", "ha-1" -> "ha**-1"
