@@ -46,8 +46,8 @@ def write_geojson(grid: Grid, path: str) -> None:
     """Write one Point feature per cell, in WGS84 lon/lat as RFC 7946 requires (no ``crs`` member).
 
     Properties: the rate named with its unit (``rate_kg_ha``; null on nodata), ``row``, ``col``,
-    and the cell centre ``x``, ``y`` in the grid's own CRS, which the foreign member ``grid_crs`` names, so vrsim reads the exact grid
-    back while any GIS places the points right.
+    and the cell centre ``x``, ``y`` in the grid's own CRS, which the foreign member ``grid_crs``
+    names, so vrsim reads the exact grid back while any GIS places the points right.
     """
     rows, cols, x, y, rate = _cells(grid)
     lon, lat = transform_xy(x, y, grid.crs, WGS84)
