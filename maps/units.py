@@ -120,6 +120,9 @@ def convert_rate(values, unit: str, to_unit: str, density_kg_l: float | None = N
     MapError
         For a unit that is no rate, or a conversion between kinds without what it needs.
     """
+    for name, value in (("density_kg_l", density_kg_l), ("seed_mass_g", seed_mass_g)):
+        if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise MapError(f"{name} must be a number > 0, got {value!r}")
     q_from, q_to = _quantity(rate_unit(unit)), _quantity(rate_unit(to_unit))
     kind, kind_to = _kind_of(q_from), _kind_of(q_to)
     factor = _si(q_from) / _si(q_to)
