@@ -90,7 +90,7 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
     stated, key = _stated_unit(path, field_name, kind)
     unit = map_unit(path, stated, unit, key)
     grid = _rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
-    return replace(grid, unit=unit)
+    return replace(grid, unit=unit, map_unit=unit)
 
 
 def _stated_unit(path: str, name: str, kind: str) -> tuple[str | None, str]:

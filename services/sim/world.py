@@ -66,7 +66,7 @@ def _build_prescription(scenario: Scenario, field: Field) -> Grid:
         raise MapError(f"{grid.source}: holds differences of rates in {grid.unit} (e.g. a run's error.tif), "
                        "not a prescription")
     if grid.unit != "kg/ha":  # a volume or count rate the run cannot meter as mass
-        need = "its density: [product] density_kg_l" if rate_kind(grid.unit) == "volume" else "a seed mass"
+        need = "density: [product] density_kg_l" if rate_kind(grid.unit) == "volume" else "seed mass"
         raise MapError(f"{grid.source}: a {rate_kind(grid.unit)} rate ({grid.unit}) runs as a mass rate only "
                        f"with the product's {need}")
     grid.check_overlap(field.polygon, field.crs)
