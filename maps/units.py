@@ -167,9 +167,9 @@ def name_with_unit(unit: str, prefix: str = "rate") -> str:
 
 def unit_in_name(name: str) -> str | None:
     """The rate unit an attribute name ends with (``"Rate_lb_ac"``, ``"Rate (lb/ac)"``,
-    ``"rate_kg_ha"``), or None when it names none."""
+    ``"rate_kg_ha"``, ``"RATE_LB_AC"``: DBF names are often upper case), or None when it names none."""
     match = _NAME_UNIT.search(name.strip())
     if match is None:
         return None
     unit = f"{match.group(1)}/{match.group(2)}"
-    return rate_unit(unit) if is_rate_unit(unit) else None
+    return next((rate_unit(u) for u in (unit, unit.lower()) if is_rate_unit(u)), None)
