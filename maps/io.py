@@ -134,13 +134,23 @@ def _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells, unit) -> G
     member = source.split(f"{os.path.realpath(path)}/", 1)[1]
     with tempfile.TemporaryDirectory(prefix="vrsim-layer-") as tmp:
         stem = member[:-4]
+        metadata = f"{stem}-deere-metadata.json".lower()  # the units of its attributes (maps.pointlog)
         with files.open_zip(path, MapError) as z:
             for name in z.namelist():
                 if name[:-4] == stem and name[-4:].lower() in (".shp", ".shx", ".dbf", ".prj", ".cpg"):
-                    with open(os.path.join(tmp, "layer" + name[-4:].lower()), "wb") as fh:
-                        fh.write(files.read_member(z, name, path, MapError))
-        grid = read_zones(os.path.join(tmp, "layer.shp"), rate_field, cell_size_m, crs, max_cells, unit)
-    return replace(grid, source=f"{path}:{posixpath.basename(stem)}")
+                    copy = "layer" + name[-4:].lower()
+                elif name.lower() == metadata:
+                    copy = "layer-Deere-Metadata.json"
+                else:
+                    continue
+                with open(os.path.join(tmp, copy), "wb") as fh:
+                    fh.write(files.read_member(z, name, path, MapError))
+        where = f"{path}:{posixpath.basename(stem)}"
+        try:
+            grid = read_zones(os.path.join(tmp, "layer.shp"), rate_field, cell_size_m, crs, max_cells, unit)
+        except MapError as exc:  # named as the user knows it, not by the temporary copy
+            raise MapError(str(exc).replace(os.path.join(tmp, "layer.shp"), where)) from None
+    return replace(grid, source=where)
 
 
 def write_map(grid: Grid, path, like: str | None = None) -> None:
