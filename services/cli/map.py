@@ -92,7 +92,7 @@ def _info(args) -> int:
         print(dumps_text(info))
         return 0
     for key, value in info.items():
-        if key.endswith("_rate_kg_ha"):  # the text shows the rates in the map's own unit
+        if key == "unit" or key.endswith("_rate_kg_ha"):  # the text shows rates in the map's own unit
             continue
         if key.endswith("_rate") and value is not None:
             value = f"{value:.6g} {info['rate_unit']}"
