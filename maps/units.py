@@ -17,8 +17,10 @@ import pint
 
 from common import MapError
 
-REGISTRY = pint.UnitRegistry(on_redefinition="ignore")
-REGISTRY.define("ac = acre")  # farm files' acre; pint reads "ac" as an abcoulomb otherwise
+REGISTRY = pint.UnitRegistry(on_redefinition="ignore")  # "ignore": redefine without a warning
+# The international acre (the US acre since 2023, 4046.8564224 m^2; pint's is the survey acre, 4 ppm
+# larger), also spelled "ac" as farm files do (pint would read an abcoulomb).
+REGISTRY.define("acre = 43560 * international_foot ** 2 = ac")
 REGISTRY.define("seed = count = seeds")
 
 KG_HA = "kg/ha"  # the unit vrsim computes in

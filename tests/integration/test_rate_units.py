@@ -197,3 +197,45 @@ def test_gal_ac_shapefile_runs_end_to_end_and_every_output_states_gal_ac(tmp_pat
     log = read_taskdata_log(out / "taskdata")  # volume per area: DDI 2, read in L/ha
     assert log.unit == "L/ha" and np.nanmax(log.target) == pytest.approx(15 * GAL_AC, rel=1e-3)
     assert "gal/ac" in (out / "report.html").read_text()
+
+
+DEERE = os.path.join("data", "asapplied", "jd-gen4-application-point-onehertz.zip")
+
+
+def write_constant_tif(path, log, rate: float, unit: str):
+    """A one-rate GeoTIFF in `unit` over the points of `log` (WGS84) with a margin."""
+    west, south = log.x.min() - 0.001, log.y.min() - 0.001
+    cols, rows = int((log.x.max() + 0.001 - west) / STEP) + 1, int((log.y.max() + 0.001 - south) / STEP) + 1
+    with rasterio.open(path, "w", driver="GTiff", width=cols, height=rows, count=1, dtype="float32",
+                       crs="EPSG:4326", transform=Affine(STEP, 0, west, 0, -STEP, south + rows * STEP)) as dst:
+        dst.write(np.full((rows, cols), rate, np.float32), 1)
+        dst.units = (unit,)
+    return path
+
+
+def test_evaluate_a_gal_ac_log_against_l_ha_gal_ac_and_kg_ha_maps(shared_dir, tmp_path):
+    """The real John Deere export (gal/ac, its Deere metadata says so) against maps in three units: in
+    the map's unit each time, the same comparison; a mass rate map needs the product's density."""
+    path = os.path.join(shared_dir, DEERE)
+    log = read_point_log(path)
+    assert log.unit == "gal/ac" and log.points == 780  # the data README's known values
+
+    def evaluate(rx, *extra):
+        p = vrsim("evaluate", path, "--prescription", rx, "--json", *extra)
+        assert p.returncode == 0, p.stderr
+        return json.loads(p.stdout)
+
+    in_gal = evaluate(write_constant_tif(tmp_path / "gal.tif", log, 10.0, "gal/ac"))
+    in_l = evaluate(write_constant_tif(tmp_path / "l.tif", log, 10.0 * GAL_AC, "L/ha"))
+    assert in_gal["unit"] == "gal/ac" and in_l["unit"] == "L/ha"
+    assert in_gal["applied_mean"] == pytest.approx(10.009, abs=0.001)
+    assert in_l["applied_mean"] == pytest.approx(in_gal["applied_mean"] * GAL_AC, rel=1e-6)
+    assert in_l["mae"] == pytest.approx(in_gal["mae"] * GAL_AC, rel=1e-4)
+    kg = write_constant_tif(tmp_path / "kg.tif", log, 10.0 * GAL_AC * 1.1, "kg/ha")
+    one_line_exit_2(vrsim("evaluate", path, "--prescription", kg),
+                    "(kg/ha)", "cannot convert a volume rate (gal/ac) to a mass rate (kg/ha)",
+                    "--density-kg-l")
+    in_kg = evaluate(kg, "--density-kg-l", "1.1")
+    assert in_kg["unit"] == "kg/ha"
+    assert in_kg["applied_mean"] == pytest.approx(in_gal["applied_mean"] * GAL_AC * 1.1, rel=1e-6)
+    assert in_kg["mae"] == pytest.approx(in_gal["mae"] * GAL_AC * 1.1, rel=1e-4)
