@@ -9,46 +9,58 @@ computes in kg/ha; a map's own unit is used to read it and to show its figures.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 
 import numpy as np
-import pint
 
 from common import MapError
-
-REGISTRY = pint.UnitRegistry(on_redefinition="ignore")  # "ignore": redefine without a warning
-# The international acre (the US acre since 2023, 4046.8564224 m^2; pint's is the survey acre, 4 ppm
-# larger), also spelled "ac" as farm files do (pint would read an abcoulomb).
-REGISTRY.define("acre = 43560 * international_foot ** 2 = ac")
-REGISTRY.define("seed = count = seeds")
 
 KG_HA = "kg/ha"  # the unit vrsim computes in
 # The spellings vrsim writes a unit in, first of each kind its base (what the run computes in).
 RATE_UNITS = ("kg/ha", "t/ha", "lb/ac", "g/m2", "L/ha", "gal/ac", "floz/ac", "mL/m2", "seeds/ha", "seeds/ac")
 _KINDS = {"[mass] / [length] ** 2": "mass", "[length]": "volume", "1 / [length] ** 2": "count"}
-BASE_UNITS = {"mass": "kg/ha", "volume": "L/ha", "count": "seeds/ha"}
-HINT = 'give it: [map] unit = "lb/ac" in the scenario, or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
+_BASE_UNITS = {"mass": "kg/ha", "volume": "L/ha", "count": "seeds/ha"}
+_HINT = 'give it: [map] unit = "lb/ac" in the scenario, or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
 # A unit at the end of an attribute name: "Rate_lb_ac", "rate_kg_ha", "Rate (lb/ac)", "RATE[L/ha]".
 _NAME_UNIT = re.compile(r"(?:^|[_ (\[])([A-Za-z]+)[_/]([A-Za-z0-9]+)[)\]]?$")
 _EXPONENT = re.compile(r"(?<=[A-Za-z])(-?\d+)\b")  # "m2" -> "m**2", "ha-1" -> "ha**-1"
 
 
-def _quantity(unit: str) -> pint.Quantity:
-    """One `unit` as a pint quantity; raises `ValueError` when pint cannot read it."""
+@functools.cache
+def _registry():
+    """The one pint registry, made on first use: pint takes about a second to load (it loads scipy), which
+    a run in kg/ha, or a scenario parsed, never needs."""
+    import pint
+
+    units = pint.UnitRegistry(on_redefinition="ignore")  # "ignore": redefine without a warning
+    # The international acre (the US acre since 2023, 4046.8564224 m^2; pint's is the survey acre,
+    # 4 ppm larger), also spelled "ac" as farm files do (pint would read an abcoulomb).
+    units.define("acre = 43560 * international_foot ** 2 = ac")
+    units.define("seed = count = seeds")
+    return units
+
+
+@functools.cache
+def _read(unit: str) -> tuple[str, str, float]:
+    """(`unit` as vrsim writes it, its kind, its size in SI: kg/m^2, m^3/m^2 or 1/m^2); raises
+    `ValueError` saying what it is otherwise."""
+    import pint
+
     text = _EXPONENT.sub(r"**\1", unit.strip()).replace(" ", "*")
     try:
-        return REGISTRY.Quantity(1.0, text)
+        quantity = _registry().Quantity(1.0, text)
     except (pint.errors.PintError, AttributeError, TypeError, ValueError, SyntaxError) as exc:
-        raise ValueError(f"not a unit pint reads ({exc})") from None
-
-
-def _kind_of(quantity: pint.Quantity) -> str | None:
-    return _KINDS.get(str(quantity.dimensionality))
-
-
-def _si(quantity: pint.Quantity) -> float:
-    return float(quantity.to_base_units().magnitude)
+        raise ValueError(f"is not a unit pint reads ({exc}); e.g. {', '.join(RATE_UNITS)}") from None
+    kind = _KINDS.get(str(quantity.dimensionality))
+    if kind is None:
+        raise ValueError(f"is not a rate (mass, volume or count per area, e.g. kg/ha, L/ha, seeds/ac); it is "
+                         f"{quantity.dimensionality}")
+    si = float(quantity.to_base_units().magnitude)
+    same = (name for name in RATE_UNITS if name != unit and _read(name)[1] == kind
+            and math.isclose(_read(name)[2], si, rel_tol=1e-9))
+    return (unit.strip() if unit in RATE_UNITS else next(same, unit.strip())), kind, si
 
 
 def rate_unit(unit, where: str = "unit") -> str:
@@ -60,18 +72,13 @@ def rate_unit(unit, where: str = "unit") -> str:
         ``"{where}: ..."`` when pint cannot read `unit` or it is no mass, volume or count per area.
     """
     if not isinstance(unit, str) or not unit.strip():
-        raise MapError(f"{where}: {unit!r} is not a rate unit; {HINT}")
+        raise MapError(f"{where}: {unit!r} is not a rate unit; {_HINT}")
+    if unit == KG_HA:  # vrsim's own unit: no need to load pint
+        return KG_HA
     try:
-        quantity = _quantity(unit)
+        return _read(unit)[0]
     except ValueError as exc:
-        raise MapError(f"{where}: {unit!r} is {exc}; e.g. {', '.join(RATE_UNITS)}") from None
-    kind = _kind_of(quantity)
-    if kind is None:
-        raise MapError(f"{where}: {unit!r} is not a rate (mass, volume or count per area, e.g. kg/ha, L/ha, "
-                       f"seeds/ac); it is {quantity.dimensionality}")
-    si = _si(quantity)
-    return next((name for name in RATE_UNITS if _kind_of(_quantity(name)) == kind
-                 and math.isclose(_si(_quantity(name)), si, rel_tol=1e-9)), unit.strip())
+        raise MapError(f"{where}: {unit!r} {exc}") from None
 
 
 def is_rate_unit(unit) -> bool:
@@ -85,12 +92,12 @@ def is_rate_unit(unit) -> bool:
 
 def rate_kind(unit: str) -> str:
     """``"mass"``, ``"volume"`` or ``"count"`` (per area) of a unit `rate_unit` reads."""
-    return _kind_of(_quantity(rate_unit(unit)))
+    return "mass" if unit == KG_HA else _read(rate_unit(unit))[1]
 
 
 def base_unit(unit: str) -> str:
     """kg/ha for a mass rate, L/ha for a volume rate, seeds/ha for a count."""
-    return BASE_UNITS[rate_kind(unit)]
+    return _BASE_UNITS[rate_kind(unit)]
 
 
 # kg per unit of each kind's base: a volume (L) times kg/L, a count (seeds) times g per seed / 1000.
@@ -125,9 +132,11 @@ def convert_rate(values, unit: str, to_unit: str, density_kg_l: float | None = N
     for name, value in (("density_kg_l", density_kg_l), ("seed_mass_g", seed_mass_g)):
         if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise MapError(f"{name} must be a number > 0, got {value!r}")
-    q_from, q_to = _quantity(rate_unit(unit)), _quantity(rate_unit(to_unit))
-    kind, kind_to = _kind_of(q_from), _kind_of(q_to)
-    factor = _si(q_from) / _si(q_to)
+    unit, to_unit = rate_unit(unit), rate_unit(to_unit)
+    if unit == to_unit:  # no pint for a map in kg/ha shown in kg/ha
+        return np.asarray(values, dtype=np.float64) * 1.0
+    (_, kind, si_from), (_, kind_to, si_to) = _read(unit), _read(to_unit)
+    factor = si_from / si_to
     if kind != kind_to:
         per_from = _kg_per_base(kind, density_kg_l, seed_mass_g)
         per_to = _kg_per_base(kind_to, density_kg_l, seed_mass_g)
@@ -136,21 +145,15 @@ def convert_rate(values, unit: str, to_unit: str, density_kg_l: float | None = N
             raise MapError(f"cannot convert a {kind} rate ({unit}) to a {kind_to} rate ({to_unit}) without "
                            f"the product's {need}")
         # SI of each kind (kg/m2, m3/m2, 1/m2) to its base (kg/ha, L/ha, seeds/ha), then through kg.
-        base_from, base_to = (_si(_quantity(BASE_UNITS[k])) for k in (kind, kind_to))
-        factor = _si(q_from) / base_from * per_from / per_to * base_to / _si(q_to)
+        base_from, base_to = (_read(_BASE_UNITS[k])[2] for k in (kind, kind_to))
+        factor = si_from / base_from * per_from / per_to * base_to / si_to
     return np.asarray(values, dtype=np.float64) * factor
-
-
-def to_kg_ha(values, unit: str, density_kg_l: float | None = None,
-             seed_mass_g: float | None = None) -> np.ndarray:
-    """Rates in `unit` in kg/ha (`convert_rate`)."""
-    return convert_rate(values, unit, KG_HA, density_kg_l, seed_mass_g)
 
 
 def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit") -> str:
     """The unit of a map's rates: what the file states (`stated`, under `key`) or the user gives
     (`given`: ``[map] unit``, ``--unit``; it must agree with a unit the file states, and stands in
-    for one pint cannot read); a map with neither is refused with `HINT`."""
+    for one pint cannot read); a map with neither is refused with `_HINT`."""
     if given is not None:
         unit = rate_unit(given, f"{where}: unit")
         if stated and is_rate_unit(stated) and rate_unit(stated) != unit:
@@ -158,7 +161,7 @@ def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit
                            f"unit given, {given!r}")
         return unit
     if not stated:
-        raise MapError(f"{where}: the map does not state the unit of its rates; {HINT}")
+        raise MapError(f"{where}: the map does not state the unit of its rates; {_HINT}")
     return rate_unit(stated, f"{where}: {key}")
 
 

@@ -163,12 +163,12 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
                 [("What the figures mean", definitions(metrics.METRICS))],
-                files_note(result.world.grid.map_unit), banner=incomplete_note(summary))
+                _files_note(result.world.grid.map_unit), banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
 
-def files_note(rate_unit: str) -> str:
+def _files_note(rate_unit: str) -> str:
     """What the files beside the report are, the rasters in the map's unit `rate_unit`."""
     return (f"Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
             f"(GeoTIFF, {rate_unit}; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "

@@ -37,4 +37,5 @@ def test_convert_to_isoxml_needs_a_folder_and_never_overwrites(tmp_path):
     assert p.returncode == 2 and "does not overwrite" in p.stderr
     assert (tmp_path / "TASKDATA" / "GRD00001.BIN").read_bytes() == first
     back = read_map(tmp_path / "TASKDATA")
-    assert back.crs.to_epsg() == 4326 and np.nanmax(back.rates_kg_ha) == np.nanmax(read_map(TIF, unit="kg/ha").rates_kg_ha)
+    assert back.crs.to_epsg() == 4326
+    assert np.nanmax(back.rates_kg_ha) == np.nanmax(read_map(TIF, unit="kg/ha").rates_kg_ha)

@@ -83,7 +83,8 @@ def write_gal_ac_shapefile(stem, low=10.0, high=15.0):
 
 def scenario(tmp_path, map_file, map_keys="", extra="", name="units"):
     path = tmp_path / f"{name}.toml"
-    path.write_text(SCENARIO.format(name=name, map=os.path.basename(map_file), map_keys=map_keys, extra=extra))
+    path.write_text(SCENARIO.format(name=name, map=os.path.basename(map_file), map_keys=map_keys,
+                                    extra=extra))
     return path
 
 
@@ -108,7 +109,8 @@ def test_lb_ac_geotiff_runs_end_to_end_and_every_output_states_lb_ac(tmp_path):
     for name in ("prescription.tif", "as_applied.tif", "error.tif"):
         assert band_unit(out / name) == "lb/ac", name
     rx = read_map(out / "prescription.tif")
-    assert rx.map_unit == "lb/ac" and np.nanmax(rx.in_map_unit(rx.rates_kg_ha)) == pytest.approx(150, rel=1e-6)
+    assert rx.map_unit == "lb/ac"
+    assert np.nanmax(rx.in_map_unit(rx.rates_kg_ha)) == pytest.approx(150, rel=1e-6)
     assert np.nanmax(rx.rates_kg_ha) == pytest.approx(150 * LB_AC, rel=1e-6)
     applied = read_map(out / "as_applied.tif")
     assert np.nanmedian(applied.in_map_unit(applied.rates_kg_ha)) == pytest.approx(125, rel=0.25)
@@ -206,8 +208,9 @@ def write_constant_tif(path, log, rate: float, unit: str):
     """A one-rate GeoTIFF in `unit` over the points of `log` (WGS84) with a margin."""
     west, south = log.x.min() - 0.001, log.y.min() - 0.001
     cols, rows = int((log.x.max() + 0.001 - west) / STEP) + 1, int((log.y.max() + 0.001 - south) / STEP) + 1
+    transform = Affine(STEP, 0, west, 0, -STEP, south + rows * STEP)
     with rasterio.open(path, "w", driver="GTiff", width=cols, height=rows, count=1, dtype="float32",
-                       crs="EPSG:4326", transform=Affine(STEP, 0, west, 0, -STEP, south + rows * STEP)) as dst:
+                       crs="EPSG:4326", transform=transform) as dst:
         dst.write(np.full((rows, cols), rate, np.float32), 1)
         dst.units = (unit,)
     return path

@@ -11,7 +11,7 @@ from affine import Affine
 
 from common import MapError
 from maps import read_map
-from maps.units import convert_rate, map_unit, rate_kind, rate_unit, to_kg_ha, unit_in_name
+from maps.units import convert_rate, map_unit, rate_kind, rate_unit, unit_in_name
 
 LB_AC_KG_HA = 0.45359237 / 0.40468564224  # one pound per acre in kg/ha
 GAL_AC_L_HA = 3.785411784 / 0.40468564224  # one US gallon per acre in L/ha
@@ -28,9 +28,10 @@ def test_farm_spellings_read_as_one_unit_of_a_kind(text, unit, kind):
 
 
 def test_conversions_within_a_kind_by_the_definitions():
-    assert to_kg_ha(1.0, "lb/ac") == pytest.approx(LB_AC_KG_HA, rel=1e-12)
+    assert convert_rate(1.0, "lb/ac", "kg/ha") == pytest.approx(LB_AC_KG_HA, rel=1e-12)
     assert convert_rate(1.0, "gal/ac", "L/ha") == pytest.approx(GAL_AC_L_HA, rel=1e-12)
-    assert to_kg_ha(1.0, "g/m2") == pytest.approx(10.0) and to_kg_ha(1.0, "t/ha") == pytest.approx(1000.0)
+    assert convert_rate(1.0, "g/m2", "kg/ha") == pytest.approx(10.0)
+    assert convert_rate(1.0, "t/ha", "kg/ha") == pytest.approx(1000.0)
     assert convert_rate(1.0, "mL/m2", "L/ha") == pytest.approx(10.0)
     assert convert_rate(128.0, "floz/ac", "gal/ac") == pytest.approx(1.0)
     assert convert_rate(1.0, "seeds/ac", "seeds/ha") == pytest.approx(1 / 0.40468564224)
@@ -38,17 +39,18 @@ def test_conversions_within_a_kind_by_the_definitions():
 
 
 def test_between_kinds_only_with_a_density_or_a_seed_mass():
-    assert to_kg_ha(10.0, "gal/ac", density_kg_l=1.2) == pytest.approx(10 * GAL_AC_L_HA * 1.2, rel=1e-12)
+    assert convert_rate(10.0, "gal/ac", "kg/ha", density_kg_l=1.2) == pytest.approx(10 * GAL_AC_L_HA * 1.2,
+                                                                                 rel=1e-12)
     assert convert_rate(120.0, "kg/ha", "L/ha", density_kg_l=1.2) == pytest.approx(100.0)
     # 80,000 seeds/ha of 0.35 g: 28 kg/ha
-    assert to_kg_ha(80_000.0, "seeds/ha", seed_mass_g=0.35) == pytest.approx(28.0)
+    assert convert_rate(80_000.0, "seeds/ha", "kg/ha", seed_mass_g=0.35) == pytest.approx(28.0)
     with pytest.raises(MapError, match=r"^cannot convert a volume rate \(gal/ac\) to a mass rate \(kg/ha\) "
                                        r"without the product's density \(kg/L\)$"):
-        to_kg_ha(1.0, "gal/ac")
+        convert_rate(1.0, "gal/ac", "kg/ha")
     with pytest.raises(MapError, match=r"count rate \(seeds/ac\) .* without the product's seed mass"):
-        to_kg_ha(1.0, "seeds/ac")
+        convert_rate(1.0, "seeds/ac", "kg/ha")
     with pytest.raises(MapError, match="density_kg_l must be a number > 0, got -1.0"):
-        to_kg_ha(1.0, "L/ha", density_kg_l=-1.0)
+        convert_rate(1.0, "L/ha", "kg/ha", density_kg_l=-1.0)
 
 
 @pytest.mark.parametrize("text, needle", [("widgets/ac", "is not a unit pint reads"),
@@ -60,10 +62,10 @@ def test_what_is_no_rate_unit_is_refused_naming_where(text, needle):
     assert str(err.value).startswith(f"a.toml: [map] unit: {text!r}") and needle in str(err.value)
 
 
-@pytest.mark.parametrize("name, unit", [("Rate_lb_ac", "lb/ac"), ("Rate (lb/ac)", "lb/ac"), ("rate_kg_ha", "kg/ha"),
-                                        ("RATE_KG_HA", "kg/ha"), ("R_gal_ac", "gal/ac"), ("RATE[L/ha]", "L/ha"),
-                                        ("seeds_ac", "seeds/ac"), ("RATE", None), ("target_rate", None),
-                                        ("AREA_HA", None), ("rx_rate", None)])
+@pytest.mark.parametrize("name, unit", [
+    ("Rate_lb_ac", "lb/ac"), ("Rate (lb/ac)", "lb/ac"), ("rate_kg_ha", "kg/ha"), ("RATE_KG_HA", "kg/ha"),
+    ("R_gal_ac", "gal/ac"), ("RATE[L/ha]", "L/ha"), ("seeds_ac", "seeds/ac"), ("RATE", None),
+    ("target_rate", None), ("AREA_HA", None), ("rx_rate", None)])
 def test_units_in_attribute_names(name, unit):
     assert unit_in_name(name) == unit
 
@@ -75,8 +77,8 @@ def test_a_map_unit_is_stated_or_given_and_they_must_agree():
     with pytest.raises(MapError, match=r"^m.tif: the map does not state the unit of its rates; give it: "
                                        r"\[map\] unit = \"lb/ac\" in the scenario, or --unit lb/ac"):
         map_unit("m.tif", None, None)
-    with pytest.raises(MapError, match="m.tif: the file states its rates in kg/ha \\(band unit\\), not in the "
-                                       "unit given, 'lb/ac'"):
+    with pytest.raises(MapError, match="m.tif: the file states its rates in kg/ha \\(band unit\\), not in "
+                                       "the unit given, 'lb/ac'"):
         map_unit("m.tif", "kg/ha", "lb/ac", "band unit")
 
 
@@ -120,7 +122,8 @@ def test_written_files_state_the_maps_unit_and_read_back_the_same(tmp_path):
         np.testing.assert_allclose(np.nanmax(back.rates_kg_ha), 200 * LB_AC_KG_HA, rtol=1e-6)
     write_map(g, tmp_path / "TASKDATA")  # ISOXML: DDI 6 in mg/m^2, read in kg/ha
     back = read_map(tmp_path / "TASKDATA")
-    assert back.map_unit == "kg/ha" and np.nanmax(back.rates_kg_ha) == pytest.approx(200 * LB_AC_KG_HA, rel=1e-4)
+    assert back.map_unit == "kg/ha"
+    assert np.nanmax(back.rates_kg_ha) == pytest.approx(200 * LB_AC_KG_HA, rel=1e-4)
 
 
 def test_zones_state_their_unit_in_the_attribute_name_or_deere_metadata(tmp_path):
