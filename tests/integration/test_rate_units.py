@@ -120,7 +120,9 @@ def test_lb_ac_geotiff_runs_end_to_end_and_every_output_states_lb_ac(tmp_path):
     points = read_point_log(out / "as_applied_points.gpkg")
     assert points.unit == "lb/ac" and np.nanmax(points.target) == pytest.approx(150, rel=1e-3)
     html = (out / "report.html").read_text()
-    assert "lb/ac" in html and "GeoTIFF, lb/ac" in html
+    mae = f"{s['in_rate_unit']['mae']:,.2f}"
+    assert f"Mean absolute error</td><td class=n>{mae}</td><td>lb/ac</td>" in html
+    assert "mean absolute error (lb/ac)" in html and "GeoTIFF, lb/ac" in html
     # The text summary shows the rate figures in lb/ac.
     p = vrsim("run", scen, "--quiet", "--out", tmp_path / "out2")
     assert p.returncode == 0, p.stderr
