@@ -145,3 +145,23 @@ def test_zones_state_their_unit_in_the_attribute_name_or_deere_metadata(tmp_path
         {"DataAttributes": [{"Name": "Rate", "Unit": "gal1ac-1"}]}))
     g = read_map(plain, crs="EPSG:32632")
     assert (g.unit, g.map_unit) == ("gal/ac", "gal/ac") and np.nanmax(g.rates_kg_ha) == pytest.approx(12.0)
+
+
+def test_an_isoxml_grid_states_its_unit_by_its_ddi(tmp_path):
+    from maps import write_map
+
+    write_map(read_map(_tif(tmp_path / "a.tif", unit="kg/ha")), tmp_path / "mass")
+    mass = read_map(tmp_path / "mass")  # DDI 0006, mg/m^2
+    assert mass.map_unit == "kg/ha" and np.nanmax(mass.rates_kg_ha) == pytest.approx(200.0)
+    with pytest.raises(MapError, match="states its rates in kg/ha \\(its DDI\\), not in the unit given, "
+                                       "'L/ha'"):
+        read_map(tmp_path / "mass", unit="L/ha")
+    # The same grid file under DDI 0001 (volume per area, 0.01 mm^3/m^2): 20,000 counts = 2 L/ha.
+    (tmp_path / "volume").mkdir()
+    for name in ("TASKDATA.XML", "GRD00001.BIN"):
+        data = (tmp_path / "mass" / name).read_bytes()
+        (tmp_path / "volume" / name).write_bytes(data.replace(b'A="0006"', b'A="0001"'))
+    volume = read_map(tmp_path / "volume")
+    assert (volume.unit, volume.map_unit) == ("L/ha", "L/ha")
+    assert np.nanmax(volume.rates_kg_ha) == pytest.approx(2.0)
+    assert np.nanmax(read_map(tmp_path / "volume", density_kg_l=1.25).rates_kg_ha) == pytest.approx(2.5)
