@@ -66,7 +66,8 @@ class Product:
     def __post_init__(self):
         if self.form not in PRODUCT_FORMS:
             raise VehicleError(f"form must be one of {', '.join(PRODUCT_FORMS)}, got {self.form!r}")
-        if self.density_kg_l is not None and not in_range(self.density_kg_l, 0.0, MAX_DENSITY_KG_L, lo_open=True):
+        density = self.density_kg_l
+        if density is not None and not in_range(density, 0.0, MAX_DENSITY_KG_L, lo_open=True):
             raise VehicleError(f"density_kg_l must be a number in (0, {MAX_DENSITY_KG_L:g}] kg/L, "
                                f"got {self.density_kg_l!r}")
         if not in_range(self.flow_cv_pct, 0.0, MAX_FLOW_CV_PCT):
