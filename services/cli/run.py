@@ -124,7 +124,7 @@ def _run(args, driver) -> int:
     if args.json:
         print(summary_json(with_settings(result)))
     else:
-        print(result.machine_check.text())
+        print(result.machine_check.text(result.world.grid))
         print(text_summary(result.summary))
         print(outputs_line(out_dir))
     return 0
@@ -147,10 +147,12 @@ def _check(args) -> int:
     from services.sim.world import build_world
 
     sc = _scenario(args)
-    result = check_world(build_world(sc))
+    world = build_world(sc)
+    result = check_world(world)
     if args.json:
-        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply}
+        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply,
+               "rate_unit": world.grid.map_unit, "in_rate_unit": result.in_rate_unit(world.grid)}
         print(summary_json(doc))
     else:
-        print(result.text())
+        print(result.text(world.grid))
     return 0

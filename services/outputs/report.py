@@ -153,7 +153,8 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
                 "ticks": summary["ticks"]}
-    check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
+    lines = result.machine_check.text(result.world.grid).splitlines()  # rates in the map's unit
+    check = "<br>".join(html.escape(line.strip()) for line in lines)
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
                 ("Figures", figures_table(*shown(summary))),
