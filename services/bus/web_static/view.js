@@ -158,8 +158,11 @@
   function drawLegend(scale) {
     const c = $("legend").getContext("2d");
     scale.lut.forEach((rgb, i) => { c.fillStyle = `rgb(${rgb})`; c.fillRect(i, 0, 1, 12); });
-    $("vmin").textContent = scale.vmin_kg_ha.toFixed(0);
-    $("vmax").textContent = scale.vmax_kg_ha.toFixed(0);
+    // The legend in the map's own unit (the colours are painted from the kg/ha range).
+    const digits = (v) => (Math.abs(v) >= 10 ? 0 : 2);
+    $("vmin").textContent = scale.vmin.toFixed(digits(scale.vmin));
+    $("vmax").textContent = scale.vmax.toFixed(digits(scale.vmax));
+    $("unit").textContent = scale.unit;
   }
 
   // The map canvas: a background (prescription, path, field) drawn again only when the view, the run,
@@ -331,7 +334,18 @@
     $("state").className = `badge ${st.state}`;
   }
 
-  function showReport(rep) { fill("reportTable", REPORT_ROWS, rep); }
+  // The report's rate figures in the map's own unit (rate_unit, in_rate_unit), as `vrsim run` prints them.
+  function showReport(rep) {
+    const unit = typeof rep.rate_unit === "string" ? rep.rate_unit : null, own = rep.in_rate_unit || {};
+    const doc = { ...rep };
+    const rows = REPORT_ROWS.map(([label, key, digits]) => {
+      const v = own[key.replace(/_kg_ha$/, "")];
+      if (!unit || !key.endsWith("_kg_ha") || typeof v !== "number") return [label, key, digits];
+      doc[key] = v;
+      return [label.replace("kg/ha", unit), key, digits];
+    });
+    fill("reportTable", rows, doc);
+  }
 
   function showCatchup() {
     const c = S.catchup;
