@@ -53,6 +53,7 @@
       trail = [];
       clearApplied();
       if (doc.map_version !== S.mapVersion) loadView(doc.map_version);
+      $("rateUnit").textContent = rateUnit()[0];
     } else {
       S.frames++;
     }
@@ -257,13 +258,20 @@
   }
 
   // ------------------------------------------------------------------ charts
-  function drawChart(id, a, b, colours) {
+  // The run's rates arrive in kg/ha; shown in the map's own unit (the run's rate_unit, per_kg_ha).
+  function rateUnit() {
+    const f = run.per_kg_ha;
+    return typeof run.rate_unit === "string" && typeof f === "number" && f > 0 ? [run.rate_unit, f] : ["kg/ha", 1];
+  }
+
+  function drawChart(id, a, b, colours, factor = 1) {
     const cv = $(id), dpr = window.devicePixelRatio || 1, w = cv.clientWidth, h = 170;
     if (cv.width !== Math.round(w * dpr)) { cv.width = Math.round(w * dpr); cv.height = Math.round(h * dpr); }
     const c = cv.getContext("2d");
     c.setTransform(dpr, 0, 0, dpr, 0, 0);
     c.clearRect(0, 0, w, h);
-    const pts = points.filter((p) => p[a] !== null || p[b] !== null);
+    const pts = points.filter((p) => p[a] !== null || p[b] !== null)
+      .map((p) => (factor === 1 ? p : p.map((v, k) => ((k === a || k === b) && v !== null ? v * factor : v))));
     const L = 44, R = 6, T = 6, B = 20;
     c.strokeStyle = "#ccc";
     c.strokeRect(L, T, w - L - R, h - T - B);
@@ -329,7 +337,9 @@
   }
 
   function showStatus(st) {
-    fill("statusTable", STATUS_ROWS, st);
+    const [unit, factor] = rateUnit(), doc = { ...st };
+    if (typeof st.live_mae_kg_ha === "number") doc.live_mae_kg_ha = st.live_mae_kg_ha * factor;
+    fill("statusTable", STATUS_ROWS.map(([l, k, d]) => [l.replace("kg/ha", unit), k, d]), doc);
     $("state").textContent = st.state;
     $("state").className = `badge ${st.state}`;
   }
@@ -380,7 +390,7 @@
       dirty = false;
       drawMap();
       drawChart("shaftChart", 1, 2, ["#e07b00", "#1f5fbf"]);
-      drawChart("rateChart", 3, 4, ["#555", "#1d8a4a"]);
+      drawChart("rateChart", 3, 4, ["#555", "#1d8a4a"], rateUnit()[1]);
       S.draws++;
     }
     requestAnimationFrame(draw);
