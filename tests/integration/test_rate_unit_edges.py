@@ -163,3 +163,23 @@ def test_the_web_legend_reads_in_the_maps_unit():
     for bad in ({"rate_unit": "<b>"}, {"rate_unit": 3}, {"max_rate": "150"}):
         colours = picture.scale({**info, **bad})
         assert colours["unit"] == "kg/ha" and colours["vmax"] == pytest.approx(150 * LB_AC)
+
+
+def test_sweep_rows_and_report_in_the_maps_unit(tmp_path):
+    from services.outputs.sweep_results import _read_rows
+
+    scenario(tmp_path, write_tif(tmp_path / "rx.tif", "lb/ac"), name="q")
+    (tmp_path / "s.toml").write_text('scenarios = ["q.toml"]\nseeds = [1]\n[axes]\n'
+                                     '"implement.delivery_delay_s" = [0.6, 0.9]\n'
+                                     '[report]\npareto = ["mae_kg_ha", "within_10pct_area_pct"]\n')
+    p = vrsim("sweep", tmp_path / "s.toml", "--no-dashboard", "--json", "--quiet", "--workers", "1",
+              "--out", tmp_path / "out")
+    assert p.returncode == 0, p.stderr
+    rows = _read_rows(str(tmp_path / "out" / "results.parquet"))
+    assert [r["rate_unit"] for r in rows] == ["lb/ac"] * 2
+    for row in rows:
+        assert row["mae_in_rate_unit"] == pytest.approx(row["mae_kg_ha"] / LB_AC, rel=1e-12)
+    report = (tmp_path / "out" / "report.html").read_text()
+    assert "Mean absolute error [lb/ac]" in report and "[kg/ha]" not in report
+    best = min(r["mae_in_rate_unit"] for r in rows)
+    assert f"<td>{best:,.3g}</td>" in report   # the best MAE, in lb/ac
