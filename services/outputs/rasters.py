@@ -1,6 +1,7 @@
 """The run's GeoTIFFs on the prescription's grid (in the field's UTM zone): prescription.tif, the map
-as run; as_applied.tif, the applied rate; error.tif, applied minus prescribed (a signed difference,
-tagged so, which `vrsim map` reads as such), all three in the map's own unit (`maps.write_map`); passes.tif, the number of passes that put product on
+as run; as_applied.tif, the applied rate; error.tif, applied minus prescribed (a signed
+difference, tagged so, which `vrsim map` reads as such), all three in the map's own unit
+(`maps.write_map`); passes.tif, the number of passes that put product on
 each cell. Cells outside the field are nodata in as_applied.tif and error.tif: what lands there is
 off-target product (summary.json's off_target_kg), not a rate of the field."""
 
