@@ -307,7 +307,9 @@ class ClosedLoop:
         rows the product computes for every loop alike: the loops' gain rows are linear in
         (1, kp, ki T, kd / T) (`pid_terms`), so g . s + g_r r is those weights times four shared
         basis outputs, which the product yields from the state and the next tick's target (an extra
-        input). Equal to `_advance` per tick to rounding (the sums are taken in another order).
+        input). Equal to `_advance` per tick to rounding (the sums are taken in another order). The
+        basis outputs are computed from the state alone (`_basis`), after each tick's product and where
+        a call starts alike, so a run split into calls anywhere gives the one call's numbers bit for bit.
         """
         common = t.shape[1] == 1
         r_all = np.minimum(np.maximum(t[:, 0] if common else t, 0.0), self._rmax[0] if common else self._rmax)
@@ -316,13 +318,11 @@ class ClosedLoop:
         ns, ilo, ihi, ks = self._ns, self._ilo, self._ihi, self._ks
         weights, basis = self._terms
         gamma, delta = _gain_vectors(basis, np.full(len(basis), ks[0]), self._lay)
-        out0, w0, nin = ns + 4, ns + 8, ns + 4     # outputs, basis outputs; inputs: ..., next target
+        out0, w0, nin = ns + 4, ns + 8, ns + 3     # outputs, basis outputs; inputs: state, I, r, load
         M = self._M
-        mx = np.zeros((ns + 12, nin))
-        mx[:ns, :ns + 3] = M[:ns]                  # rows ns..ns+3 stay zero: the next inputs' slots
-        mx[out0:out0 + 4, :ns + 3] = M[ns + 3:ns + 7]
-        mx[w0:, :ns + 3] = gamma @ M[:ns]
-        mx[w0:, ns + 3] = delta
+        mx = np.zeros((w0, nin))
+        mx[:ns] = M[:ns]                           # rows ns..ns+3 stay zero: the next inputs' slots
+        mx[out0:out0 + 4] = M[ns + 3:ns + 7]
         kc = np.ascontiguousarray((self._ka[:, None] * weights).T)    # (4, n): ka times the weights
         pairs = np.zeros((len(r_all), 2, 1 if common else self.n))     # (this target, the next one)
         pairs[:, 0] = r_all if not common else r_all[:, None]
@@ -332,23 +332,23 @@ class ClosedLoop:
         v = np.zeros((ns + 12, self.n))
         v[:ns] = np.atleast_2d(self._v)[:, :ns].T
         if len(r_all):
-            v[w0:] = gamma @ v[:ns] + delta[:, None] * pairs[0, 0]
+            _basis(gamma, delta, v, pairs[0, 0], ns, w0)
         spare = np.empty_like(v)
         cur = v[ns + IN_CURRENT]
         for k in range(len(r_all)):
             unsat = np.einsum("bj,bj->j", kc, v[w0:])
             saturate(unsat, ilo, ihi, out=cur)
-            v[ns + IN_TARGET:ns + 4:2] = pairs[k]
+            v[ns + IN_TARGET] = pairs[k, 0]
             if with_load:
                 v[ns + IN_LOAD] = load
-            out = np.dot(mx, v[:nin], out=spare)
-            if positional:      # clamping anti-windup: the error sum and the basis outputs after it
+            out = spare
+            np.dot(mx, v[:nin], out=out[:w0])
+            if positional:      # clamping anti-windup: the error sum without this error
                 e = ks * (pairs[k, 0] - v[ring0])
                 frozen = clamped(unsat, e, ilo, ihi)
                 if frozen.any():
-                    held = np.where(frozen, e, 0.0)
-                    out[acc] -= held
-                    out[w0:] -= gamma[:, acc, None] * held
+                    out[acc] -= np.where(frozen, e, 0.0)
+            _basis(gamma, delta, out, pairs[k, 1], ns, w0)
             rec[k] = out[out0:out0 + 4]
             v, spare = out, v
             cur = v[ns + IN_CURRENT]
@@ -440,6 +440,13 @@ class ClosedLoop:
 
     def _targets(self, target) -> np.ndarray:
         return clip_targets(target, self.n, self._rmax)
+
+
+def _basis(gamma: np.ndarray, delta: np.ndarray, v: np.ndarray, next_rpm, ns: int, w0: int) -> None:
+    """The four basis outputs of the next tick's PID law into rows ``w0:`` of `v` (entries x loops):
+    from the state (rows ``:ns``) and the next target [rpm], in one order wherever it is called."""
+    np.dot(gamma, v[:ns], out=v[w0:])
+    v[w0:] += delta[:, None] * next_rpm
 
 
 def clip_targets(target, n: int, rpm_max) -> np.ndarray:
