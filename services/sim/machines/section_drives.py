@@ -68,17 +68,6 @@ class SectionDrives(Machine):
         weight = np.where(states.actual.any(axis=1, keepdims=True), states.actual, True) * self.drive_share
         return (rate_kg_ha * weight).sum(axis=1) / weight.sum(axis=1)
 
-    def deposit_kg(self, control: dict) -> np.ndarray:
-        """Each drive's product (n, drives); records without it (the monitor's, rebuilt from the
-        machine-level keys) share ``metered_kg`` between the open sections by width."""
-        if "drive_kg" in control:
-            return np.asarray(control["drive_kg"])
-        actual, widths_m = np.asarray(control["sections_on"], bool), self.implement.section_widths
-        width_on = actual @ widths_m
-        share = np.divide(widths_m, width_on[:, None], out=np.zeros(actual.shape),
-                          where=actual & (width_on[:, None] > 0))
-        return np.asarray(control["metered_kg"])[:, None] * share
-
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None) -> StripPlan:
         return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, own_drives=True)
