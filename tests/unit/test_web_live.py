@@ -32,7 +32,8 @@ def pose(run, tick, x, y=5030.0, heading=0.0):
 
 
 def rate(run, tick, x, y=5030.0, applied=160.0, width=12.0, on=True, mask="0x3f"):
-    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, mask, on, [150.0], [0.01])
+    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, mask, on, [150.0],
+                               [0.01])
 
 
 def shaft(run, tick):
