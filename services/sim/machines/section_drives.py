@@ -46,7 +46,7 @@ class SectionDrives(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return states.actual
 
-    def section_speed_m_s(self, motion: Motion) -> np.ndarray:
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
         """Each section's ground speed, m/s (n, sections): its own in a turn with turn compensation
         (``v - yaw_rate * offset``, at least 0), else the centre's sensed speed."""
         v = motion.speed_m_s[:, None]
@@ -57,7 +57,7 @@ class SectionDrives(Machine):
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         imp = self.implement
         # A drive meters its section's share per revolution: its speed is the whole shaft's for its rate.
-        wanted = imp.clip_shaft_rpm(imp.target_shaft_rpm(rate_kg_ha, self.section_speed_m_s(states.motion)))
+        wanted = imp.clip_shaft_rpm(imp.target_shaft_rpm(rate_kg_ha, self.drive_speed_m_s(states.motion)))
         return np.where(states.actual, wanted, 0.0)
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
