@@ -52,8 +52,8 @@ def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
 
 def test_in_parts_a_drive_per_section_runs_as_in_process():
     """``section_drives``: each drive's held rate and loop carried over, the tune re-looking ticks up.
-    Several loops advance on the PID's shared lifted path, whose sums do not depend on where a call
-    starts: the parts give the whole run's numbers bit for bit."""
+    Several loops advance on the PID's shared lifted path, whose calls carry on from the last one's
+    last product: the parts give the whole run's numbers bit for bit."""
     sc = with_changes(load(QUICK), implement={"kind": "section_drives"}, map={"policy": "hold"},
                       controller={"kind": "PID", "look_ahead_tune": 0.5})
     assert_same_run(run(sc), run_streamed(sc, ticks_per_part=3001))

