@@ -117,6 +117,21 @@ def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder)
     assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert expected["limited_time_pct"] > 5 and expected["limited_area_pct"] > 5
     assert_same_summary(report, expected, MONITOR_KEYS)
+    # `vrsim report` of the records: the same error split (each drive's reference meters) as the run's
+    out = os.path.join(folder, "report-drives")
+    p = subprocess.run([VRSIM, "report", "--db", net.db, "--run", started["run_id"], "--out", out],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    split = [_split_table(os.path.join(d, "report.html")) for d in (out, os.path.join(folder, "run-drives"))]
+    assert split[0] == split[1] and "metering" in split[0]
+
+
+def _split_table(path: str) -> str:
+    """The error split's table of a report.html."""
+    with open(path) as fh:
+        page = fh.read()
+    start = page.index("<table><tr><th>cause</th>")
+    return page[start:page.index("</table>", start)]
 
 
 def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):
