@@ -1,8 +1,9 @@
 """How the monitor stores a per-tick stream's records (`services.bus.messages`) in SQLite, and back.
 
 A record is a row keyed by (run_id, tick) with a column per other field: numbers and flags as REAL,
-strings as TEXT, and each metering drive's values (``drive_target_rpm``, ``drive_kg``: an array per
-record) as their JSON text. NaN is stored as NULL (a number) or ``null`` (in an array).
+strings as TEXT, and each metering drive's values (``drive_target_rpm``, ``drive_rate_kg_ha``,
+``drive_kg``: an array per record) as their JSON text. NaN is stored as NULL (a number) or ``null``
+(in an array).
 """
 
 from __future__ import annotations
