@@ -356,8 +356,6 @@ def decode_points(data, max_points: int = MAX_POINTS,
     return first, second, geo
 
 
-
-
 ENCODE_CHUNK = 100_000  # points encoded at a time: their dicts take ~25 MB, not ~250 MB for a million
 
 

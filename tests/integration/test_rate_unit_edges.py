@@ -160,7 +160,8 @@ def test_the_web_legend_reads_in_the_maps_unit():
     assert (colours["vmin"], colours["vmax"], colours["unit"]) == (100.0, 150.0, "lb/ac")
     assert colours["vmax_kg_ha"] == pytest.approx(150 * LB_AC)   # painted in kg/ha, as the live layer
     # The bus is untrusted: a unit that is none, or a range not given, leaves the legend in kg/ha.
-    for bad in ({"rate_unit": "<b>"}, {"rate_unit": 3}, {"max_rate": "150"}):
+    long = "kg/" + "ha" * 40
+    for bad in ({"rate_unit": "<b>"}, {"rate_unit": 3}, {"rate_unit": long}, {"max_rate": "150"}):
         colours = picture.scale({**info, **bad})
         assert colours["unit"] == "kg/ha" and colours["vmax"] == pytest.approx(150 * LB_AC)
 

@@ -14,6 +14,7 @@ import numpy as np
 from maps.units import KG_HA, is_rate_unit, rate_unit
 
 LUT_SIZE = 256
+MAX_UNIT_CHARS = 32  # a unit from the bus longer than this is not parsed (pint's parser is no sandbox)
 
 
 def scale(info: dict) -> dict:
@@ -32,7 +33,8 @@ def scale(info: dict) -> dict:
     rgb = np.round(colormaps["viridis"](np.linspace(0.0, 1.0, LUT_SIZE))[:, :3] * 255).astype(int)
     legend = {"vmin": lo, "vmax": hi, "unit": KG_HA}
     unit, lo_u, hi_u = info.get("rate_unit"), info.get("min_rate"), info.get("max_rate")
-    if known and is_rate_unit(unit) and _finite(lo_u) and _finite(hi_u):
+    short = isinstance(unit, str) and len(unit) <= MAX_UNIT_CHARS
+    if known and short and is_rate_unit(unit) and _finite(lo_u) and _finite(hi_u):
         legend = {"vmin": float(lo_u), "vmax": float(hi_u), "unit": rate_unit(unit)}
     return {"vmin_kg_ha": lo, "vmax_kg_ha": hi, **legend, "lut": rgb.tolist()}
 
