@@ -28,6 +28,7 @@ import numpy as np
 from maps import Grid
 from services.sim.landing import M2_PER_HA, Landing
 from services.sim.limits import MachineCheck, machine_check, working_speeds
+from services.sim.machines import machine_for
 from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
@@ -153,7 +154,7 @@ class Setting:
         in_field = cells_in_field(grid, world.field.polygon)
         applying = control["width_on_m"] > 0
         return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
-                   implement.shaft_limited(control["target_shaft_rpm"]) & applying, applying,
+                   machine_for(implement).limited(control) & applying, applying,
                    rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
                    check_world(world, in_field))
 

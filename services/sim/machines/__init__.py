@@ -6,7 +6,7 @@ registers it (`register_machine`): `gated_meter` (one shaft, a gate per section;
 scenario's ``[implement]`` table. docs/machines.md: the registry, each kind, how to add one.
 """
 
-from services.sim.machines import gated_meter, section_drives  # noqa: F401  (register the kinds)
+from services.sim.machines import gated_meter, section_drives, sprayer  # noqa: F401  (register the kinds)
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import machine_for, machine_kinds, register_machine
 

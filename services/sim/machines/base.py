@@ -7,6 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from controller import PlantParams
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -46,6 +47,22 @@ class Machine(ABC):
     def drive_share(self) -> np.ndarray:
         """Each drive's share of the implement's ``kg_per_rev`` per revolution, shape (drives,)."""
         return np.ones(1)
+
+    def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
+        """The plant each drive's loop closes: the scenario's shaft plant (`services.sim.core.plant_for`)
+        for a metering shaft; a kind with another actuator (a sprayer's flow loop) gives its own, and
+        refuses a `scenario` it cannot run (`ScenarioError`). `grid`: the prescription (a working point)."""
+        return plant
+
+    def kg_per_rev(self, product) -> float:
+        """What one revolution of a drive's loop meters, kg, as configured (`vehicle.product.metered_kg`
+        applies `product`'s calibration error and flow variability to it): ``[implement] kg_per_rev``."""
+        return self.implement.kg_per_rev
+
+    def limited(self, control: dict) -> np.ndarray:
+        """Where the machine-level target (``control["target_shaft_rpm"]``, a run's control arrays) sits
+        on a bound of the machine's range while applying, bool (n,)."""
+        return self.implement.shaft_limited(control["target_shaft_rpm"])
 
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
