@@ -246,7 +246,7 @@ class SprayerSpec(MachineSpec):
             raise VehicleError(f"sprayer: nozzle {self.nozzle!r} ({q_lo:.3g}-{q_hi:.3g} L/min per nozzle) "
                                f"cannot apply {rate_min_l_ha:g}-{rate_max_l_ha:g} L/ha at any speed: the "
                                f"rates span {rate_max_l_ha / rate_min_l_ha:.3g}x, the nozzle "
-                               f"{q_hi / q_lo:.3g}x")
+                               f"{q_hi / q_lo:.3g}x (widen pressure_range_bar, or control = \"pwm\")")
         return span
 
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common import ScenarioError, VehicleError
 from maps import Grid
 from services.sim.landing import M2_PER_HA, Landing
 from services.sim.limits import MachineCheck, machine_check, working_speeds
@@ -56,7 +57,11 @@ def check_world(world: World, in_field: np.ndarray | None = None) -> MachineChec
     sc = world.scenario
     if in_field is None:
         in_field = cells_in_field(world.grid, world.field.polygon)
-    return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement)
+    try:
+        return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement,
+                             sc.product.density_kg_l, sc.tractor.working_speed_m_s)
+    except VehicleError as exc:   # a sprayer's nozzle that cannot apply the map at any speed
+        raise ScenarioError(f"{sc.source}: [implement] {exc}") from None
 
 
 @dataclass(frozen=True)

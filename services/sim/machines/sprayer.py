@@ -80,14 +80,7 @@ class Sprayer(Machine):
         working speed, each nozzle's flow held in its range; one section's nozzles under PWM, the
         valve's time constant then a pulse period). Refuses a product that is not liquid, or the product's calibration error
         (a sprayer's is its flow meter's); binds the product's density."""
-        product = scenario.product
-        if product.form != "liquid":
-            raise ScenarioError(f"{scenario.source}: [product] form: a sprayer meters a liquid, got "
-                                f"{product.form!r} (set form = \"liquid\" and its density_kg_l)")
-        if product.calibration_error_pct != 0:
-            raise ScenarioError(f"{scenario.source}: [product] calibration_error_pct: a sprayer's calibration "
-                                f"error is its flow meter's ([implement] flow_meter_error_pct), got "
-                                f"{product.calibration_error_pct!r}")
+        product = check_liquid(scenario)
         self.density_kg_l = product.density_kg_l
         return self.flow_linearization(scenario, grid).plant
 
@@ -180,3 +173,18 @@ class Sprayer(Machine):
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None) -> StripPlan:
         return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, own_drives=self.pwm)
+
+
+def check_liquid(scenario):
+    """`scenario`'s product, which a sprayer can meter: liquid, its calibration error the flow meter's
+    (``[implement] flow_meter_error_pct``, not ``[product] calibration_error_pct``); `ScenarioError`
+    naming the file, key and value otherwise."""
+    product = scenario.product
+    if product.form != "liquid":
+        raise ScenarioError(f"{scenario.source}: [product] form: a sprayer meters a liquid, got "
+                            f"{product.form!r} (set form = \"liquid\" and its density_kg_l)")
+    if product.calibration_error_pct != 0:
+        raise ScenarioError(f"{scenario.source}: [product] calibration_error_pct: a sprayer's calibration "
+                            f"error is its flow meter's ([implement] flow_meter_error_pct), got "
+                            f"{product.calibration_error_pct!r}")
+    return product
