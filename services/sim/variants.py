@@ -43,7 +43,7 @@ from controller import ControllerConfig, build_variant_loops
 from maps import AppliedColumns, ColumnDeposit
 from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import RUN_CHUNK, ControlCore, context_track, plant_for
+from services.sim.core import RUN_CHUNK, ControlCore, context_track, machine_plant
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
@@ -86,7 +86,7 @@ def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[
             continue
         sc = dataclasses.replace(scenario, controller=cfg)
         try:
-            look_ahead = initial_look_ahead_s(sc, plant_for(sc))
+            look_ahead = initial_look_ahead_s(sc, machine_plant(sc, drive.world.grid))
         except ControllerError as exc:
             raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
         batches.setdefault(look_ahead, []).append(i)
@@ -150,7 +150,7 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
     clock = time.perf_counter()
     timing, drives = scenario.timing, shared.core.machine.drives
     try:   # column v * drives + d: variant v's drive d
-        loops = build_variant_loops(plant_for(scenario), [cfg for cfg in cfgs for _ in range(drives)],
+        loops = build_variant_loops(shared.core.plant, [cfg for cfg in cfgs for _ in range(drives)],
                                     timing.control_period_s, timing.plant_step_s)
     except ControllerError as exc:
         raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None

@@ -20,3 +20,43 @@ def test_pwm_turn_compensation_levels_a_20_m_turn_and_one_valve_follows_the_geom
     assert inner == pytest.approx(200, rel=0.05) and outer == pytest.approx(200, rel=0.05)
     inner, outer = turn_rates_kg_ha(run(with_changes(sc, implement={"control": "flow"})))
     assert inner / outer == pytest.approx(25 / 15, rel=0.05)
+
+
+SPRAYER_FIELD = """
+name = "sprayer_variants"
+seed = 4
+[field]
+rectangle = { width_m = 60.0, length_m = 120.0, lat = 52.0, lon = 10.0 }
+headland_passes = 1
+[map]
+synthetic = "uniform"
+cell_size_m = 2.0
+params = { rate_kg_ha = 200.0 }
+[implement]
+width_m = 12.0
+sections = 4
+kind = "sprayer"
+nozzle = "05"
+control = "CONTROL"
+flow_meter_error_pct = 3.0
+[product]
+form = "liquid"
+density_kg_l = 1.1
+"""
+
+
+@pytest.mark.parametrize("control", ["flow", "pwm"])
+def test_batched_variants_of_a_sprayer_equal_its_one_at_a_time_runs(control):
+    """Sweeps' batched variants run the sprayer's flow loops (its plant, not the shaft's): each summary
+    equals control_and_account's."""
+    from controller import ControllerConfig
+    from services.sim import scenario
+    from services.sim.run import control_and_account, drive
+    from services.sim.variants import run_variants
+    from tests.integration.test_variants import assert_same_summary
+
+    shared = drive(scenario.parse(SPRAYER_FIELD.replace("CONTROL", control), "sprayer.toml", "."))
+    cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PID", gains="manual", kp=0.2, ki=0.5, kd=0.0),
+            ControllerConfig(kind="PID", look_ahead_s="auto"), ControllerConfig(kind="ideal")]
+    for fast, cfg in zip(run_variants(shared, cfgs), cfgs, strict=True):
+        assert_same_summary(fast, control_and_account(shared, cfg).summary)
