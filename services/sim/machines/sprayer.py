@@ -27,10 +27,12 @@ Each section's nozzles are those whose centres lie across it; a closed section's
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from common import ScenarioError, VrsimError
-from controller import FlowPlant, PlantParams, linearize_flow
+from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import register_machine
 from services.sim.section_landing import StripPlan
@@ -82,10 +84,17 @@ class Sprayer(Machine):
         (a sprayer's is its flow meter's); binds the product's density."""
         product = check_liquid(scenario)
         self.density_kg_l = product.density_kg_l
-        return self.flow_linearization(scenario, grid).plant
+        fp, lin = self.flow_linearization(scenario, grid)
+        # The tangent is the valve's local gain; the flows it reaches are the valve's own, shut to full
+        # (the tangent alone would stop short of a convex curve's top: a bypass valve's 49.6 of 62.7 L/min
+        # from 34 L/min), so the loop's current range is where the tangent gives those flows.
+        metered_per_a = lin.slope_l_min_per_a * fp.meter_gain
+        lo, hi = (flow * fp.meter_gain for flow in fp.flow_range_l_min())
+        return dataclasses.replace(lin.plant, current_min_a=lo / metered_per_a, current_max_a=hi / metered_per_a,
+                                   shaft_rpm_max=hi * (1.0 - 1e-9))
 
-    def flow_linearization(self, scenario, grid):
-        """`controller.linearize_flow` of one loop's `controller.FlowPlant` at its working point."""
+    def flow_linearization(self, scenario, grid) -> tuple[FlowPlant, FlowLinearization]:
+        """One loop's `controller.FlowPlant` and its `controller.linearize_flow` at the working point."""
         spec, nozzles = self.spec, len(self.nozzle_offsets_m) / self.drives
         coeff = nozzles * spec.q_ref_l_min / np.sqrt(REF_PRESSURE_BAR)
         tau = {"valve_time_constant_s": 1.0 / spec.pwm_hz} if self.pwm else {}
@@ -98,7 +107,7 @@ class Sprayer(Machine):
         flow = nozzles * float(np.clip(per_nozzle, *spec.nozzle_flow_range_l_min()))
         lo, hi = fp.flow_range_l_min()
         margin = _WORKING_POINT_MARGIN * (hi - lo)
-        return linearize_flow(fp, float(np.clip(flow, lo + margin, hi - margin)))
+        return fp, linearize_flow(fp, float(np.clip(flow, lo + margin, hi - margin)))
 
     def kg_per_rev(self, product) -> float:
         """Product per metered litre, kg: the true litres behind it (the meter reads ``1 +
