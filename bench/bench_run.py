@@ -5,6 +5,8 @@ Figures:
   control loop, landing and metrics; what `vrsim run` reports as wall_time_s);
 - ``run_default_section_drives_wall_s``: the same for the default scenario with a drive per section
   (``[implement] kind = "section_drives"``: six loops, each rate at its own section's landing point);
+- ``run_default_sprayer_wall_s``: the same for the default scenario with a boom sprayer (``kind =
+  "sprayer"``, a liquid product: one flow loop, the boom's strips);
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
@@ -25,10 +27,10 @@ from services.sim import run as run_field
 from services.sim import scenario
 
 
-def _in_process(name: str, **implement) -> dict:
+def _in_process(name: str, **tables) -> dict:
     sc = scenario.load(name)
-    if implement:
-        sc = scenario.with_changes(sc, implement=implement)
+    if tables:   # table -> its keys changed
+        sc = scenario.with_changes(sc, **tables)
     run_field(sc)  # warm: the SUMO network cache and lazy imports
     best = None
     for _ in range(2):
@@ -51,7 +53,16 @@ def _cli_wall_s(name: str, runs: int = 3) -> float:
 
 def run_default_section_drives_wall_s() -> float:
     """The default scenario's run with ``section_drives`` (best of two, after a warm-up run), s."""
-    return _in_process("default", kind="section_drives")["wall_time_s"]
+    return _in_process("default", implement={"kind": "section_drives"})["wall_time_s"]
+
+
+def run_default_sprayer_wall_s() -> float:
+    """The default scenario's run with a boom sprayer (``kind = "sprayer"``: air-induction 04 nozzles at
+    1-8 bar, which cover the default map at its speeds, flow control; a liquid of 1.0 kg/L), best of
+    two after a warm-up run, s (tests/accuracy/scenarios/sprayer_default_field.toml is the same)."""
+    sprayer = {"kind": "sprayer", "nozzle": "04", "pressure_range_bar": [1.0, 8.0]}
+    liquid = {"form": "liquid", "density_kg_l": 1.0}
+    return _in_process("default", implement=sprayer, product=liquid)["wall_time_s"]
 
 
 def run() -> dict:
@@ -60,6 +71,7 @@ def run() -> dict:
     figures = {
         "run_default_wall_s": default["wall_time_s"],
         "run_default_section_drives_wall_s": run_default_section_drives_wall_s(),
+        "run_default_sprayer_wall_s": run_default_sprayer_wall_s(),
         "run_large_wall_s": large["wall_time_s"],
         "run_default_realtime_factor": default["realtime_factor"],
         "run_large_realtime_factor": large["realtime_factor"],

@@ -18,6 +18,8 @@ Kinds:
   one shaft would for the same rate and ground speed, and the shaft's speed range holds for each.
   ``turn_compensation`` (true): each drive's target follows its section's own ground speed, the
   centre's minus the yaw rate times the section's offset; false: the centre's speed for all.
+- ``sprayer``: a boom of nozzles behind a regulating valve and a flow meter; its keys are
+  `vehicle.sprayer.SprayerSpec` (registered there).
 """
 
 from __future__ import annotations

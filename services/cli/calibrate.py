@@ -9,8 +9,12 @@ HELP = ("simulate the meter's calibration test (turn and weigh; a sprayer's catc
 
 
 def configure(parser) -> None:
-    from services.sim.calibrate import (DEFAULT_CATCH_S, DEFAULT_JUG_ERROR_ML, DEFAULT_REVOLUTIONS,
-                                        DEFAULT_SCALE_ERROR_G)
+    from services.sim.calibrate import (
+        DEFAULT_CATCH_S,
+        DEFAULT_JUG_ERROR_ML,
+        DEFAULT_REVOLUTIONS,
+        DEFAULT_SCALE_ERROR_G,
+    )
 
     parser.add_argument("scenario", help="scenario TOML file or built-in name")
     parser.add_argument("--revolutions", type=int, default=DEFAULT_REVOLUTIONS, metavar="N",
@@ -19,7 +23,7 @@ def configure(parser) -> None:
                         help="standard deviation of the scale's reading, g "
                              f"(default {DEFAULT_SCALE_ERROR_G:g})")
     parser.add_argument("--seconds", type=float, default=DEFAULT_CATCH_S, metavar="S",
-                        help=f"sprayer: how long the boom sprays into the catch (default {DEFAULT_CATCH_S:g})")
+                        help=f"sprayer: seconds the boom sprays into the catch (default {DEFAULT_CATCH_S:g})")
     parser.add_argument("--jug-error-ml", type=float, default=DEFAULT_JUG_ERROR_ML, metavar="ML",
                         help="sprayer: standard deviation of the jug's reading, mL "
                              f"(default {DEFAULT_JUG_ERROR_ML:g})")

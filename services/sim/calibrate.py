@@ -260,7 +260,8 @@ def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCa
     nozzles = spec.nozzle_count(imp.width_m)
     # Each nozzle gives its rated flow at 3 bar; the product's flow variability over the boom's litres.
     nominal_l = nozzles * spec.q_ref_l_min * seconds / 60.0
-    caught_l = float(metered_kg(np.array([nominal_l]), 1.0, scenario.product, seed, stream=_CATCH_STREAM)[0][0])
+    caught_l = float(metered_kg(np.array([nominal_l]), 1.0, scenario.product, seed,
+                                stream=_CATCH_STREAM)[0][0])
     misread_ml = np.random.default_rng([seed, _SCALE_STREAM]).normal(0.0, 1.0, nozzles) * jug_error_ml
     read_l = caught_l + float(misread_ml.sum()) / 1000.0
     if read_l <= 0:

@@ -208,7 +208,8 @@ class ControlCore:
         # The product's true constant and flow variability meter it (`vehicle.product`); the terminal
         # computed the target with the configured constant. A closed gate's roller turns all the same.
         forward = np.maximum(shaft_rev, 0.0)
-        kg, end_rev = metered_kg(forward, self.machine.kg_per_rev(self.product), self.product, self.seed, self.meter_rev)
+        kg, end_rev = metered_kg(forward, self.machine.kg_per_rev(self.product), self.product, self.seed,
+                                 self.meter_rev)
         self.meter_rev = np.atleast_1d(end_rev)
         share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
         return np.where(np.asarray(applying, bool), kg * share, 0.0)

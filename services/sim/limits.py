@@ -18,7 +18,7 @@ so ``kg_per_rev_min`` to ``kg_per_rev_max`` puts the needed speeds inside the sh
 working speeds as they are). The terminal's configured constant is what it computes with, so the check
 uses it, not the product's true one (`vehicle.product`).
 
-A sprayer (`SprayerCheck`) checks its nozzles instead of a shaft: the boom's flow (L/min) must stay
+A sprayer (`_SprayerCheck`) checks its nozzles instead of a shaft: the boom's flow (L/min) must stay
 within what its nozzles give in their pressure range (under PWM: their duty range at the held
 pressure; `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`), the map's kg/ha being L/ha times
 the liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
@@ -207,7 +207,7 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
 
 
 @dataclass(frozen=True)
-class SprayerCheck(MachineCheck):
+class _SprayerCheck(MachineCheck):
     """`MachineCheck` of a sprayer: ``rpm_*`` are the boom's flows (L/min) and ``shaft_rpm_*`` what its
     nozzles give over the full width; ``min_speed_m_s``/``max_speed_m_s`` where every nozzle stays in
     its range (`SprayerSpec.speed_range_m_s`); ``min_width_m`` 0 and the ``kg_per_rev`` fields NaN (no
@@ -252,7 +252,7 @@ class SprayerCheck(MachineCheck):
 
 
 def _sprayer_check(lo_rate: float, hi_rate: float, speed_range_m_s: tuple[float, float], implement: Implement,
-                   density_kg_l: float, working_speed_m_s: float) -> SprayerCheck:
+                   density_kg_l: float, working_speed_m_s: float) -> _SprayerCheck:
     """`machine_check` of a sprayer (its nozzles for the shaft, rates in L/ha: kg/ha over the density)."""
     spec, width = implement.machine, implement.width_m
     (v_lo, v_hi), n = speed_range_m_s, spec.nozzle_count(width)
@@ -264,11 +264,12 @@ def _sprayer_check(lo_rate: float, hi_rate: float, speed_range_m_s: tuple[float,
     else:
         slowest = fastest = math.nan
         suggested = None
-    return SprayerCheck(
+    return _SprayerCheck(
         rate_min_kg_ha=lo_rate, rate_max_kg_ha=hi_rate, speed_min_m_s=v_lo, speed_max_m_s=v_hi,
         rpm_min=float(boom_flow_l_min(lo_l, v_lo, width)), rpm_max=float(boom_flow_l_min(hi_l, v_hi, width)),
         shaft_rpm_min=q_lo * n, shaft_rpm_max=q_hi * n, min_speed_m_s=slowest, max_speed_m_s=fastest,
         min_width_m=0.0, narrowest_section_m=float(implement.section_widths.min()),
         kg_per_rev=math.nan, kg_per_rev_min=math.nan, kg_per_rev_max=math.nan,
-        nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi, working_speed_m_s=working_speed_m_s,
+        nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi,
+        working_speed_m_s=working_speed_m_s,
         nozzle_suggested=suggested)

@@ -56,7 +56,7 @@ def test_batched_variants_of_a_sprayer_equal_its_one_at_a_time_runs(control):
     from tests.integration.test_variants import assert_same_summary
 
     shared = drive(scenario.parse(SPRAYER_FIELD.replace("CONTROL", control), "sprayer.toml", "."))
-    cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PID", gains="manual", kp=0.2, ki=0.5, kd=0.0),
+    cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PID", gains="manual", kp=0.2, ki=0.5),
             ControllerConfig(kind="PID", look_ahead_s="auto"), ControllerConfig(kind="ideal")]
     for fast, cfg in zip(run_variants(shared, cfgs), cfgs, strict=True):
         assert_same_summary(fast, control_and_account(shared, cfg).summary)

@@ -80,8 +80,9 @@ class Sprayer(Machine):
     def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
         """The flow plant's tangent at the working point (the map's median positive rate at the
         working speed, each nozzle's flow held in its range; one section's nozzles under PWM, the
-        valve's time constant then a pulse period). Refuses a product that is not liquid, or the product's calibration error
-        (a sprayer's is its flow meter's); binds the product's density."""
+        valve's time constant then a pulse period), its current range the valve's flows. Refuses a
+        product that is not liquid, or the product's calibration error (a sprayer's is its flow
+        meter's: `check_liquid`); binds the product's density."""
         product = check_liquid(scenario)
         self.density_kg_l = product.density_kg_l
         fp, lin = self.flow_linearization(scenario, grid)
@@ -90,8 +91,8 @@ class Sprayer(Machine):
         # from 34 L/min), so the loop's current range is where the tangent gives those flows.
         metered_per_a = lin.slope_l_min_per_a * fp.meter_gain
         lo, hi = (flow * fp.meter_gain for flow in fp.flow_range_l_min())
-        return dataclasses.replace(lin.plant, current_min_a=lo / metered_per_a, current_max_a=hi / metered_per_a,
-                                   shaft_rpm_max=hi * (1.0 - 1e-9))
+        return dataclasses.replace(lin.plant, current_min_a=lo / metered_per_a,
+                                   current_max_a=hi / metered_per_a, shaft_rpm_max=hi * (1.0 - 1e-9))
 
     def flow_linearization(self, scenario, grid) -> tuple[FlowPlant, FlowLinearization]:
         """One loop's `controller.FlowPlant` and its `controller.linearize_flow` at the working point."""
@@ -103,7 +104,8 @@ class Sprayer(Machine):
         rates = grid.rates_kg_ha[np.isfinite(grid.rates_kg_ha) & (grid.rates_kg_ha > 0)]
         rate_l_ha = float(np.median(rates)) / self.density_kg_l if rates.size else 0.0
         # The nozzles' flow there, held in their range as the targets are.
-        per_nozzle = float(boom_flow_l_min(rate_l_ha, scenario.tractor.working_speed_m_s, spec.nozzle_spacing_m))
+        per_nozzle = float(boom_flow_l_min(rate_l_ha, scenario.tractor.working_speed_m_s,
+                                           spec.nozzle_spacing_m))
         flow = nozzles * float(np.clip(per_nozzle, *spec.nozzle_flow_range_l_min()))
         lo, hi = fp.flow_range_l_min()
         margin = _WORKING_POINT_MARGIN * (hi - lo)
