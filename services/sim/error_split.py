@@ -30,6 +30,7 @@ import numpy as np
 
 from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
+from services.sim.machines import machine_for
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
 from services.sim.section_landing import StripPlan
@@ -70,17 +71,17 @@ def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipp
     the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for; metering the
     configured constant exactly or, with `true_product`, what the product really gives per revolution."""
     sc = world.scenario
-    imp, period_s = sc.implement, sc.timing.control_period_s
+    period_s, machine = sc.timing.control_period_s, machine_for(sc.implement)   # rpm: the machine's terms
     if clipped:
         rpm = control["target_shaft_rpm"]
     else:
         width_on = control["width_on_m"]
         rate = np.nan_to_num(control["prescribed_kg_ha"])
-        wanted = imp.target_shaft_rpm(rate, measured_speed_m_s, width_on)
+        wanted = machine.wanted_rpm(rate, measured_speed_m_s, width_on, sc.product)
         rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
     if true_product:
-        return metered_kg(rpm * period_s / 60.0, imp.kg_per_rev, sc.product, sc.seed)[0]
-    return imp.mass_kg(rpm * period_s / 60.0)
+        return metered_kg(rpm * period_s / 60.0, machine.kg_per_rev(sc.product), sc.product, sc.seed)[0]
+    return machine.configured_kg(rpm * period_s / 60.0, sc.product)
 
 
 def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:

@@ -88,3 +88,15 @@ def test_calibrating_the_flow_meter_brings_the_mass_balance_back_within_one_perc
     settings = json.loads(vrsim("calibrate", path, "--json"))["settings"]
     assert settings["implement.flow_meter_pulses_per_l"] == pytest.approx(630.0, rel=0.005)
     assert abs(mass_balance_pct(*(f"{k}={v}" for k, v in settings.items()))) < 1.0
+
+
+def test_the_error_split_puts_a_flow_meters_error_under_calibration():
+    """The reference meters run in the sprayer's terms (L/min, litres x density): a meter reading 5 % high
+    is the calibration part (about 1 - 1/1.05), the nozzles in range leave the machine limits near 0."""
+    from services.sim.error_split import error_split
+
+    result = run(load(os.path.join(LIBRARY, "sprayer_meter_error_5pct.toml")))
+    parts = {p.cause: p for p in error_split(result)}
+    assert parts["calibration"].mass_balance_pct == pytest.approx(100 * (1 / 1.05 - 1), abs=0.5)
+    assert abs(parts["machine limits"].mass_balance_pct) < 1.0
+    assert abs(parts["metering"].mass_balance_pct) < 1.0

@@ -59,6 +59,15 @@ class Machine(ABC):
         applies `product`'s calibration error and flow variability to it): ``[implement] kg_per_rev``."""
         return self.implement.kg_per_rev
 
+    def wanted_rpm(self, rate_kg_ha, speed_m_s, width_m, product) -> np.ndarray:
+        """The machine-level target that applies `rate_kg_ha` at `speed_m_s` over `width_m`, unclipped
+        (the error split's reference meters, `services.sim.error_split`): the one shaft's rpm."""
+        return self.implement.target_shaft_rpm(rate_kg_ha, speed_m_s, width_m)
+
+    def configured_kg(self, rev, product) -> np.ndarray:
+        """What `rev` revolutions meter by the configured constant, kg: ``[implement] kg_per_rev``."""
+        return self.implement.mass_kg(rev)
+
     def limited(self, control: dict) -> np.ndarray:
         """Where the machine-level target (``control["target_shaft_rpm"]``, a run's control arrays) sits
         on a bound of the machine's range while applying, bool (n,)."""

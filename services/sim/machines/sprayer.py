@@ -116,6 +116,14 @@ class Sprayer(Machine):
         flow_meter_error_pct / 100`` times what flows) times the density."""
         return product.density_kg_l / self.spec.meter.gain
 
+    def wanted_rpm(self, rate_kg_ha, speed_m_s, width_m, product) -> np.ndarray:
+        """The boom's flow for the rate, L/min (the meter's terms), unclipped."""
+        return boom_flow_l_min(np.asarray(rate_kg_ha, float) / product.density_kg_l, speed_m_s, width_m)
+
+    def configured_kg(self, rev, product) -> np.ndarray:
+        """Litres metered times the density, kg (the meter taken at its word)."""
+        return np.asarray(rev, float) * product.density_kg_l
+
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
         x, y, cos, sin = motion.ahead(lead_s)
         if not self.pwm:
