@@ -100,3 +100,31 @@ def test_the_error_split_puts_a_flow_meters_error_under_calibration():
     assert parts["calibration"].mass_balance_pct == pytest.approx(100 * (1 / 1.05 - 1), abs=0.5)
     assert abs(parts["machine limits"].mass_balance_pct) < 1.0
     assert abs(parts["metering"].mass_balance_pct) < 1.0
+
+
+def _vrsim(*args):
+    import subprocess
+
+    from tests.conftest import VRSIM
+
+    return subprocess.run([VRSIM, *args], capture_output=True, text=True, timeout=300)
+
+
+def test_bad_sprayer_input_is_one_line_naming_file_key_and_value(tmp_path):
+    path = os.path.join(LIBRARY, "sprayer_default_field.toml")
+    p = _vrsim("run", path, "--check", "--set", "implement.pressure_range_bar=[1.5, 5.0]")
+    assert p.returncode == 2 and p.stderr.count("\n") == 1
+    assert f"{path}: [implement] sprayer: nozzle '04'" in p.stderr and "at any speed" in p.stderr
+    p = _vrsim("run", path, "--check")
+    assert p.returncode == 0 and "the sprayer can apply the map" in p.stdout
+    small = os.path.join(LIBRARY, "sprayer_meter_error_5pct.toml")
+    for change, says in (("product.form=granular", "[product] form: a sprayer meters a liquid, got 'gran"),
+                         ("product.calibration_error_pct=3", "[product] calibration_error_pct: a sprayer's"),
+                         ("implement.sections=5", "[implement] section_widths_m: section 3 (2.4 m)")):
+        p = _vrsim("run", small, "--quiet", "--out", str(tmp_path / "bad"), "--set", change)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1 and f"{small}: {says}" in p.stderr, p.stderr
+    for args, says in ((("--set", "product.form=granular"), "[product] form 'granular': a sprayer meters"),
+                       (("--seconds", "0"), "--seconds 0.0: must be"),
+                       (("--jug-error-ml", "-1"), "--jug-error-ml -1.0: must be")):
+        p = _vrsim("calibrate", small, *args)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1 and says in p.stderr, p.stderr

@@ -22,7 +22,8 @@ and product is true litres times ``[product] density_kg_l`` (`Sprayer.kg_per_rev
   loop's product. The pulse trains' ripple within a tick (`pwm_open_fraction`) averages out over a
   strip's ticks and is not drawn.
 
-Each section's nozzles are those whose centres lie across it; a closed section's valve shuts them.
+Each section's nozzles are those whose centres lie across it (a section is a whole number of nozzle
+spacings wide); a closed section's valve shuts them.
 """
 
 from __future__ import annotations
@@ -53,18 +54,22 @@ class Sprayer(Machine):
     def __init__(self, implement: Implement):
         super().__init__(implement)
         spec = self.spec = implement.machine
+        self.layout_error = None   # a boom the nozzles do not fit: `loop_plant` names it with the file
         try:
             self.nozzle_offsets_m = -spec.nozzle_offsets_m(implement.width_m)   # left positive, (N,)
         except VrsimError as exc:
-            raise ScenarioError(f"[implement] {exc}") from None
+            self.layout_error, self.nozzle_offsets_m = str(exc), np.zeros(1)
         edges = implement.width_m / 2 - np.concatenate([[0.0], np.cumsum(implement.section_widths)])
         # Section of each nozzle: the one its centre lies across (sections left to right).
         self.nozzle_section = np.clip(np.searchsorted(-edges, -self.nozzle_offsets_m) - 1, 0,
                                       implement.sections - 1)
         self.nozzles_per_section = np.bincount(self.nozzle_section, minlength=implement.sections)
-        if not self.nozzles_per_section.all():
-            raise ScenarioError(f"[implement] nozzle_spacing_m: {spec.nozzle_spacing_m!r} m leaves section "
-                                f"{int(np.argmin(self.nozzles_per_section)) + 1} without a nozzle")
+        # A section is a whole number of nozzles (its valve shuts them), so its strip gets what they spray.
+        off = np.abs(implement.section_widths - self.nozzles_per_section * spec.nozzle_spacing_m)
+        if self.layout_error is None and (off > 0.01 * spec.nozzle_spacing_m).any():
+            bad = int(np.argmax(off))
+            self.layout_error = (f"section_widths_m: section {bad + 1} ({implement.section_widths[bad]:g} m) "
+                                 f"is not a whole number of nozzle_spacing_m ({spec.nozzle_spacing_m:g} m)")
         self.pwm = spec.control == "pwm"
         self.density_kg_l = 1.0   # the product's, set by `loop_plant` (a run's core)
 
@@ -83,6 +88,8 @@ class Sprayer(Machine):
         valve's time constant then a pulse period), its current range the valve's flows. Refuses a
         product that is not liquid, or the product's calibration error (a sprayer's is its flow
         meter's: `check_liquid`); binds the product's density."""
+        if self.layout_error is not None:
+            raise ScenarioError(f"{scenario.source}: [implement] {self.layout_error}")
         product = check_liquid(scenario)
         self.density_kg_l = product.density_kg_l
         fp, lin = self.flow_linearization(scenario, grid)
