@@ -61,7 +61,7 @@ def check_world(world: World, in_field: np.ndarray | None = None) -> MachineChec
         return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement,
                              sc.product.density_kg_l, sc.tractor.working_speed_m_s)
     except VehicleError as exc:   # a sprayer's nozzle that cannot apply the map at any speed
-        raise ScenarioError(f"{sc.source}: [implement] {exc}") from None
+        raise ScenarioError(f"{sc.source}: {exc}") from None
 
 
 @dataclass(frozen=True)

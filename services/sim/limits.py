@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common import VehicleError
 from vehicle import DriveConfig, Implement
 from vehicle.sprayer import boom_flow_l_min
 
@@ -156,7 +157,7 @@ def working_speeds(drive: DriveConfig) -> tuple[float, float]:
 
 
 def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: Implement,
-                  density_kg_l: float = 1.0, working_speed_m_s: float | None = None) -> MachineCheck:
+                  density_kg_l: float | None = 1.0, working_speed_m_s: float | None = None) -> MachineCheck:
     """Whether `implement` can apply `rates_kg_ha` at speeds within `speed_range_m_s`.
 
     Parameters
@@ -166,15 +167,16 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     speed_range_m_s : (float, float)
         Lowest and highest working speed (`working_speeds`).
     implement : vehicle.Implement
-    density_kg_l : float
-        The product's (a sprayer's map in kg/ha is L/ha times it).
+    density_kg_l : float or None
+        The product's (a sprayer's map in kg/ha is L/ha times it; None: not given, which a sprayer refuses).
     working_speed_m_s : float, optional
         Where a sprayer's nozzle size is suggested; default the middle of `speed_range_m_s`.
 
     Raises
     ------
     VehicleError
-        A sprayer whose nozzles cannot apply the map's rates at any speed.
+        A sprayer whose nozzles cannot apply the map's rates at any speed, or without a density; the
+        message starts with the table it names.
     """
     rates = np.asarray(rates_kg_ha, float).ravel()
     rates = rates[np.isfinite(rates) & (rates > 0)]
@@ -182,7 +184,13 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     v_lo, v_hi = speed_range_m_s
     if implement.kind == "sprayer":
         working = (v_lo + v_hi) / 2.0 if working_speed_m_s is None else working_speed_m_s
-        return _sprayer_check(lo_rate, hi_rate, speed_range_m_s, implement, density_kg_l, working)
+        if density_kg_l is None:
+            raise VehicleError("[product] density_kg_l: a sprayer's kg are litres times the liquid's "
+                               "density, got none (water: 1.0)")
+        try:
+            return _sprayer_check(lo_rate, hi_rate, speed_range_m_s, implement, density_kg_l, working)
+        except VehicleError as exc:
+            raise VehicleError(f"[implement] {exc}") from None
     width = implement.width_m
     rpm_min = float(implement.target_shaft_rpm(lo_rate, v_lo, width))
     rpm_max = float(implement.target_shaft_rpm(hi_rate, v_hi, width))

@@ -202,13 +202,16 @@ class Sprayer(Machine):
 
 
 def check_liquid(scenario):
-    """`scenario`'s product, which a sprayer can meter: liquid, its calibration error the flow meter's
-    (``[implement] flow_meter_error_pct``, not ``[product] calibration_error_pct``); `ScenarioError`
-    naming the file, key and value otherwise."""
+    """`scenario`'s product, which a sprayer can meter: liquid, of a given density, its calibration
+    error the flow meter's (``[implement] flow_meter_error_pct``, not ``[product]
+    calibration_error_pct``); `ScenarioError` naming the file, key and value otherwise."""
     product = scenario.product
     if product.form != "liquid":
         raise ScenarioError(f"{scenario.source}: [product] form: a sprayer meters a liquid, got "
                             f"{product.form!r} (set form = \"liquid\" and its density_kg_l)")
+    if product.density_kg_l is None:
+        raise ScenarioError(f"{scenario.source}: [product] density_kg_l: a sprayer's kg are litres times the "
+                            "liquid's density, got none (water: 1.0)")
     if product.calibration_error_pct != 0:
         raise ScenarioError(f"{scenario.source}: [product] calibration_error_pct: a sprayer's calibration "
                             f"error is its flow meter's ([implement] flow_meter_error_pct), got "
