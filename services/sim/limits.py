@@ -231,6 +231,8 @@ class _SprayerCheck(MachineCheck):
         The tractor's working speed.
     nozzle_suggested : str or None
         The size that covers the map's rates at the working speed with the most margin (None: none).
+    density_kg_l : float
+        The liquid's density: the map's kg/ha over it are the L/ha the text shows.
     """
 
     nozzle: str = ""
@@ -238,14 +240,17 @@ class _SprayerCheck(MachineCheck):
     nozzle_flow_max_l_min: float = math.nan
     working_speed_m_s: float = math.nan
     nozzle_suggested: str | None = None
+    density_kg_l: float = 1.0
 
     def text(self) -> str:
         """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
-        lines = [f"Machine check: the sprayer {verdict}: {self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} "
-                 f"kg/ha at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
+        lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
+        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha "
+                 f"({self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} kg/ha) at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} "
+                 f"m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
                  f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",
                  f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
@@ -279,5 +284,5 @@ def _sprayer_check(lo_rate: float, hi_rate: float, speed_range_m_s: tuple[float,
         min_width_m=0.0, narrowest_section_m=float(implement.section_widths.min()),
         kg_per_rev=math.nan, kg_per_rev_min=math.nan, kg_per_rev_max=math.nan,
         nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi,
-        working_speed_m_s=working_speed_m_s,
+        working_speed_m_s=working_speed_m_s, density_kg_l=density_kg_l,
         nozzle_suggested=suggested)

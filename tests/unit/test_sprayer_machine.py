@@ -71,7 +71,7 @@ def test_a_boom_the_nozzles_do_not_fit_is_named():
 def test_the_machine_check_names_the_speeds_and_the_nozzle_that_would_do():
     wide = _sprayer(nozzle="04", pressure_range_bar=(1.0, 8.0))      # air-induction nozzles: 1-8 bar
     check = machine_check(np.array([130.0, 278.0]), (2.38, 2.62), wide, 1.0, 2.5)
-    assert check.can_apply and "the sprayer can apply the map" in check.text()
+    assert check.can_apply and "the sprayer can apply the map: 130-278 L/ha (130-278 kg/ha)" in check.text()
     lo, hi = SprayerSpec(nozzle="04", pressure_range_bar=(1.0, 8.0)).speed_range_m_s(130.0, 278.0)
     assert (check.min_speed_m_s, check.max_speed_m_s) == pytest.approx((lo, hi))
     assert check.rpm_max == pytest.approx(boom_flow_l_min(278.0, 2.62, 12.0))
