@@ -249,8 +249,8 @@ class _SprayerCheck(MachineCheck):
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
         lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
         lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha "
-                 f"({self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} kg/ha) at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} "
-                 f"m/s needs {self.rpm_min:.1f}-"
+                 f"({self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} kg/ha) at "
+                 f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
                  f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",
                  f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
