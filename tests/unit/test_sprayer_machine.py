@@ -90,3 +90,16 @@ def test_a_nozzle_that_cannot_cover_the_map_at_any_speed_is_one_line():
         machine_check(np.array([130.0, 278.0]), (2.38, 2.62), _sprayer(nozzle="02"))
     msg = str(err.value)
     assert "\n" not in msg and "nozzle '02'" in msg and "at any speed" in msg and 'control = "pwm"' in msg
+
+
+def test_pwm_lands_each_sections_own_product_and_a_record_without_it_by_width():
+    machine = machine_for(_sprayer(control="pwm"))
+    on = np.array([[True, True, False, False, False, False]])
+    own = np.array([[1.0, 3.0, 0.0, 0.0, 0.0, 0.0]])
+    assert machine.deposit_kg({"drive_kg": own, "metered_kg": own.sum(axis=1), "sections_on": on}) \
+        == pytest.approx(own)
+    # the monitor's records carry the machine-level keys only
+    assert machine.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) \
+        == pytest.approx([[2.0, 2.0, 0.0, 0.0, 0.0, 0.0]])
+    flow = machine_for(_sprayer())
+    assert flow.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) == pytest.approx([4.0])

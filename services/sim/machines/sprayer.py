@@ -36,6 +36,7 @@ from common import ScenarioError, VrsimError
 from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import register_machine
+from services.sim.machines.section_drives import SectionDrives
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -193,8 +194,11 @@ class Sprayer(Machine):
 
     # --- deposition ---------------------------------------------------------------------------------
     def deposit_kg(self, control: dict) -> np.ndarray:
-        """The boom's product (n,) with flow control; each section's (n, sections) under PWM."""
-        return np.asarray(control["drive_kg"]) if self.pwm else np.asarray(control["metered_kg"])
+        """The boom's product (n,) with flow control; each section's (n, sections) under PWM (records
+        without it, the monitor's, share the boom's by width as `section_drives`' do)."""
+        if not self.pwm:
+            return np.asarray(control["metered_kg"])
+        return SectionDrives.deposit_kg(self, control)   # a loop per section, as a drive per section
 
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None) -> StripPlan:
