@@ -100,6 +100,6 @@ def test_pwm_lands_each_sections_own_product_and_a_record_without_it_by_width():
         == pytest.approx(own)
     # the monitor's records carry the machine-level keys only
     assert machine.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) \
-        == pytest.approx([[2.0, 2.0, 0.0, 0.0, 0.0, 0.0]])
+        == pytest.approx(np.array([[2.0, 2.0, 0.0, 0.0, 0.0, 0.0]]))
     flow = machine_for(_sprayer())
     assert flow.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) == pytest.approx([4.0])
