@@ -42,6 +42,8 @@ class MachineSpec:
 
     KIND: ClassVar[str] = ""
     MAX_SECTIONS: ClassVar[int | None] = None   # None: as many as the implement allows
+    # Shared ``[implement]`` keys the kind has no use for (a sprayer's has no shaft): refused if given.
+    UNUSED_KEYS: ClassVar[tuple[str, ...]] = ()
 
     def check_sections(self, sections: int) -> None:
         """Refuse more sections than the kind supports (`VehicleError` naming kind, limit and count)."""

@@ -142,6 +142,9 @@ class SprayerSpec(MachineSpec):
     """
 
     KIND: ClassVar[str] = "sprayer"
+    # A boom has no metering shaft: its flow meter and nozzles stand for these.
+    UNUSED_KEYS: ClassVar[tuple[str, ...]] = ("kg_per_rev", "transmission_ratio", "shaft_rpm_min",
+                                              "shaft_rpm_max")
 
     nozzle: str = "02"
     nozzle_spacing_m: float = 0.5

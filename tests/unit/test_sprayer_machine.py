@@ -103,3 +103,17 @@ def test_pwm_lands_each_sections_own_product_and_a_record_without_it_by_width():
         == pytest.approx(np.array([[2.0, 2.0, 0.0, 0.0, 0.0, 0.0]]))
     flow = machine_for(_sprayer())
     assert flow.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) == pytest.approx([4.0])
+
+
+def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out():
+    from common import ScenarioError
+    from services.sim import scenario
+    from services.sim.machines.keys import implement_from_table, implement_table
+
+    with pytest.raises(ScenarioError, match=r"x.toml: \[implement\] kg_per_rev is not a key of kind 'sprayer'"):
+        implement_from_table({"kind": "sprayer", "kg_per_rev": 0.8}, "x.toml")
+    # at the default (a granular file whose kind --set changes) it changes nothing
+    assert implement_from_table({"kind": "sprayer", "kg_per_rev": 0.5}, "x.toml").kind == "sprayer"
+    sprayer = scenario.with_changes(scenario.load("default"), implement={"kind": "sprayer", "nozzle": "08"})
+    assert "kg_per_rev" not in implement_table(sprayer.implement)
+    assert implement_table(sprayer.implement)["nozzle"] == "08"

@@ -12,9 +12,10 @@ import dataclasses
 from common import ScenarioError, VrsimError
 from services.sim.tables import build, no_unknown
 from vehicle import Implement
-from vehicle.machines import DEFAULT_KIND, key_owner, spec_class, spec_keys
+from vehicle.machines import DEFAULT_KIND, SPECS, key_owner, spec_class, spec_keys
 
 IMPLEMENT_KEYS = {f.name for f in dataclasses.fields(Implement) if f.init} - {"machine"}
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(Implement)}
 
 
 def implement_from_table(table: dict, source: str) -> Implement:
@@ -25,6 +26,12 @@ def implement_from_table(table: dict, source: str) -> Implement:
         spec = spec_class(kind)
     except VrsimError as exc:
         raise ScenarioError(f"{source}: [implement] {exc}") from None
+    # A key the kind has no use for, set to anything but its default, would be silently ignored; at its
+    # default (a file written for another kind, its kind changed by --set) it changes nothing.
+    unused = sorted(k for k in set(table) & set(spec.UNUSED_KEYS) if table[k] != _DEFAULTS[k])
+    if unused:
+        raise ScenarioError(f"{source}: [implement] {unused[0]} is not a key of kind {kind!r}, which has no "
+                            f"use for it (got {table[unused[0]]!r})")
     own = {k: v for k, v in table.items() if k in IMPLEMENT_KEYS}
     rest = {k: v for k, v in table.items() if k not in IMPLEMENT_KEYS}
     for key in sorted(rest):
@@ -38,7 +45,8 @@ def implement_from_table(table: dict, source: str) -> Implement:
 
 def implement_table(implement: Implement) -> dict:
     """`implement` as its ``[implement]`` table: the shared keys and its kind's, side by side."""
-    table = {f.name: getattr(implement, f.name) for f in dataclasses.fields(implement) if f.init}
+    table = {f.name: getattr(implement, f.name) for f in dataclasses.fields(implement) if f.init
+             and f.name not in implement.machine.UNUSED_KEYS}
     machine = table.pop("machine")
     return {**table, **dataclasses.asdict(machine)}
 
@@ -47,6 +55,8 @@ def changed_implement(current: Implement, changes: dict, source: str) -> Impleme
     """`services.sim.scenario.with_changes` of ``[implement]``: keys as in a file; a change of kind
     drops the old kind's keys."""
     kept = implement_table(current)
-    if changes.get("kind", current.kind) != current.kind:
-        kept = {k: v for k, v in kept.items() if k in IMPLEMENT_KEYS}
+    kind = changes.get("kind", current.kind)
+    if kind != current.kind:
+        unused = spec_class(kind).UNUSED_KEYS if kind in SPECS else ()
+        kept = {k: v for k, v in kept.items() if k in IMPLEMENT_KEYS and k not in unused}
     return implement_from_table({**kept, **changes}, source)
