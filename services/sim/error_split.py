@@ -3,12 +3,16 @@ metering.
 
 The target shaft speed of every tick, the sections' gates and where product lands do not depend on
 the meter (nothing feeds back into them), so the same run is re-landed with three reference meters
-whose shafts turn at exactly a given speed each control period (no PID, no plant, no delay):
+whose shafts turn at exactly a given speed each control period (no PID, no plant, no delay). A
+reference meter is the run's machine kind (`services.sim.machines`) with each of its metering drives
+so turned, its product landing through the kind's own plan (a drive per section: each section's
+strip carries its own drive's product):
 
 1. *geometry and section control*: the shaft at the speed the map asks for, unclipped (as if the
    shaft had no speed range). What is left is where and when product lands: the look-ahead,
    section switching and its latencies, overlap and skips, speed changing within the delivery
-   delay, a single meter sharing product by width in curves;
+   delay, a single meter sharing product by width in curves (a drive per section: each drive at its
+   own section's rate and, with turn compensation, its own ground speed);
 2. *machine limits*: the shaft at the target clipped to ``[shaft_rpm_min, shaft_rpm_max]``: the
    ``ideal`` controller kind, metering the configured ``kg_per_rev`` per revolution exactly; the
    difference to 1;
@@ -24,17 +28,19 @@ under-applying limit against over-application at swath ends, say).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
-from services.sim.machines import machine_for
+from services.sim.machines import Machine, machine_for
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
 from services.sim.section_landing import StripPlan
-from services.sim.sections import run_section_states
+from services.sim.sections import SectionStates, run_section_states
+from services.sim.sections.motion import MotionTrend
 from services.sim.world import World
 from vehicle.product import metered_kg
 
@@ -65,23 +71,23 @@ class ErrorPart:
     share_pct: float
 
 
-def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool,
+def _reference_metered_kg(world: World, machine: Machine, states: SectionStates, control: dict, clipped: bool,
                           true_product: bool) -> np.ndarray:
-    """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
-    the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for; metering the
-    configured constant exactly or, with `true_product`, what the product really gives per revolution."""
+    """Product per tick and drive, kg (ticks, drives), of drives whose shafts turn at exactly their
+    targets: the run's (clipped to the shaft's range, as the ``ideal`` kind) or, unclipped, the speed
+    the map asks for (the machine kind's targets with the range lifted: each drive's rate at its own
+    landing point, its own ground speed); metering the configured constant exactly or, with
+    `true_product`, what the product really gives per revolution (`ControlCore._metered_kg`'s way)."""
     sc = world.scenario
-    period_s, machine = sc.timing.control_period_s, machine_for(sc.implement)   # rpm: the machine's terms
+    period_s = sc.timing.control_period_s
     if clipped:
-        rpm = control["target_shaft_rpm"]
+        rpm = np.asarray(control["drive_target_rpm"], float)
     else:
-        width_on = control["width_on_m"]
-        rate = np.nan_to_num(control["prescribed_kg_ha"])
-        wanted = machine.wanted_rpm(rate, measured_speed_m_s, width_on, sc.product)
-        rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
+        rpm = machine.unlimited_targets(np.nan_to_num(control["drive_rate_kg_ha"]), states, sc.product)
+    rev = rpm * period_s / 60.0   # in the machine's terms: a shaft's revolutions, a sprayer's metered litres
     if true_product:
-        return metered_kg(rpm * period_s / 60.0, machine.kg_per_rev(sc.product), sc.product, sc.seed)[0]
-    return machine.configured_kg(rpm * period_s / 60.0, sc.product)
+        return metered_kg(rev, machine.kg_per_rev(sc.product), sc.product, sc.seed)[0] * machine.drive_share
+    return machine.configured_kg(rev, sc.product) * machine.drive_share
 
 
 def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
@@ -90,24 +96,32 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     run's drive and control alone, so `vrsim run` computes it beside the run's accounting
     (`services.sim.streamed`).
 
-    The strips lie where the run's did, whatever they carry, so their geometry is worked out once
-    (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
-    the accounting's map figures (`services.sim.accounting.map_figures`)."""
-    imp, grid = world.scenario.implement, world.grid
-    metered = np.column_stack([_reference_metered_kg(world, control, measured_speed_m_s, *reference)
-                               for reference in _REFERENCES])
-    plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
-                        world.scenario.timing.control_period_s, min(grid.cell_size))
-    rasters = _reference_rasters(grid, plan, metered)
+    The references go through the run's machine kind (`services.sim.machines`): each drive's target
+    and product, landing through the kind's plan (a drive per section: each section's strip its own
+    drive's product). The sensed motion the targets were computed with is the measured speed and the
+    track's heading (`MotionTrend`: a drive's own speed in a turn). The plan is worked out once and
+    mapped to the raster once for all meters (`maps.ColumnDeposit`); their figures are the
+    accounting's map figures (`services.sim.accounting.map_figures`)."""
+    imp, grid, period_s = world.scenario.implement, world.grid, world.scenario.timing.control_period_s
+    machine = machine_for(imp)
+    states = run_section_states(track, control, imp)
+    # Only the motion's speed and yaw rate (from the heading) are read by a kind's targets.
+    states = dataclasses.replace(states, motion=MotionTrend(period_s).step(
+        track["x_m"], track["y_m"], track["heading_rad"], measured_speed_m_s))
+    metered = np.stack([_reference_metered_kg(world, machine, states, control, *reference)
+                        for reference in _REFERENCES], axis=-1)      # (ticks, drives, references)
+    plan = machine.deposition(track, states, imp.delivery_delay_s, period_s, min(grid.cell_size))
+    rasters = _reference_rasters(grid, plan, metered[:, 0] if machine.drives == 1 else metered)
     in_field = cells_in_field(grid, world.field.polygon)
     applied_kg_ha = rasters.applied_kg_ha
     return [map_figures(grid, in_field, applied_kg_ha[j], rasters.coverage_fraction[j],
-                        float(np.sum(metered[:, j])), float(rasters.outside_kg[j]))
-            for j in range(metered.shape[1])]
+                        float(np.sum(metered[..., j])), float(rasters.outside_kg[j]))
+            for j in range(metered.shape[-1])]
 
 
 def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> AppliedColumns:
-    """The as-applied rasters of the columns `metered_kg` (ticks, n) along the plan's strips."""
+    """The as-applied rasters of the columns `metered_kg` (ticks, n), or (ticks, drives, n) for several
+    drives, through the plan's footprint."""
     return ColumnDeposit(grid, plan.strips.footprint()).apply(plan.mass_kg(metered_kg))
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import sys
 from abc import ABC, abstractmethod
 from typing import ClassVar
 
@@ -59,19 +61,21 @@ class Machine(ABC):
         applies `product`'s calibration error and flow variability to it): ``[implement] kg_per_rev``."""
         return self.implement.kg_per_rev
 
-    def wanted_rpm(self, rate_kg_ha, speed_m_s, width_m, product) -> np.ndarray:
-        """The machine-level target that applies `rate_kg_ha` at `speed_m_s` over `width_m`, unclipped
-        (the error split's reference meters, `services.sim.error_split`): the one shaft's rpm."""
-        return self.implement.target_shaft_rpm(rate_kg_ha, speed_m_s, width_m)
+    def unlimited_targets(self, rate_kg_ha: np.ndarray, states: SectionStates, product) -> np.ndarray:
+        """Each drive's target for its rate with the machine's range lifted (the error split's reference
+        that applies what the map asks, `services.sim.error_split`): a shaft without a speed range."""
+        unlimited = dataclasses.replace(self.implement, shaft_rpm_min=0.0, shaft_rpm_max=sys.float_info.max)
+        return type(self)(unlimited).drive_targets(rate_kg_ha, states)
 
     def configured_kg(self, rev, product) -> np.ndarray:
         """What `rev` revolutions meter by the configured constant, kg: ``[implement] kg_per_rev``."""
         return self.implement.mass_kg(rev)
 
     def limited(self, control: dict) -> np.ndarray:
-        """Where the machine-level target (``control["target_shaft_rpm"]``, a run's control arrays) sits
-        on a bound of the machine's range while applying, bool (n,)."""
-        return self.implement.shaft_limited(control["target_shaft_rpm"])
+        """Where a drive's target (``control["drive_target_rpm"]``, a run's control arrays) sits on a bound
+        of the machine's range, bool (n,): a closed drive's target is 0, never on a bound, so any
+        drive's flags the tick."""
+        return self.implement.shaft_limited(control["drive_target_rpm"]).any(axis=1)
 
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
@@ -82,6 +86,11 @@ class Machine(ABC):
     @abstractmethod
     def drive_open(self, states: SectionStates) -> np.ndarray:
         """Whether each drive's product reaches the ground in each tick, bool (n, drives)."""
+
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
+        """Each drive's ground speed as the machine senses it, m/s (n, drives): the centre's sensed
+        speed for every drive unless a kind's drives have their own (the controllers' context)."""
+        return np.broadcast_to(motion.speed_m_s[:, None], (len(motion.speed_m_s), self.drives))
 
     @abstractmethod
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:

@@ -124,10 +124,6 @@ class Sprayer(Machine):
         flow_meter_error_pct / 100`` times what flows) times the density."""
         return product.density_kg_l / self.spec.meter.gain
 
-    def wanted_rpm(self, rate_kg_ha, speed_m_s, width_m, product) -> np.ndarray:
-        """The boom's flow for the rate, L/min (the meter's terms), unclipped."""
-        return boom_flow_l_min(np.asarray(rate_kg_ha, float) / product.density_kg_l, speed_m_s, width_m)
-
     def configured_kg(self, rev, product) -> np.ndarray:
         """Litres metered times the density, kg (the meter taken at its word)."""
         return np.asarray(rev, float) * product.density_kg_l
@@ -142,32 +138,48 @@ class Sprayer(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return states.actual if self.pwm else (states.width_on_m > 0)[:, None]
 
-    def nozzle_flow_l_min(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
-        """Each nozzle's target flow, L/min (n, N): under PWM at its section's rate and its own ground
-        speed, its duty within the duty range; with flow control the boom's flow (for the centre's rate
-        and speed over the open nozzles, within the pressure range) shared by the open nozzles.
-        0 where the nozzle's section is closed."""
-        spec, rate_l_ha = self.spec, rate_kg_ha / self.density_kg_l
-        open_nozzle = states.actual[:, self.nozzle_section]
-        q_lo, q_hi = spec.nozzle_flow_range_l_min()
+    def nozzle_flow_l_min(self, rate_l_ha: np.ndarray, states: SectionStates,
+                          limits: bool = True) -> np.ndarray:
+        """Each nozzle's target flow, L/min (n, N), for the rates in L/ha (n, drives): under PWM at its
+        section's rate and its own ground speed, its duty within the duty range; with flow control the
+        boom's flow (for the centre's rate and speed over the open nozzles, within the pressure range)
+        shared by the open nozzles. `limits` false lifts the ranges. 0 where the section is closed."""
+        spec, open_nozzle = self.spec, states.actual[:, self.nozzle_section]
         if self.pwm:
             speed = np.abs(states.motion.speed_m_s[:, None]
                            - states.motion.yaw_rate_rad_s[:, None] * self.nozzle_offsets_m)
             q_full = float(nozzle_flow_l_min(spec.q_ref_l_min, spec.pwm_pressure_bar))
-            flow = pwm_duty_pct(rate_l_ha[:, self.nozzle_section], speed, spec.nozzle_spacing_m, q_full,
-                                spec.duty_range_pct) / 100.0 * q_full
-            return np.where(open_nozzle, flow, 0.0)
+            duty = pwm_duty_pct(rate_l_ha[:, self.nozzle_section], speed, spec.nozzle_spacing_m, q_full,
+                                spec.duty_range_pct if limits else (0.0, np.inf))
+            return np.where(open_nozzle, duty / 100.0 * q_full, 0.0)
         per_nozzle = boom_flow_l_min(rate_l_ha[:, 0], states.motion.speed_m_s, spec.nozzle_spacing_m)
-        flow = np.where(per_nozzle > 0, np.clip(per_nozzle, q_lo, q_hi), 0.0)
-        return np.where(open_nozzle, flow[:, None], 0.0)
+        if limits:
+            per_nozzle = np.where(per_nozzle > 0, np.clip(per_nozzle, *spec.nozzle_flow_range_l_min()), 0.0)
+        return np.where(open_nozzle, per_nozzle[:, None], 0.0)
 
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         """Each loop's target, metered L/min (the terminal takes its meter at its word): the boom's
         (flow control) or each section's nozzles' (PWM)."""
-        flow = self.nozzle_flow_l_min(rate_kg_ha, states)
+        return self._per_drive(self.nozzle_flow_l_min(rate_kg_ha / self.density_kg_l, states))
+
+    def unlimited_targets(self, rate_kg_ha: np.ndarray, states: SectionStates, product) -> np.ndarray:
+        """`drive_targets` with the nozzles' pressure (PWM: duty) range lifted, for `product`'s density."""
+        flow = self.nozzle_flow_l_min(rate_kg_ha / product.density_kg_l, states, limits=False)
+        return self._per_drive(flow)
+
+    def _per_drive(self, nozzle_flow_l_min: np.ndarray) -> np.ndarray:
+        """Nozzles' flows (n, N) -> each loop's (n, drives): the boom's, or each section's nozzles'."""
         if not self.pwm:
-            return flow.sum(axis=1, keepdims=True)
-        return np.add.reduceat(flow, np.r_[0, np.cumsum(self.nozzles_per_section)[:-1]], axis=1)
+            return nozzle_flow_l_min.sum(axis=1, keepdims=True)
+        return np.add.reduceat(nozzle_flow_l_min, np.r_[0, np.cumsum(self.nozzles_per_section)[:-1]], axis=1)
+
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
+        """Each loop's ground speed (the controllers' context), m/s: the centre's (flow control) or each
+        section's own, ``v - yaw_rate * offset`` (PWM: its nozzles' mean)."""
+        if not self.pwm:
+            return super().drive_speed_m_s(motion)
+        offsets = self.implement.section_offsets_m
+        return np.abs(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * offsets)
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
         return per_drive.sum(axis=1)   # the boom's flow (L/min) or litres: the sections' together
