@@ -92,17 +92,12 @@ def test_a_nozzle_that_cannot_cover_the_map_at_any_speed_is_one_line():
     assert "\n" not in msg and "nozzle '02'" in msg and "at any speed" in msg and 'control = "pwm"' in msg
 
 
-def test_pwm_lands_each_sections_own_product_and_a_record_without_it_by_width():
-    machine = machine_for(_sprayer(control="pwm"))
+def test_pwm_lands_each_sections_own_product_and_flow_control_the_booms():
     on = np.array([[True, True, False, False, False, False]])
     own = np.array([[1.0, 3.0, 0.0, 0.0, 0.0, 0.0]])
-    assert machine.deposit_kg({"drive_kg": own, "metered_kg": own.sum(axis=1), "sections_on": on}) \
-        == pytest.approx(own)
-    # the monitor's records carry the machine-level keys only
-    assert machine.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) \
-        == pytest.approx(np.array([[2.0, 2.0, 0.0, 0.0, 0.0, 0.0]]))
-    flow = machine_for(_sprayer())
-    assert flow.deposit_kg({"metered_kg": np.array([4.0]), "sections_on": on}) == pytest.approx([4.0])
+    control = {"drive_kg": own, "metered_kg": own.sum(axis=1), "sections_on": on}
+    assert machine_for(_sprayer(control="pwm")).deposit_kg(control) == pytest.approx(own)
+    assert machine_for(_sprayer()).deposit_kg(control) == pytest.approx([4.0])
 
 
 def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out():

@@ -36,7 +36,6 @@ from common import ScenarioError, VrsimError
 from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import register_machine
-from services.sim.machines.section_drives import SectionDrives
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -205,13 +204,6 @@ class Sprayer(Machine):
         return at_bound.any(axis=1)
 
     # --- deposition ---------------------------------------------------------------------------------
-    def deposit_kg(self, control: dict) -> np.ndarray:
-        """The boom's product (n,) with flow control; each section's (n, sections) under PWM (records
-        without it, the monitor's, share the boom's by width as `section_drives`' do)."""
-        if not self.pwm:
-            return np.asarray(control["metered_kg"])
-        return SectionDrives.deposit_kg(self, control)   # a loop per section, as a drive per section
-
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None) -> StripPlan:
         return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, own_drives=self.pwm)
