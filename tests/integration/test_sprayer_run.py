@@ -128,3 +128,19 @@ def test_bad_sprayer_input_is_one_line_naming_file_key_and_value(tmp_path):
                        (("--jug-error-ml", "-1"), "--jug-error-ml -1.0: must be")):
         p = _vrsim("calibrate", small, *args)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and says in p.stderr, p.stderr
+
+
+def test_vrsim_runs_streamed_parts_give_the_in_process_runs_figures(tmp_path):
+    """`vrsim run` (its streamed parts, SUMO in a second process) of the PWM example equals the in-process
+    run: the sections' flow loops carry their state from part to part."""
+    import json
+
+    from tests.conftest import ROOT
+
+    path = os.path.join(ROOT, "scenarios", "sprayer.toml")
+    p = _vrsim("run", path, "--quiet", "--json", "--out", str(tmp_path / "out"),
+               "--set", "output.plots=false", "--set", "output.html=false")
+    assert p.returncode == 0, p.stderr
+    streamed, in_process = json.loads(p.stdout), run(load(path)).summary
+    for key in ("applied_kg", "mass_balance_pct", "mae_kg_ha", "within_10pct_area_pct", "limited_time_pct"):
+        assert streamed[key] == pytest.approx(in_process[key], rel=1e-12), key
