@@ -120,9 +120,11 @@ class Setting:
     Attributes
     ----------
     world : World
-    track : dict
-        The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record).
-    landing : Landing
+    track : dict or None
+        The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record);
+        None for a run accounted part by part (`services.sim.bounded`), as are `landing`, `limited`,
+        `applying` and `steps`.
+    landing : Landing or None
         Where each tick's product lands (its applied rates are a column's own: `Deposit.rate_kg_ha`).
     in_field : ndarray of bool, shape (rows, cols)
         Cells whose centre lies inside the field.
@@ -134,17 +136,23 @@ class Setting:
     steps : ndarray of int
         The prescription's rate steps under the landing point (`services.sim.transitions.rate_steps`).
     check : MachineCheck
+    ticks : int
+        Control ticks accounted.
+    path_length_m : float
+        Length of the landing path (the last tick's distance; 0: no tick), m.
     """
 
     world: World
-    track: dict
-    landing: Landing
+    track: dict | None
+    landing: Landing | None
     in_field: np.ndarray
     worked_fraction: np.ndarray
-    limited: np.ndarray
-    applying: np.ndarray
-    steps: np.ndarray
+    limited: np.ndarray | None
+    applying: np.ndarray | None
+    steps: np.ndarray | None
     check: MachineCheck
+    ticks: int
+    path_length_m: float
 
     @classmethod
     def of(cls, world: World, track: dict, control: dict, landing: Landing) -> Setting:
@@ -155,7 +163,7 @@ class Setting:
         return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
                    implement.shaft_limited(control["target_shaft_rpm"]) & applying, applying,
                    rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
-                   check_world(world, in_field))
+                   check_world(world, in_field), len(track["time_s"]), float(landing.distance_m[-1:].sum()))
 
 
 @dataclass(frozen=True)

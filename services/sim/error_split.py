@@ -27,7 +27,7 @@ from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
-from services.sim.section_landing import StripPlan
+from services.sim.section_landing import StripPlan, tick_travel_m
 from services.sim.sections import run_section_states
 from services.sim.world import World
 
@@ -56,7 +56,7 @@ class ErrorPart:
     share_pct: float
 
 
-def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
+def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
     """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
     the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for."""
     imp, period_s = world.scenario.implement, world.scenario.timing.control_period_s
@@ -80,10 +80,11 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
     the accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
-    metered = np.column_stack([_reference_metered_kg(world, control, measured_speed_m_s, clipped)
+    metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
                                for clipped in (False, True)])
     plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
-                        world.scenario.timing.control_period_s, min(grid.cell_size))
+                        world.scenario.timing.control_period_s, min(grid.cell_size),
+                        tick_m=tick_travel_m(world.scenario))
     rasters = _reference_rasters(grid, plan, metered)
     in_field = cells_in_field(grid, world.field.polygon)
     applied_kg_ha = rasters.applied_kg_ha

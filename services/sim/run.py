@@ -39,7 +39,7 @@ from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
 from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
 from services.sim.scenario import Scenario
-from services.sim.section_landing import limited_coverage, section_strips
+from services.sim.section_landing import limited_coverage, section_strips, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
 from services.sim.transitions import TransitionMetrics
 from services.sim.world import World, build_world, driving
@@ -220,7 +220,7 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     with timer.stage("metrics_s"):
         states = run_section_states(track, control, implement)
         landing = land(world.grid, track, metered, width_on, delay_s, period_s)
-        acc = as_applied(world.grid, track, metered, states, delay_s, period_s)
+        acc = as_applied(world.grid, track, metered, states, delay_s, period_s, tick_travel_m(world.scenario))
         setting = Setting.of(world, track, control, landing)
         limited_cover = limited_coverage(track, metered[:, None], states, setting.limited, delay_s, period_s,
                                          cell_m, world.grid)[0]
@@ -233,10 +233,11 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
 
 
 def as_applied(grid: Grid, track: dict, metered_kg, states: SectionStates, delay_s: float,
-               period_s: float) -> AsApplied:
-    """The as-applied raster of a run: each section's product as strips on `grid`, with their passes."""
+               period_s: float, tick_m: float | None = None) -> AsApplied:
+    """The as-applied raster of a run: each section's product as strips on `grid`, with their passes
+    (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
     acc = AsApplied(grid)
-    section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size)).add_to(acc)
+    section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m).add_to(acc)
     return acc
 
 
