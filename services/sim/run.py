@@ -34,7 +34,9 @@ from services.sim.accounting import (
     check_world,
 )
 from services.sim.as_run import as_run
+from services.sim.aslog import run_point_log
 from services.sim.core import ControlCore
+from services.sim.kept import Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
 from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
@@ -71,6 +73,9 @@ class RunResult:
     # The error split's reference meters' figures (`services.sim.error_split.reference_figures`),
     # when the run computed them beside its accounting; None: computed when asked for.
     reference_figures: list[MapMetrics] | None = None
+    # What a run accounted part by part (`services.sim.bounded`) kept for its outputs; None: the
+    # in-process run, whose arrays give them (`kept`).
+    kept_parts: Kept | None = None
     summary: dict = field(init=False)
 
     def __post_init__(self):
@@ -79,6 +84,29 @@ class RunResult:
     @property
     def world(self) -> World:
         return self.accounts.setting.world
+
+    @property
+    def bounded(self) -> bool:
+        """Accounted part by part (`services.sim.bounded`, what `vrsim run` does): no per-tick arrays
+        (``track``, ``control``, ``landing``, the measured arrays and ``sections`` are None); the track
+        was written as it went, and `kept` holds what the other outputs need."""
+        return self.kept_parts is not None
+
+    @property
+    def kept(self) -> Kept:
+        """The path points, timeseries.png's window and the as-applied log (`services.sim.kept`)."""
+        if self.kept_parts is not None:
+            return self.kept_parts
+        track, landing, control = self.track, self.landing, self.control
+        path = PathPoints.for_ticks(len(track["x_m"]))
+        path.add(track["x_m"], track["y_m"])
+        series = SeriesWindow()
+        series.add({"time_s": track["time_s"], "target_shaft_rpm": control["target_shaft_rpm"],
+                    "shaft_rpm": control["shaft_rpm"], "prescribed_kg_ha": landing.prescribed_kg_ha,
+                    "applied_kg_ha": landing.applied_kg_ha}, track["implement_on"])
+        log = run_point_log(self.world, track, control, landing.applied_kg_ha, self.started_unix,
+                            self.world.scenario.output.log_rate_hz)
+        return Kept(path.xy(), series.finish(), log)
 
     @property
     def track(self) -> dict:

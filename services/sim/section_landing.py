@@ -76,8 +76,10 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
         Map cell size: ticks are joined into strips up to half of it long.
     ticks : ndarray of int, optional
         Only these ticks (ascending indices), e.g. those metered at a clipped target; default all.
+    tick_m : float, optional
+        A tick's typical travel, m (`StripPlan.of`; a run's: `tick_travel_m`).
     """
-    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks)
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, tick_m)
     return dataclasses.replace(plan.strips, mass_kg=plan.mass_kg(metered_kg))
 
 
