@@ -83,19 +83,27 @@ def _run(args, driver) -> int:
     # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
+    track = None
     try:
         from services.outputs.summary import summary_json, text_summary
+        from services.outputs.track import TrackFiles
         from services.outputs.write import outputs_line, write_outputs
         from services.sim.as_run import with_settings
 
+        out_dir = args.out or default_out_dir(sc.name)
+        # The track is written as the run accounts it (its memory is the map's and a part's).
+        track = TrackFiles(driver.planned[0], out_dir, sc.output.track_formats)
         try:
-            result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)
+            result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html,
+                                  track_sink=track)
         finally:
             progress.close()
-        out_dir = args.out or default_out_dir(sc.name)
         t0 = time.perf_counter()
-        write_outputs(result, out_dir, plotter)
+        write_outputs(result, out_dir, plotter, track)
+        track = None
     finally:
+        if track is not None:
+            track.abort()
         if plotter is not None:
             plotter.close()
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
@@ -105,7 +113,7 @@ def _run(args, driver) -> int:
     else:
         print(result.machine_check.text())
         print(text_summary(result.summary))
-        print(outputs_line(out_dir))
+        print(outputs_line(out_dir, sc.output.track_formats))
     return 0
 
 

@@ -16,6 +16,7 @@ control loop follow it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -92,7 +93,7 @@ class RunResult:
         was written as it went, and `kept` holds what the other outputs need."""
         return self.kept_parts is not None
 
-    @property
+    @functools.cached_property
     def kept(self) -> Kept:
         """The path points, timeseries.png's window and the as-applied log (`services.sim.kept`)."""
         if self.kept_parts is not None:
