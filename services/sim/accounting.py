@@ -172,9 +172,9 @@ class Deposit:
 
     Attributes
     ----------
-    metered_kg, rate_kg_ha : ndarray, shape (ticks,)
+    metered_kg, rate_kg_ha : ndarray, shape (ticks,), or None
         Product through the meter per tick, kg, and its applied rate at the landing point, kg/ha
-        (`landing.applied_rate_kg_ha`).
+        (`landing.applied_rate_kg_ha`); None for a run accounted part by part (`services.sim.bounded`).
     applied_kg_ha, coverage_fraction, overlap_fraction, overlap_kg : ndarray, shape (rows, cols)
         The as-applied raster: product per cell area, the share of each cell product landed on, the
         share more than one pass put product on, and the product beyond the first pass (kg).

@@ -16,9 +16,10 @@ same functions over stretches that they treat alike:
   tick's travel known before the drive (`section_landing.tick_travel_m`); the distance along the landing
   path is summed on from the stretch before.
 
-What it keeps per tick: the metered product (8 bytes a tick, and 16 more with the error split's two
-reference meters): a run's total is numpy's pairwise sum over all its ticks, which a sum of parts does
-not reproduce to the last bit. The machine-limited ticks keep their landing frames (about 100 bytes
+What it keeps per tick: the metered product (8 bytes a tick): a run's total is numpy's pairwise sum over
+all its ticks, which a sum of parts does not reproduce to the last bit (the error split's reference
+meters, which only the report shows, are summed part by part: equal to the in-process run's to
+rounding). The machine-limited ticks keep their landing frames (about 100 bytes
 each), whose strips are cut by their own median travel at the end, as the in-process run cuts them; a
 pass not yet ended is held until it ends (a stretch is at most a swath and its turn).
 """
@@ -91,7 +92,8 @@ class BoundedAccount:
         self.first = 0
         self.distance_m = 0.0     # the landing path's length so far
         self.last_pass = -1       # the landing pass of the last tick accounted
-        self.metered: list = []   # per stretch: (ticks, columns) metered kg, the run's first
+        self.metered: list = []   # per stretch: the run's metered kg
+        self.ref_kg = [0.0, 0.0]  # the reference meters' product so far
         self.spans: list = []     # per stretch: transition times and distances
         self.to_zero = self.cut = self.limited = self.applying = 0
         self.limited_ticks: list = []   # per stretch: the limited ticks' landing frames
@@ -150,13 +152,11 @@ class BoundedAccount:
         plan = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n), self.tick_m,
                             self.first)
         self.acc.deposit(plan.strips.footprint(), plan.mass_kg(metered), pass_index=plan.strips.pass_index)
-        columns = [metered[:n]]
-        if self.refs is not None:
-            for acc, clipped in zip(self.refs, (False, True), strict=True):
-                ref = reference_metered_kg(world, w, w["measured_speed_m_s"], clipped)
-                acc.deposit(plan.strips.footprint(), plan.mass_kg(ref))
-                columns.append(ref[:n])
-        self.metered.append(np.column_stack(columns))
+        self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
+        for j, acc in enumerate(self.refs or ()):
+            ref = reference_metered_kg(world, w, w["measured_speed_m_s"], clipped=j == 1)
+            acc.deposit(plan.strips.footprint(), plan.mass_kg(ref))
+            self.ref_kg[j] += float(ref[:n].sum())
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
         steps = rate_steps(landing.prescribed_kg_ha[:n], on[:n])
@@ -215,10 +215,10 @@ class BoundedAccount:
         world, grid, acc = self.world, self.world.grid, self.acc
         in_field = cells_in_field(grid, world.field.polygon)
         worked, cover = self.worked.fraction(), acc.coverage_fraction
-        metered = np.concatenate(self.metered) if self.metered else np.zeros((0, 3 if self.refs else 1))
-        run_kg = np.ascontiguousarray(metered[:, 0])
+        # numpy's pairwise sum over the whole run, as the in-process run's.
+        metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
         limited_cover = self._limited_coverage()
-        deposit = Deposit(run_kg, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
+        deposit = Deposit(None, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
                           acc.outside_kg, limited_cover)
         setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
                           self.first, self.distance_m)
@@ -227,7 +227,7 @@ class BoundedAccount:
         # The counts of limited and applying ticks as `limit_metrics` counts them over a run's arrays.
         applying = np.ones(self.applying, bool)
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover, in_field)
-        accounts = Accounts(setting, deposit, map_figures(grid, in_field, acc.applied_kg_ha, cover, float(run_kg.sum()),
+        accounts = Accounts(setting, deposit, map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg,
                                                           acc.outside_kg),
                             transition_figures(times, dists, self.to_zero, self.cut),
                             overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field,
@@ -236,7 +236,7 @@ class BoundedAccount:
         references = None
         if self.refs is not None:
             references = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction,
-                                      float(np.sum(metered[:, j + 1])), ref.outside_kg)
+                                      self.ref_kg[j], ref.outside_kg)
                           for j, ref in enumerate(self.refs)]
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
