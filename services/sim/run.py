@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from common import ScenarioError, files
 from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
@@ -54,6 +55,9 @@ __all__ = ["Drive", "RunResult", "accounted", "as_applied", "cells_in_field", "c
            "control_and_account", "drive", "measure", "run", "sensors"]
 
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
+# Memory the in-process run keeps per control tick: ~35 float64 arrays (the track, the sensors, the
+# targets, the loop's outputs, the landing) plus temporaries of the vectorized stages.
+ARRAY_BYTES_PER_TICK = 400
 
 
 @dataclass
@@ -189,10 +193,15 @@ def run(scenario: Scenario, progress=None) -> RunResult:
 
 
 def drive(scenario: Scenario) -> Drive:
-    """Build the world, drive SUMO over the whole path and read the sensors (the controller-free part)."""
+    """Build the world, drive SUMO over the whole path and read the sensors (the controller-free part).
+
+    Its arrays are the whole run's, kept for the Python API (`RunResult`: ``track``, ``control``, ...):
+    a run too long for them is refused before SUMO drives (`vrsim run` accounts part by part instead,
+    `services.sim.streamed`)."""
     started, timer = time.time(), StageTimer()
     with timer.stage("build_s"):
         world = build_world(scenario)
+        _check_arrays(world)
     scenario = world.scenario   # as run: what the drive, the sensors and the outputs use
     with timer.stage("sumo_s"), driving(scenario, world.path) as driver:
         track = driver.run_all()
@@ -268,6 +277,15 @@ def as_applied(grid: Grid, track: dict, metered_kg, states: SectionStates, delay
     acc = AsApplied(grid)
     section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m).add_to(acc)
     return acc
+
+
+def _check_arrays(world: World) -> None:
+    """Refuse an in-process run whose per-tick arrays would not fit in memory (the path's ticks at the
+    working speed, `ARRAY_BYTES_PER_TICK` each)."""
+    sc = world.scenario
+    ticks = world.path.length_m / (sc.tractor.working_speed_m_s * sc.timing.control_period_s)
+    files.check_memory(2 * ticks * ARRAY_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
+                       f"an in-process run of about {ticks:,.0f} ticks", f"{sc.source}: [field]", ScenarioError)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:
