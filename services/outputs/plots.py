@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import numpy as np
 
 
-
 def figure(width_in: float, height_in: float, layout: str | None = None, **margins):
     """A Figure on the Agg canvas (no pyplot): fixed margins (fractions of the figure), or a layout
     engine by name (``"constrained"``) where the number of panels varies."""
@@ -113,7 +112,8 @@ def series_picture(result) -> SeriesPicture:
     `services.sim.kept.SeriesWindow`."""
     w = result.kept.series
     return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], w["prescribed_kg_ha"],
-                         w["applied_kg_ha"], f"{result.world.scenario.name}: shaft speed and rate around rate steps")
+                         w["applied_kg_ha"],
+                         f"{result.world.scenario.name}: shaft speed and rate around rate steps")
 
 
 def _draw_panels(fig, panels, extent, outline, unit: str):

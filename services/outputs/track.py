@@ -28,7 +28,7 @@ TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("targ
 TRACK_FILES = {"parquet": "track.parquet", "csv": "track.csv"}   # ``[output] track``'s formats
 
 
-def track_table(field, rows: dict):
+def _track_table(field, rows: dict):
     """The track's columns (`TRACK_COLUMNS`) of per-tick `rows` (`services.sim.bounded.BoundedAccount`'s
     track rows), as a pyarrow table. ``sections_on`` counts the sections whose gates are open in the
     tick, ``section_mask`` says which (hexadecimal bitmask, bit k the k-th section from the left:
@@ -83,7 +83,7 @@ class TrackFiles:
         """Write the next ticks' rows."""
         if not self.paths:
             return
-        table = track_table(self.field, rows)
+        table = _track_table(self.field, rows)
         if not self._writers:
             self._writers = {f: _writer(f, os.path.join(self.partial, TRACK_FILES[f]), table.schema)
                              for f in self.paths}
@@ -134,8 +134,8 @@ def _writer(fmt: str, path: str, schema):
                                                                              quoting_style="none"))
 
 
-_ROW_KEYS = ("time_s", "x_m", "y_m", "speed_m_s", "implement_on", "target_shaft_rpm", "shaft_rpm", "current_a",
-             "sections_on", "prescribed_kg_ha", "applied_kg_ha")
+_ROW_KEYS = ("time_s", "x_m", "y_m", "speed_m_s", "implement_on", "target_shaft_rpm", "shaft_rpm",
+             "current_a", "sections_on", "prescribed_kg_ha", "applied_kg_ha")
 
 
 def track_rows(result) -> dict:

@@ -29,7 +29,8 @@ def outputs_line(out_dir: str, track_formats=("parquet",)) -> str:
             "summary.json)")
 
 
-def write_outputs(result: RunResult, out_dir: str, plotter=None, track: TrackFiles | None = None) -> dict[str, str]:
+def write_outputs(result: RunResult, out_dir: str, plotter=None,
+                  track: TrackFiles | None = None) -> dict[str, str]:
     """Write every output file into `out_dir`, all of them or none (`common.written.staged`: a full
     disk or a read-only folder is a `common.MapError` naming the folder, and changes no file of
     `out_dir`); returns {name: path}.

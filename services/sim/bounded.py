@@ -12,8 +12,8 @@ same functions over stretches that they treat alike:
   of work lies whole in one stretch (the worked area), and no rate step's window crosses it;
 - each stretch is worked out with the ticks after it that its landing looks at (the delivery delay and
   a tick, and the transitions' hold): ``lookahead`` ticks;
-- strips are cut every `section_landing.join_ticks` ticks counted from the run's first tick, at a
-  tick's travel known before the drive (`section_landing.tick_travel_m`); the distance along the landing
+- strips are cut every so many ticks (half a map cell) counted from the run's first tick, at a tick's
+  travel known before the drive (`section_landing.tick_travel_m`); the distance along the landing
   path is summed on from the stretch before.
 
 What it keeps per tick: the metered product (8 bytes a tick): a run's total is numpy's pairwise sum over
@@ -31,7 +31,15 @@ import math
 import numpy as np
 
 from maps import AsApplied
-from services.sim.accounting import Accounts, Deposit, Setting, StageTimer, cells_in_field, check_world, map_figures
+from services.sim.accounting import (
+    Accounts,
+    Deposit,
+    Setting,
+    StageTimer,
+    cells_in_field,
+    check_world,
+    map_figures,
+)
 from services.sim.aslog import run_point_log
 from services.sim.error_split import reference_metered_kg
 from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
@@ -181,7 +189,8 @@ class BoundedAccount:
         if idx.size:
             frame = landing_frame(w, self.delay_s, self.period_s, idx)
             passes = landing_pass(w["time_s"], states.pass_index, self.delay_s, idx)
-            self.limited_ticks.append((frame, passes, states.actual[idx], self.first + idx, w["metered_kg"][idx]))
+            self.limited_ticks.append((frame, passes, states.actual[idx], self.first + idx,
+                                       w["metered_kg"][idx]))
 
     def _outputs(self, w: dict, landing: Landing, n: int) -> None:
         """The stretch's track rows to the sink, and what the pictures and the log keep."""
@@ -226,9 +235,10 @@ class BoundedAccount:
         dists = np.concatenate([s[1] for s in self.spans]) if self.spans else np.zeros(0)
         # The counts of limited and applying ticks as `limit_metrics` counts them over a run's arrays.
         applying = np.ones(self.applying, bool)
-        limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover, in_field)
-        accounts = Accounts(setting, deposit, map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg,
-                                                          acc.outside_kg),
+        limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
+                               in_field)
+        accounts = Accounts(setting, deposit,
+                            map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg, acc.outside_kg),
                             transition_figures(times, dists, self.to_zero, self.cut),
                             overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),

@@ -70,11 +70,11 @@ def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clippe
     return imp.mass_kg(rpm * period_s / 60.0)
 
 
-def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
+def _reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
     """The map figures of the two reference meters (unclipped, clipped: see the module docstring) on
-    the run's track and sections: what `error_split` adds to the run's own figures. A function of the
-    run's drive and control alone, so `vrsim run` computes it beside the run's accounting
-    (`services.sim.streamed`).
+    the run's track and sections: what `error_split` adds to the run's own figures, from an in-process
+    run's arrays (`vrsim run` deposits the reference meters part by part beside its own product:
+    `services.sim.bounded`).
 
     The strips lie where the run's did, whatever they carry, so their geometry is worked out once
     (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
@@ -101,8 +101,8 @@ def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> Applied
 def error_split(result: RunResult) -> list[ErrorPart]:
     """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring);
     the reference meters' figures from ``result.reference_figures`` when the run computed them."""
-    references = result.reference_figures or reference_figures(result.world, result.track, result.control,
-                                                               result.measured_speed_m_s)
+    references = result.reference_figures or _reference_figures(result.world, result.track, result.control,
+                                                                result.measured_speed_m_s)
     stages = [*references, result.accounts.map]
     total_mae = result.accounts.map.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0

@@ -28,7 +28,8 @@ class SeriesWindow:
 
     def __init__(self):
         self.series: dict | None = None   # the window so far, once its start is known
-        self._recent: dict | None = None  # before the first step: the last `TIMESERIES_BEFORE_S` (and the first minute)
+        # Before the first step: the last `TIMESERIES_BEFORE_S` (and the first minute).
+        self._recent: dict | None = None
         self._last = None   # (prescribed, on) of the last tick seen: a step across parts
         self._done = False
 

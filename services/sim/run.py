@@ -75,7 +75,7 @@ class RunResult:
     as_applied: AsApplied
     accounts: Accounts
     started_unix: float  # when the run (or the services run it was rebuilt from) started, Unix time
-    # The error split's reference meters' figures (`services.sim.error_split.reference_figures`),
+    # The error split's reference meters' figures (`services.sim.error_split`),
     # when the run computed them beside its accounting; None: computed when asked for.
     reference_figures: list[MapMetrics] | None = None
     # What a run accounted part by part (`services.sim.bounded`) kept for its outputs; None: the
@@ -275,7 +275,8 @@ def as_applied(grid: Grid, track: dict, metered_kg, states: SectionStates, delay
     """The as-applied raster of a run: each section's product as strips on `grid`, with their passes
     (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
     acc = AsApplied(grid)
-    section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m).add_to(acc)
+    strips = section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
+    strips.add_to(acc)
     return acc
 
 
@@ -285,7 +286,8 @@ def _check_arrays(world: World) -> None:
     sc = world.scenario
     ticks = world.path.length_m / (sc.tractor.working_speed_m_s * sc.timing.control_period_s)
     files.check_memory(2 * ticks * ARRAY_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
-                       f"an in-process run of about {ticks:,.0f} ticks", f"{sc.source}: [field]", ScenarioError)
+                       f"an in-process run of about {ticks:,.0f} ticks", f"{sc.source}: [field]",
+                       ScenarioError)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

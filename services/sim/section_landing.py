@@ -100,10 +100,10 @@ class StripPlan:
            ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
         """The plan of `section_strips` (same parameters, less the product).
 
-        `tick_m`: the typical tick's travel that sets how many ticks a strip joins (`join_ticks`);
+        `tick_m`: the typical tick's travel that sets how many ticks a strip joins (`_join_ticks`);
         None: the median over `ticks` (known only once they are all there). `first_tick`: the index
         in the whole run of the track's first tick, where a run is planned part by part
-        (`services.sim.bounded`): strips end every `join_ticks` ticks counted from the run's start."""
+        (`services.sim.bounded`): strips end every `_join_ticks` ticks counted from the run's start."""
         time_s = np.asarray(track["time_s"], float)
         idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
         frame = landing_frame(track, delay_s, period_s, idx)
@@ -129,7 +129,7 @@ class StripPlan:
                           where=actual & (width_on[:, None] > 0))
         if tick_m is None:
             tick_m = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
-        join = join_ticks(cell_m, tick_m)
+        join = _join_ticks(cell_m, tick_m)
         # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
         # section's gate changes, where the pass changes and where ticks are left out.
         on = actual.T
@@ -198,8 +198,8 @@ class LimitedStrips:
         """`limited_coverage`'s parameters, less the product."""
         if not limited.any():
             return cls.of_plan(None, grid)
-        return cls.of_plan(StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited)),
-                           grid)
+        plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+        return cls.of_plan(plan, grid)
 
     @classmethod
     def of_plan(cls, plan: StripPlan | None, grid: Grid) -> LimitedStrips:
@@ -233,7 +233,8 @@ class WorkedArea:
 
     def __init__(self, grid: Grid):
         self.grid = grid
-        self.fine = max(1, min(WORKED_SUPERSAMPLE, int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))))
+        fine = int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))
+        self.fine = max(1, min(WORKED_SUPERSAMPLE, fine))
         self.mask = np.zeros((grid.rows * self.fine, grid.cols * self.fine), bool)
 
     def add(self, track: dict, width_m: float, first_ticks: int | None = None) -> None:
@@ -268,7 +269,7 @@ def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
     return np.maximum(filled[pose], 0)
 
 
-def join_ticks(cell_m: float, tick_m: float) -> int:
+def _join_ticks(cell_m: float, tick_m: float) -> int:
     """How many ticks of `tick_m` travel a strip joins: up to half a map cell of `cell_m`."""
     return max(1, int(0.5 * cell_m / tick_m)) if tick_m > 0 else 1
 

@@ -111,7 +111,8 @@ def transition_spans(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active
     settle = np.minimum(next_held[steps], np.where(tail < ends, tail, n))
     settled = ~to_zero & (settle < ends)
     k, j = steps[settled], settle[settled]
-    return t[j] - t[k], d[j] - d[k], int(np.count_nonzero(to_zero)), int(np.count_nonzero(~to_zero & ~settled))
+    cut = int(np.count_nonzero(~to_zero & ~settled))
+    return t[j] - t[k], d[j] - d[k], int(np.count_nonzero(to_zero)), cut
 
 
 def transition_figures(times, dists, to_zero: int, cut: int) -> TransitionMetrics:

@@ -33,8 +33,9 @@ def _peak_rss_mb(args: list[str], out: str) -> tuple[float, dict]:
              "assert done.returncode == 0, done.stderr\n"
              "print(json.dumps([resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,"
              " json.loads(done.stdout)]))\n")
-    done = subprocess.run([sys.executable, "-c", probe, VRSIM, "run", QUICK, "--json", "--quiet", "--out", out,
-                           *args], capture_output=True, text=True, timeout=300)
+    command = [VRSIM, "run", QUICK, "--json", "--quiet", "--out", out, *args]
+    done = subprocess.run([sys.executable, "-c", probe, *command], capture_output=True, text=True,
+                          timeout=300)
     assert done.returncode == 0, done.stderr
     peak_mb, summary = json.loads(done.stdout)
     return peak_mb, summary
@@ -53,9 +54,9 @@ def test_the_track_is_parquet_by_default_and_csv_on_request_with_the_same_column
     from services.outputs.track import TRACK_COLUMNS
 
     out = tmp_path / "both"
-    done = subprocess.run([VRSIM, "run", QUICK, "--quiet", "--out", str(out), "--set", 'output.track=["parquet", "csv"]',
-                           "--set", "output.plots=false", "--set", "output.html=false"],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run([VRSIM, "run", QUICK, "--quiet", "--out", str(out), "--set",
+                           'output.track=["parquet", "csv"]', "--set", "output.plots=false", "--set",
+                           "output.html=false"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "track.parquet, track.csv," in done.stdout
     text = pa_csv.read_csv(out / "track.csv", convert_options=pa_csv.ConvertOptions(
@@ -70,21 +71,24 @@ def test_the_track_is_parquet_by_default_and_csv_on_request_with_the_same_column
         if name == "section_mask":
             assert a == b
         else:   # text keeps each column's rounding: the same numbers, nulls where a value does not exist
-            assert np.allclose(np.array(a, float), np.array(b, float), equal_nan=True, rtol=0, atol=1e-12), name
+            assert np.allclose(np.array(a, float), np.array(b, float), equal_nan=True, rtol=0, atol=1e-12), \
+                name
     assert not [n for n in os.listdir(out) if n.startswith(".")]  # no temporary left
 
     only = tmp_path / "default"
     subprocess.run([VRSIM, "run", QUICK, "--quiet", "--out", str(only), "--set", "output.plots=false",
-                    "--set", "output.html=false", "--set", "output.track=none"], check=True, capture_output=True,
-                   timeout=300)
+                    "--set", "output.html=false", "--set", "output.track=none"], check=True,
+                   capture_output=True, timeout=300)
     assert not (only / "track.parquet").exists() and not (only / "track.csv").exists()
 
 
 def test_a_field_too_big_for_the_machine_is_refused_at_the_start_with_the_estimate_and_the_limit(tmp_path):
     path = tmp_path / "vast.toml"
-    # 8,100 ha (fields are capped at 10,000 ha) at 25 cm cells: over a billion cells, far more than any machine's memory.
+    # 8,100 ha (fields are capped at 10,000 ha) at 25 cm cells: over a billion cells, far more than any
+    # machine's memory.
     path.write_text('name = "vast"\n[field]\nrectangle = { width_m = 9000.0, length_m = 9000.0, lat = 52.0, '
-                    'lon = 10.0 }\n[map]\nsynthetic = "uniform"\ncell_size_m = 0.25\n[implement]\nwidth_m = 24.0\n')
+                    'lon = 10.0 }\n[map]\nsynthetic = "uniform"\ncell_size_m = 0.25\n'
+                    '[implement]\nwidth_m = 24.0\n')
     done = subprocess.run([VRSIM, "run", str(path), "--quiet", "--out", str(tmp_path / "out")],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr

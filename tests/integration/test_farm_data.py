@@ -53,7 +53,8 @@ def farm_run(tmp_path_factory):
     """One run in process, its outputs written as `vrsim run` writes them: (result, out folder)."""
     folder = tmp_path_factory.mktemp("farm")
     # The track as text too (every scenario but the default writes track.parquet alone).
-    result = run(scenario.with_changes(scenario.load(scenario_file(str(folder))), output={"track": ["parquet", "csv"]}))
+    farm = scenario.load(scenario_file(str(folder)))
+    result = run(scenario.with_changes(farm, output={"track": ["parquet", "csv"]}))
     out = folder / "out"
     write_outputs(result, str(out))  # no plot worker: the pictures are drawn in this process
     return result, out

@@ -259,8 +259,8 @@ def test_vrsim_report_from_the_monitor_database(net, tmp_path):
     for key, want in report.items():
         if key not in WALL_KEYS - {"wall_time_s", "realtime_factor"}:  # both from the run's records
             assert summary[key] == want or (isinstance(want, float) and math.isnan(want)), key
-    for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.parquet", "map.png",
-                 "timeseries.png", "report.html", "as_applied_points.gpkg"):
+    for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.parquet",
+                 "map.png", "timeseries.png", "report.html", "as_applied_points.gpkg"):
         assert (out / name).is_file(), name
     import maps
 

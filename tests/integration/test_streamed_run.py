@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from common import ScenarioError
+from maps.pointlog import COLUMNS
 from services.outputs.encode import dumps
+from services.outputs.track import track_rows
 from services.sim.run import run
 from services.sim.scenario import load, with_changes
 from services.sim.streamed import DriveWorker, run_streamed
-from services.outputs.track import track_rows
-from maps.pointlog import COLUMNS
 
 pytestmark = pytest.mark.integration
 
@@ -29,7 +29,8 @@ def assert_same_run(whole, bounded, rows: list[dict]):
     assert dumps({k: v for k, v in whole.summary.items() if k not in CLOCK_KEYS}) == \
         dumps({k: v for k, v in bounded.summary.items() if k not in CLOCK_KEYS})  # NaN as null: equal
     for name in ("applied_kg_ha", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count"):
-        assert np.array_equal(getattr(whole.as_applied, name), getattr(bounded.as_applied, name), equal_nan=True)
+        assert np.array_equal(getattr(whole.as_applied, name), getattr(bounded.as_applied, name),
+                              equal_nan=True), name
     for name in ("worked_fraction", "limited_fraction", "in_field"):
         assert np.array_equal(getattr(whole, name), getattr(bounded, name)), name
     track = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
