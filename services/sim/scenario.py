@@ -105,6 +105,10 @@ class OutputSpec:
     points: str = "gpkg"
     track: str | list | tuple = ("parquet",)
 
+    def __post_init__(self):
+        if isinstance(self.track, list):   # a TOML array: the same value as the default's tuple
+            object.__setattr__(self, "track", tuple(self.track))
+
     @property
     def track_formats(self) -> tuple[str, ...]:
         """The track's file formats asked for, in `TRACK_FORMATS`' order (none: empty)."""
