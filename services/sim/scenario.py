@@ -415,7 +415,8 @@ def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:
             isinstance(f, str) and f in (*TRACK_FORMATS, "none") for f in track) or (
             "none" in track and len(track) > 1):
         raise ScenarioError(f"{source}: [output] track must be one of {', '.join(TRACK_FORMATS)}, none, or "
-                            f"a list of {' and '.join(TRACK_FORMATS)}, got {spec.track!r}")
+                            f"a list of {' and '.join(TRACK_FORMATS)}, got "
+                            f"{list(spec.track) if isinstance(spec.track, tuple) else spec.track!r}")
 
 
 def as_dict(scenario: Scenario) -> dict[str, Any]:
