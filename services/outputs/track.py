@@ -19,7 +19,7 @@ import numpy as np
 
 from common import MapError
 from common.section_masks import section_mask_codes
-from common.written import written
+from common.written import write_failure, written
 
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha; None: as is
 TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),
@@ -71,24 +71,37 @@ class TrackFiles:
 
         self.field, self.folder = field, folder
         self.created = not os.path.isdir(folder)
+        self.partial = None
+        self.paths = {f: os.path.join(folder, TRACK_FILES[f]) for f in formats}
+        self._writers: dict = {}
         try:
             os.makedirs(folder, exist_ok=True)
             self.partial = tempfile.mkdtemp(prefix=".track-partial-", dir=folder)
         except OSError as exc:
-            raise MapError(f"{folder}: cannot write the track ({exc.strerror})") from None
-        self.paths = {f: os.path.join(folder, TRACK_FILES[f]) for f in formats}
-        self._writers: dict = {}
+            self._failed(exc)
 
     def __call__(self, rows: dict) -> None:
         """Write the next ticks' rows."""
         if not self.paths:
             return
         table = _track_table(self.field, rows)
-        if not self._writers:
-            self._writers = {f: _writer(f, os.path.join(self.partial, TRACK_FILES[f]), table.schema)
-                             for f in self.paths}
-        for writer in self._writers.values():
-            writer.write_table(table)
+        try:
+            if not self._writers:
+                self._writers = {f: _writer(f, os.path.join(self.partial, TRACK_FILES[f]), table.schema)
+                                 for f in self.paths}
+            for writer in self._writers.values():
+                writer.write_table(table)
+        except OSError as exc:   # pyarrow's, a full disk say
+            self._failed(exc)
+
+    def _failed(self, exc: OSError):
+        """Remove what was written and raise the one line of a folder that takes no more
+        (`common.written.write_failure`), else `exc`."""
+        failure = write_failure(exc, os.path.abspath(self.folder), MapError)
+        self.abort()
+        if failure is not None:
+            raise failure from None
+        raise exc
 
     def finish(self) -> dict[str, str]:
         """Close the files and put them in place; {file name: path}."""
@@ -101,6 +114,8 @@ class TrackFiles:
             for fmt, path in self.paths.items():
                 with written(path, error=MapError) as temp:
                     os.replace(os.path.join(self.partial, TRACK_FILES[fmt]), temp)
+        except OSError as exc:   # closing a file on a full disk
+            self._failed(exc)
         except BaseException:
             self.abort()
             raise
@@ -115,7 +130,8 @@ class TrackFiles:
             with contextlib.suppress(Exception):
                 writer.close()
         self._writers = {}
-        shutil.rmtree(self.partial, ignore_errors=True)
+        if self.partial is not None:
+            shutil.rmtree(self.partial, ignore_errors=True)
         if self.created:
             with contextlib.suppress(OSError):
                 os.rmdir(self.folder)
