@@ -3,6 +3,8 @@
 Figures:
 - ``run_default_wall_s``, ``run_large_wall_s``: wall time of `services.sim.run.run` (build, SUMO, sensors,
   control loop, landing and metrics; what `vrsim run` reports as wall_time_s);
+- ``run_default_section_drives_wall_s``: the same for the default scenario with a drive per section
+  (``[implement] kind = "section_drives"``: six loops, each rate at its own section's landing point);
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
@@ -26,8 +28,10 @@ from services.sim import run as run_field
 from services.sim import scenario
 
 
-def _in_process(name: str) -> dict:
+def _in_process(name: str, **implement) -> dict:
     sc = scenario.load(name)
+    if implement:
+        sc = scenario.with_changes(sc, implement=implement)
     run_field(sc)  # warm: the SUMO network cache and lazy imports
     best = None
     for _ in range(2):
@@ -46,6 +50,11 @@ def _cli_wall_s(name: str, runs: int = 3) -> float:
             subprocess.run([vrsim, "run", name, "--quiet", "--out", out], check=True, capture_output=True)
             best = min(best, time.perf_counter() - t0)
     return best
+
+
+def run_default_section_drives_wall_s() -> float:
+    """The default scenario's run with ``section_drives`` (best of two, after a warm-up run), s."""
+    return _in_process("default", kind="section_drives")["wall_time_s"]
 
 
 # A fresh process runs the command: its children's peak resident memory is the command's processes'.
@@ -72,6 +81,7 @@ def run() -> dict:
     large = _in_process("large")
     figures = {
         "run_default_wall_s": default["wall_time_s"],
+        "run_default_section_drives_wall_s": run_default_section_drives_wall_s(),
         "run_large_wall_s": large["wall_time_s"],
         "run_default_realtime_factor": default["realtime_factor"],
         "run_large_realtime_factor": large["realtime_factor"],

@@ -1,5 +1,6 @@
 """vrsim controller package: the paper's valve-controlled hydraulic motor, the rate controllers that
-drive it (a registry of kinds behind one interface), tuning, loop analysis and step metrics.
+drive it (a registry of kinds behind one interface), tuning, loop analysis and step metrics, and the
+sprayer's flow plant (`controller.flow_plant`), which the same kinds close.
 
 Pure: numpy, scipy and python-control only, no I/O beyond reading a user's controller file and the
 package's data; knows nothing of maps, SUMO or Zenoh.
@@ -9,6 +10,7 @@ from controller.config import ControllerConfig
 from controller.context import ContextTrack, ControlContext
 from controller.experiment import PaperRun, paper_experiment, run_paper
 from controller.factory import build_controller, build_loop, build_variant_loops, loop_info, resolve_gains
+from controller.flow_plant import FlowLinearization, FlowLoop, FlowPlant, linearize_flow
 from controller.gains import PidGains, paper_gains, ziegler_nichols
 from controller.interface import Controller, LoopInfo
 from controller.kinds.ideal import IdealLoop
@@ -32,12 +34,14 @@ from controller.tuning import (
 )
 
 __all__ = [
-    "KINDS", "ClosedLoop", "ContextTrack", "ControlContext", "Controller", "ControllerConfig", "IdealLoop",
+    "KINDS", "ClosedLoop", "ContextTrack", "ControlContext", "Controller", "ControllerConfig",
+    "FlowLinearization", "FlowLoop", "FlowPlant", "IdealLoop",
     "LoopInfo", "PaperRun", "PidGains",
     "PlantLoop", "PlantParams", "RelayResult", "SensorFit", "SimResult", "StepMetrics", "StepOutput",
     "UltimateResult", "UserCodeError", "assumptions", "build_controller", "build_loop", "build_variant_loops",
     "fit_sensor",
-    "gains_from_source", "loop_info", "paper_experiment", "paper_gains", "pulse_response", "relay_autotune",
+    "gains_from_source", "linearize_flow", "loop_info", "paper_experiment", "paper_gains", "pulse_response",
+    "relay_autotune",
     "resolve_gains", "run_paper", "simulate", "state_space", "step_metrics", "ultimate_from_pulse",
     "ultimate_gain_experiment", "unlimited", "ziegler_nichols",
 ]

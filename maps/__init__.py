@@ -1,7 +1,8 @@
 """vrsim maps: prescription grids from the formats farm software writes, CRS-correct lookup,
 synthetic maps, rate policies off the map, the deposition engine (as-applied rasters through a
-machine's footprint: `AsApplied`, `ColumnDeposit`, the footprint kinds of `maps.footprint`), and
-as-applied logs (ISO 11783 TimeLogs in TASKDATA, point shapefiles and GeoPackages) in and out.
+machine's footprint: `AsApplied`, `ColumnDeposit`, the footprint kinds of `maps.footprint` and a
+spinner's `SpinnerThrow`), and as-applied logs (ISO 11783 TimeLogs in TASKDATA, point shapefiles and
+GeoPackages) in and out.
 
 >>> from maps import Grid, read_map, write_map, synthetic, AsApplied, Strips, RatePolicy
 >>> from maps import PointLog, read_point_log, write_points, write_taskdata, read_timelogs
@@ -17,6 +18,7 @@ from maps.footprint import FOOTPRINTS, Footprint, Samples, Strips, footprint_kin
 from maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
 from maps.io import read_map, write_map
 from maps.policy import RatePolicy
+from maps.spread_footprint import SpinnerThrow
 from maps.warn import MapWarning
 
 # The as-applied log modules load on first use (module __getattr__): `import maps` stays as fast.
@@ -42,6 +44,7 @@ __all__ = [
     "Footprint",
     "Samples",
     "Strips",
+    "SpinnerThrow",
     "FOOTPRINTS",
     "footprint_kind",
     "register_footprint",

@@ -7,19 +7,23 @@ headings in the math convention (radians counter-clockwise from east) unless nam
 One module per concept: `vehicle.field` (boundary, CRS), `vehicle.coverage` (headland passes,
 serpentine swaths, turns from `vehicle.dubins`), `vehicle.network` (netconvert, cache),
 `vehicle.driver` (libsumo, per-tick pose), `vehicle.gnss`, `vehicle.speed_sensor`,
-and `vehicle.implement` (meter, sections, the delivery delay's value).
+`vehicle.implement` (meter, sections, the delivery delay's value) and `vehicle.sprayer` (nozzles, their
+pressure range as the limit, the flow meter, PWM).
 """
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
-from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver, track_on_path
+from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
 from vehicle.field import Field
 from vehicle.gnss import Gnss, GnssConfig
 from vehicle.implement import Implement
 from vehicle.network import build_network, default_cache_dir, find_netconvert
 from vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
+from vehicle.sprayer import FlowMeter, SprayerSpec
+from vehicle.track import track_on_path
 
 __all__ = [
-    "CoveragePath", "DriveConfig", "Field", "Gnss", "GnssConfig", "Implement", "Pose",
-    "Segment", "SpeedSensor", "SpeedSensorConfig", "SpeedVariation", "SumoDriver", "build_network",
+    "CoveragePath", "DriveConfig", "Field", "FlowMeter", "Gnss", "GnssConfig", "Implement", "Pose",
+    "Segment", "SpeedSensor", "SpeedSensorConfig", "SpeedVariation", "SprayerSpec", "SumoDriver",
+    "build_network",
     "default_cache_dir", "find_netconvert", "plan_coverage", "track_on_path",
 ]

@@ -17,6 +17,7 @@ import shapely
 
 from common.checks import check_number, check_positive
 from common.errors import VehicleError
+from vehicle.machines import DEFAULT_KIND, MachineSpec, spec_class
 
 M2_PER_HA = 10_000.0
 SECTION_CONTROL_MODES = ("coverage", "boundary", "off")  # the switching engines' registry keys
@@ -62,6 +63,12 @@ class Implement:
         Coverage control: time from a section's on (off) command until product starts (stops)
         leaving the meter at that section, s, in [0, 30]; the controller looks ahead by it plus
         the delivery delay. Defaults as John Deere's terminals (1.0 s on, 0.6 s off).
+    kind : str
+        How the machine meters and where its product lands (`vehicle.machines`): "gated_meter" (one
+        shaft, a gate per section; the default) or "section_drives" (a drive per section).
+    machine : vehicle.machines.MachineSpec or None
+        The kind's own keys (a scenario's ``[implement]`` holds them beside the shared ones). None:
+        the kind's defaults; filled in on construction.
     """
 
     width_m: float = 12.0
@@ -77,6 +84,8 @@ class Implement:
     boundary_overlap_pct: float = 50.0
     section_on_delay_s: float = 1.0
     section_off_delay_s: float = 0.6
+    kind: str = DEFAULT_KIND
+    machine: MachineSpec | None = None
 
     def __post_init__(self):
         for name in ("width_m", "kg_per_rev", "transmission_ratio", "shaft_rpm_max"):
@@ -92,6 +101,7 @@ class Implement:
         for name in ("section_on_delay_s", "section_off_delay_s"):
             check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0,
                          hi=MAX_SECTION_DELAY_S, unit="s")
+        self._resolve_machine()
         if self.shaft_rpm_min >= self.shaft_rpm_max:
             raise VehicleError(f"Implement: shaft_rpm_min={self.shaft_rpm_min} must be below "
                                f"shaft_rpm_max={self.shaft_rpm_max}")
@@ -123,6 +133,17 @@ class Implement:
     def mass_kg(self, shaft_rev):
         """Product metered by ``shaft_rev`` shaft revolutions, kg."""
         return np.asarray(shaft_rev, dtype=float) * self.kg_per_rev
+
+    def _resolve_machine(self):
+        """Fill in `machine` with the kind's defaults if not given; check it is the kind's and that
+        the kind supports this many sections."""
+        spec = spec_class(self.kind)
+        if self.machine is None:
+            object.__setattr__(self, "machine", spec())
+        elif type(self.machine) is not spec:
+            raise VehicleError(f"Implement: machine {self.machine!r} is not of kind {self.kind!r} "
+                               "(machine=None takes the kind's defaults)")
+        self.machine.check_sections(self.sections)
 
     # --- sections --------------------------------------------------------------------------------
     def _resolve_sections(self):

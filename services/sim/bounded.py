@@ -41,9 +41,10 @@ from services.sim.accounting import (
     map_figures,
 )
 from services.sim.aslog import run_point_log
-from services.sim.error_split import reference_metered_kg
+from services.sim.error_split import REFERENCES, reference_metered_kg
 from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
+from services.sim.machines import machine_for
 from services.sim.metrics import limit_metrics, overlap_metrics
 from services.sim.run import RunResult
 from services.sim.section_landing import (
@@ -94,14 +95,16 @@ class BoundedAccount:
         self.lookahead = int(math.ceil(max(self.delay_s + self.period_s, SETTLE_HOLD_S) / self.period_s)) + 3
         self.acc = AsApplied(grid)
         self.worked = WorkedArea(grid)
-        self.refs = [AsApplied(grid), AsApplied(grid)] if references else None
+        self.machine = machine_for(imp)
+        self.refs = [AsApplied(grid) for _ in REFERENCES] if references else None
         self.passes = PassTracker()
         self.pending: dict | None = None   # ticks not yet accounted, from tick `first` of the run
         self.first = 0
         self.distance_m = 0.0     # the landing path's length so far
         self.last_pass = -1       # the landing pass of the last tick accounted
         self.metered: list = []   # per stretch: the run's metered kg
-        self.ref_kg = [0.0, 0.0]  # the reference meters' product so far
+        self.ref_kg = [0.0] * len(REFERENCES)  # the reference meters' product so far ...
+        self.ref_rev = [0.0] * len(REFERENCES)  # ... and where their shafts stand
         self.spans: list = []     # per stretch: transition times and distances
         self.to_zero = self.cut = self.limited = self.applying = 0
         self.limited_ticks: list = []   # per stretch: the limited ticks' landing frames
@@ -157,14 +160,14 @@ class BoundedAccount:
         metered = w["metered_kg"]
         landing = land(world.grid, w, metered, w["width_on_m"], self.delay_s, self.period_s)
         distance = np.cumsum(np.append(self.distance_m, landing.strip_length_m))[1:]
-        plan = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n), self.tick_m,
-                            self.first)
-        self.acc.deposit(plan.strips.footprint(), plan.mass_kg(metered), pass_index=plan.strips.pass_index)
+        ticks = np.arange(n)
+        plan = self.machine.deposition(w, states, self.delay_s, self.period_s, self.cell_m, ticks,
+                                       self.tick_m, self.first)
+        product = plan.mass_kg(self.machine.deposit_kg(w))
+        self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index)
         self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
-        for j, acc in enumerate(self.refs or ()):
-            ref = reference_metered_kg(world, w, w["measured_speed_m_s"], clipped=j == 1)
-            acc.deposit(plan.strips.footprint(), plan.mass_kg(ref))
-            self.ref_kg[j] += float(ref[:n].sum())
+        if self.refs is not None:
+            self._references(w, states, n, plan if self.machine.drives == 1 else None)
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
         steps = rate_steps(landing.prescribed_kg_ha[:n], on[:n])
@@ -178,6 +181,19 @@ class BoundedAccount:
         self.last_pass = int(max(self.last_pass, np.max(w["pass_index"][:n], initial=-1)))
         self.first += n
         self.pending = {k: v[n:] for k, v in p.items()}
+
+    def _references(self, w: dict, states: SectionStates, n: int, plan) -> None:
+        """Deposit the error split's reference meters' product of the stretch (on the one-drive strips,
+        as `services.sim.error_split` does: `plan` when the run's are those)."""
+        if plan is None:
+            plan = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
+                                self.tick_m, self.first)
+        control = {k: w[k][:n] for k in ("target_shaft_rpm", "width_on_m", "prescribed_kg_ha")}
+        for j, (acc, reference) in enumerate(zip(self.refs, REFERENCES, strict=True)):
+            ref, self.ref_rev[j] = reference_metered_kg(self.world, control, w["measured_speed_m_s"][:n],
+                                                        *reference, start_rev=self.ref_rev[j])
+            acc.deposit(plan.footprint(), plan.mass_kg(ref))
+            self.ref_kg[j] += float(ref.sum())
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""

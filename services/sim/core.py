@@ -15,9 +15,11 @@ from controller import PlantParams, build_loop
 from controller.context import ContextTrack
 from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
+from services.sim.machines import machine_for
 from services.sim.scenario import Scenario, as_dict
 from services.sim.sections import SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
+from vehicle.product import metered_kg
 
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
@@ -75,10 +77,11 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
+        self.machine = machine_for(self.implement)
         timing, cfg, plant = scenario.timing, scenario.controller, plant_for(scenario)
-        try:
+        try:   # a loop per metering drive, all advanced by one lifted matrix product per period
             self.loop = build_loop(plant, cfg, control_period_s=timing.control_period_s,
-                                   plant_step_s=timing.plant_step_s, n=1)
+                                   plant_step_s=timing.plant_step_s, n=self.machine.drives)
             look_ahead_s = initial_look_ahead_s(scenario, plant)
         except ControllerError as exc:   # a user's class that does not load, a bad valve calibration
             raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
@@ -87,7 +90,11 @@ class ControlCore:
             look_ahead_s, known_delay_s(scenario), cfg.look_ahead_tune, self.period_s)
         self._look_ahead_s = look_ahead_s
         self.switch = SectionSwitch(self.implement, field_polygon, path, self.period_s, min(grid.cell_size))
-        self.last_rate_kg_ha = float("nan")
+        self.last_rate_kg_ha = np.full(self.machine.drives, np.nan)   # each drive's, for the policy
+        self.product, self.seed = scenario.product, scenario.seed
+        # Forward revolutions so far, each drive's (or each column's, sweeps' variants): the product's
+        # flow factors run on them (`vehicle.product.metered_kg`).
+        self.meter_rev = np.zeros(self.machine.drives)
 
     @property
     def look_ahead_s(self) -> float:
@@ -99,19 +106,22 @@ class ControlCore:
         where no rate was commanded yet): the loop's state (plant, sensor delay line, controller), the
         rate policy's last rate, the look-ahead tuner's state (None without the tune) and the section
         switch's (`services.sim.sections.SectionSwitch.state`: with coverage control its coverage
-        map, commands and gates)."""
-        return {"loop": self.loop.state, "last_rate_kg_ha": self.last_rate_kg_ha,
+        map, commands and gates). The last rate is a number for one metering drive, a list for several."""
+        return {"loop": self.loop.state,
+                "last_rate_kg_ha": _number_or_list(self.last_rate_kg_ha),
                 "tuner": None if self.tuner is None else self.tuner.state(),
-                "sections": self.switch.state()}
+                "sections": self.switch.state(),
+                "meter_rev": _number_or_list(self.meter_rev)}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
         self.loop.set_state(state["loop"])
-        last = state["last_rate_kg_ha"]
-        self.last_rate_kg_ha = float("nan") if last is None else float(last)
+        last = np.atleast_1d(np.asarray(state["last_rate_kg_ha"], dtype=object))
+        self.last_rate_kg_ha = np.array([np.nan if v is None else float(v) for v in last])
         if self.tuner is not None:
             self.tuner.set_state(state["tuner"])
         self.switch.set_state(state["sections"])
+        self.meter_rev = np.atleast_1d(np.asarray(state["meter_rev"], dtype=float))
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
@@ -123,18 +133,19 @@ class ControlCore:
     def _targets(self, states: SectionStates) -> dict[str, np.ndarray]:
         """Stage 1 with the sections' states of these ticks known (with the motion the terminal
         sensed, `SectionStates.motion`); advances the policy's memory."""
-        speed_m_s = states.motion.speed_m_s
-        lx, ly, _, _ = states.motion.ahead(self.look_ahead_s)
-        found = self.grid.lookup(lx, ly)
-        rate = self.policy.apply(found.rate_kg_ha, found.inside, self.last_rate_kg_ha)
-        if rate.size:
-            self.last_rate_kg_ha = float(rate[-1])
-        width_on = states.width_on_m
-        # Within the meter's speed range while applying; a zero rate or all sections off stop the shaft.
-        wanted = self.implement.clip_shaft_rpm(self.implement.target_shaft_rpm(rate, speed_m_s, width_on))
-        target = np.where(width_on > 0, wanted, 0.0)
-        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": rate, "target_shaft_rpm": target,
-                "width_on_m": width_on, "sections_on": states.actual, "sections_commanded": states.commanded}
+        machine = self.machine
+        lx, ly, drive_x, drive_y = machine.landing(states.motion, self.look_ahead_s)
+        found = self.grid.lookup(drive_x, drive_y)
+        rate = np.column_stack([self.policy.apply(found.rate_kg_ha[:, d], found.inside[:, d], last)
+                                for d, last in enumerate(self.last_rate_kg_ha)]).reshape(drive_x.shape)
+        if len(rate):
+            self.last_rate_kg_ha = rate[-1].copy()
+        target = machine.drive_targets(rate, states)
+        return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": machine.prescribed(rate, states),
+                "target_shaft_rpm": machine.combined(target), "drive_rate_kg_ha": rate,
+                "drive_target_rpm": target, "width_on_m": states.width_on_m, "sections_on": states.actual,
+                "sections_commanded": states.commanded,
+                "drive_open": machine.drive_open(states)}
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
@@ -161,11 +172,12 @@ class ControlCore:
                 if keep is not None:     # the look-ahead moves there: look the rest up again
                     rec = {k: v[:keep] for k, v in rec.items()}
                     args = tuple(a[:keep] for a in args)
-                    self.last_rate_kg_ha = float(rec["prescribed_kg_ha"][-1])
+                    self.last_rate_kg_ha = rec["drive_rate_kg_ha"][-1].copy()
             ticks = len(rec["target_shaft_rpm"])
-            out = self.loop.run(rec["target_shaft_rpm"], context=context_track(rec, track[3][part][:ticks]))
-            rec.update(shaft_rpm=out.shaft_rpm[:, 0], shaft_rev=out.shaft_rev[:, 0],
-                       current_a=out.current_a[:, 0])
+            out = self.loop.run(rec["drive_target_rpm"], context=context_track(rec, track[3][part][:ticks]))
+            rec.update(drive_rev=out.shaft_rev, shaft_rpm=self.machine.combined(out.shaft_rpm),
+                       shaft_rev=self.machine.combined(out.shaft_rev),
+                       current_a=self.machine.combined(out.current_a))
             if self.tuner is not None and len(rec["shaft_rev"]):
                 self.tuner.observe(*args, rec["shaft_rev"] * 60.0 / self.period_s)
             parts.append(rec)
@@ -173,15 +185,30 @@ class ControlCore:
             if progress is not None:
                 progress(start, n)
         rec = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        rec["metered_kg"] = self._metered_kg(rec["shaft_rev"], rec["width_on_m"] > 0)
+        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"])
+        rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
         return {key: rec[key] for key in CONTROL_KEYS}
 
-    def _metered_kg(self, shaft_rev, applying) -> np.ndarray:
+    def _metered_kg(self, shaft_rev, applying, drive=None) -> np.ndarray:
+        """Product metered, kg, from each drive's revolutions (n, drives) and whether its product
+        reaches the ground (n, drives): the one place product comes from revolutions; each drive meters
+        its share of ``kg_per_rev`` (`services.sim.machines.Machine.drive_share`). `drive`: which drive
+        each column is (sweeps' variants run a column per variant and drive); default one per drive."""
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
         # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
         # (it does not lift product off the ground), so only forward revolutions count.
+        # The product's true constant and flow variability meter it (`vehicle.product`); the terminal
+        # computed the target with the configured constant. A closed gate's roller turns all the same.
         forward = np.maximum(shaft_rev, 0.0)
-        return np.where(np.asarray(applying, bool), self.implement.mass_kg(forward), 0.0)
+        kg, end_rev = metered_kg(forward, self.implement.kg_per_rev, self.product, self.seed, self.meter_rev)
+        self.meter_rev = np.atleast_1d(end_rev)
+        share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
+        return np.where(np.asarray(applying, bool), kg * share, 0.0)
+
+
+def _number_or_list(per_drive: np.ndarray):
+    """Per-drive state as plain data: a number for one metering drive, a list for several."""
+    return float(per_drive[0]) if per_drive.size == 1 else per_drive.tolist()
 
 
 def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:
@@ -230,6 +257,10 @@ def _slice(states: SectionStates, part: slice) -> SectionStates:
 
 
 # Per tick, shape (n,); ``sections_on`` and ``sections_commanded`` are (n, sections): each section's gate
-# and the terminal's command to it (`services.sim.sections.SectionStates`).
+# and the terminal's command to it (`services.sim.sections.SectionStates`); ``drive_*`` are (n, drives):
+# each metering drive's rate at its landing point, target, product and whether it reaches the ground
+# (`services.sim.machines`). With several drives the shaft keys are the one shaft's that would meter
+# what the drives meter together (`Machine.combined`), ``metered_kg`` their sum.
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
-                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on", "sections_commanded")
+                "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on", "sections_commanded",
+                "drive_rate_kg_ha", "drive_target_rpm", "drive_kg", "drive_open")

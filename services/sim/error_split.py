@@ -1,7 +1,8 @@
-"""The error of a run split into its causes: geometry and section control, machine limits, metering.
+"""The error of a run split into its causes: geometry and section control, machine limits, calibration,
+metering.
 
 The target shaft speed of every tick, the sections' gates and where product lands do not depend on
-the meter (nothing feeds back into them), so the same run is re-landed with two reference meters
+the meter (nothing feeds back into them), so the same run is re-landed with three reference meters
 whose shafts turn at exactly a given speed each control period (no PID, no plant, no delay):
 
 1. *geometry and section control*: the shaft at the speed the map asks for, unclipped (as if the
@@ -9,10 +10,14 @@ whose shafts turn at exactly a given speed each control period (no PID, no plant
    section switching and its latencies, overlap and skips, speed changing within the delivery
    delay, a single meter sharing product by width in curves;
 2. *machine limits*: the shaft at the target clipped to ``[shaft_rpm_min, shaft_rpm_max]``: the
-   ``ideal`` controller kind; the difference to 1;
-3. *metering*: the run's own controller and plant; the difference to 2.
+   ``ideal`` controller kind, metering the configured ``kg_per_rev`` per revolution exactly; the
+   difference to 1;
+3. *calibration*: the same shaft, metering what the product really gives per revolution (its true
+   constant and its flow variability, `vehicle.product`): what the terminal's wrong constant and the
+   uneven flow alone cost; the difference to 2 (zero for a product with neither);
+4. *metering*: the run's own controller and plant; the difference to 3.
 
-Each figure (mass balance, mean absolute error) telescopes: the three contributions add up to the
+Each figure (mass balance, mean absolute error) telescopes: the four contributions add up to the
 run's figure exactly. A contribution can be negative: a cause can cancel part of another (an
 under-applying limit against over-application at swath ends, say).
 """
@@ -30,8 +35,11 @@ from services.sim.run import RunResult
 from services.sim.section_landing import StripPlan, tick_travel_m
 from services.sim.sections import run_section_states
 from services.sim.world import World
+from vehicle.product import metered_kg
 
-CAUSES = ("geometry and section control", "machine limits", "metering")
+CAUSES = ("geometry and section control", "machine limits", "calibration", "metering")
+# The reference meters (`reference_metered_kg`): (shaft clipped to its range, the product's truth).
+REFERENCES = ((False, False), (True, False), (True, True))
 
 
 @dataclass(frozen=True)
@@ -56,10 +64,15 @@ class ErrorPart:
     share_pct: float
 
 
-def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
+def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool,
+                         true_product: bool, start_rev: float = 0.0) -> tuple[np.ndarray, float]:
     """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
-    the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for."""
-    imp, period_s = world.scenario.implement, world.scenario.timing.control_period_s
+    the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for; metering the
+    configured constant exactly or, with `true_product`, what the product really gives per revolution
+    (its shaft from `start_rev` revolutions on: a run accounted part by part carries it). Returns the
+    product per tick and where the shaft then stands (`vehicle.product.metered_kg`)."""
+    sc = world.scenario
+    imp, period_s = sc.implement, sc.timing.control_period_s
     if clipped:
         rpm = control["target_shaft_rpm"]
     else:
@@ -67,21 +80,23 @@ def reference_metered_kg(world: World, control: dict, measured_speed_m_s, clippe
         rate = np.nan_to_num(control["prescribed_kg_ha"])
         wanted = imp.target_shaft_rpm(rate, measured_speed_m_s, width_on)
         rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
-    return imp.mass_kg(rpm * period_s / 60.0)
+    if true_product:
+        return metered_kg(rpm * period_s / 60.0, imp.kg_per_rev, sc.product, sc.seed, start_rev)
+    return imp.mass_kg(rpm * period_s / 60.0), start_rev
 
 
 def _reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
-    """The map figures of the two reference meters (unclipped, clipped: see the module docstring) on
-    the run's track and sections: what `error_split` adds to the run's own figures, from an in-process
-    run's arrays (`vrsim run` deposits the reference meters part by part beside its own product:
+    """The map figures of the three reference meters (see the module docstring) on the run's track
+    and sections: what `error_split` adds to the run's own figures, from an in-process run's arrays
+    (`vrsim run` deposits the reference meters part by part beside its own product:
     `services.sim.bounded`).
 
     The strips lie where the run's did, whatever they carry, so their geometry is worked out once
     (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
     the accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
-    metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, clipped)
-                               for clipped in (False, True)])
+    metered = np.column_stack([reference_metered_kg(world, control, measured_speed_m_s, *reference)[0]
+                               for reference in REFERENCES])
     plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
                         world.scenario.timing.control_period_s, min(grid.cell_size),
                         tick_m=tick_travel_m(world.scenario))

@@ -11,6 +11,12 @@ Speeds are the working speed with its slow variation (``[tractor] speed_variatio
 and the headland speed if one is set; turns, starts and stops are not working speeds. With sections
 off the width is narrower and the shaft slower: `min_width_m` says below which width on the lowest
 rate needs less than ``shaft_rpm_min`` at the lowest speed.
+
+What to change when it cannot: the working speeds (`MachineCheck.min_speed_m_s` to `max_speed_m_s`), or
+the meter constant (another roller or gear: the shaft speed is inversely proportional to ``kg_per_rev``,
+so ``kg_per_rev_min`` to ``kg_per_rev_max`` puts the needed speeds inside the shaft's range at the
+working speeds as they are). The terminal's configured constant is what it computes with, so the check
+uses it, not the product's true one (`vehicle.product`).
 """
 
 from __future__ import annotations
@@ -45,6 +51,13 @@ class MachineCheck:
         ``shaft_rpm_min`` (sections switched off narrow it).
     narrowest_section_m : float
         The implement's narrowest section.
+    kg_per_rev : float
+        The configured meter constant, kg/rev.
+    kg_per_rev_min, kg_per_rev_max : float
+        The meter constants with which the full width applies the whole map at every working speed,
+        kg/rev (``kg_per_rev_max`` infinite for a shaft whose range starts at 0 rpm; NaN for a map
+        with no positive rate). ``kg_per_rev_min > kg_per_rev_max``: no constant can, the map's rates
+        and the working speeds span more than the shaft's range.
     """
 
     rate_min_kg_ha: float
@@ -59,6 +72,9 @@ class MachineCheck:
     max_speed_m_s: float
     min_width_m: float
     narrowest_section_m: float
+    kg_per_rev: float
+    kg_per_rev_min: float
+    kg_per_rev_max: float
 
     @property
     def can_apply(self) -> bool:
@@ -69,7 +85,7 @@ class MachineCheck:
         return self.shaft_rpm_min <= self.rpm_min and self.rpm_max <= self.shaft_rpm_max
 
     def text(self) -> str:
-        """Two or three lines for the run's printout."""
+        """Two or three lines for the run's printout; two more naming what to change if it cannot."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
@@ -85,7 +101,40 @@ class MachineCheck:
         elif self.min_width_m > self.narrowest_section_m:
             lines.append(f"  With less than {self.min_width_m:.1f} m of sections on, the lowest rate at the "
                          "lowest speed is over-applied.")
+        if not self.can_apply:
+            lines += self._remedies()
         return "\n".join(lines)
+
+    def _remedies(self) -> list[str]:
+        """What to change so that the full width applies the whole map: the speeds, or the meter."""
+        speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
+        if self.min_speed_m_s <= self.max_speed_m_s:
+            lines = [f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
+                     f"{self.max_speed_m_s:.2f} m/s, or"]
+        else:
+            lines = [f"  No working speed applies it all: the map's rates span {self.rate_span:.1f}x, the "
+                     f"shaft's speeds {self.shaft_span:.1f}x; narrow the map's range, or"]
+        if self.kg_per_rev_min <= self.kg_per_rev_max:
+            lo = f"{self.kg_per_rev_min:.4g}"
+            constants = (f"{lo}-{self.kg_per_rev_max:.4g} kg/rev" if math.isfinite(self.kg_per_rev_max)
+                         else f"{lo} kg/rev or more")
+            lines.append(f"  set [implement] kg_per_rev to {constants} (now "
+                         f"{self.kg_per_rev:g}: another roller or gear) to apply it at {speeds}.")
+        else:
+            lines.append(f"  no meter constant applies it at {speeds}: the map's rates and these speeds "
+                         f"span {self.rate_span * self.speed_max_m_s / self.speed_min_m_s:.1f}x, the "
+                         f"shaft's speeds {self.shaft_span:.1f}x; narrow the working speeds.")
+        return lines
+
+    @property
+    def rate_span(self) -> float:
+        """Highest over lowest positive rate of the map."""
+        return self.rate_max_kg_ha / self.rate_min_kg_ha
+
+    @property
+    def shaft_span(self) -> float:
+        """Highest over lowest shaft speed (infinite for a range from 0 rpm)."""
+        return self.shaft_rpm_max / self.shaft_rpm_min if self.shaft_rpm_min > 0 else math.inf
 
 
 def working_speeds(drive: DriveConfig) -> tuple[float, float]:
@@ -120,6 +169,9 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     per_m_s = float(implement.target_shaft_rpm(hi_rate, 1.0, width))
     per_m_s_lo = float(implement.target_shaft_rpm(lo_rate, 1.0, width))
     per_m = float(implement.target_shaft_rpm(lo_rate, v_lo, 1.0))
+    # ... and the shaft speed is inversely proportional to the meter constant.
+    kg = implement.kg_per_rev
+    kg_max = kg * rpm_min / implement.shaft_rpm_min if implement.shaft_rpm_min > 0 else math.inf
     return MachineCheck(
         rate_min_kg_ha=lo_rate, rate_max_kg_ha=hi_rate, speed_min_m_s=v_lo, speed_max_m_s=v_hi,
         rpm_min=rpm_min, rpm_max=rpm_max,
@@ -128,4 +180,6 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
         max_speed_m_s=implement.shaft_rpm_max / per_m_s if per_m_s > 0 else math.nan,
         min_width_m=implement.shaft_rpm_min / per_m if per_m > 0 else math.nan,
         narrowest_section_m=float(implement.section_widths.min()),
+        kg_per_rev=kg, kg_per_rev_min=kg * rpm_max / implement.shaft_rpm_max,
+        kg_per_rev_max=kg_max if rates.size else math.nan,
     )

@@ -41,9 +41,10 @@ from services.sim.core import ControlCore
 from services.sim.kept import Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
+from services.sim.machines import Machine, machine_for
 from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
 from services.sim.scenario import Scenario
-from services.sim.section_landing import limited_coverage, section_strips, tick_travel_m
+from services.sim.section_landing import limited_coverage, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
 from services.sim.transitions import TransitionMetrics
 from services.sim.world import World, build_world, driving
@@ -258,7 +259,9 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     with timer.stage("metrics_s"):
         states = run_section_states(track, control, implement)
         landing = land(world.grid, track, metered, width_on, delay_s, period_s)
-        acc = as_applied(world.grid, track, metered, states, delay_s, period_s, tick_travel_m(world.scenario))
+        machine = machine_for(implement)
+        acc = as_applied(world.grid, track, machine.deposit_kg(control), states, delay_s, period_s, machine,
+                         tick_travel_m(world.scenario))
         setting = Setting.of(world, track, control, landing)
         limited_cover = limited_coverage(track, metered[:, None], states, setting.limited, delay_s, period_s,
                                          cell_m, world.grid)[0]
@@ -270,13 +273,14 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
                      sections=states, as_applied=acc, accounts=accounts, started_unix=started_unix)
 
 
-def as_applied(grid: Grid, track: dict, metered_kg, states: SectionStates, delay_s: float,
-               period_s: float, tick_m: float | None = None) -> AsApplied:
-    """The as-applied raster of a run: each section's product as strips on `grid`, with their passes
-    (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
+def as_applied(grid: Grid, track: dict, product_kg, states: SectionStates, delay_s: float,
+               period_s: float, machine: Machine, tick_m: float | None = None) -> AsApplied:
+    """The as-applied raster of a run: the machine's product (`Machine.deposit_kg`'s) put on `grid`
+    through its footprint (`Machine.deposition`: a strip per section and tick for today's kinds), with
+    the passes (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
     acc = AsApplied(grid)
-    strips = section_strips(track, metered_kg, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
-    strips.add_to(acc)
+    plan = machine.deposition(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
+    acc.deposit(plan.footprint(), plan.mass_kg(product_kg), pass_index=plan.pass_index)
     return acc
 
 

@@ -3,9 +3,10 @@
 Every table maps onto one configuration dataclass of the package that owns the concept
 (``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
 `vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
-`controller.PlantParams`), so a key is named and documented once, where it is used. Loading checks
-every key: unknown keys, wrong types and values the owning dataclass refuses all raise a
-`ScenarioError` that names the file, the table and key, and the value.
+`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and
+documented once, where it is used. Loading checks every key: unknown keys, wrong types and values
+the owning dataclass refuses all raise a `ScenarioError` that names the file, the table and key, and
+the value.
 
 See ``scenarios/README.md`` for the keys of each table and ``services/sim/scenarios/default.toml`` for
 the built-in default.
@@ -23,15 +24,18 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, files, is_number
+from common import MapError, ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
+from maps.units import rate_unit
+from services.sim.machines.keys import changed_implement, implement_from_table, implement_table
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
 from services.sim.tables import build, no_unknown, typed
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
+from vehicle.product import Product
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
@@ -64,6 +68,7 @@ class MapSpec:
     params: dict = field(default_factory=dict)  # keyword arguments of the synthetic generator
     policy: str = "off"  # what the controller does outside the map or on nodata
     default_rate_kg_ha: float = 0.0
+    unit: str | None = None  # the file's rate unit, when it does not state it (`maps.units.rate_unit`)
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,9 @@ class TimingSpec:
     # the path by `vehicle.SumoDriver` (10 x the path at the slowest speed, plus 60 s), so a field of
     # any size runs without raising it.
     max_sim_time_s: float | None = None
+    # SUMO's step, a whole multiple of the control period (the ticks between its steps interpolated
+    # along the path: docs/model.md, "SUMO's step"). None: the control period.
+    sumo_step_s: float | None = None
 
 
 POINT_FORMATS = ("gpkg", "shp", "none")
@@ -133,6 +141,7 @@ class Scenario:
     plant: PlantParams
     timing: TimingSpec
     output: OutputSpec
+    product: Product = field(default_factory=Product)   # what the machine meters (its truth, too)
 
     def path(self, relative: str) -> str:
         """A path from the scenario file, resolved against the file's folder."""
@@ -141,7 +150,7 @@ class Scenario:
 
 # The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
 TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
-          "output")
+          "output", "product")
 TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
@@ -215,7 +224,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         description=typed(doc, "description", str, source, "", default=""),
         field=build(FieldSpec, doc.get("field", {}), source, "field"),
         map=build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=build(Implement, doc.get("implement", {}), source, "implement"),
+        implement=implement_from_table(doc.get("implement", {}), source),
         tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
@@ -223,6 +232,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         plant=build(PlantParams, doc.get("plant", {}), source, "plant"),
         timing=build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=build(OutputSpec, doc.get("output", {}), source, "output"),
+        product=build(Product, doc.get("product", {}), source, "product"),
     )
     _machine_once(doc.get("plant", {}), source)
     _check(scenario)
@@ -265,6 +275,9 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
             kept = {f.name: getattr(current, f.name) for f in dataclasses.fields(current) if f.init}
             if key == "controller":
                 top[key] = _changed_controller(current, kept, value, scenario)
+                continue
+            if key == "implement":
+                top[key] = changed_implement(current, value, source)
                 continue
             no_unknown(value, kept, source, key)
             if key == "plant":
@@ -364,6 +377,20 @@ def _check_map(spec: MapSpec, source: str) -> None:
         raise ScenarioError(f"{source}: [map] cell_size_m must be > 0, got {spec.cell_size_m}")
     if spec.default_rate_kg_ha < 0:
         raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
+    if spec.unit is not None:
+        if spec.file is None:
+            raise ScenarioError(f"{source}: [map] unit {spec.unit!r} is for a map file; synthetic maps "
+                                "are in kg/ha")
+        try:
+            rate_unit(spec.unit, f"{source}: [map] unit")
+        except MapError as exc:
+            raise ScenarioError(str(exc)) from None
+
+
+def product_density_kg_l(scenario: Scenario) -> float | None:
+    """The product's density, kg/L (``[product] density_kg_l``), which converts a volume rate map to
+    kg/ha; None when the scenario gives none."""
+    return scenario.product.density_kg_l
 
 
 def _synthetic_params(kind: str) -> set[str]:
@@ -390,10 +417,21 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
+    _check_sumo_step(spec, source)
     limit = spec.max_sim_time_s
     if limit is not None and not spec.control_period_s <= limit <= MAX_SIM_TIME_S:
         raise ScenarioError(f"{source}: [timing] max_sim_time_s must be in [control_period_s, "
                             f"{MAX_SIM_TIME_S:g}] s, got {limit!r}")
+
+
+def _check_sumo_step(spec: TimingSpec, source: str) -> None:
+    step, period = spec.sumo_step_s, spec.control_period_s
+    if step is None:
+        return
+    ratio = step / period  # a number: `services.sim.tables.build` checked its type
+    if not (STEP_RANGE_S[0] <= step <= STEP_RANGE_S[1] and ratio >= 1 and abs(ratio - round(ratio)) <= 1e-9):
+        raise ScenarioError(f"{source}: [timing] sumo_step_s must be a whole multiple of control_period_s "
+                            f"({period:g} s) of at most {STEP_RANGE_S[1]:g} s, got {step!r}")
 
 
 def files_named(scenario: Scenario) -> list[tuple[str, str]]:
@@ -424,7 +462,10 @@ def as_dict(scenario: Scenario) -> dict[str, Any]:
     out = {}
     for f in dataclasses.fields(scenario):
         value = getattr(scenario, f.name)
-        out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+        if f.name == "implement":
+            out[f.name] = implement_table(value)
+        else:
+            out[f.name] = dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
     return out
 
 
@@ -451,6 +492,8 @@ def _table(scenario: Scenario, key: str) -> dict:
     """Table `key` of `scenario` as a scenario file writes it (see `to_toml`)."""
     value = getattr(scenario, key)
     table = {f.name: getattr(value, f.name) for f in dataclasses.fields(value) if f.init}
+    if key == "implement":
+        table = implement_table(value)
     if key in ("field", "map") and table["file"] is not None:
         table["file"] = os.path.abspath(scenario.path(table["file"]))
     if key == "plant":

@@ -24,6 +24,11 @@ import numpy as np
 from maps import AsApplied, ColumnDeposit, Grid, Strips
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
+# The strips' API (`section_strips` for a run's strips with their masses, as the benchmarks and the
+# tests call it; `StripPlan` for the plan the machine kinds deposit through).
+__all__ = ["LimitedStrips", "SectionStrips", "StripPlan", "limited_coverage", "section_strips",
+           "worked_fraction"]
+
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
 MAX_WORKED_CELLS = 16_000_000  # ... on at most this many fine cells (16 MB)
 
@@ -87,18 +92,25 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
 class StripPlan:
     """Where each section's strips lie, before any product: the gates, passes and track decide the
     strips, the product only their masses, which are linear in the metered kg: a sparse map from ticks
-    to strips (each tick's product times its section's share), so one plan serves any number of
-    controllers on one drive (`services.sim.variants`)."""
+    (and drives) to strips (each tick's product times its section's share), so one plan serves any
+    number of controllers on one drive (`services.sim.variants`).
+
+    One drive (the gated meter, ``own_drives=False``): a tick's product is shared between the open
+    sections by width. A drive per section (``own_drives=True``): each section's strip carries its
+    own drive's product."""
 
     strips: SectionStrips   # the geometry, passes and sections; mass_kg empty
     ticks: np.ndarray       # the ticks planned (indices into the track)
     width_on_m: np.ndarray  # (ticks,)
-    to_strips: object       # scipy.sparse CSR (strips, ticks): a section's share of a tick's product
+    to_strips: object       # scipy.sparse CSR (strips, ticks x drives): a section's share of a drive's kg
+    drive_open: np.ndarray  # (ticks, drives): where each drive's product reaches the ground
 
     @classmethod
     def of(cls, track: dict, states: SectionStates, delay_s: float, period_s: float, cell_m: float,
-           ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
-        """The plan of `section_strips` (same parameters, less the product).
+           ticks=None, tick_m: float | None = None, first_tick: int = 0,
+           own_drives: bool = False) -> StripPlan:
+        """The plan of `section_strips` (same parameters, less the product); `own_drives`: a drive per
+        section.
 
         `tick_m`: the typical tick's travel that sets how many ticks a strip joins (`_join_ticks`);
         None: the median over `ticks` (known only once they are all there). `first_tick`: the index
@@ -112,11 +124,11 @@ class StripPlan:
         # there, as do ticks left out.
         numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
         return cls.of_frame(frame, passes, states.actual[idx], numbers, states, cell_m, idx, tick_m,
-                            first_tick)
+                            first_tick, own_drives)
 
     @classmethod
     def of_frame(cls, frame: tuple, passes, actual, numbers, states: SectionStates, cell_m: float, idx,
-                 tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
+                 tick_m: float | None = None, first_tick: int = 0, own_drives: bool = False) -> StripPlan:
         """`of` from the landing frames of its ticks (`landing_frame`: x0, y0, x1, y1, nx, ny), their
         landing passes, gates (ticks, sections) and tick numbers; `idx` the ticks' indices in the
         track. The section widths and offsets are `states`'."""
@@ -125,8 +137,12 @@ class StripPlan:
         n, sections = idx.size, actual.shape[1]
         x0, y0, x1, y1, nx, ny = frame
         width_on = actual @ states.widths_m
-        share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
-                          where=actual & (width_on[:, None] > 0))
+        if own_drives:
+            drives, share, drive_open = sections, actual.astype(float), actual
+        else:
+            drives, drive_open = 1, (width_on > 0)[:, None]
+            share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
+                              where=actual & (width_on[:, None] > 0))
         if tick_m is None:
             tick_m = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
         join = _join_ticks(cell_m, tick_m)
@@ -158,22 +174,37 @@ class StripPlan:
         rank[order] = np.arange(order.size)
         row = rank[(np.cumsum(keep) - 1)[group]]
         tick, section = flat_on % per_section, flat_on // per_section
-        to_strips = sparse.csr_matrix((share[tick, section], (row, tick)), shape=(order.size, n))
-        return cls(strips, idx, width_on, to_strips)
+        column = tick * drives + (section if own_drives else 0)   # one drive: the tick itself
+        to_strips = sparse.csr_matrix((share[tick, section], (row, column)), shape=(order.size, n * drives))
+        return cls(strips, idx, width_on, to_strips, drive_open)
+
+    def footprint(self) -> Strips:
+        """Where the strips put product (`SectionStrips.footprint`)."""
+        return self.strips.footprint()
+
+    @property
+    def pass_index(self) -> np.ndarray:
+        """The pass of each strip, shape (k,)."""
+        return self.strips.pass_index
 
     def mass_kg(self, metered_kg) -> np.ndarray:
-        """Product in each strip, kg, shape (k,) or (k, m) for `metered_kg` of shape (track ticks,) or
-        (track ticks, m) (m controllers' columns); `ValueError` if a tick meters product with every gate
-        closed (it would be lost)."""
+        """Product in each strip, kg, shape (k,) or (k, m): for one drive from `metered_kg` of shape
+        (track ticks,) or (track ticks, m) (m controllers' columns), for several drives of shape
+        (track ticks, drives) or (track ticks, drives, m); `ValueError` if a tick meters product where
+        it cannot land (every gate closed; a drive's own section closed): it would be lost."""
         metered = np.asarray(metered_kg, float)
         every = len(self.ticks) == len(metered) and (not len(metered) or self.ticks[-1] == len(metered) - 1)
         if not every:   # (ascending ticks: as many as the track's, the last its last, are all of them)
             metered = metered[self.ticks]
-        lost = (metered.reshape(len(self.ticks), -1) > 0).any(axis=1) & (self.width_on_m <= 0)
+        ticks, drives = self.drive_open.shape
+        per_drive = metered.reshape(ticks, drives, -1) > 0
+        lost = (per_drive & ~self.drive_open[:, :, None]).any(axis=(1, 2))
         if lost.any():
+            closed = "every gate closed" if drives == 1 else "its section's gate closed"
             raise ValueError(f"section_strips: tick {int(self.ticks[np.argmax(lost)])} meters product with "
-                             "every gate closed")
-        return np.asarray(self.to_strips @ metered)
+                             f"{closed}")
+        columns = metered.shape[2:] if drives > 1 else metered.shape[1:]
+        return np.asarray(self.to_strips @ metered.reshape(ticks * drives, *columns))
 
 
 def limited_coverage(track: dict, metered_kg: np.ndarray, states: SectionStates, limited: np.ndarray,

@@ -6,11 +6,13 @@ the geometry of where product lands (strips of the sections that are on). `run_v
 those once and then
 
 1. runs the variants' loops together on the shared targets (`controller.build_variant_loops`: the
-   PID family on its lifted-matrix fast path, one loop per variant with its own gains; other kinds
-   one after another);
+   PID family on its lifted-matrix fast path, one loop per variant and metering drive with its own
+   gains; other kinds one after another);
 2. lands every variant's metered product at once: the applied rate per tick is a column per variant,
-   the joined strips' masses too, and the as-applied rasters come from one sparse map from strips to
-   cells (`maps.ColumnDeposit`) applied to all mass columns;
+   the masses of the machine's deposition (`services.sim.machines.Machine.deposition`: the joined
+   strips) too, and the as-applied rasters come from one sparse map from its items to cells
+   (`maps.ColumnDeposit`) applied to all mass columns (a drive per section: each section's strips
+   from its own drive's columns);
 3. accounts for each variant's deposit with the run's own accounting (`services.sim.accounting`).
 
 The controller-free work (the targets, the strips and their sparse map, the landing geometry, the
@@ -109,7 +111,7 @@ class _Shared:
     rec: dict                 # stage 1 per tick (`ControlCore.targets`)
     core: ControlCore
     setting: Setting          # its landing's applied rates are each variant's own
-    plan: StripPlan
+    plan: StripPlan           # the machine's deposition (`services.sim.machines.Machine.deposition`)
     strip_map: ColumnDeposit
     limited_strips: LimitedStrips
     control_s: float          # each variant's share of the shared stage 1
@@ -128,7 +130,8 @@ class _Shared:
         states = run_section_states(track, rec, implement)
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
         setting = Setting.of(world, track, rec, landing)
-        plan = StripPlan.of(track, states, delay_s, period_s, cell_m, tick_m=tick_travel_m(scenario))
+        plan = core.machine.deposition(track, states, delay_s, period_s, cell_m,
+                                       tick_m=tick_travel_m(scenario))
         shared = cls(drive, scenario, rec, core, setting, plan, _strip_map(grid, plan),
                      LimitedStrips.of(track, states, setting.limited, delay_s, period_s, cell_m, grid),
                      control_s / variants, 0.0)
@@ -137,35 +140,47 @@ class _Shared:
 
 
 def _strip_map(grid, plan: StripPlan) -> ColumnDeposit:
-    """The sparse map from the plan's strips (with their passes) to the grid's cells."""
-    return ColumnDeposit(grid, plan.strips.footprint(), pass_index=plan.strips.pass_index)
+    """The sparse map from the plan's items (with their passes) to the grid's cells."""
+    return ColumnDeposit(grid, plan.footprint(), pass_index=plan.pass_index)
 
 
 def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
-    """Variants of one look-ahead: one loop batch on the shared targets, then their accounts."""
+    """Variants of one look-ahead: one loop batch on the shared targets (a loop per variant and
+    metering drive), then their accounts."""
     scenario, rec, drive = shared.scenario, shared.rec, shared.drive
     clock = time.perf_counter()
-    timing = scenario.timing
-    try:
-        loops = build_variant_loops(plant_for(scenario), cfgs, timing.control_period_s, timing.plant_step_s)
+    timing, drives = scenario.timing, shared.core.machine.drives
+    try:   # column v * drives + d: variant v's drive d
+        loops = build_variant_loops(plant_for(scenario), [cfg for cfg in cfgs for _ in range(drives)],
+                                    timing.control_period_s, timing.plant_step_s)
     except ControllerError as exc:
         raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
     ticks = len(rec["target_shaft_rpm"])
-    metered = np.empty((ticks, len(cfgs)))
-    applying = (rec["width_on_m"] > 0)[:, None]
+    metered = np.empty((ticks, len(cfgs) * drives))
     for idx, loop in loops:
+        which = np.asarray(idx) % drives
+        # Each variant's shafts start where the run's did (`vehicle.product`: the flow factors).
+        shared.core.meter_rev = np.zeros(1)
         for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
             part = slice(lo, lo + RUN_CHUNK)
-            target = rec["target_shaft_rpm"][part]
-            targets = np.broadcast_to(target[:, None], (len(target), loop.n)) if loop.n > 1 else target
+            targets = _loop_targets(rec["drive_target_rpm"][part], which, loop.n)
             context = context_track(rec, drive.measured_speed_m_s, part)
             metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
-                                                         applying[part])
+                                                         rec["drive_open"][part][:, which], which)
     control_s = time.perf_counter() - clock
     # A variant's wall time is the sum of its shares of the work done for it.
     timers = [StageTimer({**drive.stage_s, "control_s": shared.control_s + control_s / len(cfgs),
                           "metrics_s": shared.metrics_s}, shares=True) for _ in cfgs]
-    return _account(shared, metered, timers)
+    return _account(shared, metered.reshape(ticks, len(cfgs), drives).transpose(0, 2, 1), timers)
+
+
+def _loop_targets(drive_target_rpm: np.ndarray, which: np.ndarray, n: int) -> np.ndarray:
+    """The targets (ticks, n) of a loop batch whose loops run drives `which` (one drive: the one
+    target as a broadcast view, which the loops take without a copy per loop)."""
+    if drive_target_rpm.shape[1] == 1:
+        target = drive_target_rpm[:, 0]
+        return np.broadcast_to(target[:, None], (len(target), n)) if n > 1 else target
+    return drive_target_rpm[:, which]
 
 
 def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
@@ -182,10 +197,12 @@ def _targets(drive: Drive, scenario) -> tuple[dict, ControlCore]:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, core
 
 
-def _account(shared: _Shared, metered: np.ndarray, timers: list[StageTimer]) -> list[dict]:
-    """The summaries of the mass columns `metered` (ticks x variants): their deposits, `RASTER_CHUNK`
-    at a time from the shared strips' sparse map, accounted (`services.sim.accounting.account`); each
-    variant's timer gets its share of the work as ``metrics_s``."""
+def _account(shared: _Shared, drive_kg: np.ndarray, timers: list[StageTimer]) -> list[dict]:
+    """The summaries of the mass columns `drive_kg` (ticks x drives x variants): their deposits,
+    `RASTER_CHUNK` at a time from the shared strips' sparse map, accounted
+    (`services.sim.accounting.account`); each variant's timer gets its share of the work as
+    ``metrics_s``."""
+    metered = drive_kg[:, 0, :] if drive_kg.shape[1] == 1 else drive_kg.sum(axis=1)
     setting = shared.setting
     width_on_m, strip_length_m = shared.rec["width_on_m"][:, None], setting.landing.strip_length_m[:, None]
     clock = time.perf_counter()
@@ -195,7 +212,7 @@ def _account(shared: _Shared, metered: np.ndarray, timers: list[StageTimer]) -> 
     for lo in range(0, metered.shape[1], RASTER_CHUNK):
         clock = time.perf_counter()
         columns, chunk = metered[:, lo:lo + RASTER_CHUNK], timers[lo:lo + RASTER_CHUNK]
-        rasters = _rasters(shared, columns)
+        rasters = _rasters(shared, drive_kg[:, :, lo:lo + RASTER_CHUNK])
         applied, cover = rasters.applied_kg_ha, rasters.coverage_fraction
         # the applied rate per tick, a row per variant (its transitions read it whole)
         rates = applied_rate_kg_ha(columns, width_on_m, strip_length_m).T.copy()
@@ -210,6 +227,7 @@ def _account(shared: _Shared, metered: np.ndarray, timers: list[StageTimer]) -> 
     return summaries
 
 
-def _rasters(shared: _Shared, metered: np.ndarray) -> AppliedColumns:
-    """The as-applied rasters of the mass columns `metered` (ticks, n) along the shared strips."""
-    return shared.strip_map.apply(shared.plan.mass_kg(metered))
+def _rasters(shared: _Shared, drive_kg: np.ndarray) -> AppliedColumns:
+    """The as-applied rasters of the mass columns `drive_kg` (ticks, drives, n) along the shared strips."""
+    product = drive_kg[:, 0, :] if drive_kg.shape[1] == 1 else drive_kg
+    return shared.strip_map.apply(shared.plan.mass_kg(product))

@@ -11,7 +11,7 @@ import rasterio
 
 from common.section_masks import sections_from_masks
 from services.outputs.write import write_outputs
-from services.sim import accuracy
+from services.sim import accuracy, metrics
 from services.sim.error_split import error_split
 from services.sim.run import run
 from services.sim.scenario import load, parse, with_changes
@@ -91,11 +91,60 @@ def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
     assert len(late_m) >= 6 and np.abs(late_m).max() <= 1.0, late_m.round(2)
 
 
-@pytest.mark.xfail(strict=True, reason="issue #25's goal, not reached by the look-ahead alone: the ideal "
-                   "meter over-applies where the tractor slows before each swath end (product metered at "
-                   "the speed before landing at the slower one) and in the headland pass's corners")
+@pytest.mark.xfail(strict=True, reason="issue #25's goal is out of the gated meter's reach on this field: "
+                   "its headland corners alone put 0.94 % of the covered area outside +-10 % (one meter "
+                   "sharing product by width in a 6 m-radius turn); the rest is speed changes within the "
+                   "delivery delay and the sections' look-ahead "
+                   "(test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes)")
 def test_rectangle_ideal_reaches_99_pct_within_10_pct(rectangle_ideal):
     assert rectangle_ideal.summary["within_10pct_area_pct"] >= 99.0
+
+
+def _outside_10_pct_by_place(result) -> dict[str, float]:
+    """The covered cells outside +-10 % of the prescription, by where they lie on a rectangle worked
+    with one headland pass of the implement's width, as % of the covered area: the headland pass's
+    corner squares, the band 2-10 m inside the headland's inner edge at the swath ends (where the
+    tractor slows for the turn), that edge +-2 m (where the sections open and close), the rest."""
+    grid, applied = result.world.grid, result.as_applied
+    rx = grid.rates_kg_ha
+    covered = result.in_field & (applied.coverage_fraction >= metrics.COVERED_FRACTION) & np.isfinite(rx)
+    outside = covered & (np.abs(applied.applied_kg_ha - rx) > 0.10 * rx)
+    west, south, east, north = result.world.field.polygon.bounds
+    headland_m = result.world.scenario.implement.width_m
+    x, y = np.meshgrid(*grid.cell_centres())
+    across = np.minimum(x - west, east - x)   # from the nearer long side, m
+    along = np.minimum(y - south, north - y)  # from the nearer end, m
+    corners = (across < headland_m) & (along < headland_m)
+    edge = ~corners & (np.abs(along - headland_m) <= 2.0)
+    band = ~corners & ~edge & (along > headland_m) & (along < headland_m + 10.0)
+    places = {"corners": corners, "edge": edge, "band": band, "rest": ~(corners | edge | band)}
+    return {name: 100.0 * np.count_nonzero(outside & at) / np.count_nonzero(covered)
+            for name, at in places.items()}
+
+
+def test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes(rectangle_ideal):
+    """Where issue #25's 2 % lie (the ideal meter, so geometry and section control alone): the headland
+    pass's four corners, 0.94 % of the covered area, where one meter shares product by width in a
+    6 m-radius turn (the inner end pivots, the outer moves at twice the centre's speed: only offsets
+    within about 0.6 m of the centre get within 10 % of the rate), a limit of the gated meter; the
+    swath ends' slow-down (product metered at 2.5 m/s lands during the slow-down to 1.2 m/s 0.8 s
+    later, about +45 % on a row of cells), and the headland's edge where the sections open while
+    the speed-up out of the turn ends within their 1.8 s look-ahead. The rest is the headland pass's
+    own end (its slow-down for the turn into the first swath) and no more; the field between is clean."""
+    share = _outside_10_pct_by_place(rectangle_ideal)
+    assert share["corners"] > 0.9 and share["band"] > 0.5 and share["edge"] > 0.2, share
+    assert share["rest"] < 0.15, share
+
+
+def test_rectangle_ideal_without_speed_changes_keeps_only_the_corners():
+    """Turns at the working speed (no slow-down, no speed-up): the band and the edge are clean, and the
+    corners alone keep the ideal gated meter under issue #25's 99 % within +-10 %."""
+    scenario = load(os.path.join(accuracy.SCENARIO_DIR, "rectangle_uniform_ideal.toml"))
+    result = run(with_changes(scenario, tractor={"turn_speed_m_s": 2.5}))
+    share = _outside_10_pct_by_place(result)
+    assert share["corners"] > 0.9 and share["band"] == 0.0, share
+    assert share["edge"] + share["rest"] < 0.2, share
+    assert result.summary["within_10pct_area_pct"] < 99.0, result.summary
 
 
 def test_oblique_headland_needs_coverage_control():
@@ -169,8 +218,8 @@ def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
     ideal = error_split(run(with_changes(oblique(), controller={"kind": "ideal"})))
     # The ideal meter meters exactly: nothing left for metering (to rounding: the references land
     # through maps.ColumnDeposit, the run through maps.AsApplied, summing in another order).
-    assert ideal[2].mass_balance_pct == pytest.approx(0.0, abs=1e-9)
-    assert ideal[2].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
+    assert ideal[-1].mass_balance_pct == pytest.approx(0.0, abs=1e-9)
+    assert ideal[-1].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
 
 
 def test_unequal_sections_are_named_and_land_their_share():
@@ -190,6 +239,10 @@ def test_machine_check_before_the_run_and_the_limited_figures(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "CANNOT apply the whole map" in p.stdout and "202.2 rpm of a 5-150 rpm shaft" in p.stdout
     assert "Above 2.67 m/s" in p.stdout
+    # What to change: the speeds at which it can, or a meter constant that can at these speeds.
+    assert "keep the working speeds within 0.17-2.67 m/s" in p.stdout, p.stdout
+    assert "set [implement] kg_per_rev to 0.6739-10.89 kg/rev" in p.stdout
+    assert "to apply it at 3.60-3.60 m/s" in p.stdout
     assert not (tmp_path / "runs").exists()
     p = vrsim("run", str(path), "--check", "--json")
     check = json.loads(p.stdout)

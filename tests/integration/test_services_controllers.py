@@ -1,5 +1,6 @@
 """Controller kinds other than the PID through the services in lockstep: a Smith predictor with the
-look-ahead auto-tune, and a user's controller class from a file, each give the same metrics as
+look-ahead auto-tune (metering a product whose flow varies revolution to revolution, 3 % off its
+configured constant), and a user's controller class from a file, each give the same metrics as
 `vrsim run` to 1e-9 relative (every service a separate process, on loopback). A user's file outside
 the folders the controller service allows is refused."""
 
@@ -21,7 +22,8 @@ from tests.integration.test_services_support import (
 )
 
 CONTROLLERS = {
-    "smith": '[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n',
+    "smith": '[controller]\nkind = "smith"\nlook_ahead_s = "auto"\nlook_ahead_tune = 0.5\n'
+             '[product]\nflow_cv_pct = 6.0\ncalibration_error_pct = 3.0\n',
     "user": '[controller]\nkind = "python"\nfile = "my_controller.py"\nclass = "MyController"\n'
             'params = { kp_a_per_rpm = 0.002, ki_a_per_rpm_s = 0.01 }\n',
 }
@@ -69,7 +71,8 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert ok, report
     ok, state = net.query("vrsim/tractor1/control/state")
     assert ok and state["run_id"] == started["run_id"] and state["next_tick"] == status["ticks"], state
-    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections"}
+    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections", "meter_rev"}
+    assert state["core"]["meter_rev"] > 10   # the shaft's position, carried batch after batch
     # Section control's memory came along, batch after batch: its ticks, and the coverage map, packed.
     sections = state["core"]["sections"]
     assert sections["tick"] == status["ticks"] and sections["passes"]["next_id"] > 1

@@ -1,6 +1,7 @@
 """The batched fast path for controller variants: one drive, many controllers at once, each equal to its
 one-at-a-time run (real SUMO on a small field)."""
 
+import dataclasses
 import math
 
 import pytest
@@ -42,6 +43,8 @@ def assert_same_summary(fast: dict, slow: dict, rel: float = 1e-9) -> None:
             assert math.isnan(got), key
         elif isinstance(want, (int, float)):
             assert got == pytest.approx(want, rel=rel, abs=1e-12), key
+        elif isinstance(want, dict):  # in_rate_unit: figures again, in the map's unit
+            assert_same_summary(got, want, rel)
         else:
             assert got == want, key
 
@@ -82,9 +85,39 @@ def test_variants_with_a_limited_machine_and_overlap_equal_one_at_a_time_runs():
     assert all(s["overlap_kg"] > 0 and s["overlap_area_pct"] > 0 and s["sections"] == 4 for s in fast)
 
 
+def test_variants_of_a_product_with_uneven_flow_equal_one_at_a_time_runs():
+    """A product whose flow varies revolution to revolution, 4 % off its configured constant: each
+    variant's shaft starts at rest as a run's does, also for PID loops batched in columns, so every
+    summary equals control_and_account's."""
+    uneven = drive(scenario.parse(FIELD + "[product]\nflow_cv_pct = 10.0\ncalibration_error_pct = -4.0\n",
+                                  "uneven.toml", "."))
+    cfgs = [ControllerConfig(kind="PID", gains="manual", kp=kp, ki=ki, kd=0.0) for kp, ki in ((0.2, 0.5),
+                                                                                            (0.573, 3.7))]
+    cfgs += [ControllerConfig(kind="PID"), ControllerConfig(kind="ideal")]
+    fast = run_variants(uneven, cfgs)
+    for cfg, summary in zip(cfgs, fast, strict=True):
+        assert_same_summary(summary, control_and_account(uneven, cfg).summary)
+    assert all(s["mass_balance_pct"] < -2 for s in fast)
+
+
 def test_a_bad_variant_is_a_scenario_error(shared_drive, tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("raise RuntimeError('no')\n")
     cfg = ControllerConfig(kind="python", file=str(bad), class_name="Nope")
     with pytest.raises(scenario.ScenarioError, match="controller"):
         run_variants(shared_drive, [ControllerConfig(kind="PID"), cfg])
+
+
+def test_variants_of_a_drive_per_section_equal_one_at_a_time_runs(shared_drive):
+    """``section_drives``: a loop per variant and section in one batch, each section's strips from its
+    own drive's mass columns (`maps.ColumnDeposit`); every summary equals control_and_account's."""
+    world = shared_drive.world
+    sc = scenario.with_changes(world.scenario, implement={"kind": "section_drives"})
+    per_section = dataclasses.replace(shared_drive, world=dataclasses.replace(world, scenario=sc))
+    cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PID", gains="textbook"),
+            ControllerConfig(kind="aog_pi"), ControllerConfig(kind="ideal")]
+    fast = run_variants(per_section, cfgs)
+    for cfg, got in zip(cfgs, fast, strict=True):
+        assert_same_summary(got, control_and_account(per_section, cfg).summary)
+    gated = run_variants(shared_drive, cfgs[-1:])[0]
+    assert fast[-1]["mae_kg_ha"] < gated["mae_kg_ha"]   # the zones' edges cut sections, not the boom

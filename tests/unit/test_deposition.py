@@ -48,8 +48,8 @@ def triangle(monkeypatch):
 
 def test_registry_knows_section_strips_and_refuses_unknown_and_taken_names(triangle):
     assert footprint_kind("section_strips") is Strips and footprint_kind("test_triangle") is Triangle
-    with pytest.raises(MapError, match="not one of section_strips, test_triangle"):
-        footprint_kind("spinner")
+    with pytest.raises(MapError, match="not one of section_strips, .*test_triangle"):
+        footprint_kind("no_such_kind")
     taken = type("Other", (), {"kind": "section_strips"})
     with pytest.raises(MapError, match="registered already"):
         register_footprint(taken)

@@ -47,3 +47,37 @@ def test_working_speeds_span_the_variation_and_the_headland_speed():
         pytest.approx((1.8, 2.2))
     assert working_speeds(DriveConfig(working_speed_m_s=2.0, speed_variation_pct=0.0,
                                       headland_speed_m_s=3.0)) == (2.0, 3.0)
+
+
+def test_a_machine_that_cannot_is_told_the_speeds_and_the_meter_constants_with_which_it_can():
+    imp = Implement(width_m=18.0, sections=6, kg_per_rev=0.5, shaft_rpm_max=150.0)
+    check = machine_check(np.array([140.0, 259.8]), (3.0, 3.6), imp)
+    assert not check.can_apply
+    # At the constants' bounds the highest rate at the highest speed needs exactly the top of the
+    # shaft's range, and the lowest at the lowest speed exactly its bottom.
+    at_min = Implement(width_m=18.0, sections=6, kg_per_rev=check.kg_per_rev_min, shaft_rpm_max=150.0)
+    at_max = Implement(width_m=18.0, sections=6, kg_per_rev=check.kg_per_rev_max, shaft_rpm_max=150.0)
+    assert at_min.target_shaft_rpm(259.8, 3.6) == pytest.approx(150.0, rel=1e-12)
+    assert at_max.target_shaft_rpm(140.0, 3.0) == pytest.approx(5.0, rel=1e-12)
+    assert machine_check(np.array([140.0, 259.8]), (3.0, 3.6), at_min).can_apply
+    assert machine_check(np.array([140.0, 259.8]), (3.0, 3.6), at_max).can_apply
+    text = check.text()
+    assert f"keep the working speeds within {check.min_speed_m_s:.2f}-{check.max_speed_m_s:.2f} m/s" in text
+    assert (f"set [implement] kg_per_rev to {check.kg_per_rev_min:.4g}-{check.kg_per_rev_max:.4g} kg/rev "
+            "(now 0.5: another roller or gear) to apply it at 3.00-3.60 m/s") in text
+    # A machine that can is told nothing to change.
+    assert "kg_per_rev" not in machine_check(np.array([120.0, 200.0]), (2.4, 2.6), Implement()).text()
+
+
+def test_a_map_wider_than_the_shaft_has_no_speed_and_no_constant_that_applies_it():
+    imp = Implement(shaft_rpm_min=10.0, shaft_rpm_max=150.0)   # a 15x range
+    check = machine_check(np.array([10.0, 200.0]), (2.0, 3.0), imp)   # 20x the rates, 30x with speeds
+    assert check.kg_per_rev_min > check.kg_per_rev_max and check.min_speed_m_s > check.max_speed_m_s
+    text = check.text()
+    assert "No working speed applies it all: the map's rates span 20.0x, the shaft's speeds 15.0x" in text
+    assert "no meter constant applies it at 2.00-3.00 m/s" in text and "span 30.0x" in text
+    # Without a lowest shaft speed any constant large enough does.
+    free = machine_check(np.array([10.0, 200.0]), (2.0, 3.0), Implement(shaft_rpm_min=0.0))
+    assert free.kg_per_rev_max == math.inf and free.can_apply
+    fast = machine_check(np.array([10.0, 400.0]), (2.0, 4.0), Implement(shaft_rpm_min=0.0))
+    assert not fast.can_apply and f"kg_per_rev to {fast.kg_per_rev_min:.4g} kg/rev or more" in fast.text()

@@ -1,0 +1,87 @@
+"""What every machine kind's run-time part implements (`Machine`); docs/machines.md explains it."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import ClassVar
+
+import numpy as np
+
+from services.sim.section_landing import StripPlan
+from services.sim.sections import SectionStates
+from services.sim.sections.motion import Motion
+from vehicle import Implement
+
+
+class Machine(ABC):
+    """A machine kind at run time: its metering drives and where their product lands.
+
+    Metering: `drives` drives, each run by its own control loop (`controller.build_loop(..., n=drives)`:
+    one lifted matrix product per period for all of them), each turning ``kg_per_rev *
+    drive_share[d]`` per revolution. Each drive's target comes from the rate at its own landing point
+    (`landing`) and its own ground speed (`drive_targets`); `services.sim.core.ControlCore` looks the
+    rates up and applies the map's policy, then `ControlCore._metered_kg` turns revolutions into kg.
+
+    Deposition: `deposition` plans where each drive's product lands (a `maps.footprint` kind and the
+    masses of its items, linear in the product), through the one deposition engine (`maps.AsApplied`,
+    `maps.ColumnDeposit`).
+
+    Parameters
+    ----------
+    implement : vehicle.Implement
+        Of this kind (``implement.kind == kind``); its ``machine`` holds the kind's own keys.
+    """
+
+    kind: ClassVar[str] = ""
+
+    def __init__(self, implement: Implement):
+        self.implement = implement
+
+    @property
+    def drives(self) -> int:
+        """How many metering drives (and control loops) the machine has."""
+        return 1
+
+    @property
+    def drive_share(self) -> np.ndarray:
+        """Each drive's share of the implement's ``kg_per_rev`` per revolution, shape (drives,)."""
+        return np.ones(1)
+
+    @abstractmethod
+    def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
+        """Where product metered now lands, `lead_s` s ahead along the predicted arc (`Motion.ahead`:
+        the sensed speed, acceleration and yaw rate): the implement's centre (x_m, y_m), shape (n,),
+        and each drive's landing point (x_m, y_m), shape (n, drives)."""
+
+    @abstractmethod
+    def drive_open(self, states: SectionStates) -> np.ndarray:
+        """Whether each drive's product reaches the ground in each tick, bool (n, drives)."""
+
+    @abstractmethod
+    def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
+        """Each drive's target shaft speed, rpm (n, drives): for the rate at its landing point (kg/ha,
+        (n, drives)) at its own ground speed, within the shaft's range; 0 where its product is shut."""
+
+    @abstractmethod
+    def combined(self, per_drive: np.ndarray) -> np.ndarray:
+        """A machine-level value per tick (n,) of per-drive values (n, drives): the speed of one shaft
+        that would meter what the drives meter together (the drives' speeds weighted by their shares)."""
+
+    @abstractmethod
+    def prescribed(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
+        """The machine-level prescription per tick, kg/ha (n,), from each drive's (n, drives)."""
+
+    @abstractmethod
+    def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
+                   cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
+        """Where the product lands, before any product: a plan with ``footprint()`` (a `maps.footprint`
+        kind), ``mass_kg(product)`` (each item's kg, linear in `deposit_kg`'s product; (ticks, ..., m)
+        columns give (items, m)) and ``pass_index`` (items,), as
+        `services.sim.section_landing.StripPlan`. Parameters as
+        `services.sim.section_landing.StripPlan.of`'s (`ticks`: only these; `tick_m`, `first_tick`: a
+        tick's travel and where the track begins in a run accounted part by part)."""
+
+    def deposit_kg(self, control: dict) -> np.ndarray:
+        """The product per tick in `deposition`'s terms, from a run's control arrays: ``metered_kg``
+        (n,) for one drive, ``drive_kg`` (n, drives) for several."""
+        return np.asarray(control["metered_kg"]) if self.drives == 1 else np.asarray(control["drive_kg"])

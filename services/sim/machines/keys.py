@@ -1,0 +1,52 @@
+"""The ``[implement]`` table of a scenario file: the keys every machine shares and those of its kind.
+
+A table holds `vehicle.Implement`'s own keys and the keys of its ``kind`` (`vehicle.machines`) side by
+side; `implement_from_table` splits them, refuses a key of another kind naming the kind it belongs
+to, and builds the implement with its kind's keys (`vehicle.machines.MachineSpec`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from common import ScenarioError, VrsimError
+from services.sim.tables import build, no_unknown
+from vehicle import Implement
+from vehicle.machines import DEFAULT_KIND, key_owner, spec_class, spec_keys
+
+IMPLEMENT_KEYS = {f.name for f in dataclasses.fields(Implement) if f.init} - {"machine"}
+
+
+def implement_from_table(table: dict, source: str) -> Implement:
+    """An ``[implement]`` table -> `vehicle.Implement`. A key of another kind, an unknown kind or key,
+    and what the dataclasses refuse raise a `ScenarioError` naming `source`, the key and the value."""
+    kind = table.get("kind", DEFAULT_KIND)
+    try:
+        spec = spec_class(kind)
+    except VrsimError as exc:
+        raise ScenarioError(f"{source}: [implement] {exc}") from None
+    own = {k: v for k, v in table.items() if k in IMPLEMENT_KEYS}
+    rest = {k: v for k, v in table.items() if k not in IMPLEMENT_KEYS}
+    for key in sorted(rest):
+        owner = key_owner(key)
+        if owner is not None and owner != kind:
+            raise ScenarioError(f"{source}: [implement] {key} is a key of kind {owner!r}, not of kind "
+                                f"{kind!r} (got {rest[key]!r})")
+    no_unknown(rest, IMPLEMENT_KEYS | set(spec_keys(kind)), source, "implement")
+    return build(Implement, {**own, "machine": build(spec, rest, source, "implement")}, source, "implement")
+
+
+def implement_table(implement: Implement) -> dict:
+    """`implement` as its ``[implement]`` table: the shared keys and its kind's, side by side."""
+    table = {f.name: getattr(implement, f.name) for f in dataclasses.fields(implement) if f.init}
+    machine = table.pop("machine")
+    return {**table, **dataclasses.asdict(machine)}
+
+
+def changed_implement(current: Implement, changes: dict, source: str) -> Implement:
+    """`services.sim.scenario.with_changes` of ``[implement]``: keys as in a file; a change of kind
+    drops the old kind's keys."""
+    kept = implement_table(current)
+    if changes.get("kind", current.kind) != current.kind:
+        kept = {k: v for k, v in kept.items() if k in IMPLEMENT_KEYS}
+    return implement_from_table({**kept, **changes}, source)
