@@ -25,9 +25,10 @@ from maps import AsApplied, ColumnDeposit, Grid, Strips
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 # The strips' API (`section_strips` for a run's strips with their masses, as the benchmarks and the
-# tests call it; `StripPlan` for the plan the machine kinds deposit through).
-__all__ = ["LimitedStrips", "SectionStrips", "StripPlan", "limited_coverage", "section_strips",
-           "worked_fraction"]
+# tests call it; `StripPlan` for the plan the machine kinds deposit through; `tick_travel_m`,
+# `WorkedArea`, `landing_frame` and `landing_pass` for a run accounted part by part).
+__all__ = ["LimitedStrips", "SectionStrips", "StripPlan", "WorkedArea", "landing_frame", "landing_pass",
+           "limited_coverage", "section_strips", "tick_travel_m", "worked_fraction"]
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
 MAX_WORKED_CELLS = 16_000_000  # ... on at most this many fine cells (16 MB)
