@@ -19,7 +19,7 @@ EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` re
 
 def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
-                        help="scenario TOML file or built-in name (default, large)")
+                        help="scenario TOML file or built-in name (default, large, huge)")
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                         help="override a scenario key, checked like the file's (controller.kp=0.8, "
                              "gnss.kind=dgps, seed=3); repeatable")
