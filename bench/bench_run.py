@@ -12,7 +12,10 @@ Figures:
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
   start-up, imports and every output file included (summary.json, three GeoTIFFs, track.csv, the
   TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the best of three runs (the
-  machine's noise is a few tenths of a second).
+  machine's noise is a few tenths of a second);
+- ``run_huge_wall_s``, ``run_huge_peak_rss_mb``: the whole `vrsim run huge --quiet --out DIR` command
+  of the built-in 540 ha scenario (1.6 million ticks), outputs included: its wall time and the peak
+  resident memory of its largest process (the run's own, SUMO's or a picture's), MB; one run each.
 
     .venv/bin/python -m bench.bench_run
 """
@@ -65,6 +68,25 @@ def run_default_sprayer_wall_s() -> float:
     return _in_process("default", implement=sprayer, product=liquid)["wall_time_s"]
 
 
+# A fresh process runs the command: its children's peak resident memory is the command's processes'.
+_PEAK_PROBE = ("import resource, subprocess, sys, time\n"
+               "t0 = time.perf_counter()\n"
+               "subprocess.run(sys.argv[1:], check=True, capture_output=True)\n"
+               "print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n")
+
+
+def cli_wall_and_peak(name: str) -> tuple[float, float]:
+    """Wall time (s) of ``vrsim run NAME --quiet --out DIR`` and the peak resident memory of its
+    largest process (MB)."""
+    vrsim = os.path.join(os.path.dirname(sys.executable), "vrsim")
+    with tempfile.TemporaryDirectory() as out:
+        command = [vrsim, "run", name, "--quiet", "--out", out]
+        done = subprocess.run([sys.executable, "-c", _PEAK_PROBE, *command], check=True, capture_output=True,
+                              text=True)
+    wall_s, peak_kb = done.stdout.split()
+    return float(wall_s), float(peak_kb) / 1024.0
+
+
 def run() -> dict:
     default = _in_process("default")
     large = _in_process("large")
@@ -78,6 +100,7 @@ def run() -> dict:
         "run_default_ticks_per_s": default["ticks"] / default["wall_time_s"],
         "run_default_cli_wall_s": _cli_wall_s("default"),
     }
+    figures["run_huge_wall_s"], figures["run_huge_peak_rss_mb"] = cli_wall_and_peak("huge")
     for stage, seconds in default["stage_s"].items():
         figures[f"run_default_{stage.removesuffix('_s')}_share"] = seconds / default["wall_time_s"]
     return figures

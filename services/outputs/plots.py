@@ -15,11 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.transitions import rate_steps
-
-TIMESERIES_WINDOW_S = 60.0
-MAX_TRACK_POINTS = 20_000  # the path over the prescription: more points draw the same line
-
 
 def figure(width_in: float, height_in: float, layout: str | None = None, **margins):
     """A Figure on the Agg canvas (no pyplot): fixed margins (fractions of the figure), or a layout
@@ -87,10 +82,10 @@ def map_picture(result) -> MapPicture:
     """map.png's content of a `services.sim.run.RunResult`."""
     grid = result.world.grid
     extent, (west, south), outline = _frame(result)
-    step = max(1, len(result.track["x_m"]) // MAX_TRACK_POINTS)
+    x_m, y_m = result.kept.path_xy   # thinned (`services.sim.kept.PathPoints`)
     s = result.summary
     return MapPicture(grid.rates_kg_ha, result.as_applied.applied_kg_ha, result.in_field, extent, outline,
-                      (result.track["x_m"][::step] - west, result.track["y_m"][::step] - south),
+                      (x_m - west, y_m - south),
                       f"{result.world.scenario.name}: MAE {s['mae_kg_ha']:.1f} kg/ha, "
                       f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area")
 
@@ -113,16 +108,11 @@ def sections_picture(result) -> SectionsPicture:
 
 
 def series_picture(result) -> SeriesPicture:
-    """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start)."""
-    t = result.track["time_s"]
-    steps = rate_steps(result.landing.prescribed_kg_ha, np.asarray(result.track["implement_on"], bool))
-    start_t = t[steps[0]] - 10.0 if steps.size else t[0]
-    i0 = int(np.searchsorted(t, start_t))
-    i1 = int(np.searchsorted(t, t[i0] + TIMESERIES_WINDOW_S))
-    w = slice(i0, max(i1, i0 + 1))
-    c, landing = result.control, result.landing
-    return SeriesPicture(t[w], c["target_shaft_rpm"][w], c["shaft_rpm"][w], landing.prescribed_kg_ha[w],
-                         landing.applied_kg_ha[w],
+    """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start),
+    `services.sim.kept.SeriesWindow`."""
+    w = result.kept.series
+    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], w["prescribed_kg_ha"],
+                         w["applied_kg_ha"],
                          f"{result.world.scenario.name}: shaft speed and rate around rate steps")
 
 

@@ -38,15 +38,15 @@ from services.sim.accounting import cells_in_field, map_figures
 from services.sim.machines import Machine, machine_for
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
-from services.sim.section_landing import StripPlan
+from services.sim.section_landing import StripPlan, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
 from services.sim.sections.motion import MotionTrend
 from services.sim.world import World
 from vehicle.product import metered_kg
 
 CAUSES = ("geometry and section control", "machine limits", "calibration", "metering")
-# The reference meters (`_reference_metered_kg`): (shaft clipped to its range, the product's truth).
-_REFERENCES = ((False, False), (True, False), (True, True))
+# The reference meters (`reference_metered_kg`): (shaft clipped to its range, the product's truth).
+REFERENCES = ((False, False), (True, False), (True, True))
 
 
 @dataclass(frozen=True)
@@ -71,13 +71,15 @@ class ErrorPart:
     share_pct: float
 
 
-def _reference_metered_kg(world: World, machine: Machine, states: SectionStates, control: dict, clipped: bool,
-                          true_product: bool) -> np.ndarray:
+def reference_metered_kg(world: World, machine: Machine, states: SectionStates, control: dict, clipped: bool,
+                         true_product: bool, start_rev=0.0) -> tuple[np.ndarray, np.ndarray | float]:
     """Product per tick and drive, kg (ticks, drives), of drives whose shafts turn at exactly their
     targets: the run's (clipped to the shaft's range, as the ``ideal`` kind) or, unclipped, the speed
     the map asks for (the machine kind's targets with the range lifted: each drive's rate at its own
     landing point, its own ground speed); metering the configured constant exactly or, with
-    `true_product`, what the product really gives per revolution (`ControlCore._metered_kg`'s way)."""
+    `true_product`, what the product really gives per revolution (`ControlCore._metered_kg`'s way),
+    its shafts from `start_rev` revolutions on (a run accounted part by part carries it). Returns the
+    product and where the shafts then stand (`vehicle.product.metered_kg`)."""
     sc = world.scenario
     period_s = sc.timing.control_period_s
     if clipped:
@@ -86,15 +88,16 @@ def _reference_metered_kg(world: World, machine: Machine, states: SectionStates,
         rpm = machine.unlimited_targets(np.nan_to_num(control["drive_rate_kg_ha"]), states, sc.product)
     rev = rpm * period_s / 60.0   # in the machine's terms: a shaft's revolutions, a sprayer's metered litres
     if true_product:
-        return metered_kg(rev, machine.kg_per_rev(sc.product), sc.product, sc.seed)[0] * machine.drive_share
-    return machine.configured_kg(rev, sc.product) * machine.drive_share
+        kg, end_rev = metered_kg(rev, machine.kg_per_rev(sc.product), sc.product, sc.seed, start_rev)
+        return kg * machine.drive_share, end_rev
+    return machine.configured_kg(rev, sc.product) * machine.drive_share, start_rev
 
 
-def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
-    """The map figures of the three reference meters (see the module docstring) on
-    the run's track and sections: what `error_split` adds to the run's own figures. A function of the
-    run's drive and control alone, so `vrsim run` computes it beside the run's accounting
-    (`services.sim.streamed`).
+def _reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
+    """The map figures of the three reference meters (see the module docstring) on the run's track
+    and sections: what `error_split` adds to the run's own figures, from an in-process run's arrays
+    (`vrsim run` deposits the reference meters part by part beside its own product:
+    `services.sim.bounded`).
 
     The references go through the run's machine kind (`services.sim.machines`): each drive's target
     and product, landing through the kind's plan (a drive per section: each section's strip its own
@@ -108,9 +111,10 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     # Only the motion's speed and yaw rate (from the heading) are read by a kind's targets.
     states = dataclasses.replace(states, motion=MotionTrend(period_s).step(
         track["x_m"], track["y_m"], track["heading_rad"], measured_speed_m_s))
-    metered = np.stack([_reference_metered_kg(world, machine, states, control, *reference)
-                        for reference in _REFERENCES], axis=-1)      # (ticks, drives, references)
-    plan = machine.deposition(track, states, imp.delivery_delay_s, period_s, min(grid.cell_size))
+    metered = np.stack([reference_metered_kg(world, machine, states, control, *reference)[0]
+                        for reference in REFERENCES], axis=-1)      # (ticks, drives, references)
+    plan = machine.deposition(track, states, imp.delivery_delay_s, period_s, min(grid.cell_size),
+                             tick_m=tick_travel_m(world.scenario))
     rasters = _reference_rasters(grid, plan, metered[:, 0] if machine.drives == 1 else metered)
     in_field = cells_in_field(grid, world.field.polygon)
     applied_kg_ha = rasters.applied_kg_ha
@@ -128,8 +132,8 @@ def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> Applied
 def error_split(result: RunResult) -> list[ErrorPart]:
     """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring);
     the reference meters' figures from ``result.reference_figures`` when the run computed them."""
-    references = result.reference_figures or reference_figures(result.world, result.track, result.control,
-                                                               result.measured_speed_m_s)
+    references = result.reference_figures or _reference_figures(result.world, result.track, result.control,
+                                                                result.measured_speed_m_s)
     stages = [*references, result.accounts.map]
     total_mae = result.accounts.map.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0

@@ -96,7 +96,7 @@ class Metric:
 
 # Formulas of figures that are not one attribute of the accounts and serve more than one row.
 def _sim_time_s(a: Accounts) -> float:
-    return len(a.setting.track["time_s"]) * a.setting.world.scenario.timing.control_period_s
+    return a.setting.ticks * a.setting.world.scenario.timing.control_period_s
 
 
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
@@ -108,7 +108,7 @@ METRICS = (
     Metric("sim_time_s", "s", "Simulated time", "ticks x control period", of=_sim_time_s),
     Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)",
            of="timing.wall_time_s"),
-    Metric("ticks", "", "", "control ticks driven", of=lambda a: len(a.setting.track["time_s"])),
+    Metric("ticks", "", "", "control ticks driven", of="setting.ticks"),
     Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time",
            of=lambda a: _sim_time_s(a) / a.timing.wall_time_s),
     Metric("prescribed_kg", "kg", "Prescribed product",
@@ -188,8 +188,7 @@ METRICS = (
     Metric("transitions", "", "", "rate steps to a non-zero rate whose transition settled: the steps of the "
            "transition figures", of="transitions.transitions"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
-    Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
-           of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
+    Metric("path_length_m", "m", "", "length of the landing path", of="setting.path_length_m"),
 )
 
 

@@ -85,6 +85,7 @@ class TimingSpec:
 
 
 POINT_FORMATS = ("gpkg", "shp", "none")
+TRACK_FORMATS = ("parquet", "csv")   # ``[output] track``: the per-tick track's files, or "none"
 
 
 @dataclass(frozen=True)
@@ -101,12 +102,26 @@ class OutputSpec:
     points : {"gpkg", "shp", "none"}
         The as-applied points file: as_applied_points.gpkg, as_applied_points.zip (a zipped
         shapefile), or none.
+    track : str or list of str
+        The per-tick track: "parquet" (track.parquet, columnar: a big field's track in a fraction of
+        the CSV's size and time), "csv" (track.csv), a list of both, or "none" (`track_formats`).
     """
 
     plots: bool = True
     html: bool = True
     log_rate_hz: float = 1.0
     points: str = "gpkg"
+    track: str | list | tuple = ("parquet",)
+
+    def __post_init__(self):
+        if isinstance(self.track, list):   # a TOML array: the same value as the default's tuple
+            object.__setattr__(self, "track", tuple(self.track))
+
+    @property
+    def track_formats(self) -> tuple[str, ...]:
+        """The track's file formats asked for, in `TRACK_FORMATS`' order (none: empty)."""
+        asked = {self.track} if isinstance(self.track, str) else set(self.track)
+        return tuple(f for f in TRACK_FORMATS if f in asked)
 
 
 @dataclass(frozen=True)
@@ -433,6 +448,13 @@ def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:
     if spec.points not in POINT_FORMATS:
         raise ScenarioError(f"{source}: [output] points must be one of {', '.join(POINT_FORMATS)}, "
                             f"got {spec.points!r}")
+    track = [spec.track] if isinstance(spec.track, str) else spec.track
+    if not (isinstance(spec.track, str) or (isinstance(track, (list, tuple)) and track)) or not all(
+            isinstance(f, str) and f in (*TRACK_FORMATS, "none") for f in track) or (
+            "none" in track and len(track) > 1):
+        raise ScenarioError(f"{source}: [output] track must be one of {', '.join(TRACK_FORMATS)}, none, or "
+                            f"a list of {' and '.join(TRACK_FORMATS)}, got "
+                            f"{list(spec.track) if isinstance(spec.track, tuple) else spec.track!r}")
 
 
 def as_dict(scenario: Scenario) -> dict[str, Any]:

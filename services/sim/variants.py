@@ -48,7 +48,7 @@ from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
 from services.sim.scenario import Scenario
-from services.sim.section_landing import LimitedStrips, StripPlan
+from services.sim.section_landing import LimitedStrips, StripPlan, tick_travel_m
 from services.sim.sections import run_section_states
 
 # Variants run as one loop batch: more cut the loop's Python work per variant (256: about a quarter
@@ -130,7 +130,8 @@ class _Shared:
         states = run_section_states(track, rec, implement)
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
         setting = Setting.of(world, track, rec, landing)
-        plan = core.machine.deposition(track, states, delay_s, period_s, cell_m)
+        plan = core.machine.deposition(track, states, delay_s, period_s, cell_m,
+                                       tick_m=tick_travel_m(scenario))
         shared = cls(drive, scenario, rec, core, setting, plan, _strip_map(grid, plan),
                      LimitedStrips.of(track, states, setting.limited, delay_s, period_s, cell_m, grid),
                      control_s / variants, 0.0)

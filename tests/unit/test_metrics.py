@@ -189,8 +189,7 @@ def _accounts(ticks=4, wall_time_s=2.0):
                                timing=SimpleNamespace(control_period_s=0.05))
     grid = SimpleNamespace(map_unit="lb/ac", in_map_unit=lambda kg_ha: kg_ha / 2.0)
     world = SimpleNamespace(scenario=scenario, field=SimpleNamespace(area_ha=1.5), grid=grid)
-    setting = SimpleNamespace(world=world, track={"time_s": np.arange(ticks) * 0.05},
-                              landing=SimpleNamespace(distance_m=np.arange(ticks) * 1.5),
+    setting = SimpleNamespace(world=world, ticks=ticks, path_length_m=1.5 * (ticks - 1) if ticks else 0.0,
                               check=SimpleNamespace(max_speed_m_s=4.0))
     return SimpleNamespace(setting=setting, map=part(MapMetrics, 100),
                            transitions=part(TransitionMetrics, 200), overlap=part(OverlapMetrics, 300),

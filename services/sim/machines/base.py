@@ -108,12 +108,13 @@ class Machine(ABC):
 
     @abstractmethod
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> StripPlan:
+                   cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
         """Where the product lands, before any product: a plan with ``footprint()`` (a `maps.footprint`
         kind), ``mass_kg(product)`` (each item's kg, linear in `deposit_kg`'s product; (ticks, ..., m)
         columns give (items, m)) and ``pass_index`` (items,), as
         `services.sim.section_landing.StripPlan`. Parameters as
-        `services.sim.section_landing.section_strips`' (`ticks`: only these)."""
+        `services.sim.section_landing.StripPlan.of`'s (`ticks`: only these; `tick_m`, `first_tick`: a
+        tick's travel and where the track begins in a run accounted part by part)."""
 
     def deposit_kg(self, control: dict) -> np.ndarray:
         """The product per tick in `deposition`'s terms, from a run's control arrays: ``metered_kg``
