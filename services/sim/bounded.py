@@ -41,6 +41,7 @@ from services.sim.accounting import (
     map_figures,
 )
 from services.sim.aslog import run_point_log
+from services.sim.core import CONTROL_KEYS
 from services.sim.error_split import REFERENCES, reference_metered_kg
 from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
@@ -202,7 +203,7 @@ class BoundedAccount:
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
         applying = w["width_on_m"][:n] > 0
-        limited = self.machine.limited({"drive_target_rpm": w["drive_target_rpm"][:n]}) & applying
+        limited = self.machine.limited({k: w[k][:n] for k in CONTROL_KEYS if k in w}) & applying
         self.applying += int(np.count_nonzero(applying))
         self.limited += int(np.count_nonzero(limited))
         idx = np.flatnonzero(limited)
