@@ -144,6 +144,7 @@ class Implement:
             raise VehicleError(f"Implement: machine {self.machine!r} is not of kind {self.kind!r} "
                                "(machine=None takes the kind's defaults)")
         self.machine.check_sections(self.sections)
+        self.machine.check_width(self.width_m)
 
     # --- sections --------------------------------------------------------------------------------
     def _resolve_sections(self):

@@ -77,7 +77,7 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
-        self.machine = machine_for(self.implement)
+        self.machine = machine_for(self.implement, field_polygon)
         timing, cfg, plant = scenario.timing, scenario.controller, plant_for(scenario)
         try:   # a loop per metering drive, all advanced by one lifted matrix product per period
             self.loop = build_loop(plant, cfg, control_period_s=timing.control_period_s,

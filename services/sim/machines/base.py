@@ -30,12 +30,16 @@ class Machine(ABC):
     ----------
     implement : vehicle.Implement
         Of this kind (``implement.kind == kind``); its ``machine`` holds the kind's own keys.
+    field_polygon : shapely geometry, optional
+        The field boundary in the grid's CRS, for kinds that act on it (a spinner's border spreading);
+        None: no boundary known (product is thrown as if the field went on).
     """
 
     kind: ClassVar[str] = ""
 
-    def __init__(self, implement: Implement):
+    def __init__(self, implement: Implement, field_polygon=None):
         self.implement = implement
+        self.field_polygon = field_polygon
 
     @property
     def drives(self) -> int:
