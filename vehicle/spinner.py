@@ -109,6 +109,7 @@ class SpinnerSpec(MachineSpec):
         and the profile read and checked (`VehicleError` naming file, row and value)."""
         if self.pattern in PATTERN_SHAPES:
             return self
+        _check_csv_name(self.pattern)
         path = os.path.abspath(os.path.join(base_dir, os.path.expanduser(self.pattern)))
         spec = dataclasses.replace(self, pattern=path)
         spec.transverse_pattern()
@@ -123,10 +124,7 @@ class SpinnerSpec(MachineSpec):
         if self.pattern == "trapezoidal":
             top = h * TRAPEZOID_TOP_SHARE
             return TransversePattern.normalized([-h, -top, top, h], [0.0, 1.0, 1.0, 0.0], self.pattern)
-        path = os.path.expanduser(self.pattern)
-        if not os.path.splitext(path)[1].lower() == ".csv":
-            raise VehicleError(f"SpinnerSpec: pattern must be one of {', '.join(PATTERN_SHAPES)} or a CSV "
-                               f"file's path (.csv), got {self.pattern!r}")
+        path = os.path.expanduser(_check_csv_name(self.pattern))
         offset, mass = _read_profile_csv(path, h)
         return TransversePattern.normalized(offset, mass, path)
 
@@ -255,6 +253,14 @@ def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.nd
             raise VehicleError(f"pattern {path}: no mass {name} of the centre line: each disc throws one "
                                "half of the profile")
     return offset, mass
+
+
+def _check_csv_name(pattern: str) -> str:
+    """`pattern` if it names a CSV file; `VehicleError` naming the shapes otherwise."""
+    if not os.path.splitext(pattern)[1].lower() == ".csv":
+        raise VehicleError(f"SpinnerSpec: pattern must be one of {', '.join(PATTERN_SHAPES)} or a CSV "
+                           f"file's path (.csv), got {pattern!r}")
+    return pattern
 
 
 def _numeric(field: str) -> bool:

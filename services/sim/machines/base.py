@@ -51,6 +51,14 @@ class Machine(ABC):
         """Each drive's share of the implement's ``kg_per_rev`` per revolution, shape (drives,)."""
         return np.ones(1)
 
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """What one straight pass lays across its path with every section open: lateral offsets (m,
+        increasing, left positive) and relative mass per metre there (linear between, zero beyond),
+        for the spread-pattern figures (`services.sim.spread_pattern`). By default a rectangle of the
+        working width (strips side by side)."""
+        half_m = self.implement.width_m / 2
+        return np.array([-half_m, half_m]), np.ones(2)
+
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
         """Where product metered now lands, `lead_s` s ahead along the predicted arc (`Motion.ahead`:

@@ -59,6 +59,9 @@ class Spinner(Machine):
     def drive_share(self) -> np.ndarray:
         return np.full(2, 0.5)
 
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.pattern.offset_m, self.pattern.mass_per_m
+
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
         x, y, cos, sin = motion.ahead(lead_s)
         x, y = x - self.spec.throw_distance_m * cos, y - self.spec.throw_distance_m * sin
@@ -100,7 +103,8 @@ class Spinner(Machine):
         # A disc meters half the product per revolution: at full reach it turns at the speed of the one
         # shaft for the driving width; a cut side meters only its pattern's share within the reach.
         share = self.pattern.side_share(SIDES[None, :], reach)
-        wanted = imp.clip_shaft_rpm(imp.target_shaft_rpm(rate_kg_ha, self.side_speed_m_s(states.motion)) * share)
+        full_rpm = imp.target_shaft_rpm(rate_kg_ha, self.side_speed_m_s(states.motion))
+        wanted = imp.clip_shaft_rpm(full_rpm * share)
         return np.where(self.sides_on(states.actual) & (reach > 0), wanted, 0.0)
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
@@ -184,8 +188,8 @@ def _room_m(polygon, x_m, y_m, ux, uy, reach_m: float) -> np.ndarray:
     points = shapely.points(x[inside], y[inside])
     near = np.flatnonzero(inside)[shapely.distance(boundary, points) < reach_m]
     if near.size:
-        ends = np.stack([np.column_stack([x[near], y[near]]),
-                         np.column_stack([x[near] + ux[near] * reach_m, y[near] + uy[near] * reach_m])], axis=1)
+        start = np.column_stack([x[near], y[near]])
+        ends = np.stack([start, start + np.column_stack([ux[near], uy[near]]) * reach_m], axis=1)
         hits = shapely.intersection(shapely.linestrings(ends), boundary)
         found = shapely.distance(shapely.points(x[near], y[near]), hits)
         room[near] = np.where(np.isfinite(found), found, np.inf)
