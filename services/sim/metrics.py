@@ -183,8 +183,8 @@ METRICS = (
            sense="min", of="limits.limited_area_pct"),
     # A figure of the machine's set-up (its pattern and driving width), not of the run: not held.
     Metric("cv_pct", "%", "Spread CV (EN 13739)",
-           "CV across the driving width of the machine's transverse pattern overlapped to and fro on straight "
-           "passes (0 for rectangles)", sense="min", of=_cv_pct),
+           "CV across the driving width of the machine's transverse pattern overlapped to and fro on "
+           "straight passes (0 for rectangles)", sense="min", of=_cv_pct),
     Metric("sections", "", "Sections", "number of sections of the implement",
            of="setting.world.scenario.implement.sections"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",
