@@ -1,23 +1,29 @@
-"""The error of a run split into its causes: geometry and section control, machine limits, calibration,
-metering.
+"""The error of a run split into its causes: geometry and section control, spread pattern, machine
+limits, calibration, metering.
 
 The target shaft speed of every tick, the sections' gates and where product lands do not depend on
-the meter (nothing feeds back into them), so the same run is re-landed with three reference meters
+the meter (nothing feeds back into them), so the same run is re-landed with reference meters
 whose shafts turn at exactly a given speed each control period (no PID, no plant, no delay):
 
 1. *geometry and section control*: the shaft at the speed the map asks for, unclipped (as if the
    shaft had no speed range). What is left is where and when product lands: the look-ahead,
    section switching and its latencies, overlap and skips, speed changing within the delivery
-   delay, a single meter sharing product by width in curves;
+   delay, a single meter sharing product by width in curves; its product lands as rectangular
+   strips of the sections (`StripPlan`), whatever the machine;
+   *spread pattern*: the same meter's product landing through the machine's own footprint
+   (`services.sim.machines.Machine.deposition`: a spinner's thrown pattern), split between its
+   drives as the run's targets split it; the difference to the strips is what the pattern alone
+   costs against rectangular strips at the same driving width (zero for kinds that lay strips);
+   the references below land through the machine's footprint too;
 2. *machine limits*: the shaft at the target clipped to ``[shaft_rpm_min, shaft_rpm_max]``: the
    ``ideal`` controller kind, metering the configured ``kg_per_rev`` per revolution exactly; the
-   difference to 1;
+   difference to the spread pattern's reference;
 3. *calibration*: the same shaft, metering what the product really gives per revolution (its true
    constant and its flow variability, `vehicle.product`): what the terminal's wrong constant and the
    uneven flow alone cost; the difference to 2 (zero for a product with neither);
 4. *metering*: the run's own controller and plant; the difference to 3.
 
-Each figure (mass balance, mean absolute error) telescopes: the four contributions add up to the
+Each figure (mass balance, mean absolute error) telescopes: the five contributions add up to the
 run's figure exactly. A contribution can be negative: a cause can cancel part of another (an
 under-applying limit against over-application at swath ends, say).
 """
@@ -30,6 +36,7 @@ import numpy as np
 
 from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
+from services.sim.machines import Machine, machine_for
 from services.sim.metrics import MapMetrics
 from services.sim.run import RunResult
 from services.sim.section_landing import StripPlan
@@ -37,7 +44,7 @@ from services.sim.sections import run_section_states
 from services.sim.world import World
 from vehicle.product import metered_kg
 
-CAUSES = ("geometry and section control", "machine limits", "calibration", "metering")
+CAUSES = ("geometry and section control", "spread pattern", "machine limits", "calibration", "metering")
 # The reference meters (`_reference_metered_kg`): (shaft clipped to its range, the product's truth).
 _REFERENCES = ((False, False), (True, False), (True, True))
 
@@ -84,30 +91,51 @@ def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipp
 
 
 def reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
-    """The map figures of the three reference meters (see the module docstring) on
-    the run's track and sections: what `error_split` adds to the run's own figures. A function of the
-    run's drive and control alone, so `vrsim run` computes it beside the run's accounting
-    (`services.sim.streamed`).
+    """The map figures of the reference meters (see the module docstring) on the run's track and
+    sections: what `error_split` adds to the run's own figures. A function of the run's drive and
+    control alone, so `vrsim run` computes it beside the run's accounting (`services.sim.streamed`).
 
-    The strips lie where the run's did, whatever they carry, so their geometry is worked out once
-    (`StripPlan`) and mapped to the raster once for both meters (`maps.ColumnDeposit`); their figures are
-    the accounting's map figures (`services.sim.accounting.map_figures`)."""
+    The strips and the machine's footprint lie where the run's did, whatever they carry, so their
+    geometry is worked out once (`StripPlan`, `Machine.deposition`) and mapped to the raster once for
+    all meters (`maps.ColumnDeposit`); their figures are the accounting's map figures
+    (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
     metered = np.column_stack([_reference_metered_kg(world, control, measured_speed_m_s, *reference)
                                for reference in _REFERENCES])
-    plan = StripPlan.of(track, run_section_states(track, control, imp), imp.delivery_delay_s,
-                        world.scenario.timing.control_period_s, min(grid.cell_size))
-    rasters = _reference_rasters(grid, plan, metered)
+    states = run_section_states(track, control, imp)
+    delay_s, period_s = imp.delivery_delay_s, world.scenario.timing.control_period_s
+    cell_m = min(grid.cell_size)
+    machine = machine_for(imp, world.field.polygon)
+    thrown = machine.deposition(track, states, delay_s, period_s, cell_m)
+    rasters = _reference_rasters(grid, thrown, _per_drive(machine, control, metered))
+    strips = rasters   # a machine that lays strips: the pattern costs nothing
+    if not isinstance(thrown, StripPlan):
+        plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
+        strips = _reference_rasters(grid, plan, metered[:, :1])
     in_field = cells_in_field(grid, world.field.polygon)
-    applied_kg_ha = rasters.applied_kg_ha
-    return [map_figures(grid, in_field, applied_kg_ha[j], rasters.coverage_fraction[j],
-                        float(np.sum(metered[:, j])), float(rasters.outside_kg[j]))
-            for j in range(metered.shape[1])]
+    return [map_figures(grid, in_field, r.applied_kg_ha[j], r.coverage_fraction[j],
+                        float(np.sum(metered[:, j])), float(r.outside_kg[j]))
+            for r, j in [(strips, 0), *((rasters, j) for j in range(metered.shape[1]))]]
 
 
-def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> AppliedColumns:
-    """The as-applied rasters of the columns `metered_kg` (ticks, n) along the plan's strips."""
-    return ColumnDeposit(grid, plan.strips.footprint()).apply(plan.mass_kg(metered_kg))
+def _per_drive(machine: Machine, control: dict, metered_kg: np.ndarray) -> np.ndarray:
+    """The reference meters' product per tick (ticks, m) in the machine's deposition terms: as it is
+    for one drive; for several split between the drives as the run's targets split it (each drive's
+    target times its share; where every target is 0, as the machine shares a record's metered kg),
+    shape (ticks, drives, m)."""
+    if machine.drives == 1:
+        return metered_kg
+    weight = np.asarray(control["drive_target_rpm"]) * machine.drive_share
+    total = weight.sum(axis=1, keepdims=True)
+    even = machine.deposit_kg({"metered_kg": np.ones(len(weight)), "sections_on": control["sections_on"]})
+    share = np.where(total > 0, weight / np.where(total > 0, total, 1.0), even)
+    return metered_kg[:, None, :] * share[:, :, None]
+
+
+def _reference_rasters(grid, plan, metered_kg: np.ndarray) -> AppliedColumns:
+    """The as-applied rasters of the columns `metered_kg` (ticks[, drives], n) through the plan's
+    footprint."""
+    return ColumnDeposit(grid, plan.footprint()).apply(plan.mass_kg(metered_kg))
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:
