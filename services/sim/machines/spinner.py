@@ -37,6 +37,7 @@ from services.sim.sections.motion import Motion
 
 SIDES = np.array([1.0, -1.0])   # drive 0: the left disc (+1, left of travel), drive 1: the right disc
 MIN_REACH_M = 0.1  # a side whose product the terminal let through where the true pose leaves no room
+ROOM_CHUNK = 2_000_000   # points x boundary segments at a time in the ray casting (memory)
 
 
 @register_machine
@@ -50,6 +51,7 @@ class Spinner(Machine):
         self.spec = implement.machine
         self.pattern = self.spec.transverse_pattern()
         self.centre_m = np.array([self.pattern.side_centre_m(int(s)) for s in SIDES])
+        self._reach_of, self._reach = None, None
 
     @property
     def drives(self) -> int:
@@ -76,19 +78,19 @@ class Spinner(Machine):
         """Each side's reach, m (n, 2), for product landing on the line through (x_m, y_m) along the
         heading (cos, sin): the room to the field boundary across each side, cut by
         `SpinnerSpec.side_reach_m` (half the spread width with no boundary known)."""
-        room = np.full((np.size(x_m), 2), np.inf)
-        if self.field_polygon is not None:
-            for j, side in enumerate(SIDES):
-                room[:, j] = _room_m(self.field_polygon, x_m, y_m, -side * sin, side * cos,
-                                     self.spec.half_width_m)
-        return self.spec.side_reach_m(room)
+        if self.field_polygon is None:
+            return self.spec.side_reach_m(np.full((np.size(x_m), 2), np.inf))
+        return self.spec.side_reach_m(_room_m(self.field_polygon, x_m, y_m, -sin, cos))
 
     def _terminal_reach(self, states: SectionStates) -> np.ndarray:
         """Each side's reach as the terminal sets it (n, 2): where product metered now lands, from
-        the sensed motion predicted by the delivery delay."""
-        x, y, cos, sin = states.motion.ahead(self.implement.delivery_delay_s)
-        throw = self.spec.throw_distance_m
-        return self.reach_m(x - throw * cos, y - throw * sin, cos, sin)
+        the sensed motion predicted by the delivery delay (kept for the states it was asked for last:
+        `drive_open` and `drive_targets` ask for the same ticks)."""
+        if self._reach_of is not states:
+            x, y, cos, sin = states.motion.ahead(self.implement.delivery_delay_s)
+            throw = self.spec.throw_distance_m
+            self._reach_of, self._reach = states, self.reach_m(x - throw * cos, y - throw * sin, cos, sin)
+        return self._reach
 
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return self.sides_on(states.actual) & (self._terminal_reach(states) > 0)
@@ -175,22 +177,30 @@ class ThrowPlan:
         return self.strips.mass_kg(drive_kg)
 
 
-def _room_m(polygon, x_m, y_m, ux, uy, reach_m: float) -> np.ndarray:
-    """The distance (m) from each point (x_m, y_m) along the unit direction (ux, uy) to the boundary of
-    `polygon`, vectorized: 0 for a point outside, inf where the boundary lies beyond `reach_m`."""
+def _room_m(polygon, x_m, y_m, ux, uy) -> np.ndarray:
+    """The distance (m) from each point (x_m, y_m) to the boundary of `polygon` along the unit
+    direction (ux, uy) (column 0) and against it (column 1), shape (n, 2): 0 for a point outside, inf
+    where the ray meets no boundary. Ray casting against the boundary's segments in numpy, in chunks
+    of points (a point is inside where its ray crosses the boundary an odd number of times)."""
     import shapely
 
-    x, y = np.asarray(x_m, float), np.asarray(y_m, float)
-    room = np.zeros(x.size)
-    inside = shapely.contains_xy(polygon, x, y)
-    room[inside] = np.inf
-    boundary = polygon.boundary
-    points = shapely.points(x[inside], y[inside])
-    near = np.flatnonzero(inside)[shapely.distance(boundary, points) < reach_m]
-    if near.size:
-        start = np.column_stack([x[near], y[near]])
-        ends = np.stack([start, start + np.column_stack([ux[near], uy[near]]) * reach_m], axis=1)
-        hits = shapely.intersection(shapely.linestrings(ends), boundary)
-        found = shapely.distance(shapely.points(x[near], y[near]), hits)
-        room[near] = np.where(np.isfinite(found), found, np.inf)
+    rings = [shapely.get_coordinates(part) for part in shapely.get_parts(polygon.boundary)]
+    a = np.concatenate([r[:-1] for r in rings])
+    e = np.concatenate([np.diff(r, axis=0) for r in rings])
+    x, y, ux, uy = (np.asarray(v, float) for v in (x_m, y_m, ux, uy))
+    room = np.empty((x.size, 2))
+    step = max(1, ROOM_CHUNK // max(len(a), 1))
+    for lo in range(0, x.size, step):
+        part = slice(lo, lo + step)
+        dx, dy = a[None, :, 0] - x[part, None], a[None, :, 1] - y[part, None]
+        cross = ux[part, None] * e[None, :, 1] - uy[part, None] * e[None, :, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (dx * e[None, :, 1] - dy * e[None, :, 0]) / cross
+            s = (dx * uy[part, None] - dy * ux[part, None]) / cross
+        hit = (cross != 0) & (s >= 0) & (s < 1)   # half-open: a vertex is crossed once
+        ahead, behind = hit & (t >= 0), hit & (t < 0)
+        inside = ahead.sum(axis=1) % 2 == 1
+        room[part, 0] = np.where(ahead, t, np.inf).min(axis=1)
+        room[part, 1] = np.where(behind, -t, np.inf).min(axis=1)
+        room[part][~inside] = 0.0
     return room
