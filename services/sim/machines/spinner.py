@@ -35,6 +35,8 @@ from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
 
+__all__ = ["Spinner", "ThrowPlan"]
+
 SIDES = np.array([1.0, -1.0])   # drive 0: the left disc (+1, left of travel), drive 1: the right disc
 MIN_REACH_M = 0.1  # a side whose product the terminal let through where the true pose leaves no room
 ROOM_CHUNK = 2_000_000   # points x boundary segments at a time in the ray casting (memory)
