@@ -12,13 +12,14 @@ pressure range as the limit, the flow meter, PWM).
 """
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
-from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver, track_on_path
+from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
 from vehicle.field import Field
 from vehicle.gnss import Gnss, GnssConfig
 from vehicle.implement import Implement
 from vehicle.network import build_network, default_cache_dir, find_netconvert
 from vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
 from vehicle.sprayer import FlowMeter, SprayerSpec
+from vehicle.track import track_on_path
 
 __all__ = [
     "CoveragePath", "DriveConfig", "Field", "FlowMeter", "Gnss", "GnssConfig", "Implement", "Pose",

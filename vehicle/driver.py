@@ -6,6 +6,11 @@ position (one planned segment per edge, lane position scaled to planned arc leng
 offset, and looks the arc length up on the planned polyline: reported positions lie on the planned
 path by construction, and SUMO's own junction cut-backs and rounding never leak into them.
 
+SUMO may step at a multiple of the tick (``step_s = m * tick_s``): the ticks between two of its steps
+get the arc length and speed interpolated linearly in time (`ticks_between`), then go through the same
+look-up on the planned polyline, so they stay on the path in turns too (docs/model.md, "SUMO's step",
+gives what that costs in position).
+
 Speed: swath and headland edges allow ``working_speed * (1 + variation)``; the tractor's own
 maximum speed follows a slow, seeded Gauss-Markov factor (clipped to +-``speed_variation_pct``)
 updated every ``speed_update_s``; turn edges are limited to ``turn_speed_m_s`` and SUMO brakes
@@ -26,9 +31,10 @@ from common.checks import check_number, check_positive
 from common.errors import VehicleError
 from vehicle.coverage import CoveragePath
 from vehicle.network import Network, build_network
+from vehicle.track import ticks_between, track_on_path
 
 _VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
-STEP_RANGE_S = (0.001, 1.0)  # SUMO's simulation step: the control period, s
+STEP_RANGE_S = (0.001, 1.0)  # SUMO's simulation step (by default the control period), s
 MAX_SEED = 2**31 - 1  # SUMO takes its --seed as a C int
 
 
@@ -187,6 +193,9 @@ class SumoDriver:
     max_time_s : float, optional
         Simulated time after which an unfinished drive is an error (a stalled tractor); default
         10 x the time to drive the path at the slowest configured speed, plus 60 s.
+    tick_s : float, optional
+        The period of the poses the driver reports (the control period), s; `step_s` must be a whole
+        multiple of it. Default: `step_s` (every tick is a SUMO step; nothing is interpolated).
 
     Use as a context manager; `step` returns one `Pose` per tick until `finished`, `run_all` drives
     the whole path into arrays. The network is built (or fetched from the cache) in the constructor.
@@ -195,7 +204,8 @@ class SumoDriver:
     _open: SumoDriver | None = None  # libsumo holds one simulation per process
 
     def __init__(self, path: CoveragePath, drive: DriveConfig | None = None, step_s: float = 0.05,
-                 seed: int = 1, cache_dir: str | None = None, max_time_s: float | None = None):
+                 seed: int = 1, cache_dir: str | None = None, max_time_s: float | None = None,
+                 tick_s: float | None = None):
         if not isinstance(path, CoveragePath):
             raise VehicleError(f"SumoDriver: path must be a CoveragePath, got {type(path).__name__}")
         drive = drive or DriveConfig()
@@ -211,6 +221,7 @@ class SumoDriver:
         else:
             check_positive(max_time_s, "SumoDriver: max_time_s", VehicleError, unit="s")
         self.path, self.drive, self.step_s, self.seed = path, drive, float(step_s), int(seed)
+        self.tick_s, self._ratio = _tick_ratio(self.step_s, tick_s)
         self.max_time_s = float(max_time_s)
         self.network: Network = build_network(path.segments, drive.edge_speeds_m_s(path.kinds()),
                                               lead_out_m=drive.implement_offset_m + 10.0,
@@ -289,7 +300,9 @@ class SumoDriver:
         self._speed = SpeedVariation(drive.speed_variation_pct, drive.speed_variation_tau_s,
                                      drive.speed_update_s, self.seed)
         self._update_every = max(1, round(drive.speed_update_s / self.step_s))
-        self._tick = 0
+        self._tick = 0  # SUMO steps so far
+        self._last = (0.0, 0.0, 0.0)  # the last SUMO sample (time_s, s_m, speed_m_s): at rest at s = 0
+        self._queued, self._ticks = [], None  # `step` with a coarser SUMO step: ticks not yet returned
         self.finished = False
         # `_advance` calls the C++ functions behind libsumo's Python wrappers (`simulationStep`,
         # `vehicle.getSpeed`, ...), which add a Python call each, and `simulationStep` a pass over step
@@ -327,6 +340,8 @@ class SumoDriver:
         Raises `VehicleError` if the path is not finished by ``max_time_s``.
         """
         self._require_open()
+        if self._ratio > 1:
+            return self._step_interpolated()
         if self._tick * self.step_s >= self.max_time_s:
             raise self._not_finished()
         got = self._advance()
@@ -336,6 +351,20 @@ class SumoDriver:
             t = got[0] if got else self._tick * self.step_s
             return self._pose(t, length, got[2] if got else 0.0, force_off=True)
         return self._pose(*got)
+
+    def _step_interpolated(self) -> Pose:
+        """`step` when SUMO steps at a multiple of the tick: the ticks of `run_parts`, one at a time."""
+        if not (self._queued and self._queued[0]):
+            self._ticks = self._ticks or self._tick_parts(self._ratio)
+            self._queued = [tuple(a.tolist()) for a in next(self._ticks, ((), (), ()))]
+        length = self._s[-1]
+        if not self._queued[0]:  # the tractor left the network before the implement reached the end
+            self.finished = True
+            return self._pose(self._last[0], length, 0.0, force_off=True)
+        t, s, v = (values[0] for values in self._queued)
+        self._queued = [values[1:] for values in self._queued]
+        self.finished = s >= length
+        return self._pose(t, min(s, length), v, force_off=self.finished)
 
     def _pose(self, t, s, v, force_off=False) -> Pose:
         s = max(0.0, s)
@@ -365,7 +394,7 @@ class SumoDriver:
         VehicleError
             If the tractor has not finished after ``max_time_s``, e.g. because it stalled.
         """
-        expected = self.path.length_m / (self.drive.working_speed_m_s * self.step_s)
+        expected = self.path.length_m / (self.drive.working_speed_m_s * self.tick_s)
         parts = list(self.run_parts(int(2 * expected) + 1000))
         time_s, s_m, speed_m_s = (np.concatenate([p[k] for p in parts]) for k in range(3))
         return track_on_path(self.path, time_s, s_m, speed_m_s)
@@ -374,45 +403,79 @@ class SumoDriver:
         """Drive the whole path (or the rest of it), yielding what SUMO reports every `ticks` ticks:
         ``(time_s, s_m, speed_m_s)`` arrays of up to `ticks` ticks (the implement's arc length along
         the path, not yet clipped to it; `track_on_path` makes a track of them, part by part or whole).
+        With SUMO stepping at a multiple of the tick, the ticks between its steps are interpolated
+        (`ticks_between`), up to the first that reaches the path's end.
 
         Raises `VehicleError` once the tractor has not finished after ``max_time_s``.
         """
         self._require_open()
+        yield from self._tick_parts(ticks) if self._ratio > 1 else self._sumo_parts(ticks)
+
+    def _tick_parts(self, ticks: int):
+        """`run_parts` when SUMO steps at `_ratio` ticks: each part of SUMO's steps, interpolated."""
+        length = self._s[-1]
+        for t, s, v in self._sumo_parts(max(1, ticks // self._ratio)):
+            if not len(t):  # an empty drive: one empty part, as SUMO's
+                yield t, s, v
+                continue
+            part = ticks_between(self._last, (t, s, v), self.tick_s)
+            self._last = (float(t[-1]), float(s[-1]), float(v[-1]))
+            reached = np.flatnonzero(part[1] >= length)
+            yield tuple(a[:reached[0] + 1] for a in part) if reached.size else part
+
+    def _sumo_parts(self, ticks: int):
+        """SUMO's own steps, in parts of up to `ticks` steps (`run_parts` when a tick is a step).
+
+        `_advance`'s step inlined, into lists (a C call per value, where numpy's item assignment is
+        several): the same numbers, a quarter less of the drive's time outside SUMO."""
         max_ticks = max(int(self.max_time_s / self.step_s) - self._tick, 1)
-        length, n, total, advance = self._s[-1], 0, 0, self._advance
-        t_arr, s_arr, v_arr = np.empty(ticks), np.empty(ticks), np.empty(ticks)
+        step, route_index, lane_position, speed, set_max_speed = self._calls
+        edge_start, scale, k0, offset = self._edge_start, self._scale, self._k0, self.drive.implement_offset_m
+        every, working, factor, gone = self._update_every, self.drive.working_speed_m_s, self._speed.next, \
+            self._ls.TraCIException
+        length, tick, sent, s_list, v_list = self._s[-1], self._tick, 0, [], []
+        first, last_tick = tick, tick + max_ticks
+        append_s, append_v = s_list.append, v_list.append
         while True:
-            got = advance()
-            if got is None:
+            step(0.0)
+            if tick % every == 0:  # after the step: the tractor is inserted in step 1
+                set_max_speed(_VEH, working * factor())
+            tick += 1
+            try:
+                k = route_index(_VEH) + k0
+                s = edge_start[k] + lane_position(_VEH) * scale[k] - offset
+                v = speed(_VEH)
+            except gone:  # arrived: the lead-out edge ended
                 break
-            if total == max_ticks:
+            if tick > last_tick:
+                self._tick = tick
                 raise self._not_finished()
-            t_arr[n], s_arr[n], v_arr[n] = got
-            n += 1
-            total += 1
-            if got[1] >= length:
+            append_s(s)
+            append_v(v)
+            if s >= length:
                 break
-            if n == ticks:
-                yield t_arr.copy(), s_arr.copy(), v_arr.copy()
-                n = 0
+            if len(s_list) == ticks:
+                self._tick = tick
+                yield self._part(first, s_list, v_list)
+                first, sent = tick, sent + 1
+                s_list.clear()
+                v_list.clear()
+        self._tick = tick
         self.finished = True
-        if n or not total:  # no empty last part, but an empty drive is one (empty) part
-            yield t_arr[:n].copy(), s_arr[:n].copy(), v_arr[:n].copy()
+        if s_list or not sent:  # no empty last part, but an empty drive is one (empty) part
+            yield self._part(first, s_list, v_list)
+
+    def _part(self, first: int, s_list: list, v_list: list):
+        """(time_s, s_m, speed_m_s) arrays of the steps after step `first`."""
+        return np.arange(first + 1, first + 1 + len(s_list)) * self.step_s, np.array(s_list), np.array(v_list)
 
 
-def track_on_path(path: CoveragePath, time_s, s_m, speed_m_s) -> dict:
-    """The per-tick track of a drive from what SUMO reported (`SumoDriver.run_parts`): arc lengths
-    clipped to the path, position, heading and segment there, the implement on inside a working
-    segment and before the path's end. Per tick, so a drive's parts give the whole's track.
-
-    Returns
-    -------
-    dict of ndarray, shape (n,)
-        ``time_s``, ``s_m``, ``x_m``, ``y_m``, ``heading_rad`` (math convention), ``speed_m_s``,
-        ``implement_on`` (bool), ``segment_index`` (int).
-    """
-    s = np.clip(s_m, 0.0, path.length_m)
-    x, y, heading, seg, on = path.locate(s)
-    on = on & (s < path.length_m)
-    return {"time_s": np.asarray(time_s, float), "s_m": s, "x_m": x, "y_m": y, "heading_rad": heading,
-            "speed_m_s": np.asarray(speed_m_s, float), "implement_on": on, "segment_index": seg}
+def _tick_ratio(step_s: float, tick_s: float | None) -> tuple[float, int]:
+    """The tick and how many ticks one SUMO step spans; a tick that does not divide the step is refused."""
+    if tick_s is None:
+        return step_s, 1
+    check_number(tick_s, "SumoDriver: tick_s", VehicleError, lo=STEP_RANGE_S[0], hi=step_s, unit="s")
+    ratio = round(step_s / tick_s)
+    if abs(step_s / tick_s - ratio) > 1e-9:
+        raise VehicleError(f"SumoDriver: step_s={step_s:g} s must be a whole multiple of tick_s={tick_s:g} s")
+    return float(tick_s), ratio

@@ -3,12 +3,16 @@ scenario, in process."""
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import time
 
 from services.cli.options import add_input_cap, apply_input_cap
 
+# The young generation's threshold during the run, objects (Python's default: 700). The run allocates
+# numpy arrays and small records, which hold no reference cycles to collect.
+RUN_GC_THRESHOLD = 10_000
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
 EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` returns (`main.console`)
 
@@ -66,11 +70,27 @@ def run(args) -> int:
     # SUMO's process starts first: it imports while this one does and loads the scenario.
     from services.sim.drive_worker import DriveWorker
 
+    # What start-up imports and loads lives until the command ends: no collection walks it, neither
+    # during start-up nor after (`_started`): collections took 0.08 to 0.19 s of this process's CPU in
+    # the default run, 0.03 to 0.05 s so.
+    collecting, threshold = gc.isenabled(), gc.get_threshold()
+    gc.disable()
     driver = DriveWorker()
     try:
         return _run(args, driver)
     finally:
         driver.close()
+        gc.unfreeze()
+        gc.set_threshold(*threshold)
+        if collecting:
+            gc.enable()
+
+
+def _started() -> None:
+    """Start-up is over: its objects are frozen out of the collector's reach, collection resumes."""
+    gc.freeze()
+    gc.set_threshold(RUN_GC_THRESHOLD)
+    gc.enable()
 
 
 def _run(args, driver) -> int:
@@ -88,6 +108,7 @@ def _run(args, driver) -> int:
         from services.outputs.write import outputs_line, write_outputs
         from services.sim.as_run import with_settings
 
+        _started()
         try:
             result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)
         finally:

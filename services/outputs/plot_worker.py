@@ -12,8 +12,13 @@ copies no import: matplotlib is loaded once), so the pictures are drawn side by 
 run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
 reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
-matplotlib and vrsim's drawing code; it is started as a plain subprocess, not through multiprocessing,
-whose spawn would re-import the caller's main module (its children are forked: they re-import nothing).
+matplotlib and vrsim's drawing code in a thread at a low priority (a Linux thread has its own nice
+value), so the import takes what the run's processes leave of the cores; the children it forks draw
+at the caller's priority, as the run's own work, which they are once the run is over. (Drawing a
+small picture before the forks, so that what a first drawing loads is loaded once, saves the
+children 0.04 s of CPU and costs the worker 0.3 s: it is not done.) It is started as a plain
+subprocess, not through multiprocessing, whose spawn would re-import the caller's main module (its
+children are forked: they re-import nothing).
 """
 
 from __future__ import annotations
@@ -94,11 +99,10 @@ def _serve(stdin_fd: int, stdout) -> None:
     """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
     child (`common.forked.Forked` of `_drawn`); the replies, ("ok", path) or ("error", text), go out in
     the jobs' order."""
-    import matplotlib.figure  # noqa: F401 - imported before the first job arrives
-
     from common.forked import Forked
-    from services.outputs import plots
 
+    ready_to_draw = threading.Thread(target=_import_matplotlib, name="plot-imports")
+    ready_to_draw.start()
     pending, children = bytearray(), []   # bytes of jobs not yet whole; [(Forked, label)] in the jobs' order
     reading, jobs = True, 0
     while reading or children:
@@ -109,8 +113,9 @@ def _serve(stdin_fd: int, stdout) -> None:
             reading = bool(data)
             pending += data
             for job in _whole_jobs(pending):
+                ready_to_draw.join()   # no thread at the fork, and matplotlib loaded for the children
                 jobs += 1
-                children.append((Forked(_drawn, plots, job), f"job {jobs}"))
+                children.append((Forked(_drawn, job), f"job {jobs}"))
         if children and children[0][0] in ready:  # the oldest job's reply goes first
             child, label = children.pop(0)
             try:
@@ -132,8 +137,18 @@ def _whole_jobs(pending: bytearray):
         yield job
 
 
-def _drawn(plots, job: bytes) -> tuple[str, str]:
+def _import_matplotlib() -> None:
+    """Import matplotlib and the drawing code, in this thread at a low priority."""
+    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    import matplotlib.figure  # noqa: F401 - what every drawing needs
+
+    from services.outputs import plots  # noqa: F401
+
+
+def _drawn(job: bytes) -> tuple[str, str]:
     """Draw one pickled job; its reply."""
+    from services.outputs import plots
+
     drawing, picture, path = pickle.loads(job)
     try:
         if drawing not in DRAWINGS:
@@ -145,9 +160,6 @@ def _drawn(plots, job: bytes) -> tuple[str, str]:
 
 
 if __name__ == "__main__":
-    # At a low priority: its matplotlib import, during the run, takes what the run's two processes
-    # (control here, SUMO in the drive worker) leave of the two cores, not their share.
-    os.nice(10)
     try:
         _serve(sys.stdin.fileno(), sys.stdout.buffer)
     except (KeyboardInterrupt, BrokenPipeError):  # Ctrl-C reaches the whole group; the caller is gone

@@ -107,12 +107,11 @@ class ControlCore:
         rate policy's last rate, the look-ahead tuner's state (None without the tune) and the section
         switch's (`services.sim.sections.SectionSwitch.state`: with coverage control its coverage
         map, commands and gates). The last rate is a number for one metering drive, a list for several."""
-        last = self.last_rate_kg_ha
         return {"loop": self.loop.state,
-                "last_rate_kg_ha": float(last[0]) if last.size == 1 else last.tolist(),
+                "last_rate_kg_ha": _number_or_list(self.last_rate_kg_ha),
                 "tuner": None if self.tuner is None else self.tuner.state(),
                 "sections": self.switch.state(),
-                "meter_rev": float(self.meter_rev[0]) if self.meter_rev.size == 1 else self.meter_rev.tolist()}
+                "meter_rev": _number_or_list(self.meter_rev)}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
@@ -205,6 +204,11 @@ class ControlCore:
         self.meter_rev = np.atleast_1d(end_rev)
         share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
         return np.where(np.asarray(applying, bool), kg * share, 0.0)
+
+
+def _number_or_list(per_drive: np.ndarray):
+    """Per-drive state as plain data: a number for one metering drive, a list for several."""
+    return float(per_drive[0]) if per_drive.size == 1 else per_drive.tolist()
 
 
 def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:

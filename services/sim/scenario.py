@@ -77,6 +77,9 @@ class TimingSpec:
     # the path by `vehicle.SumoDriver` (10 x the path at the slowest speed, plus 60 s), so a field of
     # any size runs without raising it.
     max_sim_time_s: float | None = None
+    # SUMO's step, a whole multiple of the control period (the ticks between its steps interpolated
+    # along the path: docs/model.md, "SUMO's step"). None: the control period.
+    sumo_step_s: float | None = None
 
 
 POINT_FORMATS = ("gpkg", "shp", "none")
@@ -383,10 +386,21 @@ def _check_timing(spec: TimingSpec, source: str) -> None:
     if abs(ratio - round(ratio)) > 1e-9:
         raise ScenarioError(f"{source}: [timing] control_period_s ({spec.control_period_s}) must be a "
                             f"whole multiple of plant_step_s ({spec.plant_step_s})")
+    _check_sumo_step(spec, source)
     limit = spec.max_sim_time_s
     if limit is not None and not spec.control_period_s <= limit <= MAX_SIM_TIME_S:
         raise ScenarioError(f"{source}: [timing] max_sim_time_s must be in [control_period_s, "
                             f"{MAX_SIM_TIME_S:g}] s, got {limit!r}")
+
+
+def _check_sumo_step(spec: TimingSpec, source: str) -> None:
+    step, period = spec.sumo_step_s, spec.control_period_s
+    if step is None:
+        return
+    ratio = step / period  # a number: `services.sim.tables.build` checked its type
+    if not (STEP_RANGE_S[0] <= step <= STEP_RANGE_S[1] and ratio >= 1 and abs(ratio - round(ratio)) <= 1e-9):
+        raise ScenarioError(f"{source}: [timing] sumo_step_s must be a whole multiple of control_period_s "
+                            f"({period:g} s) of at most {STEP_RANGE_S[1]:g} s, got {step!r}")
 
 
 def files_named(scenario: Scenario) -> list[tuple[str, str]]:

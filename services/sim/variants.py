@@ -158,7 +158,8 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
     metered = np.empty((ticks, len(cfgs) * drives))
     for idx, loop in loops:
         which = np.asarray(idx) % drives
-        shared.core.meter_rev = np.zeros(1)   # each variant's shafts start where the run's did (`vehicle.product`)
+        # Each variant's shafts start where the run's did (`vehicle.product`: the flow factors).
+        shared.core.meter_rev = np.zeros(1)
         for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
             part = slice(lo, lo + RUN_CHUNK)
             targets = _loop_targets(rec["drive_target_rpm"][part], which, loop.n)

@@ -136,8 +136,9 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     mode), carrying its state over; vrsim run calls it once on the whole track: same numbers (also
     with the look-ahead tune, whose updates must fall on the same ticks however the track is cut, and
     with a product whose flow varies revolution to revolution, its shaft position carried over)."""
-    path = {"off": quick(tmp_path, plots=False), "hold": with_nodata_hole(tmp_path),
-            "tuned": with_tuned_smith(tmp_path), "flow": with_uneven_flow(tmp_path)}[policy]
+    # Only the case's own file is written (each helper writes its own name or q.toml).
+    path = {"off": lambda: quick(tmp_path, plots=False), "hold": lambda: with_nodata_hole(tmp_path),
+            "tuned": lambda: with_tuned_smith(tmp_path), "flow": lambda: with_uneven_flow(tmp_path)}[policy]()
     sc = scenario.load(path)
     assert sc.map.policy == ("hold" if policy == "hold" else "off")
     assert (sc.product.flow_cv_pct > 0) == (policy == "flow")
