@@ -11,10 +11,11 @@ whose shafts turn at exactly a given speed each control period (no PID, no plant
    delay, a single meter sharing product by width in curves; its product lands as rectangular
    strips of the sections (`StripPlan`), whatever the machine;
    *spread pattern*: the same meter's product landing through the machine's own footprint
-   (`services.sim.machines.Machine.deposition`: a spinner's thrown pattern), split between its
-   drives as the run's targets split it; the difference to the strips is what the pattern alone
-   costs against rectangular strips at the same driving width (zero for kinds that lay strips);
-   the references below land through the machine's footprint too;
+   (`services.sim.machines.Machine.deposition`: a spinner's thrown pattern), each drive at the
+   run's target for it (a spinner's cut side meters less) scaled by the unclipped over the clipped
+   machine-level speed; the difference to the strips is what the pattern alone costs against
+   rectangular strips at the same driving width (zero for kinds that lay strips); the references
+   below land through the machine's footprint too, each drive at the run's target;
 2. *machine limits*: the shaft at the target clipped to ``[shaft_rpm_min, shaft_rpm_max]``: the
    ``ideal`` controller kind, metering the configured ``kg_per_rev`` per revolution exactly; the
    difference to the spread pattern's reference;
@@ -71,20 +72,22 @@ class ErrorPart:
     share_pct: float
 
 
-def _reference_metered_kg(world: World, control: dict, measured_speed_m_s, clipped: bool,
-                          true_product: bool) -> np.ndarray:
-    """Product per tick of a meter whose shaft turns at exactly the target: the run's (clipped to
-    the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for; metering the
-    configured constant exactly or, with `true_product`, what the product really gives per revolution."""
+def _reference_rpm(world: World, control: dict, measured_speed_m_s, clipped: bool) -> np.ndarray:
+    """The machine-level shaft speed of a reference meter per tick, rpm: the run's target (clipped to
+    the shaft's range, as the ``ideal`` kind) or, unclipped, the speed the map asks for."""
+    if clipped:
+        return np.asarray(control["target_shaft_rpm"])
+    width_on = control["width_on_m"]
+    rate = np.nan_to_num(control["prescribed_kg_ha"])
+    wanted = world.scenario.implement.target_shaft_rpm(rate, measured_speed_m_s, width_on)
+    return np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
+
+
+def _reference_metered_kg(world: World, rpm: np.ndarray, true_product: bool) -> np.ndarray:
+    """Product per tick of a meter whose shaft turns at exactly `rpm`: metering the configured
+    constant exactly or, with `true_product`, what the product really gives per revolution."""
     sc = world.scenario
     imp, period_s = sc.implement, sc.timing.control_period_s
-    if clipped:
-        rpm = control["target_shaft_rpm"]
-    else:
-        width_on = control["width_on_m"]
-        rate = np.nan_to_num(control["prescribed_kg_ha"])
-        wanted = imp.target_shaft_rpm(rate, measured_speed_m_s, width_on)
-        rpm = np.where(width_on > 0, np.maximum(wanted, 0.0), 0.0)
     if true_product:
         return metered_kg(rpm * period_s / 60.0, imp.kg_per_rev, sc.product, sc.seed)[0]
     return imp.mass_kg(rpm * period_s / 60.0)
@@ -100,36 +103,43 @@ def reference_figures(world: World, track: dict, control: dict, measured_speed_m
     all meters (`maps.ColumnDeposit`); their figures are the accounting's map figures
     (`services.sim.accounting.map_figures`)."""
     imp, grid = world.scenario.implement, world.grid
-    metered = np.column_stack([_reference_metered_kg(world, control, measured_speed_m_s, *reference)
-                               for reference in _REFERENCES])
+    rpm = {clipped: _reference_rpm(world, control, measured_speed_m_s, clipped) for clipped in (False, True)}
+    metered = np.column_stack([_reference_metered_kg(world, rpm[clipped], true_product)
+                               for clipped, true_product in _REFERENCES])
     states = run_section_states(track, control, imp)
     delay_s, period_s = imp.delivery_delay_s, world.scenario.timing.control_period_s
     cell_m = min(grid.cell_size)
     machine = machine_for(imp, world.field.polygon)
     thrown = machine.deposition(track, states, delay_s, period_s, cell_m)
-    rasters = _reference_rasters(grid, thrown, _per_drive(machine, control, metered))
-    strips = rasters   # a machine that lays strips: the pattern costs nothing
+    product = _per_drive(machine, control, metered, rpm[False])
+    rasters = _reference_rasters(grid, thrown, product)
+    totals = product.reshape(len(product), -1, metered.shape[1]).sum(axis=(0, 1))
+    strips, strips_kg = rasters, totals[0]   # a machine that lays strips: the pattern costs nothing
     if not isinstance(thrown, StripPlan):
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m)
-        strips = _reference_rasters(grid, plan, metered[:, :1])
+        strips, strips_kg = _reference_rasters(grid, plan, metered[:, :1]), metered[:, 0].sum()
     in_field = cells_in_field(grid, world.field.polygon)
-    return [map_figures(grid, in_field, r.applied_kg_ha[j], r.coverage_fraction[j],
-                        float(np.sum(metered[:, j])), float(r.outside_kg[j]))
-            for r, j in [(strips, 0), *((rasters, j) for j in range(metered.shape[1]))]]
+    stages = [(strips, 0, strips_kg), *((rasters, j, kg) for j, kg in enumerate(totals))]
+    return [map_figures(grid, in_field, r.applied_kg_ha[j], r.coverage_fraction[j], float(kg),
+                        float(r.outside_kg[j])) for r, j, kg in stages]
 
 
-def _per_drive(machine: Machine, control: dict, metered_kg: np.ndarray) -> np.ndarray:
+def _per_drive(machine: Machine, control: dict, metered_kg: np.ndarray,
+               unclipped_rpm: np.ndarray) -> np.ndarray:
     """The reference meters' product per tick (ticks, m) in the machine's deposition terms: as it is
-    for one drive; for several split between the drives as the run's targets split it (each drive's
-    target times its share; where every target is 0, as the machine shares a record's metered kg),
-    shape (ticks, drives, m)."""
+    for one drive, shape (ticks, m); for several, each drive at the run's own target for it (its
+    rate at its landing point, its speed, a spinner's cut side), times what the reference's shaft
+    speed is over the run's machine-level one (`Machine.combined`: the clipped references' are the
+    run's; the unclipped one's is the speed the map asks for over that speed clipped), shape
+    (ticks, drives, m)."""
     if machine.drives == 1:
         return metered_kg
-    weight = np.asarray(control["drive_target_rpm"]) * machine.drive_share
-    total = weight.sum(axis=1, keepdims=True)
-    even = machine.deposit_kg({"metered_kg": np.ones(len(weight)), "sections_on": control["sections_on"]})
-    share = np.where(total > 0, weight / np.where(total > 0, total, 1.0), even)
-    return metered_kg[:, None, :] * share[:, :, None]
+    drive_rpm = np.asarray(control["drive_target_rpm"]) * machine.drive_share
+    clipped = np.asarray(control["target_shaft_rpm"])
+    speed = np.column_stack([machine.implement.clip_shaft_rpm(unclipped_rpm),
+                             *[clipped] * (metered_kg.shape[1] - 1)])
+    per_rpm = np.divide(metered_kg, speed, out=np.zeros(metered_kg.shape), where=speed > 0)
+    return drive_rpm[:, :, None] * per_rpm[:, None, :]
 
 
 def _reference_rasters(grid, plan, metered_kg: np.ndarray) -> AppliedColumns:
