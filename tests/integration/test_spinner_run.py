@@ -138,3 +138,13 @@ def test_bad_machine_input_exits_2_with_one_line(tmp_path, change, message):
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2, p.stderr
     assert p.stderr.count("\n") == 1 and message in p.stderr and "Traceback" not in p.stderr, p.stderr
+
+
+def test_the_streamed_run_gives_the_in_process_runs_figures():
+    from services.sim.streamed import run_streamed
+
+    sc = with_changes(_scenario("spinner_36m_at_24m"), controller={"kind": "PID"})
+    whole, parts = run(sc).summary, run_streamed(sc, ticks_per_part=3000).summary
+    for key, value in whole.items():
+        if isinstance(value, float) and key not in ("wall_time_s", "realtime_factor"):
+            assert parts[key] == pytest.approx(value, rel=1e-9, abs=1e-9, nan_ok=True), key
