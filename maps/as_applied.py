@@ -115,7 +115,8 @@ class AsApplied:
         """The applied rates as a `Grid` on the prescription's geometry (cells never covered: NaN)."""
         rates = np.where(self.coverage_fraction > 0, self.applied_kg_ha, np.nan)
         g = self.grid
-        return Grid(rates, g.transform, g.crs, product=g.product, source="as-applied", format="as-applied")
+        return Grid(rates, g.transform, g.crs, product=g.product, source="as-applied", format="as-applied",
+                    map_unit=g.map_unit, density_kg_l=g.density_kg_l)
 
     @property
     def pass_count(self) -> np.ndarray:

@@ -13,8 +13,8 @@ from rasterio.windows import Window
 
 from common import MapError, files
 from maps.crs import as_crs
-from maps.grid import DEFAULT_MAX_CELLS, UNIT, Grid, check_size
-from maps.units import RATE_UNITS
+from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.units import map_unit
 from maps.warn import MapWarning
 
 NODATA_OUT = -9999.0
@@ -27,8 +27,9 @@ _READ_ENV = {"GDAL_CACHEMAX": 16, **files.GDAL_READ_ENV}
 DRIVER = "GTiff"
 
 
-def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
-    """Read band 1 of a raster as rates in kg/ha.
+def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS,
+                 unit: str | None = None) -> Grid:
+    """Read band 1 of a raster as rates in the unit it states (or `unit`).
 
     Parameters
     ----------
@@ -38,6 +39,9 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
         Used only when the file has no CRS.
     max_cells : int or None
         Refuse rasters with more cells than this.
+    unit : str, optional
+        The rates' unit (`maps.units.rate_unit`), over what the file states: band 1's unit, else
+        its ``unit`` tag (dataset or band, as vrsim writes them). Neither stated nor given: refused.
 
     Notes
     -----
@@ -67,6 +71,8 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
                 raise MapError(f"{path}: the raster has no CRS; give one (crs= / --crs)")
             grid_crs = as_crs(src.crs.to_wkt(), f"{path}: CRS") if src.crs is not None else as_crs(crs, "crs")
             nodata, transform, tags = src.nodata, src.transform, src.tags()
+            stated, key = _stated_unit(src)
+            unit = map_unit(path, stated, unit, key)
             quantity = _quantity(tags, src.descriptions[0])
             rates = np.empty((src.height, src.width), dtype=np.float64)
             bands = [(r0, min(src.height, r0 + BAND_ROWS)) for r0 in range(0, src.height, BAND_ROWS)]
@@ -82,11 +88,20 @@ def read_geotiff(path: str, crs=None, max_cells: int | None = DEFAULT_MAX_CELLS)
                            f"from row {r0}")
         if low < 0 and quantity == "rate":
             row, col = np.argwhere(rates < 0)[0]
-            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} kg/ha at row {row}, "
-                           f"column {col}")
-    unit = tags.get("unit") if tags.get("unit") in RATE_UNITS else UNIT  # vrsim's own maps say theirs
+            raise MapError(f"{path}: negative rate {files.shown(float(rates[row, col]))} {unit} at row "
+                           f"{row}, column {col}")
     return Grid(rates, transform, grid_crs, product=tags.get("product", ""), source=path, format="geotiff",
                 quantity=quantity, unit=unit)
+
+
+def _stated_unit(src) -> tuple[str | None, str]:
+    """(the rate unit the raster states, where): band 1's unit, else a ``unit`` tag of band 1 or of
+    the dataset; (None, "") when it states none."""
+    for key, value in (("band unit", (src.units or ("",))[0]), ("band tag unit", src.tags(1).get("unit")),
+                       ("tag unit", src.tags().get("unit"))):
+        if value:
+            return value, key
+    return None, ""
 
 
 def _quantity(tags: dict, description: str | None) -> str:

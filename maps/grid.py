@@ -8,7 +8,7 @@ a pyproj CRS, and nodata cells as NaN.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pyproj
@@ -16,9 +16,9 @@ from affine import Affine
 
 from common import MapError, check_number, check_positive, files
 from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
-from maps.units import RATE_UNITS
+from maps.units import KG_HA, convert_rate, rate_kind, rate_unit
 
-UNIT = "kg/ha"
+UNIT = KG_HA
 QUANTITIES = ("rate", "difference")  # what the values are: rates (>= 0), or signed differences of rates
 LOOKUP_CHUNK = 32_768  # points per pass of Grid.lookup: its temporaries stay in L2 cache
 
@@ -64,9 +64,15 @@ class Grid:
     format : str
         ``"geotiff"``, ``"isoxml"``, ``"shapefile"``, ``"geojson"``, ``"csv"`` or ``"synthetic"``.
     unit : str
-        ``"kg/ha"`` for every map vrsim reads as a prescription; a map of another rate unit of
-        `maps.units.RATE_UNITS` (e.g. an error map of a gal/ac log) is written and read back, but is
-        no prescription (the field run refuses it).
+        The unit `rates_kg_ha` hold: ``"kg/ha"`` for every prescription (`maps.read_map` converts a
+        map in lb/ac, or in L/ha with the product's density, once when it reads it); a grid in
+        another rate unit (`maps.units.rate_unit`: a volume map without a density, an error map of a
+        gal/ac log) is written and read back, but is no prescription (the field run refuses it).
+    map_unit : str, optional
+        The unit the map states its rates in, which its figures are shown and its files written in
+        (`in_map_unit`); None: `unit`.
+    density_kg_l : float, optional
+        The product's density (kg/L) that converted a volume map to kg/ha, so figures convert back.
     quantity : str
         ``"rate"`` (a prescription or an as-applied map: rates >= 0) or ``"difference"`` (signed,
         e.g. applied minus prescribed), which is no prescription.
@@ -80,6 +86,8 @@ class Grid:
     format: str = ""
     unit: str = field(default=UNIT)
     quantity: str = "rate"
+    map_unit: str | None = None
+    density_kg_l: float | None = None
 
     def __post_init__(self):
         rates = np.ascontiguousarray(self.rates_kg_ha, dtype=np.float64)
@@ -95,8 +103,8 @@ class Grid:
             raise MapError(f"{self._where()}: transform has non-finite values {tuple(t)[:6]}")
         self.rates_kg_ha = rates
         self.crs = as_crs(self.crs, f"{self._where()}: crs")
-        if self.unit not in RATE_UNITS:
-            raise MapError(f"{self._where()}: unit must be one of {', '.join(RATE_UNITS)}, got {self.unit!r}")
+        self.unit = rate_unit(self.unit, f"{self._where()}: unit")
+        self.map_unit = rate_unit(self.map_unit or self.unit, f"{self._where()}: map unit")
         if self.quantity not in QUANTITIES:
             raise MapError(f"{self._where()}: quantity must be one of {QUANTITIES}, got {self.quantity!r}")
         # Scalars for the per-tick fast path, so rate_at does no attribute chasing through Affine.
@@ -106,6 +114,29 @@ class Grid:
 
     def _where(self) -> str:
         return self.source or "grid"
+
+    # ------------------------------------------------------------------ units
+    def in_map_unit(self, values):
+        """`values` in this grid's `unit` (rates, or differences of rates) in its `map_unit`."""
+        return convert_rate(values, self.unit, self.map_unit, self.density_kg_l)
+
+    def as_map_unit(self) -> Grid:
+        """This grid with its rates in its `map_unit` (what its files are written in)."""
+        if self.unit == self.map_unit:
+            return self
+        return replace(self, rates_kg_ha=self.in_map_unit(self.rates_kg_ha), unit=self.map_unit)
+
+    def to_kg_ha(self, density_kg_l: float | None = None) -> Grid:
+        """This grid with its rates in kg/ha, its `map_unit` kept to show them in.
+
+        A volume rate needs the product's density (kg/L); without it the grid stays as it is (in
+        its volume unit; no prescription). A count rate stays as it is.
+        """
+        kind = rate_kind(self.unit)
+        if self.unit == UNIT or kind == "count" or (kind == "volume" and density_kg_l is None):
+            return self
+        return replace(self, rates_kg_ha=convert_rate(self.rates_kg_ha, self.unit, UNIT, density_kg_l),
+                       unit=UNIT, map_unit=self.map_unit, density_kg_l=density_kg_l)
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -294,6 +325,7 @@ class Grid:
             "format": self.format,
             "product": self.product,
             "unit": self.unit,
+            "rate_unit": self.map_unit,
             "quantity": self.quantity,
             "crs": crs_label(self.crs),
             "bounds": list(self.bounds),
@@ -303,9 +335,8 @@ class Grid:
                               self.crs.axis_info[0].unit_name,
             "rows": self.rows,
             "cols": self.cols,
-            "min_rate_kg_ha": float(np.nanmin(rates)) if has else None,
-            "mean_rate_kg_ha": float(np.nanmean(rates)) if has else None,
-            "max_rate_kg_ha": float(np.nanmax(rates)) if has else None,
+            **_stats(self.in_map_unit(rates), "", has),
+            **(_stats(rates, "_kg_ha", has) if self.unit == UNIT else {}),
             "nodata_share": 1.0 - valid / rates.size,
         }
 
@@ -362,6 +393,12 @@ DEFAULT_MAX_CELLS = 200_000_000
 # Peak bytes per cell while a map is read or built: the float64 rates plus one temporary of the same
 # size (a flipped, converted or rasterized copy).
 READ_BYTES_PER_CELL = 16
+
+
+def _stats(rates: np.ndarray, suffix: str, has: bool) -> dict:
+    """min, mean and max of `rates` (NaN: nodata) as ``min_rate{suffix}`` ...; None when all nodata."""
+    return {f"{name}_rate{suffix}": float(f(rates)) if has else None
+            for name, f in (("min", np.nanmin), ("mean", np.nanmean), ("max", np.nanmax))}
 
 
 def check_size(rows: int, cols: int, max_cells: int | None, where: str) -> None:

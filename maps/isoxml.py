@@ -18,7 +18,7 @@ J     TreatmentZoneCode           type 2: the TZN whose PDV list says what each 
 Cells run east along a row; rows run north from the south-west corner, so the file's first row is the
 grid's south row (vrsim's row 0 is north: the rows are flipped on reading and writing). The rate is
 the process data value of DDI 6 (setpoint mass per area application rate) in mg/m^2; 1 mg/m^2 = 0.01
-kg/ha.
+kg/ha; a grid without DDI 6 is read by DDI 1 (setpoint volume per area, 0.01 mm^3/m^2), in L/ha.
 """
 
 from __future__ import annotations
@@ -37,10 +37,11 @@ from affine import Affine
 from defusedxml import DefusedXmlException
 
 from common import MapError, __version__, files
+from maps import ddi as DDI
 from maps.crs import WGS84
 from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
-from maps.ddi import SETPOINT_MASS_PER_AREA as DDI_MASS_PER_AREA
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.units import map_unit
 from maps.warn import MapWarning
 
 
@@ -129,14 +130,33 @@ def _zone_values(tzn, where: str) -> list[tuple[int, int, str | None]]:
             for p in tzn.findall("PDV")]
 
 
-def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None) -> Grid:
+def read_isoxml(path: str, max_cells: int | None = DEFAULT_MAX_CELLS, product: str | None = None,
+                unit: str | None = None) -> Grid:
     """Read the prescription grid of a TASKDATA (folder, TASKDATA.XML or .zip) into a `Grid` (WGS84).
 
     `product` (a PDT's id ``PDT2`` or its name) chooses among the rates of a grid with several
     products; without it such a grid is refused, listing them (`MapError`): none is chosen silently.
+    The grid's DDI states the unit (DDI 0006, mass per area: read in kg/ha; else DDI 0001, volume per
+    area: in L/ha); a `unit` given must agree with it.
     """
     with TaskdataFolder(path) as folder:
-        return _read_taskdata(folder, path, max_cells, product)
+        grid = _read_taskdata(folder, path, max_cells, product)
+    map_unit(path, grid.unit, unit, "its DDI")
+    return grid
+
+
+# The rate DDIs a grid is read by, in this order: (the unit of its values, vrsim's unit, factor to it).
+_GRID_RATES = {DDI.SETPOINT_MASS_PER_AREA: ("mg/m^2", "kg/ha", DDI.KG_HA_PER_MG_M2),
+               DDI.SETPOINT_VOLUME_PER_AREA: ("0.01 mm^3/m^2", "L/ha", DDI.L_HA_PER_VOLUME_COUNT)}
+
+
+def _rate_ddi(ddis, where: str, what: str) -> int:
+    """The DDI a grid's rates are read by: 0006 if `what` holds it, else 0001; refused with neither."""
+    found = next((d for d in _GRID_RATES if d in ddis), None)
+    if found is None:
+        raise MapError(f"{where}: {what} DDI {ddi_list(sorted(ddis)) or 'none'}; vrsim needs DDI 0006 "
+                       f"({NAMES[6]}) or 0001 ({NAMES[1]})")
+    return found
 
 
 def parse_xml(data: bytes, where: str, name: str, root_tag: str):
@@ -195,32 +215,33 @@ def _read_taskdata(folder: TaskdataFolder, path: str, max_cells: int | None, pro
                            f"J={zone_code}, zones defined: {sorted(zones)}")
         layers = zones[zone_code]
         ddis = [d for d, _, _ in layers]
-        if DDI_MASS_PER_AREA not in ddis:
-            raise MapError(f"{where}: treatment zone {zone_code} holds DDI {ddi_list(ddis) or 'none'}; "
-                           f"vrsim needs DDI 0006 ({NAMES[6]})")
-        rate_layers = [i for i, d in enumerate(ddis) if d == DDI_MASS_PER_AREA]
+        rate_ddi = _rate_ddi(ddis, where, f"treatment zone {zone_code} holds")
+        rate_layers = [i for i, d in enumerate(ddis) if d == rate_ddi]
         product_ref = _choose_product(root, [layers[i][2] for i in rate_layers], product, where)
         layer = next(i for i in rate_layers if layers[i][2] == product_ref)
         cell_bytes = 4 * len(layers)
     else:
+        rate_ddi = _rate_ddi({d for values in zones.values() for d, _, _ in values}, where,
+                             "the treatment zones hold")
         cell_bytes = 1
+    iso_unit, unit, factor = _GRID_RATES[rate_ddi]
     data = _read_binary(folder, name, rows * cols * cell_bytes, declared, where,
                         f"{cols} columns x {rows} rows x {cell_bytes} byte{'s' * (cell_bytes > 1)} per cell")
     if gtype == 2:
         raw = np.frombuffer(data, dtype="<i4").reshape(rows, cols, len(layers))[..., layer]
         if (raw < 0).any():
             r, c = np.argwhere(raw < 0)[0]
-            raise MapError(f"{where}: negative rate {files.shown(int(raw[r, c]))} mg/m^2 in {name} at "
+            raise MapError(f"{where}: negative rate {files.shown(int(raw[r, c]))} {iso_unit} in {name} at "
                            f"row {r} (from south), column {c}")
-        rates = raw.astype(np.float64) * KG_HA_PER_MG_M2
+        rates = raw.astype(np.float64) * factor
     else:
         codes = np.frombuffer(data, dtype=np.uint8).reshape(rows, cols)
-        refs = [ref for values in zones.values() for d, _, ref in values if d == DDI_MASS_PER_AREA]
+        refs = [ref for values in zones.values() for d, _, ref in values if d == rate_ddi]
         product_ref = _choose_product(root, refs, product, where) if refs else None
-        rates = _type1_rates(codes, zones, product_ref, where)
+        rates = _type1_rates(codes, zones, product_ref, where, rate_ddi)
     transform = Affine(dlon, 0.0, west, 0.0, -dlat, south + rows * dlat)
     return Grid(rates[::-1], transform, WGS84, product=_product_name(root, product_ref), source=path,
-                format="isoxml")
+                format="isoxml", unit=unit)
 
 
 def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, where: str, shape: str) -> bytes:
@@ -235,26 +256,24 @@ def _read_binary(folder: TaskdataFolder, name: str, expected: int, declared, whe
     return folder.read(fname, expected)
 
 
-def _type1_rates(codes: np.ndarray, zones: dict, product_ref: str | None, where: str) -> np.ndarray:
+def _type1_rates(codes: np.ndarray, zones: dict, product_ref: str | None, where: str,
+                 rate_ddi: int) -> np.ndarray:
     """Rates of `product_ref` from per-cell treatment-zone codes: a 256-entry table, NaN for zones
-    without its DDI 6."""
+    without its rate DDI (`_GRID_RATES`)."""
+    iso_unit, _, factor = _GRID_RATES[rate_ddi]
     table = np.full(256, np.nan)
     for code, values in zones.items():
         for ddi, value, product in values:
-            if ddi == DDI_MASS_PER_AREA and product == product_ref and 0 <= code <= 255:
+            if ddi == rate_ddi and product == product_ref and 0 <= code <= 255:
                 if value < 0:
                     raise MapError(f"{where}: treatment zone {code} has a negative rate "
-                                   f"{files.shown(value)} mg/m^2")
-                table[code] = value * KG_HA_PER_MG_M2
-    if np.isnan(table).all():
-        ddis = sorted({d for values in zones.values() for d, _, _ in values})
-        raise MapError(f"{where}: no treatment zone holds DDI 0006 ({NAMES[6]}); found DDI "
-                       f"{ddi_list(ddis) or 'none'}")
+                                   f"{files.shown(value)} {iso_unit}")
+                table[code] = value * factor
     used = np.unique(codes)
     undefined = [int(c) for c in used if np.isnan(table[c])]
     if undefined:
-        warnings.warn(f"{where}: grid cells name treatment zones {undefined} that have no DDI 0006 rate in "
-                      "TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=4)
+        warnings.warn(f"{where}: grid cells name treatment zones {undefined} that have no DDI {rate_ddi:04X} "
+                      "rate in TASKDATA.XML; those cells are nodata", MapWarning, stacklevel=4)
     return table[codes]
 
 

@@ -154,12 +154,13 @@ class PointLog:
         keep = np.flatnonzero(np.isfinite(slot) & np.concatenate(([True], slot[1:] != slot[:-1])))
         return replace(self, **{name: getattr(self, name)[keep] for name in COLUMNS})
 
-    def in_unit(self, unit: str) -> PointLog:
-        """This log with its rates converted to `unit` (see `convert_rate`)."""
+    def in_unit(self, unit: str, density_kg_l: float | None = None) -> PointLog:
+        """This log with its rates converted to `unit` (see `convert_rate`; between a volume and a
+        mass rate with the product's `density_kg_l`)."""
         if unit == self.unit:
             return self
-        return replace(self, applied=convert_rate(self.applied, self.unit, unit),
-                       target=convert_rate(self.target, self.unit, unit), unit=unit)
+        return replace(self, applied=convert_rate(self.applied, self.unit, unit, density_kg_l),
+                       target=convert_rate(self.target, self.unit, unit, density_kg_l), unit=unit)
 
 
 COLUMNS = ("x", "y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m", "work_on",
@@ -249,7 +250,7 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
         if crs is None:
             raise MapError(f"{path}: the file has no CRS (no .prj); give one (crs= / --crs)")
         src_crs = as_crs(crs, "crs")
-    units = _deere_units(path, os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0])
+    units = deere_units(path, os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0])
     applied_name = _pick(path, fields, rate_field, APPLIED_NAMES, "applied rate", "--rate-field")
     target_name = _pick(path, fields, target_field, TARGET_NAMES, "target rate", "--target-field")
     rate_unit = unit or _rate_unit(path, fields, units, applied_name)
@@ -343,7 +344,7 @@ def _deere_unit(code: str) -> str:
     return "/".join(["".join(up) or "1", *down])
 
 
-def _deere_units(path: str, stem: str) -> dict[str, str]:
+def deere_units(path: str, stem: str) -> dict[str, str]:
     """Attribute name (lower case) -> unit, from the ``<stem>-Deere-Metadata.json`` of the shapefile
     `stem` (its name without ``.shp``) beside it or in the archive.
 

@@ -23,6 +23,7 @@ from affine import Affine
 from common import MapError, files
 from maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from maps.units import map_unit, name_with_unit, unit_in_name
 from maps.zones import RATE_NAMES, geojson_crs, geojson_features
 
 X_NAMES = ("x", "easting", "east", "e")
@@ -44,12 +45,13 @@ GRID_CRS = "grid_crs"  # foreign member (RFC 7946, 6.1): the CRS of the x/y prop
 def write_geojson(grid: Grid, path: str) -> None:
     """Write one Point feature per cell, in WGS84 lon/lat as RFC 7946 requires (no ``crs`` member).
 
-    Properties: ``rate_kg_ha`` (null on nodata), ``row``, ``col``, and the cell centre ``x``, ``y``
-    in the grid's own CRS, which the foreign member ``grid_crs`` names, so vrsim reads the exact grid
-    back while any GIS places the points right.
+    Properties: the rate named with its unit (``rate_kg_ha``; null on nodata), ``row``, ``col``,
+    and the cell centre ``x``, ``y`` in the grid's own CRS, which the foreign member ``grid_crs``
+    names, so vrsim reads the exact grid back while any GIS places the points right.
     """
     rows, cols, x, y, rate = _cells(grid)
     lon, lat = transform_xy(x, y, grid.crs, WGS84)
+    name = name_with_unit(grid.unit)
     head = {"type": "FeatureCollection", "name": os.path.splitext(os.path.basename(path))[0],
             GRID_CRS: crs_label(grid.crs)}
     try:
@@ -58,7 +60,7 @@ def write_geojson(grid: Grid, path: str) -> None:
             for i in range(rate.size):
                 r = None if math.isnan(rate[i]) else float(rate[i])
                 point = {"type": "Point", "coordinates": [round(float(lon[i]), 9), round(float(lat[i]), 9)]}
-                props = {"rate_kg_ha": r, "row": int(rows[i]), "col": int(cols[i]), "x": float(x[i]),
+                props = {name: r, "row": int(rows[i]), "col": int(cols[i]), "x": float(x[i]),
                          "y": float(y[i])}
                 f.write(("" if i == 0 else ",\n")
                         + json.dumps({"type": "Feature", "geometry": point, "properties": props}))
@@ -68,13 +70,14 @@ def write_geojson(grid: Grid, path: str) -> None:
 
 
 def write_csv(grid: Grid, path: str) -> None:
-    """Write ``x,y,lon,lat,row,col,rate_kg_ha`` per cell (rate empty on nodata) and a ``.prj`` beside."""
+    """Write ``x,y,lon,lat,row,col,rate_kg_ha`` per cell (the rate named with its unit; empty on
+    nodata) and a ``.prj`` beside."""
     rows, cols, x, y, rate = _cells(grid)
     lon, lat = transform_xy(x, y, grid.crs, WGS84)
     try:
         with open(path, "w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["x", "y", "lon", "lat", "row", "col", "rate_kg_ha"])
+            w.writerow(["x", "y", "lon", "lat", "row", "col", name_with_unit(grid.unit)])
             for i in range(rate.size):
                 w.writerow([repr(float(x[i])), repr(float(y[i])), f"{lon[i]:.9f}", f"{lat[i]:.9f}",
                             int(rows[i]), int(cols[i]), "" if math.isnan(rate[i]) else repr(float(rate[i]))])
@@ -91,7 +94,7 @@ def geojson_is_points(doc: dict, path: str) -> bool:
 
 
 def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
-                        max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+                        max_cells: int | None = DEFAULT_MAX_CELLS, unit: str | None = None) -> Grid:
     # A feature without geometry places no point (as for zones): leave its properties out too, so
     # rates stay paired with their coordinates.
     feats = [f for f in geojson_features(doc, path) if f.get("geometry")]
@@ -107,11 +110,11 @@ def read_geojson_points(path: str, doc: dict, rate_field: str | None = None,
         # vrsim's own export: the cell centres in the grid's CRS, exactly.
         x, y = (_numbers(path, table.pop(k), k) for k in ("x", "y"))
         crs = as_crs(doc[GRID_CRS], f"{path}: {GRID_CRS}")
-    return _grid_from_table(path, "geojson", x, y, table, crs, rate_field, max_cells)
+    return _grid_from_table(path, "geojson", x, y, table, crs, rate_field, max_cells, unit)
 
 
 def read_csv(path: str, rate_field: str | None = None, crs=None,
-             max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+             max_cells: int | None = DEFAULT_MAX_CELLS, unit: str | None = None) -> Grid:
     """Read a CSV point table (x/y with a .prj or `crs`, or lon/lat) into a grid."""
     data = files.read_bytes(path, "csv", MapError)
     try:
@@ -145,7 +148,7 @@ def read_csv(path: str, rate_field: str | None = None, crs=None,
     for k in list(table):  # coordinates of the other kind (lon/lat beside x/y) are not attributes
         if k.strip().lower() in X_NAMES + Y_NAMES + LON_NAMES + LAT_NAMES:
             table.pop(k)
-    return _grid_from_table(path, "csv", x, y, table, src_crs, rate_field, max_cells)
+    return _grid_from_table(path, "csv", x, y, table, src_crs, rate_field, max_cells, unit)
 
 
 def _numbers(path: str, values: list, name: str, allow_empty: bool = False) -> np.ndarray:
@@ -163,7 +166,7 @@ def _numbers(path: str, values: list, name: str, allow_empty: bool = False) -> n
     return out
 
 
-def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid:
+def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells, unit) -> Grid:
     if x.size == 0:
         raise MapError(f"{path}: no points")
     lower = {k.lower(): k for k in table}
@@ -173,7 +176,8 @@ def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid
                            f"{files.shown(sorted(table), 200)}")
         rk = rate_field
     else:
-        rk = next((lower[n] for n in RATE_NAMES if n in lower), None)
+        with_unit = [k for k in table if unit_in_name(k)]
+        rk = next((lower[n] for n in RATE_NAMES if n in lower), with_unit[0] if len(with_unit) == 1 else None)
         if rk is None:
             raise MapError(f"{path}: no rate attribute among {files.shown(sorted(table), 200)}; name one "
                            "with rate_field= / --rate-field")
@@ -206,7 +210,8 @@ def _grid_from_table(path, fmt, x, y, table, crs, rate_field, max_cells) -> Grid
     if np.unique(flat).size != flat.size:
         raise MapError(f"{path}: two points for one cell")
     rates.ravel()[flat] = rate
-    return Grid(rates, Affine(dx, 0.0, x0, 0.0, -dy, y0), crs, source=path, format=fmt)
+    return Grid(rates, Affine(dx, 0.0, x0, 0.0, -dy, y0), crs, source=path, format=fmt,
+                unit=map_unit(path, unit_in_name(rk), unit, f"attribute {rk!r}"))
 
 
 def _spacing(index: np.ndarray, coord: np.ndarray) -> float | None:

@@ -8,11 +8,12 @@ What `write_taskdata` writes into its folder:
   task controllers receive it from an implement: a device element for the device (type 1), one for
   the boom (type 2, function) carrying the logged process data (``DPD``), and one per section
   (type 4) with its lateral offset and width as properties (``DPT``, DDI 134, 135, 67); value
-  presentations (``DVP``) say how to show rates in kg/ha and widths in m.
+  presentations (``DVP``) say how to show rates in kg/ha (L/ha) and widths in m.
 * ``TLG00001.xml`` / ``TLG00001.bin`` (see `maps.timelog`; lower-case extensions as task
   controllers write them and isoxml-js expects them): per record the time, PTN north/east
   (1e-7 degree) and position status, and on the boom: DDI 6 setpoint and DDI 7 actual mass per area
-  application rate (mg/m^2; 1 kg/ha = 100 mg/m^2), DDI 141 actual work state (1 on, 0 off), DDI 67
+  application rate (mg/m^2; 1 kg/ha = 100 mg/m^2), or for a log of volume rates DDI 1 and 2
+  (0.01 mm^3/m^2; 1 L/ha = 10,000), DDI 141 actual work state (1 on, 0 off), DDI 67
   actual working width (mm) and DDI 161 actual condensed work state 1-16 (two bits per section,
   section 1 the leftmost in the lowest bits: 01 on, 00 off, 11 not installed; DDI 162 ... for
   sections 17 and up).
@@ -35,6 +36,7 @@ from maps import ddi as DDI
 from maps.crs import WGS84
 from maps.pointlog import NOT_AVAILABLE, PointLog
 from maps.timelog import encode_records, header_xml, read_timelogs
+from maps.units import is_rate_unit, rate_kind
 
 TLG_NAME = "TLG00001"
 BOOM = "DET-2"
@@ -64,7 +66,8 @@ def write_taskdata(log: PointLog, folder, section_widths_m, task: str = "vrsim r
     ----------
     log : PointLog
         The records (any CRS: positions are written in WGS84); rates in a mass-per-area unit
-        (converted to mg/m^2); `log.start` is required (TimeLog times are absolute).
+        (converted to mg/m^2, DDI 6 and 7) or a volume-per-area unit (DDI 1 and 2); `log.start` is
+        required (TimeLog times are absolute).
     folder : str or os.PathLike
         Created if missing (its parent must exist); refused if it already holds a TASKDATA.XML.
     section_widths_m : sequence of float
@@ -84,7 +87,8 @@ def write_taskdata(log: PointLog, folder, section_widths_m, task: str = "vrsim r
     if log.start is None:
         raise MapError("write_taskdata: the log has no start time (PointLog.start); a TimeLog needs "
                        "absolute times")
-    rates = log.in_unit("kg/ha")
+    unit = _rate_ddis(log)[3]
+    rates = log.in_unit(unit)
     lon, lat = rates.lonlat()
     sections = rates.sections_on if rates.sections_on.shape[1] else np.repeat(
         rates.work_on[:, None], widths.size, axis=1)
@@ -134,13 +138,27 @@ def prepare_folder(folder: str) -> None:
         raise MapError(f"{folder}: cannot create the folder: {exc.strerror}") from None
 
 
+# The TimeLog's rate DDIs by the kind of the log's unit: (setpoint, actual, its unit per count, in).
+_RATE_DDIS = {"mass": (DDI.SETPOINT_MASS_PER_AREA, DDI.ACTUAL_MASS_PER_AREA, DDI.KG_HA_PER_MG_M2, "kg/ha"),
+              "volume": (DDI.SETPOINT_VOLUME_PER_AREA, DDI.ACTUAL_VOLUME_PER_AREA, DDI.L_HA_PER_VOLUME_COUNT,
+                         "L/ha")}
+
+
+def _rate_ddis(log: PointLog) -> tuple[int, int, float, str]:
+    """The rate DDIs of a log in `log.unit` (`_RATE_DDIS`); a count rate is refused."""
+    kind = rate_kind(log.unit) if is_rate_unit(log.unit) else None
+    if kind not in _RATE_DDIS:
+        raise MapError(f"write_taskdata: a TimeLog holds mass or volume rates, not {log.unit or 'no unit'!r}")
+    return _RATE_DDIS[kind]
+
+
 def _records(log: PointLog, sections: np.ndarray):
     """(DDIs, values (n, k), logged (n, k)) of the boom's DLVs, in the TimeLog's units."""
     n = log.points
-    mg = DDI.KG_HA_PER_MG_M2
+    setpoint, actual, per_count, _ = _rate_ddis(log)
     columns = [
-        (DDI.SETPOINT_MASS_PER_AREA, _int_or_missing(log.target / mg, "target rate")),
-        (DDI.ACTUAL_MASS_PER_AREA, _int_or_missing(log.applied / mg, "applied rate")),
+        (setpoint, _int_or_missing(log.target / per_count, "target rate")),
+        (actual, _int_or_missing(log.applied / per_count, "applied rate")),
         (DDI.ACTUAL_WORK_STATE, (log.work_on.astype(np.int64), np.ones(n, dtype=bool))),
         (DDI.ACTUAL_WORKING_WIDTH, _int_or_missing(log.width_m * 1000.0, "working width")),
     ]
@@ -241,7 +259,8 @@ def _device(root, widths: np.ndarray, ddis, name: str) -> None:
     for tag, items in (("DPD", data), ("DPT", props)):  # the schema orders DET, DPD, DPT, DVP
         for attrs in items:
             ET.SubElement(dvc, tag, attrs)
-    ET.SubElement(dvc, "DVP", A=rate_dvp, B="0", C="0.01", D="2", E="kg/ha")
+    _, _, per_count, unit = next(v for v in _RATE_DDIS.values() if v[0] in ddis)
+    ET.SubElement(dvc, "DVP", A=rate_dvp, B="0", C=f"{per_count:g}", D="2", E=unit)
     ET.SubElement(dvc, "DVP", A=width_dvp, B="0", C="0.001", D="3", E="m")
 
 
@@ -253,9 +272,10 @@ def _dpd(object_id: int, ddi: int, rate_dvp: str, width_dvp: str) -> dict:
     else:
         label, trigger = DDI.NAMES[ddi], TIME_INTERVAL
     attrs = {"A": str(object_id), "B": f"{ddi:04X}",
-             "C": str(DEFAULT_SET | (SETTABLE if ddi == DDI.SETPOINT_MASS_PER_AREA else 0)),
+             "C": str(DEFAULT_SET | (SETTABLE if ddi in (DDI.SETPOINT_MASS_PER_AREA,
+                                                         DDI.SETPOINT_VOLUME_PER_AREA) else 0)),
              "D": str(trigger), "E": label}
-    if ddi in (DDI.SETPOINT_MASS_PER_AREA, DDI.ACTUAL_MASS_PER_AREA):
+    if ddi in {d for ddis in _RATE_DDIS.values() for d in ddis[:2]}:
         attrs["F"] = rate_dvp
     elif ddi == DDI.ACTUAL_WORKING_WIDTH:
         attrs["F"] = width_dvp

@@ -17,7 +17,7 @@ import math
 import os
 import struct
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import shapefile
@@ -27,6 +27,7 @@ from common import MapError, check_positive, files
 from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
 from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
 from maps.rasterize import rasterize_rings
+from maps.units import map_unit, unit_in_name
 from maps.warn import MapWarning
 
 DEFAULT_CELL_SIZE_M = 5.0
@@ -57,7 +58,7 @@ class _Rings:
 
 
 def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | None = None, crs=None,
-               max_cells: int | None = DEFAULT_MAX_CELLS) -> Grid:
+               max_cells: int | None = DEFAULT_MAX_CELLS, unit: str | None = None) -> Grid:
     """Read a shapefile (.shp or .zip) or GeoJSON of rate-zone polygons and rasterize it.
 
     Parameters
@@ -65,13 +66,17 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
     path : str
         ``.shp``, ``.zip`` (a zipped shapefile) or ``.geojson``/``.json``.
     rate_field : str, optional
-        The attribute holding the rate in kg/ha; guessed from common names when None.
+        The attribute holding the rate; guessed from common names (or a name stating a unit, like
+        ``Rate_lb_ac``) when None.
     cell_size_m : float, optional
         Cell size of the grid, metres (default 5). Zones in lon/lat are rasterized in the UTM zone of
         their centre.
     crs : pyproj.CRS or str, optional
         CRS of a shapefile without ``.prj`` (required then). GeoJSON without a ``crs`` member is
         WGS84 (RFC 7946).
+    unit : str, optional
+        The rates' unit, when the file does not state it: in the attribute's name (``Rate_lb_ac``,
+        ``Rate (lb/ac)``) or in a John Deere ``...-Deere-Metadata.json`` beside the shapefile.
     """
     kind = "geojson" if path.lower().endswith((".geojson", ".json")) else "shapefile"
     if kind == "geojson":
@@ -82,7 +87,26 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
         raise MapError(f"{path}: no polygon features")
     field_name = _pick_rate_field(path, fields, rate_field)
     rates = _rates(path, values_of(field_name), field_name)
-    return _rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
+    stated, key = _stated_unit(path, field_name, kind)
+    unit = map_unit(path, stated, unit, key)
+    grid = _rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
+    return replace(grid, unit=unit, map_unit=unit)
+
+
+def _stated_unit(path: str, name: str, kind: str) -> tuple[str | None, str]:
+    """(the unit the file states for attribute `name`, where): in the name, or in the John Deere
+    metadata of a shapefile; (None, "") when none."""
+    if unit_in_name(name):
+        return unit_in_name(name), f"attribute {name!r}"
+    if kind == "shapefile":
+        from maps.pointlog import deere_units
+        from maps.vector import gdal_source
+
+        stem = os.path.splitext(os.path.basename(gdal_source(path, None)[0]))[0]
+        stated = deere_units(path, stem).get(name.lower())
+        if stated:
+            return stated, f"Deere metadata of {name!r}"
+    return None, ""
 
 
 def _rasterize_zones(rings: _Rings, rates, crs, cell_size_m: float | None = None, source: str = "zones",
@@ -131,8 +155,11 @@ def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None)
         if candidate in lower:  # by name even if not numeric: the error then names the bad value
             return lower[candidate]
     numeric = [name for name, is_num in fields.items() if is_num]
+    with_unit = [name for name in numeric if unit_in_name(name)]
+    if len(with_unit) == 1:  # "Rate_lb_ac": the one attribute that states a rate unit
+        return with_unit[0]
     if len(numeric) == 1:
-        warnings.warn(f"{path}: using attribute {numeric[0]!r} as the rate in kg/ha (its only numeric one)",
+        warnings.warn(f"{path}: using attribute {numeric[0]!r} as the rate (its only numeric one)",
                       MapWarning, stacklevel=3)
         return numeric[0]
     raise MapError(f"{path}: cannot tell which attribute is the rate; numeric attributes: "

@@ -45,9 +45,10 @@ class Product:
         What it is, for the reader.
     form : {"granular", "liquid"}
         A granular product is metered by a shaft (`vehicle.Implement`); a liquid one by a sprayer.
-    density_kg_l : float
-        Density (granular: bulk density), kg/L, > 0: converts volume and mass rates. The default is a
-        granular fertilizer's (calcium ammonium nitrate about 1.0 kg/L).
+    density_kg_l : float or None
+        Density (granular: bulk density), kg/L, > 0: converts volume and mass rates. None (the
+        default): not given, and a map in a volume unit (L/ha, gal/ac) is refused rather than read
+        with a guessed density.
     flow_cv_pct : float
         Coefficient of variation of the product metered per shaft revolution, %, in [0, 50] (see the
         module docstring).
@@ -58,14 +59,15 @@ class Product:
 
     name: str = "granular fertilizer"
     form: str = "granular"
-    density_kg_l: float = 1.0
+    density_kg_l: float | None = None
     flow_cv_pct: float = 0.0
     calibration_error_pct: float = 0.0
 
     def __post_init__(self):
         if self.form not in PRODUCT_FORMS:
             raise VehicleError(f"form must be one of {', '.join(PRODUCT_FORMS)}, got {self.form!r}")
-        if not in_range(self.density_kg_l, 0.0, MAX_DENSITY_KG_L, lo_open=True):
+        density = self.density_kg_l
+        if density is not None and not in_range(density, 0.0, MAX_DENSITY_KG_L, lo_open=True):
             raise VehicleError(f"density_kg_l must be a number in (0, {MAX_DENSITY_KG_L:g}] kg/L, "
                                f"got {self.density_kg_l!r}")
         if not in_range(self.flow_cv_pct, 0.0, MAX_FLOW_CV_PCT):

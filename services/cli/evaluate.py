@@ -1,6 +1,7 @@
 """`vrsim evaluate LOG [--prescription RX] [--product NAME|PDTn] [--rate-field NAME] [--target-field NAME]
-[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT] [--crs CRS]
-[--json] [--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
+[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT]
+[--prescription-unit UNIT] [--density-kg-l KG_L] [--crs CRS] [--json] [--out DIR]`: the accuracy
+of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -36,8 +37,13 @@ def configure(parser) -> None:
     parser.add_argument("--include-zero-target", action="store_true",
                         help="also compare records whose target is 0 (left out by default: the machine was "
                              "told not to apply there)")
-    parser.add_argument("--unit", help="unit of the rates when the log does not say (kg/ha, t/ha, lb/ac, "
-                                       "L/ha, gal/ac, floz/ac)")
+    parser.add_argument("--unit", help="unit of the log's rates when it does not say (kg/ha, t/ha, lb/ac, "
+                                       "L/ha, gal/ac, floz/ac, ...)")
+    parser.add_argument("--prescription-unit", metavar="UNIT",
+                        help="unit of the prescription's rates when the map does not say")
+    parser.add_argument("--density-kg-l", type=float, metavar="KG_L",
+                        help="the product's density (kg/L): compares a volume rate log (gal/ac) with a mass "
+                             "rate map (kg/ha), or the other way round")
     parser.add_argument("--crs", help="CRS of a shapefile without .prj")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     parser.add_argument("--out", metavar="DIR",
@@ -57,10 +63,11 @@ def run(args) -> int:
                               unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
     if args.unit and not log.unit:  # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=args.unit)
-    rx = maps.read_map(args.prescription, product=args.product) if args.prescription else None
+    rx = maps.read_map(args.prescription, product=args.product, unit=args.prescription_unit,
+                       density_kg_l=args.density_kg_l) if args.prescription else None
     field = _field(args.field) if args.field else None
     ev = evaluate(log, rx, field=field, delay_s=args.delay_s,
-                  include_zero_target=args.include_zero_target)
+                  include_zero_target=args.include_zero_target, density_kg_l=args.density_kg_l)
     if args.out:
         write_evaluation(ev, error_grid(ev, rx), args.out)
     print(dumps_text(ev.summary(), indent=True) if args.json else text_evaluation(ev))

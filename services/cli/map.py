@@ -19,7 +19,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     def reading(p):
         p.add_argument("file", help="map file: GeoTIFF, ISOXML TASKDATA (folder, TASKDATA.XML, .zip), "
                                     "shapefile (.shp/.zip), GeoJSON, CSV")
-        p.add_argument("--rate-field", help="attribute holding the rate (kg/ha) in zone/point files")
+        p.add_argument("--rate-field", help="attribute holding the rate in zone/point files")
+        p.add_argument("--unit", help="unit of the rates when the file does not state it (kg/ha, lb/ac, "
+                                      "L/ha, gal/ac, seeds/ac, ...)")
+        p.add_argument("--density-kg-l", type=float, metavar="KG_L",
+                       help="the product's density (kg/L): a volume rate map also in kg/ha")
         p.add_argument("--layer", metavar="NAME",
                        help="the shapefile of a zip or folder holding several (listed when none is named)")
         p.add_argument("--product", metavar="NAME|PDTn",
@@ -40,7 +44,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--lon", type=float, help="longitude, WGS84 degrees")
     p.add_argument("--x", type=float, help="x in the map's CRS")
     p.add_argument("--y", type=float, help="y in the map's CRS")
-    p.add_argument("--json", action="store_true", help='print {"rate_kg_ha", "inside", "row", "col"}')
+    p.add_argument("--json", action="store_true",
+                   help='print {"rate_kg_ha", "rate", "rate_unit", "inside", "row", "col"}')
 
     p = sub.add_parser("convert", help="write the map in another format (by OUT's extension)")
     reading(p)
@@ -59,7 +64,8 @@ def _read(args):
     import maps
 
     return maps.read_map(args.file, rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
-                         max_cells=args.max_cells or None, layer=args.layer, product=args.product)
+                         max_cells=args.max_cells or None, layer=args.layer, product=args.product,
+                         unit=args.unit, density_kg_l=args.density_kg_l)
 
 
 def _warnings_as_lines() -> None:
@@ -86,7 +92,11 @@ def _info(args) -> int:
         print(dumps_text(info))
         return 0
     for key, value in info.items():
-        if isinstance(value, list):
+        if key == "unit" or key.endswith("_rate_kg_ha"):  # the text shows rates in the map's own unit
+            continue
+        if key.endswith("_rate") and value is not None:
+            value = f"{value:.6g} {info['rate_unit']}"
+        elif isinstance(value, list):
             value = "[" + ", ".join(f"{v:.9g}" for v in value) + "]"
         elif isinstance(value, float):
             value = f"{value:.6g}"
@@ -104,15 +114,19 @@ def _sample(args) -> int:
         if value is None or not math.isfinite(value):
             raise MapError(f"map sample: --{name} {value}: a finite number is required")
     grid = _read(args)
-    res = grid.sample(lat=args.lat, lon=args.lon) if geo else grid.sample(x=args.x, y=args.y)
+    found = grid.sample(lat=args.lat, lon=args.lon) if geo else grid.sample(x=args.x, y=args.y)
+    value = found["rate_kg_ha"]
+    rate = None if value is None else float(grid.in_map_unit(value))
+    res = {"rate_kg_ha": value if grid.unit == "kg/ha" else None, "rate": rate, "rate_unit": grid.map_unit,
+           **{k: found[k] for k in ("inside", "row", "col")}}
     if args.json:
         print(dumps_text(res))
     elif not res["inside"]:
         print("outside the map")
-    elif res["rate_kg_ha"] is None:
+    elif rate is None:
         print(f"nodata (row {res['row']}, col {res['col']})")
     else:
-        print(f"{res['rate_kg_ha']:.6g} kg/ha (row {res['row']}, col {res['col']})")
+        print(f"{rate:.6g} {grid.map_unit} (row {res['row']}, col {res['col']})")
     return 0
 
 
@@ -163,6 +177,6 @@ def _plot(args) -> int:
 
     grid = _read(args)
     with written(args.out, MapError) as temp:
-        plot_map(grid, temp)
+        plot_map(grid.as_map_unit(), temp)
     print(f"wrote {args.out}")
     return 0

@@ -125,13 +125,15 @@ def embedded_png(path: str) -> str:
 
 def _split_table(result: RunResult) -> str:
     """The error split into its causes (`services.sim.error_split`) as an HTML table and what it means."""
+    grid = result.world.grid  # the error in the map's own unit
     rows = "\n".join(f"<tr><td>{html.escape(p.cause)}</td><td>{p.mass_balance_pct:+.2f}</td>"
-                     f"<td>{p.mae_kg_ha:+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
+                     f"<td>{float(grid.in_map_unit(p.mae_kg_ha)):+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
                      for p in error_split(result))
     s = result.summary
     return (f"<table><tr><th>cause</th><th>mass balance (pp)</th>"
-            f"<th>mean absolute error (kg/ha)</th><th>share of the error (%)</th></tr>\n{rows}\n"
-            f"<tr><td>the run</td><td>{s['mass_balance_pct']:+.2f}</td><td>{s['mae_kg_ha']:.2f}</td>"
+            f"<th>mean absolute error ({html.escape(grid.map_unit)})</th><th>share of the error (%)</th></tr>"
+            f"\n{rows}\n<tr><td>the run</td><td>{s['mass_balance_pct']:+.2f}</td>"
+            f"<td>{float(grid.in_map_unit(s['mae_kg_ha'])):.2f}</td>"
             "<td>100</td></tr></table>\n<p>Geometry and section control: the same run with a meter whose "
             "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
             "to the shaft's range adds (the <code>ideal</code> controller); calibration: what the "
@@ -142,7 +144,7 @@ def _split_table(result: RunResult) -> str:
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: machine check, figures, the error split, settings as run, versions and
     seed, pictures, definitions."""
-    from services.outputs.summary import summary_rows
+    from services.outputs.summary import shown
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
@@ -154,19 +156,21 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
-                ("Figures", figures_table(summary_rows(), summary)),
+                ("Figures", figures_table(*shown(summary))),
                 ("Where the error comes from", _split_table(result)),
                 ("Settings as run", f'<div class="cols">{settings}</div>\n<details><summary>The scenario '
                  f'as run, as a scenario file (<code>vrsim run</code> reruns it)</summary>'
                  f'<pre>{scenario_file}</pre></details>'),
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
-                [("What the figures mean", definitions(metrics.METRICS))], FILES_NOTE,
-                banner=incomplete_note(summary))
+                [("What the figures mean", definitions(metrics.METRICS))],
+                _files_note(result.world.grid.map_unit), banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
 
-FILES_NOTE = ("Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
-              "(GeoTIFF, kg/ha; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "
-              "taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg (or .zip).")
+def _files_note(rate_unit: str) -> str:
+    """What the files beside the report are, the rasters in the map's unit `rate_unit`."""
+    return (f"Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
+            f"(GeoTIFF, {rate_unit}; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "
+            "taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg (or .zip).")

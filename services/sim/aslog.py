@@ -33,7 +33,7 @@ def _compass_deg(heading_rad) -> np.ndarray:
 
 def run_point_log(world, track: dict, control: dict, applied_kg_ha, started_unix: float,
                   rate_hz: float) -> PointLog:
-    """The run's as-applied log at `rate_hz` records per second.
+    """The run's as-applied log at `rate_hz` records per second, its rates in the map's own unit.
 
     Parameters
     ----------
@@ -58,4 +58,4 @@ def run_point_log(world, track: dict, control: dict, applied_kg_ha, started_unix
         speed_m_s=track["speed_m_s"], width_m=width_on, work_on=np.asarray(track["implement_on"], bool),
         sections_on=np.asarray(control["sections_on"], bool), gnss_status=SIMULATE_MODE,
         source=world.scenario.name, format="run")
-    return log.thin(1.0 / rate_hz)
+    return log.thin(1.0 / rate_hz).in_unit(world.grid.map_unit, world.grid.density_kg_l)

@@ -21,7 +21,7 @@ import numpy as np
 from common import MapError
 from maps import Grid, PointLog, grid_from_bounds, utm_crs_for
 from maps.crs import WGS84, transform_xy
-from maps.units import RATE_UNITS, base_unit, convert_rate
+from maps.units import base_unit, convert_rate, is_rate_unit, rate_unit
 from services.sim.metrics import POINT_METRICS, PointMetrics, point_metrics
 
 ERROR_CELL_M = 5.0  # cell of the error map without a prescription: about a point's spacing at 1 Hz
@@ -81,21 +81,25 @@ class Evaluation:
 
 
 def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_s: float = 0.0,
-             include_zero_target: bool = False) -> Evaluation:
+             include_zero_target: bool = False, density_kg_l: float | None = None) -> Evaluation:
     """Compare a log's applied rates with its logged targets, or with `prescription` at each point.
 
     Parameters
     ----------
     log : maps.PointLog
-        Its `unit` must be one of `maps.units.RATE_UNITS`; with a prescription (kg/ha), a mass rate.
+        Its `unit` must be a rate unit (`maps.units.rate_unit`).
     prescription : maps.Grid, optional
-        Looked up at each point (at the point ``delay_s`` later).
+        Looked up at each point (at the point ``delay_s`` later); the log is compared with it in the
+        map's own unit (`Grid.map_unit`), converted to it (a volume rate against a mass rate map with
+        the product's density).
     field : vehicle.Field, optional
         Only points inside its boundary are compared.
     delay_s : float
         Delivery delay from meter to ground, s (>= 0): see the module docstring.
     include_zero_target : bool
         Also compare records whose target is 0 (or below): the machine was told not to apply there.
+    density_kg_l : float, optional
+        The product's density, kg/L (default: the one `prescription` was read with).
 
     Raises
     ------
@@ -104,21 +108,24 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
         point to compare.
     """
     where = log.source or "log"
-    if log.unit not in RATE_UNITS:
-        raise MapError(f"{where}: the unit of its rates is {log.unit or 'not stated'!r}; name it (--unit), "
-                       f"one of {', '.join(RATE_UNITS)}")
+    if not is_rate_unit(log.unit):
+        raise MapError(f"{where}: the unit of its rates is {log.unit or 'not stated'!r}; give it with --unit "
+                       "(kg/ha, lb/ac, L/ha, gal/ac, ...)")
+    log = dataclasses.replace(log, unit=rate_unit(log.unit))
     if not (isinstance(delay_s, (int, float)) and math.isfinite(delay_s) and 0 <= delay_s <= MAX_DELAY_S):
         raise MapError(f"--delay-s {delay_s!r}: must be a number from 0 to {MAX_DELAY_S:g} s")
     if prescription is not None:
+        density = prescription.density_kg_l if density_kg_l is None else density_kg_l
         try:
-            log = log.in_unit(prescription.unit)
+            log = log.in_unit(prescription.map_unit, density)
         except MapError as exc:
             raise MapError(f"{where}: cannot compare with the prescription {prescription.source} "
-                           f"({prescription.unit}): {exc}") from None
+                           f"({prescription.map_unit}): {exc}"
+                           f"{'; give it with --density-kg-l' if 'density' in str(exc) else ''}") from None
     x_m, y_m, crs = _metric_positions(log)
     lx, ly = _delayed(log, x_m, y_m, delay_s, where)
     if prescription is not None:
-        target = prescription.lookup(lx, ly, crs=crs).rate_kg_ha
+        target = prescription.in_map_unit(prescription.lookup(lx, ly, crs=crs).rate_kg_ha)
         against = prescription.source or "prescription"
     else:
         target = log.target

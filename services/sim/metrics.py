@@ -49,9 +49,9 @@ from services.sim.transitions import transitions
 if TYPE_CHECKING:
     from services.sim.accounting import Accounts
 
-__all__ = ["COVERED_FRACTION", "Metric", "METRICS", "summary", "MapMetrics", "map_metrics", "OverlapMetrics",
-           "overlap_metrics", "LimitMetrics", "limit_metrics", "LOG_UNIT", "POINT_METRICS", "PointMetrics",
-           "point_metrics"]
+__all__ = ["COVERED_FRACTION", "Metric", "METRICS", "summary", "RATE_UNIT", "rate_key", "in_rate_unit",
+           "MapMetrics", "map_metrics", "OverlapMetrics", "overlap_metrics", "LimitMetrics", "limit_metrics",
+           "LOG_UNIT", "POINT_METRICS", "PointMetrics", "point_metrics"]
 
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
 
@@ -207,10 +207,27 @@ METRICS = (
 
 
 def summary(accounts: Accounts) -> dict:
-    """``scenario``, every `METRICS` figure in table order (`Metric.value`), ``seed``, ``stage_s``."""
-    scenario = accounts.setting.world.scenario
-    return {"scenario": scenario.name, **{m.key: m.value(accounts) for m in METRICS}, "seed": scenario.seed,
+    """``scenario``, every `METRICS` figure in table order (`Metric.value`), ``rate_unit`` (the map's
+    own unit) and ``in_rate_unit`` (`in_rate_unit`), ``seed``, ``stage_s``."""
+    scenario, grid = accounts.setting.world.scenario, accounts.setting.world.grid
+    figures = {m.key: m.value(accounts) for m in METRICS}
+    return {"scenario": scenario.name, **figures, "rate_unit": grid.map_unit,
+            "in_rate_unit": in_rate_unit(figures, grid.in_map_unit), "seed": scenario.seed,
             "stage_s": accounts.timing.stage_s}
+
+
+RATE_UNIT = "kg/ha"  # the unit the run's rate figures are in (their keys end in _kg_ha)
+
+
+def rate_key(key: str) -> str:
+    """The key of a figure in `RATE_UNIT` in ``in_rate_unit``: ``"mae_kg_ha"`` -> ``"mae"``."""
+    return key.removesuffix("_kg_ha")
+
+
+def in_rate_unit(figures: dict, convert: Callable) -> dict:
+    """The figures of the `METRICS` rows in `RATE_UNIT` converted to the map's own unit by `convert`
+    (kg/ha values -> the map's, e.g. `maps.Grid.in_map_unit`), keyed by `rate_key`: ``{"mae": ...}``."""
+    return {rate_key(m.key): float(convert(figures[m.key])) for m in METRICS if m.unit == RATE_UNIT}
 
 
 @dataclass(frozen=True)

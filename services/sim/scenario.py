@@ -24,10 +24,11 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common import ScenarioError, files, is_number
+from common import MapError, ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
+from maps.units import rate_unit
 from services.sim.machines.keys import changed_implement, implement_from_table, implement_table
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
@@ -67,6 +68,7 @@ class MapSpec:
     params: dict = field(default_factory=dict)  # keyword arguments of the synthetic generator
     policy: str = "off"  # what the controller does outside the map or on nodata
     default_rate_kg_ha: float = 0.0
+    unit: str | None = None  # the file's rate unit, when it does not state it (`maps.units.rate_unit`)
 
 
 @dataclass(frozen=True)
@@ -360,6 +362,20 @@ def _check_map(spec: MapSpec, source: str) -> None:
         raise ScenarioError(f"{source}: [map] cell_size_m must be > 0, got {spec.cell_size_m}")
     if spec.default_rate_kg_ha < 0:
         raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
+    if spec.unit is not None:
+        if spec.file is None:
+            raise ScenarioError(f"{source}: [map] unit {spec.unit!r} is for a map file; synthetic maps "
+                                "are in kg/ha")
+        try:
+            rate_unit(spec.unit, f"{source}: [map] unit")
+        except MapError as exc:
+            raise ScenarioError(str(exc)) from None
+
+
+def product_density_kg_l(scenario: Scenario) -> float | None:
+    """The product's density, kg/L (``[product] density_kg_l``), which converts a volume rate map to
+    kg/ha; None when the scenario gives none."""
+    return scenario.product.density_kg_l
 
 
 def _synthetic_params(kind: str) -> set[str]:

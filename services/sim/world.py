@@ -13,9 +13,10 @@ import numpy as np
 
 from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
+from maps.units import rate_kind
 from services.sim.as_run import as_run
 from services.sim.drive_job import DriveJob
-from services.sim.scenario import Scenario
+from services.sim.scenario import Scenario, product_density_kg_l
 from vehicle import CoveragePath, Field, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
@@ -60,11 +61,14 @@ def _build_prescription(scenario: Scenario, field: Field) -> Grid:
             raise ScenarioError(f"{scenario.source}: [map] params {spec.params!r} do not fit "
                                 f"synthetic {spec.synthetic!r}: {exc}") from None
     grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
-                    crs=spec.crs)
-    if grid.quantity != "rate" or grid.unit != "kg/ha":
-        what = "differences of rates" if grid.quantity != "rate" else "rates"
-        raise MapError(f"{grid.source}: holds {what} in {grid.unit} (e.g. a run's error.tif), not a "
-                       "prescription in kg/ha")
+                    crs=spec.crs, unit=spec.unit, density_kg_l=product_density_kg_l(scenario))
+    if grid.quantity != "rate":
+        raise MapError(f"{grid.source}: holds differences of rates in {grid.unit} (e.g. a run's error.tif), "
+                       "not a prescription")
+    if grid.unit != "kg/ha":  # a volume or count rate the run cannot meter as mass
+        need = "density: [product] density_kg_l" if rate_kind(grid.unit) == "volume" else "seed mass"
+        raise MapError(f"{grid.source}: a {rate_kind(grid.unit)} rate ({grid.unit}) runs as a mass rate only "
+                       f"with the product's {need}")
     grid.check_overlap(field.polygon, field.crs)
     if not grid.crs.equals(field.crs):
         grid = grid.reproject(field.crs, cell_size_m=spec.cell_size_m)

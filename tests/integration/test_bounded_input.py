@@ -61,7 +61,7 @@ def hostile_cases(folder: str) -> list:
     os.mkfifo(os.path.join(iso_fifo, "TASKDATA.XML"))
     iso_zero = os.path.join(folder, "iso_zero")
     os.mkdir(iso_zero)
-    grid = maps.read_map(os.path.join(ROOT, "tests", "data", "maps", "rx_utm32.tif"))
+    grid = maps.read_map(os.path.join(ROOT, "tests", "data", "maps", "rx_utm32.tif"), unit="kg/ha")
     maps.write_map(grid, os.path.join(iso_zero, "TASKDATA.XML"))
     os.unlink(os.path.join(iso_zero, "GRD00001.BIN"))
     os.symlink("/dev/zero", os.path.join(iso_zero, "GRD00001.BIN"))

@@ -70,11 +70,13 @@ def test_a_zip_of_two_zone_layers_is_read_by_layer(tmp_path):
     with zipfile.ZipFile(path, "w") as z:
         for name, rate in (("north", 120.0), ("south", 80.0)):
             shp = tmp_path / f"{name}.shp"
-            pyogrio.raw.write(str(shp), shapely.to_wkb(np.array([square])), [np.array([rate])], ["Rate"],
+            pyogrio.raw.write(str(shp), shapely.to_wkb(np.array([square])), [np.array([rate])],
+                              ["Rate_kg_ha"],
                               driver="ESRI Shapefile", geometry_type="Polygon", crs="EPSG:32632")
             for ext in (".shp", ".shx", ".dbf", ".prj"):
                 z.write(tmp_path / f"{name}{ext}", f"{name}{ext}")
-    one_line_exit_2(vrsim("map", "info", path), "2 layers", "'north' (1 records; fields Rate)", "'south'")
+    one_line_exit_2(vrsim("map", "info", path), "2 layers", "'north' (1 records; fields Rate_kg_ha)",
+                    "'south'")
     p = vrsim("map", "info", path, "--layer", "south", "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["max_rate_kg_ha"] == 80.0

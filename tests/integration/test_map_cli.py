@@ -11,7 +11,8 @@ from maps import read_map
 from tests.conftest import VRSIM
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "maps")
-TIF = os.path.join(DATA, "rx_utm32.tif")
+TIF = os.path.join(DATA, "rx_utm32.tif")  # written by GDAL without a unit: given with --unit
+KG_HA = ("--unit", "kg/ha")
 
 
 def vrsim(*args):
@@ -23,7 +24,7 @@ def isoxml(shared_dir, name):
 
 
 def test_info_json():
-    p = vrsim("info", TIF, "--json")
+    p = vrsim("info", TIF, *KG_HA, "--json")
     assert p.returncode == 0, p.stderr
     info = json.loads(p.stdout)
     assert info["format"] == "geotiff" and info["crs"] == "EPSG:32632"
@@ -36,8 +37,9 @@ def test_info_json():
 
 
 def test_info_text():
-    p = vrsim("info", TIF)
+    p = vrsim("info", TIF, *KG_HA)
     assert p.returncode == 0 and "EPSG:32632" in p.stdout and "nodata_share" in p.stdout
+    assert "max_rate         290 kg/ha" in p.stdout
 
 
 def test_sample_isoxml_lat_lon_and_outside(shared_dir):
@@ -46,19 +48,22 @@ def test_sample_isoxml_lat_lon_and_outside(shared_dir):
     lon = 39.138728173503324 + 4.5 * 0.00016294086058760767
     p = vrsim("sample", t2, "--lat", lat, "--lon", lon, "--json")
     assert p.returncode == 0
-    assert json.loads(p.stdout) == {"rate_kg_ha": 16997.91, "inside": True, "row": 6, "col": 4}
+    assert json.loads(p.stdout) == {"rate_kg_ha": 16997.91, "rate": 16997.91, "rate_unit": "kg/ha",
+                                    "inside": True, "row": 6, "col": 4}
     assert p.stderr.count("\n") == 1 and "warning: " in p.stderr and "Filelength" in p.stderr
     p = vrsim("sample", t2, "--lat", 10, "--lon", 10, "--json")
     assert p.returncode == 0
-    assert json.loads(p.stdout) == {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
+    assert json.loads(p.stdout) == {"rate_kg_ha": None, "rate": None, "rate_unit": "kg/ha", "inside": False,
+                                    "row": None, "col": None}
     p = vrsim("sample", t2, "--lat", 10, "--lon", 10)
     assert p.returncode == 0 and "outside" in p.stdout
 
 
 def test_sample_x_y():
-    p = vrsim("sample", TIF, "--x", 500_045, "--y", 5_300_015, "--json")
-    assert json.loads(p.stdout) == {"rate_kg_ha": 290.0, "inside": True, "row": 3, "col": 4}
-    p = vrsim("sample", TIF, "--x", 500_025, "--y", 5_300_025)
+    p = vrsim("sample", TIF, *KG_HA, "--x", 500_045, "--y", 5_300_015, "--json")
+    assert json.loads(p.stdout) == {"rate_kg_ha": 290.0, "rate": 290.0, "rate_unit": "kg/ha", "inside": True,
+                                    "row": 3, "col": 4}
+    p = vrsim("sample", TIF, *KG_HA, "--x", 500_025, "--y", 5_300_025)
     assert p.returncode == 0 and "nodata" in p.stdout
 
 
@@ -100,7 +105,7 @@ def test_plot(tmp_path, shared_dir):
 
 def test_zones_options(tmp_path):
     p = vrsim("info", os.path.join(DATA, "zones_noprj.shp"), "--crs", "EPSG:32632", "--cell-size", 10,
-              "--rate-field", "RATE", "--json")
+              "--rate-field", "RATE", *KG_HA, "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["mean_rate_kg_ha"] == pytest.approx((100 * 20 + 150 * 15 + 200 * 15) / 50)
 
@@ -118,14 +123,15 @@ def test_bad_input_exit_2_one_line(tmp_path, shared_dir):
     assert "is missing" in bad("info", isoxml(shared_dir, "isoxml-js-grid-without-binary.zip"))
     assert "no such file" in bad("info", tmp_path / "nope.tif")
     assert "exceeds the cap" in bad("info", TIF, "--max-cells", 10)
+    assert "does not state the unit of its rates" in bad("info", TIF)
     assert "no .prj" in bad("info", os.path.join(DATA, "zones_noprj.shp"))
     assert "not a polygon" in bad("info", os.path.join(DATA, "lines.shp"))
     assert "give --lat and --lon" in bad("sample", TIF)
     assert "give --lat and --lon" in bad("sample", TIF, "--lat", 1, "--x", 2)
     assert "finite" in bad("sample", TIF, "--lat", "nan", "--lon", 1)
-    assert "unknown output format" in bad("convert", TIF, tmp_path / "a.txt")
+    assert "unknown output format" in bad("convert", TIF, *KG_HA, tmp_path / "a.txt")
     assert "needs --to-crs" in bad("convert", tmp_path / "nope.tif", tmp_path / "a.tif", "--to-cell-size", 2)
-    assert ".png" in bad("plot", TIF, tmp_path / "a.jpg")
+    assert ".png" in bad("plot", TIF, *KG_HA, tmp_path / "a.jpg")
     hostile = '<!DOCTYPE x [<!ENTITY a "b">]><ISO11783_TaskData>&a;</ISO11783_TaskData>'
     (tmp_path / "TASKDATA.XML").write_text(hostile)
     assert "refused" in bad("info", tmp_path / "TASKDATA.XML")

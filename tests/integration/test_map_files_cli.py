@@ -8,7 +8,7 @@ import numpy as np
 from affine import Affine
 
 from maps import Grid, read_map, write_map
-from tests.integration.test_map_cli import TIF, vrsim
+from tests.integration.test_map_cli import KG_HA, TIF, vrsim
 
 
 def test_info_accepts_a_difference_raster_and_refuses_negative_rates(tmp_path):
@@ -27,14 +27,15 @@ def test_info_accepts_a_difference_raster_and_refuses_negative_rates(tmp_path):
 
 
 def test_convert_to_isoxml_needs_a_folder_and_never_overwrites(tmp_path):
-    p = vrsim("convert", TIF, tmp_path / "a.xml")
+    p = vrsim("convert", TIF, *KG_HA, tmp_path / "a.xml")
     assert p.returncode == 2 and "written as a TASKDATA folder" in p.stderr
     assert list(tmp_path.iterdir()) == []
-    p = vrsim("convert", TIF, tmp_path / "TASKDATA")
+    p = vrsim("convert", TIF, *KG_HA, tmp_path / "TASKDATA")
     assert p.returncode == 0, p.stderr
     first = (tmp_path / "TASKDATA" / "GRD00001.BIN").read_bytes()
-    p = vrsim("convert", TIF, tmp_path / "TASKDATA" / "TASKDATA.XML")
+    p = vrsim("convert", TIF, *KG_HA, tmp_path / "TASKDATA" / "TASKDATA.XML")
     assert p.returncode == 2 and "does not overwrite" in p.stderr
     assert (tmp_path / "TASKDATA" / "GRD00001.BIN").read_bytes() == first
     back = read_map(tmp_path / "TASKDATA")
-    assert back.crs.to_epsg() == 4326 and np.nanmax(back.rates_kg_ha) == np.nanmax(read_map(TIF).rates_kg_ha)
+    assert back.crs.to_epsg() == 4326
+    assert np.nanmax(back.rates_kg_ha) == np.nanmax(read_map(TIF, unit="kg/ha").rates_kg_ha)

@@ -43,6 +43,8 @@ def assert_same_summary(fast: dict, slow: dict, rel: float = 1e-9) -> None:
             assert math.isnan(got), key
         elif isinstance(want, (int, float)):
             assert got == pytest.approx(want, rel=rel, abs=1e-12), key
+        elif isinstance(want, dict):  # in_rate_unit: figures again, in the map's unit
+            assert_same_summary(got, want, rel)
         else:
             assert got == want, key
 

@@ -70,6 +70,7 @@ def _geotiff(path, value: float) -> None:
     with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float32",
                        crs="EPSG:32632", transform=Affine(10, 0, X0, 0, -10, Y0)) as dst:
         dst.write(np.full((4, 4), value, np.float32), 1)
+        dst.units = ("kg/ha",)
 
 
 def _vrt(source: str) -> str:
@@ -176,7 +177,7 @@ def test_side_files_leading_out_are_refused_in_the_data_root_and_ignored_locally
 
 def _zones(stem) -> None:
     with shapefile.Writer(str(stem), shapeType=shapefile.POLYGON) as w:
-        w.field("RATE", "N", size=10, decimal=2)
+        w.field("RATE_KG_HA", "N", size=10, decimal=2)
         w.poly([[(X0, Y0), (X0 + 40, Y0), (X0 + 40, Y0 - 40), (X0, Y0 - 40), (X0, Y0)]])
         w.record(100.0)
     (stem.parent / (stem.name + ".prj")).write_text(pyproj.CRS.from_epsg(32632).to_wkt(version="WKT1_ESRI"))

@@ -27,7 +27,7 @@ def fixture(name):
 
 # ---------------------------------------------------------------------- GeoTIFF
 def test_geotiff_written_by_gdal():
-    g = read_map(fixture("rx_utm32.tif"))
+    g = read_map(fixture("rx_utm32.tif"), unit="kg/ha")
     assert g.crs.to_epsg() == 32632 and g.format == "geotiff"
     assert g.transform == Affine(10, 0, X0, 0, -10, Y0)
     assert g.rates_kg_ha[0, 0] == 100 and g.rates_kg_ha[3, 4] == 290
@@ -49,7 +49,7 @@ def test_geotiff_any_crs(tmp_path):
     for crs in ("EPSG:3857", "EPSG:2227"):
         data = np.arange(12, dtype=np.float64).reshape(3, 4)
         write_tif(tmp_path / "a.tif", data, crs=crs, transform=Affine(100, 0, 1000, 0, -100, 5000))
-        g = read_map(tmp_path / "a.tif")
+        g = read_map(tmp_path / "a.tif", unit="kg/ha")
         lon, lat = _to_wgs84(1250.0, 4850.0, crs)
         assert g.lookup(lon, lat, crs="EPSG:4326").rate_kg_ha == 6.0
 
@@ -67,38 +67,38 @@ def _to_wgs84(x, y, crs):
 def test_geotiff_bad_values(tmp_path, data, nodata, match):
     write_tif(tmp_path / "a.tif", data, nodata=nodata)
     with pytest.raises(MapError, match=match):
-        read_map(tmp_path / "a.tif")
+        read_map(tmp_path / "a.tif", unit="kg/ha")
 
 
 def test_geotiff_nan_is_nodata_without_declared_value(tmp_path):
     write_tif(tmp_path / "a.tif", np.array([[1.0, np.nan]]))
-    assert np.isnan(read_map(tmp_path / "a.tif").rates_kg_ha[0, 1])
+    assert np.isnan(read_map(tmp_path / "a.tif", unit="kg/ha").rates_kg_ha[0, 1])
 
 
 def test_geotiff_without_crs_needs_one(tmp_path):
     write_tif(tmp_path / "a.tif", np.ones((2, 2)), crs=None)
     with pytest.raises(MapError, match="no CRS"):
-        read_map(tmp_path / "a.tif")
-    assert read_map(tmp_path / "a.tif", crs="EPSG:32633").crs.to_epsg() == 32633
+        read_map(tmp_path / "a.tif", unit="kg/ha")
+    assert read_map(tmp_path / "a.tif", crs="EPSG:32633", unit="kg/ha").crs.to_epsg() == 32633
 
 
 def test_geotiff_rotated_or_damaged_refused(tmp_path):
     write_tif(tmp_path / "r.tif", np.ones((2, 2)), transform=Affine(10, 2, X0, 2, -10, Y0))
     with pytest.raises(MapError, match="north-up"):
-        read_map(tmp_path / "r.tif")
+        read_map(tmp_path / "r.tif", unit="kg/ha")
     shutil.copy(fixture("rx_utm32.tif"), tmp_path / "t.tif")
     with open(tmp_path / "t.tif", "r+b") as f:
         f.truncate(100)
     with pytest.raises(MapError, match="t.tif"):
-        read_map(tmp_path / "t.tif")
+        read_map(tmp_path / "t.tif", unit="kg/ha")
     (tmp_path / "x.tif").write_text("not a tiff")
     with pytest.raises(MapError, match="cannot read as a raster"):
-        read_map(tmp_path / "x.tif")
+        read_map(tmp_path / "x.tif", unit="kg/ha")
 
 
 def test_geotiff_cap(tmp_path):
     with pytest.raises(MapError, match="exceeds the cap"):
-        read_map(fixture("rx_utm32.tif"), max_cells=10)
+        read_map(fixture("rx_utm32.tif"), max_cells=10, unit="kg/ha")
 
 
 @pytest.mark.parametrize("ext", [".tif", ".geojson", ".csv"])
@@ -144,11 +144,11 @@ def test_geotiff_signed_difference_read_but_negative_rates_refused(tmp_path):
     write_tif(tmp_path / "d.tif", diff.rates_kg_ha.astype(np.float32))
     with rasterio.open(tmp_path / "d.tif", "r+") as dst:
         dst.set_band_description(1, "Rate difference (kg/ha)")
-    assert read_map(tmp_path / "d.tif").quantity == "difference"
+    assert read_map(tmp_path / "d.tif", unit="kg/ha").quantity == "difference"
     # A rate map with a negative value is still refused.
     write_map(Grid(g.rates_kg_ha, g.transform, g.crs), tmp_path / "rx.tif")
     with pytest.raises(MapError, match="negative rate -12.5 kg/ha at row 1, column 1"):
-        read_map(tmp_path / "rx.tif")
+        read_map(tmp_path / "rx.tif", unit="kg/ha")
     with pytest.raises(MapError, match="quantity must be one of"):
         Grid(g.rates_kg_ha, g.transform, g.crs, quantity="error")
 
@@ -170,7 +170,7 @@ def test_geojson_is_wgs84_without_crs_member(tmp_path):
 # ---------------------------------------------------------------------- zones
 def test_zipped_shapefile_area_weighted_edges():
     # Zones 100 | 150 | 200 with edges at 20 m and 35 m from the west; 10 m cells.
-    g = read_map(fixture("zones_utm32.zip"), cell_size_m=10)
+    g = read_map(fixture("zones_utm32.zip"), cell_size_m=10, unit="kg/ha")
     assert g.format == "shapefile" and g.crs.to_epsg() == 32632
     assert g.bounds == (X0, Y0 - 30, X0 + 50, Y0)
     np.testing.assert_allclose(g.rates_kg_ha[1], [100, 100, 150, 175, 200], atol=1e-9)
@@ -178,8 +178,8 @@ def test_zipped_shapefile_area_weighted_edges():
 
 def test_shapefile_needs_crs_without_prj():
     with pytest.raises(MapError, match="no .prj"):
-        read_map(fixture("zones_noprj.shp"))
-    g = read_map(fixture("zones_noprj.shp"), crs="EPSG:32632", cell_size_m=5)
+        read_map(fixture("zones_noprj.shp"), unit="kg/ha")
+    g = read_map(fixture("zones_noprj.shp"), crs="EPSG:32632", cell_size_m=5, unit="kg/ha")
     assert g.rate_at(X0 + 1, Y0 - 1) == 100 and g.rate_at(X0 + 49, Y0 - 29) == 200
 
 
@@ -187,26 +187,26 @@ def test_shapefile_files_closed_after_reading(tmp_path):
     # The parts are read into memory and closed: no file is left for the garbage collector.
     with warnings.catch_warnings(record=True) as seen:
         warnings.simplefilter("always", ResourceWarning)
-        read_map(fixture("zones_noprj.shp"), crs="EPSG:32632", cell_size_m=5)
-        read_map(fixture("zones_utm32.zip"), cell_size_m=10)
+        read_map(fixture("zones_noprj.shp"), crs="EPSG:32632", cell_size_m=5, unit="kg/ha")
+        read_map(fixture("zones_utm32.zip"), cell_size_m=10, unit="kg/ha")
     assert not [w for w in seen if issubclass(w.category, ResourceWarning)]
 
 
 def test_shapefile_non_polygon_refused():
     with pytest.raises(MapError, match="POLYLINE, not a polygon"):
-        read_map(fixture("lines.shp"))
+        read_map(fixture("lines.shp"), unit="kg/ha")
 
 
 def test_shapefile_missing_dbf_and_bad_field(tmp_path):
     for ext in (".shp", ".shx", ".prj"):
         shutil.copy(fixture("zones_noprj" + ext if ext != ".prj" else "lines.prj"), tmp_path / f"z{ext}")
     with pytest.raises(MapError, match=r"\.dbf .* is missing"):
-        read_map(tmp_path / "z.shp")
+        read_map(tmp_path / "z.shp", unit="kg/ha")
     shutil.copy(fixture("zones_noprj.dbf"), tmp_path / "z.dbf")
     with pytest.raises(MapError, match="no attribute 'N_RATE'"):
-        read_map(tmp_path / "z.shp", rate_field="N_RATE")
+        read_map(tmp_path / "z.shp", rate_field="N_RATE", unit="kg/ha")
     with pytest.raises(MapError, match="NAME.* is not a number"):
-        read_map(tmp_path / "z.shp", rate_field="NAME")
+        read_map(tmp_path / "z.shp", rate_field="NAME", unit="kg/ha")
 
 
 def zones_geojson(path, features, crs=None):
@@ -225,7 +225,7 @@ def square(x, y, size):
 def test_geojson_zones_wgs84_rasterized_in_utm(tmp_path):
     feats = [{"type": "Feature", "geometry": square(9.0 + 0.001 * i, 48.0, 0.001),
               "properties": {"Rate": rate, "Id": i}} for i, rate in enumerate((120, 180))]
-    g = read_map(zones_geojson(tmp_path / "z.geojson", feats), cell_size_m=2)
+    g = read_map(zones_geojson(tmp_path / "z.geojson", feats), cell_size_m=2, unit="kg/ha")
     assert g.crs.to_epsg() == 32632 and g.cell_size == (2.0, 2.0) and g.format == "geojson"
     assert g.lookup(9.0005, 48.0005, crs="EPSG:4326").rate_kg_ha == 120
     assert g.lookup(9.0015, 48.0005, crs="EPSG:4326").rate_kg_ha == 180
@@ -244,30 +244,30 @@ def test_geojson_zones_wgs84_rasterized_in_utm(tmp_path):
 def test_geojson_zone_attribute_errors(tmp_path, props, kwargs, match):
     feats = [{"type": "Feature", "geometry": square(X0, Y0, 10), "properties": p} for p in props]
     with pytest.raises(MapError, match=match):
-        read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), **kwargs)
+        read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), **kwargs, unit="kg/ha")
 
 
 def test_geojson_single_numeric_attribute_is_used_with_warning(tmp_path):
     feats = [{"type": "Feature", "geometry": square(X0, Y0, 10), "properties": {"name": "a", "N_kg": 90}}]
     with pytest.warns(MapWarning, match="N_kg"):
-        g = read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"))
+        g = read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), unit="kg/ha")
     assert np.nanmax(g.rates_kg_ha) == 90
 
 
 def test_geojson_bad_input(tmp_path):
     (tmp_path / "a.geojson").write_text("{not json")
     with pytest.raises(MapError, match="not valid JSON"):
-        read_map(tmp_path / "a.geojson")
+        read_map(tmp_path / "a.geojson", unit="kg/ha")
     (tmp_path / "b.geojson").write_text('{"type": "Topology"}')
     with pytest.raises(MapError, match="not a GeoJSON FeatureCollection"):
-        read_map(tmp_path / "b.geojson")
+        read_map(tmp_path / "b.geojson", unit="kg/ha")
     line = {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}
     feats = [{"type": "Feature", "geometry": line, "properties": {"rate": 1}}]
     with pytest.raises(MapError, match="LineString, not a polygon"):
-        read_map(zones_geojson(tmp_path / "c.geojson", feats))
+        read_map(zones_geojson(tmp_path / "c.geojson", feats), unit="kg/ha")
     (tmp_path / "d.geojson").write_text('{"type": "FeatureCollection"}')
     with pytest.raises(MapError, match="'features' is not a list"):
-        read_map(tmp_path / "d.geojson")
+        read_map(tmp_path / "d.geojson", unit="kg/ha")
 
 
 def test_geojson_points_skip_features_without_geometry(tmp_path):
@@ -279,7 +279,7 @@ def test_geojson_points_skip_features_without_geometry(tmp_path):
     empty = {"type": "Feature", "geometry": None, "properties": {"rate": 5}}
     doc = {"type": "FeatureCollection", "features": [empty, point(10.0, 100), point(10.001, 120)]}
     (tmp_path / "p.geojson").write_text(json.dumps(doc))
-    g = read_map(tmp_path / "p.geojson")
+    g = read_map(tmp_path / "p.geojson", unit="kg/ha")
     assert (g.rows, g.cols) == (1, 2)
     assert g.rates_kg_ha.tolist() == [[100.0, 120.0]]
 
@@ -298,7 +298,7 @@ def test_many_small_zones_rasterize_fast(tmp_path):
         with open(fixture("lines.prj")) as src:
             f.write(src.read())
     t0 = time.perf_counter()
-    g = read_map(path + ".shp", cell_size_m=5)
+    g = read_map(path + ".shp", cell_size_m=5, unit="kg/ha")
     elapsed = time.perf_counter() - t0
     assert (g.rows, g.cols) == (100, 200)
     np.testing.assert_array_equal(g.rates_kg_ha.ravel(), np.arange(20_000) % 300)
@@ -311,7 +311,7 @@ def test_foreign_csv_lonlat_points(tmp_path):
     lines = ["longitude,latitude,Rate"] + [f"{9 + 0.001 * c:.3f},{48 + 0.001 * r:.3f},{10 * r + c}"
                                             for r in range(3) for c in range(4)]
     (tmp_path / "p.csv").write_text("\n".join(lines) + "\n")
-    g = read_map(tmp_path / "p.csv")
+    g = read_map(tmp_path / "p.csv", unit="kg/ha")
     assert (g.rows, g.cols) == (3, 4) and g.crs.to_epsg() == 4326
     assert g.sample(lat=48.002, lon=9.003)["rate_kg_ha"] == 23
     assert g.sample(lat=48.0, lon=9.0)["rate_kg_ha"] == 0
@@ -320,23 +320,23 @@ def test_foreign_csv_lonlat_points(tmp_path):
 def test_csv_errors(tmp_path):
     (tmp_path / "a.csv").write_text("x,y,rate\n1,2,3\n")
     with pytest.raises(MapError, match="no .prj"):
-        read_map(tmp_path / "a.csv")
+        read_map(tmp_path / "a.csv", unit="kg/ha")
     (tmp_path / "a.prj").write_bytes(b"\xff\xfe not a CRS")
     with pytest.raises(MapError, match="a.prj"):
-        read_map(tmp_path / "a.csv")
+        read_map(tmp_path / "a.csv", unit="kg/ha")
     (tmp_path / "a.prj").unlink()
     (tmp_path / "b.csv").write_text("foo,bar\n1,2\n")
     with pytest.raises(MapError, match="needs x,y or lon,lat"):
-        read_map(tmp_path / "b.csv")
+        read_map(tmp_path / "b.csv", unit="kg/ha")
     (tmp_path / "c.csv").write_text("lon,lat,rate\n9,48,abc\n")
     with pytest.raises(MapError, match="is not a number"):
-        read_map(tmp_path / "c.csv")
+        read_map(tmp_path / "c.csv", unit="kg/ha")
     (tmp_path / "d.csv").write_text("lon,lat,rate\n9,48,1\n9.001,48,-1\n")
     with pytest.raises(MapError, match="negative rate"):
-        read_map(tmp_path / "d.csv")
+        read_map(tmp_path / "d.csv", unit="kg/ha")
     (tmp_path / "e.csv").write_text("lon,lat,rate\n9,48,1\n9.001,48,1\n9.0025,48,1\n")
     with pytest.raises(MapError, match="not the cell centres of a regular"):
-        read_map(tmp_path / "e.csv")
+        read_map(tmp_path / "e.csv", unit="kg/ha")
 
 
 def test_dispatch_errors(tmp_path):
@@ -358,7 +358,7 @@ def test_isoxml_zip_nodata_warns(tmp_path):
         warnings.simplefilter("always")
         write_map(g, tmp_path / "t.zip")
     assert any("no nodata value" in str(w.message) for w in caught)
-    np.testing.assert_array_equal(read_map(tmp_path / "t.zip").rates_kg_ha, [[1.0, 0.0]])
+    np.testing.assert_array_equal(read_map(tmp_path / "t.zip", unit="kg/ha").rates_kg_ha, [[1.0, 0.0]])
 
 
 def test_geojson_multipolygon_with_hole(tmp_path):
@@ -369,7 +369,7 @@ def test_geojson_multipolygon_with_hole(tmp_path):
     outer, hole, far = box(0, 0, 40), box(10, 10, 20), box(60, 0, 10)
     geom = {"type": "MultiPolygon", "coordinates": [[outer, hole], [far]]}
     feats = [{"type": "Feature", "geometry": geom, "properties": {"rate_kg_ha": 80}}]
-    g = read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), cell_size_m=10)
+    g = read_map(zones_geojson(tmp_path / "z.geojson", feats, "EPSG:32632"), cell_size_m=10, unit="kg/ha")
     assert (g.rows, g.cols) == (4, 7)
     assert np.isnan(g.rates_kg_ha[1:3, 1:3]).all() and np.isnan(g.rates_kg_ha[:, 4:6]).all()
     assert g.rates_kg_ha[0, 0] == 80 and g.rates_kg_ha[0, 6] == 80
@@ -382,7 +382,7 @@ def test_damaged_shapefile_refused(tmp_path):
     data = (tmp_path / "z.shp").read_bytes()
     (tmp_path / "z.shp").write_bytes(data[:150])  # cut inside the first record
     with pytest.raises(MapError, match="damaged .shp"):
-        read_map(tmp_path / "z.shp")
+        read_map(tmp_path / "z.shp", unit="kg/ha")
     (tmp_path / "z.shp").write_bytes(b"\0" * 120)
     with pytest.raises(MapError, match="bad header"):
-        read_map(tmp_path / "z.shp")
+        read_map(tmp_path / "z.shp", unit="kg/ha")

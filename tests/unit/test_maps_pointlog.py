@@ -128,7 +128,9 @@ def test_units():
     assert convert_rate([10.0], "gal/ac", "L/ha")[0] == pytest.approx(93.5396, rel=1e-5)
     with pytest.raises(MapError, match="without the product's density"):
         convert_rate([1.0], "gal/ac", "kg/ha")
-    with pytest.raises(MapError, match="'bushel/ac' is not one vrsim converts"):
+    with pytest.raises(MapError, match="'bales/ac' is not a unit pint reads"):
+        convert_rate([1.0], "bales/ac", "kg/ha")
+    with pytest.raises(MapError, match="a volume rate \\(bushel/ac\\) to a mass rate"):
         convert_rate([1.0], "bushel/ac", "kg/ha")
     with pytest.raises(MapError, match="applied has shape \\(2,\\), the log has 3 points"):
         PointLog([0, 1, 2], [0, 1, 2], "EPSG:4326", applied=[1.0, 2.0], target=1.0)

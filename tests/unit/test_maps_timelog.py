@@ -235,10 +235,10 @@ def test_write_taskdata_refusals(tmp_path):
         write_taskdata(log, tmp_path / "b", [3.0] * 4)
     with pytest.raises(MapError, match="folder .* does not exist"):
         write_taskdata(log, tmp_path / "no" / "c", [2.0] * 6)
-    gal = PointLog([0.0], [0.0], "EPSG:4326", applied=[10.0], target=[10.0], unit="gal/ac", start=START,
-                   time_s=[0.0])
-    with pytest.raises(MapError, match="cannot convert a volume rate"):
-        write_taskdata(gal, tmp_path / "d", [1.0])
+    seeds = PointLog([0.0], [0.0], "EPSG:4326", applied=[1e4], target=[1e4], unit="seeds/ac", start=START,
+                     time_s=[0.0])
+    with pytest.raises(MapError, match="a TimeLog holds mass or volume rates, not 'seeds/ac'"):
+        write_taskdata(seeds, tmp_path / "d", [1.0])
     with pytest.raises(MapError, match="no start time"):
         write_taskdata(PointLog([0.0], [0.0], "EPSG:4326", [1.0], [1.0]), tmp_path / "e", [1.0])
 
@@ -300,3 +300,14 @@ def test_a_timelog_of_two_products_is_read_by_product(tmp_path):
         assert (log.applied == applied).all() and (log.target == target).all(), product
     with pytest.raises(MapError, match="no product 'PDT3' logs DDI 0007; logged on: DET-3 \\(PDT1 'Urea'\\)"):
         read_taskdata_log(folder, product="PDT3")
+
+
+def test_a_volume_rate_log_is_written_as_ddi_1_and_2_and_read_back_in_l_ha(tmp_path):
+    gal = PointLog([0.0, 1e-5], [0.0, 0.0], "EPSG:4326", applied=[10.0, 12.0], target=[10.0, 10.0],
+                   unit="gal/ac", start=START, time_s=[0.0, 1.0])
+    write_taskdata(gal, tmp_path / "t", [1.0])
+    xml = (tmp_path / "t" / "TASKDATA.XML").read_text()
+    assert 'B="0001"' in xml and 'B="0002"' in xml and 'B="0007"' not in xml and 'E="L/ha"' in xml
+    back = read_taskdata_log(tmp_path / "t")
+    assert back.unit == "L/ha"
+    np.testing.assert_allclose(back.in_unit("gal/ac").applied, [10.0, 12.0], rtol=1e-4)

@@ -188,7 +188,8 @@ def _accounts(ticks=4, wall_time_s=2.0):
     implement = Implement(width_m=6.0, sections=2)   # a gated meter: its rectangles' cv_pct is 0
     scenario = SimpleNamespace(name="s", seed=3, implement=implement,
                                timing=SimpleNamespace(control_period_s=0.05))
-    world = SimpleNamespace(scenario=scenario, field=SimpleNamespace(area_ha=1.5))
+    grid = SimpleNamespace(map_unit="lb/ac", in_map_unit=lambda kg_ha: kg_ha / 2.0)
+    world = SimpleNamespace(scenario=scenario, field=SimpleNamespace(area_ha=1.5), grid=grid)
     setting = SimpleNamespace(world=world, track={"time_s": np.arange(ticks) * 0.05},
                               landing=SimpleNamespace(distance_m=np.arange(ticks) * 1.5),
                               check=SimpleNamespace(max_speed_m_s=4.0))
@@ -201,7 +202,10 @@ def _accounts(ticks=4, wall_time_s=2.0):
 def test_the_summary_reads_each_figure_off_the_accounts_in_table_order():
     a = _accounts()
     s = summary(a)
-    assert list(s) == ["scenario", *[m.key for m in METRICS], "seed", "stage_s"]
+    assert list(s) == ["scenario", *[m.key for m in METRICS], "rate_unit", "in_rate_unit", "seed", "stage_s"]
+    # The figures in kg/ha again in the map's unit, from the rows whose unit is kg/ha.
+    assert s["rate_unit"] == "lb/ac"
+    assert s["in_rate_unit"] == {k: s[f"{k}_kg_ha"] / 2.0 for k in ("mae", "rmse", "bias")}
     assert (s["scenario"], s["seed"], s["stage_s"]) == ("s", 3, {"control_s": 1.0})
     assert s["mae_kg_ha"] == a.map.mae_kg_ha and s["overlap_kg"] == a.overlap.overlap_kg
     assert s["transitions"] == a.transitions.transitions

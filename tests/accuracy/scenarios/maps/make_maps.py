@@ -1,4 +1,4 @@
-"""Writes the map files two library scenarios read (checked in; rerun only to change them):
+"""Writes the map files three library scenarios read (checked in; rerun only to change them):
 
 - ``isoxml_zones/TASKDATA.XML`` + ``GRD00001.BIN``: zones as an ISO 11783-10 grid type 2 (WGS84),
   written by vrsim's ISOXML writer, as a farm-management program would send to a terminal;
@@ -6,8 +6,10 @@
   pyshp and zipped, as such exports usually arrive;
 - ``stripes_along_travel.geojson``: 30 m-wide zones whose edges run north-south, along the swaths of a
   field worked at heading 0 (attribute ``RATE``, kg/ha, WGS84), for the per-section drives.
+- ``zones_lb_ac.tif``: zones in lb/ac (US units, the band's unit says so), written by rasterio in
+  WGS84 as a US farm program exports a prescription.
 
-Both cover the library's 120 m x 250 m rectangle at 52.0 N, 10.0 E with a margin.
+All cover the library's 120 m x 250 m rectangle at 52.0 N, 10.0 E with a margin.
 
     .venv/bin/python tests/accuracy/scenarios/maps/make_maps.py
 """
@@ -88,7 +90,23 @@ def write_stripes():
         json.dump({"type": "FeatureCollection", "features": features}, fh)
 
 
+def write_lb_ac_geotiff():
+    import rasterio
+
+    crs, bounds = field_bounds_utm()
+    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=2.0, seed=9, n_zones=5,
+                            rate_range_kg_ha=(90.0, 210.0), rate_step_kg_ha=15.0)  # read as lb/ac here
+    wgs = zones.reproject("EPSG:4326", cell_size_m=3.0)
+    rates = np.where(np.isnan(wgs.rates_kg_ha), -1.0, wgs.rates_kg_ha).astype(np.float32)
+    with rasterio.open(os.path.join(HERE, "zones_lb_ac.tif"), "w", driver="GTiff", width=wgs.cols,
+                       height=wgs.rows, count=1, dtype="float32", crs="EPSG:4326", transform=wgs.transform,
+                       nodata=-1.0) as dst:
+        dst.write(rates, 1)
+        dst.units = ("lb/ac",)
+
+
 if __name__ == "__main__":
     write_isoxml()
     write_shapefile()
     write_stripes()
+    write_lb_ac_geotiff()
