@@ -10,8 +10,10 @@ once, when its loop is built, never per period)::
         ...
 
 The run hands the loop the drive's part per tick as a `ContextTrack` (``loop.run(targets,
-context=track)``, `services.sim.core`); a loop run without one (a step response, the look-ahead's
-response time, loop analysis) gives NaN speed and rate and no sections.
+context=track)``, `services.sim.core`): with a metering drive per section each loop gets its own
+drive's ground speed and prescription (its section's, `services.sim.machines`); a loop run without
+one (a step response, the look-ahead's response time, loop analysis) gives NaN speed and rate and no
+sections.
 """
 
 from __future__ import annotations
@@ -36,9 +38,12 @@ class ControlContext:
     measured_rpm : ndarray, shape (n,)
         The speed sensor's reading: the shaft speed ``sensor_delay_s`` ago [rpm] (``measured_rpm``).
     speed_m_s : ndarray, shape (n,)
-        Ground speed as the machine senses it (radar or wheel) [m/s]; NaN without a drive.
+        Ground speed of each loop's metering drive as the machine senses it [m/s]: the sensed (radar
+        or wheel) speed, or a section's own in a turn (a drive per section with turn compensation);
+        NaN without a drive.
     prescribed_kg_ha : ndarray, shape (n,)
-        The prescription where this period's product will land [kg/ha]; NaN without a drive.
+        The prescription where each loop's drive's product of this period will land [kg/ha] (a drive
+        per section: its section's landing point); NaN without a drive.
     sections_on : ndarray of bool, shape (n, S)
         Which of the implement's S sections apply product (S = 0 without a drive).
     time_s : float
@@ -59,14 +64,15 @@ class ControlContext:
 
 @dataclass(frozen=True)
 class ContextTrack:
-    """The drive's part of the context for K consecutive periods (one drive shared by all n loops).
+    """The drive's part of the context for K consecutive periods: one speed and prescription for all
+    n loops, or each loop's own.
 
     Attributes
     ----------
-    speed_m_s : ndarray, shape (K,)
-        Sensed ground speed per period [m/s].
-    prescribed_kg_ha : ndarray, shape (K,)
-        Prescription at the landing point per period [kg/ha].
+    speed_m_s : ndarray, shape (K,) or (K, n)
+        Sensed ground speed per period [m/s] (per period and loop: each loop's drive's).
+    prescribed_kg_ha : ndarray, shape (K,) or (K, n)
+        Prescription at the landing point per period [kg/ha] (per period and loop: each drive's).
     sections_on : ndarray of bool, shape (K, S)
         Each section's gate per period.
     """
@@ -81,10 +87,11 @@ class ContextTrack:
             value.flags.writeable = False     # a view: the caller's array stays as it is
             object.__setattr__(self, name, value)
         shapes = (self.speed_m_s.shape, self.prescribed_kg_ha.shape, self.sections_on.shape)
-        k = shapes[0][0] if len(shapes[0]) == 1 else -1
-        if shapes[1] != (k,) or len(shapes[2]) != 2 or shapes[2][0] != k:
-            raise ControllerError(f"context track must be speed (K,), rate (K,), sections (K, S), "
-                                  f"got {', '.join(map(str, shapes))}")
+        k = shapes[0][0] if len(shapes[0]) in (1, 2) else -1
+        if (shapes[1][:1] != (k,) or not 1 <= len(shapes[1]) <= 2 or len(shapes[2]) != 2
+                or shapes[2][0] != k):
+            raise ControllerError(f"context track must be speed (K,) or (K, n), rate (K,) or (K, n), "
+                                  f"sections (K, S), got {', '.join(map(str, shapes))}")
 
     @classmethod
     def unknown(cls, periods: int) -> ContextTrack:
@@ -93,12 +100,21 @@ class ContextTrack:
         return cls(nan, nan, np.zeros((periods, 0), bool))
 
     def per_loop(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(speed (K, n), rate (K, n), sections (K, n, S)): read-only broadcast views, so that row k
-        is period k's (n,) and (n, S) arrays without a copy."""
+        """(speed (K, n), rate (K, n), sections (K, n, S)): read-only views (one value for all loops
+        broadcast), so that row k is period k's (n,) and (n, S) arrays without a copy."""
         k = len(self.speed_m_s)
-        return (np.broadcast_to(self.speed_m_s[:, None], (k, n)),
-                np.broadcast_to(self.prescribed_kg_ha[:, None], (k, n)),
+        return (_loops(self.speed_m_s, n, "speed_m_s"), _loops(self.prescribed_kg_ha, n, "prescribed_kg_ha"),
                 np.broadcast_to(self.sections_on[:, None, :], (k, n, self.sections_on.shape[1])))
+
+
+def _loops(values: np.ndarray, n: int, name: str) -> np.ndarray:
+    """`values` (K,) for every one of n loops, or (K, n) each loop's, as (K, n)."""
+    if values.ndim == 1:
+        return np.broadcast_to(values[:, None], (len(values), n))
+    if values.shape[1] != n:
+        raise ControllerError(f"context track's {name} has {values.shape[1]} loops' values, the loop "
+                              f"runs {n}")
+    return values
 
 
 def takes_context(step) -> bool:

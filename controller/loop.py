@@ -208,11 +208,15 @@ class ClosedLoop:
         self._record_fine = record_fine
         self._ns = ns
         self._v = np.zeros(M.shape[-2]) if self._scalar else np.zeros((n, M.shape[-2]))
+        # Where the last `_run_shared_plant` call stopped: its last tick's inputs and anti-windup
+        # correction, so that the next call's first tick is the one call's (None: start from the state).
+        self._resume = None
 
     # -- state -------------------------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to rest: plant, delay line and PID memory at zero."""
         self._v = np.zeros_like(self._v)
+        self._resume = None
 
     @property
     def state(self) -> np.ndarray:
@@ -307,7 +311,10 @@ class ClosedLoop:
         rows the product computes for every loop alike: the loops' gain rows are linear in
         (1, kp, ki T, kd / T) (`pid_terms`), so g . s + g_r r is those weights times four shared
         basis outputs, which the product yields from the state and the next tick's target (an extra
-        input). Equal to `_advance` per tick to rounding (the sums are taken in another order).
+        input). Equal to `_advance` per tick to rounding (the sums are taken in another order). A call
+        that continues the last one (nothing stepped or set in between) starts from its last tick's
+        product, as one call would: a run split into calls anywhere gives the one call's numbers bit
+        for bit (a loop restored from `state` starts from the state, equal to rounding).
         """
         common = t.shape[1] == 1
         r_all = np.minimum(np.maximum(t[:, 0] if common else t, 0.0), self._rmax[0] if common else self._rmax)
@@ -331,9 +338,17 @@ class ClosedLoop:
         ring0, acc, positional = self._lay.ring0, self._lay.pid0 + ACC, self.form == "positional"
         v = np.zeros((ns + 12, self.n))
         v[:ns] = np.atleast_2d(self._v)[:, :ns].T
-        if len(r_all):
-            v[w0:] = gamma @ v[:ns] + delta[:, None] * pairs[0, 0]
         spare = np.empty_like(v)
+        if len(r_all) and self._resume is not None:   # the last tick's product again, with this target
+            last, held = self._resume
+            last[ns + 3] = pairs[0, 0]
+            np.dot(mx, last, out=spare)
+            if held is not None:
+                spare[w0:] -= gamma[:, acc, None] * held
+            v[w0:] = spare[w0:]
+        elif len(r_all):
+            v[w0:] = gamma @ v[:ns] + delta[:, None] * pairs[0, 0]
+        held = None
         cur = v[ns + IN_CURRENT]
         for k in range(len(r_all)):
             unsat = np.einsum("bj,bj->j", kc, v[w0:])
@@ -342,6 +357,7 @@ class ClosedLoop:
             if with_load:
                 v[ns + IN_LOAD] = load
             out = np.dot(mx, v[:nin], out=spare)
+            held = None
             if positional:      # clamping anti-windup: the error sum and the basis outputs after it
                 e = ks * (pairs[k, 0] - v[ring0])
                 frozen = clamped(unsat, e, ilo, ihi)
@@ -352,6 +368,8 @@ class ClosedLoop:
             rec[k] = out[out0:out0 + 4]
             v, spare = out, v
             cur = v[ns + IN_CURRENT]
+        if len(r_all):
+            self._resume = (spare[:nin].copy(), held)   # `spare`: the last tick's inputs
         state = np.zeros_like(np.atleast_2d(self._v))
         state[:, :ns] = v[:ns].T
         state[:, ns + 3:ns + 7] = v[out0:out0 + 4].T
@@ -414,6 +432,7 @@ class ClosedLoop:
             return out
         out = self._tick(np.atleast_2d(v), self._targets(target), load)
         self._v = out[0] if self._scalar else out
+        self._resume = None
         return self._v
 
     def _tick(self, v: np.ndarray, r: np.ndarray, load) -> np.ndarray:

@@ -117,11 +117,12 @@ class _ControllerService:
         shafts, rates = [], []
         for i, p in enumerate(poses):
             shafts.append(messages.ShaftState(p.run_id, p.tick, p.time_s, out["target_shaft_rpm"][i],
-                                              out["shaft_rpm"][i], out["shaft_rev"][i], out["current_a"][i]))
+                                              out["shaft_rpm"][i], out["shaft_rev"][i], out["current_a"][i],
+                                              out["drive_target_rpm"][i]))
             rates.append(messages.RateSample(p.run_id, p.tick, p.time_s, out["landing_x_m"][i],
                                              out["landing_y_m"][i], out["prescribed_kg_ha"][i], applied[i],
                                              out["metered_kg"][i], out["width_on_m"][i], masks[i],
-                                             p.implement_on))
+                                             p.implement_on, out["drive_rate_kg_ha"][i], out["drive_kg"][i]))
         return shafts, rates
 
     def handlers(self) -> dict:

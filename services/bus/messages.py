@@ -22,6 +22,7 @@ import orjson
 
 from common import ServiceError
 from services.outputs.encode import dumps
+from vehicle.implement import MAX_SECTIONS
 
 # The API a Zenoh client in Python uses: the messages, their codecs and the limits they check.
 __all__ = [
@@ -78,6 +79,8 @@ class Message:
 
 
 def _check(value, kind, nullable: bool, where: str, name: str):
+    if kind is _Floats:
+        return _floats(value, where, name)
     if value is None:
         if kind is float and not nullable:
             return NAN
@@ -93,6 +96,19 @@ def _check(value, kind, nullable: bool, where: str, name: str):
         return value
     raise ServiceError(f"{where}: field {name} must be {kind.__name__}"
                        f"{' or null' if nullable or kind is float else ''}, got {_short(value)}")
+
+
+def _floats(value, where: str, name: str) -> list:
+    """A `_Floats` field's value as a list of floats, or the `ServiceError` naming the element."""
+    if not isinstance(value, list) or not 1 <= len(value) <= MAX_SECTIONS:
+        raise ServiceError(f"{where}: field {name} must be an array of 1 to {MAX_SECTIONS} numbers, "
+                           f"got {_short(value)}")
+    out = []
+    for i, v in enumerate(value):
+        if v is not None and (type(v) not in (int, float)):
+            raise ServiceError(f"{where}: field {name}[{i}] must be a number or null, got {_short(v)}")
+        out.append(NAN if v is None else float(v))
+    return out
 
 
 def _short(value) -> str:
@@ -124,9 +140,14 @@ def _loads(data, what: str, max_bytes: int = MAX_MESSAGE_BYTES, most: tuple | No
         raise ServiceError(f"{what}: payload is not valid JSON ({exc})") from None
 
 
+class _Floats(list):
+    """A field's kind: a JSON array of 1 to `MAX_SECTIONS` numbers (null: NaN), one per metering drive
+    (`services.sim.machines`). Decoding checks every element and gives a plain list of floats."""
+
+
 _KINDS = {"float": (float, False), "int": (int, False), "bool": (bool, False), "str": (str, False),
           "float | None": (float, True), "int | None": (int, True), "str | None": (str, True),
-          "list": (list, False), "dict": (dict, False)}
+          "list": (list, False), "dict": (dict, False), "_Floats": (_Floats, False)}
 
 
 def _message(cls):
@@ -228,7 +249,12 @@ class Pose(Message):
 
 @_message
 class ShaftState(Message):
-    """``<prefix>/<machine>/shaft``: the metering shaft at the end of one control period (controller)."""
+    """``<prefix>/<machine>/shaft``: the metering shaft at the end of one control period (controller).
+
+    With several metering drives (``[implement] kind``, `services.sim.machines`) the shaft fields are
+    the one shaft's that would meter what the drives meter together; ``drive_target_rpm`` holds each
+    drive's own target (one element for the gated meter).
+    """
 
     run_id: str
     tick: int
@@ -237,6 +263,7 @@ class ShaftState(Message):
     shaft_rpm: float
     shaft_rev: float  # revolutions during this period
     current_a: float  # proportional-valve current
+    drive_target_rpm: _Floats  # each metering drive's target (one for the gated meter)
 
 
 @_message
@@ -247,7 +274,9 @@ class RateSample(Message):
     the period (null at standstill or with all sections off); ``prescribed_kg_ha`` is null outside the
     map (policy "off"); ``width_on_m`` is the working width of the sections whose gates are open and
     ``section_mask`` which ones: a bitmask in hexadecimal, bit k the k-th section from the left
-    (``"0x3f"``: six sections all on; `common.section_masks.section_masks`).
+    (``"0x3f"``: six sections all on; `common.section_masks.section_masks`); ``drive_rate_kg_ha`` and
+    ``drive_kg`` are each metering drive's prescription at its own landing point and its product this
+    period (one element each for the gated meter; the products sum to ``metered_kg``).
     """
 
     run_id: str
@@ -261,6 +290,8 @@ class RateSample(Message):
     width_on_m: float
     section_mask: str
     implement_on: bool
+    drive_rate_kg_ha: _Floats  # each metering drive's prescription at its own landing point
+    drive_kg: _Floats  # each metering drive's product this period (one for the gated meter)
 
 
 # ------------------------------------------------------------------------------------------ map

@@ -29,6 +29,7 @@ import numpy as np
 from common import ServiceError
 from common.section_masks import sections_from_masks
 from services.bus import messages
+from services.bus import records as sql
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
 from services.bus.reads import MAX_CACHED_REPORTS, REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
@@ -38,21 +39,13 @@ from services.outputs.encode import dumps
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
-SCHEMA_VERSION = 3  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
-#                     pose, section mask for the offset in rate
+MAX_VALUES = 11 * MAX_RECORDS  # ... and values per reply (each drive's counts): at most ~7 MB of JSON
+SCHEMA_VERSION = 4  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
+#                     pose, section mask for the offset in rate; 4: each drive's target, rate and product
 # A run's announced end (`messages.RunEnd`), NULL until scenario control announces it.
 _END_COLUMNS = (("end_reason", "TEXT"), ("end_ticks", "INTEGER"), ("end_sim_time_s", "REAL"),
                ("end_error", "TEXT"), ("ended_unix", "REAL"))
 MEASURED = ("measured_x_m", "measured_y_m", "measured_speed_m_s")  # what the controller read, per tick
-
-
-def _columns(cls) -> list[str]:
-    return [name for name, _, _ in cls._spec if name not in ("run_id", "tick")]
-
-
-def _sql_types(cls) -> list[str]:
-    return [f"{name} {'TEXT' if kind is str else 'REAL'}" for name, kind, _ in cls._spec
-            if name not in ("run_id", "tick")]
 
 
 class MonitorStore:
@@ -97,7 +90,7 @@ class MonitorStore:
             if name not in have:
                 db.execute(f"ALTER TABLE runs ADD COLUMN {name} {kind}")
         for table, cls in STREAMS.items():
-            cols = ", ".join(_sql_types(cls))
+            cols = ", ".join(sql.sql_types(cls))
             db.execute(f"CREATE TABLE IF NOT EXISTS {table} (run_id TEXT, tick INTEGER, {cols}, "
                        "PRIMARY KEY (run_id, tick)) WITHOUT ROWID")
 
@@ -116,8 +109,8 @@ class MonitorStore:
 
     def add(self, table: str, records: list) -> None:
         """Store one message's records in one transaction; a tick already stored keeps its first record."""
-        cols = _columns(STREAMS[table])
-        rows = [(r.run_id, r.tick, *(getattr(r, c) for c in cols)) for r in records]
+        cols = sql.columns(STREAMS[table])
+        rows = [(r.run_id, r.tick, *(sql.stored(getattr(r, c)) for c in cols)) for r in records]
         marks = ", ".join("?" * (len(cols) + 2))
         with self.lock:
             self.db.execute("BEGIN")
@@ -188,17 +181,19 @@ class MonitorStore:
 
     def records(self, table: str, run_id: str, from_tick: int, count: int) -> list:
         """The stored messages of one stream with ticks in [from_tick, from_tick + count), in tick order
-        (what was published, for a client that joins a run late)."""
+        (what was published, for a client that joins a run late); fewer where they would hold more than
+        `MAX_VALUES` values (a machine of many drives)."""
         cls = STREAMS[table]
-        cols = _columns(cls)
+        cols = sql.columns(cls)
         with self.lock:
             rows = self.db.execute(f"SELECT tick, {', '.join(cols)} FROM {table} WHERE run_id = ? "
                                    "AND tick >= ? AND tick < ? ORDER BY tick",
                                    (run_id, from_tick, from_tick + count)).fetchall()
         kinds = [kind for name, kind, _ in cls._spec if name in cols]
         # SQLite hands back REAL columns as floats (NaN stored as NULL): give each field its type back.
-        return [cls(run_id, tick, *(NAN if v is None else kind(v)
-                                    for v, kind in zip(vals, kinds, strict=True))) for tick, *vals in rows]
+        found = [cls(run_id, tick, *(sql.field_value(v, kind) for v, kind in zip(vals, kinds, strict=True)))
+                 for tick, *vals in rows]
+        return sql.fitting(found, cls, MAX_VALUES)
 
     def reader(self) -> sqlite3.Connection:
         """The connection reports read through (made on first use): a report's whole-run query runs
@@ -212,22 +207,23 @@ class MonitorStore:
             if conn is not None:
                 conn.close()
 
-    def arrays(self, run_id: str, sections: int) -> tuple[dict, dict]:
+    def arrays(self, run_id: str, sections: int, drives: int) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.accounted` takes; the track also holds
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
-        ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`: the
-        implement's (for the masks)."""
+        ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`, `drives`: the
+        implement's and its machine's (masks; ``drive_target_rpm``, ``drive_rate_kg_ha``, ``drive_kg``)."""
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")
+        per_drive = (("shaft", "drive_target_rpm"), ("rate", "drive_rate_kg_ha"), ("rate", "drive_kg"))
         select = ", ".join([f"p.{c}" for c in pose_cols] + [f"s.{c}" for c in shaft_cols]
-                           + [f"r.{c}" for c in rate_cols])
+                           + [f"r.{c}" for c in rate_cols] + [f"{t[0]}.{c}" for t, c in per_drive])  # s., r.
         with self.read_lock:
             rows = self.reader().execute(
                 f"SELECT p.tick, {select}, r.section_mask FROM pose p JOIN shaft s USING (run_id, tick) "
                 "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
         masks = [row[-1] for row in rows]
-        table = np.array([row[:-1] for row in rows], dtype=np.float64).reshape(
+        table = np.array([row[:-4] for row in rows], dtype=np.float64).reshape(
             len(rows), 1 + len(pose_cols) + len(shaft_cols) + len(rate_cols))
         cols = table[:, 1:]
         track = {c: cols[:, i] for i, c in enumerate(pose_cols)}
@@ -239,6 +235,11 @@ class MonitorStore:
             control["sections_on"] = sections_from_masks(masks, sections)
         except ValueError as exc:
             raise ServiceError(f"{run_id}: rate records: {exc}") from None
+        for col, (stream, key) in enumerate(per_drive, start=-4):
+            try:
+                control[key] = sql.drive_values([row[col] for row in rows], drives, track["tick"], key)
+            except ValueError as exc:
+                raise ServiceError(f"{run_id}: {stream} records: {exc}") from None
         return track, control
 
 
@@ -398,12 +399,14 @@ def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
         ``world_of(run) -> World`` (default `run_world`; the monitor keeps the last one).
     """
     from services.sim.accounting import StageTimer
+    from services.sim.machines import machine_for
     from services.sim.run import accounted
 
     t0 = time.perf_counter()
-    world = world_of(run)  # first: the records' section masks need the implement's sections
+    world = world_of(run)  # first: the records' section masks and drives need the implement's
     t1 = time.perf_counter()
-    track, control = store.arrays(run["run_id"], world.scenario.implement.sections)
+    implement = world.scenario.implement
+    track, control = store.arrays(run["run_id"], implement.sections, machine_for(implement).drives)
     n = len(track["time_s"])
     if n < 2:
         raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")

@@ -129,8 +129,9 @@ class Setting:
     worked_fraction : ndarray, shape (rows, cols)
         Share of each cell the plan's working width swept (`section_landing.worked_fraction`).
     limited, applying : ndarray of bool, shape (ticks,)
-        Ticks whose target shaft speed was clipped to the shaft's range with a gate open, and ticks with
-        a gate open.
+        Ticks in which any open drive's target shaft speed was clipped to the shaft's range (a drive
+        per section: one section's drive alone flags the tick and its product), and ticks with a gate
+        open.
     steps : ndarray of int
         The prescription's rate steps under the landing point (`services.sim.transitions.rate_steps`).
     check : MachineCheck
@@ -148,12 +149,14 @@ class Setting:
 
     @classmethod
     def of(cls, world: World, track: dict, control: dict, landing: Landing) -> Setting:
-        """The setting of a drive and its targets (`control`: ``width_on_m``, ``target_shaft_rpm``)."""
+        """The setting of a drive and its targets (`control`: ``width_on_m``, ``drive_target_rpm``)."""
         grid, implement = world.grid, world.scenario.implement
         in_field = cells_in_field(grid, world.field.polygon)
         applying = control["width_on_m"] > 0
+        # A closed drive's target is 0, never on a bound: any drive's flags the tick.
+        limited = implement.shaft_limited(control["drive_target_rpm"]).any(axis=1) & applying
         return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
-                   implement.shaft_limited(control["target_shaft_rpm"]) & applying, applying,
+                   limited, applying,
                    rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
                    check_world(world, in_field))
 

@@ -143,7 +143,8 @@ class ControlCore:
         target = machine.drive_targets(rate, states)
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": machine.prescribed(rate, states),
                 "target_shaft_rpm": machine.combined(target), "drive_rate_kg_ha": rate,
-                "drive_target_rpm": target, "width_on_m": states.width_on_m, "sections_on": states.actual,
+                "drive_target_rpm": target, "drive_speed_m_s": machine.drive_speed_m_s(states.motion),
+                "width_on_m": states.width_on_m, "sections_on": states.actual,
                 "sections_commanded": states.commanded,
                 "drive_open": machine.drive_open(states)}
 
@@ -173,8 +174,7 @@ class ControlCore:
                     rec = {k: v[:keep] for k, v in rec.items()}
                     args = tuple(a[:keep] for a in args)
                     self.last_rate_kg_ha = rec["drive_rate_kg_ha"][-1].copy()
-            ticks = len(rec["target_shaft_rpm"])
-            out = self.loop.run(rec["drive_target_rpm"], context=context_track(rec, track[3][part][:ticks]))
+            out = self.loop.run(rec["drive_target_rpm"], context=context_track(rec))
             rec.update(drive_rev=out.shaft_rev, shaft_rpm=self.machine.combined(out.shaft_rpm),
                        shaft_rev=self.machine.combined(out.shaft_rev),
                        current_a=self.machine.combined(out.current_a))
@@ -211,11 +211,17 @@ def _number_or_list(per_drive: np.ndarray):
     return float(per_drive[0]) if per_drive.size == 1 else per_drive.tolist()
 
 
-def context_track(rec: dict, speed_m_s, part: slice = slice(None)) -> ContextTrack:
+def context_track(rec: dict, part: slice = slice(None), drives=None) -> ContextTrack:
     """The drive's part of the controllers' context (`controller.context`) for ticks `part` of stage 1's
-    `rec` (`ControlCore.targets`' keys): the sensed ground speed [m/s] the targets were computed with
-    (all ticks of `rec`), the prescription [kg/ha] and the sections' gates (ticks, sections)."""
-    return ContextTrack(np.asarray(speed_m_s)[part], rec["prescribed_kg_ha"][part], rec["sections_on"][part])
+    `rec` (`ControlCore.targets`' keys): each loop's drive's ground speed [m/s] and prescription
+    [kg/ha] its target was computed with (`drives`: which drive each loop runs, default one loop per
+    drive; one drive: one speed and rate for all loops), and the sections' gates (ticks, sections)."""
+    speed, rate = rec["drive_speed_m_s"][part], rec["drive_rate_kg_ha"][part]
+    if speed.shape[1] == 1:
+        speed, rate = speed[:, 0], rate[:, 0]
+    elif drives is not None:
+        speed, rate = speed[:, drives], rate[:, drives]
+    return ContextTrack(speed, rate, rec["sections_on"][part])
 
 
 class _SectionsAhead:

@@ -5,7 +5,8 @@ The metering shaft must turn at ``rate * speed * width / 10 000 / kg_per_rev * 6
 while applying. So the map's highest rate over the full width at the highest working speed must need
 no more than ``shaft_rpm_max``, and its lowest positive rate at the lowest working speed no less than
 ``shaft_rpm_min``. Where it does not, the run clips the target and applies less (or more) than the
-map asks; `services.sim.metrics.limit_metrics` measures how much of the run that was.
+map asks; `services.sim.metrics.limit_metrics` measures how much of the run that was (each drive's
+target: with a drive per section, one section's drive on a bound flags the tick).
 
 Speeds are the working speed with its slow variation (``[tractor] speed_variation_pct`` either way)
 and the headland speed if one is set; turns, starts and stops are not working speeds. With sections

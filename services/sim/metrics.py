@@ -176,10 +176,11 @@ METRICS = (
     Metric("overlap_kg", "kg", "Overlap product", "product applied beyond the first pass, in the field",
            (0.2, 0.03), sense="min", of="overlap.overlap_kg"),
     Metric("limited_time_pct", "%", "Machine-limited time",
-           "share of applying time with the target shaft speed clipped to [shaft_rpm_min, shaft_rpm_max]",
+           "share of applying time with a drive's target shaft speed clipped to "
+           "[shaft_rpm_min, shaft_rpm_max]",
            (0.3, 0.03), sense="min", of="limits.limited_time_pct"),
     Metric("limited_area_pct", "%", "Machine-limited area",
-           "share of the covered field area where product was metered with the target clipped", (0.3, 0.03),
+           "share of the covered field area where product was metered in those ticks", (0.3, 0.03),
            sense="min", of="limits.limited_area_pct"),
     # A figure of the machine's set-up (its pattern and driving width), not of the run: not held.
     Metric("cv_pct", "%", "Spread CV (EN 13739)",
@@ -392,7 +393,8 @@ def limit_metrics(limited, applying, limited_coverage, coverage_fraction, in_fie
     Parameters
     ----------
     limited, applying : ndarray of bool, shape (n,)
-        Ticks whose target shaft speed was clipped to the shaft's range, and ticks with a gate open.
+        Ticks in which a drive's target shaft speed was clipped to the shaft's range, and ticks with a
+        gate open.
     limited_coverage, coverage_fraction : ndarray, shape (rows, cols)
         Share of each cell's area that product metered in limited ticks landed on, and that any
         product landed on.

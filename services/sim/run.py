@@ -209,7 +209,7 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     ``metrics_s``; the timer then gives the run's wall time.
 
     `measured` holds the measured x, y (m) and ground speed (m/s) per tick. `control` holds at least
-    ``metered_kg``, ``width_on_m``, ``target_shaft_rpm`` and ``sections_on``
+    ``metered_kg``, ``width_on_m``, ``sections_on``, ``drive_target_rpm`` and ``drive_kg``
     (`services.sim.core.CONTROL_KEYS`; ``sections_commanded`` too from `vrsim run`): what `vrsim run`
     computes and what the monitor rebuilds from its records. ``track["tick"]``, when given, numbers
     the ticks the arrays hold: a record with gaps (the monitor's after it was down) lands each stretch

@@ -163,7 +163,7 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
         for lo in range(0, ticks, RUN_CHUNK):   # bounded memory: the loop records 4 outputs per tick
             part = slice(lo, lo + RUN_CHUNK)
             targets = _loop_targets(rec["drive_target_rpm"][part], which, loop.n)
-            context = context_track(rec, drive.measured_speed_m_s, part)
+            context = context_track(rec, part, which)
             metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
                                                          rec["drive_open"][part][:, which], which)
     control_s = time.perf_counter() - clock

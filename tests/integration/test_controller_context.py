@@ -82,3 +82,54 @@ def test_the_docs_gain_schedule_runs_a_field(shared_drive):
                             params={"kp_a_per_rpm": [0.0015, 0.0015], "ki_a_per_rpm_s": [0.006, 0.006]})
     scheduled, fixed = run_variants(shared_drive, [cfg, flat])
     assert scheduled["mae_kg_ha"] < 20.0 and scheduled["mae_kg_ha"] != fixed["mae_kg_ha"]
+
+
+DRIVES_RECORDER = '''
+import numpy as np
+
+
+class DrivesRecorder:
+    """A P controller that keeps each loop's speed and prescription of every period."""
+
+    seen = []
+
+    def __init__(self, params, loop, n):
+        self.n = n
+
+    def step(self, target_rpm, measured_rpm, context):
+        DrivesRecorder.seen.append((context.speed_m_s.copy(), context.prescribed_kg_ha.copy()))
+        return target_rpm / context.shaft_rpm_per_a + 0.002 * (target_rpm - measured_rpm)
+
+    def reset(self):
+        pass
+
+    def state(self):
+        return {}
+
+    def set_state(self, state):
+        pass
+'''
+
+
+def test_each_drive_of_a_drive_per_section_gets_its_own_speed_and_prescription(tmp_path):
+    """``section_drives``: each loop's context carries its own drive's rate (its section's landing
+    point) and ground speed (its section's own in a turn: turn compensation), not the machine's; the
+    variants' batch maps each column to its drive, giving the field run's figures."""
+    path = str(tmp_path / "drives_recorder.py")
+    with open(path, "w") as fh:
+        fh.write(DRIVES_RECORDER)
+    field = drive(scenario.with_changes(scenario.parse(FIELD, "drives.toml", "."),
+                                        implement={"kind": "section_drives"}))
+    cfg = ControllerConfig(kind="python", file=path, class_name="DrivesRecorder")
+    result = control_and_account(field, cfg)
+    seen = sys.modules[f"vrsim_user_{hashlib.sha1(path.encode()).hexdigest()[:12]}"].DrivesRecorder.seen
+    speed, rate = (np.array(column) for column in zip(*seen, strict=True))
+    assert speed.shape == rate.shape == result.control["drive_rate_kg_ha"].shape == (len(seen), 4)
+    np.testing.assert_array_equal(rate, result.control["drive_rate_kg_ha"])
+    assert (rate.max(axis=1) > rate.min(axis=1)).sum() > 100    # zone edges under the boom
+    turning = speed.max(axis=1) - speed.min(axis=1) > 0.1      # inner and outer sections in the turns
+    assert turning.sum() > 50
+    moving = (speed > 0).all(axis=1)   # symmetric sections: their speeds average the centre's
+    np.testing.assert_allclose(speed[moving].mean(axis=1), field.measured_speed_m_s[moving], atol=1e-9)
+    fast = run_variants(field, [cfg, ControllerConfig(kind="PID")])[0]
+    assert_same_summary(fast, result.summary)

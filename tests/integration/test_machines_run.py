@@ -82,3 +82,23 @@ def test_turn_compensation_levels_the_inner_and_outer_sections_of_a_20_m_turn():
     # Without turn compensation each drive runs at the centre's speed: the one meter's split again.
     inner, outer = turn_rates_kg_ha(_run("tight_turn_section_drives", turn_compensation=False))
     assert inner / outer == pytest.approx(25 / 15, rel=0.05)
+
+
+def test_one_drive_on_its_speed_limit_flags_the_tick_where_the_machine_level_target_does_not():
+    """A 20 m-radius turn with turn compensation: the outer section's drive turns 1.3x the centre's
+    speed. With the shaft's range just above the straight passes' need, the outer drive alone sits on
+    its bound in the turns while the machine-level (combined) target does not: the tick counts as
+    machine-limited, and `limited_time_pct` is the share of applying ticks with any drive on a bound."""
+    straight = _run("tight_turn_section_drives")
+    target = straight.control["target_shaft_rpm"]
+    rpm_max = 1.1 * float(np.median(target[straight.accounts.setting.applying]))
+    result = _run("tight_turn_section_drives", shaft_rpm_max=rpm_max)
+    imp, control, setting = result.world.scenario.implement, result.control, result.accounts.setting
+    on_bound = imp.shaft_limited(control["drive_target_rpm"]) & control["drive_open"]
+    combined = imp.shaft_limited(control["target_shaft_rpm"]) & setting.applying
+    np.testing.assert_array_equal(setting.limited, on_bound.any(axis=1) & setting.applying)
+    alone = setting.limited & ~combined
+    assert alone.sum() > 20 and (on_bound[alone].sum(axis=1) < imp.sections).all()
+    assert result.summary["limited_time_pct"] == pytest.approx(
+        100.0 * setting.limited.sum() / setting.applying.sum())
+    assert result.summary["limited_area_pct"] > 0

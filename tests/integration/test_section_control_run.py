@@ -222,6 +222,23 @@ def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
     assert ideal[-1].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("kind", ["gated_meter", "section_drives"])
+def test_the_error_split_adds_up_and_leaves_an_ideal_meter_nothing_for_metering(kind):
+    """The reference meters are the run's machine kind (a drive per section: each drive at its own
+    section's rate and speed, its product on its own strip): the parts add up to the run's figures,
+    and with the ideal controller nothing is left for metering, for every kind."""
+    pid = run(oblique(kind=kind))
+    parts = error_split(pid)
+    assert sum(p.mass_balance_pct for p in parts) == pytest.approx(pid.summary["mass_balance_pct"], abs=1e-9)
+    assert sum(p.mae_kg_ha for p in parts) == pytest.approx(pid.summary["mae_kg_ha"], abs=1e-9)
+    assert parts[-1].mae_kg_ha != 0.0   # the PID's lag costs something
+    ideal = run(with_changes(oblique(kind=kind), controller={"kind": "ideal"}))
+    parts = error_split(ideal)
+    assert sum(p.mae_kg_ha for p in parts) == pytest.approx(ideal.summary["mae_kg_ha"], abs=1e-9)
+    assert parts[-1].mass_balance_pct == pytest.approx(0.0, abs=1e-9)
+    assert parts[-1].mae_kg_ha == pytest.approx(0.0, abs=1e-9)
+
+
 def test_unequal_sections_are_named_and_land_their_share():
     s = run(oblique(sections=5, section_widths_m=[3.0, 2.0, 2.0, 2.0, 3.0])).summary
     assert s["sections"] == 5 and s["section_widths_m"] == [3.0, 2.0, 2.0, 2.0, 3.0]

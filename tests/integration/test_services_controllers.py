@@ -28,6 +28,9 @@ CONTROLLERS = {
             'params = { kp_a_per_rpm = 0.002, ki_a_per_rpm_s = 0.01 }\n',
 }
 
+# A drive per section, the shaft's range just above the straight passes' need: single drives sit on it.
+DRIVES = '[implement]\nkind = "section_drives"\nsections = 4\nshaft_rpm_max = 92.0\n'
+
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory):
@@ -39,6 +42,8 @@ def folder(tmp_path_factory):
     for name, table in CONTROLLERS.items():
         with open(os.path.join(path, f"{name}.toml"), "w") as fh:
             fh.write(base.replace('name = "svc-small"', f'name = "svc-{name}"') + table)
+    with open(os.path.join(path, "drives.toml"), "w") as fh:
+        fh.write(base.replace('name = "svc-small"', 'name = "svc-drives"').replace("[implement]\n", DRIVES))
     shutil.copy(os.path.join(ROOT, "scenarios", "my_controller.py"), path)
     return path
 
@@ -89,6 +94,44 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert report["ticks"] == expected["ticks"] > 1000 and report["scenario"] == f"svc-{name}"
     assert report["missing_ticks"] == [] and report["complete"] is True
     assert_same_summary(report, expected, MONITOR_KEYS)
+
+
+def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder):
+    """``section_drives``: the monitor rebuilds each drive's product and target from its records
+    (`messages.RateSample.drive_kg`, `messages.ShaftState.drive_target_rpm`), so its report is `vrsim
+    run`'s: each section's strip its own drive's product, a tick with one drive on its bound limited."""
+    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
+    ok, started = start(net, folder, "drives")
+    assert ok, started
+    status = net.wait_status(lambda s: s["run_id"] == started["run_id"] and s["monitor_ticks"] == s["ticks"]
+                             and s["state"] in ("finished", "failed"))
+    assert status["state"] == "finished", status
+    ok, report = net.query("vrsim/tractor1/report")
+    assert ok, report
+    ok, rates = net.query(f"vrsim/tractor1/monitor/records?run_id={started['run_id']};stream=rate;count=5")
+    assert ok and all(len(r["drive_kg"]) == 4 for r in rates), rates
+    cli = subprocess.run([VRSIM, "run", os.path.join(folder, "drives.toml"), "--json", "--quiet", "--out",
+                          os.path.join(folder, "run-drives")], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    expected = json.loads(cli.stdout)
+    assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
+    assert expected["limited_time_pct"] > 5 and expected["limited_area_pct"] > 5
+    assert_same_summary(report, expected, MONITOR_KEYS)
+    # `vrsim report` of the records: the same error split (each drive's reference meters) as the run's
+    out = os.path.join(folder, "report-drives")
+    p = subprocess.run([VRSIM, "report", "--db", net.db, "--run", started["run_id"], "--out", out],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    split = [_split_table(os.path.join(d, "report.html")) for d in (out, os.path.join(folder, "run-drives"))]
+    assert split[0] == split[1] and "metering" in split[0]
+
+
+def _split_table(path: str) -> str:
+    """The error split's table of a report.html."""
+    with open(path) as fh:
+        page = fh.read()
+    start = page.index("<table><tr><th>cause</th>")
+    return page[start:page.index("</table>", start)]
 
 
 def test_user_code_outside_the_allowed_folders_is_refused(net, folder, tmp_path):

@@ -76,6 +76,24 @@ def test_a_three_argument_step_gets_the_context_of_each_period(n):
         seen[-1].time_s = 0.0
 
 
+def test_each_loop_gets_its_own_speed_and_rate_from_a_track_of_each_loops_values():
+    """A track of (K, n) speeds and rates (a metering drive per loop) gives loop j column j; a track
+    of another number of loops' values is refused naming the field."""
+    plant, k, n = PlantParams(), 30, 3
+    rng = np.random.default_rng(7)
+    speed, rate = rng.uniform(0.5, 4.0, (k, n)), rng.uniform(80.0, 200.0, (k, n))
+    track = ContextTrack(speed, rate, rng.random((k, 2)) > 0.3)
+    loop = PlantLoop(loop_info(plant), Recorder({}, None, n), n=n)
+    loop.run(np.full((k, n), 80.0), context=track)
+    seen = loop.controller.seen
+    np.testing.assert_array_equal([c.speed_m_s for c in seen], speed)
+    np.testing.assert_array_equal([c.prescribed_kg_ha for c in seen], rate)
+    with pytest.raises(ControllerError, match="speed_m_s has 3 loops' values, the loop runs 2"):
+        PlantLoop(loop_info(plant), Recorder({}, None, 2), n=2).run(np.full((k, 2), 80.0), context=track)
+    with pytest.raises(ControllerError, match=r"speed \(K,\) or \(K, n\)"):
+        ContextTrack(speed, rate[:-1], track.sections_on)
+
+
 def test_a_two_argument_step_runs_as_before_and_the_signature_is_read_once(monkeypatch):
     calls = []
     real = plant_loop_module.takes_context

@@ -15,7 +15,7 @@ ROOMS = ("sim", "outputs", "bus", "batch", "cli")
 # Modules of services.bus that are shared helpers, not services.
 BUS_HELPERS = ("services.bus", "services.bus.config", "services.bus.serving", "services.bus.client",
                "services.bus.messages", "services.bus.security", "services.bus.dataroot",
-               "services.bus.reads")
+               "services.bus.reads", "services.bus.records")
 
 
 def modules(package: str, root: str = ROOT) -> dict[str, set[str]]:

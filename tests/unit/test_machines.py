@@ -108,13 +108,13 @@ def test_each_section_looks_up_at_its_own_landing_point_and_turns_at_its_own_spe
     assert drive_y == pytest.approx(np.tile([4.0, 0.0, -4.0], (2, 1)))
     assert drive_x == pytest.approx(np.repeat(x[:, None], 3, axis=1))
     # A left turn at 0.1 rad/s: the left (inner) section runs at 2 - 0.4, the right at 2 + 0.4 m/s.
-    speeds = machine_for(imp).section_speed_m_s(states.motion)
+    speeds = machine_for(imp).drive_speed_m_s(states.motion)
     assert speeds == pytest.approx(np.tile([1.6, 2.0, 2.4], (2, 1)))
     fixed = dataclasses.replace(imp, machine=SectionDrives(turn_compensation=False))
-    assert machine_for(fixed).section_speed_m_s(states.motion) == pytest.approx(np.full((2, 3), 2.0))
+    assert machine_for(fixed).drive_speed_m_s(states.motion) == pytest.approx(np.full((2, 3), 2.0))
     # Beyond the pivot of a turn on the spot a section stands: no negative speed.
     pivot = _states(imp, 1, yaw_rate_rad_s=1.0, speed_m_s=2.0)
-    assert machine_for(imp).section_speed_m_s(pivot.motion)[0, 0] == 0.0
+    assert machine_for(imp).drive_speed_m_s(pivot.motion)[0, 0] == 0.0
 
 
 def test_each_sections_strip_carries_its_own_drives_product():
@@ -160,14 +160,3 @@ def test_a_bad_machine_on_the_command_line_exits_2_with_one_line(tmp_path, setti
                          text=True, timeout=120)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and message in out.stderr
-
-
-def test_records_without_each_drives_product_share_the_product_by_width():
-    """The monitor rebuilds a run from the machine-level keys: each section gets its width's share."""
-    imp = Implement(width_m=12.0, section_widths_m=[2.0, 4.0, 6.0], kind="section_drives")
-    control = {"metered_kg": np.array([1.2, 0.6, 0.0]),
-               "sections_on": np.array([[True, True, True], [False, True, True], [False, False, False]])}
-    want_kg = np.array([[0.2, 0.4, 0.6], [0.0, 0.24, 0.36], [0.0, 0.0, 0.0]])
-    assert machine_for(imp).deposit_kg(control) == pytest.approx(want_kg)
-    with_drives = dict(control, drive_kg=np.ones((3, 3)))
-    assert (machine_for(imp).deposit_kg(with_drives) == 1).all()

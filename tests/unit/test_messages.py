@@ -27,12 +27,37 @@ def test_pose_round_trip_is_exact():
 
 
 def test_nan_travels_as_null_and_comes_back_as_nan():
-    r = RateSample("r1", 3, 0.2, 1.0, 2.0, math.nan, math.inf, 0.01, 12.0, "0x3f", False)
+    r = RateSample("r1", 3, 0.2, 1.0, 2.0, math.nan, math.inf, 0.01, 12.0, "0x3f", False,
+                   [150.0, math.nan, 160.0], [0.004, 0.0, 0.006])
     doc = json.loads(r.to_json())
     assert doc["prescribed_kg_ha"] is None and doc["applied_kg_ha"] is None
     back = RateSample.from_json(r.to_json())
     assert math.isnan(back.prescribed_kg_ha) and math.isnan(back.applied_kg_ha)
     assert back.metered_kg == 0.01 and back.section_mask == "0x3f"
+    assert doc["drive_rate_kg_ha"] == [150.0, None, 160.0] and doc["drive_kg"] == [0.004, 0.0, 0.006]
+    assert back.drive_kg == [0.004, 0.0, 0.006] and math.isnan(back.drive_rate_kg_ha[1])
+
+
+def shaft(drives) -> dict:
+    return {**ShaftState("r", 1, 0.05, 50.0, 49.0, 0.04, 0.2, [50.0]).to_dict(), "drive_target_rpm": drives}
+
+
+@pytest.mark.parametrize("drives, needle", [
+    (50.0, "field drive_target_rpm must be an array of 1 to 128 numbers, got 50.0"),
+    ([], "field drive_target_rpm must be an array of 1 to 128 numbers, got []"),
+    ([1.0] * 129, "field drive_target_rpm must be an array of 1 to 128 numbers"),
+    ([50.0, "1"], 'field drive_target_rpm[1] must be a number or null, got "1"'),
+    ([50.0, True], "field drive_target_rpm[1] must be a number or null, got true"),
+    ([[50.0]], "field drive_target_rpm[0] must be a number or null, got [50.0]"),
+])
+def test_a_per_drive_array_is_checked_element_by_element(drives, needle):
+    """Each metering drive's values come as an array of numbers (null: NaN): anything else is refused
+    naming the record, the field and the element."""
+    with pytest.raises(ServiceError) as err:
+        messages.decode_batch(ShaftState, json.dumps([shaft([50.0]), shaft(drives)]).encode())
+    assert str(err.value).startswith("ShaftState[1]: ") and needle in str(err.value)
+    back = messages.decode_batch(ShaftState, json.dumps([shaft([50, None, 49.5])]).encode())[0]
+    assert back.drive_target_rpm[0] == 50.0 and type(back.drive_target_rpm[0]) is float
 
 
 def test_optional_fields_stay_none():

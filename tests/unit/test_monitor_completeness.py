@@ -26,7 +26,7 @@ def stored(tmp_path, ticks, end: messages.RunEnd | None = None) -> MonitorStore:
 
 
 def facts(store: MonitorStore) -> dict:
-    track, _ = store.arrays("r", sections=1)
+    track, _ = store.arrays("r", sections=1, drives=1)
     return _completeness(track["tick"], store.end("r"))
 
 

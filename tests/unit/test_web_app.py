@@ -74,7 +74,7 @@ async def stalled_browser(view: LiveView, stall_s: float):
         pose = messages.Pose("r", tick, tick * 0.05, 1010.0 + tick * 0.1, 5030.0, 1010.0, 5030.0, 0.0, 2.5,
                              2.5, True, tick * 0.1)
         rate = messages.RateSample("r", tick, tick * 0.05, 1010.0 + tick * 0.1, 5030.0, 150.0, 160.0, 0.01,
-                                   12.0, "0x3f", True)
+                                   12.0, "0x3f", True, [150.0], [0.01])
         view.on_pose(_decode("pose", messages.encode_batch([pose]), FIELDS["pose"]))
         view.on_rate(_decode("rate", messages.encode_batch([rate]), FIELDS["rate"]))
 

@@ -32,11 +32,12 @@ def pose(run, tick, x, y=5030.0, heading=0.0):
 
 
 def rate(run, tick, x, y=5030.0, applied=160.0, width=12.0, on=True, mask="0x3f"):
-    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, mask, on)
+    return messages.RateSample(run, tick, tick * 0.05, x, y, 150.0, applied, 0.01, width, mask, on, [150.0],
+                               [0.01])
 
 
 def shaft(run, tick):
-    return messages.ShaftState(run, tick, tick * 0.05, 50.0, 49.0, 0.04, 0.2)
+    return messages.ShaftState(run, tick, tick * 0.05, 50.0, 49.0, 0.04, 0.2, [50.0])
 
 
 def batch(records, fields=FIELDS) -> Batch:

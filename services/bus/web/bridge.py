@@ -238,7 +238,12 @@ class Bridge:
         start, idle_since = 0, time.monotonic()
         while start < upto and not self.stop.is_set():
             count = min(RECORDS_PAGE, upto - start)
-            pages = {s: self._records(s, run_id, start, count) for s in DECODERS}
+            # The rate page first: the monitor gives fewer records than asked for where they hold each
+            # of many drives' values; the pose and shaft pages then cover its ticks.
+            pages = {"rate": self._records("rate", run_id, start, count)}
+            if len(pages["rate"].tick):
+                count = int(pages["rate"].tick[-1]) + 1 - start
+            pages.update({s: self._records(s, run_id, start, count) for s in ("pose", "shaft")})
             self.view.backfill(pages["pose"], pages["shaft"], pages["rate"], stride)
             if len(pages["rate"].tick):
                 start, idle_since = int(pages["rate"].tick[-1]) + 1, time.monotonic()

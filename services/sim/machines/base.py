@@ -69,6 +69,11 @@ class Machine(ABC):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         """Whether each drive's product reaches the ground in each tick, bool (n, drives)."""
 
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
+        """Each drive's ground speed as the machine senses it, m/s (n, drives): the centre's sensed
+        speed for every drive unless a kind's drives have their own (the controllers' context)."""
+        return np.broadcast_to(motion.speed_m_s[:, None], (len(motion.speed_m_s), self.drives))
+
     @abstractmethod
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         """Each drive's target shaft speed, rpm (n, drives): for the rate at its landing point (kg/ha,

@@ -46,7 +46,7 @@ class SectionDrives(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return states.actual
 
-    def section_speed_m_s(self, motion: Motion) -> np.ndarray:
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
         """Each section's ground speed, m/s (n, sections): its own in a turn with turn compensation
         (``v - yaw_rate * offset``, at least 0), else the centre's sensed speed."""
         v = motion.speed_m_s[:, None]
@@ -57,7 +57,7 @@ class SectionDrives(Machine):
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         imp = self.implement
         # A drive meters its section's share per revolution: its speed is the whole shaft's for its rate.
-        wanted = imp.clip_shaft_rpm(imp.target_shaft_rpm(rate_kg_ha, self.section_speed_m_s(states.motion)))
+        wanted = imp.clip_shaft_rpm(imp.target_shaft_rpm(rate_kg_ha, self.drive_speed_m_s(states.motion)))
         return np.where(states.actual, wanted, 0.0)
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
@@ -67,17 +67,6 @@ class SectionDrives(Machine):
         """The open sections' rates weighted by their widths (all sections' where none is open)."""
         weight = np.where(states.actual.any(axis=1, keepdims=True), states.actual, True) * self.drive_share
         return (rate_kg_ha * weight).sum(axis=1) / weight.sum(axis=1)
-
-    def deposit_kg(self, control: dict) -> np.ndarray:
-        """Each drive's product (n, drives); records without it (the monitor's, rebuilt from the
-        machine-level keys) share ``metered_kg`` between the open sections by width."""
-        if "drive_kg" in control:
-            return np.asarray(control["drive_kg"])
-        actual, widths_m = np.asarray(control["sections_on"], bool), self.implement.section_widths
-        width_on = actual @ widths_m
-        share = np.divide(widths_m, width_on[:, None], out=np.zeros(actual.shape),
-                          where=actual & (width_on[:, None] > 0))
-        return np.asarray(control["metered_kg"])[:, None] * share
 
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None) -> StripPlan:

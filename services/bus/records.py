@@ -1,0 +1,64 @@
+"""How the monitor stores a per-tick stream's records (`services.bus.messages`) in SQLite, and back.
+
+A record is a row keyed by (run_id, tick) with a column per other field: numbers and flags as REAL,
+strings as TEXT, and each metering drive's values (``drive_target_rpm``, ``drive_rate_kg_ha``,
+``drive_kg``: an array per record) as their JSON text. NaN is stored as NULL (a number) or ``null``
+(in an array).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import orjson
+
+from services.outputs.encode import dumps
+
+NAN = float("nan")
+_SCALARS = (float, int, bool)
+
+
+def columns(cls) -> list[str]:
+    """The fields of message class `cls` stored as columns (all but run_id and tick), in order."""
+    return [name for name, _, _ in cls._spec if name not in ("run_id", "tick")]
+
+
+def sql_types(cls) -> list[str]:
+    """``name TYPE`` of each of `columns`: REAL for numbers and flags, TEXT for strings and arrays."""
+    return [f"{name} {'REAL' if kind in _SCALARS else 'TEXT'}" for name, kind, _ in cls._spec
+            if name not in ("run_id", "tick")]
+
+
+def stored(value):
+    """A field's value as its column holds it (an array as its JSON text)."""
+    return dumps(value).decode() if isinstance(value, list) else value
+
+
+def field_value(value, kind):
+    """A column's value back as the field of `kind` it was: NaN for NULL, a list from JSON text."""
+    if value is None:
+        return NAN
+    if kind in _SCALARS or kind is str:
+        return kind(value)
+    return [NAN if v is None else v for v in orjson.loads(value)]
+
+
+def drive_values(texts: list, drives: int, ticks: np.ndarray, name: str) -> np.ndarray:
+    """The stored arrays of the per-drive field `name` (JSON texts, one per record, of ticks `ticks`)
+    as (records, drives), NaN for null. A record whose array does not hold `drives` values (the run's
+    machine has that many) raises `ValueError` naming its tick: the messages were checked when they
+    came (`services.bus.messages`: 1 to 128 numbers or null), the machine is known only with the run."""
+    rows = [orjson.loads(t) for t in texts]
+    for tick, row in zip(ticks.tolist(), rows, strict=True):
+        if len(row) != drives:
+            raise ValueError(f"tick {tick}: {name} holds {len(row)} values, the machine has {drives} "
+                             "drives")
+    return np.array(rows, dtype=np.float64).reshape(len(rows), drives)
+
+
+def fitting(records: list, cls, values: int) -> list:
+    """The first of `records` (messages of `cls`) that hold at most `values` values together: each
+    field but run_id and tick one, an array each of its elements (a reply's size grows with drives)."""
+    arrays = [name for name, kind, _ in cls._spec if kind not in (*_SCALARS, str)]
+    per = len(columns(cls)) - len(arrays) + np.array([sum(len(getattr(r, a)) for a in arrays)
+                                                      for r in records], dtype=np.int64).reshape(-1)
+    return records[:int(np.searchsorted(np.cumsum(per), values, side="right"))]
