@@ -401,7 +401,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     monkeypatch.setattr(services.sim.drive_job, "SumoDriver", Driver)
     # The module: `services.sim.run` is the function (the package's API).
     monkeypatch.setattr(importlib.import_module("services.sim.run"), "sensors", lambda sc: (gnss, speed))
-    timing = types.SimpleNamespace(control_period_s=0.05, max_sim_time_s=100.0)
+    timing = types.SimpleNamespace(control_period_s=0.05, sumo_step_s=None, max_sim_time_s=100.0)
     scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1, source="s.toml")
     world = types.SimpleNamespace(scenario=scenario, path=None)
     start = messages.RunStart("r", "", "s", "/", "lockstep", 1.0, 7)

@@ -108,12 +108,17 @@ def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypa
     assert started[0].poll() == -9
 
 
-def _drive_workers() -> set[int]:
+def _drive_workers(mark: bytes) -> set[int]:
+    """Drive workers whose environment carries `mark`: started by this test's command (other runs on
+    the machine, a parallel test's or a developer's, are not this test's business)."""
     found = set()
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
             with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                if b"services.sim.drive_worker" in fh.read():
+                if b"services.sim.drive_worker" not in fh.read():
+                    continue
+            with open(f"/proc/{pid}/environ", "rb") as fh:
+                if mark in fh.read().split(b"\0"):
                     found.add(int(pid))
         except OSError:
             pass
@@ -127,11 +132,13 @@ def _drive_workers() -> set[int]:
 ])
 def test_vrsim_run_that_stops_early_leaves_no_drive_worker(args, code, says):
     import subprocess
+    import uuid
 
     from tests.conftest import VRSIM
 
-    before = _drive_workers()
-    done = subprocess.run([VRSIM, "run", *args], capture_output=True, text=True, timeout=60)
+    mark = f"VRSIM_TEST_MARK={uuid.uuid4().hex}"
+    env = dict(os.environ, VRSIM_TEST_MARK=mark.split("=", 1)[1])
+    done = subprocess.run([VRSIM, "run", *args], capture_output=True, text=True, timeout=60, env=env)
     assert done.returncode == code, done.stderr
     assert says in done.stdout + done.stderr and "Traceback" not in done.stderr
-    assert _drive_workers() <= before
+    assert _drive_workers(mark.encode()) == set()
