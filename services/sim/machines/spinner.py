@@ -97,7 +97,7 @@ class Spinner(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return self.sides_on(states.actual) & (self._terminal_reach(states) > 0)
 
-    def side_speed_m_s(self, motion: Motion) -> np.ndarray:
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
         """Each side's ground speed where its product lands, m/s (n, 2): ``v - yaw_rate * offset``
         at its centre's offset, at least 0."""
         return np.maximum(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * self.centre_m, 0.0)
@@ -107,7 +107,7 @@ class Spinner(Machine):
         # A disc meters half the product per revolution: at full reach it turns at the speed of the one
         # shaft for the driving width; a cut side meters only its pattern's share within the reach.
         share = self.pattern.side_share(SIDES[None, :], reach)
-        full_rpm = imp.target_shaft_rpm(rate_kg_ha, self.side_speed_m_s(states.motion))
+        full_rpm = imp.target_shaft_rpm(rate_kg_ha, self.drive_speed_m_s(states.motion))
         wanted = imp.clip_shaft_rpm(full_rpm * share)
         return np.where(self.sides_on(states.actual) & (reach > 0), wanted, 0.0)
 
