@@ -7,6 +7,9 @@ Figures:
   (``[implement] kind = "section_drives"``: six loops, each rate at its own section's landing point);
 - ``run_default_sprayer_wall_s``: the same for the default scenario with a boom sprayer (``kind =
   "sprayer"``, a liquid product: one flow loop, the boom's strips);
+- ``run_default_spinner_wall_s``: the same for the default scenario with a twin-disc spinner
+  (``[implement] kind = "spinner"``, its two sides as sections, a 24 m triangular spread at the 12 m
+  driving width: two loops, each side's rate at its own landing point, product thrown 8 m behind);
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
@@ -87,6 +90,11 @@ def cli_wall_and_peak(name: str) -> tuple[float, float]:
     return float(wall_s), float(peak_kb) / 1024.0
 
 
+def run_default_spinner_wall_s() -> float:
+    """The default scenario's run with a ``spinner`` (best of two, after a warm-up run), s."""
+    return _in_process("default", kind="spinner", sections=2, spread_width_m=24.0)["wall_time_s"]
+
+
 def run() -> dict:
     default = _in_process("default")
     large = _in_process("large")
@@ -94,6 +102,7 @@ def run() -> dict:
         "run_default_wall_s": default["wall_time_s"],
         "run_default_section_drives_wall_s": run_default_section_drives_wall_s(),
         "run_default_sprayer_wall_s": run_default_sprayer_wall_s(),
+        "run_default_spinner_wall_s": run_default_spinner_wall_s(),
         "run_large_wall_s": large["wall_time_s"],
         "run_default_realtime_factor": default["realtime_factor"],
         "run_large_realtime_factor": large["realtime_factor"],

@@ -20,6 +20,8 @@ Kinds:
   centre's minus the yaw rate times the section's offset; false: the centre's speed for all.
 - ``sprayer``: a boom of nozzles behind a regulating valve and a flow meter; its keys are
   `vehicle.sprayer.SprayerSpec` (registered there).
+- ``spinner``: a twin-disc spinner spreader (`vehicle.spinner.SpinnerSpec`): a drive per disc (side),
+  product thrown across a spread width wider than the driving width in a transverse pattern.
 """
 
 from __future__ import annotations
@@ -50,6 +52,14 @@ class MachineSpec:
         if self.MAX_SECTIONS is not None and sections > self.MAX_SECTIONS:
             raise VehicleError(f"Implement: kind {self.KIND!r} supports at most {self.MAX_SECTIONS} "
                                f"sections, got sections={sections}")
+
+    def check_width(self, width_m: float) -> None:
+        """Refuse a working width `width_m` (m) the kind cannot work at (`VehicleError`); any by default."""
+
+    def resolved(self, base_dir: str) -> MachineSpec:
+        """The keys with paths in them made absolute against `base_dir` (the scenario's folder) and
+        the files they name checked; the keys themselves by default."""
+        return self
 
 
 SPECS: dict[str, type[MachineSpec]] = {}
@@ -110,3 +120,7 @@ class SectionDrives(MachineSpec):
         if not isinstance(self.turn_compensation, bool):
             raise VehicleError("Implement: turn_compensation must be true or false, "
                                f"got {self.turn_compensation!r}")
+
+
+# Kinds whose keys live in their own module register on import.
+from vehicle import spinner  # noqa: E402, F401

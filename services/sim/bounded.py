@@ -97,8 +97,11 @@ class BoundedAccount:
         self.lookahead = int(math.ceil(max(self.delay_s + self.period_s, SETTLE_HOLD_S) / self.period_s)) + 3
         self.acc = AsApplied(grid)
         self.worked = WorkedArea(grid)
-        self.machine = machine_for(imp)
+        self.machine = machine_for(imp, world.field.polygon)
         self.refs = [AsApplied(grid) for _ in REFERENCES] if references else None
+        # The spread pattern's reference: the unclipped product on the sections' strips (only a kind
+        # whose footprint is not strips needs its own raster: for the others it is the first reference).
+        self.ref_strips = AsApplied(grid) if references else None
         self.passes = PassTracker()
         self.pending: dict | None = None   # ticks not yet accounted, from tick `first` of the run
         self.first = 0
@@ -199,6 +202,10 @@ class BoundedAccount:
                                                         start_rev=self.ref_rev[j])
             acc.deposit(plan.footprint(), plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
             self.ref_kg[j] += float(ref.sum())
+            if j == 0 and not isinstance(plan, StripPlan):
+                strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
+                                      self.tick_m, self.first)
+                self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
@@ -266,9 +273,10 @@ class BoundedAccount:
                             limits, self.timer.timing())
         references = None
         if self.refs is not None:
+            strips = self.ref_strips if self.ref_strips.items else self.refs[0]
+            stages = [(strips, 0), *((ref, j) for j, ref in enumerate(self.refs))]
             references = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction,
-                                      self.ref_kg[j], ref.outside_kg)
-                          for j, ref in enumerate(self.refs)]
+                                      self.ref_kg[j], ref.outside_kg) for ref, j in stages]
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
                          reference_figures=references, kept_parts=kept)

@@ -82,7 +82,7 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
-        self.machine = machine_for(self.implement)
+        self.machine = machine_for(self.implement, field_polygon)
         timing, cfg, plant = scenario.timing, scenario.controller, self.machine.loop_plant(
             plant_for(scenario), scenario, grid)
         self.plant = plant

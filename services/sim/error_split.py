@@ -1,5 +1,5 @@
-"""The error of a run split into its causes: geometry and section control, machine limits, calibration,
-metering.
+"""The error of a run split into its causes: geometry and section control, spread pattern, machine
+limits, calibration, metering.
 
 The target shaft speed of every tick, the sections' gates and where product lands do not depend on
 the meter (nothing feeds back into them), so the same run is re-landed with three reference meters
@@ -12,16 +12,21 @@ strip carries its own drive's product):
    shaft had no speed range). What is left is where and when product lands: the look-ahead,
    section switching and its latencies, overlap and skips, speed changing within the delivery
    delay, a single meter sharing product by width in curves (a drive per section: each drive at its
-   own section's rate and, with turn compensation, its own ground speed);
+   own section's rate and, with turn compensation, its own ground speed); its product laid as
+   rectangular strips of the sections (`StripPlan`, shared by width), whatever the machine;
+   *spread pattern*: the same drives' product landing through the machine's own footprint (a
+   spinner's thrown pattern, its sides cut at the boundary); the difference to the strips is what the
+   pattern alone costs against rectangular strips at the same driving width (zero for kinds that lay
+   strips: their plan is the strips);
 2. *machine limits*: the shaft at the target clipped to ``[shaft_rpm_min, shaft_rpm_max]``: the
    ``ideal`` controller kind, metering the configured ``kg_per_rev`` per revolution exactly; the
-   difference to 1;
+   difference to the spread pattern's reference;
 3. *calibration*: the same shaft, metering what the product really gives per revolution (its true
    constant and its flow variability, `vehicle.product`): what the terminal's wrong constant and the
    uneven flow alone cost; the difference to 2 (zero for a product with neither);
 4. *metering*: the run's own controller and plant; the difference to 3.
 
-Each figure (mass balance, mean absolute error) telescopes: the four contributions add up to the
+Each figure (mass balance, mean absolute error) telescopes: the five contributions add up to the
 run's figure exactly. A contribution can be negative: a cause can cancel part of another (an
 under-applying limit against over-application at swath ends, say).
 """
@@ -44,7 +49,7 @@ from services.sim.sections.motion import MotionTrend
 from services.sim.world import World
 from vehicle.product import metered_kg
 
-CAUSES = ("geometry and section control", "machine limits", "calibration", "metering")
+CAUSES = ("geometry and section control", "spread pattern", "machine limits", "calibration", "metering")
 # The reference meters (`reference_metered_kg`): (shaft clipped to its range, the product's truth).
 REFERENCES = ((False, False), (True, False), (True, True))
 
@@ -106,27 +111,30 @@ def _reference_figures(world: World, track: dict, control: dict, measured_speed_
     mapped to the raster once for all meters (`maps.ColumnDeposit`); their figures are the
     accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid, period_s = world.scenario.implement, world.grid, world.scenario.timing.control_period_s
-    machine = machine_for(imp)
+    machine = machine_for(imp, world.field.polygon)
     states = run_section_states(track, control, imp)
     # Only the motion's speed and yaw rate (from the heading) are read by a kind's targets.
     states = dataclasses.replace(states, motion=MotionTrend(period_s).step(
         track["x_m"], track["y_m"], track["heading_rad"], measured_speed_m_s))
     metered = np.stack([reference_metered_kg(world, machine, states, control, *reference)[0]
                         for reference in REFERENCES], axis=-1)      # (ticks, drives, references)
-    plan = machine.deposition(track, states, imp.delivery_delay_s, period_s, min(grid.cell_size),
-                             tick_m=tick_travel_m(world.scenario))
+    delay_s, cell_m, tick_m = imp.delivery_delay_s, min(grid.cell_size), tick_travel_m(world.scenario)
+    plan = machine.deposition(track, states, delay_s, period_s, cell_m, tick_m=tick_m)
     rasters = _reference_rasters(grid, plan, metered[:, 0] if machine.drives == 1 else metered)
+    strips = rasters   # a machine that lays strips: the pattern costs nothing
+    if not isinstance(plan, StripPlan):   # the unclipped drives' product as the sections' strips
+        as_strips = StripPlan.of(track, states, delay_s, period_s, cell_m, tick_m=tick_m)
+        strips = _reference_rasters(grid, as_strips, metered[..., :1].sum(axis=1))
     in_field = cells_in_field(grid, world.field.polygon)
-    applied_kg_ha = rasters.applied_kg_ha
-    return [map_figures(grid, in_field, applied_kg_ha[j], rasters.coverage_fraction[j],
-                        float(np.sum(metered[..., j])), float(rasters.outside_kg[j]))
-            for j in range(metered.shape[-1])]
+    stages = [(strips, 0), *((rasters, j) for j in range(metered.shape[-1]))]
+    return [map_figures(grid, in_field, r.applied_kg_ha[j], r.coverage_fraction[j],
+                        float(np.sum(metered[..., j])), float(r.outside_kg[j])) for r, j in stages]
 
 
-def _reference_rasters(grid, plan: StripPlan, metered_kg: np.ndarray) -> AppliedColumns:
+def _reference_rasters(grid, plan, metered_kg: np.ndarray) -> AppliedColumns:
     """The as-applied rasters of the columns `metered_kg` (ticks, n), or (ticks, drives, n) for several
     drives, through the plan's footprint."""
-    return ColumnDeposit(grid, plan.strips.footprint()).apply(plan.mass_kg(metered_kg))
+    return ColumnDeposit(grid, plan.footprint()).apply(plan.mass_kg(metered_kg))
 
 
 def error_split(result: RunResult) -> list[ErrorPart]:

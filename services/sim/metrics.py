@@ -99,6 +99,16 @@ def _sim_time_s(a: Accounts) -> float:
     return a.setting.ticks * a.setting.world.scenario.timing.control_period_s
 
 
+def _cv_pct(a: Accounts) -> float:
+    """The machine's transverse pattern (`Machine.transverse_pattern`) overlapped to and fro at the
+    driving width: its CV across the driving width (`services.sim.spread_pattern.cv_pct`), %."""
+    from services.sim.machines import machine_for
+    from services.sim.spread_pattern import cv_pct
+
+    implement = a.setting.world.scenario.implement
+    return cv_pct(*machine_for(implement).transverse_pattern(), implement.width_m)
+
+
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
 # machine, last-digit differences across BLAS builds) passes and a change of the model or controller
 # that a user would notice fails.
@@ -172,6 +182,10 @@ METRICS = (
     Metric("limited_area_pct", "%", "Machine-limited area",
            "share of the covered field area where product was metered in those ticks", (0.3, 0.03),
            sense="min", of="limits.limited_area_pct"),
+    # A figure of the machine's set-up (its pattern and driving width), not of the run: not held.
+    Metric("cv_pct", "%", "Spread CV (EN 13739)",
+           "CV across the driving width of the machine's transverse pattern overlapped to and fro on "
+           "straight passes (0 for rectangles)", sense="min", of=_cv_pct),
     Metric("sections", "", "Sections", "number of sections of the implement",
            of="setting.world.scenario.implement.sections"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",

@@ -259,7 +259,7 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     with timer.stage("metrics_s"):
         states = run_section_states(track, control, implement)
         landing = land(world.grid, track, metered, width_on, delay_s, period_s)
-        machine = machine_for(implement)
+        machine = machine_for(implement, world.field.polygon)
         acc = as_applied(world.grid, track, machine.deposit_kg(control), states, delay_s, period_s, machine,
                          tick_travel_m(world.scenario))
         setting = Setting.of(world, track, control, landing)

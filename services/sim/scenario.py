@@ -224,7 +224,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         description=typed(doc, "description", str, source, "", default=""),
         field=build(FieldSpec, doc.get("field", {}), source, "field"),
         map=build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=implement_from_table(doc.get("implement", {}), source),
+        implement=implement_from_table(doc.get("implement", {}), source, base_dir),
         tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
@@ -277,7 +277,7 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
                 top[key] = _changed_controller(current, kept, value, scenario)
                 continue
             if key == "implement":
-                top[key] = changed_implement(current, value, source)
+                top[key] = changed_implement(current, value, source, scenario.base_dir)
                 continue
             no_unknown(value, kept, source, key)
             if key == "plant":

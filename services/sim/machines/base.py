@@ -33,12 +33,16 @@ class Machine(ABC):
     ----------
     implement : vehicle.Implement
         Of this kind (``implement.kind == kind``); its ``machine`` holds the kind's own keys.
+    field_polygon : shapely geometry, optional
+        The field boundary in the grid's CRS, for kinds that act on it (a spinner's border spreading);
+        None: no boundary known (product is thrown as if the field went on).
     """
 
     kind: ClassVar[str] = ""
 
-    def __init__(self, implement: Implement):
+    def __init__(self, implement: Implement, field_polygon=None):
         self.implement = implement
+        self.field_polygon = field_polygon
 
     @property
     def drives(self) -> int:
@@ -65,7 +69,7 @@ class Machine(ABC):
         """Each drive's target for its rate with the machine's range lifted (the error split's reference
         that applies what the map asks, `services.sim.error_split`): a shaft without a speed range."""
         unlimited = dataclasses.replace(self.implement, shaft_rpm_min=0.0, shaft_rpm_max=sys.float_info.max)
-        return type(self)(unlimited).drive_targets(rate_kg_ha, states)
+        return type(self)(unlimited, self.field_polygon).drive_targets(rate_kg_ha, states)
 
     def configured_kg(self, rev, product) -> np.ndarray:
         """What `rev` revolutions meter by the configured constant, kg: ``[implement] kg_per_rev``."""
@@ -76,6 +80,14 @@ class Machine(ABC):
         of the machine's range, bool (n,): a closed drive's target is 0, never on a bound, so any
         drive's flags the tick."""
         return self.implement.shaft_limited(control["drive_target_rpm"]).any(axis=1)
+
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """What one straight pass lays across its path with every section open: lateral offsets (m,
+        increasing, left positive) and relative mass per metre there (linear between, zero beyond),
+        for the spread-pattern figures (`services.sim.spread_pattern`). By default a rectangle of the
+        working width (strips side by side)."""
+        half_m = self.implement.width_m / 2
+        return np.array([-half_m, half_m]), np.ones(2)
 
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:

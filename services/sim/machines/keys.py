@@ -18,9 +18,10 @@ IMPLEMENT_KEYS = {f.name for f in dataclasses.fields(Implement) if f.init} - {"m
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(Implement)}
 
 
-def implement_from_table(table: dict, source: str) -> Implement:
+def implement_from_table(table: dict, source: str, base_dir: str = ".") -> Implement:
     """An ``[implement]`` table -> `vehicle.Implement`. A key of another kind, an unknown kind or key,
-    and what the dataclasses refuse raise a `ScenarioError` naming `source`, the key and the value."""
+    and what the dataclasses refuse raise a `ScenarioError` naming `source`, the key and the value.
+    Paths among the kind's keys are relative to `base_dir` (`vehicle.machines.MachineSpec.resolved`)."""
     kind = table.get("kind", DEFAULT_KIND)
     try:
         spec = spec_class(kind)
@@ -40,7 +41,12 @@ def implement_from_table(table: dict, source: str) -> Implement:
             raise ScenarioError(f"{source}: [implement] {key} is a key of kind {owner!r}, not of kind "
                                 f"{kind!r} (got {rest[key]!r})")
     no_unknown(rest, IMPLEMENT_KEYS | set(spec_keys(kind)), source, "implement")
-    return build(Implement, {**own, "machine": build(spec, rest, source, "implement")}, source, "implement")
+    machine = build(spec, rest, source, "implement")
+    try:
+        machine = machine.resolved(base_dir)
+    except VrsimError as exc:
+        raise ScenarioError(f"{source}: [implement] {exc}") from None
+    return build(Implement, {**own, "machine": machine}, source, "implement")
 
 
 def implement_table(implement: Implement) -> dict:
@@ -51,12 +57,12 @@ def implement_table(implement: Implement) -> dict:
     return {**table, **dataclasses.asdict(machine)}
 
 
-def changed_implement(current: Implement, changes: dict, source: str) -> Implement:
-    """`services.sim.scenario.with_changes` of ``[implement]``: keys as in a file; a change of kind
-    drops the old kind's keys."""
+def changed_implement(current: Implement, changes: dict, source: str, base_dir: str = ".") -> Implement:
+    """`services.sim.scenario.with_changes` of ``[implement]``: keys as in a file (paths relative to
+    `base_dir`); a change of kind drops the old kind's keys."""
     kept = implement_table(current)
     kind = changes.get("kind", current.kind)
     if kind != current.kind:
         unused = spec_class(kind).UNUSED_KEYS if kind in SPECS else ()
         kept = {k: v for k, v in kept.items() if k in IMPLEMENT_KEYS and k not in unused}
-    return implement_from_table({**kept, **changes}, source)
+    return implement_from_table({**kept, **changes}, source, base_dir)
