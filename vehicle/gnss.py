@@ -110,7 +110,8 @@ class Gnss:
         self._rng = np.random.default_rng(self.seed)
         self._t0 = None
         self._prev = None        # (t, x, y) of the previous tick
-        self._fixes = []         # (x, y) of each fix sampled so far
+        self._fixes = []         # (x, y) of each fix sampled so far and still due (from fix `_dropped` on)
+        self._dropped = 0        # fixes no tick will be given again (a long drive keeps only recent ones)
         self._err = None         # current (ex, ey)
 
     # --- shared pieces ---------------------------------------------------------------------------
@@ -180,7 +181,7 @@ class Gnss:
             if not t[0] > t_prev:
                 raise VehicleError(f"Gnss.measure_next: time_s must increase, got {t[0]!r} after {t_prev!r}")
             t, x, y = (np.concatenate([[p], a]) for p, a in ((t_prev, t), (x_prev, x), (y_prev, y)))
-            have, head = len(self._fixes), 1
+            have, head = self._dropped + len(self._fixes), 1
         count = self._fix_count(t)  # fixes sampled once tick i is reached
         j = np.arange(have, int(count[-1]))
         tj = self._t0 + j * self.period_s
@@ -199,7 +200,9 @@ class Gnss:
         self._prev = (float(t[-1]), float(x[-1]), float(y[-1]))
         due = np.maximum(self._due_index(t[head:]), 0).astype(int)
         first = int(due[0])  # the part's ticks output only fixes from there on (not all since t0)
-        fixes = np.asarray(self._fixes[first:]).reshape(-1, 2)
+        fixes = np.asarray(self._fixes[first - self._dropped:]).reshape(-1, 2)
+        del self._fixes[:first - self._dropped]   # the next part's ticks are due no earlier fix
+        self._dropped = first
         return fixes[due - first, 0], fixes[due - first, 1]
 
     # --- per tick --------------------------------------------------------------------------------
@@ -214,13 +217,13 @@ class Gnss:
             t_prev, x_prev, y_prev = self._prev
             if not t > t_prev:
                 raise VehicleError(f"Gnss.fix: time_s must increase, got {t!r} after {t_prev!r}")
-            while len(self._fixes) < self._fix_count(t, math.floor):  # every fix sampled in (t_prev, t]
-                tj = self._t0 + len(self._fixes) * self.period_s
+            while self._dropped + len(self._fixes) < self._fix_count(t, math.floor):  # fixes in (t_prev, t]
+                tj = self._t0 + (self._dropped + len(self._fixes)) * self.period_s
                 f = (tj - t_prev) / (t - t_prev)
                 self._sample(x_prev + (x_m - x_prev) * f, y_prev + (y_m - y_prev) * f)
             self._prev = (t, float(x_m), float(y_m))
         j = max(self._due_index(t, math.floor), 0)
-        return self._fixes[j]
+        return self._fixes[j - self._dropped]
 
     def _sample(self, x, y):
         self._err = self._errors(1, self._err)[0]

@@ -144,6 +144,7 @@ class Implement:
             raise VehicleError(f"Implement: machine {self.machine!r} is not of kind {self.kind!r} "
                                "(machine=None takes the kind's defaults)")
         self.machine.check_sections(self.sections)
+        self.machine.check_width(self.width_m)
 
     # --- sections --------------------------------------------------------------------------------
     def _resolve_sections(self):
@@ -153,8 +154,9 @@ class Implement:
                                   or not 1 <= count <= MAX_SECTIONS):
             raise VehicleError(f"Implement: sections must be an integer in [1, {MAX_SECTIONS}], "
                                f"got {count!r}")
-        if widths is None:
-            object.__setattr__(self, "sections", DEFAULT_SECTIONS if count is None else int(count))
+        if widths is None:   # by default 6, or as many as the kind supports if fewer (a spinner's 2 sides)
+            default = min(DEFAULT_SECTIONS, spec_class(self.kind).MAX_SECTIONS or DEFAULT_SECTIONS)
+            object.__setattr__(self, "sections", default if count is None else int(count))
         else:
             widths = _section_widths(widths)
             if count is not None and count != len(widths):

@@ -18,6 +18,10 @@ Kinds:
   one shaft would for the same rate and ground speed, and the shaft's speed range holds for each.
   ``turn_compensation`` (true): each drive's target follows its section's own ground speed, the
   centre's minus the yaw rate times the section's offset; false: the centre's speed for all.
+- ``sprayer``: a boom of nozzles behind a regulating valve and a flow meter; its keys are
+  `vehicle.sprayer.SprayerSpec` (registered there).
+- ``spinner``: a twin-disc spinner spreader (`vehicle.spinner.SpinnerSpec`): a drive per disc (side),
+  product thrown across a spread width wider than the driving width in a transverse pattern.
 """
 
 from __future__ import annotations
@@ -40,12 +44,22 @@ class MachineSpec:
 
     KIND: ClassVar[str] = ""
     MAX_SECTIONS: ClassVar[int | None] = None   # None: as many as the implement allows
+    # Shared ``[implement]`` keys the kind has no use for (a sprayer's has no shaft): refused if given.
+    UNUSED_KEYS: ClassVar[tuple[str, ...]] = ()
 
     def check_sections(self, sections: int) -> None:
         """Refuse more sections than the kind supports (`VehicleError` naming kind, limit and count)."""
         if self.MAX_SECTIONS is not None and sections > self.MAX_SECTIONS:
             raise VehicleError(f"Implement: kind {self.KIND!r} supports at most {self.MAX_SECTIONS} "
                                f"sections, got sections={sections}")
+
+    def check_width(self, width_m: float) -> None:
+        """Refuse a working width `width_m` (m) the kind cannot work at (`VehicleError`); any by default."""
+
+    def resolved(self, base_dir: str) -> MachineSpec:
+        """The keys with paths in them made absolute against `base_dir` (the scenario's folder) and
+        the files they name checked; the keys themselves by default."""
+        return self
 
 
 SPECS: dict[str, type[MachineSpec]] = {}
@@ -106,3 +120,7 @@ class SectionDrives(MachineSpec):
         if not isinstance(self.turn_compensation, bool):
             raise VehicleError("Implement: turn_compensation must be true or false, "
                                f"got {self.turn_compensation!r}")
+
+
+# Kinds whose keys live in their own module register on import.
+from vehicle import spinner  # noqa: E402, F401

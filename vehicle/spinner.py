@@ -18,22 +18,29 @@ Shapes (``pattern``):
   the trays' offsets and zero beyond the first and the last; it must lie within half the spread width
   on each side and put mass on both sides of the centre line (each disc throws one half).
 
-Section control per side (``side_steps``): a side's reach (the lateral extent of its half, m) is
-shortened in ``side_steps`` equal steps down to the side switched off; with ``border_spreading`` the
-side towards the field boundary is cut at the boundary itself, so product stays inside
-(`SpinnerSpec.side_reach_m`).
+At the field boundary (`SpinnerSpec.side_reach_m`): with ``border_spreading`` the side towards the
+boundary is cut at the boundary itself, so product stays inside; without it, section control shortens
+the side's reach (the lateral extent of its half, m) in ``side_steps`` equal steps, a step switched off
+once it lies wholly beyond the boundary (what a partly outside step throws lands outside).
+
+`SpinnerSpec` is the machine kind ``spinner``'s keys (`vehicle.machines`): at most 2 sections (the
+two sides), a spread width at least the driving width, a profile CSV's path resolved against the
+scenario's folder (`SpinnerSpec.resolved`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from common import files
 from common.checks import check_number, check_positive
 from common.errors import VehicleError
+from vehicle.machines import MachineSpec, register_spec
 
 PATTERN_SHAPES = ("triangular", "trapezoidal")
 TRAPEZOID_TOP_SHARE = 0.5  # a trapezoid's flat top spans this share of the spread width
@@ -42,9 +49,10 @@ MAX_SIDE_STEPS = 16
 MAX_THROW_DISTANCE_M = 100.0
 
 
+@register_spec
 @dataclass(frozen=True)
-class SpinnerSpec:
-    """A spinner spreader's own ``[implement]`` keys (SI units).
+class SpinnerSpec(MachineSpec):
+    """A spinner spreader's own ``[implement]`` keys (SI units): the machine kind ``spinner``.
 
     Attributes
     ----------
@@ -60,6 +68,9 @@ class SpinnerSpec:
         Section control: each side's reach is shortened in this many equal steps (1 to 16; 1: the side
         only on or off).
     """
+
+    KIND: ClassVar[str] = "spinner"
+    MAX_SECTIONS: ClassVar[int | None] = 2   # the two sides (discs), switched apart
 
     spread_width_m: float = 36.0
     pattern: str = "triangular"
@@ -87,40 +98,49 @@ class SpinnerSpec:
         """Half the spread width: the full reach of each side, m."""
         return self.spread_width_m / 2.0
 
-    def check_driving_width(self, width_m: float) -> None:
+    def check_width(self, width_m: float) -> None:
         """Refuse a spread width narrower than the driving width `width_m` (m): passes would not meet."""
         if self.spread_width_m < width_m:
             raise VehicleError(f"SpinnerSpec: spread_width_m={self.spread_width_m:g} must be at least the "
                                f"driving width width_m={width_m:g}")
 
-    def transverse_pattern(self, base_dir: str = ".") -> TransversePattern:
-        """The machine's transverse pattern: a shape's, or the profile CSV's (a path relative to
-        `base_dir`), checked against the spread width."""
+    def resolved(self, base_dir: str) -> SpinnerSpec:
+        """The spec with a profile CSV's path made absolute against `base_dir` (the scenario's folder)
+        and the profile read and checked (`VehicleError` naming file, row and value)."""
+        if self.pattern in PATTERN_SHAPES:
+            return self
+        _check_csv_name(self.pattern)
+        path = os.path.abspath(os.path.join(base_dir, os.path.expanduser(self.pattern)))
+        spec = dataclasses.replace(self, pattern=path)
+        spec.transverse_pattern()
+        return spec
+
+    def transverse_pattern(self) -> TransversePattern:
+        """The machine's transverse pattern: a shape's, or the profile CSV's (`resolved`: relative
+        paths are relative to the working folder here), checked against the spread width."""
         h = self.half_width_m
         if self.pattern == "triangular":
             return TransversePattern.normalized([-h, 0.0, h], [0.0, 1.0, 0.0], self.pattern)
         if self.pattern == "trapezoidal":
             top = h * TRAPEZOID_TOP_SHARE
             return TransversePattern.normalized([-h, -top, top, h], [0.0, 1.0, 1.0, 0.0], self.pattern)
-        path = os.path.join(base_dir, os.path.expanduser(self.pattern))
-        if not os.path.splitext(path)[1].lower() == ".csv":
-            raise VehicleError(f"SpinnerSpec: pattern must be one of {', '.join(PATTERN_SHAPES)} or a CSV "
-                               f"file's path (.csv), got {self.pattern!r}")
+        path = os.path.expanduser(_check_csv_name(self.pattern))
         offset, mass = _read_profile_csv(path, h)
         return TransversePattern.normalized(offset, mass, path)
 
-    def side_reach_m(self, room_m, at_boundary=False) -> np.ndarray:
-        """The reach a side is set to, m, given the lateral room it has (m, from the centre line to
-        the boundary or to ground already treated; vectorized): the largest of the `side_steps`
-        reaches within the room (0: the side off); with `border_spreading`, where the room ends at
-        the field boundary (`at_boundary`), the room itself, up to half the spread width."""
+    def side_reach_m(self, room_m) -> np.ndarray:
+        """The reach a side is set to, m, given the lateral room it has to the field boundary (m, from
+        its disc's centre line; vectorized; inf: no boundary within reach, <= 0: the disc's product
+        would land outside): with `border_spreading` the room itself (cut at the boundary), up to half
+        the spread width; without it, the `side_steps` reach whose outermost step is the one the
+        boundary crosses (a step switched off once wholly outside the field; 0: the side off)."""
         h = self.half_width_m
         room = np.clip(np.asarray(room_m, dtype=float), 0.0, h)
-        stepped = h * np.floor(room / h * self.side_steps + 1e-9) / self.side_steps
-        return np.where(np.asarray(at_boundary) & self.border_spreading, room, stepped)
+        if self.border_spreading:
+            return room
+        return h * np.ceil(room / h * self.side_steps - 1e-9) / self.side_steps
 
 
-SPINNER_KEYS = tuple(f.name for f in fields(SpinnerSpec))
 
 
 @dataclass(frozen=True)
@@ -152,28 +172,35 @@ class TransversePattern:
         """Relative mass per metre at `offset_m` (m, vectorized), 1/m; zero beyond the knots."""
         return np.interp(offset_m, self.offset_m, self.mass_per_m, left=0.0, right=0.0)
 
+    def cumulative(self, offset_m) -> np.ndarray:
+        """The pattern's mass from its right end up to `offset_m` (m, vectorized): exact for its
+        piecewise-linear density (a quadratic within each knot interval)."""
+        xs, ms = self.offset_m, self.mass_per_m
+        at = np.clip(np.asarray(offset_m, dtype=float), xs[0], xs[-1])
+        i = np.clip(np.searchsorted(xs, at, side="right") - 1, 0, xs.size - 2)
+        slope = (ms[i + 1] - ms[i]) / (xs[i + 1] - xs[i])
+        t = at - xs[i]
+        before = np.concatenate(([0.0], np.cumsum(np.diff(xs) * (ms[:-1] + ms[1:]) / 2)))
+        return before[i] + ms[i] * t + slope * t * t / 2
+
+    def side_share(self, side, reach_m) -> np.ndarray:
+        """The share of one side's mass (`side` +1: left of the centre line, -1: right) that lies
+        within `reach_m` (m) of the centre line (vectorized): what a side cut to that reach throws."""
+        side = np.asarray(side, dtype=float)
+        whole = np.abs(self.cumulative(side * np.inf) - self.cumulative(0.0))
+        return np.abs(self.cumulative(side * np.asarray(reach_m, float)) - self.cumulative(0.0)) / whole
+
+    def side_centre_m(self, side: int) -> float:
+        """Where the centre of one side's mass lies across (m, signed: left positive), the point the
+        side's rate is looked up at."""
+        x = np.linspace(0.0, side * max(abs(self.offset_m[0]), abs(self.offset_m[-1])), 2001)
+        mass = self.density(x)
+        return float(np.trapezoid(x * mass, x) / np.trapezoid(mass, x))
+
     @property
     def extent_m(self) -> tuple[float, float]:
         """How far the pattern reaches right (<= 0) and left (>= 0) of the centre line, m."""
         return min(float(self.offset_m[0]), 0.0), max(float(self.offset_m[-1]), 0.0)
-
-
-def spinner_from_keys(keys: dict, width_m: float,
-                      base_dir: str = ".") -> tuple[SpinnerSpec, TransversePattern]:
-    """A spinner's spec and its pattern from its ``[implement]`` keys (`SPINNER_KEYS`), for the
-    driving width `width_m` (m); a pattern CSV's path is relative to `base_dir`.
-
-    Raises
-    ------
-    VehicleError
-        One line naming the key and the value (or the profile's file, row and value).
-    """
-    unknown = sorted(set(keys) - set(SPINNER_KEYS))
-    if unknown:
-        raise VehicleError(f"SpinnerSpec: unknown key {unknown[0]!r} (known: {', '.join(SPINNER_KEYS)})")
-    spec = SpinnerSpec(**keys)
-    spec.check_driving_width(width_m)
-    return spec, spec.transverse_pattern(base_dir)
 
 
 def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -226,6 +253,14 @@ def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.nd
             raise VehicleError(f"pattern {path}: no mass {name} of the centre line: each disc throws one "
                                "half of the profile")
     return offset, mass
+
+
+def _check_csv_name(pattern: str) -> str:
+    """`pattern` if it names a CSV file; `VehicleError` naming the shapes otherwise."""
+    if not os.path.splitext(pattern)[1].lower() == ".csv":
+        raise VehicleError(f"SpinnerSpec: pattern must be one of {', '.join(PATTERN_SHAPES)} or a CSV "
+                           f"file's path (.csv), got {pattern!r}")
+    return pattern
 
 
 def _numeric(field: str) -> bool:

@@ -4,8 +4,8 @@ and per-nozzle pulse-width modulation (PWM) with turn compensation.
 A nozzle's flow follows the square root of its pressure, ``q = q_ref sqrt(p / p_ref)``, with ``q_ref``
 the ISO 10625 size's flow at ``p_ref = 3 bar`` (an ``02`` gives 0.8 L/min). Its pressure range
 bounds the flow of each nozzle, and so the speeds at which a rate (L/ha) can be applied: a nozzle
-``spacing`` metres apart must give ``rate * speed * spacing / 600`` L/min. The boom's target flow is
-``rate [L/ha] * speed [m/s] * width [m] / 600`` L/min (``600 = 10 000 m^2/ha / 60 s/min``).
+``spacing`` metres apart must give ``rate * speed * spacing * 0.006`` L/min. The boom's target flow is
+``rate [L/ha] * speed [m/s] * width [m] * 60 / 10 000`` L/min (m^2/s over 10 000 m^2/ha, times 60 s/min).
 
 The flow meter counts pulses; the terminal divides them by the configured pulses per litre, while
 the meter's true constant differs by its calibration error: the controller sees the meter's flow,
@@ -23,11 +23,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from common.checks import check_number, check_positive, in_range
 from common.errors import VehicleError
+from vehicle.machines import MachineSpec, register_spec
 
 __all__ = ["NOZZLE_FLOW_L_MIN", "FlowMeter", "SprayerSpec", "applied_rate_l_ha", "boom_flow_l_min",
            "nozzle_flow_l_min", "nozzle_pressure_bar", "nozzle_speeds_m_s", "pwm_duty_pct",
@@ -37,7 +39,7 @@ __all__ = ["NOZZLE_FLOW_L_MIN", "FlowMeter", "SprayerSpec", "applied_rate_l_ha",
 NOZZLE_FLOW_L_MIN = {"01": 0.4, "015": 0.6, "02": 0.8, "025": 1.0, "03": 1.2, "04": 1.6, "05": 2.0,
                      "06": 2.4, "08": 3.2}
 REF_PRESSURE_BAR = 3.0
-L_HA_M2_PER_L_MIN_S = 600.0   # rate [L/ha] * speed [m/s] * width [m] / 600 = flow [L/min]
+L_HA_M2_PER_L_MIN_S = 10_000.0 / 60.0   # rate [L/ha] * speed [m/s] * width [m] / this = flow [L/min]
 VALVES = ("bypass", "inline")
 CONTROLS = ("flow", "pwm")
 PWM_HZ_RANGE = (10.0, 30.0)
@@ -110,9 +112,10 @@ class FlowMeter:
         return np.asarray(metered_l, float) / self.gain
 
 
+@register_spec
 @dataclass(frozen=True)
-class SprayerSpec:
-    """The sprayer kind's own ``[implement]`` keys.
+class SprayerSpec(MachineSpec):
+    """The sprayer kind's own ``[implement]`` keys (``kind = "sprayer"``, `vehicle.machines`).
 
     Attributes
     ----------
@@ -137,6 +140,11 @@ class SprayerSpec:
     pwm_pressure_bar : float
         The pressure the pump loop holds under PWM [bar], within `pressure_range_bar`.
     """
+
+    KIND: ClassVar[str] = "sprayer"
+    # A boom has no metering shaft: its flow meter and nozzles stand for these.
+    UNUSED_KEYS: ClassVar[tuple[str, ...]] = ("kg_per_rev", "transmission_ratio", "shaft_rpm_min",
+                                              "shaft_rpm_max")
 
     nozzle: str = "02"
     nozzle_spacing_m: float = 0.5
@@ -241,7 +249,7 @@ class SprayerSpec:
             raise VehicleError(f"sprayer: nozzle {self.nozzle!r} ({q_lo:.3g}-{q_hi:.3g} L/min per nozzle) "
                                f"cannot apply {rate_min_l_ha:g}-{rate_max_l_ha:g} L/ha at any speed: the "
                                f"rates span {rate_max_l_ha / rate_min_l_ha:.3g}x, the nozzle "
-                               f"{q_hi / q_lo:.3g}x")
+                               f"{q_hi / q_lo:.3g}x (widen pressure_range_bar, or control = \"pwm\")")
         return span
 
 

@@ -1,13 +1,20 @@
-"""`vrsim calibrate SCENARIO [--revolutions N] [--scale-error-g G] [--json]`: the operator's meter
-calibration, simulated, and the constant to put in the scenario."""
+"""`vrsim calibrate SCENARIO [--revolutions N] [--scale-error-g G] [--seconds S] [--jug-error-ml ML]
+[--json]`: the operator's meter calibration, simulated (a granular meter turned and weighed; a
+sprayer's flow meter by a catch test), and the constant to put in the scenario."""
 
 from __future__ import annotations
 
-HELP = "simulate the meter's calibration test (turn, catch, weigh) and print the constant to configure"
+HELP = ("simulate the meter's calibration test (turn and weigh; a sprayer's catch test) and print the "
+        "constant to configure")
 
 
 def configure(parser) -> None:
-    from services.sim.calibrate import DEFAULT_REVOLUTIONS, DEFAULT_SCALE_ERROR_G
+    from services.sim.calibrate import (
+        DEFAULT_CATCH_S,
+        DEFAULT_JUG_ERROR_ML,
+        DEFAULT_REVOLUTIONS,
+        DEFAULT_SCALE_ERROR_G,
+    )
 
     parser.add_argument("scenario", help="scenario TOML file or built-in name")
     parser.add_argument("--revolutions", type=int, default=DEFAULT_REVOLUTIONS, metavar="N",
@@ -15,6 +22,11 @@ def configure(parser) -> None:
     parser.add_argument("--scale-error-g", type=float, default=DEFAULT_SCALE_ERROR_G, metavar="G",
                         help="standard deviation of the scale's reading, g "
                              f"(default {DEFAULT_SCALE_ERROR_G:g})")
+    parser.add_argument("--seconds", type=float, default=DEFAULT_CATCH_S, metavar="S",
+                        help=f"sprayer: seconds the boom sprays into the catch (default {DEFAULT_CATCH_S:g})")
+    parser.add_argument("--jug-error-ml", type=float, default=DEFAULT_JUG_ERROR_ML, metavar="ML",
+                        help="sprayer: standard deviation of the jug's reading, mL "
+                             f"(default {DEFAULT_JUG_ERROR_ML:g})")
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                         help="override a scenario key, as for vrsim run (repeatable)")
     parser.add_argument("--json", action="store_true", help="print the outcome as one JSON object")
@@ -27,7 +39,7 @@ def run(args) -> int:
     from services.sim.overrides import parse_assignment
 
     sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
-    result = calibrate(sc, args.revolutions, args.scale_error_g)
+    result = calibrate(sc, args.revolutions, args.scale_error_g, args.seconds, args.jug_error_ml)
     if args.json:
         print(dumps_text({**vars(result), "change_pct": result.change_pct, "settings": result.settings},
                          indent=True))

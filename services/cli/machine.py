@@ -1,6 +1,8 @@
 """`vrsim machine pattern SCENARIO [--out DIR] [--json] [--tray-width M]`: a spinner's simulated
 catch-tray test (EN 13739 / ISO 5690): CV across the driving width, the effective working width at
-CV 15 %, and pattern.png, the transverse profile of three adjacent passes."""
+CV 15 %, and pattern.png, the transverse profile of three adjacent passes. The scenario is loaded
+and checked whole (`services.sim.scenario.load`); a machine of another kind is refused in one line
+(its strips side by side lay a flat rate: ``vrsim run`` reports its ``cv_pct`` as 0)."""
 
 from __future__ import annotations
 
@@ -54,39 +56,19 @@ def run(args) -> int:
 
 
 def _spinner(spec: str):
-    """(scenario name, `SpinnerSpec`, `TransversePattern`, driving width m) from a scenario's
-    ``[implement]`` table, which must say ``kind = "spinner"``. Only the spinner's keys and
-    ``width_m`` are read here: the rest of the scenario is the machine registry's to check."""
-    import os
-    import tomllib
-
-    from common import ScenarioError, VrsimError, check_positive
+    """(scenario name, `SpinnerSpec`, `TransversePattern`, driving width m) of a scenario loaded and
+    checked whole (`services.sim.scenario.load`), whose machine must be a spinner: another kind's
+    strips lie side by side and lay a flat rate (``cv_pct`` 0 in ``vrsim run``), so it is refused."""
+    from common import ScenarioError
     from services.sim import scenario
-    from vehicle import Implement
-    from vehicle.spinner import SPINNER_KEYS, spinner_from_keys
 
-    text, source, base_dir = scenario.read(spec)
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
-    table = doc.get("implement", {})
-    if not isinstance(table, dict):
-        raise ScenarioError(f"{source}: [implement] must be a table, got {table!r}")
-    if table.get("kind") != "spinner":
-        raise ScenarioError(f'{source}: [implement] kind: machine pattern needs a spinner '
-                            f'(kind = "spinner"), got {table.get("kind")!r}')
-    width = check_positive(table.get("width_m", Implement.width_m), f"{source}: [implement] width_m",
-                           ScenarioError, unit="m")
-    try:
-        keys = {k: v for k, v in table.items() if k in SPINNER_KEYS}
-        made, pattern = spinner_from_keys(keys, width, base_dir)
-    except VrsimError as exc:
-        raise ScenarioError(f"{source}: [implement] {exc}") from None
-    name = doc.get("name")
-    if not isinstance(name, str):
-        name = os.path.splitext(os.path.basename(source))[0]
-    return name.replace("builtin:", ""), made, pattern, width
+    sc = scenario.load(spec)
+    implement = sc.implement
+    if implement.kind != "spinner":
+        raise ScenarioError(f'{sc.source}: [implement] kind: machine pattern needs a spinner '
+                            f'(kind = "spinner"), got {implement.kind!r} (its strips lie side by side: '
+                            "cv_pct 0)")
+    return sc.name, implement.machine, implement.machine.transverse_pattern(), implement.width_m
 
 
 def _write_picture(test, spec, path: str) -> None:

@@ -41,7 +41,7 @@ def run(args) -> int:
     result.summary["out_dir"] = args.out
     print(summary_json(with_settings(result)) if args.json else text_summary(result.summary))
     if not args.json:
-        print(outputs_line(args.out))
+        print(outputs_line(args.out, result.world.scenario.output.track_formats))
     note = incomplete_note(result.summary)
     if note is not None:  # the files are written all the same: they are what the monitor stored
         print(f"vrsim report: warning: {note}", file=sys.stderr)

@@ -19,7 +19,7 @@ EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` re
 
 def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
-                        help="scenario TOML file or built-in name (default, large)")
+                        help="scenario TOML file or built-in name (default, large, huge)")
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                         help="override a scenario key, checked like the file's (controller.kp=0.8, "
                              "gnss.kind=dgps, seed=3); repeatable")
@@ -103,20 +103,28 @@ def _run(args, driver) -> int:
     # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
+    track = None
     try:
         from services.outputs.summary import summary_json, text_summary
+        from services.outputs.track import TrackFiles
         from services.outputs.write import outputs_line, write_outputs
         from services.sim.as_run import with_settings
 
+        out_dir = args.out or default_out_dir(sc.name)
+        # The track is written as the run accounts it (its memory is the map's and a part's).
+        track = TrackFiles(driver.planned[0], out_dir, sc.output.track_formats)
         _started()
         try:
-            result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html)
+            result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html,
+                                  track_sink=track)
         finally:
             progress.close()
-        out_dir = args.out or default_out_dir(sc.name)
         t0 = time.perf_counter()
-        write_outputs(result, out_dir, plotter)
+        write_outputs(result, out_dir, plotter, track)
+        track = None
     finally:
+        if track is not None:
+            track.abort()
         if plotter is not None:
             plotter.close()
     result.summary["outputs_wall_s"] = time.perf_counter() - t0
@@ -126,7 +134,7 @@ def _run(args, driver) -> int:
     else:
         print(result.machine_check.text(result.world.grid))
         print(text_summary(result.summary))
-        print(outputs_line(out_dir))
+        print(outputs_line(out_dir, sc.output.track_formats))
     return 0
 
 

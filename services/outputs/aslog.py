@@ -5,18 +5,11 @@ from __future__ import annotations
 
 import os
 
-from maps import PointLog, write_points, write_taskdata
+from maps import write_points, write_taskdata
 from maps.taskdata import TLG_NAME, prepare_folder
-from services.sim.aslog import run_point_log
 from services.sim.run import RunResult
 
 POINT_FILES = {"gpkg": "as_applied_points.gpkg", "shp": "as_applied_points.zip"}
-
-
-def _run_log(result: RunResult) -> PointLog:
-    """The run's as-applied log (see `services.sim.aslog`)."""
-    return run_point_log(result.world, result.track, result.control, result.landing.applied_kg_ha,
-                         result.started_unix, result.world.scenario.output.log_rate_hz)
 
 
 def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
@@ -25,7 +18,7 @@ def write_as_applied(result: RunResult, out_dir: str) -> dict[str, str]:
     A run into the same folder again replaces the earlier run's taskdata/, as it does every other
     file; a taskdata/ that holds anything else is refused (`maps.write_taskdata` never overwrites).
     """
-    log = _run_log(result)
+    log = result.kept.point_log   # the run's as-applied log (see `services.sim.aslog`)
     implement = result.world.scenario.implement
     folder = _prepare_as_applied(out_dir)
     paths = {"taskdata": write_taskdata(log, folder,

@@ -15,11 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.transitions import rate_steps
-
-TIMESERIES_WINDOW_S = 60.0
-MAX_TRACK_POINTS = 20_000  # the path over the prescription: more points draw the same line
-
 
 def figure(width_in: float, height_in: float, layout: str | None = None, **margins):
     """A Figure on the Agg canvas (no pyplot): fixed margins (fractions of the figure), or a layout
@@ -91,11 +86,10 @@ def map_picture(result) -> MapPicture:
     """map.png's content of a `services.sim.run.RunResult`."""
     grid = result.world.grid
     extent, (west, south), outline = _frame(result)
-    step = max(1, len(result.track["x_m"]) // MAX_TRACK_POINTS)
+    x_m, y_m = result.kept.path_xy   # thinned (`services.sim.kept.PathPoints`)
     s = result.summary
     return MapPicture(grid.in_map_unit(grid.rates_kg_ha), grid.in_map_unit(result.as_applied.applied_kg_ha),
-                      result.in_field, extent, outline,
-                      (result.track["x_m"][::step] - west, result.track["y_m"][::step] - south),
+                      result.in_field, extent, outline, (x_m - west, y_m - south),
                       f"{result.world.scenario.name}: MAE {s['in_rate_unit']['mae']:.1f} {grid.map_unit}, "
                       f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area",
                       grid.map_unit, float(grid.in_map_unit(1.0)))
@@ -119,16 +113,11 @@ def sections_picture(result) -> SectionsPicture:
 
 
 def series_picture(result) -> SeriesPicture:
-    """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start)."""
-    t = result.track["time_s"]
-    steps = rate_steps(result.landing.prescribed_kg_ha, np.asarray(result.track["implement_on"], bool))
-    start_t = t[steps[0]] - 10.0 if steps.size else t[0]
-    i0 = int(np.searchsorted(t, start_t))
-    i1 = int(np.searchsorted(t, t[i0] + TIMESERIES_WINDOW_S))
-    w = slice(i0, max(i1, i0 + 1))
-    c, landing, grid = result.control, result.landing, result.world.grid
-    rates = (grid.in_map_unit(landing.prescribed_kg_ha[w]), grid.in_map_unit(landing.applied_kg_ha[w]))
-    return SeriesPicture(t[w], c["target_shaft_rpm"][w], c["shaft_rpm"][w], *rates,
+    """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start),
+    `services.sim.kept.SeriesWindow`, the rates in the map's unit."""
+    w, grid = result.kept.series, result.world.grid
+    rates = (grid.in_map_unit(w["prescribed_kg_ha"]), grid.in_map_unit(w["applied_kg_ha"]))
+    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], *rates,
                          f"{result.world.scenario.name}: shaft speed and rate around rate steps",
                          grid.map_unit)
 

@@ -1,6 +1,6 @@
 """Every file a run writes, in one call: summary.json, prescription.tif, as_applied.tif, error.tif,
-passes.tif, track.csv, taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg, map.png, sections.png,
-timeseries.png and report.html."""
+passes.tif, track.parquet and/or track.csv (``[output] track``), taskdata/ (ISO 11783 TimeLog),
+as_applied_points.gpkg, map.png, sections.png, timeseries.png and report.html."""
 
 from __future__ import annotations
 
@@ -11,23 +11,26 @@ from common.written import staged
 from services.outputs.aslog import check_as_applied, write_as_applied
 from services.outputs.rasters import write_rasters
 from services.outputs.summary import summary_json
-from services.outputs.track_csv import write_track_csv
+from services.outputs.track import TRACK_FILES, TrackFiles, track_rows
 from services.sim.as_run import with_settings
 from services.sim.run import RunResult
 
-FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "track.csv",
-         "map.png", "sections.png", "timeseries.png", "report.html")
+FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "map.png",
+         "sections.png", "timeseries.png", "report.html")   # and the track's (`TRACK_FILES`)
 PICTURES = ("map.png", "sections.png", "timeseries.png")
 
 
-def outputs_line(out_dir: str) -> str:
-    """The line `vrsim run` and `vrsim report` print after the summary."""
-    return (f"  outputs in {out_dir}/ (report.html, map.png, sections.png, timeseries.png, track.csv, "
+def outputs_line(out_dir: str, track_formats=("parquet",)) -> str:
+    """The line `vrsim run` and `vrsim report` print after the summary (`track_formats`: ``[output]
+    track``'s)."""
+    track = "".join(f"{TRACK_FILES[f]}, " for f in track_formats)
+    return (f"  outputs in {out_dir}/ (report.html, map.png, sections.png, timeseries.png, {track}"
             "prescription.tif, as_applied.tif, error.tif, passes.tif, taskdata/, as_applied_points, "
             "summary.json)")
 
 
-def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, str]:
+def write_outputs(result: RunResult, out_dir: str, plotter=None,
+                  track: TrackFiles | None = None) -> dict[str, str]:
     """Write every output file into `out_dir`, all of them or none (`common.written.staged`: a full
     disk or a read-only folder is a `common.MapError` naming the folder, and changes no file of
     `out_dir`); returns {name: path}.
@@ -41,6 +44,10 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
     plotter : services.outputs.plot_worker.PlotWorker, optional
         A started worker that draws the pictures while the other files are written; without one they
         are drawn here.
+    track : TrackFiles, optional
+        A run accounted part by part (``result.bounded``): the track files it wrote as it went into
+        `out_dir`, put in place here with the rest (removed if the rest fails). None: written here from
+        the run's arrays (a bounded run without them writes no track).
     """
     from services.outputs import plots
 
@@ -65,8 +72,11 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None) -> dict[str, st
                 plotter.submit(*job)
         try:
             logs = _write_files(result, stage, staged_paths, jobs, plotter)
+            logs.update(_track(result, stage, track))
         except BaseException:
             _drain(plotter, jobs)  # no picture may still be drawn into the folder when it is removed
+            if track is not None:
+                track.abort()
             raise
     paths.update({name: os.path.join(out_dir, os.path.relpath(path, stage)) for name, path in logs.items()})
     return paths
@@ -81,7 +91,6 @@ def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: lis
         fh.write(summary_json(with_settings(result)) + "\n")
     write_rasters(result, paths["prescription.tif"], paths["as_applied.tif"], paths["error.tif"],
                   paths["passes.tif"])
-    write_track_csv(result, paths["track.csv"])
     while jobs:
         drawing, picture, path = jobs.pop(0)
         if plotter is not None:
@@ -93,6 +102,19 @@ def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: lis
 
         write_html(result, paths)
     return logs
+
+
+def _track(result: RunResult, stage: str, track: TrackFiles | None) -> dict[str, str]:
+    """The track's files: those a bounded run wrote (in place already), else written into the stage
+    from the run's arrays; {name: path in `stage` or in place}."""
+    if track is not None:
+        return {name: os.path.join(stage, os.path.relpath(path, track.folder))
+                for name, path in track.finish().items()}
+    if result.bounded:
+        return {}
+    files = TrackFiles(result.world.field, stage, result.world.scenario.output.track_formats)
+    files(track_rows(result))
+    return files.finish()
 
 
 def _drain(plotter, jobs: list) -> None:

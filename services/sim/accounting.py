@@ -25,9 +25,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common import ScenarioError, VehicleError
 from maps import Grid
 from services.sim.landing import M2_PER_HA, Landing
 from services.sim.limits import MachineCheck, machine_check, working_speeds
+from services.sim.machines import machine_for
 from services.sim.metrics import (
     LimitMetrics,
     MapMetrics,
@@ -55,7 +57,11 @@ def check_world(world: World, in_field: np.ndarray | None = None) -> MachineChec
     sc = world.scenario
     if in_field is None:
         in_field = cells_in_field(world.grid, world.field.polygon)
-    return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement)
+    try:
+        return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement,
+                             sc.product.density_kg_l, sc.tractor.working_speed_m_s)
+    except VehicleError as exc:   # a sprayer's nozzle that cannot apply the map at any speed
+        raise ScenarioError(f"{sc.source}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -120,9 +126,11 @@ class Setting:
     Attributes
     ----------
     world : World
-    track : dict
-        The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record).
-    landing : Landing
+    track : dict or None
+        The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record);
+        None for a run accounted part by part (`services.sim.bounded`), as are `landing`, `limited`,
+        `applying` and `steps`.
+    landing : Landing or None
         Where each tick's product lands (its applied rates are a column's own: `Deposit.rate_kg_ha`).
     in_field : ndarray of bool, shape (rows, cols)
         Cells whose centre lies inside the field.
@@ -135,17 +143,23 @@ class Setting:
     steps : ndarray of int
         The prescription's rate steps under the landing point (`services.sim.transitions.rate_steps`).
     check : MachineCheck
+    ticks : int
+        Control ticks accounted.
+    path_length_m : float
+        Length of the landing path (the last tick's distance; 0: no tick), m.
     """
 
     world: World
-    track: dict
-    landing: Landing
+    track: dict | None
+    landing: Landing | None
     in_field: np.ndarray
     worked_fraction: np.ndarray
-    limited: np.ndarray
-    applying: np.ndarray
-    steps: np.ndarray
+    limited: np.ndarray | None
+    applying: np.ndarray | None
+    steps: np.ndarray | None
     check: MachineCheck
+    ticks: int
+    path_length_m: float
 
     @classmethod
     def of(cls, world: World, track: dict, control: dict, landing: Landing) -> Setting:
@@ -153,12 +167,11 @@ class Setting:
         grid, implement = world.grid, world.scenario.implement
         in_field = cells_in_field(grid, world.field.polygon)
         applying = control["width_on_m"] > 0
-        # A closed drive's target is 0, never on a bound: any drive's flags the tick.
-        limited = implement.shaft_limited(control["drive_target_rpm"]).any(axis=1) & applying
+        limited = machine_for(implement).limited(control) & applying
         return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
                    limited, applying,
                    rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),
-                   check_world(world, in_field))
+                   check_world(world, in_field), len(track["time_s"]), float(landing.distance_m[-1:].sum()))
 
 
 @dataclass(frozen=True)
@@ -167,9 +180,9 @@ class Deposit:
 
     Attributes
     ----------
-    metered_kg, rate_kg_ha : ndarray, shape (ticks,)
+    metered_kg, rate_kg_ha : ndarray, shape (ticks,), or None
         Product through the meter per tick, kg, and its applied rate at the landing point, kg/ha
-        (`landing.applied_rate_kg_ha`).
+        (`landing.applied_rate_kg_ha`); None for a run accounted part by part (`services.sim.bounded`).
     applied_kg_ha, coverage_fraction, overlap_fraction, overlap_kg : ndarray, shape (rows, cols)
         The as-applied raster: product per cell area, the share of each cell product landed on, the
         share more than one pass put product on, and the product beyond the first pass (kg).

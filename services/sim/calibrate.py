@@ -21,8 +21,14 @@ In this model the product per revolution does not depend on the shaft's speed, s
 only how long the test takes. Pure and seeded by the scenario's seed: the same scenario and arguments
 give the same measurement.
 
-One calibration per product form (`CALIBRATIONS`): a granular meter's here; a liquid product's
-(a sprayer's catch or tank test) belongs with the sprayer machine kind.
+A liquid product on a sprayer (`LiquidCalibration`): the *catch test* calibrates the flow meter's
+pulses per litre. The boom sprays at the nozzles' reference 3 bar for ``seconds`` while the terminal
+counts the meter's pulses; the operator catches each nozzle's output in a jug and reads it (each
+reading with a random error, normal with standard deviation ``jug_error_ml``; one nozzle's catch
+alone would carry the nozzles' spread, so all are caught), and the meter's constant measured is
+``pulses / litres caught`` (a tank volume test is the same division with the litres read off the
+tank's gauge). The meter's truth is ``[implement] flow_meter_error_pct`` against the configured constant, so
+the same meter recalibrated is left with ``100 (true / measured - 1)``; both settings are printed.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from common import ScenarioError, VrsimError
 from common.checks import in_range
 from services.sim.scenario import Scenario, scenario_file
 from vehicle.product import metered_kg
+from vehicle.sprayer import REF_PRESSURE_BAR
 
 DEFAULT_REVOLUTIONS = 50
 DEFAULT_SCALE_ERROR_G = 20.0    # a platform scale for a 20-30 kg catch, read to +-20 g
@@ -42,6 +49,9 @@ MAX_REVOLUTIONS = 100_000
 MAX_SCALE_ERROR_G = 100_000.0
 _CATCH_STREAM = 0xCA1_0001      # the test's revolutions: not the field's (`vehicle.product`)
 _SCALE_STREAM = 0xCA1_0002      # the scale's error
+DEFAULT_CATCH_S = 60.0          # a minute's catch, as the nozzle charts give L/min
+DEFAULT_JUG_ERROR_ML = 10.0     # a 1-2 L measuring jug read to +-10 mL
+MAX_CATCH_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -121,15 +131,18 @@ class Calibration:
 
 
 def calibrate(scenario: Scenario, revolutions: int = DEFAULT_REVOLUTIONS,
-              scale_error_g: float = DEFAULT_SCALE_ERROR_G) -> Calibration:
-    """Simulate the calibration test of `scenario`'s meter for its product's form (`CALIBRATIONS`).
+              scale_error_g: float = DEFAULT_SCALE_ERROR_G, seconds: float = DEFAULT_CATCH_S,
+              jug_error_ml: float = DEFAULT_JUG_ERROR_ML) -> Calibration | LiquidCalibration:
+    """Simulate the calibration test of `scenario`'s meter for its product's form: a granular meter's
+    (`revolutions`, `scale_error_g`), a sprayer's catch test (`seconds`, `jug_error_ml`).
 
     Raises
     ------
     VrsimError
         `revolutions` or `scale_error_g` out of range, naming the option and its value.
     ScenarioError
-        A product form with no calibration here (a liquid: the sprayer kind's), naming the file.
+        A liquid product on a machine other than a sprayer (or a granular one on a sprayer), naming
+        the file.
     """
     if isinstance(revolutions, bool) or not isinstance(revolutions, int) \
             or not 1 <= revolutions <= MAX_REVOLUTIONS:
@@ -137,12 +150,15 @@ def calibrate(scenario: Scenario, revolutions: int = DEFAULT_REVOLUTIONS,
     if not in_range(scale_error_g, 0.0, MAX_SCALE_ERROR_G):
         raise VrsimError(f"--scale-error-g {scale_error_g!r}: must be a number of grams in "
                          f"[0, {MAX_SCALE_ERROR_G:g}]")
-    form = scenario.product.form
-    if form not in CALIBRATIONS:
-        raise ScenarioError(f"{scenario_file(scenario)}: [product] form {form!r}: its calibration (a catch "
-                            "or tank test) needs the sprayer machine kind; vrsim calibrate tests a granular "
-                            "meter")
-    return CALIBRATIONS[form](scenario, revolutions, scale_error_g)
+    form, sprayer = scenario.product.form, scenario.implement.kind == "sprayer"
+    if (form == "liquid") != sprayer:
+        need = ("its calibration (a catch test) needs [implement] kind = \"sprayer\"" if form == "liquid"
+                else "a sprayer meters a liquid (its catch test calibrates the flow meter)")
+        raise ScenarioError(f"{scenario_file(scenario)}: [product] form {form!r}: {need}, "
+                            f"got kind {scenario.implement.kind!r}")
+    if sprayer:
+        return _liquid(scenario, seconds, jug_error_ml)
+    return _granular(scenario, revolutions, scale_error_g)
 
 
 def _granular(scenario: Scenario, revolutions: int, scale_error_g: float) -> Calibration:
@@ -163,6 +179,97 @@ def _granular(scenario: Scenario, revolutions: int, scale_error_g: float) -> Cal
         measured_kg_per_rev=weighed_kg / revolutions, true_kg_per_rev=product.true_kg_per_rev(imp.kg_per_rev))
 
 
-# One calibration test per product form; the liquid form's (a sprayer's catch or tank volume test)
-# comes with the sprayer machine kind.
-CALIBRATIONS = {"granular": _granular}
+@dataclass(frozen=True)
+class LiquidCalibration:
+    """The outcome of a sprayer's catch test (see the module docstring).
+
+    Attributes
+    ----------
+    scenario : str
+    seconds : float
+        How long the boom sprayed, s.
+    nozzles : int
+        Nozzles on the boom.
+    jug_error_ml : float
+        Standard deviation of the jug's reading, mL.
+    configured_pulses_per_l : float
+        The scenario's ``[implement] flow_meter_pulses_per_l``.
+    pulses : float
+        Whole pulses the meter counted.
+    caught_l, read_l : float
+        The jugs' catch, L (the simulation's truth), and what they read together.
+    measured_pulses_per_l : float
+        ``pulses / read_l``: the constant to configure.
+    true_pulses_per_l : float
+        The meter's true constant (the simulation's truth).
+    """
+
+    scenario: str
+    seconds: float
+    nozzles: int
+    jug_error_ml: float
+    configured_pulses_per_l: float
+    pulses: float
+    caught_l: float
+    read_l: float
+    measured_pulses_per_l: float
+    true_pulses_per_l: float
+
+    @property
+    def change_pct(self) -> float:
+        """The measured constant against the configured one, %."""
+        return 100.0 * (self.measured_pulses_per_l / self.configured_pulses_per_l - 1.0)
+
+    @property
+    def settings(self) -> dict[str, float]:
+        """The scenario keys to set after the test (dotted): the measured constant and the error the same
+        meter has left against it (``flow_meter_error_pct``: it reads this much more than flows)."""
+        measured = float(f"{self.measured_pulses_per_l:.6g}")
+        return {"implement.flow_meter_pulses_per_l": measured,
+                "implement.flow_meter_error_pct": round(100.0 * (self.true_pulses_per_l / measured - 1.0), 3)
+                + 0.0}
+
+    def text(self) -> str:
+        """What `vrsim calibrate` prints."""
+        ppl, error = self.settings.values()
+        return "\n".join([
+            f"Calibration of {self.scenario} (liquid, flow meter): the boom sprayed {self.seconds:g} s at "
+            f"{REF_PRESSURE_BAR:g} bar, each of its {self.nozzles} nozzles caught in a jug read to "
+            f"+-{self.jug_error_ml:g} mL.",
+            f"  Jugs {self.read_l:.3f} L together, the meter {self.pulses:.0f} pulses: "
+            f"{ppl:g} pulses/L measured against {self.configured_pulses_per_l:g} configured "
+            f"({self.change_pct:+.2f} %).",
+            f"  Put in the scenario: [implement] flow_meter_pulses_per_l = {ppl:g}; the same meter's true "
+            f"{self.true_pulses_per_l:.6g} pulses/L then leaves flow_meter_error_pct = {error:g}.",
+            "  Or run with: " + " ".join(f"--set {k}={v:g}" for k, v in self.settings.items()),
+        ])
+
+
+def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCalibration:
+    """A sprayer's catch test: the boom at 3 bar for `seconds`, each nozzle into a jug, the pulses counted."""
+    from services.sim.machines.sprayer import check_liquid
+
+    if not in_range(seconds, 0.0, MAX_CATCH_S, lo_open=True):
+        raise VrsimError(f"--seconds {seconds!r}: must be a number of seconds in (0, {MAX_CATCH_S:g}]")
+    if not in_range(jug_error_ml, 0.0, MAX_SCALE_ERROR_G):
+        raise VrsimError(f"--jug-error-ml {jug_error_ml!r}: must be a number of millilitres in "
+                         f"[0, {MAX_SCALE_ERROR_G:g}]")
+    check_liquid(scenario)
+    imp, seed = scenario.implement, scenario.seed
+    spec = imp.machine
+    nozzles = spec.nozzle_count(imp.width_m)
+    # Each nozzle gives its rated flow at 3 bar; the product's flow variability over the boom's litres.
+    nominal_l = nozzles * spec.q_ref_l_min * seconds / 60.0
+    caught_l = float(metered_kg(np.array([nominal_l]), 1.0, scenario.product, seed,
+                                stream=_CATCH_STREAM)[0][0])
+    misread_ml = np.random.default_rng([seed, _SCALE_STREAM]).normal(0.0, 1.0, nozzles) * jug_error_ml
+    read_l = caught_l + float(misread_ml.sum()) / 1000.0
+    if read_l <= 0:
+        raise VrsimError(f"--jug-error-ml {jug_error_ml!r}: the jugs read {read_l * 1000:.0f} mL for a "
+                         f"{caught_l * 1000:.0f} mL catch; catch longer or read finer jugs")
+    pulses = float(spec.meter.pulses(caught_l))
+    return LiquidCalibration(
+        scenario=scenario.name, seconds=float(seconds), nozzles=nozzles, jug_error_ml=float(jug_error_ml),
+        configured_pulses_per_l=spec.flow_meter_pulses_per_l, pulses=pulses, caught_l=caught_l, read_l=read_l,
+        measured_pulses_per_l=pulses / read_l,
+        true_pulses_per_l=spec.flow_meter_pulses_per_l * spec.meter.gain)

@@ -33,6 +33,11 @@ def plant_for(scenario: Scenario) -> PlantParams:
                                shaft_rpm_max=imp.shaft_rpm_max)
 
 
+def machine_plant(scenario: Scenario, grid: Grid) -> PlantParams:
+    """The plant each metering drive's loop closes: the kind's (`Machine.loop_plant`), from `plant_for`'s."""
+    return machine_for(scenario.implement).loop_plant(plant_for(scenario), scenario, grid)
+
+
 def config_as_run(scenario: Scenario) -> dict:
     """The scenario as plain data with the parameters as the run used them (the plant with the
     implement's transmission ratio and shaft-speed limit, `plant_for`): summary.json's
@@ -77,8 +82,10 @@ class ControlCore:
         self.implement = scenario.implement
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
-        self.machine = machine_for(self.implement)
-        timing, cfg, plant = scenario.timing, scenario.controller, plant_for(scenario)
+        self.machine = machine_for(self.implement, field_polygon)
+        timing, cfg, plant = scenario.timing, scenario.controller, self.machine.loop_plant(
+            plant_for(scenario), scenario, grid)
+        self.plant = plant
         try:   # a loop per metering drive, all advanced by one lifted matrix product per period
             self.loop = build_loop(plant, cfg, control_period_s=timing.control_period_s,
                                    plant_step_s=timing.plant_step_s, n=self.machine.drives)
@@ -200,7 +207,8 @@ class ControlCore:
         # The product's true constant and flow variability meter it (`vehicle.product`); the terminal
         # computed the target with the configured constant. A closed gate's roller turns all the same.
         forward = np.maximum(shaft_rev, 0.0)
-        kg, end_rev = metered_kg(forward, self.implement.kg_per_rev, self.product, self.seed, self.meter_rev)
+        kg, end_rev = metered_kg(forward, self.machine.kg_per_rev(self.product), self.product, self.seed,
+                                 self.meter_rev)
         self.meter_rev = np.atleast_1d(end_rev)
         share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
         return np.where(np.asarray(applying, bool), kg * share, 0.0)

@@ -96,7 +96,17 @@ class Metric:
 
 # Formulas of figures that are not one attribute of the accounts and serve more than one row.
 def _sim_time_s(a: Accounts) -> float:
-    return len(a.setting.track["time_s"]) * a.setting.world.scenario.timing.control_period_s
+    return a.setting.ticks * a.setting.world.scenario.timing.control_period_s
+
+
+def _cv_pct(a: Accounts) -> float:
+    """The machine's transverse pattern (`Machine.transverse_pattern`) overlapped to and fro at the
+    driving width: its CV across the driving width (`services.sim.spread_pattern.cv_pct`), %."""
+    from services.sim.machines import machine_for
+    from services.sim.spread_pattern import cv_pct
+
+    implement = a.setting.world.scenario.implement
+    return cv_pct(*machine_for(implement).transverse_pattern(), implement.width_m)
 
 
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
@@ -108,7 +118,7 @@ METRICS = (
     Metric("sim_time_s", "s", "Simulated time", "ticks x control period", of=_sim_time_s),
     Metric("wall_time_s", "s", "Wall time", "wall-clock time of the run (outputs not included)",
            of="timing.wall_time_s"),
-    Metric("ticks", "", "", "control ticks driven", of=lambda a: len(a.setting.track["time_s"])),
+    Metric("ticks", "", "", "control ticks driven", of="setting.ticks"),
     Metric("realtime_factor", "x", "Real-time factor", "simulated time over wall time",
            of=lambda a: _sim_time_s(a) / a.timing.wall_time_s),
     Metric("prescribed_kg", "kg", "Prescribed product",
@@ -172,6 +182,10 @@ METRICS = (
     Metric("limited_area_pct", "%", "Machine-limited area",
            "share of the covered field area where product was metered in those ticks", (0.3, 0.03),
            sense="min", of="limits.limited_area_pct"),
+    # A figure of the machine's set-up (its pattern and driving width), not of the run: not held.
+    Metric("cv_pct", "%", "Spread CV (EN 13739)",
+           "CV across the driving width of the machine's transverse pattern overlapped to and fro on "
+           "straight passes (0 for rectangles)", sense="min", of=_cv_pct),
     Metric("sections", "", "Sections", "number of sections of the implement",
            of="setting.world.scenario.implement.sections"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",
@@ -188,8 +202,7 @@ METRICS = (
     Metric("transitions", "", "", "rate steps to a non-zero rate whose transition settled: the steps of the "
            "transition figures", of="transitions.transitions"),
     Metric("covered_cells", "", "", "cells inside the field swept to at least 90 %", of="map.covered_cells"),
-    Metric("path_length_m", "m", "", "length of the landing path",   # the last tick's distance; 0: no tick
-           of=lambda a: float(a.setting.landing.distance_m[-1:].sum())),
+    Metric("path_length_m", "m", "", "length of the landing path", of="setting.path_length_m"),
 )
 
 

@@ -16,11 +16,13 @@ control loop follow it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from common import ScenarioError, files
 from controller import ControllerConfig
 from maps import AsApplied, Grid
 from services.sim import metrics
@@ -34,13 +36,15 @@ from services.sim.accounting import (
     check_world,
 )
 from services.sim.as_run import as_run
+from services.sim.aslog import run_point_log
 from services.sim.core import ControlCore
+from services.sim.kept import Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
 from services.sim.machines import Machine, machine_for
 from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
 from services.sim.scenario import Scenario
-from services.sim.section_landing import limited_coverage
+from services.sim.section_landing import limited_coverage, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
 from services.sim.transitions import TransitionMetrics
 from services.sim.world import World, build_world, driving
@@ -52,6 +56,9 @@ __all__ = ["Drive", "RunResult", "accounted", "as_applied", "cells_in_field", "c
            "control_and_account", "drive", "measure", "run", "sensors"]
 
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
+# Memory the in-process run keeps per control tick: ~35 float64 arrays (the track, the sensors, the
+# targets, the loop's outputs, the landing) plus temporaries of the vectorized stages.
+ARRAY_BYTES_PER_TICK = 400
 
 
 @dataclass
@@ -69,9 +76,12 @@ class RunResult:
     as_applied: AsApplied
     accounts: Accounts
     started_unix: float  # when the run (or the services run it was rebuilt from) started, Unix time
-    # The error split's reference meters' figures (`services.sim.error_split.reference_figures`),
+    # The error split's reference meters' figures (`services.sim.error_split`),
     # when the run computed them beside its accounting; None: computed when asked for.
     reference_figures: list[MapMetrics] | None = None
+    # What a run accounted part by part (`services.sim.bounded`) kept for its outputs; None: the
+    # in-process run, whose arrays give them (`kept`).
+    kept_parts: Kept | None = None
     summary: dict = field(init=False)
 
     def __post_init__(self):
@@ -80,6 +90,29 @@ class RunResult:
     @property
     def world(self) -> World:
         return self.accounts.setting.world
+
+    @property
+    def bounded(self) -> bool:
+        """Accounted part by part (`services.sim.bounded`, what `vrsim run` does): no per-tick arrays
+        (``track``, ``control``, ``landing``, the measured arrays and ``sections`` are None); the track
+        was written as it went, and `kept` holds what the other outputs need."""
+        return self.kept_parts is not None
+
+    @functools.cached_property
+    def kept(self) -> Kept:
+        """The path points, timeseries.png's window and the as-applied log (`services.sim.kept`)."""
+        if self.kept_parts is not None:
+            return self.kept_parts
+        track, landing, control = self.track, self.landing, self.control
+        path = PathPoints.for_ticks(len(track["x_m"]))
+        path.add(track["x_m"], track["y_m"])
+        series = SeriesWindow()
+        series.add({"time_s": track["time_s"], "target_shaft_rpm": control["target_shaft_rpm"],
+                    "shaft_rpm": control["shaft_rpm"], "prescribed_kg_ha": landing.prescribed_kg_ha,
+                    "applied_kg_ha": landing.applied_kg_ha}, track["implement_on"])
+        log = run_point_log(self.world, track, control, landing.applied_kg_ha, self.started_unix,
+                            self.world.scenario.output.log_rate_hz)
+        return Kept(path.xy(), series.finish(), log)
 
     @property
     def track(self) -> dict:
@@ -161,10 +194,15 @@ def run(scenario: Scenario, progress=None) -> RunResult:
 
 
 def drive(scenario: Scenario) -> Drive:
-    """Build the world, drive SUMO over the whole path and read the sensors (the controller-free part)."""
+    """Build the world, drive SUMO over the whole path and read the sensors (the controller-free part).
+
+    Its arrays are the whole run's, kept for the Python API (`RunResult`: ``track``, ``control``, ...):
+    a run too long for them is refused before SUMO drives (`vrsim run` accounts part by part instead,
+    `services.sim.streamed`)."""
     started, timer = time.time(), StageTimer()
     with timer.stage("build_s"):
         world = build_world(scenario)
+        _check_arrays(world)
     scenario = world.scenario   # as run: what the drive, the sensors and the outputs use
     with timer.stage("sumo_s"), driving(scenario, world.path) as driver:
         track = driver.run_all()
@@ -221,8 +259,9 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     with timer.stage("metrics_s"):
         states = run_section_states(track, control, implement)
         landing = land(world.grid, track, metered, width_on, delay_s, period_s)
-        machine = machine_for(implement)
-        acc = as_applied(world.grid, track, machine.deposit_kg(control), states, delay_s, period_s, machine)
+        machine = machine_for(implement, world.field.polygon)
+        acc = as_applied(world.grid, track, machine.deposit_kg(control), states, delay_s, period_s, machine,
+                         tick_travel_m(world.scenario))
         setting = Setting.of(world, track, control, landing)
         limited_cover = limited_coverage(track, metered[:, None], states, setting.limited, delay_s, period_s,
                                          cell_m, world.grid)[0]
@@ -235,14 +274,24 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
 
 
 def as_applied(grid: Grid, track: dict, product_kg, states: SectionStates, delay_s: float,
-               period_s: float, machine: Machine) -> AsApplied:
+               period_s: float, machine: Machine, tick_m: float | None = None) -> AsApplied:
     """The as-applied raster of a run: the machine's product (`Machine.deposit_kg`'s) put on `grid`
     through its footprint (`Machine.deposition`: a strip per section and tick for today's kinds), with
-    the passes."""
+    the passes (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
     acc = AsApplied(grid)
-    plan = machine.deposition(track, states, delay_s, period_s, min(grid.cell_size))
+    plan = machine.deposition(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
     acc.deposit(plan.footprint(), plan.mass_kg(product_kg), pass_index=plan.pass_index)
     return acc
+
+
+def _check_arrays(world: World) -> None:
+    """Refuse an in-process run whose per-tick arrays would not fit in memory (the path's ticks at the
+    working speed, `ARRAY_BYTES_PER_TICK` each)."""
+    sc = world.scenario
+    ticks = world.path.length_m / (sc.tractor.working_speed_m_s * sc.timing.control_period_s)
+    files.check_memory(2 * ticks * ARRAY_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
+                       f"an in-process run of about {ticks:,.0f} ticks", f"{sc.source}: [field]",
+                       ScenarioError)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

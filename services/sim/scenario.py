@@ -85,6 +85,7 @@ class TimingSpec:
 
 
 POINT_FORMATS = ("gpkg", "shp", "none")
+TRACK_FORMATS = ("parquet", "csv")   # ``[output] track``: the per-tick track's files, or "none"
 
 
 @dataclass(frozen=True)
@@ -101,12 +102,26 @@ class OutputSpec:
     points : {"gpkg", "shp", "none"}
         The as-applied points file: as_applied_points.gpkg, as_applied_points.zip (a zipped
         shapefile), or none.
+    track : str or list of str
+        The per-tick track: "parquet" (track.parquet, columnar: a big field's track in a fraction of
+        the CSV's size and time), "csv" (track.csv), a list of both, or "none" (`track_formats`).
     """
 
     plots: bool = True
     html: bool = True
     log_rate_hz: float = 1.0
     points: str = "gpkg"
+    track: str | list | tuple = ("parquet",)
+
+    def __post_init__(self):
+        if isinstance(self.track, list):   # a TOML array: the same value as the default's tuple
+            object.__setattr__(self, "track", tuple(self.track))
+
+    @property
+    def track_formats(self) -> tuple[str, ...]:
+        """The track's file formats asked for, in `TRACK_FORMATS`' order (none: empty)."""
+        asked = {self.track} if isinstance(self.track, str) else set(self.track)
+        return tuple(f for f in TRACK_FORMATS if f in asked)
 
 
 @dataclass(frozen=True)
@@ -209,7 +224,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         description=typed(doc, "description", str, source, "", default=""),
         field=build(FieldSpec, doc.get("field", {}), source, "field"),
         map=build(MapSpec, doc.get("map", {}), source, "map"),
-        implement=implement_from_table(doc.get("implement", {}), source),
+        implement=implement_from_table(doc.get("implement", {}), source, base_dir),
         tractor=build(DriveConfig, doc.get("tractor", {}), source, "tractor"),
         gnss=build(GnssConfig, doc.get("gnss", {}), source, "gnss"),
         speed_sensor=build(SpeedSensorConfig, doc.get("speed_sensor", {}), source, "speed_sensor"),
@@ -262,7 +277,7 @@ def with_changes(scenario: Scenario, **changes) -> Scenario:
                 top[key] = _changed_controller(current, kept, value, scenario)
                 continue
             if key == "implement":
-                top[key] = changed_implement(current, value, source)
+                top[key] = changed_implement(current, value, source, scenario.base_dir)
                 continue
             no_unknown(value, kept, source, key)
             if key == "plant":
@@ -433,6 +448,13 @@ def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:
     if spec.points not in POINT_FORMATS:
         raise ScenarioError(f"{source}: [output] points must be one of {', '.join(POINT_FORMATS)}, "
                             f"got {spec.points!r}")
+    track = [spec.track] if isinstance(spec.track, str) else spec.track
+    if not (isinstance(spec.track, str) or (isinstance(track, (list, tuple)) and track)) or not all(
+            isinstance(f, str) and f in (*TRACK_FORMATS, "none") for f in track) or (
+            "none" in track and len(track) > 1):
+        raise ScenarioError(f"{source}: [output] track must be one of {', '.join(TRACK_FORMATS)}, none, or "
+                            f"a list of {' and '.join(TRACK_FORMATS)}, got "
+                            f"{list(spec.track) if isinstance(spec.track, tuple) else spec.track!r}")
 
 
 def as_dict(scenario: Scenario) -> dict[str, Any]:

@@ -25,9 +25,10 @@ from maps import AsApplied, ColumnDeposit, Grid, Strips
 from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 # The strips' API (`section_strips` for a run's strips with their masses, as the benchmarks and the
-# tests call it; `StripPlan` for the plan the machine kinds deposit through).
-__all__ = ["LimitedStrips", "SectionStrips", "StripPlan", "limited_coverage", "section_strips",
-           "worked_fraction"]
+# tests call it; `StripPlan` for the plan the machine kinds deposit through; `tick_travel_m`,
+# `WorkedArea`, `landing_frame` and `landing_pass` for a run accounted part by part).
+__all__ = ["LimitedStrips", "SectionStrips", "StripPlan", "WorkedArea", "landing_frame", "landing_pass",
+           "limited_coverage", "section_strips", "tick_travel_m", "worked_fraction"]
 
 WORKED_SUPERSAMPLE = 4  # the worked area is counted at a quarter of a map cell ...
 MAX_WORKED_CELLS = 16_000_000  # ... on at most this many fine cells (16 MB)
@@ -55,8 +56,15 @@ class SectionStrips:
         as_applied.deposit(self.footprint(), self.mass_kg, pass_index=self.pass_index)
 
 
+def tick_travel_m(scenario) -> float:
+    """A tick's travel at the scenario's working speed, m: how long the strips of its run's product are
+    cut (`StripPlan.of`), known before anything is driven, so that a run accounted part by part
+    (`services.sim.bounded`) cuts them as the whole run does."""
+    return scenario.tractor.working_speed_m_s * scenario.timing.control_period_s
+
+
 def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> SectionStrips:
+                   cell_m: float, ticks=None, tick_m: float | None = None) -> SectionStrips:
     """Each section's product as strips on its own path, ordered by pass.
 
     Parameters
@@ -74,8 +82,10 @@ def section_strips(track: dict, metered_kg, states: SectionStates, delay_s: floa
         Map cell size: ticks are joined into strips up to half of it long.
     ticks : ndarray of int, optional
         Only these ticks (ascending indices), e.g. those metered at a clipped target; default all.
+    tick_m : float, optional
+        A tick's typical travel, m (`StripPlan.of`; a run's: `tick_travel_m`).
     """
-    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks)
+    plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, tick_m)
     return dataclasses.replace(plan.strips, mass_kg=plan.mass_kg(metered_kg))
 
 
@@ -98,16 +108,35 @@ class StripPlan:
 
     @classmethod
     def of(cls, track: dict, states: SectionStates, delay_s: float, period_s: float, cell_m: float,
-           ticks=None, own_drives: bool = False) -> StripPlan:
+           ticks=None, tick_m: float | None = None, first_tick: int = 0,
+           own_drives: bool = False) -> StripPlan:
         """The plan of `section_strips` (same parameters, less the product); `own_drives`: a drive per
-        section."""
-        from scipy import sparse
+        section.
 
+        `tick_m`: the typical tick's travel that sets how many ticks a strip joins (`_join_ticks`);
+        None: the median over `ticks` (known only once they are all there). `first_tick`: the index
+        in the whole run of the track's first tick, where a run is planned part by part
+        (`services.sim.bounded`): strips end every `_join_ticks` ticks counted from the run's start."""
         time_s = np.asarray(track["time_s"], float)
         idx = np.arange(time_s.size) if ticks is None else np.asarray(ticks, np.int64)
-        n, sections = idx.size, states.actual.shape[1]
-        actual = states.actual[idx]
-        x0, y0, x1, y1, nx, ny = _landing_frame(track, delay_s, period_s, idx)
+        frame = landing_frame(track, delay_s, period_s, idx)
+        passes = landing_pass(time_s, states.pass_index, delay_s, idx)
+        # Tick numbers: a record with gaps (``track["tick"]``, the monitor's after it was down) breaks
+        # there, as do ticks left out.
+        numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
+        return cls.of_frame(frame, passes, states.actual[idx], numbers, states, cell_m, idx, tick_m,
+                            first_tick, own_drives)
+
+    @classmethod
+    def of_frame(cls, frame: tuple, passes, actual, numbers, states: SectionStates, cell_m: float, idx,
+                 tick_m: float | None = None, first_tick: int = 0, own_drives: bool = False) -> StripPlan:
+        """`of` from the landing frames of its ticks (`landing_frame`: x0, y0, x1, y1, nx, ny), their
+        landing passes, gates (ticks, sections) and tick numbers; `idx` the ticks' indices in the
+        track. The section widths and offsets are `states`'."""
+        from scipy import sparse
+
+        n, sections = idx.size, actual.shape[1]
+        x0, y0, x1, y1, nx, ny = frame
         width_on = actual @ states.widths_m
         if own_drives:
             drives, share, drive_open = sections, actual.astype(float), actual
@@ -115,17 +144,15 @@ class StripPlan:
             drives, drive_open = 1, (width_on > 0)[:, None]
             share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
                               where=actual & (width_on[:, None] > 0))
-        passes = _landing_pass(time_s, states.pass_index, delay_s, idx)
-        typical = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
-        join = max(1, int(0.5 * cell_m / typical)) if typical > 0 else 1
+        if tick_m is None:
+            tick_m = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
+        join = _join_ticks(cell_m, tick_m)
         # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
         # section's gate changes, where the pass changes and where ticks are left out.
         on = actual.T
         brk = np.zeros((sections, n), bool)
-        brk[:, ::join] = True
-        # Tick numbers: a record with gaps (``track["tick"]``, the monitor's after it was down) breaks
-        # there, as do ticks left out.
-        numbers = np.asarray(track["tick"], np.int64)[idx] if "tick" in track else idx
+        brk[:, (-first_tick) % join::join] = True
+        brk[:, :1] = True   # each section's first tick (a run planned in parts: its part's first pass)
         brk[:, 1:] |= ((on[:, 1:] != on[:, :-1])
                        | ((passes[1:] != passes[:-1]) | (np.diff(numbers) > 1))[None, :])
         cuts = np.flatnonzero(brk.ravel())
@@ -202,8 +229,15 @@ class LimitedStrips:
            cell_m: float, grid: Grid) -> LimitedStrips:
         """`limited_coverage`'s parameters, less the product."""
         if not limited.any():
-            return cls(None, None, (grid.rows, grid.cols))
+            return cls.of_plan(None, grid)
         plan = StripPlan.of(track, states, delay_s, period_s, cell_m, ticks=np.flatnonzero(limited))
+        return cls.of_plan(plan, grid)
+
+    @classmethod
+    def of_plan(cls, plan: StripPlan | None, grid: Grid) -> LimitedStrips:
+        """The limited ticks' strips of `plan` (None: no limited tick)."""
+        if plan is None:
+            return cls(None, None, (grid.rows, grid.cols))
         return cls(plan, ColumnDeposit(grid, plan.strips.footprint()), (grid.rows, grid.cols))
 
     def coverage(self, metered_kg: np.ndarray) -> np.ndarray:
@@ -218,23 +252,44 @@ def worked_fraction(track: dict, width_m: float, grid: Grid) -> np.ndarray:
     stretches of the true path: the ground the plan means to treat; shape (rows, cols).
 
     Counted on a raster `WORKED_SUPERSAMPLE` times finer (fewer on very large grids): the share of
-    its cells whose centre lies inside the outlines.
+    its cells whose centre lies inside the outlines (`WorkedArea`).
     """
-    dx, dy = grid.cell_size
-    fine = max(1, min(WORKED_SUPERSAMPLE, int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))))
-    mask = np.zeros((grid.rows * fine, grid.cols * fine), bool)
-    pose = Poses.of(track)
-    rings = []
-    for a, b in runs_of(np.asarray(track["implement_on"], bool)):
-        rings += pose.outlines(a, b, width_m / 2, -width_m / 2, pose.vertex_step(a, b))
-    # Stretched north-south so the cells are square, as the scan lines need.
-    stretch = dx / dy
-    west, _, _, north = grid.bounds
-    fill_outlines(mask, [r * (1.0, stretch) for r in rings], west, north * stretch, dx / fine)
-    return mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
+    worked = WorkedArea(grid)
+    worked.add(track, width_m)
+    return worked.fraction()
 
 
-def _landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
+class WorkedArea:
+    """The worked area of `worked_fraction`, added run of work by run of work (`add`), on a fine
+    boolean raster of the grid (at most `MAX_WORKED_CELLS` bytes)."""
+
+    def __init__(self, grid: Grid):
+        self.grid = grid
+        fine = int(math.sqrt(MAX_WORKED_CELLS / (grid.rows * grid.cols)))
+        self.fine = max(1, min(WORKED_SUPERSAMPLE, fine))
+        self.mask = np.zeros((grid.rows * self.fine, grid.cols * self.fine), bool)
+
+    def add(self, track: dict, width_m: float, first_ticks: int | None = None) -> None:
+        """Add the runs of work of `track` (those that begin before tick `first_ticks`, default all: a
+        run must lie whole in the track, the tick after its end included if there is one)."""
+        dx, dy = self.grid.cell_size
+        pose = Poses.of(track)
+        rings = []
+        for a, b in runs_of(np.asarray(track["implement_on"], bool)):
+            if first_ticks is None or a < first_ticks:
+                rings += pose.outlines(a, b, width_m / 2, -width_m / 2, pose.vertex_step(a, b))
+        # Stretched north-south so the cells are square, as the scan lines need.
+        stretch = dx / dy
+        west, _, _, north = self.grid.bounds
+        fill_outlines(self.mask, [r * (1.0, stretch) for r in rings], west, north * stretch, dx / self.fine)
+
+    def fraction(self) -> np.ndarray:
+        """Share of each cell worked, shape (rows, cols)."""
+        fine, grid = self.fine, self.grid
+        return self.mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
+
+
+def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
     """The pass of the product metered in each tick (of `ticks`, default all): that of the pose where
     it starts landing, a turn counting with the pass before it (the first pass for anything before it)."""
     time_s = np.asarray(time_s, float)
@@ -246,7 +301,12 @@ def _landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:
     return np.maximum(filled[pose], 0)
 
 
-def _landing_frame(track: dict, delay_s: float, period_s: float, ticks):
+def _join_ticks(cell_m: float, tick_m: float) -> int:
+    """How many ticks of `tick_m` travel a strip joins: up to half a map cell of `cell_m`."""
+    return max(1, int(0.5 * cell_m / tick_m)) if tick_m > 0 else 1
+
+
+def landing_frame(track: dict, delay_s: float, period_s: float, ticks):
     """Start and end of the landing span of each of `ticks` on the true path and the unit left normal
     there."""
     time_s = np.asarray(track["time_s"], float)

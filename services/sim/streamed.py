@@ -6,36 +6,35 @@ help; a process does. Nothing that follows SUMO feeds back into it (the tractor'
 depend on the metering), and everything that follows goes part by part with its state carried:
 the track (`vehicle.track_on_path`), the sensors (`Gnss.measure_next`, `SpeedSensor.measure_next`)
 and the control core (`ControlCore.run_track`, which the controller service calls per lockstep
-batch, and whose result does not depend on how a track is split: tested). A streamed run's arrays
-and summary equal `services.sim.run.run`'s bit for bit; only the wall times differ.
+batch, and whose result does not depend on how a track is split: tested) and the accounting
+(`services.sim.bounded`: each part is landed and deposited as it comes, and only what the outputs
+need is kept). A streamed run's summary and rasters equal `services.sim.run.run`'s bit for bit; only
+the wall times differ; it keeps no per-tick arrays (the track goes to a sink as it is accounted).
 
 This process plans the path and sends it to the second (`services.sim.drive_worker`) before it
 builds the rest of the world (the prescription). With ``error_split``, the error split's reference meters
-(`services.sim.error_split.reference_figures`) land in a forked child while this process accounts
-for the run.
+are deposited beside the run's own (their figures equal the in-process run's to rounding).
 """
 
 from __future__ import annotations
 
 import time
 
-import numpy as np
-
-from common.forked import Forked
 from services.sim.accounting import StageTimer
+from services.sim.bounded import BoundedAccount
 from services.sim.core import ControlCore
 from services.sim.drive_worker import PART_TICKS, DriveWorker
-from services.sim.error_split import reference_figures
-from services.sim.run import RunResult, accounted, sensors
+from services.sim.run import RunResult, sensors
 from services.sim.scenario import Scenario
 from services.sim.world import build_world
 from vehicle import track_on_path
 
 
 def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None,
-                 ticks_per_part: int = PART_TICKS, error_split: bool = False) -> RunResult:
-    """`services.sim.run.run` of `scenario`, SUMO driving in a second process (see the module
-    docstring): the same result, sooner on two cores.
+                 ticks_per_part: int = PART_TICKS, error_split: bool = False, track_sink=None) -> RunResult:
+    """`services.sim.run.run` of `scenario`, SUMO driving in a second process and each part accounted
+    as it comes (see the module docstring): the same figures, sooner on two cores, in memory set by the
+    map and one part (`services.sim.bounded`; the result keeps no per-tick arrays: ``result.bounded``).
 
     Parameters
     ----------
@@ -51,7 +50,10 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         gives the same result).
     error_split : bool
         Also compute the error split's reference figures (``result.reference_figures``, which the
-        report shows), in a forked child beside the accounting.
+        report shows), deposited beside the run's own.
+    track_sink : callable, optional
+        Given each accounted stretch's per-tick rows (`services.sim.bounded.BoundedAccount`): the track
+        files, written as they go.
 
     ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
@@ -73,7 +75,8 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         gnss, speed = sensors(scenario)
         period_s = scenario.timing.control_period_s
         expected = world.path.length_m / (scenario.tractor.working_speed_m_s * period_s)
-        tracks, measured, controls, done = [], [], [], 0
+        account = BoundedAccount(world, timer, started, expected, track_sink, references=error_split)
+        done = 0
         clock = time.perf_counter()
         for time_s, s_m, speed_m_s in worker.parts():
             timer.add("wait_s", time.perf_counter() - clock)
@@ -84,28 +87,13 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
             part_progress = None if progress is None else \
                 (lambda n, _, before=done: progress(before + n, max(expected, before + n)))
             with timer.stage("control_s"):
-                controls.append(core.run_track(x_m, y_m, track["heading_rad"], v_m_s, track["implement_on"],
-                                               track["s_m"], part_progress))
-            tracks.append(track)
-            measured.append((x_m, y_m, v_m_s))
+                control = core.run_track(x_m, y_m, track["heading_rad"], v_m_s, track["implement_on"],
+                                         track["s_m"], part_progress)
+            account.add(track, v_m_s, control)
             done += len(time_s)
             clock = time.perf_counter()
         timer.add("wait_s", time.perf_counter() - clock)
     finally:
         worker.close()
     timer.add("sumo_s", worker.sumo_s)
-    track, control = _joined(tracks), _joined(controls)
-    measured = tuple(np.concatenate(m) for m in zip(*measured, strict=True))
-    if not error_split:
-        return accounted(world, track, measured, control, timer, started)
-    # The error split's reference meters need the drive and the control only: a forked child lands
-    # them on the other core while this one accounts for the run.
-    with Forked(reference_figures, world, track, control, measured[2]) as references:
-        result = accounted(world, track, measured, control, timer, started)
-        result.reference_figures = references.result()
-    return result
-
-
-def _joined(parts: list[dict]) -> dict:
-    """Per-tick arrays of consecutive parts, joined along the ticks."""
-    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    return account.result()

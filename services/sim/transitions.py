@@ -49,6 +49,13 @@ def rate_steps(prescribed_kg_ha, active) -> np.ndarray:
 
 
 def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, steps=None) -> TransitionMetrics:
+    """Time and distance from each rate step until the applied rate settles on the new rate: the
+    figures of `transition_spans` (its parameters)."""
+    return transition_figures(*transition_spans(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active,
+                                                steps))
+
+
+def transition_spans(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, steps=None):
     """Time and distance from each rate step until the applied rate settles on the new rate.
 
     Parameters
@@ -72,6 +79,13 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
     disturbance, not this step's). A step into zero rate is counted in ``transitions_to_zero``; one
     whose window ends outside the band in ``transitions_cut`` (unfinished, not fast or slow); neither
     is in the mean or the percentiles.
+
+    Returns
+    -------
+    times_s, distances_m : ndarray
+        Time and distance of each settled step's transition.
+    to_zero, cut : int
+        Steps into zero rate, and steps cut.
     """
     t = np.asarray(time_s, dtype=float)
     d = np.asarray(distance_m, dtype=float)
@@ -97,9 +111,15 @@ def transitions(time_s, distance_m, prescribed_kg_ha, applied_kg_ha, active, ste
     settle = np.minimum(next_held[steps], np.where(tail < ends, tail, n))
     settled = ~to_zero & (settle < ends)
     k, j = steps[settled], settle[settled]
-    times, dists = t[j] - t[k], d[j] - d[k]
-    counts = dict(transitions=int(times.size), transitions_to_zero=int(np.count_nonzero(to_zero)),
-                  transitions_cut=int(np.count_nonzero(~to_zero & ~settled)))
+    cut = int(np.count_nonzero(~to_zero & ~settled))
+    return t[j] - t[k], d[j] - d[k], int(np.count_nonzero(to_zero)), cut
+
+
+def transition_figures(times, dists, to_zero: int, cut: int) -> TransitionMetrics:
+    """`TransitionMetrics` of the settled steps' transition times (s) and distances (m) and the counts
+    of steps into zero rate and cut (`transition_spans`; a run accounted in parts joins its parts'
+    spans first)."""
+    counts = dict(transitions=int(times.size), transitions_to_zero=to_zero, transitions_cut=cut)
     if times.size == 0:
         nan = float("nan")
         return TransitionMetrics(transition_time_s_mean=nan, transition_time_s_p95=nan,

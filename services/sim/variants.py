@@ -43,12 +43,12 @@ from controller import ControllerConfig, build_variant_loops
 from maps import AppliedColumns, ColumnDeposit
 from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import RUN_CHUNK, ControlCore, context_track, plant_for
+from services.sim.core import RUN_CHUNK, ControlCore, context_track, machine_plant
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
 from services.sim.scenario import Scenario
-from services.sim.section_landing import LimitedStrips, StripPlan
+from services.sim.section_landing import LimitedStrips, StripPlan, tick_travel_m
 from services.sim.sections import run_section_states
 
 # Variants run as one loop batch: more cut the loop's Python work per variant (256: about a quarter
@@ -86,7 +86,7 @@ def run_variants(drive: Drive, controllers: Sequence[ControllerConfig]) -> list[
             continue
         sc = dataclasses.replace(scenario, controller=cfg)
         try:
-            look_ahead = initial_look_ahead_s(sc, plant_for(sc))
+            look_ahead = initial_look_ahead_s(sc, machine_plant(sc, drive.world.grid))
         except ControllerError as exc:
             raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None
         batches.setdefault(look_ahead, []).append(i)
@@ -130,7 +130,8 @@ class _Shared:
         states = run_section_states(track, rec, implement)
         landing = land(grid, track, np.zeros(len(width_on)), width_on, delay_s, period_s)
         setting = Setting.of(world, track, rec, landing)
-        plan = core.machine.deposition(track, states, delay_s, period_s, cell_m)
+        plan = core.machine.deposition(track, states, delay_s, period_s, cell_m,
+                                       tick_m=tick_travel_m(scenario))
         shared = cls(drive, scenario, rec, core, setting, plan, _strip_map(grid, plan),
                      LimitedStrips.of(track, states, setting.limited, delay_s, period_s, cell_m, grid),
                      control_s / variants, 0.0)
@@ -150,7 +151,7 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
     clock = time.perf_counter()
     timing, drives = scenario.timing, shared.core.machine.drives
     try:   # column v * drives + d: variant v's drive d
-        loops = build_variant_loops(plant_for(scenario), [cfg for cfg in cfgs for _ in range(drives)],
+        loops = build_variant_loops(shared.core.plant, [cfg for cfg in cfgs for _ in range(drives)],
                                     timing.control_period_s, timing.plant_step_s)
     except ControllerError as exc:
         raise ScenarioError(f"{scenario.source}: [controller] {exc}") from None

@@ -7,6 +7,7 @@ metric CRS (its UTM zone), which is where the control core looks rates up.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,9 +21,15 @@ from services.sim.scenario import Scenario, product_density_kg_l
 from vehicle import CoveragePath, Field, plan_coverage
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
-# Memory a run keeps per control tick: ~35 float64 arrays (the track, the sensors, the targets, the
-# loop's outputs, the landing) plus temporaries of the vectorized stages.
-RUN_BYTES_PER_TICK = 400
+# Memory of a run accounted part by part (`services.sim.bounded`, `vrsim run`), measured on the huge
+# scenario and rounded up: per map cell (the as-applied rasters with their passes, the reference
+# meters', the worked area, the coverage map, the figures' and outputs' temporaries), per tick of the
+# longest stretch it holds (a headland loop: the track, control and landing arrays with temporaries),
+# per tick kept (the metered product, the log) and the processes' code and libraries.
+RUN_BYTES_PER_CELL = 1000
+RUN_BYTES_PER_STRETCH_TICK = 3000
+RUN_BYTES_PER_TICK = 16
+RUN_BASE_BYTES = 400 * 2**20
 
 
 @dataclass
@@ -108,8 +115,8 @@ def build_world(scenario: Scenario, planned: tuple[Field, CoveragePath] | None =
 def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:
     """The field and the coverage path over it: all that SUMO drives.
 
-    Refused before the path is planned: a run whose arrays would not fit in memory (`_check_run_size`);
-    after: a time limit the tractor cannot meet even at its top speed."""
+    Refused before the path is planned: a run that would not fit in memory even accounted part by
+    part (`_check_run_size`); after: a time limit the tractor cannot meet even at its top speed."""
     spec = scenario.field
     try:
         field = _build_field(scenario)
@@ -123,16 +130,24 @@ def plan_path(scenario: Scenario) -> tuple[Field, CoveragePath]:
 
 
 def _check_run_size(scenario: Scenario, field: Field) -> None:
-    """Refuse a run whose per-tick arrays would not fit in memory, from the path length a field of
-    this area and perimeter needs at this working width (swaths plus headland passes)."""
+    """Refuse a run that would not fit in memory even accounted part by part: its map's cells (the
+    field's bounds and margin at ``[map] cell_size_m``), its longest stretch (a headland loop round the
+    field) and the ticks of the path a field of this area and perimeter needs at this working width
+    (swaths plus headland passes), `RUN_BYTES_PER_CELL` and the rest."""
     drive, period = scenario.tractor, scenario.timing.control_period_s
+    tick_m = drive.working_speed_m_s * period
     path_m = field.polygon.area / scenario.implement.width_m \
         + field.polygon.length * (scenario.field.headland_passes + 1)
-    ticks = path_m / (drive.working_speed_m_s * period)
-    files.check_memory(2 * ticks * RUN_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
-                       f"a run of about {ticks:,.0f} ticks ({path_m / 1000:,.0f} km at "
-                       f"{drive.working_speed_m_s:g} m/s, {period:g} s per tick)",
-                       f"{scenario.source}: [field]", ScenarioError)
+    ticks = path_m / tick_m
+    minx, miny, maxx, maxy = field.polygon.bounds
+    cell = scenario.map.cell_size_m
+    cells = (maxx - minx + 2 * MAP_MARGIN_M) / cell * ((maxy - miny + 2 * MAP_MARGIN_M) / cell)
+    need = (RUN_BASE_BYTES + cells * RUN_BYTES_PER_CELL + ticks * RUN_BYTES_PER_TICK
+            + field.polygon.length / tick_m * RUN_BYTES_PER_STRETCH_TICK)
+    files.check_memory(need, f"a run of about {ticks:,.0f} ticks ({path_m / 1000:,.0f} km at "
+                       f"{drive.working_speed_m_s:g} m/s, {period:g} s per tick) over a map of about "
+                       f"{cells:,.0f} cells of {cell:g} m", f"{scenario.source}: [field]", ScenarioError,
+                       max_bytes=math.inf)
 
 
 def _check_time_limit(scenario: Scenario, path: CoveragePath) -> None:

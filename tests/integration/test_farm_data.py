@@ -52,7 +52,9 @@ def scenario_file(folder, output="") -> str:
 def farm_run(tmp_path_factory):
     """One run in process, its outputs written as `vrsim run` writes them: (result, out folder)."""
     folder = tmp_path_factory.mktemp("farm")
-    result = run(scenario.load(scenario_file(str(folder))))
+    # The track as text too (every scenario but the default writes track.parquet alone).
+    farm = scenario.load(scenario_file(str(folder)))
+    result = run(scenario.with_changes(farm, output={"track": ["parquet", "csv"]}))
     out = folder / "out"
     write_outputs(result, str(out))  # no plot worker: the pictures are drawn in this process
     return result, out
@@ -137,7 +139,9 @@ def test_error_map_is_refused_as_a_prescription(farm_run, tmp_path):
     assert p.returncode == 2 and "error.tif: holds differences of rates" in p.stderr, p.stderr
 
 
-def test_track_csv_has_empty_fields_not_nan(farm_run):
+def test_track_csv_has_empty_fields_not_nan_and_the_parquet_nulls(farm_run):
+    import pyarrow.parquet as pq
+
     result, out = farm_run
     text = (out / "track.csv").read_text()
     assert "nan" not in text.lower()
@@ -148,6 +152,8 @@ def test_track_csv_has_empty_fields_not_nan(farm_run):
     missing = np.isnan(result.landing.applied_kg_ha)
     assert missing.any()  # sections off: no applied rate
     assert (np.isnan(applied) == missing).all()
+    columnar = pq.read_table(out / "track.parquet").column("applied_kg_ha")
+    assert (np.asarray(columnar.is_null()) == missing).all()
     np.testing.assert_allclose(applied[~missing], result.landing.applied_kg_ha[~missing], atol=0.005)
     assert {r["implement_on"] for r in rows} == {"0", "1"}
 

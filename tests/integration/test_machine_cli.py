@@ -20,9 +20,11 @@ def vrsim(*args):
 
 
 def scenario(tmp_path, implement: str, name="s.toml"):
-    """A scenario file whose [implement] table is `implement` (TOML lines)."""
+    """A scenario file whose [implement] table is `implement` (TOML lines): the scenario is loaded and
+    checked whole, so it has a field and a map."""
     path = tmp_path / name
-    path.write_text(f'name = "t"\n[implement]\n{implement}\n')
+    path.write_text(f'name = "t"\n[field]\nrectangle = {{ width_m = 100.0, length_m = 100.0, lat = 52.1, '
+                    f'lon = 10.5 }}\n[map]\nsynthetic = "uniform"\n[implement]\n{implement}\n')
     return path
 
 
@@ -65,8 +67,12 @@ BAD = [
                                          "driving width width_m=24"),
     ('kind = "gated_meter"\nwidth_m = 24.0\n', None, '[implement] kind: machine pattern needs a spinner '
                                                      '(kind = "spinner"), got \'gated_meter\''),
-    ('width_m = 24.0\n', None, "got None"),
-    (SPIN.replace("24.0", "-3.0"), None, "[implement] width_m must be a number > 0 m, got -3.0"),
+    ('width_m = 24.0\n', None, "got 'gated_meter' (its strips lie side by side: cv_pct 0)"),
+    (SPIN + "sections = 3\n", None, "[implement] Implement: kind 'spinner' supports at most 2 sections, got "
+                                    "sections=3"),
+    (SPIN + "turn_compensation = true\n", None, "[implement] turn_compensation is a key of kind "
+                                                "'section_drives', not of kind 'spinner'"),
+    (SPIN.replace("24.0", "-3.0"), None, "[implement] Implement: width_m must be a number > 0, got -3.0"),
     (SPIN + "side_steps = 0\n", None, "[implement] SpinnerSpec: side_steps must be an integer in [1, 16], "
                                        "got 0"),
     (SPIN + 'pattern = "round"\n', None, "pattern must be one of triangular, trapezoidal or a CSV"),

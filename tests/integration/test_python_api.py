@@ -29,5 +29,5 @@ def test_python_api_example_loads_changes_runs_and_writes(tmp_path):
     assert summary["scenario"] == "quick_zones_fast"
     assert summary["mae_kg_ha"] == pytest.approx(fast_mae, abs=5e-4)
     assert summary["scenario_config"]["tractor"]["working_speed_m_s"] == 4.0
-    for name in ("as_applied.tif", "error.tif", "track.csv", "map.png", "timeseries.png", "report.html"):
+    for name in ("as_applied.tif", "error.tif", "track.parquet", "map.png", "timeseries.png", "report.html"):
         assert (out / name).is_file(), name

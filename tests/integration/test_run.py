@@ -74,8 +74,11 @@ def test_run_json_writes_every_output_and_they_open(tmp_path):
     for ref in re.findall(r'(?:src|href)="([^"]+)"', page):
         assert ref.startswith("data:") or (out / ref).is_file(), ref
     assert "Mean absolute error" in page
-    header = (out / "track.csv").read_text().splitlines()[0]
-    assert header.split(",")[:3] == ["time_s", "lat", "lon"]
+    import pyarrow.parquet as pq
+
+    track = pq.read_table(out / "track.parquet")   # the default track file (a scenario's own)
+    assert track.column_names[:3] == ["time_s", "lat", "lon"] and track.num_rows == summary["ticks"]
+    assert not (out / "track.csv").exists()
     saved = json.loads((out / "summary.json").read_text())
     assert saved["mae_kg_ha"] == summary["mae_kg_ha"]
 

@@ -190,7 +190,7 @@ def test_gates_switch_the_configured_latency_after_the_commands(on_s, off_s):
 
 
 def test_outputs_carry_sections_passes_and_the_error_split(tmp_path):
-    result = run(with_changes(oblique(), output={"plots": True, "html": True}))
+    result = run(with_changes(oblique(), output={"plots": True, "html": True, "track": "csv"}))
     paths = write_outputs(result, str(tmp_path))
     lines = open(paths["track.csv"]).read().splitlines()
     header = lines[0].split(",")

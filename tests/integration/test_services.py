@@ -264,14 +264,16 @@ def test_vrsim_report_from_the_monitor_database(net, tmp_path):
     for key, want in report.items():
         if key not in WALL_KEYS - {"wall_time_s", "realtime_factor"}:  # both from the run's records
             assert summary[key] == want or (isinstance(want, float) and math.isnan(want)), key
-    for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.csv", "map.png",
-                 "timeseries.png", "report.html", "as_applied_points.gpkg"):
+    for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.parquet",
+                 "map.png", "timeseries.png", "report.html", "as_applied_points.gpkg"):
         assert (out / name).is_file(), name
     import maps
 
     (timelog,) = maps.read_timelogs(out / "taskdata")
     assert timelog.records == math.floor(status["sim_time_s"]) + 1  # 1 Hz, from t = 0.05 s
-    assert len((out / "track.csv").read_text().splitlines()) == status["ticks"] + 1
+    import pyarrow.parquet as pq
+
+    assert pq.read_metadata(out / "track.parquet").num_rows == status["ticks"]
     for args, needle in (((tmp_path / "none.sqlite",), "none.sqlite: no such file"),
                          ((net.db, "--run", "nope"), "no run 'nope'")):
         p = subprocess.run([VRSIM, "report", "--db", str(args[0]), *args[1:], "--out", str(tmp_path / "x")],

@@ -30,6 +30,8 @@ CONTROLLERS = {
 
 # A drive per section, the shaft's range just above the straight passes' need: single drives sit on it.
 DRIVES = '[implement]\nkind = "section_drives"\nsections = 4\nshaft_rpm_max = 92.0\n'
+# A PWM boom sprayer (a flow loop per section) of a liquid: the map's 150-250 kg/ha are L/ha at 1.0 kg/L.
+SPRAYER = '[implement]\nkind = "sprayer"\nnozzle = "06"\ncontrol = "pwm"\n'
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +46,9 @@ def folder(tmp_path_factory):
             fh.write(base.replace('name = "svc-small"', f'name = "svc-{name}"') + table)
     with open(os.path.join(path, "drives.toml"), "w") as fh:
         fh.write(base.replace('name = "svc-small"', 'name = "svc-drives"').replace("[implement]\n", DRIVES))
+    with open(os.path.join(path, "sprayer.toml"), "w") as fh:
+        fh.write(base.replace('name = "svc-small"', 'name = "svc-sprayer"').replace("[implement]\n", SPRAYER)
+                 + '[product]\nform = "liquid"\ndensity_kg_l = 1.0\n')
     shutil.copy(os.path.join(ROOT, "scenarios", "my_controller.py"), path)
     return path
 
@@ -124,6 +129,26 @@ def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder)
     assert p.returncode == 0, p.stderr
     split = [_split_table(os.path.join(d, "report.html")) for d in (out, os.path.join(folder, "run-drives"))]
     assert split[0] == split[1] and "metering" in split[0]
+
+
+def test_a_pwm_sprayer_through_the_services_matches_vrsim_run(net, folder):
+    """``sprayer`` with PWM: the controller service closes each section's flow loop on the sprayer's own
+    plant and the monitor rebuilds each section's product, so its report is `vrsim run`'s."""
+    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
+    ok, started = start(net, folder, "sprayer")
+    assert ok, started
+    status = net.wait_status(lambda s: s["run_id"] == started["run_id"] and s["monitor_ticks"] == s["ticks"]
+                             and s["state"] in ("finished", "failed"))
+    assert status["state"] == "finished", status
+    ok, report = net.query("vrsim/tractor1/report")
+    assert ok, report
+    cli = subprocess.run([VRSIM, "run", os.path.join(folder, "sprayer.toml"), "--json", "--quiet", "--out",
+                          os.path.join(folder, "run-sprayer")], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    expected = json.loads(cli.stdout)
+    assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
+    assert abs(expected["mass_balance_pct"]) < 5
+    assert_same_summary(report, expected, MONITOR_KEYS)
 
 
 def _split_table(path: str) -> str:

@@ -1,5 +1,6 @@
 """The streamed run (`services.sim.streamed`, what `vrsim run` does): SUMO in a second process, the
-track measured and controlled part by part, equal to the in-process run bit for bit (real SUMO)."""
+track measured, controlled and accounted part by part (`services.sim.bounded`), equal to the in-process
+run bit for bit (real SUMO)."""
 
 import os
 import signal
@@ -8,7 +9,9 @@ import numpy as np
 import pytest
 
 from common import ScenarioError
+from maps.pointlog import COLUMNS
 from services.outputs.encode import dumps
+from services.outputs.track import track_rows
 from services.sim.run import run
 from services.sim.scenario import load, with_changes
 from services.sim.streamed import DriveWorker, run_streamed
@@ -19,16 +22,25 @@ CLOCK_KEYS = {"wall_time_s", "realtime_factor", "stage_s"}
 QUICK = "scenarios/quick_rectangle.toml"
 
 
-def assert_same_run(a, b):
-    assert dumps({k: v for k, v in a.summary.items() if k not in CLOCK_KEYS}) == \
-        dumps({k: v for k, v in b.summary.items() if k not in CLOCK_KEYS})  # NaN as null: equal
-    for key in a.track:
-        assert np.array_equal(a.track[key], b.track[key]), key
-    for key in a.control:
-        assert np.array_equal(a.control[key], b.control[key]), key
-    for name in ("measured_x_m", "measured_y_m", "measured_speed_m_s"):
-        assert np.array_equal(getattr(a, name), getattr(b, name)), name
-    assert np.array_equal(a.as_applied.applied_kg_ha, b.as_applied.applied_kg_ha, equal_nan=True)
+def assert_same_run(whole, bounded, rows: list[dict]):
+    """The in-process run `whole` and the streamed, bounded run (the track `rows` its sink got): the same
+    figures, rasters, track, pictures' data and as-applied log, bit for bit."""
+    assert bounded.bounded and bounded.track is None and not whole.bounded
+    assert dumps({k: v for k, v in whole.summary.items() if k not in CLOCK_KEYS}) == \
+        dumps({k: v for k, v in bounded.summary.items() if k not in CLOCK_KEYS})  # NaN as null: equal
+    for name in ("applied_kg_ha", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count"):
+        assert np.array_equal(getattr(whole.as_applied, name), getattr(bounded.as_applied, name),
+                              equal_nan=True), name
+    for name in ("worked_fraction", "limited_fraction", "in_field"):
+        assert np.array_equal(getattr(whole, name), getattr(bounded, name)), name
+    track = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+    for key, values in track_rows(whole).items():
+        assert np.array_equal(values, track[key], equal_nan=True), key
+    a, b = whole.kept, bounded.kept
+    assert all(np.array_equal(x, y) for x, y in zip(a.path_xy, b.path_xy, strict=True))
+    assert all(np.array_equal(a.series[k], b.series[k], equal_nan=True) for k in a.series)
+    for name in COLUMNS:
+        assert np.array_equal(getattr(a.point_log, name), getattr(b.point_log, name), equal_nan=True), name
 
 
 @pytest.mark.parametrize("changes", [
@@ -43,11 +55,19 @@ def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
     whole = run(sc)
     ticks = len(whole.track["time_s"])
     # parts far smaller than the control core's chunks, and one not dividing them
-    streamed = run_streamed(sc, ticks_per_part=3001)
+    rows = []
+    streamed = run_streamed(sc, ticks_per_part=3001, track_sink=rows.append)
     assert ticks > 4 * 3001
-    assert_same_run(whole, streamed)
+    assert_same_run(whole, streamed, rows)
     stage = streamed.summary["stage_s"]
     assert stage["sumo_s"] > 0 and stage["wait_s"] >= 0 and stage["control_s"] > 0
+
+
+@pytest.mark.slow
+def test_the_bounded_run_of_the_default_scenario_is_the_in_process_run_bit_for_bit():
+    sc = load("default")
+    rows = []
+    assert_same_run(run(sc), run_streamed(sc, track_sink=rows.append), rows)
 
 
 def test_in_parts_a_drive_per_section_runs_as_in_process():
@@ -56,7 +76,8 @@ def test_in_parts_a_drive_per_section_runs_as_in_process():
     last product: the parts give the whole run's numbers bit for bit."""
     sc = with_changes(load(QUICK), implement={"kind": "section_drives"}, map={"policy": "hold"},
                       controller={"kind": "PID", "look_ahead_tune": 0.5})
-    assert_same_run(run(sc), run_streamed(sc, ticks_per_part=3001))
+    rows = []
+    assert_same_run(run(sc), run_streamed(sc, ticks_per_part=3001, track_sink=rows.append), rows)
 
 
 def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_after_it():
@@ -67,7 +88,11 @@ def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_afte
     assert streamed.reference_figures is not None
     whole = run(sc)
     assert whole.reference_figures is None
-    assert error_split(streamed) == error_split(whole)
+    # The reference meters' product is summed part by part (`services.sim.bounded`): to rounding.
+    for a, b in zip(error_split(streamed), error_split(whole), strict=True):
+        assert a.cause == b.cause
+        assert (a.mass_balance_pct, a.mae_kg_ha, a.share_pct) == pytest.approx(
+            (b.mass_balance_pct, b.mae_kg_ha, b.share_pct), rel=1e-9, abs=1e-12)
 
 
 def test_progress_counts_every_tick_once():
@@ -75,7 +100,7 @@ def test_progress_counts_every_tick_once():
     sc = load(QUICK)
     result = run_streamed(sc, progress=lambda done, total: seen.append((done, total)), ticks_per_part=5000)
     done = [d for d, _ in seen]
-    assert done == sorted(done) and done[-1] == len(result.track["time_s"])
+    assert done == sorted(done) and done[-1] == result.summary["ticks"]
     assert all(d <= t for d, t in seen)
 
 

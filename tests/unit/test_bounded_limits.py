@@ -88,11 +88,13 @@ def test_an_unreachable_time_limit_is_refused_when_the_world_is_built():
         build_world(sc)
 
 
-def test_a_run_too_long_for_memory_is_refused_before_its_path_is_planned():
+def test_a_run_too_big_for_memory_is_refused_before_its_path_is_planned():
     big = '[field]\nrectangle = { width_m = 9000.0, length_m = 9000.0, lat = 52.1, lon = 11.6 }\n'
-    sc = scenario.parse(f"{big}{MAP}[implement]\nwidth_m = 1.0\n", "s.toml")
+    fine = '[map]\nsynthetic = "uniform"\ncell_size_m = 0.25\n'   # over a billion cells
+    sc = scenario.parse(f"{big}{fine}[implement]\nwidth_m = 1.0\n", "s.toml")
     with pytest.raises(ScenarioError, match=r"s.toml: \[field\]: a run of about [\d,]+ ticks \([\d,]+ km at "
-                                            r"2.5 m/s, 0.05 s per tick\) needs about [\d,.]+ GB"):
+                                            r"2.5 m/s, 0.05 s per tick\) over a map of about [\d,]+ cells of "
+                                            r"0.25 m needs about [\d,.]+ GB, more than the [\d,.]+ GB"):
         build_world(sc)
 
 

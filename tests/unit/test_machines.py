@@ -51,7 +51,8 @@ def test_an_implement_refuses_keys_of_another_kind_as_its_machine():
 
 @pytest.mark.parametrize("table, message", [
     ('kind = "hovercraft"', "[implement] Implement: kind must be one of gated_meter"),
-    ("kind = 3", "[implement] Implement: kind must be one of gated_meter, section_drives, got 3"),
+    ("kind = 3",
+     "[implement] Implement: kind must be one of gated_meter, section_drives, spinner, sprayer, got 3"),
     ("turn_compensation = false",
      "[implement] turn_compensation is a key of kind 'section_drives', not of kind 'gated_meter' "
      "(got False)"),
@@ -148,7 +149,8 @@ def test_each_sections_strip_carries_its_own_drives_product():
 
 @pytest.mark.parametrize("settings, message", [
     (["implement.kind=hovercraft"],
-     "[implement] Implement: kind must be one of gated_meter, section_drives, got 'hovercraft'"),
+     "[implement] Implement: kind must be one of gated_meter, section_drives, spinner, sprayer, "
+     "got 'hovercraft'"),
     (["implement.turn_compensation=false"],
      "[implement] turn_compensation is a key of kind 'section_drives', not of kind 'gated_meter'"),
     (["implement.kind=section_drives", "implement.sections=49"],

@@ -14,6 +14,7 @@ from services.sim.metrics import (
     summary,
 )
 from services.sim.transitions import TransitionMetrics, rate_steps, transitions
+from vehicle import Implement
 
 
 def _grid(rows=10, cols=10, rate=100.0):
@@ -184,13 +185,12 @@ def _accounts(ticks=4, wall_time_s=2.0):
     def part(cls, first):
         return cls(*(float(first + i) for i, _ in enumerate(dataclasses.fields(cls))))
 
-    implement = SimpleNamespace(sections=2, section_widths=np.array([3.0, 3.0]))
+    implement = Implement(width_m=6.0, sections=2)   # a gated meter: its rectangles' cv_pct is 0
     scenario = SimpleNamespace(name="s", seed=3, implement=implement,
                                timing=SimpleNamespace(control_period_s=0.05))
     grid = SimpleNamespace(map_unit="lb/ac", in_map_unit=lambda kg_ha: kg_ha / 2.0)
     world = SimpleNamespace(scenario=scenario, field=SimpleNamespace(area_ha=1.5), grid=grid)
-    setting = SimpleNamespace(world=world, track={"time_s": np.arange(ticks) * 0.05},
-                              landing=SimpleNamespace(distance_m=np.arange(ticks) * 1.5),
+    setting = SimpleNamespace(world=world, ticks=ticks, path_length_m=1.5 * (ticks - 1) if ticks else 0.0,
                               check=SimpleNamespace(max_speed_m_s=4.0))
     return SimpleNamespace(setting=setting, map=part(MapMetrics, 100),
                            transitions=part(TransitionMetrics, 200), overlap=part(OverlapMetrics, 300),
@@ -211,5 +211,5 @@ def test_the_summary_reads_each_figure_off_the_accounts_in_table_order():
     assert s["limited_area_pct"] == a.limits.limited_area_pct
     assert (s["ticks"], s["sim_time_s"], s["wall_time_s"], s["realtime_factor"]) == (4, 0.2, 2.0, 0.1)
     assert (s["path_length_m"], s["section_widths_m"], s["sections"]) == (4.5, [3.0, 3.0], 2)
-    assert (s["field_area_ha"], s["max_speed_m_s"]) == (1.5, 4.0)
+    assert (s["field_area_ha"], s["max_speed_m_s"], s["cv_pct"]) == (1.5, 4.0, 0.0)
     assert summary(_accounts(ticks=0))["path_length_m"] == 0.0

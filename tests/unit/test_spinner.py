@@ -7,7 +7,7 @@ import pytest
 from common import MapError, VehicleError
 from maps import AsApplied, ColumnDeposit, SpinnerThrow, footprint_kind, synthetic
 from services.sim.spread_pattern import catch_tray_test, cv_pct, effective_width_m, overlapped
-from vehicle.spinner import SpinnerSpec, spinner_from_keys
+from vehicle.spinner import SpinnerSpec
 
 UTM = "EPSG:32632"
 BOUNDS = (500_000.0, 5_300_000.0, 500_100.0, 5_300_100.0)  # 100 m x 100 m
@@ -37,22 +37,28 @@ def test_shapes_are_normalized_and_the_trapezoid_is_flat_over_the_central_half()
     ({"pattern": "round"}, "pattern must be one of triangular, trapezoidal or a CSV file's path (.csv), "
                            "got 'round'"),
     ({"pattern": ""}, "pattern must be one of triangular, trapezoidal"),
-    ({"sections": 6}, "unknown key 'sections' (known: spread_width_m, pattern, throw_distance_m"),
 ])
 def test_bad_keys_are_refused_with_one_line_naming_key_and_value(keys, message):
     with pytest.raises(VehicleError) as err:
-        spinner_from_keys(keys, 24.0)
+        SpinnerSpec(**keys).resolved(".").check_width(24.0)
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
-def test_side_reach_steps_down_within_the_room_and_border_spreading_cuts_at_the_boundary():
+def test_border_spreading_cuts_at_the_boundary_and_without_it_a_step_goes_only_when_wholly_outside():
     spec = SpinnerSpec(spread_width_m=36.0, side_steps=4)  # steps of 4.5 m
-    room = np.array([20.0, 18.0, 17.9, 9.0, 4.4, 0.0, 10.0])
-    np.testing.assert_allclose(spec.side_reach_m(room), [18.0, 18.0, 13.5, 9.0, 0.0, 0.0, 9.0])
-    at_boundary = np.array([False] * 6 + [True])
-    np.testing.assert_allclose(spec.side_reach_m(room, at_boundary)[-1], 10.0)
+    room = np.array([np.inf, 20.0, 18.0, 17.9, 9.0, 4.4, 0.0, 10.0])
+    np.testing.assert_allclose(spec.side_reach_m(room), [18.0, 18.0, 18.0, 17.9, 9.0, 4.4, 0.0, 10.0])
     plain = SpinnerSpec(spread_width_m=36.0, side_steps=4, border_spreading=False)
-    assert plain.side_reach_m(10.0, True) == pytest.approx(9.0)
+    np.testing.assert_allclose(plain.side_reach_m(room), [18.0, 18.0, 18.0, 18.0, 9.0, 4.5, 0.0, 13.5])
+    on_off = SpinnerSpec(spread_width_m=36.0, side_steps=1, border_spreading=False)
+    np.testing.assert_allclose(on_off.side_reach_m(room), [18.0] * 6 + [0.0, 18.0])
+
+
+def test_a_side_cut_keeps_the_share_of_its_half_within_the_reach_and_the_centre_of_its_product():
+    tri = SpinnerSpec(spread_width_m=36.0).transverse_pattern()
+    np.testing.assert_allclose(tri.side_share([1, -1, 1], [18.0, 12.0, 0.0]), [1.0, 1 - (6 / 18) ** 2, 0.0])
+    assert tri.side_centre_m(1) == pytest.approx(6.0, abs=1e-3)   # a triangle's centroid: a third out
+    assert tri.side_centre_m(-1) == pytest.approx(-6.0, abs=1e-3)
 
 
 def _csv(tmp_path, text, name="tray.csv"):
@@ -63,8 +69,9 @@ def _csv(tmp_path, text, name="tray.csv"):
 
 def test_a_measured_profile_is_read_relative_to_the_scenario_folder(tmp_path):
     _csv(tmp_path, "offset_m,mass\n# trays\n-15,0.1\n-5,1.0\n5,1.0\n15,0.2\n")
-    spec, pattern = spinner_from_keys({"pattern": "tray.csv", "spread_width_m": 30.0}, 24.0, str(tmp_path))
-    assert spec.pattern == "tray.csv" and pattern.source == str(tmp_path / "tray.csv")
+    spec = SpinnerSpec(pattern="tray.csv", spread_width_m=30.0).resolved(str(tmp_path))
+    pattern = spec.transverse_pattern()
+    assert spec.pattern == pattern.source == str(tmp_path / "tray.csv")
     np.testing.assert_allclose(pattern.offset_m, [-15, -5, 5, 15])
     assert np.trapezoid(pattern.mass_per_m, pattern.offset_m) == pytest.approx(1.0)
     assert pattern.density(-15.0) * 2 == pytest.approx(pattern.density(15.0))
@@ -87,7 +94,7 @@ def test_a_measured_profile_is_read_relative_to_the_scenario_folder(tmp_path):
 def test_a_bad_profile_names_file_row_and_value(tmp_path, text, message):
     path = _csv(tmp_path, text)
     with pytest.raises(VehicleError) as err:
-        spinner_from_keys({"pattern": str(path)}, 24.0)
+        SpinnerSpec(pattern=str(path)).resolved(".")
     assert f"pattern {path}: {message}" in str(err.value)
 
 

@@ -40,9 +40,12 @@ def test_nozzle_pressure_inverts_the_law():
 
 
 def test_boom_flow_and_its_inverse():
-    assert boom_flow_l_min(200.0, 2.5, 12.0) == pytest.approx(10.0)       # 200 * 2.5 * 12 / 600
-    assert applied_rate_l_ha(10.0, 2.5, 12.0) == pytest.approx(200.0)
-    assert applied_rate_l_ha(10.0, -2.5, 12.0) == pytest.approx(200.0)    # moving backwards in a turn
+    # 2.5 m/s x 12 m = 30 m^2/s = 0.003 ha/s: 0.6 L/s of 200 L/ha, 36 L/min
+    assert boom_flow_l_min(200.0, 2.5, 12.0) == pytest.approx(36.0)
+    # the catalogue formula: L/min per nozzle = L/ha x km/h x spacing cm / 60 000
+    assert boom_flow_l_min(160.0, 9.0 / 3.6, 0.5) == pytest.approx(160.0 * 9.0 * 50.0 / 60_000)
+    assert applied_rate_l_ha(36.0, 2.5, 12.0) == pytest.approx(200.0)
+    assert applied_rate_l_ha(36.0, -2.5, 12.0) == pytest.approx(200.0)    # moving backwards in a turn
     assert np.isnan(applied_rate_l_ha(np.array([1.0]), np.array([0.0]), 0.5)[0])
 
 
@@ -50,8 +53,9 @@ def test_boom_flow_and_its_inverse():
 def test_speed_range_puts_the_nozzles_at_their_pressure_limits():
     spec = SprayerSpec(nozzle="02", nozzle_spacing_m=0.5, pressure_range_bar=(1.5, 5.0))
     lo, hi = spec.speed_range_m_s(200.0)
-    # v = 600 q / (200 * 0.5) at q = 0.8 sqrt(1.5 / 3) and 0.8 sqrt(5 / 3)
-    assert (lo, hi) == pytest.approx((6 * 0.8 * np.sqrt(0.5), 6 * 0.8 * np.sqrt(5 / 3)))
+    # v = (10 000 / 60) q / (200 * 0.5) at q = 0.8 sqrt(1.5 / 3) and 0.8 sqrt(5 / 3)
+    per_q = 10_000 / 60 / 100
+    assert (lo, hi) == pytest.approx((per_q * 0.8 * np.sqrt(0.5), per_q * 0.8 * np.sqrt(5 / 3)))
     per_nozzle = boom_flow_l_min(200.0, np.array([lo, hi]), 0.5)
     assert nozzle_pressure_bar(0.8, per_nozzle) == pytest.approx([1.5, 5.0])
     lo2, hi2 = spec.speed_range_m_s(150.0, 250.0)                   # a range: the tighter ends
@@ -78,14 +82,14 @@ def test_pwm_widens_the_range_to_the_duty_cycle():
 
 def test_suggested_nozzle_covers_the_rates_at_the_working_speed():
     spec = SprayerSpec(nozzle="04")
-    # 200-300 L/ha at 3 m/s every 0.5 m needs 0.5-0.75 L/min: only the 015 (0.42-0.77 L/min) covers it
-    assert spec.suggest_nozzle(200.0, 300.0, 3.0) == "015"
-    fitted = dataclasses.replace(spec, nozzle="015")
+    # 200-300 L/ha at 3 m/s every 0.5 m needs 1.8-2.7 L/min: only the 06 (1.70-3.10 L/min) covers it
+    assert spec.suggest_nozzle(200.0, 300.0, 3.0) == "06"
+    fitted = dataclasses.replace(spec, nozzle="06")
     lo, hi = fitted.speed_range_m_s(200.0, 300.0)
     assert lo <= 3.0 <= hi
     assert spec.suggest_nozzle(20.0, 800.0, 3.0) is None
     # a narrow range: the size with the needed flow nearest the middle of its range (log terms)
-    need = boom_flow_l_min(250.0, 2.5, 0.5)                           # 0.52 L/min
+    need = boom_flow_l_min(250.0, 2.5, 0.5)                           # 1.875 L/min
     size = spec.suggest_nozzle(250.0, 250.0, 2.5)
     p = nozzle_pressure_bar(NOZZLE_FLOW_L_MIN[size], need)
     assert 1.5 <= p <= 5.0 and abs(np.log(p / np.sqrt(1.5 * 5.0))) < np.log(1.5)
@@ -118,7 +122,8 @@ def test_flow_meter_reads_its_calibration_error():
 def _turn(compensate: bool, radius_m=20.0, speed_m_s=2.5, rate_l_ha=150.0, ticks=400):
     """Applied rate per nozzle in a steady left turn of the boom's centre at `radius_m`: from the mean
     duty (K, N), from the pulse trains (N,), and the nozzles' offsets."""
-    spec = SprayerSpec(nozzle="02", control="pwm", pwm_pressure_bar=3.0, duty_range_pct=(10.0, 100.0))
+    # an 04 open at 3 bar gives 1.6 L/min: 150 L/ha needs 50 % duty inside (14.25 m), 90 % outside (25.75 m)
+    spec = SprayerSpec(nozzle="04", control="pwm", pwm_pressure_bar=3.0, duty_range_pct=(10.0, 100.0))
     offsets = spec.nozzle_offsets_m(12.0)
     speed = np.full(ticks, speed_m_s)
     yaw = speed / radius_m                                 # counter-clockwise: the left nozzles are inside

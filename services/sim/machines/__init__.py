@@ -1,12 +1,18 @@
 """Machine kinds at run time: how each ``[implement] kind`` meters and where its product lands.
 
 `machine_for` gives an implement's `Machine` (`services.sim.machines.base`); one module per kind
-registers it (`register_machine`): `gated_meter` (one shaft, a gate per section; the default) and
-`section_drives` (a drive per section). A kind's keys are `vehicle.machines`'; ``keys`` reads a
-scenario's ``[implement]`` table. docs/machines.md: the registry, each kind, how to add one.
+registers it (`register_machine`): `gated_meter` (one shaft, a gate per section; the default),
+`section_drives` (a drive per section) and `spinner` (a twin-disc spreader). A kind's keys are
+`vehicle.machines`'; ``keys`` reads a scenario's ``[implement]`` table. docs/machines.md: the
+registry, each kind, how to add one.
 """
 
-from services.sim.machines import gated_meter, section_drives  # noqa: F401  (register the kinds)
+from services.sim.machines import (  # noqa: F401  (register the kinds)
+    gated_meter,
+    section_drives,
+    spinner,
+    sprayer,
+)
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import machine_for, machine_kinds, register_machine
 

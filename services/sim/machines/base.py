@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+import sys
 from abc import ABC, abstractmethod
 from typing import ClassVar
 
 import numpy as np
 
+from controller import PlantParams
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -30,12 +33,16 @@ class Machine(ABC):
     ----------
     implement : vehicle.Implement
         Of this kind (``implement.kind == kind``); its ``machine`` holds the kind's own keys.
+    field_polygon : shapely geometry, optional
+        The field boundary in the grid's CRS, for kinds that act on it (a spinner's border spreading);
+        None: no boundary known (product is thrown as if the field went on).
     """
 
     kind: ClassVar[str] = ""
 
-    def __init__(self, implement: Implement):
+    def __init__(self, implement: Implement, field_polygon=None):
         self.implement = implement
+        self.field_polygon = field_polygon
 
     @property
     def drives(self) -> int:
@@ -46,6 +53,41 @@ class Machine(ABC):
     def drive_share(self) -> np.ndarray:
         """Each drive's share of the implement's ``kg_per_rev`` per revolution, shape (drives,)."""
         return np.ones(1)
+
+    def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
+        """The plant each drive's loop closes: the scenario's shaft plant (`services.sim.core.plant_for`)
+        for a metering shaft; a kind with another actuator (a sprayer's flow loop) gives its own, and
+        refuses a `scenario` it cannot run (`ScenarioError`). `grid`: the prescription (a working point)."""
+        return plant
+
+    def kg_per_rev(self, product) -> float:
+        """What one revolution of a drive's loop meters, kg, as configured (`vehicle.product.metered_kg`
+        applies `product`'s calibration error and flow variability to it): ``[implement] kg_per_rev``."""
+        return self.implement.kg_per_rev
+
+    def unlimited_targets(self, rate_kg_ha: np.ndarray, states: SectionStates, product) -> np.ndarray:
+        """Each drive's target for its rate with the machine's range lifted (the error split's reference
+        that applies what the map asks, `services.sim.error_split`): a shaft without a speed range."""
+        unlimited = dataclasses.replace(self.implement, shaft_rpm_min=0.0, shaft_rpm_max=sys.float_info.max)
+        return type(self)(unlimited, self.field_polygon).drive_targets(rate_kg_ha, states)
+
+    def configured_kg(self, rev, product) -> np.ndarray:
+        """What `rev` revolutions meter by the configured constant, kg: ``[implement] kg_per_rev``."""
+        return self.implement.mass_kg(rev)
+
+    def limited(self, control: dict) -> np.ndarray:
+        """Where a drive's target (``control["drive_target_rpm"]``, a run's control arrays) sits on a bound
+        of the machine's range, bool (n,): a closed drive's target is 0, never on a bound, so any
+        drive's flags the tick."""
+        return self.implement.shaft_limited(control["drive_target_rpm"]).any(axis=1)
+
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        """What one straight pass lays across its path with every section open: lateral offsets (m,
+        increasing, left positive) and relative mass per metre there (linear between, zero beyond),
+        for the spread-pattern figures (`services.sim.spread_pattern`). By default a rectangle of the
+        working width (strips side by side)."""
+        half_m = self.implement.width_m / 2
+        return np.array([-half_m, half_m]), np.ones(2)
 
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
@@ -78,12 +120,13 @@ class Machine(ABC):
 
     @abstractmethod
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> StripPlan:
+                   cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
         """Where the product lands, before any product: a plan with ``footprint()`` (a `maps.footprint`
         kind), ``mass_kg(product)`` (each item's kg, linear in `deposit_kg`'s product; (ticks, ..., m)
         columns give (items, m)) and ``pass_index`` (items,), as
         `services.sim.section_landing.StripPlan`. Parameters as
-        `services.sim.section_landing.section_strips`' (`ticks`: only these)."""
+        `services.sim.section_landing.StripPlan.of`'s (`ticks`: only these; `tick_m`, `first_tick`: a
+        tick's travel and where the track begins in a run accounted part by part)."""
 
     def deposit_kg(self, control: dict) -> np.ndarray:
         """The product per tick in `deposition`'s terms, from a run's control arrays: ``metered_kg``

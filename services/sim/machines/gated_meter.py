@@ -43,5 +43,5 @@ class GatedMeter(Machine):
         return rate_kg_ha[:, 0]
 
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> StripPlan:
-        return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks)
+                   cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
+        return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, tick_m, first_tick)

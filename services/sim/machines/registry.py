@@ -25,10 +25,12 @@ def machine_kinds() -> tuple[str, ...]:
     return tuple(MACHINES)
 
 
-def machine_for(implement: Implement):
-    """The run-time part of `implement`'s kind; `ScenarioError` naming the known kinds otherwise."""
+def machine_for(implement: Implement, field_polygon=None):
+    """The run-time part of `implement`'s kind (on the field `field_polygon`, shapely, in the grid's
+    CRS, where the kind acts on the boundary); `ScenarioError` naming the known kinds otherwise."""
     try:
-        return MACHINES[implement.kind](implement)
+        cls = MACHINES[implement.kind]
     except KeyError:
         raise ScenarioError(f"[implement] kind must be one of {', '.join(MACHINES)}, "
                             f"got {implement.kind!r}") from None
+    return cls(implement, field_polygon)

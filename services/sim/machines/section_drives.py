@@ -69,5 +69,6 @@ class SectionDrives(Machine):
         return (rate_kg_ha * weight).sum(axis=1) / weight.sum(axis=1)
 
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> StripPlan:
-        return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, own_drives=True)
+                   cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
+        return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, tick_m, first_tick,
+                            own_drives=True)

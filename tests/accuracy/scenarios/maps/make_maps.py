@@ -1,4 +1,4 @@
-"""Writes the map files three library scenarios read (checked in; rerun only to change them):
+"""Writes the map files some library scenarios read (checked in; rerun only to change them):
 
 - ``isoxml_zones/TASKDATA.XML`` + ``GRD00001.BIN``: zones as an ISO 11783-10 grid type 2 (WGS84),
   written by vrsim's ISOXML writer, as a farm-management program would send to a terminal;
@@ -8,6 +8,8 @@
   field worked at heading 0 (attribute ``RATE``, kg/ha, WGS84), for the per-section drives.
 - ``zones_lb_ac.tif``: zones in lb/ac (US units, the band's unit says so), written by rasterio in
   WGS84 as a US farm program exports a prescription.
+- ``zones_l_ha.tif``: zones in L/ha (a sprayer's prescription, the band's unit says so), 140-220 L/ha,
+  written the same way.
 
 All cover the library's 120 m x 250 m rectangle at 52.0 N, 10.0 E with a margin.
 
@@ -105,8 +107,24 @@ def write_lb_ac_geotiff():
         dst.units = ("lb/ac",)
 
 
+def write_l_ha_geotiff():
+    import rasterio
+
+    crs, bounds = field_bounds_utm()
+    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=2.0, seed=26, n_zones=5,
+                            rate_range_kg_ha=(140.0, 220.0), rate_step_kg_ha=20.0)  # read as L/ha here
+    wgs = zones.reproject("EPSG:4326", cell_size_m=3.0)
+    rates = np.where(np.isnan(wgs.rates_kg_ha), -1.0, wgs.rates_kg_ha).astype(np.float32)
+    with rasterio.open(os.path.join(HERE, "zones_l_ha.tif"), "w", driver="GTiff", width=wgs.cols,
+                       height=wgs.rows, count=1, dtype="float32", crs="EPSG:4326", transform=wgs.transform,
+                       nodata=-1.0) as dst:
+        dst.write(rates, 1)
+        dst.units = ("L/ha",)
+
+
 if __name__ == "__main__":
     write_isoxml()
     write_shapefile()
     write_stripes()
     write_lb_ac_geotiff()
+    write_l_ha_geotiff()

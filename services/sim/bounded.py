@@ -1,0 +1,317 @@
+"""A run accounted part by part as SUMO drives it: memory set by the map and one part, not by the ticks.
+
+`vrsim run` (`services.sim.streamed`) hands each part of the track it has measured and controlled to
+`BoundedAccount.add`; the account lands the product, deposits it on the as-applied raster, adds the
+worked area, the transitions and the machine limits, passes each tick's track row to a sink (the
+track files, written as they go) and keeps of the ticks only what the outputs show (`services.sim.kept`).
+Its figures equal the in-process run's (`services.sim.run.accounted`) bit for bit, because it runs the
+same functions over stretches that they treat alike:
+
+- a stretch ends where the pass that product lands in changes and the implement is not on across the
+  cut (a turn): the strips are ordered by pass and a pass is deposited whole (`maps.AsApplied`), a run
+  of work lies whole in one stretch (the worked area), and no rate step's window crosses it;
+- each stretch is worked out with the ticks after it that its landing looks at (the delivery delay and
+  a tick, and the transitions' hold): ``lookahead`` ticks;
+- strips are cut every so many ticks (half a map cell) counted from the run's first tick, at a tick's
+  travel known before the drive (`section_landing.tick_travel_m`); the distance along the landing
+  path is summed on from the stretch before.
+
+What it keeps per tick: the metered product (8 bytes a tick): a run's total is numpy's pairwise sum over
+all its ticks, which a sum of parts does not reproduce to the last bit (the error split's reference
+meters, which only the report shows, are summed part by part: equal to the in-process run's to
+rounding). The machine-limited ticks keep their landing frames (about 100 bytes
+each), whose strips are cut by their own median travel at the end, as the in-process run cuts them; a
+pass not yet ended is held until it ends (a stretch is at most a swath and its turn).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from maps import AsApplied
+from services.sim.accounting import (
+    Accounts,
+    Deposit,
+    Setting,
+    StageTimer,
+    cells_in_field,
+    check_world,
+    map_figures,
+)
+from services.sim.aslog import run_point_log
+from services.sim.core import CONTROL_KEYS
+from services.sim.error_split import REFERENCES, reference_metered_kg
+from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
+from services.sim.landing import Landing, land
+from services.sim.machines import machine_for
+from services.sim.metrics import limit_metrics, overlap_metrics
+from services.sim.run import RunResult
+from services.sim.section_landing import (
+    LimitedStrips,
+    StripPlan,
+    WorkedArea,
+    landing_frame,
+    landing_pass,
+    tick_travel_m,
+)
+from services.sim.sections import SectionStates
+from services.sim.sections.motion import MotionTrend
+from services.sim.sections.passes import PassTracker
+from services.sim.transitions import SETTLE_HOLD_S, rate_steps, transition_figures, transition_spans
+from services.sim.world import World
+
+# The track's per-tick rows a sink gets (`BoundedAccount`'s ``track_sink``): the true track's, the
+# control core's and the landing's (prescribed and applied rate where the product lands).
+TRACK_KEYS = ("time_s", "x_m", "y_m", "speed_m_s", "implement_on")
+CONTROL_ROW_KEYS = ("target_shaft_rpm", "shaft_rpm", "current_a", "sections_on")
+
+
+class BoundedAccount:
+    """The accounts of a run fed part by part (see the module docstring).
+
+    Parameters
+    ----------
+    world : World
+    timer : StageTimer
+        The run's; the accounting's time goes to ``metrics_s``.
+    started_unix : float
+        When the run started (the as-applied log's clock).
+    expected_ticks : float
+        About how many ticks the drive has (the path points' thinning).
+    track_sink : callable, optional
+        ``track_sink(rows)`` with each stretch's per-tick rows: a dict of `TRACK_KEYS` and
+        `CONTROL_ROW_KEYS` arrays, ``prescribed_kg_ha`` and ``applied_kg_ha`` (the landing's).
+    references : bool
+        Also deposit the error split's reference meters (``reference_figures`` of the result).
+    """
+
+    def __init__(self, world: World, timer: StageTimer, started_unix: float, expected_ticks: float = 0,
+                 track_sink=None, references: bool = False):
+        sc, grid = world.scenario, world.grid
+        imp = sc.implement
+        self.world, self.timer, self.started_unix, self.track_sink = world, timer, started_unix, track_sink
+        self.delay_s, self.period_s = imp.delivery_delay_s, sc.timing.control_period_s
+        self.cell_m, self.tick_m = min(grid.cell_size), tick_travel_m(sc)
+        self.lookahead = int(math.ceil(max(self.delay_s + self.period_s, SETTLE_HOLD_S) / self.period_s)) + 3
+        self.acc = AsApplied(grid)
+        self.worked = WorkedArea(grid)
+        self.machine = machine_for(imp, world.field.polygon)
+        self.refs = [AsApplied(grid) for _ in REFERENCES] if references else None
+        # The spread pattern's reference: the unclipped product on the sections' strips (only a kind
+        # whose footprint is not strips needs its own raster: for the others it is the first reference).
+        self.ref_strips = AsApplied(grid) if references else None
+        self.passes = PassTracker()
+        self.pending: dict | None = None   # ticks not yet accounted, from tick `first` of the run
+        self.first = 0
+        self.distance_m = 0.0     # the landing path's length so far
+        self.last_pass = -1       # the landing pass of the last tick accounted
+        self.metered: list = []   # per stretch: the run's metered kg
+        self.ref_kg = [0.0] * len(REFERENCES)  # the reference meters' product so far ...
+        self.ref_rev = [0.0] * len(REFERENCES)  # ... and where their shafts stand
+        self.ref_motion = MotionTrend(self.period_s)  # the sensed motion the references' targets read
+        self.spans: list = []     # per stretch: transition times and distances
+        self.to_zero = self.cut = self.limited = self.applying = 0
+        self.limited_ticks: list = []   # per stretch: the limited ticks' landing frames
+        self.path = PathPoints.for_ticks(expected_ticks)
+        self.series = SeriesWindow()
+        self.logs: list = []
+        self.last_row: dict | None = None   # the last tick accounted, for the log's thinning
+
+    def add(self, track: dict, measured_speed_m_s, control: dict) -> None:
+        """The next ticks: the true track (`vehicle.track_on_path`), the measured ground speed and the
+        control core's arrays (`services.sim.core.CONTROL_KEYS`)."""
+        with self.timer.stage("metrics_s"):
+            part = dict(track, measured_speed_m_s=np.asarray(measured_speed_m_s), **control)
+            part["pass_index"] = self.passes.step(track["heading_rad"], track["implement_on"])
+            self.pending = part if self.pending is None else \
+                {k: np.concatenate([self.pending[k], part[k]]) for k in part}
+            cut = self._last_cut()
+            if cut:
+                self._account(cut, self.pending)
+
+    def result(self, reference_figures=None) -> RunResult:
+        """Account for the ticks still pending (the drive has ended) and return the run's result."""
+        with self.timer.stage("metrics_s"):
+            if self.pending is not None and len(self.pending["time_s"]):
+                self._account(len(self.pending["time_s"]), self.pending)
+            return self._result()
+
+    # --- stretches -------------------------------------------------------------------------------
+    def _last_cut(self) -> int:
+        """The last tick of the pending ticks before which a stretch may end (0: none yet): the landing
+        pass changes there, the implement is not on across it, and the look-ahead after it is there."""
+        p = self.pending
+        n = len(p["time_s"]) - self.lookahead
+        if n < 2:
+            return 0
+        lp = self._landing_passes(p, n)
+        on = np.asarray(p["implement_on"], bool)[:n]
+        ok = np.flatnonzero((lp[1:] > lp[:-1]) & ~(on[1:] & on[:-1])) + 1
+        return int(ok[-1]) if ok.size else 0
+
+    def _landing_passes(self, p: dict, n: int) -> np.ndarray:
+        """The landing pass of the first `n` pending ticks, the passes before them counted."""
+        filled = np.maximum(np.asarray(p["pass_index"]), self.last_pass)
+        return landing_pass(p["time_s"], filled, self.delay_s, np.arange(n))
+
+    def _account(self, n: int, p: dict) -> None:
+        """Account for the first `n` pending ticks (a stretch) with the look-ahead after them."""
+        world, imp = self.world, self.world.scenario.implement
+        end = min(len(p["time_s"]), n + self.lookahead)
+        w = {k: v[:end] for k, v in p.items()}
+        states = SectionStates(np.asarray(w["sections_on"], bool), imp.section_widths, imp.section_offsets_m,
+                               w["pass_index"], w.get("sections_commanded"))
+        metered = w["metered_kg"]
+        landing = land(world.grid, w, metered, w["width_on_m"], self.delay_s, self.period_s)
+        distance = np.cumsum(np.append(self.distance_m, landing.strip_length_m))[1:]
+        ticks = np.arange(n)
+        plan = self.machine.deposition(w, states, self.delay_s, self.period_s, self.cell_m, ticks,
+                                       self.tick_m, self.first)
+        product = plan.mass_kg(self.machine.deposit_kg(w))
+        self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index)
+        self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
+        if self.refs is not None:
+            self._references(w, states, n, plan)
+        self.worked.add(w, imp.width_m, n)
+        on = np.asarray(w["implement_on"], bool)
+        steps = rate_steps(landing.prescribed_kg_ha[:n], on[:n])
+        times, dists, to_zero, cut = transition_spans(w["time_s"], distance, landing.prescribed_kg_ha,
+                                                      landing.applied_kg_ha, on, steps)
+        self.spans.append((times, dists))
+        self.to_zero, self.cut = self.to_zero + to_zero, self.cut + cut
+        self._limits(w, states, n)
+        self._outputs(w, landing, n)
+        self.distance_m = float(distance[n - 1])
+        self.last_pass = int(max(self.last_pass, np.max(w["pass_index"][:n], initial=-1)))
+        self.first += n
+        self.pending = {k: v[n:] for k, v in p.items()}
+
+    def _references(self, w: dict, states: SectionStates, n: int, plan) -> None:
+        """Deposit the error split's reference meters' product of the stretch through the run's `plan`,
+        as `services.sim.error_split` does: each drive's target, at its own ground speed in turns (the
+        sensed motion carried from stretch to stretch)."""
+        motion = self.ref_motion.step(w["x_m"][:n], w["y_m"][:n], w["heading_rad"][:n],
+                                      w["measured_speed_m_s"][:n])
+        sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
+                               None, motion)
+        control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
+        for j, (acc, reference) in enumerate(zip(self.refs, REFERENCES, strict=True)):
+            ref, self.ref_rev[j] = reference_metered_kg(self.world, self.machine, sensed, control, *reference,
+                                                        start_rev=self.ref_rev[j])
+            acc.deposit(plan.footprint(), plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
+            self.ref_kg[j] += float(ref.sum())
+            if j == 0 and not isinstance(plan, StripPlan):
+                strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
+                                      self.tick_m, self.first)
+                self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
+
+    def _limits(self, w: dict, states: SectionStates, n: int) -> None:
+        """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
+        applying = w["width_on_m"][:n] > 0
+        limited = self.machine.limited({k: w[k][:n] for k in CONTROL_KEYS if k in w}) & applying
+        self.applying += int(np.count_nonzero(applying))
+        self.limited += int(np.count_nonzero(limited))
+        idx = np.flatnonzero(limited)
+        if idx.size:
+            frame = landing_frame(w, self.delay_s, self.period_s, idx)
+            passes = landing_pass(w["time_s"], states.pass_index, self.delay_s, idx)
+            self.limited_ticks.append((frame, passes, states.actual[idx], self.first + idx,
+                                       w["metered_kg"][idx]))
+
+    def _outputs(self, w: dict, landing: Landing, n: int) -> None:
+        """The stretch's track rows to the sink, and what the pictures and the log keep."""
+        rows = {k: w[k][:n] for k in TRACK_KEYS + CONTROL_ROW_KEYS}
+        rows.update(prescribed_kg_ha=landing.prescribed_kg_ha[:n], applied_kg_ha=landing.applied_kg_ha[:n])
+        if self.track_sink is not None:
+            self.track_sink(rows)
+        self.path.add(rows["x_m"], rows["y_m"])
+        self.series.add({k: rows[k] for k in SERIES_KEYS}, rows["implement_on"])
+        self._log(w, rows, n)
+
+    def _log(self, w: dict, rows: dict, n: int) -> None:
+        """The stretch's records of the as-applied log, thinned as the whole run's: the last tick of the
+        stretch before goes first (the first record of a thinning is kept) and is dropped again."""
+        part = {k: rows[k] for k in ("time_s", "x_m", "y_m", "speed_m_s", "implement_on", "sections_on",
+                                     "applied_kg_ha")}
+        # The log's target is the control core's (the prescription at the predicted landing point).
+        part.update(heading_rad=w["heading_rad"][:n], width_on_m=w["width_on_m"][:n],
+                    target_kg_ha=w["prescribed_kg_ha"][:n])
+        last, self.last_row = self.last_row, {k: v[-1:] for k, v in part.items()}
+        if last is not None:
+            part = {k: np.concatenate([last[k], part[k]]) for k in part}
+        control = {"width_on_m": part["width_on_m"], "prescribed_kg_ha": part["target_kg_ha"],
+                   "sections_on": part["sections_on"]}
+        log = run_point_log(self.world, part, control, part["applied_kg_ha"], self.started_unix,
+                            self.world.scenario.output.log_rate_hz)
+        self.logs.append(log if last is None else _dropped_first(log))
+
+    # --- the end ---------------------------------------------------------------------------------
+    def _result(self) -> RunResult:
+        world, grid, acc = self.world, self.world.grid, self.acc
+        in_field = cells_in_field(grid, world.field.polygon)
+        worked, cover = self.worked.fraction(), acc.coverage_fraction
+        # numpy's pairwise sum over the whole run, as the in-process run's.
+        metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
+        limited_cover = self._limited_coverage()
+        deposit = Deposit(None, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
+                          acc.outside_kg, limited_cover)
+        setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
+                          self.first, self.distance_m)
+        times = np.concatenate([s[0] for s in self.spans]) if self.spans else np.zeros(0)
+        dists = np.concatenate([s[1] for s in self.spans]) if self.spans else np.zeros(0)
+        # The counts of limited and applying ticks as `limit_metrics` counts them over a run's arrays.
+        applying = np.ones(self.applying, bool)
+        limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
+                               in_field)
+        accounts = Accounts(setting, deposit,
+                            map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg, acc.outside_kg),
+                            transition_figures(times, dists, self.to_zero, self.cut),
+                            overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field,
+                                            grid.rates_kg_ha),
+                            limits, self.timer.timing())
+        references = None
+        if self.refs is not None:
+            strips = self.ref_strips if self.ref_strips.items else self.refs[0]
+            stages = [(strips, 0), *((ref, j) for j, ref in enumerate(self.refs))]
+            references = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction,
+                                      self.ref_kg[j], ref.outside_kg) for ref, j in stages]
+        kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
+        return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
+                         reference_figures=references, kept_parts=kept)
+
+    def _limited_coverage(self) -> np.ndarray:
+        """`section_landing.limited_coverage` of the limited ticks kept."""
+        grid, imp = self.world.grid, self.world.scenario.implement
+        if not self.limited_ticks:
+            return LimitedStrips.of_plan(None, grid).coverage(np.zeros((0, 1)))[0]
+        frames, passes, actual, numbers, metered = zip(*self.limited_ticks, strict=True)
+        frame = tuple(np.concatenate(f) for f in zip(*frames, strict=True))
+        numbers = np.concatenate(numbers)
+        states = SectionStates(np.zeros((0, imp.sections), bool), imp.section_widths, imp.section_offsets_m,
+                               np.zeros(0, np.int64))
+        plan = StripPlan.of_frame(frame, np.concatenate(passes), np.concatenate(actual), numbers, states,
+                                  self.cell_m, np.arange(numbers.size))
+        return LimitedStrips.of_plan(plan, grid).coverage(np.concatenate(metered)[:, None])[0]
+
+
+def _dropped_first(log):
+    """`log` without its first record."""
+    import dataclasses
+
+    from maps.pointlog import COLUMNS
+
+    return dataclasses.replace(log, **{name: getattr(log, name)[1:] for name in COLUMNS})
+
+
+def _joined_logs(logs: list):
+    """One log of consecutive parts' logs (None: no part)."""
+    import dataclasses
+
+    from maps.pointlog import COLUMNS
+
+    if not logs:
+        return None
+    return dataclasses.replace(logs[0], **{name: np.concatenate([getattr(g, name) for g in logs])
+                                           for name in COLUMNS})

@@ -1,0 +1,208 @@
+"""``spinner``: a twin-disc spinner spreader (`vehicle.spinner.SpinnerSpec`).
+
+Two metering drives, the left and the right disc, each metering half of ``kg_per_rev`` per
+revolution with its own control loop (per-side rate). Each side's rate is looked up at its own
+landing point: the centre of the product that side throws (its half of the transverse pattern,
+`TransversePattern.side_centre_m`, across the pose predicted along the arc), ``throw_distance_m``
+behind the discs; its target is for its own ground speed in a turn (``v - yaw_rate * offset``, at
+least 0, as `section_drives`' turn compensation) over the driving width ``width_m``: with equal
+rates the two discs together meter what one shaft would over the driving width.
+
+Section control: the implement's sections are the sides (one section: both sides together; two:
+each side its own, the left first); the switch (``section_control``) turns a side off on its half of
+the driving width. At the field boundary each side's reach is cut (`SpinnerSpec.side_reach_m`:
+exactly at the boundary with ``border_spreading``, else in ``side_steps`` steps), measured from
+where its product lands, across; a cut side meters the share of its half that lies within its reach
+(`TransversePattern.side_share`), so a cut pattern is the uncut one with what would have landed
+beyond the reach left in the hopper. A side whose reach is 0 is off.
+
+Deposition: each side's product lands through `maps.SpinnerThrow` (the disc centre's travel on the
+true path ``delivery_delay_s`` later, thrown ``throw_distance_m`` behind, across the side to its
+reach), one item per side and joined span of ticks (`StripPlan` of the two sides along the centre
+line), so it goes through both modes of the deposition engine and sweeps' batched variants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from maps import SpinnerThrow
+from services.sim.machines.base import Machine
+from services.sim.machines.registry import register_machine
+from services.sim.section_landing import StripPlan
+from services.sim.sections import SectionStates
+from services.sim.sections.motion import Motion
+
+__all__ = ["Spinner", "ThrowPlan"]
+
+SIDES = np.array([1.0, -1.0])   # drive 0: the left disc (+1, left of travel), drive 1: the right disc
+MIN_REACH_M = 0.1  # a side whose product the terminal let through where the true pose leaves no room
+ROOM_CHUNK = 2_000_000   # points x boundary segments at a time in the ray casting (memory)
+
+
+@register_machine
+class Spinner(Machine):
+    """Two discs, a drive and a loop each (see the module's docstring)."""
+
+    kind = "spinner"
+
+    def __init__(self, implement, field_polygon=None):
+        super().__init__(implement, field_polygon)
+        self.spec = implement.machine
+        self.pattern = self.spec.transverse_pattern()
+        self.centre_m = np.array([self.pattern.side_centre_m(int(s)) for s in SIDES])
+        self._reach_of, self._reach = None, None
+
+    @property
+    def drives(self) -> int:
+        return 2
+
+    @property
+    def drive_share(self) -> np.ndarray:
+        return np.full(2, 0.5)
+
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.pattern.offset_m, self.pattern.mass_per_m
+
+    def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
+        x, y, cos, sin = motion.ahead(lead_s)
+        x, y = x - self.spec.throw_distance_m * cos, y - self.spec.throw_distance_m * sin
+        # Left of the predicted heading (cos, sin) is (-sin, cos).
+        return x, y, x[:, None] - sin[:, None] * self.centre_m, y[:, None] + cos[:, None] * self.centre_m
+
+    def sides_on(self, actual: np.ndarray) -> np.ndarray:
+        """Whether each side's gate is open, bool (n, 2), from the sections' (n, 1 or 2)."""
+        return np.repeat(actual, 2, axis=1) if actual.shape[1] == 1 else actual
+
+    def reach_m(self, x_m, y_m, cos, sin) -> np.ndarray:
+        """Each side's reach, m (n, 2), for product landing on the line through (x_m, y_m) along the
+        heading (cos, sin): the room to the field boundary across each side, cut by
+        `SpinnerSpec.side_reach_m` (half the spread width with no boundary known)."""
+        if self.field_polygon is None:
+            return self.spec.side_reach_m(np.full((np.size(x_m), 2), np.inf))
+        return self.spec.side_reach_m(_room_m(self.field_polygon, x_m, y_m, -sin, cos))
+
+    def _terminal_reach(self, states: SectionStates) -> np.ndarray:
+        """Each side's reach as the terminal sets it (n, 2): where product metered now lands, from
+        the sensed motion predicted by the delivery delay (kept for the states it was asked for last:
+        `drive_open` and `drive_targets` ask for the same ticks)."""
+        if self._reach_of is not states:
+            x, y, cos, sin = states.motion.ahead(self.implement.delivery_delay_s)
+            throw = self.spec.throw_distance_m
+            self._reach_of, self._reach = states, self.reach_m(x - throw * cos, y - throw * sin, cos, sin)
+        return self._reach
+
+    def drive_open(self, states: SectionStates) -> np.ndarray:
+        return self.sides_on(states.actual) & (self._terminal_reach(states) > 0)
+
+    def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
+        """Each side's ground speed where its product lands, m/s (n, 2): ``v - yaw_rate * offset``
+        at its centre's offset, at least 0."""
+        return np.maximum(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * self.centre_m, 0.0)
+
+    def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
+        imp, reach = self.implement, self._terminal_reach(states)
+        # A disc meters half the product per revolution: at full reach it turns at the speed of the one
+        # shaft for the driving width; a cut side meters only its pattern's share within the reach.
+        share = self.pattern.side_share(SIDES[None, :], reach)
+        full_rpm = imp.target_shaft_rpm(rate_kg_ha, self.drive_speed_m_s(states.motion))
+        wanted = imp.clip_shaft_rpm(full_rpm * share)
+        return np.where(self.sides_on(states.actual) & (reach > 0), wanted, 0.0)
+
+    def combined(self, per_drive: np.ndarray) -> np.ndarray:
+        return per_drive @ self.drive_share
+
+    def prescribed(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
+        """The open sides' rates, averaged (both sides' where neither is open)."""
+        on = self.sides_on(states.actual)
+        weight = np.where(on.any(axis=1, keepdims=True), on, True).astype(float)
+        return (rate_kg_ha * weight).sum(axis=1) / weight.sum(axis=1)
+
+    def deposit_kg(self, control: dict) -> np.ndarray:
+        """Each disc's product (n, 2); records without it (the monitor's, rebuilt from the
+        machine-level keys) share ``metered_kg`` between the open sides."""
+        if "drive_kg" in control:
+            return np.asarray(control["drive_kg"])
+        on = self.sides_on(np.asarray(control["sections_on"], bool)).astype(float)
+        count = on.sum(axis=1, keepdims=True)
+        return np.asarray(control["metered_kg"])[:, None] * np.divide(on, count, out=np.zeros(on.shape),
+                                                                      where=count > 0)
+
+    def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
+                   cell_m: float, ticks=None) -> ThrowPlan:
+        imp = self.implement
+        sides = SectionStates(self.sides_on(states.actual), np.full(2, imp.width_m / 2), np.zeros(2),
+                              states.pass_index)
+        # The two sides' spans along the centre line (offsets 0): the discs' travel, joined as strips are.
+        plan = StripPlan.of(track, sides, delay_s, period_s, cell_m, ticks, own_drives=True)
+        s = plan.strips
+        dx, dy = s.x1_m - s.x0_m, s.y1_m - s.y0_m
+        length = np.hypot(dx, dy)
+        cos = np.divide(dx, length, out=np.zeros(length.shape), where=length > 0)
+        sin = np.divide(dy, length, out=np.zeros(length.shape), where=length > 0)
+        side = SIDES[s.section]
+        throw = self.spec.throw_distance_m
+        mid_x, mid_y = (s.x0_m + s.x1_m) / 2 - throw * cos, (s.y0_m + s.y1_m) / 2 - throw * sin
+        reach = self.reach_m(mid_x, mid_y, cos, sin)[np.arange(side.size), s.section]
+        reach = np.where(length > 0, np.maximum(reach, MIN_REACH_M), self.spec.half_width_m)
+        return ThrowPlan(plan, side, reach, self.pattern.offset_m, self.pattern.mass_per_m, throw)
+
+
+@dataclass(frozen=True)
+class ThrowPlan:
+    """Where a spinner's product lands, before any product: the discs' joined spans (a `StripPlan` of
+    the two sides, whose ``mass_kg`` maps each disc's kg to its items) thrown through
+    `maps.SpinnerThrow` with each item's side and reach."""
+
+    strips: StripPlan
+    side: np.ndarray        # (items,) +1 left disc, -1 right
+    reach_m: np.ndarray     # (items,)
+    offset_m: np.ndarray    # the transverse pattern's knots
+    mass_per_m: np.ndarray
+    throw_distance_m: float
+
+    def footprint(self) -> SpinnerThrow:
+        """The items as the deposition engine's ``spinner`` footprint."""
+        s = self.strips.strips
+        return SpinnerThrow(s.x0_m, s.y0_m, s.x1_m, s.y1_m, self.side, self.reach_m, self.offset_m,
+                            self.mass_per_m, self.throw_distance_m)
+
+    @property
+    def pass_index(self) -> np.ndarray:
+        """The pass of each item, shape (items,)."""
+        return self.strips.pass_index
+
+    def mass_kg(self, drive_kg) -> np.ndarray:
+        """Each item's kg from each disc's per tick (ticks, 2[, m]): `StripPlan.mass_kg`."""
+        return self.strips.mass_kg(drive_kg)
+
+
+def _room_m(polygon, x_m, y_m, ux, uy) -> np.ndarray:
+    """The distance (m) from each point (x_m, y_m) to the boundary of `polygon` along the unit
+    direction (ux, uy) (column 0) and against it (column 1), shape (n, 2): 0 for a point outside, inf
+    where the ray meets no boundary. Ray casting against the boundary's segments in numpy, in chunks
+    of points (a point is inside where its ray crosses the boundary an odd number of times)."""
+    import shapely
+
+    rings = [shapely.get_coordinates(part) for part in shapely.get_parts(polygon.boundary)]
+    a = np.concatenate([r[:-1] for r in rings])
+    e = np.concatenate([np.diff(r, axis=0) for r in rings])
+    x, y, ux, uy = (np.asarray(v, float) for v in (x_m, y_m, ux, uy))
+    room = np.empty((x.size, 2))
+    step = max(1, ROOM_CHUNK // max(len(a), 1))
+    for lo in range(0, x.size, step):
+        part = slice(lo, lo + step)
+        dx, dy = a[None, :, 0] - x[part, None], a[None, :, 1] - y[part, None]
+        cross = ux[part, None] * e[None, :, 1] - uy[part, None] * e[None, :, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (dx * e[None, :, 1] - dy * e[None, :, 0]) / cross
+            s = (dx * uy[part, None] - dy * ux[part, None]) / cross
+        hit = (cross != 0) & (s >= 0) & (s < 1)   # half-open: a vertex is crossed once
+        ahead, behind = hit & (t >= 0), hit & (t < 0)
+        inside = ahead.sum(axis=1) % 2 == 1
+        room[part, 0] = np.where(ahead, t, np.inf).min(axis=1)
+        room[part, 1] = np.where(behind, -t, np.inf).min(axis=1)
+        room[part][~inside] = 0.0
+    return room

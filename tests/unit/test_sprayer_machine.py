@@ -1,0 +1,114 @@
+"""The sprayer kind's run-time part (services/sim/machines/sprayer.py) and its machine check
+(services/sim/limits.py) without SUMO: targets, nozzles per section, kg per metered litre, limits."""
+
+import math
+
+import numpy as np
+import pytest
+
+from common import VehicleError
+from services.sim.limits import machine_check
+from services.sim.machines import machine_for
+from services.sim.sections.motion import Motion
+from services.sim.sections.switching import SectionStates
+from vehicle import Implement
+from vehicle.product import Product
+from vehicle.sprayer import SprayerSpec, boom_flow_l_min
+
+
+def _sprayer(**keys) -> Implement:
+    return Implement(width_m=12.0, sections=6, kind="sprayer", machine=SprayerSpec(**keys))
+
+
+def _states(imp: Implement, speed_m_s, yaw_rad_s, on=None) -> SectionStates:
+    n = len(speed_m_s)
+    zeros = np.zeros(n)
+    motion = Motion(zeros, zeros, zeros, np.asarray(speed_m_s, float), zeros, np.asarray(yaw_rad_s, float))
+    actual = np.ones((n, imp.sections), bool) if on is None else np.asarray(on, bool)
+    return SectionStates(actual, imp.section_widths, imp.section_offsets_m, np.zeros(n, int), actual, motion)
+
+
+def test_each_section_holds_its_nozzles_and_a_litre_is_its_density_over_the_meters_gain():
+    machine = machine_for(_sprayer(nozzle="04", flow_meter_error_pct=5.0))
+    assert machine.nozzles_per_section.tolist() == [4] * 6
+    assert machine.nozzle_section.tolist() == [s for s in range(6) for _ in range(4)]
+    assert machine.drives == 1
+    assert machine.kg_per_rev(Product(form="liquid", density_kg_l=1.2)) == pytest.approx(1.2 / 1.05)
+
+
+def test_flow_control_targets_the_open_nozzles_flow_held_in_their_pressure_range():
+    imp = _sprayer(nozzle="04")
+    machine = machine_for(imp)
+    on = np.ones((3, 6), bool)
+    on[1, :3] = False                                      # half the boom shut
+    rate = np.array([[200.0], [200.0], [10.0]])            # 10 L/ha needs less than 1.5 bar gives
+    target = machine.drive_targets(rate, _states(imp, [2.5, 2.5, 2.5], [0.0, 0.0, 0.0], on))[:, 0]
+    assert target[0] == pytest.approx(boom_flow_l_min(200.0, 2.5, 12.0))
+    assert target[1] == pytest.approx(boom_flow_l_min(200.0, 2.5, 6.0))
+    assert target[2] == pytest.approx(24 * SprayerSpec(nozzle="04").nozzle_flow_range_l_min()[0])
+    limited = machine.limited({"drive_target_rpm": target[:, None], "sections_on": on})
+    assert limited.tolist() == [False, False, True]
+
+
+def test_pwm_gives_each_section_its_nozzles_flow_at_their_own_speed_in_a_turn():
+    imp = _sprayer(nozzle="05", control="pwm", pwm_pressure_bar=4.0)
+    machine = machine_for(imp)
+    assert machine.drives == 6 and machine.drive_share.tolist() == [1.0] * 6
+    speed, radius = 2.5, 20.0
+    target = machine.drive_targets(np.full((1, 6), 200.0), _states(imp, [speed], [speed / radius]))[0]
+    # a left turn: section i's nozzles move at v (r_i / R), r_i = R - offset, so the flow follows the radius
+    radius_i = radius - imp.section_offsets_m
+    assert target == pytest.approx(boom_flow_l_min(200.0, speed * radius_i / radius, 2.0))
+    assert machine.combined(target[None, :])[0] == pytest.approx(boom_flow_l_min(200.0, speed, 12.0))
+
+
+def test_a_boom_the_nozzles_do_not_fit_is_named():
+    assert "does not divide" in machine_for(_sprayer(nozzle_spacing_m=0.7)).layout_error
+    imp = Implement(width_m=12.0, sections=5, kind="sprayer")
+    assert "section 3 (2.4 m) is not a whole number of nozzle_spacing_m" in machine_for(imp).layout_error
+
+
+def test_the_machine_check_names_the_speeds_and_the_nozzle_that_would_do():
+    wide = _sprayer(nozzle="04", pressure_range_bar=(1.0, 8.0))      # air-induction nozzles: 1-8 bar
+    check = machine_check(np.array([130.0, 278.0]), (2.38, 2.62), wide, 1.0, 2.5)
+    assert check.can_apply and "the sprayer can apply the map: 130-278 L/ha (130-278 kg/ha)" in check.text()
+    lo, hi = SprayerSpec(nozzle="04", pressure_range_bar=(1.0, 8.0)).speed_range_m_s(130.0, 278.0)
+    assert (check.min_speed_m_s, check.max_speed_m_s) == pytest.approx((lo, hi))
+    assert check.rpm_max == pytest.approx(boom_flow_l_min(278.0, 2.62, 12.0))
+    pwm = _sprayer(nozzle="02", control="pwm")                 # 02 nozzles are too small at 2.5 m/s
+    check = machine_check(np.array([130.0, 278.0]), (2.38, 2.62), pwm, 1.0, 2.5)
+    assert not check.can_apply
+    assert "set [implement] nozzle = '08' to apply it at 2.50 m/s." in check.text()
+    # 2.6 kg/L: the same kg/ha are 2.6 times fewer litres
+    dense = machine_check(np.array([130.0, 278.0]), (2.38, 2.62), pwm, 2.6, 2.5)
+    assert dense.rpm_max == pytest.approx(check.rpm_max / 2.6)
+    assert math.isnan(machine_check(np.array([0.0]), (2.38, 2.62), pwm).rate_max_kg_ha)
+
+
+def test_a_nozzle_that_cannot_cover_the_map_at_any_speed_is_one_line():
+    with pytest.raises(VehicleError) as err:
+        machine_check(np.array([130.0, 278.0]), (2.38, 2.62), _sprayer(nozzle="02"))
+    msg = str(err.value)
+    assert "\n" not in msg and "nozzle '02'" in msg and "at any speed" in msg and 'control = "pwm"' in msg
+
+
+def test_pwm_lands_each_sections_own_product_and_flow_control_the_booms():
+    on = np.array([[True, True, False, False, False, False]])
+    own = np.array([[1.0, 3.0, 0.0, 0.0, 0.0, 0.0]])
+    control = {"drive_kg": own, "metered_kg": own.sum(axis=1), "sections_on": on}
+    assert machine_for(_sprayer(control="pwm")).deposit_kg(control) == pytest.approx(own)
+    assert machine_for(_sprayer()).deposit_kg(control) == pytest.approx([4.0])
+
+
+def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out():
+    from common import ScenarioError
+    from services.sim import scenario
+    from services.sim.machines.keys import implement_from_table, implement_table
+
+    with pytest.raises(ScenarioError, match=r"x.toml: \[implement\] kg_per_rev is not a key of kind 'spr"):
+        implement_from_table({"kind": "sprayer", "kg_per_rev": 0.8}, "x.toml")
+    # at the default (a granular file whose kind --set changes) it changes nothing
+    assert implement_from_table({"kind": "sprayer", "kg_per_rev": 0.5}, "x.toml").kind == "sprayer"
+    sprayer = scenario.with_changes(scenario.load("default"), implement={"kind": "sprayer", "nozzle": "08"})
+    assert "kg_per_rev" not in implement_table(sprayer.implement)
+    assert implement_table(sprayer.implement)["nozzle"] == "08"
