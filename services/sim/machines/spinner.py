@@ -131,12 +131,14 @@ class Spinner(Machine):
                                                                       where=count > 0)
 
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
-                   cell_m: float, ticks=None) -> ThrowPlan:
+                   cell_m: float, ticks=None, tick_m: float | None = None,
+                   first_tick: int = 0) -> ThrowPlan:
         imp = self.implement
         sides = SectionStates(self.sides_on(states.actual), np.full(2, imp.width_m / 2), np.zeros(2),
                               states.pass_index)
         # The two sides' spans along the centre line (offsets 0): the discs' travel, joined as strips are.
-        plan = StripPlan.of(track, sides, delay_s, period_s, cell_m, ticks, own_drives=True)
+        plan = StripPlan.of(track, sides, delay_s, period_s, cell_m, ticks, tick_m, first_tick,
+                            own_drives=True)
         s = plan.strips
         dx, dy = s.x1_m - s.x0_m, s.y1_m - s.y0_m
         length = np.hypot(dx, dy)

@@ -51,8 +51,8 @@ class Sprayer(Machine):
 
     kind = "sprayer"
 
-    def __init__(self, implement: Implement):
-        super().__init__(implement)
+    def __init__(self, implement: Implement, field_polygon=None):
+        super().__init__(implement, field_polygon)
         spec = self.spec = implement.machine
         self.layout_error = None   # a boom the nozzles do not fit: `loop_plant` names it with the file
         try:
