@@ -184,3 +184,16 @@ def test_sweep_rows_and_report_in_the_maps_unit(tmp_path):
     assert "Mean absolute error [lb/ac]" in report and "[kg/ha]" not in report
     best = min(r["mae_in_rate_unit"] for r in rows)
     assert f"<td>{best:,.3g}</td>" in report   # the best MAE, in lb/ac
+
+
+def test_a_sprayers_machine_check_names_the_maps_unit_beside_l_ha(tmp_path):
+    from tests.integration.test_rate_units import GAL_AC, write_gal_ac_shapefile
+
+    extra = '[product]\nform = "liquid"\ndensity_kg_l = 1.2\n'
+    scen = scenario(tmp_path, write_gal_ac_shapefile(tmp_path / "rx"), extra=extra)
+    text = scen.read_text().replace("[implement]\n", '[implement]\nkind = "sprayer"\nnozzle = "06"\n')
+    scen.write_text(text)
+    p = vrsim("run", scen, "--check")
+    assert p.returncode == 0, p.stderr
+    lo, hi = 10 * GAL_AC, 15 * GAL_AC   # 10-15 gal/ac in L/ha
+    assert f"the sprayer can apply the map: {lo:.0f}-{hi:.0f} L/ha (10-15 gal/ac) at" in p.stdout, p.stdout
