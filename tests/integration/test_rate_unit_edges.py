@@ -196,4 +196,4 @@ def test_a_sprayers_machine_check_names_the_maps_unit_beside_l_ha(tmp_path):
     p = vrsim("run", scen, "--check")
     assert p.returncode == 0, p.stderr
     lo, hi = 10 * GAL_AC, 15 * GAL_AC   # 10-15 gal/ac in L/ha
-    assert f"the sprayer can apply the map: {lo:.0f}-{hi:.0f} L/ha (10-15 gal/ac) at" in p.stdout, p.stdout
+    assert f"the whole map: {lo:.0f}-{hi:.0f} L/ha (10-15 gal/ac) at 2.38-2.62 m/s" in p.stdout, p.stdout
