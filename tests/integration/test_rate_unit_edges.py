@@ -197,3 +197,17 @@ def test_a_sprayers_machine_check_names_the_maps_unit_beside_l_ha(tmp_path):
     assert p.returncode == 0, p.stderr
     lo, hi = 10 * GAL_AC, 15 * GAL_AC   # 10-15 gal/ac in L/ha
     assert f"the whole map: {lo:.0f}-{hi:.0f} L/ha (10-15 gal/ac) at 2.38-2.62 m/s" in p.stdout, p.stdout
+
+
+def test_tune_shows_the_rate_figures_in_the_maps_unit(tmp_path):
+    scen = scenario(tmp_path, write_tif(tmp_path / "rx.tif", "lb/ac"))
+    args = ("tune", scen, "--controller", "PI", "--param", "kp=0.05:2", "--param", "ki=0.1:10", "--objective",
+            "mae_kg_ha", "--budget", "4", "--quiet")
+    p = vrsim(*args, "--json", "--out", tmp_path / "a")
+    assert p.returncode == 0, p.stderr
+    tuned = json.loads(p.stdout)["tuned"]
+    p = vrsim(*args, "--out", tmp_path / "b")
+    assert p.returncode == 0, p.stderr
+    line = next(row for row in p.stdout.splitlines() if row.strip().startswith("mae ["))
+    assert line.split()[:3] == ["mae", "[lb/ac]", f"{tuned['in_rate_unit']['mae']:.4g}"], line
+    assert "kg/ha" not in p.stdout
