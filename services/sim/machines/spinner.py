@@ -10,16 +10,20 @@ rates the two discs together meter what one shaft would over the driving width.
 
 Section control: the implement's sections are the sides (one section: both sides together; two:
 each side its own, the left first); the switch (``section_control``) turns a side off on its half of
-the driving width. At the field boundary each side's reach is cut (`SpinnerSpec.side_reach_m`:
+the driving width. Over treated ground coverage control shortens each side's reach in ``side_steps``
+steps (`side_steps`: the switch decides each side's steps in stage 1, `SectionStates.steps_on`, the
+run's ``side_steps_on``). At the field boundary each side's reach is cut (`SpinnerSpec.side_reach_m`:
 exactly at the boundary with ``border_spreading``, else in ``side_steps`` steps), measured from
-where its product lands, across; a cut side meters the share of its half that lies within its reach
-(`TransversePattern.side_share`), so a cut pattern is the uncut one with what would have landed
-beyond the reach left in the hopper. A side whose reach is 0 is off.
+where its product lands, across; a side's reach is the shorter of the two. A cut side meters the
+share of its half that lies within its reach (`TransversePattern.side_share`), so a cut pattern is
+the uncut one with what would have landed beyond the reach left in the hopper. A side whose reach is
+0 is off.
 
 Deposition: each side's product lands through `maps.SpinnerThrow` (the disc centre's travel on the
 true path ``delivery_delay_s`` later, thrown ``throw_distance_m`` behind, across the side to its
 reach), one item per side and joined span of ticks (`StripPlan` of the two sides along the centre
-line), so it goes through both modes of the deposition engine and sweeps' batched variants.
+line; a span ends where its reach over treated ground changes), so it goes through both modes of the
+deposition engine and sweeps' batched variants.
 """
 
 from __future__ import annotations
