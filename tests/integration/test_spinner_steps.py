@@ -7,14 +7,18 @@ fill it, so one pass overlaps its neighbour by 6 m) with a 36 m spinner:
   the switch as before), less product on treated ground than that side left on whole
   (``section_control = "boundary"``);
 - the streamed run (parts accounted one by one) and sweeps' batched variants give the in-process
-  run's figures.
+  run's figures; the control core stepped in batches with its state carried as plain data (as the
+  controller service steps it) gives the steps of one call.
 """
 
+import json
 import os
 
+import numpy as np
 import pytest
 
 from controller import ControllerConfig
+from services.sim.core import ControlCore
 from services.sim.run import control_and_account, drive, run
 from services.sim.scenario import load, with_changes
 from services.sim.sections import STEPS_KEY
@@ -74,3 +78,23 @@ def test_batched_variants_give_the_runs_summaries():
     cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="ideal")]
     for cfg, summary in zip(cfgs, run_variants(d, cfgs), strict=True):
         _same_figures(summary, control_and_account(d, cfg).summary)
+
+
+def test_the_control_core_in_batches_with_its_state_as_json_gives_one_calls_steps():
+    sc = with_changes(_zones(), controller={"kind": "PID"})
+    d = drive(sc)
+    world, track = d.world, d.track
+    columns = (d.measured_x_m, d.measured_y_m, track["heading_rad"], d.measured_speed_m_s,
+               track["implement_on"], track["s_m"])
+    whole = ControlCore(world.grid, sc, world.field.polygon, world.path).run_track(*columns)
+    n, parts, state = len(d.measured_x_m), [], None
+    for lo in range(0, n, 1777):
+        core = ControlCore(world.grid, sc, world.field.polygon, world.path)
+        if state is not None:
+            core.set_state(json.loads(json.dumps(state, default=lambda a: np.asarray(a).tolist())))
+        parts.append(core.run_track(*(np.asarray(c)[lo:lo + 1777] for c in columns)))
+        state = core.state()
+    for key in (STEPS_KEY, "sections_on", "drive_target_rpm", "drive_kg"):
+        np.testing.assert_allclose(np.concatenate([p[key] for p in parts]), whole[key], rtol=1e-12,
+                                   atol=1e-12, err_msg=key)
+    assert ((whole[STEPS_KEY] > 0) & (whole[STEPS_KEY] < 4)).sum() > 1000
