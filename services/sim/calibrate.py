@@ -52,6 +52,7 @@ _SCALE_STREAM = 0xCA1_0002      # the scale's error
 DEFAULT_CATCH_S = 60.0          # a minute's catch, as the nozzle charts give L/min
 DEFAULT_JUG_ERROR_ML = 10.0     # a 1-2 L measuring jug read to +-10 mL
 MAX_CATCH_S = 3600.0
+MAX_JUG_ERROR_ML = 100_000.0   # the jugs' bound, in their unit, as the scale's
 
 
 def _as_written(constant: float) -> float:
@@ -270,9 +271,9 @@ def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCa
 
     if not in_range(seconds, 0.0, MAX_CATCH_S, lo_open=True):
         raise VrsimError(f"--seconds {seconds!r}: must be a number of seconds in (0, {MAX_CATCH_S:g}]")
-    if not in_range(jug_error_ml, 0.0, MAX_SCALE_ERROR_G):
+    if not in_range(jug_error_ml, 0.0, MAX_JUG_ERROR_ML):
         raise VrsimError(f"--jug-error-ml {jug_error_ml!r}: must be a number of millilitres in "
-                         f"[0, {MAX_SCALE_ERROR_G:g}]")
+                         f"[0, {MAX_JUG_ERROR_ML:g}]")
     check_liquid(scenario)
     imp, seed = scenario.implement, scenario.seed
     spec = imp.machine
