@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from services.cli.options import add_input_cap, apply_input_cap
+from services.cli.options import add_input_cap, add_overrides, apply_input_cap, load_scenario
 
 # The young generation's threshold during the run, objects (Python's default: 700). The run allocates
 # numpy arrays and small records, which hold no reference cycles to collect.
@@ -20,9 +20,8 @@ EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` re
 def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
                         help="scenario TOML file or built-in name (default, large, huge)")
-    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
-                        help="override a scenario key, checked like the file's (controller.kp=0.8, "
-                             "gnss.kind=dgps, seed=3); repeatable")
+    add_overrides(parser, "override a scenario key, checked like the file's (controller.kp=0.8, "
+                          "gnss.kind=dgps, seed=3); repeatable")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -139,11 +138,8 @@ def _run(args, driver) -> int:
 
 
 def _scenario(args):
-    from services.sim import scenario
-    from services.sim.overrides import parse_assignment
-
     apply_input_cap(args)
-    return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+    return load_scenario(args)
 
 
 def _check(args) -> int:

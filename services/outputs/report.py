@@ -82,7 +82,8 @@ def _sections(sections) -> list[str]:
 
 def incomplete_note(summary: dict) -> str | None:
     """``incomplete: N of M ticks stored; reason R`` for a services run the monitor does not have whole
-    (`services.bus.monitor.completeness`), None for a complete one or a `vrsim run` (no such keys)."""
+    (what `services.bus.monitor` records of its completeness), None for a complete one or a `vrsim run`
+    (no such keys)."""
     if summary.get("complete", True):
         return None
     missing = sum(last - first + 1 for first, last in summary["missing_ticks"])
