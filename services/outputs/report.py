@@ -12,6 +12,7 @@ import os
 
 from common import __version__
 from services.outputs.summary import fmt
+from services.outputs.track import TRACK_FILES
 from services.sim import metrics
 from services.sim.core import config_as_run
 from services.sim.error_split import error_split
@@ -166,13 +167,17 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
                 [("What the figures mean", definitions(metrics.METRICS))],
-                _files_note(result.world.grid.map_unit), banner=incomplete_note(summary))
+                _files_note(result.world.grid.map_unit,
+                            [TRACK_FILES[f] for f in result.world.scenario.output.track_formats]),
+                banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
 
-def _files_note(rate_unit: str) -> str:
-    """What the files beside the report are, the rasters in the map's unit `rate_unit`."""
-    return (f"Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
+def _files_note(rate_unit: str, track_files) -> str:
+    """What the files beside the report are: the rasters in the map's unit `rate_unit`, the track in
+    `track_files` (file names; none: no per-tick track)."""
+    track = "".join(f"{name}, " for name in track_files)
+    return (f"Files beside this page: summary.json, {track}prescription.tif, as_applied.tif, error.tif "
             f"(GeoTIFF, {rate_unit}; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "
             "taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg (or .zip).")
