@@ -114,6 +114,7 @@ class _ControllerService:
         masks = section_masks(rec.pop("sections_on"))
         del rec["sections_commanded"]  # not published: the gates are what lands
         out = {k: v.tolist() for k, v in rec.items()}
+        steps = out.get("side_steps_on", [None] * len(poses))  # a spinner's steps on, where it steps
         shafts, rates = [], []
         for i, p in enumerate(poses):
             shafts.append(messages.ShaftState(p.run_id, p.tick, p.time_s, out["target_shaft_rpm"][i],
@@ -122,7 +123,8 @@ class _ControllerService:
             rates.append(messages.RateSample(p.run_id, p.tick, p.time_s, out["landing_x_m"][i],
                                              out["landing_y_m"][i], out["prescribed_kg_ha"][i], applied[i],
                                              out["metered_kg"][i], out["width_on_m"][i], masks[i],
-                                             p.implement_on, out["drive_rate_kg_ha"][i], out["drive_kg"][i]))
+                                             p.implement_on, out["drive_rate_kg_ha"][i], out["drive_kg"][i],
+                                             steps[i]))
         return shafts, rates
 
     def handlers(self) -> dict:

@@ -4,7 +4,8 @@ Every message is a flat JSON object whose keys are the dataclass's fields. The p
 (`Pose`, `ShaftState`, `RateSample`) travel as a JSON array of such objects: one element per tick
 (real-time mode sends one tick per message, lockstep mode several, see docs/api.md). Floats that are
 NaN (e.g. the rate outside the map) are JSON ``null``; decoding turns ``null`` back into NaN, except for
-fields typed ``X | None``, which stay None.
+fields typed ``X | None``, which stay None. A field whose default is None is optional: left out of the
+JSON while it is None, None when a message leaves it out (``RateSample.side_steps_on``).
 
 Decoding checks every key and type and raises `common.ServiceError` naming the message, the field and
 the offending value, so a malformed message gets an error reply, never a traceback.
@@ -13,7 +14,6 @@ the offending value, so a malformed message gets an error reply, never a traceba
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 
@@ -21,8 +21,8 @@ import numpy as np
 import orjson
 
 from common import ServiceError
+from services.bus.fields import KINDS, Floats, Steps, check, short
 from services.outputs.encode import dumps
-from vehicle.implement import MAX_SECTIONS
 
 # The API a Zenoh client in Python uses: the messages, their codecs and the limits they check.
 __all__ = [
@@ -41,32 +41,40 @@ class Message:
 
     _spec: tuple  # ((name, kind, nullable), ...) built by `_message`
     _names: frozenset
+    _optional: frozenset  # the fields left out while None (default None)
 
     def to_dict(self) -> dict:
-        """The fields, in order (NaN stays NaN: `to_json` writes it as null)."""
-        return dict(self.__dict__)
+        """The fields, in order, but an optional one that is None (NaN stays NaN: `to_json` writes it
+        as null)."""
+        return {k: v for k, v in self.__dict__.items() if v is not None or k not in self._optional}
 
     def to_json(self) -> bytes:
-        return dumps(self)
+        return dumps(self.to_dict() if self._optional else self)
+
+    @classmethod
+    def _fits(cls, keys) -> bool:
+        """Whether an object's ``keys`` are the fields', an optional one perhaps left out."""
+        names = cls._names
+        return keys == names or (bool(cls._optional) and names - cls._optional <= keys <= names)
 
     @classmethod
     def from_dict(cls, doc, where: str = ""):
-        if not isinstance(doc, dict) or doc.keys() != cls._names:
+        if not isinstance(doc, dict) or not cls._fits(doc.keys()):
             cls._refuse_shape(doc, where or cls.__name__)
         values = {}
         for name, kind, nullable in cls._spec:
-            value = doc[name]
+            value = doc.get(name)  # an optional field left out: None
             # Fast path: exactly the declared type (type(), so True is not an int).
             if type(value) is not kind:
-                value = _check(value, kind, nullable, where or cls.__name__, name)
+                value = check(value, kind, nullable, where or cls.__name__, name)
             values[name] = value
         return cls(**values)
 
     @classmethod
     def _refuse_shape(cls, doc, where: str):
         if not isinstance(doc, dict):
-            raise ServiceError(f"{where}: expected a JSON object, got {_short(doc)}")
-        missing = [k for k, _, _ in cls._spec if k not in doc]
+            raise ServiceError(f"{where}: expected a JSON object, got {short(doc)}")
+        missing = [k for k, _, _ in cls._spec if k not in doc and k not in cls._optional]
         if missing:
             raise ServiceError(f"{where}: missing field {missing[0]!r}")
         unknown = sorted(set(doc) - cls._names)
@@ -76,44 +84,6 @@ class Message:
     @classmethod
     def from_json(cls, data: bytes | str | None):
         return cls.from_dict(_loads(data, cls.__name__))
-
-
-def _check(value, kind, nullable: bool, where: str, name: str):
-    if kind is _Floats:
-        return _floats(value, where, name)
-    if value is None:
-        if kind is float and not nullable:
-            return NAN
-        if nullable:
-            return None
-    elif kind is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-    elif kind is int:
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-    elif isinstance(value, kind):
-        return value
-    raise ServiceError(f"{where}: field {name} must be {kind.__name__}"
-                       f"{' or null' if nullable or kind is float else ''}, got {_short(value)}")
-
-
-def _floats(value, where: str, name: str) -> list:
-    """A `_Floats` field's value as a list of floats, or the `ServiceError` naming the element."""
-    if not isinstance(value, list) or not 1 <= len(value) <= MAX_SECTIONS:
-        raise ServiceError(f"{where}: field {name} must be an array of 1 to {MAX_SECTIONS} numbers, "
-                           f"got {_short(value)}")
-    out = []
-    for i, v in enumerate(value):
-        if v is not None and (type(v) not in (int, float)):
-            raise ServiceError(f"{where}: field {name}[{i}] must be a number or null, got {_short(v)}")
-        out.append(NAN if v is None else float(v))
-    return out
-
-
-def _short(value) -> str:
-    text = json.dumps(value) if not isinstance(value, (bytes, bytearray)) else repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # one message or batch of records (a pose batch is ~0.3 MB)
@@ -140,32 +110,23 @@ def _loads(data, what: str, max_bytes: int = MAX_MESSAGE_BYTES, most: tuple | No
         raise ServiceError(f"{what}: payload is not valid JSON ({exc})") from None
 
 
-class _Floats(list):
-    """A field's kind: a JSON array of 1 to `MAX_SECTIONS` numbers (null: NaN), one per metering drive
-    (`services.sim.machines`). Decoding checks every element and gives a plain list of floats."""
-
-
-_KINDS = {"float": (float, False), "int": (int, False), "bool": (bool, False), "str": (str, False),
-          "float | None": (float, True), "int | None": (int, True), "str | None": (str, True),
-          "list": (list, False), "dict": (dict, False), "_Floats": (_Floats, False)}
-
-
 def _message(cls):
     """Class decorator: a dataclass with the `Message` codec, its field kinds read from annotations."""
     cls = dataclass(cls)
     spec = []
     for f in dataclasses.fields(cls):
-        if f.type not in _KINDS:
+        if f.type not in KINDS:
             raise TypeError(f"{cls.__name__}.{f.name}: unsupported field type {f.type!r}")
-        spec.append((f.name, *_KINDS[f.type]))
+        spec.append((f.name, *KINDS[f.type]))
     cls._spec = tuple(spec)
     cls._names = frozenset(name for name, _, _ in spec)
+    cls._optional = frozenset(f.name for f in dataclasses.fields(cls) if f.default is None)
     return cls
 
 
 def encode_batch(records) -> bytes:
     """A JSON array of messages (the per-tick streams)."""
-    return dumps(list(records))
+    return dumps([r.to_dict() if r._optional else r for r in records])
 
 
 def decode_batch(cls, data, max_len: int = MAX_BATCH_RECORDS, max_bytes: int = MAX_MESSAGE_BYTES) -> list:
@@ -176,7 +137,7 @@ def decode_batch(cls, data, max_len: int = MAX_BATCH_RECORDS, max_bytes: int = M
         doc = [doc]
     if not isinstance(doc, list) or not doc:
         raise ServiceError(f"{cls.__name__} batch: expected a non-empty JSON array of objects, "
-                           f"got {_short(doc)}")
+                           f"got {short(doc)}")
     if len(doc) > max_len:
         raise ServiceError(f"{cls.__name__} batch: {len(doc)} records, at most {max_len} per message")
     return [cls.from_dict(d, f"{cls.__name__}[{i}]") for i, d in enumerate(doc)]
@@ -197,7 +158,7 @@ def decode_columns(cls, data, fields: tuple[str, ...], max_len: int = 100_000) -
     doc = [doc] if isinstance(doc, dict) else doc
     names = cls._names
     if not (isinstance(doc, list) and 0 < len(doc) <= max_len
-            and all(type(d) is dict and d.keys() == names for d in doc)):
+            and all(type(d) is dict and (d.keys() == names or cls._fits(d.keys())) for d in doc)):
         _refuse(cls, data, max_len)
     kinds = {name: (kind, nullable) for name, kind, nullable in cls._spec}
     columns = {}
@@ -263,7 +224,7 @@ class ShaftState(Message):
     shaft_rpm: float
     shaft_rev: float  # revolutions during this period
     current_a: float  # proportional-valve current
-    drive_target_rpm: _Floats  # each metering drive's target (one for the gated meter)
+    drive_target_rpm: Floats  # each metering drive's target (one for the gated meter)
 
 
 @_message
@@ -277,6 +238,8 @@ class RateSample(Message):
     (``"0x3f"``: six sections all on; `common.section_masks.section_masks`); ``drive_rate_kg_ha`` and
     ``drive_kg`` are each metering drive's prescription at its own landing point and its product this
     period (one element each for the gated meter; the products sum to ``metered_kg``).
+    ``side_steps_on``: a spinner's steps on per side (left, right: 0 the side off, ``side_steps`` its
+    whole reach) where coverage control shortens its sides in steps; left out otherwise.
     """
 
     run_id: str
@@ -290,8 +253,9 @@ class RateSample(Message):
     width_on_m: float
     section_mask: str
     implement_on: bool
-    drive_rate_kg_ha: _Floats  # each metering drive's prescription at its own landing point
-    drive_kg: _Floats  # each metering drive's product this period (one for the gated meter)
+    drive_rate_kg_ha: Floats  # each metering drive's prescription at its own landing point
+    drive_kg: Floats  # each metering drive's product this period (one for the gated meter)
+    side_steps_on: Steps | None = None  # a spinner's steps on, left and right (only where it steps)
 
 
 # ------------------------------------------------------------------------------------------ map
@@ -324,7 +288,7 @@ def decode_points(data, max_points: int = MAX_POINTS,
     most = (b",", 2 * max_points, f"more than {max_points:,} points")
     doc = _loads(data, "map/rate batch", max_bytes, most)
     if not isinstance(doc, dict) or set(doc) not in ({"x", "y"}, {"lat", "lon"}):
-        keys = sorted(doc) if isinstance(doc, dict) else _short(doc)
+        keys = sorted(doc) if isinstance(doc, dict) else short(doc)
         raise ServiceError(f"map/rate batch: body must be {{\"x\": [...], \"y\": [...]}} or "
                            f"{{\"lat\": [...], \"lon\": [...]}}, got keys {keys}")
     geo = "lat" in doc
@@ -333,13 +297,13 @@ def decode_points(data, max_points: int = MAX_POINTS,
     for name in names:
         values = doc[name]
         if not isinstance(values, list):
-            raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {_short(values)}")
+            raise ServiceError(f"map/rate batch: {name} must be an array of numbers, got {short(values)}")
         if len(values) > max_points:
             raise ServiceError(f"map/rate batch: {len(values):,} points, at most {max_points:,} per query")
         # type() rather than isinstance: bools (an int subclass) and numeric strings are refused.
         if not set(map(type, values)) <= {float, int}:
             bad = next(v for v in values if type(v) is not float and type(v) is not int)
-            raise ServiceError(f"map/rate batch: {name} holds a non-number {_short(bad)}")
+            raise ServiceError(f"map/rate batch: {name} holds a non-number {short(bad)}")
         arr = np.array(values, dtype=np.float64)
         arrays.append(arr)
     first, second = arrays

@@ -40,8 +40,8 @@ NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 MAX_RECORDS = 20_000  # per monitor/records reply (about 5 MB of JSON)
 MAX_VALUES = 11 * MAX_RECORDS  # ... and values per reply (each drive's counts): at most ~7 MB of JSON
-SCHEMA_VERSION = 4  # 2: measured speed in pose, section width and offset in rate; 3: path distance in
-#                     pose, section mask for the offset in rate; 4: each drive's target, rate and product
+SCHEMA_VERSION = 5  # 2: measured speed in pose, section width and offset in rate; 3: path distance in pose,
+#                     section mask in rate; 4: each drive's target, rate and product; 5: spinner's steps on
 # A run's announced end (`messages.RunEnd`), NULL until scenario control announces it.
 _END_COLUMNS = (("end_reason", "TEXT"), ("end_ticks", "INTEGER"), ("end_sim_time_s", "REAL"),
                ("end_error", "TEXT"), ("ended_unix", "REAL"))
@@ -207,11 +207,11 @@ class MonitorStore:
             if conn is not None:
                 conn.close()
 
-    def arrays(self, run_id: str, sections: int, drives: int) -> tuple[dict, dict]:
+    def arrays(self, run_id: str, sections: int, drives: int, side_steps: int = 1) -> tuple[dict, dict]:
         """Track and control arrays (the shapes `services.sim.run.accounted` takes; the track also holds
         the `MEASURED` arrays) over every complete tick (pose, shaft and rate all stored), in tick order;
-        ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`, `drives`: the
-        implement's and its machine's (masks; ``drive_target_rpm``, ``drive_rate_kg_ha``, ``drive_kg``)."""
+        ``track["tick"]`` says which ticks they are (`missing_ticks` the gaps); `sections`, `drives`,
+        `side_steps`: the implement's and its machine's (masks; ``drive_*``; ``side_steps_on``)."""
         pose_cols = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", *MEASURED)
         shaft_cols = ("target_shaft_rpm", "shaft_rpm", "shaft_rev", "current_a")
         rate_cols = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "metered_kg", "width_on_m")
@@ -220,26 +220,25 @@ class MonitorStore:
                            + [f"r.{c}" for c in rate_cols] + [f"{t[0]}.{c}" for t, c in per_drive])  # s., r.
         with self.read_lock:
             rows = self.reader().execute(
-                f"SELECT p.tick, {select}, r.section_mask FROM pose p JOIN shaft s USING (run_id, tick) "
-                "JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick", (run_id,)).fetchall()
+                f"SELECT p.tick, {select}, r.side_steps_on, r.section_mask FROM pose p JOIN shaft s "
+                "USING (run_id, tick) JOIN rate r USING (run_id, tick) WHERE p.run_id = ? ORDER BY p.tick",
+                (run_id,)).fetchall()
         masks = [row[-1] for row in rows]
-        table = np.array([row[:-4] for row in rows], dtype=np.float64).reshape(
+        table = np.array([row[:-5] for row in rows], dtype=np.float64).reshape(
             len(rows), 1 + len(pose_cols) + len(shaft_cols) + len(rate_cols))
         cols = table[:, 1:]
         track = {c: cols[:, i] for i, c in enumerate(pose_cols)}
         track["implement_on"] = track["implement_on"].astype(bool)
         track["tick"] = table[:, 0].astype(np.int64)
-        k = len(pose_cols)
-        control = {c: cols[:, k + i] for i, c in enumerate(shaft_cols + rate_cols)}
+        control = {c: cols[:, len(pose_cols) + i] for i, c in enumerate(shaft_cols + rate_cols)}
+        ticks, stream = track["tick"], "rate"
         try:
             control["sections_on"] = sections_from_masks(masks, sections)
+            control.update(sql.steps_values([row[-2] for row in rows], side_steps, ticks))
+            for col, (name, key) in enumerate(per_drive, start=-5):
+                stream, control[key] = name, sql.drive_values([row[col] for row in rows], drives, ticks, key)
         except ValueError as exc:
-            raise ServiceError(f"{run_id}: rate records: {exc}") from None
-        for col, (stream, key) in enumerate(per_drive, start=-4):
-            try:
-                control[key] = sql.drive_values([row[col] for row in rows], drives, track["tick"], key)
-            except ValueError as exc:
-                raise ServiceError(f"{run_id}: {stream} records: {exc}") from None
+            raise ServiceError(f"{run_id}: {stream} records: {exc}") from None
         return track, control
 
 
@@ -405,8 +404,9 @@ def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
     t0 = time.perf_counter()
     world = world_of(run)  # first: the records' section masks and drives need the implement's
     t1 = time.perf_counter()
-    implement = world.scenario.implement
-    track, control = store.arrays(run["run_id"], implement.sections, machine_for(implement).drives)
+    machine = machine_for(world.scenario.implement)
+    track, control = store.arrays(run["run_id"], machine.implement.sections, machine.drives,
+                                  machine.side_steps)
     n = len(track["time_s"])
     if n < 2:
         raise ServiceError(f"{run['run_id']}: {n} complete tick(s) recorded so far; a report needs 2")
