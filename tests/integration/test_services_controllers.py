@@ -11,6 +11,7 @@ import os
 import shutil
 import subprocess
 
+import numpy as np
 import pytest
 
 from tests.conftest import ROOT, VRSIM
@@ -32,6 +33,10 @@ CONTROLLERS = {
 DRIVES = '[implement]\nkind = "section_drives"\nsections = 4\nshaft_rpm_max = 92.0\n'
 # A PWM boom sprayer (a flow loop per section) of a liquid: the map's 150-250 kg/ha are L/ha at 1.0 kg/L.
 SPRAYER = '[implement]\nkind = "sprayer"\nnozzle = "06"\ncontrol = "pwm"\n'
+# A twin-disc spinner, 14 m driving width (24 m spread) on the 36 m wide field: its last pass overlaps the
+# one before, where coverage control shortens a side in 4 steps over ground already treated.
+SPINNER = ('[implement]\nkind = "spinner"\nsections = 2\nspread_width_m = 24.0\nthrow_distance_m = 4.0\n'
+           'side_steps = 4\nsection_control = "coverage"\n')
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +54,9 @@ def folder(tmp_path_factory):
     with open(os.path.join(path, "sprayer.toml"), "w") as fh:
         fh.write(base.replace('name = "svc-small"', 'name = "svc-sprayer"').replace("[implement]\n", SPRAYER)
                  + '[product]\nform = "liquid"\ndensity_kg_l = 1.0\n')
+    with open(os.path.join(path, "spinner.toml"), "w") as fh:
+        fh.write(base.replace('name = "svc-small"', 'name = "svc-spinner"').replace("[implement]\n", SPINNER)
+                 .replace("width_m = 12.0", "width_m = 14.0"))
     shutil.copy(os.path.join(ROOT, "scenarios", "my_controller.py"), path)
     return path
 
@@ -119,7 +127,7 @@ def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder)
     run`'s: each section's strip its own drive's product, a tick with one drive on its bound limited."""
     started, _, report = _run_through_services(net, folder, "drives")
     ok, rates = net.query(f"vrsim/tractor1/monitor/records?run_id={started['run_id']};stream=rate;count=5")
-    assert ok and all(len(r["drive_kg"]) == 4 for r in rates), rates
+    assert ok and all(len(r["drive_kg"]) == 4 and "side_steps_on" not in r for r in rates), rates
     expected = _vrsim_run(folder, "drives")
     assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert expected["limited_time_pct"] > 5 and expected["limited_area_pct"] > 5
@@ -140,6 +148,21 @@ def test_a_pwm_sprayer_through_the_services_matches_vrsim_run(net, folder):
     expected = _vrsim_run(folder, "sprayer")
     assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert abs(expected["mass_balance_pct"]) < 5
+    assert_same_summary(report, expected, MONITOR_KEYS)
+
+
+def test_a_spinner_whose_sides_shorten_in_steps_through_the_services_matches_vrsim_run(net, folder):
+    """``spinner`` under coverage control: the controller service publishes each side's steps on
+    (`messages.RateSample.side_steps_on`) and the monitor rebuilds the run's ``side_steps_on`` from
+    them, so its report throws each side as far as `vrsim run` does, not whole."""
+    started, _, report = _run_through_services(net, folder, "spinner")
+    ok, rates = net.query(f"vrsim/tractor1/monitor/records?run_id={started['run_id']};stream=rate;"
+                          f"count={report['ticks']}")
+    assert ok and len(rates) == report["ticks"], rates
+    steps = np.array([r["side_steps_on"] for r in rates])
+    assert steps.shape == (report["ticks"], 2) and ((steps > 0) & (steps < 4)).any()  # sides shortened
+    expected = _vrsim_run(folder, "spinner")
+    assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert_same_summary(report, expected, MONITOR_KEYS)
 
 
