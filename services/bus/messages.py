@@ -46,7 +46,11 @@ class Message:
     def to_dict(self) -> dict:
         """The fields, in order, but an optional one that is None (NaN stays NaN: `to_json` writes it
         as null)."""
-        return {k: v for k, v in self.__dict__.items() if v is not None or k not in self._optional}
+        doc = dict(self.__dict__)
+        for name in self._optional:
+            if doc[name] is None:
+                del doc[name]
+        return doc
 
     def to_json(self) -> bytes:
         return dumps(self.to_dict() if self._optional else self)
