@@ -197,15 +197,19 @@ class BoundedAccount:
         sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
                                None, motion)
         control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
-        for j, (acc, reference) in enumerate(zip(self.refs, REFERENCES, strict=True)):
+        masses = []
+        for j, reference in enumerate(REFERENCES):
             ref, self.ref_rev[j] = reference_metered_kg(self.world, self.machine, sensed, control, *reference,
                                                         start_rev=self.ref_rev[j])
-            acc.deposit(plan.footprint(), plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
+            masses.append(plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
             self.ref_kg[j] += float(ref.sum())
             if j == 0 and not isinstance(plan, StripPlan):
                 strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
                                       self.tick_m, self.first)
                 self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
+        # One footprint for all the meters: its samples and sub-cells worked out once.
+        self.refs[0].deposit_with(plan.footprint(), masses[0],
+                                  list(zip(self.refs[1:], masses[1:], strict=True)))
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
