@@ -314,10 +314,9 @@ class ClosedLoop:
         ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
         history = np.empty((len(targets) + 1, M.shape[0]))
         history[0] = self._v
-        inputs = history[:, :nin]
-        dot = np.dot
-        for k, r in enumerate(targets):
-            v = history[k]
+        product = M.dot    # the bound method: no dispatch per tick
+        # Tick k reads row k (its inputs written first) and writes row k + 1.
+        for r, v, inputs, out in zip(targets, history[:-1], history[:-1, :nin], history[1:], strict=True):
             if not r >= 0.0:
                 if r != r:
                     self._v = v.copy()
@@ -330,7 +329,7 @@ class ClosedLoop:
             v[ns + 1] = r
             if load:     # the product leaves the input slots at zero
                 v[ns + 2] = load
-            out = dot(M, inputs[k], out=history[k + 1])
+            product(inputs, out)
             if positional:
                 e = ks * (r - v.item(ring0))
                 if (unsat > ihi and e > 0) or (unsat < ilo and e < 0):   # clamping anti-windup
