@@ -103,7 +103,7 @@ class BoundedAccount:
         # whose footprint is not strips needs its own raster: for the others it is the first reference).
         self.ref_strips = AsApplied(grid) if references else None
         self.passes = PassTracker()
-        self.pending: dict | None = None   # ticks not yet accounted, from tick `first` of the run
+        self.pending: list = []   # the parts of the ticks not yet accounted, from tick `first` of the run
         self.first = 0
         self.distance_m = 0.0     # the landing path's length so far
         self.last_pass = -1       # the landing pass of the last tick accounted
@@ -125,24 +125,32 @@ class BoundedAccount:
         with self.timer.stage("metrics_s"):
             part = dict(track, measured_speed_m_s=np.asarray(measured_speed_m_s), **control)
             part["pass_index"] = self.passes.step(track["heading_rad"], track["implement_on"])
-            self.pending = part if self.pending is None else \
-                {k: np.concatenate([self.pending[k], part[k]]) for k in part}
-            cut = self._last_cut()
+            self.pending.append(part)
+            # Only what finds the cut is joined as the parts come (a swath spans several of them).
+            cut = self._last_cut(self._joined(("time_s", "pass_index", "implement_on")))
             if cut:
-                self._account(cut, self.pending)
+                self._account(cut, self._joined(part))
 
     def result(self, reference_figures=None) -> RunResult:
         """Account for the ticks still pending (the drive has ended) and return the run's result."""
         with self.timer.stage("metrics_s"):
-            if self.pending is not None and len(self.pending["time_s"]):
-                self._account(len(self.pending["time_s"]), self.pending)
+            if self.pending:
+                p = self._joined(self.pending[0])
+                if len(p["time_s"]):
+                    self._account(len(p["time_s"]), p)
             return self._result()
 
     # --- stretches -------------------------------------------------------------------------------
-    def _last_cut(self) -> int:
-        """The last tick of the pending ticks before which a stretch may end (0: none yet): the landing
-        pass changes there, the implement is not on across it, and the look-ahead after it is there."""
-        p = self.pending
+    def _joined(self, keys) -> dict:
+        """The pending ticks' arrays of `keys`, the parts joined."""
+        if len(self.pending) == 1:
+            return self.pending[0]
+        return {k: np.concatenate([part[k] for part in self.pending]) for k in keys}
+
+    def _last_cut(self, p: dict) -> int:
+        """The last tick of the pending ticks `p` before which a stretch may end (0: none yet): the
+        landing pass changes there, the implement is not on across it, and the look-ahead after it is
+        there."""
         n = len(p["time_s"]) - self.lookahead
         if n < 2:
             return 0
@@ -186,7 +194,7 @@ class BoundedAccount:
         self.distance_m = float(distance[n - 1])
         self.last_pass = int(max(self.last_pass, np.max(w["pass_index"][:n], initial=-1)))
         self.first += n
-        self.pending = {k: v[n:] for k, v in p.items()}
+        self.pending = [{k: v[n:] for k, v in p.items()}]
 
     def _references(self, w: dict, states: SectionStates, n: int, plan) -> None:
         """Deposit the error split's reference meters' product of the stretch through the run's `plan`,
