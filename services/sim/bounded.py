@@ -285,10 +285,14 @@ class BoundedAccount:
                             limits, self.timer.timing())
         references = None
         if self.refs is not None:
-            strips = self.ref_strips if self.ref_strips.items else self.refs[0]
-            stages = [(strips, 0), *((ref, j) for j, ref in enumerate(self.refs))]
-            references = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction,
-                                      self.ref_kg[j], ref.outside_kg) for ref, j in stages]
+            meters = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction, self.ref_kg[j],
+                                  ref.outside_kg) for j, ref in enumerate(self.refs)]
+            # The spread pattern's stage: the first meter's own figures where the kind lays strips.
+            strips = self.ref_strips
+            pattern = meters[0] if not strips.items else map_figures(
+                grid, in_field, strips.applied_kg_ha, strips.coverage_fraction, self.ref_kg[0],
+                strips.outside_kg)
+            references = [pattern, *meters]
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
                          reference_figures=references, kept_parts=kept)
