@@ -267,8 +267,10 @@ class BoundedAccount:
         # numpy's pairwise sum over the whole run, as the in-process run's.
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
         limited_cover = self._limited_coverage()
+        # Each raster figure read once (each read sums the sub-cells again).
         deposit = Deposit(None, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
                           acc.outside_kg, limited_cover)
+        d = deposit
         setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
                           self.first, self.distance_m)
         times = np.concatenate([s[0] for s in self.spans]) if self.spans else np.zeros(0)
@@ -278,9 +280,9 @@ class BoundedAccount:
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
                                in_field)
         accounts = Accounts(setting, deposit,
-                            map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg, acc.outside_kg),
+                            map_figures(grid, in_field, d.applied_kg_ha, cover, metered_kg, d.outside_kg),
                             transition_figures(times, dists, self.to_zero, self.cut),
-                            overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field,
+                            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),
                             limits, self.timer.timing())
         references = None
