@@ -13,8 +13,8 @@ Figures:
 - ``run_default_realtime_factor``: simulated over wall time for the default scenario;
 - ``run_default_ticks_per_s``; ``run_default_<stage>_share``: the share of the wall time per stage;
 - ``run_default_cli_wall_s``: the whole `vrsim run --quiet` command of the default scenario, Python
-  start-up, imports and every output file included (summary.json, three GeoTIFFs, track.csv, the
-  TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the best of three runs (the
+  start-up, imports and every output file included (summary.json, three GeoTIFFs, track.parquet and
+  track.csv, the TASKDATA TimeLog, as_applied_points.gpkg, two PNGs, report.html); the best of three runs (the
   machine's noise is a few tenths of a second);
 - ``run_huge_wall_s``, ``run_huge_peak_rss_mb``: the whole `vrsim run huge --quiet --out DIR` command
   of the built-in 540 ha scenario (1.6 million ticks), outputs included: its wall time and the peak

@@ -2,7 +2,7 @@
 
 A mask is hexadecimal, ``"0x..."``, bit k the k-th section counted from the left (``"0x3f"``: six
 sections all on; ``"0x0"``: none). It is part of a message's encoding (the Zenoh rate stream's
-``section_mask``, track.csv's column), so it lives here, below every room: the simulation's outputs
+``section_mask``, the track files' column), so it lives here, below every room: the simulation's outputs
 write it, the bus and the web page read it back.
 """
 

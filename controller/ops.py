@@ -37,13 +37,6 @@ def where(cond, a, b):
     return a if cond else b
 
 
-def _minimum(a, b):
-    """Element-wise smaller of `a` and `b`."""
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return np.minimum(a, b)
-    return a if a < b else b
-
-
 def maximum(a, b):
     """Element-wise larger of `a` and `b`."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):

@@ -116,7 +116,7 @@ class AsApplied:
         rates = np.where(self.coverage_fraction > 0, self.applied_kg_ha, np.nan)
         g = self.grid
         return Grid(rates, g.transform, g.crs, product=g.product, source="as-applied", format="as-applied",
-                    map_unit=g.map_unit, density_kg_l=g.density_kg_l)
+                    map_unit=g.map_unit, density_kg_l=g.density_kg_l, seed_mass_g=g.seed_mass_g)
 
     @property
     def pass_count(self) -> np.ndarray:

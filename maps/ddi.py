@@ -11,7 +11,8 @@ SETPOINT_VOLUME_PER_AREA = 0x0001  # resolution 0.01 mm^3/m^2
 ACTUAL_VOLUME_PER_AREA = 0x0002
 SETPOINT_MASS_PER_AREA = 0x0006  # mg/m^2
 ACTUAL_MASS_PER_AREA = 0x0007
-SETPOINT_COUNT_PER_AREA = 0x000B
+SETPOINT_COUNT_PER_AREA = 0x000B  # resolution 0.001 /m^2
+ACTUAL_COUNT_PER_AREA = 0x000C
 SETPOINT_SPACING = 0x0010
 ACTUAL_WORKING_WIDTH = 0x0043  # mm
 DEVICE_ELEMENT_OFFSET_X = 0x0086  # mm, forward positive
@@ -24,6 +25,7 @@ MAX_CONDENSED_DDIS = 16  # 0x00A1 .. 0x00B0: sections 1 to 256
 KG_HA_PER_MG_M2 = 0.01  # 1 mg/m^2 = 1e-6 kg / 1e-4 ha
 # DDI 1 and 2 count 0.01 mm^3/m^2, and 1 mm^3/m^2 = 1e-6 L / 1e-4 ha = 0.01 L/ha.
 L_HA_PER_VOLUME_COUNT = 0.01 * 0.01
+SEEDS_HA_PER_COUNT = 0.001 * 1e4  # DDI 11 and 12 count 0.001 /m^2 = 10 /ha
 
 # Names of common DDIs, so messages say what a file holds.
 NAMES = {
@@ -31,7 +33,8 @@ NAMES = {
     ACTUAL_VOLUME_PER_AREA: "actual volume per area (0.01 mm^3/m^2)",
     SETPOINT_MASS_PER_AREA: "setpoint mass per area (mg/m^2)",
     ACTUAL_MASS_PER_AREA: "actual mass per area (mg/m^2)",
-    SETPOINT_COUNT_PER_AREA: "setpoint count per area (/m^2)",
+    SETPOINT_COUNT_PER_AREA: "setpoint count per area (0.001 /m^2)",
+    ACTUAL_COUNT_PER_AREA: "actual count per area (0.001 /m^2)",
     SETPOINT_SPACING: "setpoint spacing (mm)",
     ACTUAL_WORKING_WIDTH: "actual working width (mm)",
     ACTUAL_WORK_STATE: "actual work state",
@@ -42,6 +45,7 @@ NAMES = {
 RATES = {
     ACTUAL_MASS_PER_AREA: (SETPOINT_MASS_PER_AREA, "kg/ha", KG_HA_PER_MG_M2),
     ACTUAL_VOLUME_PER_AREA: (SETPOINT_VOLUME_PER_AREA, "L/ha", L_HA_PER_VOLUME_COUNT),
+    ACTUAL_COUNT_PER_AREA: (SETPOINT_COUNT_PER_AREA, "seeds/ha", SEEDS_HA_PER_COUNT),
 }
 
 

@@ -73,6 +73,8 @@ class Grid:
         (`in_map_unit`); None: `unit`.
     density_kg_l : float, optional
         The product's density (kg/L) that converted a volume map to kg/ha, so figures convert back.
+    seed_mass_g : float, optional
+        The mass of one seed (g) that converted a count map (seeds/ha) to kg/ha, likewise.
     quantity : str
         ``"rate"`` (a prescription or an as-applied map: rates >= 0) or ``"difference"`` (signed,
         e.g. applied minus prescribed), which is no prescription.
@@ -88,6 +90,7 @@ class Grid:
     quantity: str = "rate"
     map_unit: str | None = None
     density_kg_l: float | None = None
+    seed_mass_g: float | None = None
 
     def __post_init__(self):
         rates = np.ascontiguousarray(self.rates_kg_ha, dtype=np.float64)
@@ -118,7 +121,7 @@ class Grid:
     # ------------------------------------------------------------------ units
     def in_map_unit(self, values):
         """`values` in this grid's `unit` (rates, or differences of rates) in its `map_unit`."""
-        return convert_rate(values, self.unit, self.map_unit, self.density_kg_l)
+        return convert_rate(values, self.unit, self.map_unit, self.density_kg_l, self.seed_mass_g)
 
     def as_map_unit(self) -> Grid:
         """This grid with its rates in its `map_unit` (what its files are written in)."""
@@ -126,17 +129,19 @@ class Grid:
             return self
         return replace(self, rates_kg_ha=self.in_map_unit(self.rates_kg_ha), unit=self.map_unit)
 
-    def to_kg_ha(self, density_kg_l: float | None = None) -> Grid:
+    def to_kg_ha(self, density_kg_l: float | None = None, seed_mass_g: float | None = None) -> Grid:
         """This grid with its rates in kg/ha, its `map_unit` kept to show them in.
 
-        A volume rate needs the product's density (kg/L); without it the grid stays as it is (in
-        its volume unit; no prescription). A count rate stays as it is.
+        A volume rate needs the product's density (kg/L), a count rate the mass of one seed (g);
+        without it the grid stays as it is (in its own unit; no prescription).
         """
         kind = rate_kind(self.unit)
-        if self.unit == UNIT or kind == "count" or (kind == "volume" and density_kg_l is None):
+        if self.unit == UNIT or (kind == "count" and seed_mass_g is None) or (kind == "volume" and
+                                                                              density_kg_l is None):
             return self
-        return replace(self, rates_kg_ha=convert_rate(self.rates_kg_ha, self.unit, UNIT, density_kg_l),
-                       unit=UNIT, map_unit=self.map_unit, density_kg_l=density_kg_l)
+        rates = convert_rate(self.rates_kg_ha, self.unit, UNIT, density_kg_l, seed_mass_g)
+        return replace(self, rates_kg_ha=rates, unit=UNIT, map_unit=self.map_unit, density_kg_l=density_kg_l,
+                       seed_mass_g=seed_mass_g)
 
     # ------------------------------------------------------------------ geometry
     @property

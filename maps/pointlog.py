@@ -154,13 +154,15 @@ class PointLog:
         keep = np.flatnonzero(np.isfinite(slot) & np.concatenate(([True], slot[1:] != slot[:-1])))
         return replace(self, **{name: getattr(self, name)[keep] for name in COLUMNS})
 
-    def in_unit(self, unit: str, density_kg_l: float | None = None) -> PointLog:
+    def in_unit(self, unit: str, density_kg_l: float | None = None,
+                seed_mass_g: float | None = None) -> PointLog:
         """This log with its rates converted to `unit` (see `convert_rate`; between a volume and a
-        mass rate with the product's `density_kg_l`)."""
+        mass rate with the product's `density_kg_l`, a count and a mass rate with `seed_mass_g`)."""
         if unit == self.unit:
             return self
-        return replace(self, applied=convert_rate(self.applied, self.unit, unit, density_kg_l),
-                       target=convert_rate(self.target, self.unit, unit, density_kg_l), unit=unit)
+        per = (density_kg_l, seed_mass_g)
+        return replace(self, applied=convert_rate(self.applied, self.unit, unit, *per),
+                       target=convert_rate(self.target, self.unit, unit, *per), unit=unit)
 
 
 COLUMNS = ("x", "y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m", "work_on",

@@ -141,14 +141,17 @@ def prepare_folder(folder: str) -> None:
 # The TimeLog's rate DDIs by the kind of the log's unit: (setpoint, actual, its unit per count, in).
 _RATE_DDIS = {"mass": (DDI.SETPOINT_MASS_PER_AREA, DDI.ACTUAL_MASS_PER_AREA, DDI.KG_HA_PER_MG_M2, "kg/ha"),
               "volume": (DDI.SETPOINT_VOLUME_PER_AREA, DDI.ACTUAL_VOLUME_PER_AREA, DDI.L_HA_PER_VOLUME_COUNT,
-                         "L/ha")}
+                         "L/ha"),
+              "count": (DDI.SETPOINT_COUNT_PER_AREA, DDI.ACTUAL_COUNT_PER_AREA, DDI.SEEDS_HA_PER_COUNT,
+                        "seeds/ha")}
 
 
 def _rate_ddis(log: PointLog) -> tuple[int, int, float, str]:
-    """The rate DDIs of a log in `log.unit` (`_RATE_DDIS`); a count rate is refused."""
+    """The rate DDIs of a log in `log.unit` (`_RATE_DDIS`)."""
     kind = rate_kind(log.unit) if is_rate_unit(log.unit) else None
     if kind not in _RATE_DDIS:
-        raise MapError(f"write_taskdata: a TimeLog holds mass or volume rates, not {log.unit or 'no unit'!r}")
+        raise MapError(f"write_taskdata: a TimeLog holds mass, volume or count rates, not "
+                       f"{log.unit or 'no unit'!r}")
     return _RATE_DDIS[kind]
 
 

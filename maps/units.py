@@ -165,9 +165,9 @@ def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit
     return rate_unit(stated, f"{where}: {key}")
 
 
-def name_with_unit(unit: str, prefix: str = "rate") -> str:
-    """An attribute name that states `unit` (`unit_in_name` reads it back): ``rate_kg_ha``."""
-    return f"{prefix}_{unit.replace('/', '_')}"
+def name_with_unit(unit: str) -> str:
+    """The rate attribute's name that states `unit` (`unit_in_name` reads it back): ``rate_kg_ha``."""
+    return f"rate_{unit.replace('/', '_')}"
 
 
 def unit_in_name(name: str) -> str | None:

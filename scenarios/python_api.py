@@ -5,7 +5,7 @@ the arrays, write the outputs.
 
 Runs `quick_rectangle.toml` (beside this script) on a zone map at its working speed and again 60 %
 faster, prints how far each applied rate was from the prescription and how long and how far the rate
-transitions took, and writes the faster run's files (summary.json, GeoTIFFs, track.csv, plots,
+transitions took, and writes the faster run's files (summary.json, GeoTIFFs, track.parquet, plots,
 report.html) to OUT_DIR (default: runs/python-api).
 """
 

@@ -32,6 +32,7 @@ PRODUCT_FORMS = ("granular", "liquid")
 MAX_FLOW_CV_PCT = 50.0
 CALIBRATION_ERROR_PCT = (-50.0, 100.0)   # open interval: below -50 % or 100 % over is not a calibration
 MAX_DENSITY_KG_L = 25.0                   # denser than any metal: a typo
+MAX_THOUSAND_SEED_MASS_G = 5000.0         # broad beans weigh up to ~2.5 kg per thousand: more is a typo
 _FLOW_STREAM = 0x5EED_F10   # the flow factors' own random stream beside the seed's other uses
 
 
@@ -49,6 +50,11 @@ class Product:
         Density (granular: bulk density), kg/L, > 0: converts volume and mass rates. None (the
         default): not given, and a map in a volume unit (L/ha, gal/ac) is refused rather than read
         with a guessed density.
+    thousand_seed_mass_g : float or None
+        Mass of a thousand seeds (TKW, thousand-kernel weight), g, in (0, 5000]: as seed labels and
+        agronomists give it (wheat ~45 g, maize ~300 g). Converts a count rate map (seeds/ha,
+        seeds/ac, the unit seeding prescriptions use) to kg/ha; None (the default): a count map is
+        refused.
     flow_cv_pct : float
         Coefficient of variation of the product metered per shaft revolution, %, in [0, 50] (see the
         module docstring).
@@ -60,6 +66,7 @@ class Product:
     name: str = "granular fertilizer"
     form: str = "granular"
     density_kg_l: float | None = None
+    thousand_seed_mass_g: float | None = None
     flow_cv_pct: float = 0.0
     calibration_error_pct: float = 0.0
 
@@ -70,6 +77,10 @@ class Product:
         if density is not None and not in_range(density, 0.0, MAX_DENSITY_KG_L, lo_open=True):
             raise VehicleError(f"density_kg_l must be a number in (0, {MAX_DENSITY_KG_L:g}] kg/L, "
                                f"got {self.density_kg_l!r}")
+        tkw = self.thousand_seed_mass_g
+        if tkw is not None and not in_range(tkw, 0.0, MAX_THOUSAND_SEED_MASS_G, lo_open=True):
+            raise VehicleError(f"thousand_seed_mass_g must be a number in (0, {MAX_THOUSAND_SEED_MASS_G:g}] "
+                               f"g, got {tkw!r}")
         if not in_range(self.flow_cv_pct, 0.0, MAX_FLOW_CV_PCT):
             raise VehicleError(f"flow_cv_pct must be a number in [0, {MAX_FLOW_CV_PCT:g}] %, "
                                f"got {self.flow_cv_pct!r}")
@@ -78,6 +89,11 @@ class Product:
         if not (in_range(error, lo, hi, lo_open=True) and error < hi):
             raise VehicleError(f"calibration_error_pct must be a number in ({lo:g}, {hi:g}) %, "
                                f"got {error!r}")
+
+    @property
+    def seed_mass_g(self) -> float | None:
+        """The mass of one seed, g (`thousand_seed_mass_g` / 1000); None when not given."""
+        return None if self.thousand_seed_mass_g is None else self.thousand_seed_mass_g / 1000.0
 
     def true_kg_per_rev(self, configured_kg_per_rev: float) -> float:
         """The product one shaft revolution really meters on average, kg/rev, for a configured one."""

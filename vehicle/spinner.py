@@ -21,7 +21,9 @@ Shapes (``pattern``):
 At the field boundary (`SpinnerSpec.side_reach_m`): with ``border_spreading`` the side towards the
 boundary is cut at the boundary itself, so product stays inside; without it, section control shortens
 the side's reach (the lateral extent of its half, m) in ``side_steps`` equal steps, a step switched off
-once it lies wholly beyond the boundary (what a partly outside step throws lands outside).
+once it lies wholly beyond the boundary (what a partly outside step throws lands outside). Over ground
+already treated, coverage section control shortens each side's reach in the same ``side_steps`` steps
+(`services.sim.sections.SectionSwitch`), with or without border spreading.
 
 `SpinnerSpec` is the machine kind ``spinner``'s keys (`vehicle.machines`): at most 2 sections (the
 two sides), a spread width at least the driving width, a profile CSV's path resolved against the
@@ -66,7 +68,8 @@ class SpinnerSpec(MachineSpec):
         At the field boundary the outer side's pattern is cut at the boundary, so product stays inside.
     side_steps : int
         Section control: each side's reach is shortened in this many equal steps (1 to 16; 1: the side
-        only on or off).
+        only on or off): over treated ground (coverage section control) and, without
+        `border_spreading`, at the field boundary.
     """
 
     KIND: ClassVar[str] = "spinner"

@@ -392,6 +392,7 @@ class ServiceConfig:
     rate_field: str | None = None
     cell_size_m: float | None = None
     crs: str | None = None
+    unit: str | None = None  # map file: the unit of its rates when the file does not state it
     db: str | None = None  # monitor: its SQLite file (None: runs/monitor/<prefix>-<machine>.sqlite)
     web_listen: str | None = None  # web: HOST:PORT of the page (None: 127.0.0.1:8448)
     operator: ZenohOptions | None = None  # web: the session that may start and stop runs (None: viewer)

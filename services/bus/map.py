@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 
 from common import ServiceError
+from maps.units import KG_HA
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
@@ -39,7 +40,9 @@ class _MapService:
             params.only()
             first, second, geo = messages.decode_points(payload)
             res = grid.lookup(first, second, crs="EPSG:4326" if geo else None)
-            return messages.encode_rates(res.rate_kg_ha, res.inside, res.row, res.col)
+            return messages.encode_rates(res.rate_kg_ha if grid.unit == KG_HA else None,
+                                         grid.in_map_unit(res.rate_kg_ha), grid.map_unit, res.inside, res.row,
+                                         res.col)
         params.only("lat", "lon", "x", "y")
         geo = params.has("lat") or params.has("lon")
         if geo and (params.has("x") or params.has("y")):
@@ -52,7 +55,7 @@ class _MapService:
         else:
             raise ServiceError(f"{params.key}: missing parameters: give lat and lon (WGS84) or x and y "
                                "(map CRS), or a JSON body of points")
-        return dumps(sample)
+        return dumps(_with_units(grid, sample))
 
     def load(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
@@ -65,6 +68,14 @@ class _MapService:
 
     def handlers(self) -> dict:
         return {"info": self.info, "rate": self.rate, "load": self.load}
+
+
+def _with_units(grid, sample: dict) -> dict:
+    """A `maps.Grid.sample` of `grid` as a `messages.MapRate`: the rate also in the map's own unit."""
+    value = sample["rate_kg_ha"]
+    rate = None if value is None else float(grid.in_map_unit(value))
+    return {"rate_kg_ha": value if grid.unit == KG_HA else None, "rate": rate, "rate_unit": grid.map_unit,
+            **{k: sample[k] for k in ("inside", "row", "col")}}
 
 
 def _no_body(params: Params, payload: bytes | None) -> None:
@@ -86,7 +97,7 @@ def _configured_grid(config: ServiceConfig):
         import maps
 
         return maps.read_map(config.map_file, rate_field=config.rate_field, cell_size_m=config.cell_size_m,
-                             crs=config.crs), True
+                             crs=config.crs, unit=config.unit), True
     from services.sim import scenario
 
     return _scenario_grid(scenario.load(config.scenario)), False

@@ -297,9 +297,12 @@ class RateSample(Message):
 # ------------------------------------------------------------------------------------------ map
 @_message
 class MapRate(Message):
-    """Reply of ``<prefix>/map/rate`` for one point (the dict `maps.Grid.sample` returns)."""
+    """Reply of ``<prefix>/map/rate`` for one point (what ``vrsim map sample --json`` prints): the rate
+    in kg/ha and in the map's own unit, `rate_unit`."""
 
-    rate_kg_ha: float | None  # null outside the map and on nodata cells
+    rate_kg_ha: float | None  # null outside the map, on nodata cells and for a map not in a mass rate
+    rate: float | None        # in rate_unit; null outside the map and on nodata cells
+    rate_unit: str            # the map's unit (maps.Grid.map_unit)
     inside: bool
     row: int | None
     col: int | None
@@ -353,14 +356,13 @@ def decode_points(data, max_points: int = MAX_POINTS,
     return first, second, geo
 
 
-_OUTSIDE = {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
-
-
 ENCODE_CHUNK = 100_000  # points encoded at a time: their dicts take ~25 MB, not ~250 MB for a million
 
 
-def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, col: np.ndarray) -> bytes:
-    """The batch reply of ``<prefix>/map/rate``: a JSON array of `MapRate` objects.
+def encode_rates(rate_kg_ha: np.ndarray | None, rate: np.ndarray, rate_unit: str, inside: np.ndarray,
+                 row: np.ndarray, col: np.ndarray) -> bytes:
+    """The batch reply of ``<prefix>/map/rate``: a JSON array of `MapRate` objects; `rate` in
+    `rate_unit`, `rate_kg_ha` None for a map whose rates are not in a mass unit (all null).
 
     orjson writes NaN rates (nodata) as null and floats as their shortest round-trip text, as
     json.dumps would: ~1 us per point, a dict each (outside points share one dict), `ENCODE_CHUNK`
@@ -368,13 +370,16 @@ def encode_rates(rate_kg_ha: np.ndarray, inside: np.ndarray, row: np.ndarray, co
     """
     outside = ~np.asarray(inside, bool)
     parts = []
-    for a in range(0, len(rate_kg_ha), ENCODE_CHUNK):
+    away = {"rate_kg_ha": None, "rate": None, "rate_unit": rate_unit, "inside": False, "row": None,
+            "col": None}  # outside points share one dict
+    for a in range(0, len(rate), ENCODE_CHUNK):
         b = a + ENCODE_CHUNK
-        rates, rows, cols = rate_kg_ha[a:b].tolist(), row[a:b].tolist(), col[a:b].tolist()
-        docs = [{"rate_kg_ha": r, "inside": True, "row": i, "col": j}
-                for r, i, j in zip(rates, rows, cols, strict=True)]
+        rates, rows, cols = rate[a:b].tolist(), row[a:b].tolist(), col[a:b].tolist()
+        masses = [None] * len(rates) if rate_kg_ha is None else rate_kg_ha[a:b].tolist()
+        docs = [{"rate_kg_ha": m, "rate": r, "rate_unit": rate_unit, "inside": True, "row": i, "col": j}
+                for m, r, i, j in zip(masses, rates, rows, cols, strict=True)]
         for k in np.flatnonzero(outside[a:b]).tolist():
-            docs[k] = _OUTSIDE
+            docs[k] = away
         parts.append(dumps(docs)[1:-1])  # the objects, without the array's brackets
     return b"[" + b",".join(parts) + b"]"
 

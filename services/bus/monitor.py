@@ -396,7 +396,7 @@ def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
     run : dict
         The run's row (`MonitorStore.run`).
     world_of : callable
-        ``world_of(run) -> World`` (default `run_world`; the monitor keeps the last one).
+        ``world_of(run) -> World`` (default `_run_world`; the monitor keeps the last one).
     """
     from services.sim.accounting import StageTimer
     from services.sim.machines import machine_for

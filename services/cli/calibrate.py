@@ -1,6 +1,6 @@
 """`vrsim calibrate SCENARIO [--revolutions N] [--scale-error-g G] [--seconds S] [--jug-error-ml ML]
-[--json]`: the operator's meter calibration, simulated (a granular meter turned and weighed; a
-sprayer's flow meter by a catch test), and the constant to put in the scenario."""
+[--set KEY=VALUE ...] [--json]`: the operator's meter calibration, simulated (a granular meter turned
+and weighed; a sprayer's flow meter by a catch test), and the constant to put in the scenario."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ HELP = ("simulate the meter's calibration test (turn and weigh; a sprayer's catc
 
 
 def configure(parser) -> None:
+    from services.cli.options import add_overrides
     from services.sim.calibrate import (
         DEFAULT_CATCH_S,
         DEFAULT_JUG_ERROR_ML,
@@ -27,18 +28,16 @@ def configure(parser) -> None:
     parser.add_argument("--jug-error-ml", type=float, default=DEFAULT_JUG_ERROR_ML, metavar="ML",
                         help="sprayer: standard deviation of the jug's reading, mL "
                              f"(default {DEFAULT_JUG_ERROR_ML:g})")
-    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
-                        help="override a scenario key, as for vrsim run (repeatable)")
+    add_overrides(parser)
     parser.add_argument("--json", action="store_true", help="print the outcome as one JSON object")
 
 
 def run(args) -> int:
+    from services.cli.options import load_scenario
     from services.outputs.encode import dumps_text
-    from services.sim import scenario
     from services.sim.calibrate import calibrate
-    from services.sim.overrides import parse_assignment
 
-    sc = scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+    sc = load_scenario(args)
     result = calibrate(sc, args.revolutions, args.scale_error_g, args.seconds, args.jug_error_ml)
     if args.json:
         print(dumps_text({**vars(result), "change_pct": result.change_pct, "settings": result.settings},

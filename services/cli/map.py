@@ -145,7 +145,7 @@ def _convert(args) -> int:
 
 def _write_whole(write, out: str) -> None:
     """``write(path)`` for `out`, whole or not at all: a file or a new folder under a temporary name
-    (`common.files.written`); an ISOXML export into a folder that exists (beside other exports) in
+    (`common.written.written`); an ISOXML export into a folder that exists (beside other exports) in
     place, what it added removed again if it fails."""
     import os
 

@@ -22,3 +22,18 @@ def apply_input_cap(args) -> None:
         raise VrsimError(f"--max-input-mb {mb:g}: must be a number of megabytes in (0, 1e6)")
     floor = int(mb * files.MiB)
     files.set_byte_caps(**{kind: max(cap, floor) for kind, cap in files.BYTE_CAPS.items()})
+
+
+def add_overrides(parser, help_text: str = "override a scenario key, as for vrsim run (repeatable)") -> None:
+    """``--set KEY=VALUE`` (repeatable): scenario keys changed on the command line (`load_scenario`)."""
+    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
+                        help=help_text)
+
+
+def load_scenario(args):
+    """``args.scenario`` (a file or a built-in name) loaded with its ``--set`` overrides, checked as a
+    file's values are."""
+    from services.sim import scenario
+    from services.sim.overrides import parse_assignment
+
+    return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])

@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from services.cli.options import add_input_cap, apply_input_cap
+from services.cli.options import add_input_cap, add_overrides, apply_input_cap, load_scenario
 
 # The young generation's threshold during the run, objects (Python's default: 700). The run allocates
 # numpy arrays and small records, which hold no reference cycles to collect.
@@ -20,9 +20,8 @@ EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` re
 def configure(parser) -> None:
     parser.add_argument("scenario", nargs="?", default=None,
                         help="scenario TOML file or built-in name (default, large, huge)")
-    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
-                        help="override a scenario key, checked like the file's (controller.kp=0.8, "
-                             "gnss.kind=dgps, seed=3); repeatable")
+    add_overrides(parser, "override a scenario key, checked like the file's (controller.kp=0.8, "
+                          "gnss.kind=dgps, seed=3); repeatable")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
@@ -132,18 +131,15 @@ def _run(args, driver) -> int:
     if args.json:
         print(summary_json(with_settings(result)))
     else:
-        print(result.machine_check.text())
+        print(result.machine_check.text(result.world.grid))
         print(text_summary(result.summary))
         print(outputs_line(out_dir, sc.output.track_formats))
     return 0
 
 
 def _scenario(args):
-    from services.sim import scenario
-    from services.sim.overrides import parse_assignment
-
     apply_input_cap(args)
-    return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+    return load_scenario(args)
 
 
 def _check(args) -> int:
@@ -155,10 +151,12 @@ def _check(args) -> int:
     from services.sim.world import build_world
 
     sc = _scenario(args)
-    result = check_world(build_world(sc))
+    world = build_world(sc)
+    result = check_world(world)
     if args.json:
-        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply}
+        doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply,
+               "rate_unit": world.grid.map_unit, "in_rate_unit": result.in_rate_unit(world.grid)}
         print(summary_json(doc))
     else:
-        print(result.text())
+        print(result.text(world.grid))
     return 0

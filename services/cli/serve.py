@@ -54,6 +54,8 @@ def configure(parser) -> None:
     parser.add_argument("--rate-field", default=None, help="map file: attribute holding the rate")
     parser.add_argument("--cell-size", type=float, default=None, metavar="M", help="map file: cell size, m")
     parser.add_argument("--crs", default=None, help="map file: its CRS when the file does not say")
+    parser.add_argument("--unit", default=None, help="map file: unit of its rates when the file does not "
+                        "state it (kg/ha, lb/ac, L/ha, gal/ac, seeds/ac, ...)")
     parser.add_argument("--db", metavar="FILE", default=None,
                         help="monitor: SQLite database (default runs/monitor/<prefix>-<machine>.sqlite)")
     parser.add_argument("--allow-user-code", metavar="DIR", action="append", default=[],
@@ -114,7 +116,8 @@ def _service_config(args) -> ServiceConfig:
     # credential from the state folder (the web user itself is a viewer).
     operator = dataclasses.replace(options, user="operator") if args.operator else None
     return ServiceConfig(zenoh=options, scenario=args.scenario, map_file=args.map,
-                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs, db=args.db,
+                         rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
+                         unit=args.unit, db=args.db,
                          web_listen=web_listen or args.web_listen,
                          user_code_dirs=tuple(os.path.abspath(d) for d in args.allow_user_code),
                          operator=operator, data_root=args.data_root)
@@ -132,7 +135,7 @@ def _child_argv(args, options: ZenohOptions, name: str, user_code_dirs: tuple[st
         if args.map is not None:
             argv += ["--map", os.path.abspath(args.map)]
             for flag, value in (("--rate-field", args.rate_field), ("--cell-size", args.cell_size),
-                                ("--crs", args.crs)):
+                                ("--crs", args.crs), ("--unit", args.unit)):
                 if value is not None:
                     argv += [flag, str(value)]
     if name == "monitor" and args.db is not None:

@@ -13,6 +13,7 @@ from common.written import staged
 from services.outputs.plots import figure
 from services.outputs.report import embedded_png
 from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
+from services.sim.metrics import RATE_UNIT, rate_key
 from services.sim.transitions import rate_steps
 
 BEST = "*"
@@ -27,6 +28,14 @@ def _cell(value) -> str:
     return "n/a" if value is None else str(value)
 
 
+def _shown(summary: dict, metric) -> tuple[object, str]:
+    """A column's figure of one run and its unit: a rate in the map's own unit (the summary's
+    ``in_rate_unit``), any other figure as it is."""
+    if metric.unit == RATE_UNIT and rate_key(metric.key) in summary.get("in_rate_unit", {}):
+        return summary["in_rate_unit"][rate_key(metric.key)], summary["rate_unit"]
+    return summary[metric.key], metric.unit
+
+
 def table_text(comparison: Comparison) -> str:
     """The table ``vrsim compare`` prints: one row per controller, one column per figure, the best of
     each column marked with ``*``."""
@@ -35,12 +44,13 @@ def table_text(comparison: Comparison) -> str:
     label_w = max(12, *(len(s["controller"]) for s in summaries)) + 2
     widths = [11] * len(COLUMNS)
     head1 = " " * label_w + "".join(f"{_short(m.key):>{w}}" for m, w in zip(COLUMNS, widths, strict=True))
-    head2 = f"{'controller':<{label_w}}" + "".join(f"{'[' + m.unit + ']' if m.unit else '':>{w}}"
-                                                  for m, w in zip(COLUMNS, widths, strict=True))
+    units = [_shown(summaries[0], m)[1] for m in COLUMNS]   # one map: one unit for every run
+    head2 = f"{'controller':<{label_w}}" + "".join(f"{'[' + u + ']' if u else '':>{w}}"
+                                                  for u, w in zip(units, widths, strict=True))
     lines = [f"vrsim compare: {comparison.scenario.name} ({summaries[0]['ticks']:,} ticks, one drive "
              f"shared by {len(summaries)} controllers)", head1, head2]
     for i, s in enumerate(summaries):
-        cells = "".join(f"{_cell(s[m.key]) + (BEST if i in best[m.key] else ' '):>{w}}"
+        cells = "".join(f"{_cell(_shown(s, m)[0]) + (BEST if i in best[m.key] else ' '):>{w}}"
                         for m, w in zip(COLUMNS, widths, strict=True))
         lines.append(f"{s['controller']:<{label_w}}{cells}")
     lines.append(f"{BEST} best in its column ({_directions()})")
@@ -102,10 +112,11 @@ def _table_html(comparison: Comparison) -> str:
     """The table as HTML: controllers in rows, figures in columns, the best of each column marked."""
     summaries = comparison.summaries()
     best = best_rows(summaries, DECIMALS)
-    head = "".join(f"<th>{html.escape(m.label or m.key)}<br>{html.escape(m.unit)}</th>" for m in COLUMNS)
+    head = "".join(f"<th>{html.escape(m.label or m.key)}<br>{html.escape(_shown(summaries[0], m)[1])}</th>"
+                   for m in COLUMNS)
     rows = []
     for i, s in enumerate(summaries):
-        cells = "".join(f'<td{" class=best" if i in best[m.key] else ""}>{_cell(s[m.key])}</td>'
+        cells = "".join(f'<td{" class=best" if i in best[m.key] else ""}>{_cell(_shown(s, m)[0])}</td>'
                         for m in COLUMNS)
         rows.append(f"<tr><td>{html.escape(s['controller'])}</td>{cells}</tr>")
     return f"<table><tr><th>controller</th>{head}</tr>\n" + "\n".join(rows) + "\n</table>"
@@ -131,6 +142,7 @@ def _plot_timeseries(comparison: Comparison, path: str) -> None:
     """Shaft speed and applied rate of every controller around the same rate steps (the drive is
     shared, so the steps are the same for all), time from each step; target and prescription in black."""
     first = comparison.results[0]
+    grid = first.world.grid  # rates in the map's own unit
     steps = _step_windows(first)
     t = first.track["time_s"]
     cols = max(1, len(steps))
@@ -143,17 +155,18 @@ def _plot_timeseries(comparison: Comparison, path: str) -> None:
         ax1, ax2 = axes[0, col], axes[1, col]
         ax1.plot(rel, first.control["target_shaft_rpm"][w], color="k", lw=1.4,
                  label=f"target of {comparison.specs[0].label}")
-        ax2.plot(rel, first.landing.prescribed_kg_ha[w], color="k", lw=1.4, label="prescribed where it lands")
+        ax2.plot(rel, grid.in_map_unit(first.landing.prescribed_kg_ha[w]), color="k", lw=1.4,
+                 label="prescribed where it lands")
         for spec, result in zip(comparison.specs, comparison.results, strict=True):
             ax1.plot(rel, result.control["shaft_rpm"][w], lw=0.9, label=spec.label)
-            ax2.plot(rel, result.landing.applied_kg_ha[w], lw=0.9, label=spec.label)
+            ax2.plot(rel, grid.in_map_unit(result.landing.applied_kg_ha[w]), lw=0.9, label=spec.label)
         ax1.set_title(f"rate step at {t[k]:.0f} s")
         ax2.set_xlabel("time from the step (s)")
         for ax in (ax1, ax2):
             ax.axvline(0.0, color="grey", lw=0.6, ls="--")
             ax.grid(alpha=0.3)
     axes[0, 0].set_ylabel("metering shaft (rpm)")
-    axes[1, 0].set_ylabel("rate (kg/ha)")
+    axes[1, 0].set_ylabel(f"rate ({grid.map_unit})")
     axes[1, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
     axes[0, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
     fig.suptitle(f"{comparison.scenario.name}: every controller on the same drive, at the same rate steps"
@@ -162,14 +175,16 @@ def _plot_timeseries(comparison: Comparison, path: str) -> None:
 
 
 def _plot_errors(comparison: Comparison, path: str) -> None:
-    """Applied minus prescribed (kg/ha) inside the field, one map per controller, one colour scale."""
+    """Applied minus prescribed (in the map's unit) inside the field, one map per controller, one colour
+    scale."""
     grid = comparison.results[0].world.grid
     west, south, east, north = grid.bounds
     extent = (0.0, east - west, 0.0, north - south)
     shown = np.where(comparison.results[0].in_field, 1.0, np.nan)
-    errors = [(r.as_applied.applied_kg_ha - grid.rates_kg_ha) * shown for r in comparison.results]
+    errors = [grid.in_map_unit(r.as_applied.applied_kg_ha - grid.rates_kg_ha) * shown
+              for r in comparison.results]
     finite = np.concatenate([np.abs(e[np.isfinite(e)]) for e in errors])
-    emax = max(float(np.percentile(finite, 98)) if finite.size else 1.0, 1.0)
+    emax = max(float(np.percentile(finite, 98)) if finite.size else 1.0, float(grid.in_map_unit(1.0)))
     cols = min(3, len(errors))
     rows = math.ceil(len(errors) / cols)
     fig = figure(5.5 * cols, 4.8 * rows, layout="constrained")
@@ -179,10 +194,10 @@ def _plot_errors(comparison: Comparison, path: str) -> None:
         im = ax.imshow(err, extent=extent, origin="upper", cmap="RdBu_r", vmin=-emax, vmax=emax,
                        interpolation="nearest")
         ax.plot(np.asarray(fx) - west, np.asarray(fy) - south, color="k", lw=0.8)
-        ax.set_title(f"{spec.label}: MAE {_cell(result.summary['mae_kg_ha'])} kg/ha")
+        ax.set_title(f"{spec.label}: MAE {_cell(result.summary['in_rate_unit']['mae'])} {grid.map_unit}")
         ax.set_aspect("equal")
     for ax in list(axes.flat)[len(errors):]:
         ax.axis("off")
-    fig.colorbar(im, ax=axes, label="applied - prescribed (kg/ha)", shrink=0.8)
+    fig.colorbar(im, ax=axes, label=f"applied - prescribed ({grid.map_unit})", shrink=0.8)
     fig.suptitle(f"{comparison.scenario.name}: error maps (same colour scale)")
     fig.savefig(path, dpi=80)

@@ -2,7 +2,7 @@
 
 `vrsim run` starts it (`PlotWorker.start`) before it simulates, so its matplotlib import (a third of a
 second or more) overlaps the simulation on another core; after the run it draws map.png, sections.png
-and timeseries.png while the run's process writes the GeoTIFFs, track.csv and the TimeLog. A process,
+and timeseries.png while the run's process writes the GeoTIFFs, the track files and the TimeLog. A process,
 not a thread: drawing holds the GIL.
 
 The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path)

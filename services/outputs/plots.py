@@ -29,8 +29,9 @@ def figure(width_in: float, height_in: float, layout: str | None = None, **margi
 
 @dataclass
 class MapPicture:
-    """What map.png shows: rasters (rows, cols) in kg/ha on a map `extent_m` wide and high, the field
-    boundary and the path in metres from the map's south-west corner."""
+    """What map.png shows: rasters (rows, cols) in the map's `unit` on a map `extent_m` wide and high,
+    the field boundary and the path in metres from the map's south-west corner; the error's colour
+    scale spans at least `error_floor` (1 kg/ha in `unit`) either way."""
 
     prescribed: np.ndarray
     applied: np.ndarray
@@ -39,6 +40,8 @@ class MapPicture:
     field_xy: tuple
     path_xy: tuple
     title: str
+    unit: str
+    error_floor: float
 
 
 @dataclass
@@ -59,14 +62,15 @@ class SectionsPicture:
 
 @dataclass
 class SeriesPicture:
-    """What timeseries.png shows: a window of the run, per tick."""
+    """What timeseries.png shows: a window of the run, per tick, the rates in the map's `unit`."""
 
     time_s: np.ndarray
     target_shaft_rpm: np.ndarray
     shaft_rpm: np.ndarray
-    prescribed_kg_ha: np.ndarray
-    applied_kg_ha: np.ndarray
+    prescribed: np.ndarray
+    applied: np.ndarray
     title: str
+    unit: str
 
 
 def _frame(result):
@@ -84,10 +88,11 @@ def map_picture(result) -> MapPicture:
     extent, (west, south), outline = _frame(result)
     x_m, y_m = result.kept.path_xy   # thinned (`services.sim.kept.PathPoints`)
     s = result.summary
-    return MapPicture(grid.rates_kg_ha, result.as_applied.applied_kg_ha, result.in_field, extent, outline,
-                      (x_m - west, y_m - south),
-                      f"{result.world.scenario.name}: MAE {s['mae_kg_ha']:.1f} kg/ha, "
-                      f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area")
+    return MapPicture(grid.in_map_unit(grid.rates_kg_ha), grid.in_map_unit(result.as_applied.applied_kg_ha),
+                      result.in_field, extent, outline, (x_m - west, y_m - south),
+                      f"{result.world.scenario.name}: MAE {s['in_rate_unit']['mae']:.1f} {grid.map_unit}, "
+                      f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area",
+                      grid.map_unit, float(grid.in_map_unit(1.0)))
 
 
 def sections_picture(result) -> SectionsPicture:
@@ -109,11 +114,12 @@ def sections_picture(result) -> SectionsPicture:
 
 def series_picture(result) -> SeriesPicture:
     """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start),
-    `services.sim.kept.SeriesWindow`."""
-    w = result.kept.series
-    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], w["prescribed_kg_ha"],
-                         w["applied_kg_ha"],
-                         f"{result.world.scenario.name}: shaft speed and rate around rate steps")
+    `services.sim.kept.SeriesWindow`, the rates in the map's unit."""
+    w, grid = result.kept.series, result.world.grid
+    rates = (grid.in_map_unit(w["prescribed_kg_ha"]), grid.in_map_unit(w["applied_kg_ha"]))
+    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], *rates,
+                         f"{result.world.scenario.name}: shaft speed and rate around rate steps",
+                         grid.map_unit)
 
 
 def _draw_panels(fig, panels, extent, outline, unit: str):
@@ -141,12 +147,12 @@ def draw_maps(pic: MapPicture, path: str) -> None:
     rx, applied = pic.prescribed, pic.applied
     vmax = float(np.nanmax(rx)) * 1.2 if np.isfinite(np.nanmax(rx)) else 1.0
     err = (applied - rx) * shown
-    emax = max(float(np.nanpercentile(np.abs(err), 98)) if np.isfinite(err).any() else 1.0, 1.0)
+    emax = max(float(np.nanpercentile(np.abs(err), 98)) if np.isfinite(err).any() else 1.0, pic.error_floor)
     fig = _three_maps()
     panels = ((rx * shown, "Prescribed", "viridis", 0, vmax),
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
-    axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "kg/ha")
+    axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, pic.unit)
     axes[0].plot(*pic.path_xy, color="w", lw=0.3, alpha=0.6)
     fig.suptitle(pic.title)
     fig.savefig(path, dpi=90)
@@ -171,9 +177,9 @@ def draw_timeseries(pic: SeriesPicture, path: str) -> None:
     ax1.plot(pic.time_s, pic.shaft_rpm, label="actual", lw=1.0)
     ax1.set_ylabel("metering shaft (rpm)")
     ax1.legend(loc="upper right")
-    ax2.plot(pic.time_s, pic.prescribed_kg_ha, label="prescribed (where it lands)", lw=1.2)
-    ax2.plot(pic.time_s, pic.applied_kg_ha, label="applied", lw=1.0)
-    ax2.set_ylabel("rate (kg/ha)")
+    ax2.plot(pic.time_s, pic.prescribed, label="prescribed (where it lands)", lw=1.2)
+    ax2.plot(pic.time_s, pic.applied, label="applied", lw=1.0)
+    ax2.set_ylabel(f"rate ({pic.unit})")
     ax2.set_xlabel("time (s)")
     ax2.legend(loc="upper right")
     fig.suptitle(pic.title)

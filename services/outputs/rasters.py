@@ -1,6 +1,7 @@
 """The run's GeoTIFFs on the prescription's grid (in the field's UTM zone): prescription.tif, the map
-as run; as_applied.tif, applied kg/ha; error.tif, applied minus prescribed (a signed difference,
-tagged so, which `vrsim map` reads as such); passes.tif, the number of passes that put product on
+as run; as_applied.tif, the applied rate; error.tif, applied minus prescribed (a signed
+difference, tagged so, which `vrsim map` reads as such), all three in the map's own unit
+(`maps.write_map`); passes.tif, the number of passes that put product on
 each cell. Cells outside the field are nodata in as_applied.tif and error.tif: what lands there is
 off-target product (summary.json's off_target_kg), not a rate of the field."""
 
@@ -17,8 +18,8 @@ from services.sim.run import RunResult
 
 def write_rasters(result: RunResult, prescription_path: str, as_applied_path: str, error_path: str,
                   passes_path: str) -> None:
-    """Write the prescription, the applied rate and its error against the prescription (kg/ha), and
-    the pass counts."""
+    """Write the prescription, the applied rate and its error against the prescription (in the map's
+    unit), and the pass counts."""
     grid = result.world.grid
     applied = np.where(result.in_field, result.as_applied.applied_kg_ha, np.nan)
     write_map(grid, prescription_path)

@@ -12,6 +12,7 @@ import os
 
 from common import __version__
 from services.outputs.summary import fmt
+from services.outputs.track import TRACK_FILES
 from services.sim import metrics
 from services.sim.core import config_as_run
 from services.sim.error_split import error_split
@@ -82,7 +83,8 @@ def _sections(sections) -> list[str]:
 
 def incomplete_note(summary: dict) -> str | None:
     """``incomplete: N of M ticks stored; reason R`` for a services run the monitor does not have whole
-    (`services.bus.monitor.completeness`), None for a complete one or a `vrsim run` (no such keys)."""
+    (what `services.bus.monitor` records of its completeness), None for a complete one or a `vrsim run`
+    (no such keys)."""
     if summary.get("complete", True):
         return None
     missing = sum(last - first + 1 for first, last in summary["missing_ticks"])
@@ -153,7 +155,8 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
                 "ticks": summary["ticks"]}
-    check = "<br>".join(html.escape(line.strip()) for line in result.machine_check.text().splitlines())
+    lines = result.machine_check.text(result.world.grid).splitlines()  # rates in the map's unit
+    check = "<br>".join(html.escape(line.strip()) for line in lines)
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
                 ("Figures", figures_table(*shown(summary))),
@@ -164,13 +167,17 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                 ("Versions and seed", key_values(run_info))]
     text = page(f"vrsim run: {summary['scenario']}", result.world.scenario.description, sections, images,
                 [("What the figures mean", definitions(metrics.METRICS))],
-                _files_note(result.world.grid.map_unit), banner=incomplete_note(summary))
+                _files_note(result.world.grid.map_unit,
+                            [TRACK_FILES[f] for f in result.world.scenario.output.track_formats]),
+                banner=incomplete_note(summary))
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 
 
-def _files_note(rate_unit: str) -> str:
-    """What the files beside the report are, the rasters in the map's unit `rate_unit`."""
-    return (f"Files beside this page: summary.json, track.csv, prescription.tif, as_applied.tif, error.tif "
+def _files_note(rate_unit: str, track_files) -> str:
+    """What the files beside the report are: the rasters in the map's unit `rate_unit`, the track in
+    `track_files` (file names; none: no per-tick track)."""
+    track = "".join(f"{name}, " for name in track_files)
+    return (f"Files beside this page: summary.json, {track}prescription.tif, as_applied.tif, error.tif "
             f"(GeoTIFF, {rate_unit}; nodata outside the field), passes.tif (GeoTIFF, passes per cell), "
             "taskdata/ (ISO 11783 TimeLog), as_applied_points.gpkg (or .zip).")

@@ -16,6 +16,7 @@ from matplotlib.ticker import NullFormatter
 from common.written import written
 from services.outputs.plots import figure
 from services.outputs.summary import summary_rows
+from services.sim.metrics import RATE_UNIT, rate_key
 from services.sim.sweep import (
     METRIC_SENSE,
     Configuration,
@@ -26,14 +27,29 @@ from services.sim.sweep import (
     pareto_front,
 )
 
-LABELS = {key: f"{label} [{unit}]" for label, key, unit in summary_rows()}
+UNITS = {key: unit for _, key, unit in summary_rows()}
+LABELS = {key: label for label, key, _ in summary_rows()}
 BEST_K = 3  # configurations listed per metric
 MAX_TICKS = 12  # an axis with at most this many values is labelled at each value and joined by a line
 SENSE_WORDS = {"min": "lower is better", "max": "higher is better", "zero": "closest to 0 is better"}
 
 
-def _label(metric: str) -> str:
-    return LABELS.get(metric, metric)
+def _label(metric: str, rate_unit: str = RATE_UNIT) -> str:
+    """``"Mean absolute error [lb/ac]"``: a rate figure in `rate_unit`, the runs' map unit."""
+    if metric not in LABELS:
+        return metric
+    unit = rate_unit if UNITS[metric] == RATE_UNIT else UNITS[metric]
+    return f"{LABELS[metric]} [{unit}]"
+
+
+def _in_rate_unit(rows: list[dict]) -> tuple[list[dict], str]:
+    """The rows with their rate figures in the map's own unit (each run's ``<key>_in_rate_unit``,
+    `services.sim.sweep.tasks`) when every run's map has the same one; else as they are, in kg/ha."""
+    units = {r.get("rate_unit") for r in rows if r.get("status") == "ok"}
+    if len(units) != 1 or not isinstance(unit := units.pop(), str) or unit == RATE_UNIT:
+        return rows, RATE_UNIT
+    keys = [k for k in METRIC_SENSE if UNITS.get(k) == RATE_UNIT]
+    return [{**r, **{k: r.get(f"{rate_key(k)}_in_rate_unit") for k in keys}} for r in rows], unit
 
 
 def _png(fig) -> str:
@@ -59,7 +75,7 @@ def _positions(values: list) -> tuple[np.ndarray, list | None]:
     return np.array([cats.index(str(v)) for v in values], dtype=float), cats
 
 
-def _plot_axis(configs: list[Configuration], axis_key: str, log: bool):
+def _plot_axis(configs: list[Configuration], axis_key: str, log: bool, rate_unit: str = RATE_UNIT):
     """One figure: every ranked metric against one axis, a point per configuration (mean over seeds,
     bar: 95 % interval) and a line through the mean per axis value, a colour per scenario."""
     metrics = list(METRIC_SENSE)
@@ -94,7 +110,7 @@ def _plot_axis(configs: list[Configuration], axis_key: str, log: bool):
         elif len(shown) <= MAX_TICKS:  # the swept values themselves, also on a log axis
             ax.set_xticks(shown, [f"{v:g}" for v in shown])
             ax.xaxis.set_minor_formatter(NullFormatter())
-        ax.set_title(_label(metric), fontsize=9)
+        ax.set_title(_label(metric, rate_unit), fontsize=9)
         ax.set_xlabel(axis_key, fontsize=8)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[len(metrics):]:
@@ -105,7 +121,7 @@ def _plot_axis(configs: list[Configuration], axis_key: str, log: bool):
     return fig
 
 
-def _plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
+def _plot_pareto(configs: list[Configuration], pair: tuple[str, str], rate_unit: str = RATE_UNIT):
     """The two metrics of each configuration (means over seeds, bars: 95 % intervals), the Pareto
     front highlighted and numbered; returns the figure and the front's configurations in that
     numbering (along the first metric)."""
@@ -121,17 +137,17 @@ def _plot_pareto(configs: list[Configuration], pair: tuple[str, str]):
     ax.plot(sx[on_front, 0], sy[on_front, 0], "o-", color="C3", label="Pareto front")
     for number, i in enumerate(on_front, start=1):
         ax.annotate(str(number), (sx[i, 0], sy[i, 0]), fontsize=8, xytext=(4, 4), textcoords="offset points")
-    ax.set_xlabel(f"{_label(mx)} ({SENSE_WORDS[METRIC_SENSE[mx]]})")
-    ax.set_ylabel(f"{_label(my)} ({SENSE_WORDS[METRIC_SENSE[my]]})")
+    ax.set_xlabel(f"{_label(mx, rate_unit)} ({SENSE_WORDS[METRIC_SENSE[mx]]})")
+    ax.set_ylabel(f"{_label(my, rate_unit)} ({SENSE_WORDS[METRIC_SENSE[my]]})")
     ax.legend()
     return fig, [configs[i] for i in on_front]
 
 
-def _best_table(configs: list[Configuration]) -> str:
+def _best_table(configs: list[Configuration], rate_unit: str = RATE_UNIT) -> str:
     rows = []
     for metric in METRIC_SENSE:
         for rank, (config, mean, half) in enumerate(best(configs, metric, BEST_K), start=1):
-            name = f"{_label(metric)} ({SENSE_WORDS[METRIC_SENSE[metric]]})" if rank == 1 else ""
+            name = f"{_label(metric, rate_unit)} ({SENSE_WORDS[METRIC_SENSE[metric]]})" if rank == 1 else ""
             rows.append(f"<tr><td>{html.escape(name)}</td><td>{rank}</td>"
                         f"<td>{html.escape(config.label())}</td><td>{_fmt(mean, half)}</td>"
                         f"<td>{len(config.values(metric))}</td></tr>")
@@ -156,7 +172,8 @@ def _failed_table(rows: list[dict], axis_keys: list[str]) -> str:
 def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
     """Write report.html for the result `rows` of `sweep` to `path`."""
     axis_keys = [a.key for a in sweep.axes]
-    configs = configurations(rows, axis_keys)
+    shown, unit = _in_rate_unit(rows)   # the rate figures in the runs' map unit
+    configs = configurations(shown, axis_keys)
     n_ok = sum(r.get("status") == "ok" for r in rows)
     n_lost = sum(r.get("status") == "lost" for r in rows)
     lost = (f", {n_lost} lost to the cluster (<code>--resume</code> runs them again)" if n_lost else "")
@@ -167,15 +184,15 @@ def write_sweep_report(rows: list[dict], sweep: Sweep, path: str) -> None:
              + f"; seeds {html.escape(str(list(sweep.seeds)) if sweep.seeds else 'of each scenario')}; "
              f"scenarios {html.escape(', '.join(b.label for b in sweep.scenarios))}.</p>"]
     if configs:
-        parts.append("<h2>Best configurations per metric</h2>" + _best_table(configs))
+        parts.append("<h2>Best configurations per metric</h2>" + _best_table(configs, unit))
         if sweep.pareto:
-            fig, front = _plot_pareto(configs, sweep.pareto)
+            fig, front = _plot_pareto(configs, sweep.pareto, unit)
             items = "".join(f"<li>{html.escape(c.label())}</li>" for c in front)
             parts.append(f"<h2>Pareto front: {html.escape(' vs '.join(sweep.pareto))}</h2>"
                          + _png(fig) + f"<ol>{items}</ol>")
         for axis in sweep.axes:
             parts.append(f"<h2>Against {html.escape(axis.key)}</h2>"
-                         + _png(_plot_axis(configs, axis.key, axis.log)))
+                         + _png(_plot_axis(configs, axis.key, axis.log, unit)))
     parts.append("<h2>Failed and lost runs</h2>" + _failed_table(rows, axis_keys))
     title = html.escape(f"vrsim sweep: {sweep.source}")
     page = f"""<!doctype html>

@@ -11,7 +11,8 @@ import os
 
 from common.written import staged
 from controller.config import PID_KEYS
-from services.sim.metrics import METRICS
+from services.outputs.summary import shown
+from services.sim.metrics import METRICS, rate_key
 from services.sim.tune import TuneResult
 
 COMPARED = tuple(m for m in METRICS if m.sense is not None and m.tolerance is not None)
@@ -68,8 +69,13 @@ def tune_text(result: TuneResult) -> str:
              f"{_fmt(result.best_objective)} with {result.best.kind} {values}",
              f"  {result.evaluations} evaluations in {result.generations} generations", "",
              f"  {'figure':<34} {'tuned':>12} {'scenario':>12}"]
+    # The rate figures in the map's own unit (`services.outputs.summary.shown`), named without _kg_ha then.
+    rows, tuned = shown(result.tuned)
+    baseline, units = shown(result.baseline)[1], {key: unit for _, key, unit in rows}
     for m in COMPARED:
         mark = " <" if m.key == result.objective else ""
-        lines.append(f"  {m.key + ' [' + m.unit + ']':<34} {_fmt(result.tuned.get(m.key)):>12} "
-                     f"{_fmt(result.baseline.get(m.key)):>12}{mark}")
+        unit = units.get(m.key, m.unit)
+        name = m.key if unit == m.unit else rate_key(m.key)
+        lines.append(f"  {name + ' [' + unit + ']':<34} {_fmt(tuned.get(m.key)):>12} "
+                     f"{_fmt(baseline.get(m.key)):>12}{mark}")
     return "\n".join(lines)

@@ -58,4 +58,5 @@ def run_point_log(world, track: dict, control: dict, applied_kg_ha, started_unix
         speed_m_s=track["speed_m_s"], width_m=width_on, work_on=np.asarray(track["implement_on"], bool),
         sections_on=np.asarray(control["sections_on"], bool), gnss_status=SIMULATE_MODE,
         source=world.scenario.name, format="run")
-    return log.thin(1.0 / rate_hz).in_unit(world.grid.map_unit, world.grid.density_kg_l)
+    grid = world.grid
+    return log.thin(1.0 / rate_hz).in_unit(grid.map_unit, grid.density_kg_l, grid.seed_mass_g)

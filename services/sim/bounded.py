@@ -56,7 +56,7 @@ from services.sim.section_landing import (
     landing_pass,
     tick_travel_m,
 )
-from services.sim.sections import SectionStates
+from services.sim.sections import STEPS_KEY, SectionStates
 from services.sim.sections.motion import MotionTrend
 from services.sim.sections.passes import PassTracker
 from services.sim.transitions import SETTLE_HOLD_S, rate_steps, transition_figures, transition_spans
@@ -170,7 +170,7 @@ class BoundedAccount:
         end = min(len(p["time_s"]), n + self.lookahead)
         w = {k: v[:end] for k, v in p.items()}
         states = SectionStates(np.asarray(w["sections_on"], bool), imp.section_widths, imp.section_offsets_m,
-                               w["pass_index"], w.get("sections_commanded"))
+                               w["pass_index"], w.get("sections_commanded"), steps_on=w.get(STEPS_KEY))
         metered = w["metered_kg"]
         landing = land(world.grid, w, metered, w["width_on_m"], self.delay_s, self.period_s)
         distance = np.cumsum(np.append(self.distance_m, landing.strip_length_m))[1:]
@@ -203,7 +203,7 @@ class BoundedAccount:
         motion = self.ref_motion.step(w["x_m"][:n], w["y_m"][:n], w["heading_rad"][:n],
                                       w["measured_speed_m_s"][:n])
         sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
-                               None, motion)
+                               None, motion, None if states.steps_on is None else states.steps_on[:n])
         control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
         masses = []
         for j, reference in enumerate(REFERENCES):

@@ -52,6 +52,27 @@ _SCALE_STREAM = 0xCA1_0002      # the scale's error
 DEFAULT_CATCH_S = 60.0          # a minute's catch, as the nozzle charts give L/min
 DEFAULT_JUG_ERROR_ML = 10.0     # a 1-2 L measuring jug read to +-10 mL
 MAX_CATCH_S = 3600.0
+MAX_JUG_ERROR_ML = 100_000.0   # the jugs' bound, in their unit, as the scale's
+
+
+def _as_written(constant: float) -> float:
+    """A measured constant as the settings write it (6 significant digits)."""
+    return float(f"{constant:.6g}")
+
+
+def _change_pct(measured: float, configured: float) -> float:
+    """A measured constant against the configured one, %."""
+    return 100.0 * (measured / configured - 1.0)
+
+
+def _error_left_pct(true: float, measured: float) -> float:
+    """The error the same meter has left once `measured` is configured (as written), %."""
+    return 100.0 * (true / _as_written(measured) - 1.0)
+
+
+def _rounded_pct(pct: float) -> float:
+    """A percentage as the settings write it: 3 decimals, never -0."""
+    return round(pct, 3) + 0.0
 
 
 @dataclass(frozen=True)
@@ -99,20 +120,20 @@ class Calibration:
     @property
     def change_pct(self) -> float:
         """The measured constant against the configured one, %."""
-        return 100.0 * (self.measured_kg_per_rev / self.configured_kg_per_rev - 1.0)
+        return _change_pct(self.measured_kg_per_rev, self.configured_kg_per_rev)
 
     @property
     def remaining_error_pct(self) -> float:
         """The true constant against the measured one, %: ``[product] calibration_error_pct`` once the
         measured constant is configured (rounded as `settings` writes it)."""
-        return 100.0 * (self.true_kg_per_rev / float(f"{self.measured_kg_per_rev:.6g}") - 1.0)
+        return _error_left_pct(self.true_kg_per_rev, self.measured_kg_per_rev)
 
     @property
     def settings(self) -> dict[str, float]:
         """The scenario keys to set after the test (dotted, as ``--set`` takes them): the measured
         constant and the error the same meter has left against it."""
-        return {"implement.kg_per_rev": float(f"{self.measured_kg_per_rev:.6g}"),
-                "product.calibration_error_pct": round(self.remaining_error_pct, 3) + 0.0}   # no -0
+        return {"implement.kg_per_rev": _as_written(self.measured_kg_per_rev),
+                "product.calibration_error_pct": _rounded_pct(self.remaining_error_pct)}
 
     def text(self) -> str:
         """What `vrsim calibrate` prints."""
@@ -218,16 +239,15 @@ class LiquidCalibration:
     @property
     def change_pct(self) -> float:
         """The measured constant against the configured one, %."""
-        return 100.0 * (self.measured_pulses_per_l / self.configured_pulses_per_l - 1.0)
+        return _change_pct(self.measured_pulses_per_l, self.configured_pulses_per_l)
 
     @property
     def settings(self) -> dict[str, float]:
         """The scenario keys to set after the test (dotted): the measured constant and the error the same
         meter has left against it (``flow_meter_error_pct``: it reads this much more than flows)."""
-        measured = float(f"{self.measured_pulses_per_l:.6g}")
-        return {"implement.flow_meter_pulses_per_l": measured,
-                "implement.flow_meter_error_pct": round(100.0 * (self.true_pulses_per_l / measured - 1.0), 3)
-                + 0.0}
+        return {"implement.flow_meter_pulses_per_l": _as_written(self.measured_pulses_per_l),
+                "implement.flow_meter_error_pct": _rounded_pct(_error_left_pct(self.true_pulses_per_l,
+                                                                               self.measured_pulses_per_l))}
 
     def text(self) -> str:
         """What `vrsim calibrate` prints."""
@@ -251,9 +271,9 @@ def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCa
 
     if not in_range(seconds, 0.0, MAX_CATCH_S, lo_open=True):
         raise VrsimError(f"--seconds {seconds!r}: must be a number of seconds in (0, {MAX_CATCH_S:g}]")
-    if not in_range(jug_error_ml, 0.0, MAX_SCALE_ERROR_G):
+    if not in_range(jug_error_ml, 0.0, MAX_JUG_ERROR_ML):
         raise VrsimError(f"--jug-error-ml {jug_error_ml!r}: must be a number of millilitres in "
-                         f"[0, {MAX_SCALE_ERROR_G:g}]")
+                         f"[0, {MAX_JUG_ERROR_ML:g}]")
     check_liquid(scenario)
     imp, seed = scenario.implement, scenario.seed
     spec = imp.machine

@@ -17,7 +17,7 @@ from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.machines import machine_for
 from services.sim.scenario import Scenario, as_dict
-from services.sim.sections import SectionStates, SectionSwitch
+from services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
 from vehicle.product import metered_kg
 
@@ -96,7 +96,8 @@ class ControlCore:
         self.tuner = None if cfg.look_ahead_tune == 0 else LookAheadTuner(
             look_ahead_s, known_delay_s(scenario), cfg.look_ahead_tune, self.period_s)
         self._look_ahead_s = look_ahead_s
-        self.switch = SectionSwitch(self.implement, field_polygon, path, self.period_s, min(grid.cell_size))
+        self.switch = SectionSwitch(self.implement, field_polygon, path, self.period_s, min(grid.cell_size),
+                                    self.machine.side_steps)
         self.last_rate_kg_ha = np.full(self.machine.drives, np.nan)   # each drive's, for the policy
         self.product, self.seed = scenario.product, scenario.seed
         # Forward revolutions so far, each drive's (or each column's, sweeps' variants): the product's
@@ -148,12 +149,13 @@ class ControlCore:
         if len(rate):
             self.last_rate_kg_ha = rate[-1].copy()
         target = machine.drive_targets(rate, states)
+        steps = {} if states.steps_on is None else {STEPS_KEY: states.steps_on}
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": machine.prescribed(rate, states),
                 "target_shaft_rpm": machine.combined(target), "drive_rate_kg_ha": rate,
                 "drive_target_rpm": target, "drive_speed_m_s": machine.drive_speed_m_s(states.motion),
                 "width_on_m": states.width_on_m, "sections_on": states.actual,
                 "sections_commanded": states.commanded,
-                "drive_open": machine.drive_open(states)}
+                "drive_open": machine.drive_open(states), **steps}
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
@@ -194,7 +196,7 @@ class ControlCore:
         rec = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"])
         rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
-        return {key: rec[key] for key in CONTROL_KEYS}
+        return {key: rec[key] for key in (*CONTROL_KEYS, STEPS_KEY) if key in rec}
 
     def _metered_kg(self, shaft_rev, applying, drive=None) -> np.ndarray:
         """Product metered, kg, from each drive's revolutions (n, drives) and whether its product
@@ -259,21 +261,23 @@ class _SectionsAhead:
 def _join(states: list[SectionStates]) -> SectionStates:
     known = all(s.commanded is not None for s in states)
     commanded = np.concatenate([s.commanded for s in states]) if known else None
+    steps_on = None if states[0].steps_on is None else np.concatenate([s.steps_on for s in states])
     return SectionStates(np.concatenate([s.actual for s in states]), states[0].widths_m, states[0].offsets_m,
                          np.concatenate([s.pass_index for s in states]), commanded,
-                         Motion.join([s.motion for s in states]))
+                         Motion.join([s.motion for s in states]), steps_on)
 
 
 def _slice(states: SectionStates, part: slice) -> SectionStates:
     return SectionStates(states.actual[part], states.widths_m, states.offsets_m, states.pass_index[part],
                          None if states.commanded is None else states.commanded[part],
-                         states.motion.part(part))
+                         states.motion.part(part), None if states.steps_on is None else states.steps_on[part])
 
 
 # Per tick, shape (n,); ``sections_on`` and ``sections_commanded`` are (n, sections): each section's gate
 # and the terminal's command to it (`services.sim.sections.SectionStates`); ``drive_*`` are (n, drives):
 # each metering drive's rate at its landing point, target, product and whether it reaches the ground
-# (`services.sim.machines`). With several drives the shaft keys are the one shaft's that would meter
+# (`services.sim.machines`); ``side_steps_on`` (`STEPS_KEY`) too where a spinner's sides shorten in steps
+# (`SectionStates.steps_on`). With several drives the shaft keys are the one shaft's that would meter
 # what the drives meter together (`Machine.combined`), ``metered_kg`` their sum.
 CONTROL_KEYS = ("landing_x_m", "landing_y_m", "prescribed_kg_ha", "target_shaft_rpm", "shaft_rpm",
                 "shaft_rev", "current_a", "metered_kg", "width_on_m", "sections_on", "sections_commanded",

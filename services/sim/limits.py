@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import VehicleError
+from services.sim.metrics import RATE_UNIT, rate_key
 from vehicle import DriveConfig, Implement
 from vehicle.sprayer import boom_flow_l_min
 
@@ -94,13 +95,27 @@ class MachineCheck:
             return True
         return self.shaft_rpm_min <= self.rpm_min and self.rpm_max <= self.shaft_rpm_max
 
-    def text(self) -> str:
-        """Two or three lines for the run's printout; two more naming what to change if it cannot."""
+    def in_rate_unit(self, grid=None) -> dict:
+        """The check's rates (its ``*_kg_ha`` figures) in the map's own unit, keyed as
+        `services.sim.metrics.in_rate_unit` keys a run's: ``{"rate_min": ..., "rate_max": ...}``.
+
+        Parameters
+        ----------
+        grid : maps.Grid, optional
+            The map (`maps.Grid.in_map_unit` converts); None: kg/ha.
+        """
+        convert = (lambda v: v) if grid is None else grid.in_map_unit
+        return {rate_key(k): float(convert(v)) for k, v in vars(self).items() if k.endswith("_kg_ha")}
+
+    def text(self, grid=None) -> str:
+        """Two or three lines for the run's printout; two more naming what to change if it cannot.
+        Rates in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
-        lines = [f"Machine check: the meter {verdict}: {self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} "
-                 f"kg/ha at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
+        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
+        lines = [f"Machine check: the meter {verdict}: {_rate(rates['rate_min'])}-{_rate(rates['rate_max'])} "
+                 f"{unit} at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-{self.shaft_rpm_max:g} rpm shaft.",
                  f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
                  f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
@@ -145,6 +160,12 @@ class MachineCheck:
     def shaft_span(self) -> float:
         """Highest over lowest shaft speed (infinite for a range from 0 rpm)."""
         return self.shaft_rpm_max / self.shaft_rpm_min if self.shaft_rpm_min > 0 else math.inf
+
+
+def _rate(value: float) -> str:
+    """A rate for the check's line: whole numbers as before (kg/ha, lb/ac), three figures below 10
+    (t/ha, g/m2)."""
+    return f"{value:.0f}" if abs(value) >= 10 else f"{value:.3g}"
 
 
 def working_speeds(drive: DriveConfig) -> tuple[float, float]:
@@ -243,14 +264,16 @@ class _SprayerCheck(MachineCheck):
     nozzle_suggested: str | None = None
     density_kg_l: float = 1.0
 
-    def text(self) -> str:
-        """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change."""
+    def text(self, grid=None) -> str:
+        """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change;
+        the rates in L/ha and in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
         lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
-        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha "
-                 f"({self.rate_min_kg_ha:.0f}-{self.rate_max_kg_ha:.0f} kg/ha) at "
+        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
+        also = "" if unit == "L/ha" else f"({_rate(rates['rate_min'])}-{_rate(rates['rate_max'])} {unit}) "
+        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha {also}at "
                  f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
                  f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",

@@ -90,7 +90,7 @@ TRACK_FORMATS = ("parquet", "csv")   # ``[output] track``: the per-tick track's 
 
 @dataclass(frozen=True)
 class OutputSpec:
-    """What a run writes beside summary.json, track.csv, the GeoTIFFs and the TASKDATA.
+    """What a run writes beside summary.json, the GeoTIFFs and the TASKDATA.
 
     Attributes
     ----------

@@ -72,8 +72,11 @@ def _build_prescription(scenario: Scenario, field: Field) -> Grid:
     if grid.quantity != "rate":
         raise MapError(f"{grid.source}: holds differences of rates in {grid.unit} (e.g. a run's error.tif), "
                        "not a prescription")
+    if rate_kind(grid.unit) == "count":  # seeds/ha: as a mass rate with the seeds' mass, once here
+        grid = grid.to_kg_ha(seed_mass_g=scenario.product.seed_mass_g)
     if grid.unit != "kg/ha":  # a volume or count rate the run cannot meter as mass
-        need = "density: [product] density_kg_l" if rate_kind(grid.unit) == "volume" else "seed mass"
+        need = ("density: [product] density_kg_l" if rate_kind(grid.unit) == "volume" else
+                "seed mass: [product] thousand_seed_mass_g")
         raise MapError(f"{grid.source}: a {rate_kind(grid.unit)} rate ({grid.unit}) runs as a mass rate only "
                        f"with the product's {need}")
     grid.check_overlap(field.polygon, field.crs)

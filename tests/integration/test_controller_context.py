@@ -16,23 +16,14 @@ from services.sim.variants import run_variants
 from tests.conftest import ROOT
 from tests.integration.test_variants import FIELD, assert_same_summary
 
-RECORDER = '''
+# Two context-taking P controllers in one user file, over a base without memory.
+RECORDERS = '''
 import numpy as np
 
 
-class Recorder:
-    """A P controller on the schedule of speed that keeps the context of every period."""
-
-    seen = []
-
+class _NoMemory:
     def __init__(self, params, loop, n):
         self.n = n
-
-    def step(self, target_rpm, measured_rpm, context):
-        c = context
-        Recorder.seen.append((c.speed_m_s[0], c.prescribed_kg_ha[0], c.sections_on[0].copy(), c.time_s))
-        kp = np.interp(context.speed_m_s, [1.0, 3.0], [0.004, 0.001])
-        return target_rpm / context.shaft_rpm_per_a + kp * (target_rpm - measured_rpm)
 
     def reset(self):
         pass
@@ -42,6 +33,28 @@ class Recorder:
 
     def set_state(self, state):
         pass
+
+
+class Recorder(_NoMemory):
+    """A P controller on the schedule of speed that keeps the context of every period."""
+
+    seen = []
+
+    def step(self, target_rpm, measured_rpm, context):
+        c = context
+        Recorder.seen.append((c.speed_m_s[0], c.prescribed_kg_ha[0], c.sections_on[0].copy(), c.time_s))
+        kp = np.interp(context.speed_m_s, [1.0, 3.0], [0.004, 0.001])
+        return target_rpm / context.shaft_rpm_per_a + kp * (target_rpm - measured_rpm)
+
+
+class DrivesRecorder(_NoMemory):
+    """A P controller that keeps each loop's speed and prescription of every period."""
+
+    seen = []
+
+    def step(self, target_rpm, measured_rpm, context):
+        DrivesRecorder.seen.append((context.speed_m_s.copy(), context.prescribed_kg_ha.copy()))
+        return target_rpm / context.shaft_rpm_per_a + 0.002 * (target_rpm - measured_rpm)
 '''
 
 
@@ -50,15 +63,16 @@ def shared_drive():
     return drive(scenario.parse(FIELD, "context.toml", "."))
 
 
-def _recorded(path: str) -> list:
-    """What the class loaded last from `path` recorded (`controller.kinds.python` names its module)."""
-    return sys.modules[f"vrsim_user_{hashlib.sha1(path.encode()).hexdigest()[:12]}"].Recorder.seen
+def _recorded(path: str, class_name: str = "Recorder") -> list:
+    """What class `class_name` loaded last from `path` recorded (`controller.kinds.python` names its
+    module)."""
+    return getattr(sys.modules[f"vrsim_user_{hashlib.sha1(path.encode()).hexdigest()[:12]}"], class_name).seen
 
 
 def test_a_field_run_gives_the_controller_each_ticks_speed_rate_sections_and_time(shared_drive, tmp_path):
     path = str(tmp_path / "recorder.py")
     with open(path, "w") as fh:
-        fh.write(RECORDER)
+        fh.write(RECORDERS)
     cfg = ControllerConfig(kind="python", file=path, class_name="Recorder")
     result = control_and_account(shared_drive, cfg)
     seen = _recorded(path)
@@ -84,45 +98,18 @@ def test_the_docs_gain_schedule_runs_a_field(shared_drive):
     assert scheduled["mae_kg_ha"] < 20.0 and scheduled["mae_kg_ha"] != fixed["mae_kg_ha"]
 
 
-DRIVES_RECORDER = '''
-import numpy as np
-
-
-class DrivesRecorder:
-    """A P controller that keeps each loop's speed and prescription of every period."""
-
-    seen = []
-
-    def __init__(self, params, loop, n):
-        self.n = n
-
-    def step(self, target_rpm, measured_rpm, context):
-        DrivesRecorder.seen.append((context.speed_m_s.copy(), context.prescribed_kg_ha.copy()))
-        return target_rpm / context.shaft_rpm_per_a + 0.002 * (target_rpm - measured_rpm)
-
-    def reset(self):
-        pass
-
-    def state(self):
-        return {}
-
-    def set_state(self, state):
-        pass
-'''
-
-
 def test_each_drive_of_a_drive_per_section_gets_its_own_speed_and_prescription(tmp_path):
     """``section_drives``: each loop's context carries its own drive's rate (its section's landing
     point) and ground speed (its section's own in a turn: turn compensation), not the machine's; the
     variants' batch maps each column to its drive, giving the field run's figures."""
     path = str(tmp_path / "drives_recorder.py")
     with open(path, "w") as fh:
-        fh.write(DRIVES_RECORDER)
+        fh.write(RECORDERS)
     field = drive(scenario.with_changes(scenario.parse(FIELD, "drives.toml", "."),
                                         implement={"kind": "section_drives"}))
     cfg = ControllerConfig(kind="python", file=path, class_name="DrivesRecorder")
     result = control_and_account(field, cfg)
-    seen = sys.modules[f"vrsim_user_{hashlib.sha1(path.encode()).hexdigest()[:12]}"].DrivesRecorder.seen
+    seen = _recorded(path, "DrivesRecorder")
     speed, rate = (np.array(column) for column in zip(*seen, strict=True))
     assert speed.shape == rate.shape == result.control["drive_rate_kg_ha"].shape == (len(seen), 4)
     np.testing.assert_array_equal(rate, result.control["drive_rate_kg_ha"])

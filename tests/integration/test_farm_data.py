@@ -245,7 +245,7 @@ def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_end
     from services.outputs.plots import SeriesPicture
 
     t = np.arange(0.0, 60.0, 0.05)
-    series = SeriesPicture(t, 100 + 0 * t, 99 + 0 * t, 150 + 0 * t, 149 + 0 * t, "a minute")
+    series = SeriesPicture(t, 100 + 0 * t, 99 + 0 * t, 150 + 0 * t, 149 + 0 * t, "a minute", "kg/ha")
     worker = PlotWorker().start()
     try:
         worker.submit("draw_timeseries", series, str(tmp_path / "a.png"))

@@ -65,7 +65,9 @@ def test_map_rate_at_known_cells_by_x_y(net, files, row, col):
     x, y = centre(grid, row, col)
     ok, got = net.query(f"vrsim/map/rate?x={x!r};y={y!r}")
     assert ok, got
-    assert got == {"rate_kg_ha": grid.rates_kg_ha[row, col], "inside": True, "row": row, "col": col}
+    rate = grid.rates_kg_ha[row, col]
+    assert got == {"rate_kg_ha": rate, "rate": rate, "rate_unit": "kg/ha", "inside": True, "row": row,
+                   "col": col}
 
 
 def test_map_rate_by_lat_lon_and_outside_and_nodata(net, files):
@@ -75,12 +77,14 @@ def test_map_rate_by_lat_lon_and_outside_and_nodata(net, files):
     to_wgs = pyproj.Transformer.from_crs(files["crs"], "EPSG:4326", always_xy=True)
     lon, lat = to_wgs.transform(*centre(grid, 7, 9))
     ok, got = net.query(f"vrsim/map/rate?lat={lat!r};lon={lon!r}")
-    assert ok and got == {"rate_kg_ha": grid.rates_kg_ha[7, 9], "inside": True, "row": 7, "col": 9}
+    rate = grid.rates_kg_ha[7, 9]
+    assert ok and got == {"rate_kg_ha": rate, "rate": rate, "rate_unit": "kg/ha", "inside": True, "row": 7,
+                          "col": 9}
     x, y = centre(grid, 0, 0)
-    assert net.query(f"vrsim/map/rate?x={x};y={y}") == (True, {"rate_kg_ha": None, "inside": True,
-                                                                "row": 0, "col": 0})
-    assert net.query(f"vrsim/map/rate?x={x - 100};y={y}") == (True, {"rate_kg_ha": None, "inside": False,
-                                                                      "row": None, "col": None})
+    none = {"rate_kg_ha": None, "rate": None, "rate_unit": "kg/ha"}
+    assert net.query(f"vrsim/map/rate?x={x};y={y}") == (True, {**none, "inside": True, "row": 0, "col": 0})
+    assert net.query(f"vrsim/map/rate?x={x - 100};y={y}") == (True, {**none, "inside": False, "row": None,
+                                                                      "col": None})
 
 
 def test_map_rate_batch_matches_the_grid(net, files):
@@ -104,7 +108,8 @@ def test_vrsim_query_prints_the_reply(net, files):
     x, y = centre(files["grid"], 5, 5)
     done = net.cli("query", "map/rate", f"x={x}", f"y={y}")
     assert done.returncode == 0, done.stderr
-    assert json.loads(done.stdout) == {"rate_kg_ha": files["grid"].rates_kg_ha[5, 5], "inside": True,
+    rate = files["grid"].rates_kg_ha[5, 5]
+    assert json.loads(done.stdout) == {"rate_kg_ha": rate, "rate": rate, "rate_unit": "kg/ha", "inside": True,
                                        "row": 5, "col": 5}
 
 

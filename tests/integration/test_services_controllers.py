@@ -69,8 +69,9 @@ def start(net, folder, name):
         return net.query(f"vrsim/scenario/start?source={path};base_dir={folder}", fh.read())
 
 
-@pytest.mark.parametrize("name", list(CONTROLLERS))
-def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, name):
+def _run_through_services(net, folder, name):
+    """Start scenario `name` on the services once they are free and wait until the monitor holds every
+    tick: the start reply, the final status and the monitor's report."""
     net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
     ok, started = start(net, folder, name)
     assert ok, started
@@ -79,6 +80,20 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     assert status["state"] == "finished", status
     ok, report = net.query("vrsim/tractor1/report")
     assert ok, report
+    return started, status, report
+
+
+def _vrsim_run(folder, name):
+    """`vrsim run --json` of scenario `name` (its outputs in run-NAME beside it): the summary."""
+    cli = subprocess.run([VRSIM, "run", os.path.join(folder, f"{name}.toml"), "--json", "--quiet", "--out",
+                          os.path.join(folder, f"run-{name}")], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    return json.loads(cli.stdout)
+
+
+@pytest.mark.parametrize("name", list(CONTROLLERS))
+def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, name):
+    started, status, report = _run_through_services(net, folder, name)
     ok, state = net.query("vrsim/tractor1/control/state")
     assert ok and state["run_id"] == started["run_id"] and state["next_tick"] == status["ticks"], state
     assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections", "meter_rev"}
@@ -92,10 +107,7 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
         assert set(state["core"]["loop"]["controller"]) == {"pid_v", "model_x", "model_delay_rpm"}
     else:
         assert state["core"]["loop"]["controller"]["error_sum_rpm"][0] != 0.0
-    cli = subprocess.run([VRSIM, "run", os.path.join(folder, f"{name}.toml"), "--json", "--quiet", "--out",
-                          os.path.join(folder, f"run-{name}")], capture_output=True, text=True)
-    assert cli.returncode == 0, cli.stderr
-    expected = json.loads(cli.stdout)
+    expected = _vrsim_run(folder, name)
     assert report["ticks"] == expected["ticks"] > 1000 and report["scenario"] == f"svc-{name}"
     assert report["missing_ticks"] == [] and report["complete"] is True
     assert_same_summary(report, expected, MONITOR_KEYS)
@@ -105,20 +117,10 @@ def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder)
     """``section_drives``: the monitor rebuilds each drive's product and target from its records
     (`messages.RateSample.drive_kg`, `messages.ShaftState.drive_target_rpm`), so its report is `vrsim
     run`'s: each section's strip its own drive's product, a tick with one drive on its bound limited."""
-    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
-    ok, started = start(net, folder, "drives")
-    assert ok, started
-    status = net.wait_status(lambda s: s["run_id"] == started["run_id"] and s["monitor_ticks"] == s["ticks"]
-                             and s["state"] in ("finished", "failed"))
-    assert status["state"] == "finished", status
-    ok, report = net.query("vrsim/tractor1/report")
-    assert ok, report
+    started, _, report = _run_through_services(net, folder, "drives")
     ok, rates = net.query(f"vrsim/tractor1/monitor/records?run_id={started['run_id']};stream=rate;count=5")
     assert ok and all(len(r["drive_kg"]) == 4 for r in rates), rates
-    cli = subprocess.run([VRSIM, "run", os.path.join(folder, "drives.toml"), "--json", "--quiet", "--out",
-                          os.path.join(folder, "run-drives")], capture_output=True, text=True)
-    assert cli.returncode == 0, cli.stderr
-    expected = json.loads(cli.stdout)
+    expected = _vrsim_run(folder, "drives")
     assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert expected["limited_time_pct"] > 5 and expected["limited_area_pct"] > 5
     assert_same_summary(report, expected, MONITOR_KEYS)
@@ -134,18 +136,8 @@ def test_a_drive_per_section_through_the_services_matches_vrsim_run(net, folder)
 def test_a_pwm_sprayer_through_the_services_matches_vrsim_run(net, folder):
     """``sprayer`` with PWM: the controller service closes each section's flow loop on the sprayer's own
     plant and the monitor rebuilds each section's product, so its report is `vrsim run`'s."""
-    net.wait_status(lambda s: s["state"] in ("idle", "finished", "failed", "stopped"))
-    ok, started = start(net, folder, "sprayer")
-    assert ok, started
-    status = net.wait_status(lambda s: s["run_id"] == started["run_id"] and s["monitor_ticks"] == s["ticks"]
-                             and s["state"] in ("finished", "failed"))
-    assert status["state"] == "finished", status
-    ok, report = net.query("vrsim/tractor1/report")
-    assert ok, report
-    cli = subprocess.run([VRSIM, "run", os.path.join(folder, "sprayer.toml"), "--json", "--quiet", "--out",
-                          os.path.join(folder, "run-sprayer")], capture_output=True, text=True)
-    assert cli.returncode == 0, cli.stderr
-    expected = json.loads(cli.stdout)
+    _, _, report = _run_through_services(net, folder, "sprayer")
+    expected = _vrsim_run(folder, "sprayer")
     assert report["ticks"] == expected["ticks"] > 1000 and report["complete"] is True
     assert abs(expected["mass_balance_pct"]) < 5
     assert_same_summary(report, expected, MONITOR_KEYS)

@@ -21,8 +21,8 @@ from services.sim.run import control_and_account, drive, run
 from services.sim.scenario import load, with_changes
 from services.sim.variants import run_variants
 from tests.conftest import VRSIM
+from tests.integration.test_machines_run import LIBRARY
 
-LIBRARY = os.path.join(os.path.dirname(os.path.dirname(__file__)), "accuracy", "scenarios")
 INTERIOR_MARGIN_M = 50.0   # the headland pass, the spread's reach and the throw kept out
 HAND_CV_PCT = np.sqrt(31 / 54 - 9 / 16) / 0.75 * 100   # triangles 1.5 x the driving width
 

@@ -8,9 +8,7 @@ import pytest
 
 from services.sim.run import run
 from services.sim.scenario import load, with_changes
-from tests.integration.test_machines_run import turn_rates_kg_ha
-
-LIBRARY = os.path.join(os.path.dirname(os.path.dirname(__file__)), "accuracy", "scenarios")
+from tests.integration.test_machines_run import LIBRARY, turn_rates_kg_ha
 
 
 def test_pwm_turn_compensation_levels_a_20_m_turn_and_one_valve_follows_the_geometry():

@@ -15,16 +15,6 @@ DRIVE = DriveConfig(working_speed_m_s=2.5, turn_speed_m_s=1.2, speed_variation_p
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    return str(tmp_path_factory.mktemp("sumo-cache"))
-
-
-@pytest.fixture(scope="module")
-def rect_path():
-    return plan_coverage(Field.rectangle(120.0, 200.0), 12.0, headland_passes=1)
-
-
-@pytest.fixture(scope="module")
 def rect_run(rect_path, cache):
     with SumoDriver(rect_path, DRIVE, step_s=0.05, seed=1, cache_dir=cache) as drv:
         return drv.run_all()

@@ -45,9 +45,10 @@ def test_rates_are_encoded_in_chunks_as_one_array():
     inside = np.ones(n, bool)
     inside[messages.ENCODE_CHUNK] = False
     rows = np.arange(n)
-    doc = orjson.loads(messages.encode_rates(rate, inside, rows, rows))
+    doc = orjson.loads(messages.encode_rates(rate, rate, "kg/ha", inside, rows, rows))
     assert len(doc) == n and doc[7]["rate_kg_ha"] is None and doc[-1]["row"] == n - 1
-    assert doc[messages.ENCODE_CHUNK] == {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
+    assert doc[messages.ENCODE_CHUNK] == {"rate_kg_ha": None, "rate": None, "rate_unit": "kg/ha",
+                                          "inside": False, "row": None, "col": None}
 
 
 # ------------------------------------------------------------------------------------- scenarios

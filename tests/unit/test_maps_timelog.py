@@ -235,10 +235,10 @@ def test_write_taskdata_refusals(tmp_path):
         write_taskdata(log, tmp_path / "b", [3.0] * 4)
     with pytest.raises(MapError, match="folder .* does not exist"):
         write_taskdata(log, tmp_path / "no" / "c", [2.0] * 6)
-    seeds = PointLog([0.0], [0.0], "EPSG:4326", applied=[1e4], target=[1e4], unit="seeds/ac", start=START,
-                     time_s=[0.0])
-    with pytest.raises(MapError, match="a TimeLog holds mass or volume rates, not 'seeds/ac'"):
-        write_taskdata(seeds, tmp_path / "d", [1.0])
+    unitless = PointLog([0.0], [0.0], "EPSG:4326", applied=[1e4], target=[1e4], unit="", start=START,
+                        time_s=[0.0])
+    with pytest.raises(MapError, match="a TimeLog holds mass, volume or count rates, not 'no unit'"):
+        write_taskdata(unitless, tmp_path / "d", [1.0])
     with pytest.raises(MapError, match="no start time"):
         write_taskdata(PointLog([0.0], [0.0], "EPSG:4326", [1.0], [1.0]), tmp_path / "e", [1.0])
 
@@ -311,3 +311,14 @@ def test_a_volume_rate_log_is_written_as_ddi_1_and_2_and_read_back_in_l_ha(tmp_p
     back = read_taskdata_log(tmp_path / "t")
     assert back.unit == "L/ha"
     np.testing.assert_allclose(back.in_unit("gal/ac").applied, [10.0, 12.0], rtol=1e-4)
+
+
+def test_a_count_rate_log_is_written_as_ddi_11_and_12_and_read_back_in_seeds_ha(tmp_path):
+    seeds = PointLog([0.0, 1e-5], [0.0, 0.0], "EPSG:4326", applied=[32000.0, 30000.0], target=[32000.0] * 2,
+                     unit="seeds/ac", start=START, time_s=[0.0, 1.0])
+    write_taskdata(seeds, tmp_path / "t", [1.0])
+    xml = (tmp_path / "t" / "TASKDATA.XML").read_text()
+    assert 'B="000B"' in xml and 'B="000C"' in xml and 'B="0007"' not in xml and 'E="seeds/ha"' in xml
+    back = read_taskdata_log(tmp_path / "t")
+    assert back.unit == "seeds/ha"   # DDI 11 and 12 count 0.001 seeds/m^2: 10 seeds/ha
+    np.testing.assert_allclose(back.in_unit("seeds/ac").applied, [32000.0, 30000.0], atol=10 / 2.47)

@@ -61,9 +61,10 @@ def test_a_per_drive_array_is_checked_element_by_element(drives, needle):
 
 
 def test_optional_fields_stay_none():
-    m = MapRate(None, False, None, None)
+    m = MapRate(None, None, "lb/ac", False, None, None)
     assert MapRate.from_json(m.to_json()) == m
-    assert json.loads(m.to_json()) == {"rate_kg_ha": None, "inside": False, "row": None, "col": None}
+    assert json.loads(m.to_json()) == {"rate_kg_ha": None, "rate": None, "rate_unit": "lb/ac",
+                                       "inside": False, "row": None, "col": None}
 
 
 def test_batch_round_trip_and_single_object_is_a_batch_of_one():
@@ -142,9 +143,15 @@ def test_encode_rates_is_a_json_array_of_map_rates():
     rate = np.array([120.5, np.nan, np.nan])
     inside = np.array([True, True, False])
     row, col = np.array([3, 4, -1]), np.array([5, 6, -1])
-    doc = json.loads(messages.encode_rates(rate, inside, row, col))
-    assert [MapRate.from_dict(d) for d in doc] == [MapRate(120.5, True, 3, 5), MapRate(None, True, 4, 6),
-                                                   MapRate(None, False, None, None)]
+    doc = json.loads(messages.encode_rates(rate, rate / 2, "t/ha", inside, row, col))
+    assert [MapRate.from_dict(d) for d in doc] == [MapRate(120.5, 60.25, "t/ha", True, 3, 5),
+                                                   MapRate(None, None, "t/ha", True, 4, 6),
+                                                   MapRate(None, None, "t/ha", False, None, None)]
+    # A map not in a mass rate (a volume map without a density): its rates, no kg/ha.
+    doc = json.loads(messages.encode_rates(None, rate, "gal/ac", inside, row, col))
+    assert [(d["rate_kg_ha"], d["rate"], d["rate_unit"]) for d in doc] == [(None, 120.5, "gal/ac"),
+                                                                           (None, None, "gal/ac"),
+                                                                           (None, None, "gal/ac")]
 
 
 def test_columns_are_the_batch_fields_and_refusals_are_decode_batchs():

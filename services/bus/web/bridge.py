@@ -211,8 +211,10 @@ class Bridge:
         parse = scenario.parse if self.data is None else self.data.scenario
         world = build_world(parse(text, source, base_dir))
         implement = world.scenario.implement
+        # The live rates (kg/ha) shown in the map's own unit: one kg/ha in it (`maps.Grid.in_map_unit`).
         self.view.set_run_info(run_id, {"scenario": world.scenario.name, "clock": run.get("clock"),
-                                        "field": _field_geometry(world)},
+                                        "field": _field_geometry(world), "rate_unit": world.grid.map_unit,
+                                        "per_kg_ha": float(world.grid.in_map_unit(1.0))},
                                SectionGeometry(implement.section_widths, implement.section_offsets_m))
 
     def catch_up(self, run_id: str) -> None:

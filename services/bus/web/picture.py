@@ -1,7 +1,7 @@
 """The colour scale the page paints rates with, and the prescription rendered once to a PNG with it.
 
 The page colours the live as-applied cells with the same table (`scale` sends it), so prescribed and
-applied read on one scale: the prescription's range, kg/ha.
+applied read on one scale: the prescription's range, kg/ha; its legend reads in the map's own unit.
 """
 
 from __future__ import annotations
@@ -11,21 +11,32 @@ import math
 
 import numpy as np
 
+from maps.units import KG_HA, is_rate_unit, rate_unit
+
 LUT_SIZE = 256
+MAX_UNIT_CHARS = 32  # a unit from the bus longer than this is not parsed (pint's parser is no sandbox)
 
 
 def scale(info: dict) -> dict:
-    """``{"vmin_kg_ha", "vmax_kg_ha", "lut": [[r, g, b], ...]}``: viridis over the map's rate range
-    (from ``map/info``; a flat or unknown range becomes 0 .. max, or 0 .. 1)."""
+    """``{"vmin_kg_ha", "vmax_kg_ha", "vmin", "vmax", "unit", "lut": [[r, g, b], ...]}``: viridis over
+    the map's rate range (from ``map/info``; a flat or unknown range becomes 0 .. max, or 0 .. 1), and
+    that range in the map's own unit (``rate_unit``, ``min_rate``, ``max_rate``) for the legend; the
+    legend stays in kg/ha where the reply does not give them (the bus is untrusted input)."""
     from matplotlib import colormaps
 
     lo, hi = info.get("min_rate_kg_ha"), info.get("max_rate_kg_ha")
+    known = _finite(lo) and _finite(hi)
     lo = float(lo) if _finite(lo) else 0.0
     hi = float(hi) if _finite(hi) else 1.0
     if hi <= lo:
-        lo, hi = 0.0, max(hi, 1.0)
+        lo, hi, known = 0.0, max(hi, 1.0), False
     rgb = np.round(colormaps["viridis"](np.linspace(0.0, 1.0, LUT_SIZE))[:, :3] * 255).astype(int)
-    return {"vmin_kg_ha": lo, "vmax_kg_ha": hi, "lut": rgb.tolist()}
+    legend = {"vmin": lo, "vmax": hi, "unit": KG_HA}
+    unit, lo_u, hi_u = info.get("rate_unit"), info.get("min_rate"), info.get("max_rate")
+    short = isinstance(unit, str) and len(unit) <= MAX_UNIT_CHARS
+    if known and short and is_rate_unit(unit) and _finite(lo_u) and _finite(hi_u):
+        legend = {"vmin": float(lo_u), "vmax": float(hi_u), "unit": rate_unit(unit)}
+    return {"vmin_kg_ha": lo, "vmax_kg_ha": hi, **legend, "lut": rgb.tolist()}
 
 
 def _finite(value) -> bool:

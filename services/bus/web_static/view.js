@@ -53,6 +53,7 @@
       trail = [];
       clearApplied();
       if (doc.map_version !== S.mapVersion) loadView(doc.map_version);
+      $("rateUnit").textContent = rateUnit()[0];
     } else {
       S.frames++;
     }
@@ -158,8 +159,11 @@
   function drawLegend(scale) {
     const c = $("legend").getContext("2d");
     scale.lut.forEach((rgb, i) => { c.fillStyle = `rgb(${rgb})`; c.fillRect(i, 0, 1, 12); });
-    $("vmin").textContent = scale.vmin_kg_ha.toFixed(0);
-    $("vmax").textContent = scale.vmax_kg_ha.toFixed(0);
+    // The legend in the map's own unit (the colours are painted from the kg/ha range).
+    const digits = (v) => (Math.abs(v) >= 10 ? 0 : 2);
+    $("vmin").textContent = scale.vmin.toFixed(digits(scale.vmin));
+    $("vmax").textContent = scale.vmax.toFixed(digits(scale.vmax));
+    $("unit").textContent = scale.unit;
   }
 
   // The map canvas: a background (prescription, path, field) drawn again only when the view, the run,
@@ -254,13 +258,20 @@
   }
 
   // ------------------------------------------------------------------ charts
-  function drawChart(id, a, b, colours) {
+  // The run's rates arrive in kg/ha; shown in the map's own unit (the run's rate_unit, per_kg_ha).
+  function rateUnit() {
+    const f = run.per_kg_ha;
+    return typeof run.rate_unit === "string" && typeof f === "number" && f > 0 ? [run.rate_unit, f] : ["kg/ha", 1];
+  }
+
+  function drawChart(id, a, b, colours, factor = 1) {
     const cv = $(id), dpr = window.devicePixelRatio || 1, w = cv.clientWidth, h = 170;
     if (cv.width !== Math.round(w * dpr)) { cv.width = Math.round(w * dpr); cv.height = Math.round(h * dpr); }
     const c = cv.getContext("2d");
     c.setTransform(dpr, 0, 0, dpr, 0, 0);
     c.clearRect(0, 0, w, h);
-    const pts = points.filter((p) => p[a] !== null || p[b] !== null);
+    const pts = points.filter((p) => p[a] !== null || p[b] !== null)
+      .map((p) => (factor === 1 ? p : p.map((v, k) => ((k === a || k === b) && v !== null ? v * factor : v))));
     const L = 44, R = 6, T = 6, B = 20;
     c.strokeStyle = "#ccc";
     c.strokeRect(L, T, w - L - R, h - T - B);
@@ -326,12 +337,25 @@
   }
 
   function showStatus(st) {
-    fill("statusTable", STATUS_ROWS, st);
+    const [unit, factor] = rateUnit(), doc = { ...st };
+    if (typeof st.live_mae_kg_ha === "number") doc.live_mae_kg_ha = st.live_mae_kg_ha * factor;
+    fill("statusTable", STATUS_ROWS.map(([l, k, d]) => [l.replace("kg/ha", unit), k, d]), doc);
     $("state").textContent = st.state;
     $("state").className = `badge ${st.state}`;
   }
 
-  function showReport(rep) { fill("reportTable", REPORT_ROWS, rep); }
+  // The report's rate figures in the map's own unit (rate_unit, in_rate_unit), as `vrsim run` prints them.
+  function showReport(rep) {
+    const unit = typeof rep.rate_unit === "string" ? rep.rate_unit : null, own = rep.in_rate_unit || {};
+    const doc = { ...rep };
+    const rows = REPORT_ROWS.map(([label, key, digits]) => {
+      const v = own[key.replace(/_kg_ha$/, "")];
+      if (!unit || !key.endsWith("_kg_ha") || typeof v !== "number") return [label, key, digits];
+      doc[key] = v;
+      return [label.replace("kg/ha", unit), key, digits];
+    });
+    fill("reportTable", rows, doc);
+  }
 
   function showCatchup() {
     const c = S.catchup;
@@ -366,7 +390,7 @@
       dirty = false;
       drawMap();
       drawChart("shaftChart", 1, 2, ["#e07b00", "#1f5fbf"]);
-      drawChart("rateChart", 3, 4, ["#555", "#1d8a4a"]);
+      drawChart("rateChart", 3, 4, ["#555", "#1d8a4a"], rateUnit()[1]);
       S.draws++;
     }
     requestAnimationFrame(draw);

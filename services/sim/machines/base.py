@@ -54,6 +54,12 @@ class Machine(ABC):
         """Each drive's share of the implement's ``kg_per_rev`` per revolution, shape (drives,)."""
         return np.ones(1)
 
+    @property
+    def side_steps(self) -> int:
+        """In how many steps each side's spread shortens over treated ground (the section switch's
+        bands per side, `services.sim.sections.SectionSwitch`); 1: sections only on or off."""
+        return 1
+
     def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
         """The plant each drive's loop closes: the scenario's shaft plant (`services.sim.core.plant_for`)
         for a metering shaft; a kind with another actuator (a sprayer's flow loop) gives its own, and

@@ -10,20 +10,25 @@ rates the two discs together meter what one shaft would over the driving width.
 
 Section control: the implement's sections are the sides (one section: both sides together; two:
 each side its own, the left first); the switch (``section_control``) turns a side off on its half of
-the driving width. At the field boundary each side's reach is cut (`SpinnerSpec.side_reach_m`:
+the driving width. Over treated ground coverage control shortens each side's reach in ``side_steps``
+steps (`side_steps`: the switch decides each side's steps in stage 1, `SectionStates.steps_on`, the
+run's ``side_steps_on``). At the field boundary each side's reach is cut (`SpinnerSpec.side_reach_m`:
 exactly at the boundary with ``border_spreading``, else in ``side_steps`` steps), measured from
-where its product lands, across; a cut side meters the share of its half that lies within its reach
-(`TransversePattern.side_share`), so a cut pattern is the uncut one with what would have landed
-beyond the reach left in the hopper. A side whose reach is 0 is off.
+where its product lands, across; a side's reach is the shorter of the two. A cut side meters the
+share of its half that lies within its reach (`TransversePattern.side_share`), so a cut pattern is
+the uncut one with what would have landed beyond the reach left in the hopper. A side whose reach is
+0 is off.
 
 Deposition: each side's product lands through `maps.SpinnerThrow` (the disc centre's travel on the
 true path ``delivery_delay_s`` later, thrown ``throw_distance_m`` behind, across the side to its
 reach), one item per side and joined span of ticks (`StripPlan` of the two sides along the centre
-line), so it goes through both modes of the deposition engine and sweeps' batched variants.
+line; a span ends where its reach over treated ground changes), so it goes through both modes of the
+deposition engine and sweeps' batched variants.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +68,10 @@ class Spinner(Machine):
     def drive_share(self) -> np.ndarray:
         return np.full(2, 0.5)
 
+    @property
+    def side_steps(self) -> int:
+        return self.spec.side_steps
+
     def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
         return self.pattern.offset_m, self.pattern.mass_per_m
 
@@ -84,14 +93,24 @@ class Spinner(Machine):
             return self.spec.side_reach_m(np.full((np.size(x_m), 2), np.inf))
         return self.spec.side_reach_m(_room_m(self.field_polygon, x_m, y_m, -sin, cos))
 
+    def steps_reach_m(self, states: SectionStates) -> np.ndarray:
+        """Each side's reach over treated ground, m (n, 2): its steps on (`SectionStates.steps_on`,
+        from the centre line out) times a step, ``half_width_m / side_steps``; the whole half where
+        the switch decides on whole sides."""
+        if states.steps_on is None:
+            return np.full((len(states.actual), 2), self.spec.half_width_m)
+        return np.asarray(states.steps_on) * (self.spec.half_width_m / self.spec.side_steps)
+
     def _terminal_reach(self, states: SectionStates) -> np.ndarray:
         """Each side's reach as the terminal sets it (n, 2): where product metered now lands, from
-        the sensed motion predicted by the delivery delay (kept for the states it was asked for last:
-        `drive_open` and `drive_targets` ask for the same ticks)."""
+        the sensed motion predicted by the delivery delay, cut at the boundary and over treated ground
+        (kept for the states it was asked for last: `drive_open` and `drive_targets` ask for the same
+        ticks)."""
         if self._reach_of is not states:
             x, y, cos, sin = states.motion.ahead(self.implement.delivery_delay_s)
             throw = self.spec.throw_distance_m
-            self._reach_of, self._reach = states, self.reach_m(x - throw * cos, y - throw * sin, cos, sin)
+            room = self.reach_m(x - throw * cos, y - throw * sin, cos, sin)
+            self._reach_of, self._reach = states, np.minimum(room, self.steps_reach_m(states))
         return self._reach
 
     def drive_open(self, states: SectionStates) -> np.ndarray:
@@ -133,23 +152,39 @@ class Spinner(Machine):
     def deposition(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
                    cell_m: float, ticks=None, tick_m: float | None = None,
                    first_tick: int = 0) -> ThrowPlan:
-        imp = self.implement
-        sides = SectionStates(self.sides_on(states.actual), np.full(2, imp.width_m / 2), np.zeros(2),
-                              states.pass_index)
-        # The two sides' spans along the centre line (offsets 0): the discs' travel, joined as strips are.
-        plan = StripPlan.of(track, sides, delay_s, period_s, cell_m, ticks, tick_m, first_tick,
-                            own_drives=True)
+        # The two sides' spans along the centre line (offsets 0): the discs' travel, joined as strips are,
+        # a span ending where the side's reach over treated ground changes (a level: one of its reaches).
+        levels, reach_m = self._levels(states)
+        count = reach_m.size
+        level = (levels[:, None, :] == np.arange(count)[None, :, None]) & (reach_m > 0)[None, :, None]
+        on = np.tile(self.sides_on(states.actual), (1, count)) & level.reshape(len(levels), 2 * count)
+        width = np.full(2 * count, self.implement.width_m / 2)
+        spans = StripPlan.of(track, SectionStates(on, width, np.zeros(2 * count), states.pass_index), delay_s,
+                             period_s, cell_m, ticks, tick_m, first_tick, own_drives=True)
+        plan = _by_side(spans, count)
         s = plan.strips
         dx, dy = s.x1_m - s.x0_m, s.y1_m - s.y0_m
         length = np.hypot(dx, dy)
         cos = np.divide(dx, length, out=np.zeros(length.shape), where=length > 0)
         sin = np.divide(dy, length, out=np.zeros(length.shape), where=length > 0)
-        side = SIDES[s.section]
+        side_index, steps_reach = s.section % 2, reach_m[s.section // 2]
         throw = self.spec.throw_distance_m
         mid_x, mid_y = (s.x0_m + s.x1_m) / 2 - throw * cos, (s.y0_m + s.y1_m) / 2 - throw * sin
-        reach = self.reach_m(mid_x, mid_y, cos, sin)[np.arange(side.size), s.section]
-        reach = np.where(length > 0, np.maximum(reach, MIN_REACH_M), self.spec.half_width_m)
-        return ThrowPlan(plan, side, reach, self.pattern.offset_m, self.pattern.mass_per_m, throw)
+        reach = np.minimum(self.reach_m(mid_x, mid_y, cos, sin)[np.arange(side_index.size), side_index],
+                           steps_reach)
+        reach = np.where(length > 0, np.maximum(reach, MIN_REACH_M), steps_reach)
+        pattern = self.pattern
+        return ThrowPlan(plan, SIDES[side_index], reach, pattern.offset_m, pattern.mass_per_m, throw)
+
+    def _levels(self, states: SectionStates) -> tuple[np.ndarray, np.ndarray]:
+        """Each side's reach over treated ground per tick as a level (n, 2; int) and each level's reach,
+        m: its steps on (`steps_reach_m`), one level (the whole half) where the switch decides on
+        whole sides."""
+        if states.steps_on is None:
+            return np.zeros((len(states.actual), 2), np.int64), np.array([self.spec.half_width_m])
+        steps = self.spec.side_steps
+        return (np.asarray(states.steps_on, np.int64),
+                np.arange(steps + 1) * (self.spec.half_width_m / steps))
 
 
 @dataclass(frozen=True)
@@ -179,6 +214,20 @@ class ThrowPlan:
     def mass_kg(self, drive_kg) -> np.ndarray:
         """Each item's kg from each disc's per tick (ticks, 2[, m]): `StripPlan.mass_kg`."""
         return self.strips.mass_kg(drive_kg)
+
+
+def _by_side(spans: StripPlan, levels: int) -> StripPlan:
+    """`spans` of virtual sections (level, side) (section ``2 * level + side``, per tick) as the plan of
+    the two sides' drives: its items keep their virtual section (the level and the side), their
+    product is their side's disc's."""
+    from scipy import sparse
+
+    m = spans.to_strips.tocoo()
+    tick, virtual = np.divmod(m.col, 2 * levels)
+    to_sides = sparse.csr_matrix((m.data, (m.row, tick * 2 + virtual % 2)),
+                                 shape=(m.shape[0], spans.ticks.size * 2))
+    drive_open = spans.drive_open.reshape(-1, levels, 2).any(axis=1)
+    return dataclasses.replace(spans, to_strips=to_sides, drive_open=drive_open)
 
 
 def _room_m(polygon, x_m, y_m, ux, uy) -> np.ndarray:

@@ -16,6 +16,7 @@ from services.sim.sections.gates import command, gate
 from services.sim.sections.passes import pass_index, runs_of
 from services.sim.sections.strips import Poses, fill_outlines
 from services.sim.sections.switching import (
+    STEPS_KEY,
     SWITCHING,
     SectionStates,
     SectionSwitch,
@@ -24,6 +25,7 @@ from services.sim.sections.switching import (
 )
 
 __all__ = [
+    "STEPS_KEY",
     "SWITCHING",
     "SectionStates",
     "SectionSwitch",

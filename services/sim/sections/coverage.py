@@ -70,6 +70,14 @@ class CoverageRaster:
         wanted is no more than `treated_pct` (%) of the strip on treated ground and no more than
         `outside_pct` (%) outside the field.
         """
+        treated, outside = self.flagged(strip, x_m, y_m, cos, sin)
+        counts = strip.counts
+        return (treated * 100.0 <= treated_pct * counts) & (outside * 100.0 <= outside_pct * counts)
+
+    def flagged(self, strip: Strip, x_m, y_m, cos, sin) -> tuple[np.ndarray, np.ndarray]:
+        """How many of each section's strip points (`strip.counts`) lie on treated ground and how many
+        outside the field: int (m, sections) each, for strips across points (x_m, y_m) (m) heading
+        (cos, sin), arrays of shape (m,)."""
         # In cell units relative to the raster's corner, float32 (exact to a thousandth of a cell),
         # shape (points, m).
         inv = 1.0 / self.cell_m
@@ -82,9 +90,7 @@ class CoverageRaster:
         cell *= self.cols
         cell += col.astype(np.int32)
         code = self.state.reshape(-1)[cell]
-        treated, outside = strip.count(code & _TREATED), strip.count(code >> 1)
-        counts = strip.counts
-        return (treated * 100.0 <= treated_pct * counts) & (outside * 100.0 <= outside_pct * counts)
+        return strip.count(code & _TREATED), strip.count(code >> 1)
 
     def treated(self) -> str:
         """The treated cells as plain data: the `_TREATED` bits packed, zlib-compressed, base64.

@@ -5,6 +5,9 @@ already treated, outside the field or off the planned path's working stretches),
 section applies while its centre's predicted landing point lies in the field) and ``"off"`` (every
 section applies while the implement is on).
 
+With ``side_steps`` (a spinner's sides shortened in steps, `SectionSwitch`) coverage control decides
+on each side's steps as on sections of their own and counts the steps on (`SectionStates.steps_on`).
+
 `SectionSwitch.step` is causal and carries everything over, so a track stepped in batches of any size
 gives the states of one step over the whole track: `vrsim run` steps once, the Zenoh controller
 service once per lockstep batch.
@@ -12,6 +15,7 @@ service once per lockstep batch.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +27,10 @@ from services.sim.sections.passes import PassTracker, pass_index
 from services.sim.sections.strips import Poses, Strip
 from vehicle import CoveragePath, Implement
 from vehicle.implement import SECTION_CONTROL_MODES
+from vehicle.machines import DEFAULT_KIND
 
+# The run's control array of `SectionStates.steps_on` (`services.sim.core.ControlCore`), (n, 2) per tick.
+STEPS_KEY = "side_steps_on"
 _MAX_WANTED_TICKS = 20_000  # decisions read off the raster in chunks of this many ticks (memory)
 
 
@@ -46,6 +53,10 @@ class SectionStates:
     motion : Motion, optional
         What the terminal knew of the motion at each tick (pose, speed, acceleration, yaw rate), from
         which it looked ahead; None where only the gates are known.
+    steps_on : ndarray of int, shape (n, 2), optional
+        A spinner's sides shortened in steps over treated ground (`SectionSwitch`'s ``side_steps``):
+        how many of each side's steps (left, right) are on, from the centre line out (0: the side
+        off); None: every open side's whole width.
     """
 
     actual: np.ndarray
@@ -54,6 +65,7 @@ class SectionStates:
     pass_index: np.ndarray
     commanded: np.ndarray | None = None
     motion: Motion | None = None
+    steps_on: np.ndarray | None = None
 
     @property
     def width_on_m(self) -> np.ndarray:
@@ -83,15 +95,22 @@ class SectionSwitch:
         Control period (one tick), s.
     map_cell_m : float, optional
         The prescription's cell size; the coverage raster is at least this fine.
+    side_steps : int
+        A spinner's sides (its sections: the left and the right half of the working width) shortened
+        in this many steps over treated ground (`_SteppedCoverage`, coverage control only); 1: each
+        section only on or off.
     """
 
     def __init__(self, implement: Implement, field_polygon, path: CoveragePath | None = None,
-                 period_s: float = 0.05, map_cell_m: float | None = None):
+                 period_s: float = 0.05, map_cell_m: float | None = None, side_steps: int = 1):
         self.implement = implement
         self.passes = PassTracker()
         self.trend = MotionTrend(period_s)
-        self.engine = SWITCHING[implement.section_control](implement, field_polygon, path, period_s,
-                                                           map_cell_m)
+        if side_steps > 1 and implement.section_control == "coverage":
+            self.engine = _SteppedCoverage(implement, field_polygon, path, period_s, map_cell_m, side_steps)
+        else:
+            self.engine = SWITCHING[implement.section_control](implement, field_polygon, path, period_s,
+                                                               map_cell_m)
         self.tick = 0
 
     def step(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> SectionStates:
@@ -111,10 +130,11 @@ class SectionSwitch:
         on = np.asarray(implement_on, bool)
         passes = self.passes.step(heading_rad, on)
         motion = self.trend.step(x_m, y_m, heading_rad, speed_m_s)
-        commanded, actual = self.engine.step(motion, on, s_m, passes, self.tick)
+        commanded, actual, steps_on = self.engine.step(motion, on, s_m, passes, self.tick)
         self.tick += on.size
         imp = self.implement
-        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded, motion)
+        return SectionStates(actual, imp.section_widths, imp.section_offsets_m, passes, commanded, motion,
+                             steps_on)
 
     def state(self) -> dict:
         """What the switch carries from one `step` to the next, as plain data (JSON-safe): the tick,
@@ -163,11 +183,12 @@ def run_section_states(track: dict, control: dict, implement) -> SectionStates:
     """The `SectionStates` of a run's control-core arrays: bool (n, sections) per tick and section.
 
     The gates are ``control["sections_on"]`` (the commands ``sections_commanded`` when given), with
-    the implement's section widths and offsets (m) and the passes of the true track.
+    the implement's section widths and offsets (m), the passes of the true track and a spinner's
+    steps on (``side_steps_on``, `STEPS_KEY`, when given).
     """
     return SectionStates(np.asarray(control["sections_on"], bool), implement.section_widths,
                          implement.section_offsets_m, pass_index(track["heading_rad"], track["implement_on"]),
-                         control.get("sections_commanded"))
+                         control.get("sections_commanded"), steps_on=control.get(STEPS_KEY))
 
 
 # --- the three ways of switching ----------------------------------------------------------------
@@ -189,7 +210,7 @@ class _AllOn(_Memoryless):
 
     def step(self, motion, on, s_m, passes, tick):
         actual = np.repeat(on[:, None], self.sections, axis=1)
-        return actual, actual
+        return actual, actual, None
 
 
 class _Boundary(_Memoryless):
@@ -203,7 +224,7 @@ class _Boundary(_Memoryless):
     def step(self, motion, on, s_m, passes, tick):
         lx, ly, cos, sin = motion.ahead(self.implement.delivery_delay_s)
         actual = self.implement.sections_on(self.polygon, lx, ly, np.arctan2(sin, cos), on)
-        return actual, actual
+        return actual, actual, None
 
 
 class _Coverage:
@@ -232,8 +253,7 @@ class _Coverage:
         self.implement, self.path, self.period_s = implement, path, period_s
         self.segment_works = np.array([seg.implement_on for seg in path.segments], bool)
         self.lag = _Lags.of(implement, period_s)
-        self.raster = CoverageRaster(polygon, coverage_cell_m(implement, map_cell_m),
-                                     margin_m=implement.width_m)
+        self.raster = CoverageRaster(polygon, self._cell_m(implement, map_cell_m), margin_m=implement.width_m)
         self.strip = Strip.across(implement, self.raster.cell_m)
         self.limits = (implement.section_overlap_pct, implement.boundary_overlap_pct)
         # The strip a tick's product covers is read at its middle, half a tick's travel further on.
@@ -273,7 +293,7 @@ class _Coverage:
             self.gate_rows.append(actual[a:b])
         if m:
             self.last_pass = int(passes[-1])
-        return commanded, actual
+        return commanded, actual, None
 
     def state(self) -> dict:
         poses = np.concatenate(self.poses, axis=1)
@@ -292,6 +312,10 @@ class _Coverage:
         self.gate_rows = [np.asarray(state["gate_rows"], bool).reshape(-1, sections)]
         self.raster.set_treated(state["treated"])
 
+    def _cell_m(self, implement, map_cell_m) -> float:
+        """The coverage map's cell, m (`coverage_cell_m`)."""
+        return coverage_cell_m(implement, map_cell_m)
+
     def _working(self, s_m):
         """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
         return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
@@ -302,9 +326,12 @@ class _Coverage:
         out = np.zeros((b - a, self.implement.sections), bool)
         for lo in range(a, b, _MAX_WANTED_TICKS):
             hi = min(b, lo + _MAX_WANTED_TICKS)
-            out[lo - a:hi - a] = self.raster.wanted(self.strip, *(p[lo:hi] for p in pose),
-                                                    *self.limits) & working[lo:hi, None]
+            out[lo - a:hi - a] = self._decide(*(p[lo:hi] for p in pose)) & working[lo:hi, None]
         return out
+
+    def _decide(self, x_m, y_m, cos, sin):
+        """Whether each section's product is wanted on its strip across the poses: bool (m, sections)."""
+        return self.raster.wanted(self.strip, x_m, y_m, cos, sin, *self.limits)
 
     def _mark(self, end: int) -> None:
         """Mark as treated what landed at the poses [mark_from, end), and start again from `end`."""
@@ -318,6 +345,67 @@ class _Coverage:
         keep = max(end - self.lag.delivery, self.gate_from)
         self.poses, self.gate_rows = [poses[:, end - self.mark_from:]], [gates[keep - self.gate_from:]]
         self.mark_from, self.gate_from = end, keep
+
+
+class _SteppedCoverage(_Coverage):
+    """``"coverage"`` for a spinner whose sides shorten in `steps` steps over treated ground.
+
+    Each side (the left and the right half of the working width) is cut into `steps` equal bands
+    from the centre line out. A side's reach is the largest number of steps k whose strip, its
+    innermost k bands, lies no more than ``section_overlap_pct`` on treated ground and no more than
+    ``boundary_overlap_pct`` outside the field (k = steps: the side's whole half, as a section is
+    decided; 0: the side off); its bands up to k are wanted, the others not (a spinner's spread
+    shortens from the outside in). Each band is then switched as a section of its own (its
+    latencies, its strip marked treated where it landed). A side's steps on are its bands on from
+    the centre line out; a section is on where its side's innermost band is (one section: either
+    side's).
+    """
+
+    def __init__(self, implement, polygon, path, period_s, map_cell_m, steps: int):
+        self.steps, self.sides = steps, implement
+        width = implement.width_m / (2 * steps)
+        bands = dataclasses.replace(implement, kind=DEFAULT_KIND, machine=None, sections=2 * steps,
+                                    section_widths_m=(width,) * (2 * steps))
+        super().__init__(bands, polygon, path, period_s, map_cell_m)
+
+    def step(self, motion, on, s_m, passes, tick):
+        commanded, actual, _ = super().step(motion, on, s_m, passes, tick)
+        steps_on = self._inward(actual).sum(axis=2)
+        return self._sides(self._inward(commanded).sum(axis=2)), self._sides(steps_on), steps_on
+
+    def _cell_m(self, implement, map_cell_m) -> float:
+        """The sides' coverage cell (`coverage_cell_m`): as fine as a whole side's, not a band's (the
+        coverage map's work grows with the square of its cells)."""
+        return coverage_cell_m(self.sides, map_cell_m)
+
+    def _decide(self, x_m, y_m, cos, sin):
+        s = self.steps
+        counts = self._by_side(self.strip.counts[None, :])
+        treated_pct, outside_pct = self.limits
+        treated, outside = (np.cumsum(self._by_side(f), axis=2)
+                            for f in self.raster.flagged(self.strip, x_m, y_m, cos, sin))
+        total = np.cumsum(counts, axis=2)
+        fits = (treated * 100.0 <= treated_pct * total) & (outside * 100.0 <= outside_pct * total)
+        # The reach: the largest k that fits (0: none); the bands within it wanted.
+        reach = np.where(fits, np.arange(1, s + 1), 0).max(axis=2)
+        inward = np.arange(1, s + 1)[None, None, :] <= reach[:, :, None]
+        return np.concatenate([inward[:, 0, ::-1], inward[:, 1]], axis=1)   # the bands, left to right
+
+    def _by_side(self, bands: np.ndarray) -> np.ndarray:
+        """Each side's bands from the centre line out (m, 2, steps), of the bands left to right
+        (m, 2 * steps)."""
+        s = self.steps
+        return np.stack([bands[:, s - 1::-1], bands[:, s:]], axis=1)
+
+    def _inward(self, bands: np.ndarray) -> np.ndarray:
+        """Each side's bands from the centre line out, each only with every band inside it: bool
+        (m, 2, steps) of the bands left to right (m, 2 * steps)."""
+        return np.logical_and.accumulate(self._by_side(bands), axis=2)
+
+    def _sides(self, steps_on: np.ndarray) -> np.ndarray:
+        """The sections' gates (m, sections) from the sides' steps on (m, 2)."""
+        on = steps_on > 0
+        return on if self.sides.sections == 2 else on.any(axis=1, keepdims=True)
 
 
 # The ways of switching by ``[implement] section_control``: name -> class.

@@ -35,6 +35,14 @@ def _numeric_figures(summary: dict) -> dict[str, float | int | None]:
     return out
 
 
+def _figures(summary: dict) -> dict:
+    """`_numeric_figures`, the rate figures in the map's own unit (``mae_in_rate_unit``, ... from the
+    summary's ``in_rate_unit``) and that unit (``rate_unit``): what the sweep's report shows."""
+    own = _numeric_figures(summary.get("in_rate_unit", {}))
+    return {**_numeric_figures(summary), **{f"{k}_in_rate_unit": v for k, v in own.items()},
+            "rate_unit": summary.get("rate_unit")}
+
+
 def _identity(spec: RunSpec) -> dict:
     """The columns that say which run a row is: key, scenario, seed and one per axis."""
     return {"key": spec.key, "scenario": spec.scenario, "seed": spec.seed, **dict(spec.axes)}
@@ -59,7 +67,7 @@ def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
     Returns
     -------
     dict
-        `_identity`, the run's `_numeric_figures`, ``wall_s`` (this task's wall time, s), ``status``
+        `_identity`, the run's `_figures`, ``wall_s`` (this task's wall time, s), ``status``
         (``"ok"`` or ``"failed"``) and ``error`` (None, or the message).
     """
     from services.sim.run import run  # imports SUMO: only where a run happens
@@ -73,7 +81,7 @@ def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
         return failed_row(spec, str(exc), time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - one run's bug is that run's failed row, not the sweep's end
         return failed_row(spec, f"internal error: {type(exc).__name__}: {exc}", time.perf_counter() - t0)
-    figures = _numeric_figures(result.summary)
+    figures = _figures(result.summary)
     return {**_identity(spec), **figures, "wall_s": time.perf_counter() - t0, "status": "ok", "error": None}
 
 
@@ -124,5 +132,5 @@ def run_group(specs: Sequence[RunSpec]) -> list[dict]:
     except Exception:  # noqa: BLE001 - each run on its own then says which one failed, and why
         return [run_row(spec) for spec in specs]
     wall_s = (time.perf_counter() - t0) / len(specs)
-    return [{**_identity(spec), **_numeric_figures(summary), "wall_s": wall_s, "status": "ok", "error": None}
+    return [{**_identity(spec), **_figures(summary), "wall_s": wall_s, "status": "ok", "error": None}
             for spec, summary in zip(specs, summaries, strict=True)]

@@ -92,34 +92,28 @@ def write_stripes():
         json.dump({"type": "FeatureCollection", "features": features}, fh)
 
 
-def write_lb_ac_geotiff():
+def _write_unit_geotiff(filename, seed, rate_range, rate_step, unit):
+    """Write synthetic zones as a WGS84 GeoTIFF whose numbers are read in `unit` (not kg/ha)."""
     import rasterio
 
     crs, bounds = field_bounds_utm()
-    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=2.0, seed=9, n_zones=5,
-                            rate_range_kg_ha=(90.0, 210.0), rate_step_kg_ha=15.0)  # read as lb/ac here
+    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=2.0, seed=seed, n_zones=5,
+                            rate_range_kg_ha=rate_range, rate_step_kg_ha=rate_step)
     wgs = zones.reproject("EPSG:4326", cell_size_m=3.0)
     rates = np.where(np.isnan(wgs.rates_kg_ha), -1.0, wgs.rates_kg_ha).astype(np.float32)
-    with rasterio.open(os.path.join(HERE, "zones_lb_ac.tif"), "w", driver="GTiff", width=wgs.cols,
+    with rasterio.open(os.path.join(HERE, filename), "w", driver="GTiff", width=wgs.cols,
                        height=wgs.rows, count=1, dtype="float32", crs="EPSG:4326", transform=wgs.transform,
                        nodata=-1.0) as dst:
         dst.write(rates, 1)
-        dst.units = ("lb/ac",)
+        dst.units = (unit,)
+
+
+def write_lb_ac_geotiff():
+    _write_unit_geotiff("zones_lb_ac.tif", seed=9, rate_range=(90.0, 210.0), rate_step=15.0, unit="lb/ac")
 
 
 def write_l_ha_geotiff():
-    import rasterio
-
-    crs, bounds = field_bounds_utm()
-    zones = synthetic.zones(bounds=bounds, crs=crs, cell_size_m=2.0, seed=26, n_zones=5,
-                            rate_range_kg_ha=(140.0, 220.0), rate_step_kg_ha=20.0)  # read as L/ha here
-    wgs = zones.reproject("EPSG:4326", cell_size_m=3.0)
-    rates = np.where(np.isnan(wgs.rates_kg_ha), -1.0, wgs.rates_kg_ha).astype(np.float32)
-    with rasterio.open(os.path.join(HERE, "zones_l_ha.tif"), "w", driver="GTiff", width=wgs.cols,
-                       height=wgs.rows, count=1, dtype="float32", crs="EPSG:4326", transform=wgs.transform,
-                       nodata=-1.0) as dst:
-        dst.write(rates, 1)
-        dst.units = ("L/ha",)
+    _write_unit_geotiff("zones_l_ha.tif", seed=26, rate_range=(140.0, 220.0), rate_step=20.0, unit="L/ha")
 
 
 if __name__ == "__main__":
