@@ -291,7 +291,9 @@ class ClosedLoop:
         t = targets_matrix(targets_rpm, self.n)
         o = self._ns + 3
         rec = np.empty((t.shape[0], 4, self.n))
-        if self._scalar:
+        if self._scalar and not isinstance(load_torque_nm, np.ndarray):
+            rec[:, :, 0] = self._run_scalar(t[:, 0].tolist(), load_torque_nm)[:, o:o + 4]
+        elif self._scalar:
             flat = rec[:, :, 0]
             advance = self._advance
             for k, target in enumerate(t[:, 0].tolist()):
@@ -301,6 +303,40 @@ class ClosedLoop:
         else:
             self._run_shared_plant(t[:, :1] if t.strides[1] == 0 else t, load_torque_nm, rec)
         return StepOutput(rec[:, OUT_RPM], rec[:, OUT_REV], rec[:, OUT_CURRENT], rec[:, OUT_MEASURED])
+
+    def _run_scalar(self, targets: list, load) -> np.ndarray:
+        """`_advance`'s one-loop path over `targets` (floats), its arithmetic unchanged (the same
+        product into a row of a history instead of a fresh array, so bit for bit the same), with the
+        per-tick Python work cut: the products (K, R) after each tick."""
+        gr, ka, ilo, ihi, rmax, ks, g_acc = self._f
+        ns, iu, M = self._ns, self._iu, self._M
+        nin, positional = ns + 3, self.form == "positional"
+        ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
+        history = np.empty((len(targets) + 1, M.shape[0]))
+        history[0] = self._v
+        product = M.dot    # the bound method: no dispatch per tick
+        # Tick k reads row k (its inputs written first) and writes row k + 1.
+        for r, v, inputs, out in zip(targets, history[:-1], history[:-1, :nin], history[1:], strict=True):
+            if not r >= 0.0:
+                if r != r:
+                    self._v = v.copy()
+                    raise ControllerError(f"target_shaft_rpm must be a number, got {r!r}")
+                r = 0.0
+            elif r > rmax:
+                r = rmax
+            unsat = ka * (v.item(iu) + gr * r)
+            v[ns] = ilo if unsat < ilo else ihi if unsat > ihi else unsat
+            v[ns + 1] = r
+            if load:     # the product leaves the input slots at zero
+                v[ns + 2] = load
+            product(inputs, out)
+            if positional:
+                e = ks * (r - v.item(ring0))
+                if (unsat > ihi and e > 0) or (unsat < ilo and e < 0):   # clamping anti-windup
+                    out[acc] -= e
+                    out[iu] -= g_acc * e
+        self._v = history[-1].copy()
+        return history[1:]
 
     def _run_shared_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:
         """`_advance` over the rows of `t` ((K, n), or (K, 1): one target for every loop) for n loops of

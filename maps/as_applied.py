@@ -173,6 +173,25 @@ class AsApplied:
         self.total_kg += float(mass.sum())
         self.items += int(mass.size)
 
+    def deposit_with(self, footprint: Footprint, mass_kg, others=()) -> None:
+        """`deposit` without passes of `mass_kg` here and of each ``(as_applied, mass_kg)`` of `others`
+        (on the same grid and sub-cells) there, through one footprint whose samples and their sub-cells
+        are worked out once: the same figures as a `deposit` each (several meters' product on one run's
+        strips)."""
+        pairs = [(self, mass_kg), *others]
+        masses = [_checked_mass(mass, footprint.items) for _, mass in pairs]
+        step, unit = self.raster.step, metres_per_unit(self.grid.crs)
+        for acc, _ in pairs:
+            acc._target = acc._acc
+        for samples in footprint.samples(step, unit, slice(0, footprint.items)):
+            corners = self.raster.corners(samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x),
+                                          samples.flat(samples.ext_y))
+            for (acc, _), mass in zip(pairs, masses, strict=True):
+                acc._deposit(samples, mass[samples.items], corners)
+        for (acc, _), mass in zip(pairs, masses, strict=True):
+            acc.total_kg += float(mass.sum())
+            acc.items += int(mass.size)
+
     def add_strips(self, x0, y0, x1, y1, width_m, mass_kg, pass_index=None) -> None:
         """`deposit` through `maps.footprint.Strips` ``(x0, y0, x1, y1, width_m)``: strips of product,
         the arguments broadcast together."""
@@ -180,7 +199,9 @@ class AsApplied:
                                                           for v in (x0, y0, x1, y1, width_m, mass_kg)))
         self.deposit(Strips(x0, y0, x1, y1, width), mass, pass_index)
 
-    def _deposit(self, samples: Samples, mass: np.ndarray) -> None:
+    def _deposit(self, samples: Samples, mass: np.ndarray, corners=None) -> None:
+        """Spread `samples` carrying `mass` (per item); `corners`: `SubcellRaster.corners` of the
+        samples, if known."""
         n = samples.per_item
         area = np.where(mass > 0, samples.swept, 0.0)  # items carrying no product sweep no coverage
         if samples.weight is None:
@@ -188,17 +209,20 @@ class AsApplied:
         else:
             load = samples.flat(mass) * np.broadcast_to(samples.weight, samples.x.shape).ravel() \
                 + 1j * samples.flat(area / n)
-        self._spread(samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x),
-                     samples.flat(samples.ext_y), load)
+        if corners is None:
+            corners = self.raster.corners(samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x),
+                                          samples.flat(samples.ext_y))
+        self._spread(corners, load)
 
-    def _spread(self, x, y, ext_x, ext_y, load):
-        """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps."""
-        r0, r1, c0, c1, wr, wc = self.raster.corners(x, y, ext_x, ext_y)
+    def _spread(self, corners, load):
+        """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps (`corners`:
+        `SubcellRaster.corners` of the samples, left unchanged)."""
+        r0, r1, c0, c1, wr, wc = corners
         if self._target is not self._acc:
             self._widen_window(r0, c0)
         cols = self.raster.shape[1]
-        r0 *= cols
-        r1 *= cols
+        r0 = r0 * cols
+        r1 = r1 * cols
         lc = load * (1.0 - wc)
         hc = load * wc
         acc = self._target

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from itertools import chain
 
 import numpy as np
 
@@ -124,14 +125,13 @@ class Gnss:
         # e[j] = a e[j-1] + b w[j], the per-tick recursion's very operations (bit for bit). Fixes
         # come at rate_hz, not per tick (~9,000 in a 22 ha run), so a plain loop costs milliseconds
         # and spares importing scipy.signal (~0.5-1 s) for a first-order filter.
+        # Each axis on its own in a comprehension: a third of the time of one loop writing both into
+        # an array, the same operations.
         a, b = self._a, self._b
-        rest = np.empty((n - 1, 2))
         ex, ey = float(first[0]), float(first[1])
-        for j, (wx, wy) in enumerate(w[1:].tolist()):
-            ex = a * ex + b * wx
-            ey = a * ey + b * wy
-            rest[j, 0], rest[j, 1] = ex, ey
-        return np.concatenate([first[None, :], rest])
+        rest_x = [ex := a * ex + b * wx for wx in w[1:, 0].tolist()]
+        rest_y = [ey := a * ey + b * wy for wy in w[1:, 1].tolist()]
+        return np.concatenate([first[None, :], np.column_stack([rest_x, rest_y])])
 
     def _fix_count(self, t, floor=np.floor):
         """How many fixes have been sampled by time ``t`` (array; scalar with ``floor=math.floor``)."""
@@ -200,7 +200,8 @@ class Gnss:
         self._prev = (float(t[-1]), float(x[-1]), float(y[-1]))
         due = np.maximum(self._due_index(t[head:]), 0).astype(int)
         first = int(due[0])  # the part's ticks output only fixes from there on (not all since t0)
-        fixes = np.asarray(self._fixes[first - self._dropped:]).reshape(-1, 2)
+        due_fixes = self._fixes[first - self._dropped:]   # (x, y) pairs: read flat, not tuple by tuple
+        fixes = np.fromiter(chain.from_iterable(due_fixes), float, 2 * len(due_fixes)).reshape(-1, 2)
         del self._fixes[:first - self._dropped]   # the next part's ticks are due no earlier fix
         self._dropped = first
         return fixes[due - first, 0], fixes[due - first, 1]

@@ -103,7 +103,7 @@ class BoundedAccount:
         # whose footprint is not strips needs its own raster: for the others it is the first reference).
         self.ref_strips = AsApplied(grid) if references else None
         self.passes = PassTracker()
-        self.pending: dict | None = None   # ticks not yet accounted, from tick `first` of the run
+        self.pending: list = []   # the parts of the ticks not yet accounted, from tick `first` of the run
         self.first = 0
         self.distance_m = 0.0     # the landing path's length so far
         self.last_pass = -1       # the landing pass of the last tick accounted
@@ -125,24 +125,32 @@ class BoundedAccount:
         with self.timer.stage("metrics_s"):
             part = dict(track, measured_speed_m_s=np.asarray(measured_speed_m_s), **control)
             part["pass_index"] = self.passes.step(track["heading_rad"], track["implement_on"])
-            self.pending = part if self.pending is None else \
-                {k: np.concatenate([self.pending[k], part[k]]) for k in part}
-            cut = self._last_cut()
+            self.pending.append(part)
+            # Only what finds the cut is joined as the parts come (a swath spans several of them).
+            cut = self._last_cut(self._joined(("time_s", "pass_index", "implement_on")))
             if cut:
-                self._account(cut, self.pending)
+                self._account(cut, self._joined(part))
 
     def result(self, reference_figures=None) -> RunResult:
         """Account for the ticks still pending (the drive has ended) and return the run's result."""
         with self.timer.stage("metrics_s"):
-            if self.pending is not None and len(self.pending["time_s"]):
-                self._account(len(self.pending["time_s"]), self.pending)
+            if self.pending:
+                p = self._joined(self.pending[0])
+                if len(p["time_s"]):
+                    self._account(len(p["time_s"]), p)
             return self._result()
 
     # --- stretches -------------------------------------------------------------------------------
-    def _last_cut(self) -> int:
-        """The last tick of the pending ticks before which a stretch may end (0: none yet): the landing
-        pass changes there, the implement is not on across it, and the look-ahead after it is there."""
-        p = self.pending
+    def _joined(self, keys) -> dict:
+        """The pending ticks' arrays of `keys`, the parts joined."""
+        if len(self.pending) == 1:
+            return self.pending[0]
+        return {k: np.concatenate([part[k] for part in self.pending]) for k in keys}
+
+    def _last_cut(self, p: dict) -> int:
+        """The last tick of the pending ticks `p` before which a stretch may end (0: none yet): the
+        landing pass changes there, the implement is not on across it, and the look-ahead after it is
+        there."""
         n = len(p["time_s"]) - self.lookahead
         if n < 2:
             return 0
@@ -186,7 +194,7 @@ class BoundedAccount:
         self.distance_m = float(distance[n - 1])
         self.last_pass = int(max(self.last_pass, np.max(w["pass_index"][:n], initial=-1)))
         self.first += n
-        self.pending = {k: v[n:] for k, v in p.items()}
+        self.pending = [{k: v[n:] for k, v in p.items()}]
 
     def _references(self, w: dict, states: SectionStates, n: int, plan) -> None:
         """Deposit the error split's reference meters' product of the stretch through the run's `plan`,
@@ -197,15 +205,19 @@ class BoundedAccount:
         sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
                                None, motion, None if states.steps_on is None else states.steps_on[:n])
         control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
-        for j, (acc, reference) in enumerate(zip(self.refs, REFERENCES, strict=True)):
+        masses = []
+        for j, reference in enumerate(REFERENCES):
             ref, self.ref_rev[j] = reference_metered_kg(self.world, self.machine, sensed, control, *reference,
                                                         start_rev=self.ref_rev[j])
-            acc.deposit(plan.footprint(), plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
+            masses.append(plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
             self.ref_kg[j] += float(ref.sum())
             if j == 0 and not isinstance(plan, StripPlan):
                 strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
                                       self.tick_m, self.first)
                 self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
+        # One footprint for all the meters: its samples and sub-cells worked out once.
+        self.refs[0].deposit_with(plan.footprint(), masses[0],
+                                  list(zip(self.refs[1:], masses[1:], strict=True)))
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
@@ -255,8 +267,10 @@ class BoundedAccount:
         # numpy's pairwise sum over the whole run, as the in-process run's.
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
         limited_cover = self._limited_coverage()
+        # Each raster figure read once (each read sums the sub-cells again).
         deposit = Deposit(None, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
                           acc.outside_kg, limited_cover)
+        d = deposit
         setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
                           self.first, self.distance_m)
         times = np.concatenate([s[0] for s in self.spans]) if self.spans else np.zeros(0)
@@ -266,17 +280,21 @@ class BoundedAccount:
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
                                in_field)
         accounts = Accounts(setting, deposit,
-                            map_figures(grid, in_field, acc.applied_kg_ha, cover, metered_kg, acc.outside_kg),
+                            map_figures(grid, in_field, d.applied_kg_ha, cover, metered_kg, d.outside_kg),
                             transition_figures(times, dists, self.to_zero, self.cut),
-                            overlap_metrics(cover, acc.overlap_fraction, acc.overlap_kg, worked, in_field,
+                            overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),
                             limits, self.timer.timing())
         references = None
         if self.refs is not None:
-            strips = self.ref_strips if self.ref_strips.items else self.refs[0]
-            stages = [(strips, 0), *((ref, j) for j, ref in enumerate(self.refs))]
-            references = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction,
-                                      self.ref_kg[j], ref.outside_kg) for ref, j in stages]
+            meters = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction, self.ref_kg[j],
+                                  ref.outside_kg) for j, ref in enumerate(self.refs)]
+            # The spread pattern's stage: the first meter's own figures where the kind lays strips.
+            strips = self.ref_strips
+            pattern = meters[0] if not strips.items else map_figures(
+                grid, in_field, strips.applied_kg_ha, strips.coverage_fraction, self.ref_kg[0],
+                strips.outside_kg)
+            references = [pattern, *meters]
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
                          reference_figures=references, kept_parts=kept)

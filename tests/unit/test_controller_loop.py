@@ -209,3 +209,23 @@ def test_loops_run_in_calls_split_anywhere_give_the_one_calls_numbers_bit_for_bi
     restored = ClosedLoop(weak, gains, form=form, n=3)
     restored.set_state(np.asarray(first.state).tolist())
     np.testing.assert_allclose(restored.run(rows[37:], 0.02).shaft_rpm, whole.shaft_rpm[37:], rtol=1e-12)
+
+
+@pytest.mark.parametrize("form", ["incremental", "positional"])
+@pytest.mark.parametrize("load", [0.0, 0.02])
+def test_one_loops_run_equals_step_by_step_bit_for_bit_saturated_and_loaded(form, load):
+    cfg = ControllerConfig(form=form, gains="manual", kind="PI", kp=0.1, ki=5.0)  # saturates both ways
+    weak = replace(P, current_max_a=0.8, shaft_rpm_max=195.0)
+    a, b = build_loop(weak, cfg), build_loop(weak, cfg)
+    targets = np.r_[np.full(40, 400.0), np.full(40, -5.0), np.full(40, 120.0)]   # clipped both ways
+    rec = a.run(targets, load)
+    outs = [b.step(float(t), load) for t in targets]
+    for name in ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm"):
+        np.testing.assert_array_equal(getattr(rec, name)[:, 0], [getattr(o, name)[0] for o in outs])
+    np.testing.assert_array_equal(a.state, b.state)
+    limits = {weak.current_min_a, weak.current_max_a}
+    assert {float(rec.current_a.min()), float(rec.current_a.max())} == limits
+    with pytest.raises(ControllerError, match="a number"):
+        a.run(np.r_[150.0, np.nan])
+    b.step(150.0)
+    np.testing.assert_array_equal(a.state, b.state)   # the ticks before the bad one are stepped

@@ -239,3 +239,21 @@ def test_applied_kg_in_a_window_is_that_window_of_applied_kg_open_pass_included(
     whole = acc.applied_kg
     for rows, cols in ((slice(2, 9), slice(3, 12)), (slice(0, 20), slice(0, 20)), (slice(5, 5), slice(0, 4))):
         np.testing.assert_array_equal(acc.applied_kg_in(rows, cols), whole[rows, cols])
+
+
+def test_deposit_with_equals_a_deposit_each_bit_for_bit():
+    from maps.footprint import Strips
+
+    x0, y0, x1, y1, mass = passes(150.0, width_m=12.0, step_m=0.2, angle_deg=25.0)
+    masses = [np.full(x0.size, mass), np.linspace(0.0, 2 * mass, x0.size),
+              np.where(np.arange(x0.size) % 7, mass, 0.0)]   # the last: items without product
+    strips = Strips(x0, y0, x1, y1, np.full(x0.size, 12.0))
+    each = [AsApplied(field()) for _ in masses]
+    for acc, m in zip(each, masses, strict=True):
+        acc.deposit(strips, m)
+    together = [AsApplied(field()) for _ in masses]
+    together[0].deposit_with(strips, masses[0], list(zip(together[1:], masses[1:], strict=True)))
+    for a, b in zip(each, together, strict=True):
+        np.testing.assert_array_equal(a.applied_kg, b.applied_kg)
+        np.testing.assert_array_equal(a.coverage_fraction, b.coverage_fraction)
+        assert (a.outside_kg, a.total_kg, a.items) == (b.outside_kg, b.total_kg, b.items)
