@@ -48,7 +48,7 @@ def fill_rings(out: np.ndarray, x: np.ndarray, y: np.ndarray, ring_start: np.nda
     rows, cols = out.shape
     srow, c0, c1, _ = _ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols)
     flat = out.reshape(-1)  # a view
-    for idx, _ in _span_cells(srow, c0, c1, cols):
+    for idx, _, _ in _span_cells(srow, c0, c1, cols):
         flat[idx] |= value
 
 
@@ -56,22 +56,42 @@ def _ring_spans(x, y, ring_start, ring_owner, west, north, size, rows, cols):
     """Row spans of cells whose centre lies inside each feature (even-odd rule over its rings).
 
     Arguments as `rasterize_rings`. Returns ``(row, c0, c1, owner)``, int arrays of one entry per
-    span: cells ``c0 <= col < c1`` of ``row`` belong to feature ``owner``; empty spans are left out.
+    span, in the order of (owner, row, c0): cells ``c0 <= col < c1`` of ``row`` belong to feature
+    ``owner``; empty spans are left out.
     """
-    xa, ya, xb, yb, owner = _edges(x, y, ring_start, ring_owner)
-    row, xc, owner = _crossings(xa, ya, xb, yb, owner, north, size, rows)
+    nxt, owner = _edges(ring_start, ring_owner, x.size)
+    row, xc, owner = _crossings(x, y, nxt, owner, north, size, rows)
     if row.size == 0:
         empty = np.empty(0, dtype=np.int64)
         return empty, empty, empty, empty
-    # Sort crossings by (feature, row, x); inside each (feature, row) they pair up as spans.
-    order = np.lexsort((xc, row, owner))
-    row, xc, owner = row[order], xc[order], owner[order]
+    xc, row, owner = _by_feature_row_x(xc, row, owner, rows)
+    # Inside each (feature, row) the crossings, ordered by x, pair up as spans.
     x0, x1, srow, sown = xc[0::2], xc[1::2], row[0::2], owner[0::2]
     # Columns whose centre lies in [x0, x1).
     c0 = np.clip(np.ceil((x0 - west) / size - 0.5), 0, cols).astype(np.int64)
     c1 = np.clip(np.ceil((x1 - west) / size - 0.5), 0, cols).astype(np.int64)
     keep = c1 > c0
     return srow[keep], c0[keep], c1[keep], sown[keep]
+
+
+def _by_feature_row_x(xc, row, owner, rows):
+    """The crossings sorted by (feature, row, x).
+
+    Crossings come ring by ring, edge by edge, so (feature, row) is mostly in order already: a
+    stable sort on it alone is nearly linear. Most (feature, row) hold one pair, ordered by min and
+    max; only the larger groups (rings folding over a row) are sorted by x.
+    """
+    key = owner * rows + row
+    order = np.argsort(key, kind="stable")
+    key, xc, row, owner = key[order], xc[order], row[order], owner[order]
+    bounds = np.flatnonzero(np.diff(key)) + 1
+    sizes = np.diff(np.concatenate(([0], bounds, [key.size])))
+    if (sizes > 2).any():
+        members = np.flatnonzero(np.repeat(sizes > 2, sizes))
+        xc[members] = xc[members[np.lexsort((xc[members], key[members]))]]
+    first, second = xc[0::2], xc[1::2]
+    xc[0::2], xc[1::2] = np.minimum(first, second), np.maximum(first, second)
+    return xc, row, owner
 
 
 def _overlapping(row, c0, c1) -> bool:
@@ -81,43 +101,44 @@ def _overlapping(row, c0, c1) -> bool:
     return bool(((r[1:] == r[:-1]) & (a[1:] < b[:-1])).any())
 
 
-def _edges(x, y, ring_start, ring_owner):
-    """Every ring edge, closing edges included (a degenerate one for an already closed ring)."""
-    n = x.size
+def _edges(ring_start, ring_owner, n):
+    """Every ring edge, closing edges included (a degenerate one for an already closed ring), of `n`
+    vertices: the index of each vertex's next one along its ring, and its feature."""
     nxt = np.arange(1, n + 1)
     ends = ring_start[1:] - 1
     nxt[ends] = ring_start[:-1]  # the last vertex of a ring connects back to its first
-    lengths = np.diff(ring_start)
-    owner = np.repeat(ring_owner, lengths)
-    return x, y, x[nxt], y[nxt], owner
+    owner = np.repeat(ring_owner, np.diff(ring_start))
+    return nxt, owner
 
 
-def _crossings(xa, ya, xb, yb, owner, north, size, rows):
-    """(row, x, feature) where each non-horizontal edge crosses a row's centre line.
+def _crossings(x, y, nxt, owner, north, size, rows):
+    """(row, x, feature) where each non-horizontal edge (vertex to `nxt`) crosses a row's centre line.
 
     Half-open in y (ymin <= yc < ymax) so a vertex shared by two edges counts once.
     """
-    ymin, ymax = np.minimum(ya, yb), np.maximum(ya, yb)
-    # Row r's centre is at fy = r, with fy(y) = (north - y) / size - 0.5.
-    r_lo = np.floor((north - ymax) / size - 0.5).astype(np.int64) + 1
-    r_hi = np.floor((north - ymin) / size - 0.5).astype(np.int64)
-    r_lo = np.maximum(r_lo, 0)
-    r_hi = np.minimum(r_hi, rows - 1)
-    count = np.where(ya != yb, np.maximum(r_hi - r_lo + 1, 0), 0)
-    edge = np.repeat(np.arange(count.size), count)
+    # Row r's centre is at fy = r, with fy(y) = (north - y) / size - 0.5, which falls as y rises: the
+    # rows an edge crosses run from after fy(ymax)'s floor to fy(ymin)'s, each floor taken per vertex.
+    fy = np.floor((north - y) / size - 0.5).astype(np.int64)
+    fa, fb = fy, fy[nxt]
+    r_lo = np.maximum(np.minimum(fa, fb) + 1, 0)
+    r_hi = np.minimum(np.maximum(fa, fb), rows - 1)
+    count = r_hi - r_lo + 1   # none for a horizontal edge (equal floors)
+    edge = np.flatnonzero(count > 0)
+    count, r_lo = count[edge], r_lo[edge]
     first = np.cumsum(count) - count
-    row = r_lo[edge] + (np.arange(edge.size) - first[edge])
+    row = np.repeat(r_lo - first, count) + np.arange(int(first[-1] + count[-1]) if edge.size else 0)
     yc = north - (row + 0.5) * size
-    t = (yc - ya[edge]) / (yb[edge] - ya[edge])
-    xc = xa[edge] + t * (xb[edge] - xa[edge])
+    ya, xa, end = y[edge], x[edge], nxt[edge]
+    t = (yc - np.repeat(ya, count)) / np.repeat(y[end] - ya, count)
+    xc = np.repeat(xa, count) + t * np.repeat(x[end] - xa, count)
     # An edge that crosses a row centre exactly at a row outside the grid was clipped on both
     # ends, so crossings come in pairs per (feature, row) as long as each ring is a closed loop.
-    return row, xc, owner[edge]
+    return row, xc, np.repeat(owner[edge], count)
 
 
 def _span_cells(row, c0, c1, cols):
     """Flat cell indices of spans [c0, c1) of `row`, in chunks of at most ~`FILL_CHUNK` cells:
-    yields (indices, span of each index)."""
+    yields (indices, lo, hi), the chunk holding spans lo .. hi - 1."""
     length = c1 - c0
     ends = np.cumsum(length)
     lo = 0
@@ -125,17 +146,17 @@ def _span_cells(row, c0, c1, cols):
         base = ends[lo - 1] if lo else 0
         hi = max(lo + 1, int(np.searchsorted(ends, base + FILL_CHUNK, side="right")))
         ln = length[lo:hi]
-        span = np.repeat(np.arange(lo, hi), ln)
-        offset = np.arange(span.size) - np.repeat(np.cumsum(ln) - ln, ln)
-        yield row[span] * cols + c0[span] + offset, span
+        # A span's cells are its first cell's index plus 0, 1, ...: the running count less its start.
+        first = row[lo:hi] * cols + c0[lo:hi] - (ends[lo:hi] - ln - base)
+        yield np.repeat(first, ln) + np.arange(ends[hi - 1] - base), lo, hi
         lo = hi
 
 
 def _fill(out: np.ndarray, row, c0, c1, owner, overlapping: bool) -> None:
     """Write spans [c0, c1) of `row` with their feature (later features win)."""
     flat = out.ravel()
-    for idx, span in _span_cells(row, c0, c1, out.shape[1]):
-        value = owner[span].astype(np.int32)
+    for idx, lo, hi in _span_cells(row, c0, c1, out.shape[1]):
+        value = np.repeat(owner[lo:hi].astype(np.int32), c1[lo:hi] - c0[lo:hi])
         # Later features have higher indices. Overlaps are rare: only then pay for maximum.at, which
         # makes "later wins" exact whatever order numpy would write duplicates in.
         if overlapping:

@@ -15,8 +15,7 @@ import numpy as np
 import shapely
 
 from maps.rasterize import fill_rings
-from services.sim.sections.passes import runs_of
-from services.sim.sections.strips import Poses, Strip, fill_outlines
+from services.sim.sections.strips import Poses, Strip
 from vehicle import Implement
 
 _TREATED, _OUTSIDE = np.uint8(1), np.uint8(2)  # bits of the coverage raster
@@ -111,13 +110,17 @@ class CoverageRaster:
 
         Each run of a section is outlined from its first pose to the pose after its last.
         """
-        rings = []
         step = pose.vertex_step(a, a + landed.shape[0])
-        for s in range(landed.shape[1]):
-            left, right = strip.edges_m[s]
-            for r0, r1 in runs_of(landed[:, s]):
-                rings += pose.outlines(a + r0, a + r1, left, right, step)
-        fill_outlines(self.state, rings, self.west, self.north, self.cell_m, value=_TREATED)
+        # The runs of all sections at once, section by section: +1 where a run begins, -1 after it.
+        edges = np.diff(landed.T.astype(np.int8), prepend=np.int8(0), append=np.int8(0), axis=1)
+        section, first = np.nonzero(edges == 1)
+        end = np.nonzero(edges == -1)[1]
+        if not section.size:
+            return
+        left_m, right_m = strip.edges_m[section].T
+        xy, start = pose.outline_runs(a + first, a + end, left_m, right_m, step)
+        fill_rings(self.state, xy[:, 0], xy[:, 1], start, np.arange(start.size - 1), self.west, self.north,
+                   self.cell_m, value=_TREATED)
 
 
 def _polygon_rings(polygon):

@@ -50,16 +50,42 @@ class Poses:
         positive) from pose `first` to pose `end` (the track's last at most), in pieces of
         `_PIECE_VERTICES` vertices so that a tight turn folds a ring over itself little.
         """
-        last = min(end, self.x_m.size - 1)
-        idx = np.append(np.arange(first, last, step), last)
-        left, right = self._edge(idx, left_m), self._edge(idx, right_m)
-        return [np.concatenate([left[k:k + _PIECE_VERTICES], right[k:k + _PIECE_VERTICES][::-1]])
-                for k in range(0, max(idx.size - 1, 1), _PIECE_VERTICES - 1)]
+        xy, start = self.outline_runs([first], [end], [left_m], [right_m], step)
+        return np.split(xy, start[1:-1])
+
+    def outline_runs(self, first, end, left_m, right_m, step) -> tuple[np.ndarray, np.ndarray]:
+        """The rings of `outlines` of many strips at once, concatenated: vertices (v, 2), m, and ring
+        starts (r + 1,), ring k being vertices ``start[k]:start[k + 1]``.
+
+        Strip j is swept over ticks [first[j], end[j]) between offsets left_m[j] and right_m[j] (m,
+        arrays of shape (j,)), a vertex every `step` ticks (int, or one per strip) and at its last pose.
+        """
+        first, end = np.asarray(first, np.int64), np.asarray(end, np.int64)
+        last = np.minimum(end, self.x_m.size - 1)
+        step = np.broadcast_to(np.asarray(step, np.int64), first.shape)
+        n = np.maximum(0, -(-(last - first) // step)) + 1   # vertices along each strip's edge
+        along = _PIECE_VERTICES - 1   # consecutive pieces share their end vertices
+        strip, piece = _enumerate((np.maximum(n - 1, 1) + along - 1) // along)
+        k0 = piece * along   # each ring's first vertex along its strip
+        length = np.minimum(_PIECE_VERTICES, n[strip] - k0)   # its vertices along each edge
+        ring, q = _enumerate(2 * length)   # each vertex's ring and place in it: left edge on, right back
+        half, j = length[ring], strip[ring]
+        on_left = q < half
+        e = k0[ring] + np.where(on_left, q, 2 * half - 1 - q)   # the vertex's place along its strip
+        idx = np.where(e == n[j] - 1, last[j], first[j] + e * step[j])
+        offset_m = np.where(on_left, np.asarray(left_m, float)[j], np.asarray(right_m, float)[j])
+        return self._edge(idx, offset_m), np.concatenate(([0], np.cumsum(2 * length)))
 
     def _edge(self, idx, offset_m):
         # Left of the heading (cos h, sin h) is (-sin h, cos h).
         return np.stack([self.x_m[idx] - self.sin[idx] * offset_m,
                          self.y_m[idx] + self.cos[idx] * offset_m], 1)
+
+
+def _enumerate(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Items 0 .. counts[i] - 1 of each group i, flat: (group of each item, its place in the group)."""
+    group = np.repeat(np.arange(counts.size), counts)
+    return group, np.arange(group.size) - np.repeat(np.cumsum(counts) - counts, counts)
 
 
 def fill_outlines(out: np.ndarray, rings: list, west: float, north: float, size: float, value=True) -> None:
