@@ -22,6 +22,7 @@ _TREATED, _OUTSIDE = np.uint8(1), np.uint8(2)  # bits of the coverage raster
 _CELLS_PER_SECTION = 8  # default coverage cell: the narrowest section / this
 _MAX_COVERAGE_CELLS = 16_000_000  # 16 MB of coverage raster at most; coarser cells beyond
 _MIN_COVERAGE_CELL_M = 0.05
+_READ_POINTS = 65_536  # strip points read at once (`CoverageRaster.flagged`): work arrays in cache
 
 
 def coverage_cell_m(implement: Implement, map_cell_m: float | None = None) -> float:
@@ -61,6 +62,7 @@ class CoverageRaster:
         inside = np.zeros((self.rows, self.cols), bool)
         fill_rings(inside, *_polygon_rings(field_polygon), self.west, self.north, cell)
         self.state = np.where(inside, np.uint8(0), _OUTSIDE)
+        self._work: list[np.ndarray] | None = None  # `_read`'s work arrays
 
     def wanted(self, strip: Strip, x_m, y_m, cos, sin, treated_pct: float, outside_pct: float):
         """Whether each section's product is wanted on its strip: bool (m, sections).
@@ -77,19 +79,40 @@ class CoverageRaster:
         """How many of each section's strip points (`strip.counts`) lie on treated ground and how many
         outside the field: int (m, sections) each, for strips across points (x_m, y_m) (m) heading
         (cos, sin), arrays of shape (m,)."""
-        # In cell units relative to the raster's corner, float32 (exact to a thousandth of a cell),
-        # shape (points, m).
+        # In cell units relative to the raster's corner, float32 (exact to a thousandth of a cell).
         inv = 1.0 / self.cell_m
         off = (strip.offsets_m * inv).astype(np.float32)[:, None]
-        col = ((x_m - self.west) * inv).astype(np.float32)[None, :] - sin.astype(np.float32)[None, :] * off
-        row = ((self.north - y_m) * inv).astype(np.float32)[None, :] - cos.astype(np.float32)[None, :] * off
-        np.clip(col, 0, self.cols - 1, out=col)
-        np.clip(row, 0, self.rows - 1, out=row)
-        cell = row.astype(np.int32)  # at most _MAX_COVERAGE_CELLS: int32 indices (half the work of int64)
+        col = ((x_m - self.west) * inv).astype(np.float32)
+        row = ((self.north - y_m) * inv).astype(np.float32)
+        cos, sin = cos.astype(np.float32), sin.astype(np.float32)
+        m, points = col.size, off.size
+        treated, outside = (np.empty((m, strip.counts.size), np.int32) for _ in range(2))
+        ticks = max(1, _READ_POINTS // points)
+        for lo in range(0, m, ticks):
+            part = slice(lo, lo + ticks)
+            treated[part], outside[part] = self._read(strip, off, col[part], row[part], cos[part], sin[part])
+        return treated, outside
+
+    def _read(self, strip: Strip, off, col, row, cos, sin) -> tuple[np.ndarray, np.ndarray]:
+        """`flagged` of a few ticks, in cell units (float32, (points, 1) and (k,)), in work arrays
+        allocated once: fresh ones would cost more in page faults than the reading itself."""
+        n = off.size * col.size
+        if self._work is None:
+            self._work = [np.empty(_READ_POINTS, t) for t in (np.float32, np.float32, np.int32, np.int32,
+                                                                 np.uint8, np.uint8)]
+        fx, fy, cell, part, code, flags = (w[:n].reshape(off.size, -1) for w in self._work)
+        np.subtract(col[None, :], np.multiply(sin[None, :], off, out=fx), out=fx)
+        np.subtract(row[None, :], np.multiply(cos[None, :], off, out=fy), out=fy)
+        np.clip(fx, 0, self.cols - 1, out=fx)
+        np.clip(fy, 0, self.rows - 1, out=fy)
+        # At most _MAX_COVERAGE_CELLS: int32 cells (half the work of int64); truncated as astype does.
+        np.copyto(cell, fy, casting="unsafe")
         cell *= self.cols
-        cell += col.astype(np.int32)
-        code = self.state.reshape(-1)[cell]
-        return strip.count(code & _TREATED), strip.count(code >> 1)
+        np.copyto(part, fx, casting="unsafe")
+        cell += part
+        np.take(self.state.reshape(-1), cell, out=code, mode="clip")  # in the raster: clipping is moot
+        treated = strip.count(np.bitwise_and(code, _TREATED, out=flags))
+        return treated, strip.count(np.right_shift(code, 1, out=flags))
 
     def treated(self) -> str:
         """The treated cells as plain data: the `_TREATED` bits packed, zlib-compressed, base64.
