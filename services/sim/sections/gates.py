@@ -55,8 +55,7 @@ class GateLine:
             return np.zeros(commanded.shape, bool)
         ext = np.concatenate((self.history, commanded))  # from tick - span
         t = tick + np.arange(m, dtype=np.int64)[:, None]
-        rows = np.arange(m)
-        src_on, src_off = ext[self.span - self.on + rows], ext[self.span - self.off + rows]
+        src_on, src_off = ext[self.span - self.on:][:m], ext[self.span - self.off:][:m]
         events = np.maximum(np.where(src_on & (t - self.on >= 0), t - self.on, -1),
                             np.where(~src_off & (t - self.off >= 0), t - self.off, -1))
         arrived = np.maximum.accumulate(np.maximum(events, self.arrived[None, :]), axis=0)
