@@ -18,7 +18,8 @@ from vehicle import Implement
 def _random_track(rng, n):
     """A wandering track (turns as tight as a 3 m radius, stops) and its poses, m."""
     speed = np.clip(rng.normal(1.5, 1.0, n), 0.0, None) * 0.05
-    heading = np.cumsum(np.clip(rng.normal(0, 0.03, n).cumsum(), -0.8, 0.8) * speed / 3.0) + rng.uniform(0, 6.3)
+    curvature = np.clip(rng.normal(0, 0.03, n).cumsum(), -0.8, 0.8) / 3.0   # 1/m
+    heading = np.cumsum(curvature * speed) + rng.uniform(0, 6.3)
     x = 30 + np.cumsum(speed * np.cos(heading))
     y = 30 + np.cumsum(speed * np.sin(heading))
     return Poses(x, y, np.cos(heading), np.sin(heading))

@@ -127,5 +127,6 @@ class Strip:
         if (self.counts == self.counts[0]).all():  # equal sections: one reshaped sum, 5x faster
             # Summed in bytes where a section's count fits one (6x faster than in int32).
             small = np.uint8 if self.counts[0] <= np.iinfo(np.uint8).max else np.int32
-            return flags.reshape(self.counts.size, self.counts[0], -1).sum(axis=1, dtype=small).T.astype(np.int32)
+            counts = flags.reshape(self.counts.size, self.counts[0], -1).sum(axis=1, dtype=small)
+            return counts.T.astype(np.int32)
         return np.add.reduceat(flags, self.starts, axis=0, dtype=np.int32).T
