@@ -64,17 +64,21 @@ class Poses:
         last = np.minimum(end, self.x_m.size - 1)
         step = np.broadcast_to(np.asarray(step, np.int64), first.shape)
         n = np.maximum(0, -(-(last - first) // step)) + 1   # vertices along each strip's edge
+        # The vertices along every strip's left edges, then along its right ones.
+        j, u = _enumerate(n)
+        idx = np.where(u == n[j] - 1, last[j], first[j] + u * step[j])
+        edges = np.concatenate([self._edge(idx, np.asarray(left_m, float)[j]),
+                                self._edge(idx, np.asarray(right_m, float)[j])])
+        # The rings: pieces of each strip, along its left edge and back along its right one.
         along = _PIECE_VERTICES - 1   # consecutive pieces share their end vertices
         strip, piece = _enumerate((np.maximum(n - 1, 1) + along - 1) // along)
         k0 = piece * along   # each ring's first vertex along its strip
         length = np.minimum(_PIECE_VERTICES, n[strip] - k0)   # its vertices along each edge
-        ring, q = _enumerate(2 * length)   # each vertex's ring and place in it: left edge on, right back
-        half, j = length[ring], strip[ring]
-        on_left = q < half
-        e = k0[ring] + np.where(on_left, q, 2 * half - 1 - q)   # the vertex's place along its strip
-        idx = np.where(e == n[j] - 1, last[j], first[j] + e * step[j])
-        offset_m = np.where(on_left, np.asarray(left_m, float)[j], np.asarray(right_m, float)[j])
-        return self._edge(idx, offset_m), np.concatenate(([0], np.cumsum(2 * length)))
+        ring, q = _enumerate(2 * length)
+        half = length[ring]
+        pos = np.where(q < half, q, idx.size + 2 * half - 1 - q)
+        pos += (np.cumsum(n) - n)[strip][ring] + k0[ring]
+        return edges[pos], np.concatenate(([0], np.cumsum(2 * length)))
 
     def _edge(self, idx, offset_m):
         # Left of the heading (cos h, sin h) is (-sin h, cos h).
