@@ -81,7 +81,7 @@ def _by_feature_row_x(xc, row, owner, rows):
     stable sort on it alone is nearly linear. Most (feature, row) hold one pair, ordered by min and
     max; only the larger groups (rings folding over a row) are sorted by x.
     """
-    key = owner * rows + row
+    key = owner.astype(np.int64) * rows + row   # int64: features x rows may pass 2**31
     order = np.argsort(key, kind="stable")
     key, xc, row, owner = key[order], xc[order], row[order], owner[order]
     bounds = np.flatnonzero(np.diff(key)) + 1

@@ -95,7 +95,7 @@ class CoverageRaster:
 
     def _read(self, strip: Strip, off, col, row, cos, sin) -> tuple[np.ndarray, np.ndarray]:
         """`flagged` of a few ticks, in cell units (float32, (points, 1) and (k,)), in work arrays
-        allocated once: fresh ones would cost more in page faults than the reading itself."""
+        allocated once and small enough to stay in the cache (`_READ_POINTS`)."""
         n = off.size * col.size
         if self._work is None:
             self._work = [np.empty(_READ_POINTS, t) for t in (np.float32, np.float32, np.int32, np.int32,
