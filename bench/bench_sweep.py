@@ -53,7 +53,7 @@ def _sweep_wall_s(client, specs, task=run_row, tag: str = "") -> tuple[float, li
     workers = len(client.scheduler_info()["workers"])
     t0 = time.perf_counter()
     run_tasks(client, specs, task, key=lambda s: f"bench{tag}-{workers}-{_first(s).key}",
-              on_done=lambda spec, got, error: rows.extend(
+              on_done=lambda spec, got, error, lost: rows.extend(
                   got if isinstance(got, list) else [got or {"status": "failed", "error": error}]))
     wall_s = time.perf_counter() - t0
     failed = [r["error"] for r in rows if r["status"] != "ok"]
