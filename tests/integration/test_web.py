@@ -6,6 +6,7 @@ token it printed with its URL (tests/integration/test_web_trust.py: what happens
 
 from __future__ import annotations
 
+import contextlib
 import http.client
 import json
 import os
@@ -207,11 +208,13 @@ def hello(web: Web, predicate, timeout_s: float = 30.0) -> dict:
         time.sleep(0.3)
 
 
-@pytest.fixture(scope="module")
-def net(tmp_path_factory):
-    folder = str(tmp_path_factory.mktemp("web"))
+@contextlib.contextmanager
+def served_web(folder: str, *args: str):
+    """`vrsim serve all --web` in `folder` (with `args` before the web options) on a free port: the
+    `ServeAll` with its page as ``.web``, ready and up; stopped after, and its exit code checked.
+    Processes a test adds to ``.extra`` are ended first."""
     port = free_port()
-    server = ServeAll(folder, "--web", "--web-listen", f"127.0.0.1:{port}")
+    server = ServeAll(folder, *args, "--web", "--web-listen", f"127.0.0.1:{port}")
     server.web = Web(port)
     server.folder = folder
     server.extra = []
@@ -225,6 +228,22 @@ def net(tmp_path_factory):
             proc.wait(timeout=15)
         rc = server.stop()
         assert rc == 0, server.output()
+
+
+def open_page(browser, web):
+    """A page of `browser` at the size the tests use, logged in to `web` with its token, and the
+    list its JavaScript errors go to."""
+    page = browser.new_page(viewport={"width": 1400, "height": 820})
+    errors = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    page.goto(f"{web.base}/?token={web.token}")
+    return page, errors
+
+
+@pytest.fixture(scope="module")
+def net(tmp_path_factory):
+    with served_web(str(tmp_path_factory.mktemp("web"))) as server:
+        yield server
 
 
 def until(page, expression: str, timeout: float = 30_000) -> None:
@@ -379,10 +398,7 @@ def test_page_in_chromium_shows_a_realtime_run_and_a_viewer_catches_up_mid_run(n
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
-            page = browser.new_page(viewport={"width": 1400, "height": 820})
-            errors = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.goto(f"{net.web.base}/?token={net.web.token}")
+            page, errors = open_page(browser, net.web)
             assert page.url == net.web.base + "/"  # logged in: the token is gone from the URL
             until(page, "window.vrsimView.role === 'operator' && window.vrsimView.mapLoaded")
             # Start from the page: the quick scenario, real time at 20 x.

@@ -21,7 +21,15 @@ import pytest
 from services.bus.web.app import MAX_STREAMS
 from tests.conftest import VRSIM
 from tests.integration.test_services_support import ServeAll, free_port
-from tests.integration.test_web import CHROMIUM, CHROMIUM_ARGS, Web, need_chromium, printed_token, until
+from tests.integration.test_web import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    Web,
+    need_chromium,
+    printed_token,
+    served_web,
+    until,
+)
 
 CROWD = 300  # stream clients at once in the memory test
 PAINT_S = 8.0  # of the built-in default run before the crowd comes
@@ -55,17 +63,8 @@ def login(web: Web, user: str, password: str) -> Web:
 
 @pytest.fixture(scope="module")
 def net(tmp_path_factory):
-    folder = str(tmp_path_factory.mktemp("webtrust"))
-    port = free_port()
-    server = ServeAll(folder, "--web", "--web-listen", f"127.0.0.1:{port}")
-    server.web = Web(port)
-    try:
-        server.wait_ready()
-        server.web.wait_up(server.output)
+    with served_web(str(tmp_path_factory.mktemp("webtrust"))) as server:
         yield server
-    finally:
-        rc = server.stop()
-        assert rc == 0, server.output()
 
 
 def test_the_url_printed_at_start_carries_a_token_that_logs_in(net):

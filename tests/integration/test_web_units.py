@@ -8,23 +8,24 @@ from __future__ import annotations
 import pytest
 
 from tests.integration.test_rate_units import LB_AC, scenario, write_tif
-from tests.integration.test_services_support import ServeAll, free_port
-from tests.integration.test_web import CHROMIUM, CHROMIUM_ARGS, Web, hello, need_chromium, until, wait_done
+from tests.integration.test_web import (
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    hello,
+    need_chromium,
+    open_page,
+    served_web,
+    until,
+    wait_done,
+)
 
 
 @pytest.fixture(scope="module")
 def net(tmp_path_factory):
     folder = tmp_path_factory.mktemp("web_units")
     scen = scenario(folder, write_tif(folder / "rx.tif", None), map_keys='unit = "lb/ac"', name="q")
-    port = free_port()
-    server = ServeAll(str(folder), scen.name, "--web", "--web-listen", f"127.0.0.1:{port}")
-    server.web = Web(port)
-    try:
-        server.wait_ready()
-        server.web.wait_up(server.output)
+    with served_web(str(folder), scen.name) as server:
         yield server
-    finally:
-        assert server.stop() == 0, server.output()
 
 
 def test_the_view_and_the_runs_hello_carry_the_maps_unit(net):
@@ -46,10 +47,7 @@ def test_page_shows_rates_in_lb_ac(net):
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
-            page = browser.new_page(viewport={"width": 1400, "height": 820})
-            errors = []
-            page.on("pageerror", lambda exc: errors.append(str(exc)))
-            page.goto(f"{net.web.base}/?token={net.web.token}")
+            page, errors = open_page(browser, net.web)
             until(page, "window.vrsimView.mapLoaded")
             text = "(id) => document.getElementById(id).textContent"
             assert [page.evaluate(text, i) for i in ("vmin", "vmax", "unit")] == ["100", "150", "lb/ac"]
