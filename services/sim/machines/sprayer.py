@@ -190,8 +190,7 @@ class Sprayer(Machine):
         shared by the open nozzles. `limits` false lifts the ranges. 0 where the section is closed."""
         spec, open_nozzle = self.spec, states.actual[:, self.nozzle_section]
         if self.pwm:
-            speed = np.abs(states.motion.speed_m_s[:, None]
-                           - states.motion.yaw_rate_rad_s[:, None] * self.nozzle_offsets_m)
+            speed = np.abs(states.motion.ground_speed_m_s(self.nozzle_offsets_m))
             q_full = float(nozzle_flow_l_min(spec.q_ref_l_min, spec.pwm_pressure_bar))
             duty = pwm_duty_pct(rate_l_ha[:, self.nozzle_section], speed, spec.nozzle_spacing_m, q_full,
                                 spec.duty_range_pct if limits else (0.0, np.inf))
@@ -222,8 +221,7 @@ class Sprayer(Machine):
         section's own, ``v - yaw_rate * offset`` (PWM: its nozzles' mean)."""
         if not self.pwm:
             return super().drive_speed_m_s(motion)
-        offsets = self.implement.section_offsets_m
-        return np.abs(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * offsets)
+        return np.abs(motion.ground_speed_m_s(self.implement.section_offsets_m))
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
         return per_drive.sum(axis=1)   # the boom's flow (L/min) or litres: the sections' together
