@@ -24,6 +24,7 @@ SECTION_CONTROL_MODES = ("coverage", "boundary", "off")  # the switching engines
 DEFAULT_SECTIONS = 6
 MAX_SECTIONS = 128  # ISOBUS task controllers address at most this many sections per boom
 MAX_SECTION_DELAY_S = 30.0
+MAX_SECTION_MIN_SPEED_M_S = 5.0   # a section cutoff above a field's working speeds would never apply
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,10 @@ class Implement:
         Coverage control: time from a section's on (off) command until product starts (stops)
         leaving the meter at that section, s, in [0, 30]; the controller looks ahead by it plus
         the delivery delay. Defaults as John Deere's terminals (1.0 s on, 0.6 s off).
+    section_min_speed_m_s : float
+        Coverage control: a section switches off while its own ground speed (the sensed speed minus
+        the yaw rate times its offset: the inner end of a tight turn pivots or moves backwards) is
+        at most this, m/s, in [0, 5]; 0.14 m/s (0.5 km/h) as AgOpenGPS's slow speed cutoff.
     kind : str
         How the machine meters and where its product lands (`vehicle.machines`): "gated_meter" (one
         shaft, a gate per section; the default) or "section_drives" (a drive per section).
@@ -84,6 +89,7 @@ class Implement:
     boundary_overlap_pct: float = 50.0
     section_on_delay_s: float = 1.0
     section_off_delay_s: float = 0.6
+    section_min_speed_m_s: float = 0.14
     kind: str = DEFAULT_KIND
     machine: MachineSpec | None = None
 
@@ -101,6 +107,8 @@ class Implement:
         for name in ("section_on_delay_s", "section_off_delay_s"):
             check_number(getattr(self, name), f"Implement: {name}", VehicleError, lo=0.0,
                          hi=MAX_SECTION_DELAY_S, unit="s")
+        check_number(self.section_min_speed_m_s, "Implement: section_min_speed_m_s", VehicleError, lo=0.0,
+                     hi=MAX_SECTION_MIN_SPEED_M_S, unit="m/s")
         self._resolve_machine()
         if self.shaft_rpm_min >= self.shaft_rpm_max:
             raise VehicleError(f"Implement: shaft_rpm_min={self.shaft_rpm_min} must be below "

@@ -33,12 +33,16 @@ the same meter recalibrated is left with ``100 (true / measured - 1)``; both set
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from common import ScenarioError, VrsimError
 from common.checks import in_range
+from services.sim.machines import Machine
+from services.sim.machines.registry import MACHINES
+from services.sim.machines.sprayer import check_liquid
 from services.sim.scenario import Scenario, scenario_file
 from vehicle.product import metered_kg
 from vehicle.sprayer import REF_PRESSURE_BAR
@@ -162,8 +166,8 @@ def calibrate(scenario: Scenario, revolutions: int = DEFAULT_REVOLUTIONS,
     VrsimError
         `revolutions` or `scale_error_g` out of range, naming the option and its value.
     ScenarioError
-        A liquid product on a machine other than a sprayer (or a granular one on a sprayer), naming
-        the file.
+        A product of another form than the machine meters (`Machine.product_form`: a liquid product
+        on a granular meter, a granular one on a sprayer), naming the file.
     """
     if isinstance(revolutions, bool) or not isinstance(revolutions, int) \
             or not 1 <= revolutions <= MAX_REVOLUTIONS:
@@ -171,19 +175,29 @@ def calibrate(scenario: Scenario, revolutions: int = DEFAULT_REVOLUTIONS,
     if not in_range(scale_error_g, 0.0, MAX_SCALE_ERROR_G):
         raise VrsimError(f"--scale-error-g {scale_error_g!r}: must be a number of grams in "
                          f"[0, {MAX_SCALE_ERROR_G:g}]")
-    form, sprayer = scenario.product.form, scenario.implement.kind == "sprayer"
-    if (form == "liquid") != sprayer:
-        need = ("its calibration (a catch test) needs [implement] kind = \"sprayer\"" if form == "liquid"
-                else "a sprayer meters a liquid (its catch test calibrates the flow meter)")
-        raise ScenarioError(f"{scenario_file(scenario)}: [product] form {form!r}: {need}, "
-                            f"got kind {scenario.implement.kind!r}")
-    if sprayer:
-        return _liquid(scenario, seconds, jug_error_ml)
-    return _granular(scenario, revolutions, scale_error_g)
+    form, kind = scenario.product.form, scenario.implement.kind
+    meters = MACHINES[kind].product_form   # the form the machine's meter meters picks its test
+    if form != meters:
+        raise ScenarioError(f"{scenario_file(scenario)}: [product] form {form!r}: "
+                            f"{_form_refused(form, kind)}, got kind {kind!r}")
+    return _TESTS[meters].run(scenario, revolutions=revolutions, scale_error_g=scale_error_g,
+                              seconds=seconds, jug_error_ml=jug_error_ml)
 
 
-def _granular(scenario: Scenario, revolutions: int, scale_error_g: float) -> Calibration:
-    """A granular meter's test: `revolutions` whole turns into a bucket, weighed."""
+def _form_refused(form: str, kind: str) -> str:
+    """Why a `form` product cannot be calibrated on a machine of `kind`: on a machine of the usual
+    (granular) form, the kinds its own test needs; on another, what that machine meters."""
+    meters = MACHINES[kind].product_form
+    if meters != Machine.product_form:
+        test = _TESTS[meters]
+        return f"a {kind} meters a {test.product} (its {test.name} calibrates {test.calibrates})"
+    owners = " or ".join(f'"{k}"' for k, cls in MACHINES.items() if cls.product_form == form)
+    return f"its calibration (a {_TESTS[form].name}) needs [implement] kind = {owners}"
+
+
+def _granular(scenario: Scenario, revolutions: int, scale_error_g: float, **_) -> Calibration:
+    """A granular meter's test: `revolutions` whole turns into a bucket, weighed (the other tests'
+    options left)."""
     imp, product, seed = scenario.implement, scenario.product, scenario.seed
     caught_kg = float(metered_kg(np.array([float(revolutions)]), imp.kg_per_rev, product, seed,
                                  stream=_CATCH_STREAM)[0][0])
@@ -265,10 +279,9 @@ class LiquidCalibration:
         ])
 
 
-def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCalibration:
-    """A sprayer's catch test: the boom at 3 bar for `seconds`, each nozzle into a jug, the pulses counted."""
-    from services.sim.machines.sprayer import check_liquid
-
+def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float, **_) -> LiquidCalibration:
+    """A sprayer's catch test: the boom at 3 bar for `seconds`, each nozzle into a jug, the pulses counted
+    (the other tests' options left)."""
     if not in_range(seconds, 0.0, MAX_CATCH_S, lo_open=True):
         raise VrsimError(f"--seconds {seconds!r}: must be a number of seconds in (0, {MAX_CATCH_S:g}]")
     if not in_range(jug_error_ml, 0.0, MAX_JUG_ERROR_ML):
@@ -293,3 +306,17 @@ def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float) -> LiquidCa
         configured_pulses_per_l=spec.flow_meter_pulses_per_l, pulses=pulses, caught_l=caught_l, read_l=read_l,
         measured_pulses_per_l=pulses / read_l,
         true_pulses_per_l=spec.flow_meter_pulses_per_l * spec.meter.gain)
+
+
+@dataclass(frozen=True)
+class _Test:
+    """A calibration test, for the form of product a machine meters (`Machine.product_form`)."""
+
+    name: str          # what the operator calls it
+    calibrates: str    # what it measures
+    product: str       # the product, as a message names it
+    run: Callable      # (scenario, revolutions=, scale_error_g=, seconds=, jug_error_ml=) -> the outcome
+
+
+_TESTS = {"granular": _Test("rotor test", "the meter constant", "granular product", _granular),
+          "liquid": _Test("catch test", "the flow meter", "liquid", _liquid)}

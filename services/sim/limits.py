@@ -19,12 +19,9 @@ so ``kg_per_rev_min`` to ``kg_per_rev_max`` puts the needed speeds inside the sh
 working speeds as they are). The terminal's configured constant is what it computes with, so the check
 uses it, not the product's true one (`vehicle.product`).
 
-A sprayer (`_SprayerCheck`) checks its nozzles instead of a shaft: the boom's flow (L/min) must stay
-within what its nozzles give in their pressure range (under PWM: their duty range at the held
-pressure; `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`), the map's kg/ha being L/ha times
-the liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
-change is the working speeds or the nozzle size (`SprayerSpec.suggest_nozzle`); a nozzle that cannot
-apply the map's rates at any speed is bad input (`VehicleError`, from `SprayerSpec.check_rates`).
+Each machine kind checks its own actuator (`services.sim.machines.Machine.machine_check`): by default
+the shaft (`shaft_check`, above); a kind with another one gives its own `MachineCheck` (a sprayer
+checks its nozzles, `services.sim.machines.sprayer._SprayerCheck`).
 """
 
 from __future__ import annotations
@@ -34,10 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import VehicleError
 from services.sim.metrics import RATE_UNIT, rate_key
 from vehicle import DriveConfig, Implement
-from vehicle.sprayer import boom_flow_l_min
 
 
 @dataclass(frozen=True)
@@ -114,8 +109,9 @@ class MachineCheck:
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
         rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
-        lines = [f"Machine check: the meter {verdict}: {_rate(rates['rate_min'])}-{_rate(rates['rate_max'])} "
-                 f"{unit} at {self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
+        lo, hi = rate_text(rates["rate_min"]), rate_text(rates["rate_max"])
+        lines = [f"Machine check: the meter {verdict}: {lo}-{hi} {unit} at {self.speed_min_m_s:.2f}-"
+                 f"{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-{self.shaft_rpm_max:g} rpm shaft.",
                  f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
                  f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
@@ -162,7 +158,7 @@ class MachineCheck:
         return self.shaft_rpm_max / self.shaft_rpm_min if self.shaft_rpm_min > 0 else math.inf
 
 
-def _rate(value: float) -> str:
+def rate_text(value: float) -> str:
     """A rate for the check's line: whole numbers as before (kg/ha, lb/ac), three figures below 10
     (t/ha, g/m2)."""
     return f"{value:.0f}" if abs(value) >= 10 else f"{value:.3g}"
@@ -180,7 +176,8 @@ def working_speeds(drive: DriveConfig) -> tuple[float, float]:
 
 def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: Implement,
                   density_kg_l: float | None = 1.0, working_speed_m_s: float | None = None) -> MachineCheck:
-    """Whether `implement` can apply `rates_kg_ha` at speeds within `speed_range_m_s`.
+    """Whether `implement` can apply `rates_kg_ha` at speeds within `speed_range_m_s`: its kind's check
+    (`services.sim.machines.Machine.machine_check`; a shaft's by default, `shaft_check`).
 
     Parameters
     ----------
@@ -192,27 +189,30 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     density_kg_l : float or None
         The product's (a sprayer's map in kg/ha is L/ha times it; None: not given, which a sprayer refuses).
     working_speed_m_s : float, optional
-        Where a sprayer's nozzle size is suggested; default the middle of `speed_range_m_s`.
+        Where a kind that suggests a change (a sprayer's nozzle size) suggests it; default the middle of
+        `speed_range_m_s`.
 
     Raises
     ------
     VehicleError
-        A sprayer whose nozzles cannot apply the map's rates at any speed, or without a density; the
-        message starts with the table it names.
+        A machine that cannot apply the map's rates at any speed (a sprayer's nozzles), or without a
+        density it needs; the message starts with the table it names.
     """
+    # Imported here: the machines' base imports this module (`shaft_check`, `MachineCheck`).
+    from services.sim.machines import machine_for
+
     rates = np.asarray(rates_kg_ha, float).ravel()
     rates = rates[np.isfinite(rates) & (rates > 0)]
     lo_rate, hi_rate = (float(rates.min()), float(rates.max())) if rates.size else (math.nan, math.nan)
+    working = sum(speed_range_m_s) / 2.0 if working_speed_m_s is None else working_speed_m_s
+    return machine_for(implement).machine_check(lo_rate, hi_rate, speed_range_m_s, density_kg_l, working)
+
+
+def shaft_check(implement: Implement, lo_rate: float, hi_rate: float,
+                speed_range_m_s: tuple[float, float]) -> MachineCheck:
+    """`machine_check` of a metering shaft: the lowest positive and highest rate inside the field,
+    kg/ha (NaN: none positive), at speeds within `speed_range_m_s`."""
     v_lo, v_hi = speed_range_m_s
-    if implement.kind == "sprayer":
-        working = (v_lo + v_hi) / 2.0 if working_speed_m_s is None else working_speed_m_s
-        if density_kg_l is None:
-            raise VehicleError("[product] density_kg_l: a sprayer's kg are litres times the liquid's "
-                               "density, got none (water: 1.0)")
-        try:
-            return _sprayer_check(lo_rate, hi_rate, speed_range_m_s, implement, density_kg_l, working)
-        except VehicleError as exc:
-            raise VehicleError(f"[implement] {exc}") from None
     width = implement.width_m
     rpm_min = float(implement.target_shaft_rpm(lo_rate, v_lo, width))
     rpm_max = float(implement.target_shaft_rpm(hi_rate, v_hi, width))
@@ -232,81 +232,5 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
         min_width_m=implement.shaft_rpm_min / per_m if per_m > 0 else math.nan,
         narrowest_section_m=float(implement.section_widths.min()),
         kg_per_rev=kg, kg_per_rev_min=kg * rpm_max / implement.shaft_rpm_max,
-        kg_per_rev_max=kg_max if rates.size else math.nan,
+        kg_per_rev_max=kg_max if math.isfinite(hi_rate) else math.nan,
     )
-
-
-@dataclass(frozen=True)
-class _SprayerCheck(MachineCheck):
-    """`MachineCheck` of a sprayer: ``rpm_*`` are the boom's flows (L/min) and ``shaft_rpm_*`` what its
-    nozzles give over the full width; ``min_speed_m_s``/``max_speed_m_s`` where every nozzle stays in
-    its range (`SprayerSpec.speed_range_m_s`); ``min_width_m`` 0 and the ``kg_per_rev`` fields NaN (no
-    shaft). Adds the nozzle, its flow range and the size that would cover the map at the working speed.
-
-    Attributes
-    ----------
-    nozzle : str
-        The ISO 10625 size on the boom.
-    nozzle_flow_min_l_min, nozzle_flow_max_l_min : float
-        One nozzle's flow range, L/min (pressure range; PWM: duty range at the held pressure).
-    working_speed_m_s : float
-        The tractor's working speed.
-    nozzle_suggested : str or None
-        The size that covers the map's rates at the working speed with the most margin (None: none).
-    density_kg_l : float
-        The liquid's density: the map's kg/ha over it are the L/ha the text shows.
-    """
-
-    nozzle: str = ""
-    nozzle_flow_min_l_min: float = math.nan
-    nozzle_flow_max_l_min: float = math.nan
-    working_speed_m_s: float = math.nan
-    nozzle_suggested: str | None = None
-    density_kg_l: float = 1.0
-
-    def text(self, grid=None) -> str:
-        """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change;
-        the rates in L/ha and in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
-        if not math.isfinite(self.rate_max_kg_ha):
-            return "Machine check: the map asks for no product inside the field."
-        verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
-        lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
-        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
-        also = "" if unit == "L/ha" else f"({_rate(rates['rate_min'])}-{_rate(rates['rate_max'])} {unit}) "
-        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha {also}at "
-                 f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
-                 f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
-                 f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",
-                 f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
-                 f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
-        if not self.can_apply:
-            lines.append(f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
-                         f"{self.max_speed_m_s:.2f} m/s, or")
-            lines.append(f"  set [implement] nozzle = {self.nozzle_suggested!r} to apply it at "
-                         f"{self.working_speed_m_s:.2f} m/s." if self.nozzle_suggested else
-                         f"  no nozzle size applies it at {self.working_speed_m_s:.2f} m/s.")
-        return "\n".join(lines)
-
-
-def _sprayer_check(lo_rate: float, hi_rate: float, speed_range_m_s: tuple[float, float], implement: Implement,
-                   density_kg_l: float, working_speed_m_s: float) -> _SprayerCheck:
-    """`machine_check` of a sprayer (its nozzles for the shaft, rates in L/ha: kg/ha over the density)."""
-    spec, width = implement.machine, implement.width_m
-    (v_lo, v_hi), n = speed_range_m_s, spec.nozzle_count(width)
-    q_lo, q_hi = spec.nozzle_flow_range_l_min()
-    lo_l, hi_l = lo_rate / density_kg_l, hi_rate / density_kg_l
-    if math.isfinite(hi_rate):
-        slowest, fastest = spec.check_rates(lo_l, hi_l)
-        suggested = spec.suggest_nozzle(lo_l, hi_l, working_speed_m_s)
-    else:
-        slowest = fastest = math.nan
-        suggested = None
-    return _SprayerCheck(
-        rate_min_kg_ha=lo_rate, rate_max_kg_ha=hi_rate, speed_min_m_s=v_lo, speed_max_m_s=v_hi,
-        rpm_min=float(boom_flow_l_min(lo_l, v_lo, width)), rpm_max=float(boom_flow_l_min(hi_l, v_hi, width)),
-        shaft_rpm_min=q_lo * n, shaft_rpm_max=q_hi * n, min_speed_m_s=slowest, max_speed_m_s=fastest,
-        min_width_m=0.0, narrowest_section_m=float(implement.section_widths.min()),
-        kg_per_rev=math.nan, kg_per_rev_min=math.nan, kg_per_rev_max=math.nan,
-        nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi,
-        working_speed_m_s=working_speed_m_s, density_kg_l=density_kg_l,
-        nozzle_suggested=suggested)

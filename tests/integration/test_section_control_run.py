@@ -15,6 +15,7 @@ from services.sim import accuracy, metrics
 from services.sim.error_split import error_split
 from services.sim.run import run
 from services.sim.scenario import load, parse, with_changes
+from services.sim.sections import switch_sections
 from tests.conftest import VRSIM
 
 FIELD = """
@@ -92,9 +93,11 @@ def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
 
 
 @pytest.mark.xfail(strict=True, reason="issue #25's goal is out of the gated meter's reach on this field: "
-                   "its headland corners alone put 0.94 % of the covered area outside +-10 % (one meter "
-                   "sharing product by width in a 6 m-radius turn); the rest is speed changes within the "
-                   "delivery delay and the sections' look-ahead "
+                   "98.03 % within +-10 %. Its headland corners put 0.88 % of the covered area outside "
+                   "(one meter sharing product by width in a 6 m-radius turn: the outer end at twice the "
+                   "centre's speed gets half the rate), the slow-down before each swath end within the "
+                   "0.8 s delivery delay 0.65 % (band) and the headland's edge row 0.35 %, the corner "
+                   "turns' slow-downs just outside the corners 0.10 % "
                    "(test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes)")
 def test_rectangle_ideal_reaches_99_pct_within_10_pct(rectangle_ideal):
     assert rectangle_ideal.summary["within_10pct_area_pct"] >= 99.0
@@ -124,27 +127,43 @@ def _outside_10_pct_by_place(result) -> dict[str, float]:
 
 def test_rectangle_ideal_outside_10_pct_is_corners_and_speed_changes(rectangle_ideal):
     """Where issue #25's 2 % lie (the ideal meter, so geometry and section control alone): the headland
-    pass's four corners, 0.94 % of the covered area, where one meter shares product by width in a
-    6 m-radius turn (the inner end pivots, the outer moves at twice the centre's speed: only offsets
-    within about 0.6 m of the centre get within 10 % of the rate), a limit of the gated meter; the
-    swath ends' slow-down (product metered at 2.5 m/s lands during the slow-down to 1.2 m/s 0.8 s
-    later, about +45 % on a row of cells), and the headland's edge where the sections open while
-    the speed-up out of the turn ends within their 1.8 s look-ahead. The rest is the headland pass's
-    own end (its slow-down for the turn into the first swath) and no more; the field between is clean."""
+    pass's four corners, 0.88 % of the covered area, where one meter shares product by width in a
+    6 m-radius turn (the outer end moves at twice the centre's speed: only offsets within about 0.6 m
+    of the centre get within 10 % of the rate; the pivoting inner end is closed by the slow speed
+    cutoff), a limit of the gated meter; the swath ends' slow-down (product metered at 2.5 m/s lands
+    during the slow-down to 1.2 m/s 0.8 s later, about +45 % on a row of cells, 0.65 %), and the
+    headland's edge where the sections close while the tractor slows and open while the speed-up out
+    of the turn ends within their 1.8 s look-ahead (0.35 %). The rest (0.10 %) is the corner turns'
+    own slow-down rows just outside the corner squares; the field between is clean."""
     share = _outside_10_pct_by_place(rectangle_ideal)
-    assert share["corners"] > 0.9 and share["band"] > 0.5 and share["edge"] > 0.2, share
+    assert share["corners"] > 0.8 and share["band"] > 0.5 and share["edge"] > 0.2, share
     assert share["rest"] < 0.15, share
+
+
+def test_the_slow_speed_cutoff_closes_the_pivoting_inner_sections(rectangle_ideal):
+    """On the run's true track, no section is commanded on while its own ground speed (the speed minus
+    the yaw rate times its offset) is at most ``section_min_speed_m_s``; in the headland pass's
+    6 m-radius corners the innermost section's is, so the cutoff closes it there while the path works."""
+    world = rectangle_ideal.world
+    imp = world.scenario.implement
+    states = switch_sections(rectangle_ideal.track, imp, world.field.polygon, world.path,
+                             min(world.grid.cell_size))
+    slow = states.motion.ground_speed_m_s(imp.section_offsets_m) <= imp.section_min_speed_m_s
+    working = np.asarray(rectangle_ideal.track["implement_on"], bool)
+    assert not (states.commanded & slow).any()
+    assert np.count_nonzero(slow & working[:, None]) > 40, np.count_nonzero(slow & working[:, None])
 
 
 def test_rectangle_ideal_without_speed_changes_keeps_only_the_corners():
     """Turns at the working speed (no slow-down, no speed-up): the band and the edge are clean, and the
-    corners alone keep the ideal gated meter under issue #25's 99 % within +-10 %."""
+    corners are what is left (99.01 % within +-10 %: the slow-downs are what keeps the scenario as
+    recorded under issue #25's 99 %)."""
     scenario = load(os.path.join(accuracy.SCENARIO_DIR, "rectangle_uniform_ideal.toml"))
     result = run(with_changes(scenario, tractor={"turn_speed_m_s": 2.5}))
     share = _outside_10_pct_by_place(result)
-    assert share["corners"] > 0.9 and share["band"] == 0.0, share
+    assert share["corners"] > 0.8 and share["band"] == 0.0, share
     assert share["edge"] + share["rest"] < 0.2, share
-    assert result.summary["within_10pct_area_pct"] < 99.0, result.summary
+    assert result.summary["within_10pct_area_pct"] > 98.9, result.summary
 
 
 def test_oblique_headland_needs_coverage_control():

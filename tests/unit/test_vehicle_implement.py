@@ -53,6 +53,8 @@ def test_sections_on_inside_field_only():
     (dict(section_on_delay_s=float("nan")), "section_on_delay_s .* got nan"),
     (dict(section_off_delay_s=30.5), "section_off_delay_s .* got 30.5"),
     (dict(section_off_delay_s=float("inf")), "section_off_delay_s .* got inf"),
+    (dict(section_min_speed_m_s=-0.1), r"section_min_speed_m_s must be a number in \[0, 5\] m/s, got -0.1"),
+    (dict(section_min_speed_m_s=float("nan")), "section_min_speed_m_s .* got nan"),
     (dict(section_overlap_pct=-1.0), r"section_overlap_pct must be a number in \[0, 100\] %, got -1.0"),
     (dict(boundary_overlap_pct=100.5), "boundary_overlap_pct .* got 100.5"),
     (dict(section_overlap_pct=float("nan")), "section_overlap_pct .* got nan"),

@@ -10,6 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from controller import PlantParams
+from services.sim.limits import MachineCheck, shaft_check
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -39,6 +40,9 @@ class Machine(ABC):
     """
 
     kind: ClassVar[str] = ""
+    product_form: ClassVar[str] = "granular"
+    """The ``[product] form`` the machine meters; it picks the calibration test `vrsim calibrate` runs
+    (`services.sim.calibrate`: a granular meter's rotor test, a liquid's catch test)."""
 
     def __init__(self, implement: Implement, field_polygon=None):
         self.implement = implement
@@ -65,6 +69,16 @@ class Machine(ABC):
         for a metering shaft; a kind with another actuator (a sprayer's flow loop) gives its own, and
         refuses a `scenario` it cannot run (`ScenarioError`). `grid`: the prescription (a working point)."""
         return plant
+
+    def machine_check(self, lo_rate_kg_ha: float, hi_rate_kg_ha: float, speed_range_m_s: tuple[float, float],
+                      density_kg_l: float | None, working_speed_m_s: float) -> MachineCheck:
+        """Whether the machine can apply the map's lowest positive and highest rate inside the field
+        (kg/ha; NaN: none positive) at working speeds within `speed_range_m_s`, before anything moves
+        (`services.sim.limits.machine_check`): by default the metering shaft's range
+        (`services.sim.limits.shaft_check`). A kind with another actuator checks it and gives its own
+        `MachineCheck` (a sprayer: its nozzles, with the product's `density_kg_l` and a nozzle size
+        suggested at `working_speed_m_s`); `VehicleError` where it cannot at any speed."""
+        return shaft_check(self.implement, lo_rate_kg_ha, hi_rate_kg_ha, speed_range_m_s)
 
     def kg_per_rev(self, product) -> float:
         """What one revolution of a drive's loop meters, kg, as configured (`vehicle.product.metered_kg`

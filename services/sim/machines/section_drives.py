@@ -52,7 +52,7 @@ class SectionDrives(Machine):
         v = motion.speed_m_s[:, None]
         if not self.implement.machine.turn_compensation:
             return np.broadcast_to(v, (v.shape[0], self.drives))
-        return np.maximum(v - motion.yaw_rate_rad_s[:, None] * self.implement.section_offsets_m, 0.0)
+        return np.maximum(motion.ground_speed_m_s(self.implement.section_offsets_m), 0.0)
 
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         imp = self.implement

@@ -119,7 +119,7 @@ class Spinner(Machine):
     def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
         """Each side's ground speed where its product lands, m/s (n, 2): ``v - yaw_rate * offset``
         at its centre's offset, at least 0."""
-        return np.maximum(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * self.centre_m, 0.0)
+        return np.maximum(motion.ground_speed_m_s(self.centre_m), 0.0)
 
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         imp, reach = self.implement, self._terminal_reach(states)

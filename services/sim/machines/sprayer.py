@@ -29,13 +29,17 @@ spacings wide); a closed section's valve shuts them.
 from __future__ import annotations
 
 import dataclasses
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, VrsimError
+from common import ScenarioError, VehicleError, VrsimError
 from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
+from services.sim.limits import MachineCheck, rate_text
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import register_machine
+from services.sim.metrics import RATE_UNIT
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -50,6 +54,7 @@ class Sprayer(Machine):
     """A boom sprayer (see the module's docstring)."""
 
     kind = "sprayer"
+    product_form = "liquid"   # its calibration: the flow meter's catch test
 
     def __init__(self, implement: Implement, field_polygon=None):
         super().__init__(implement, field_polygon)
@@ -118,6 +123,46 @@ class Sprayer(Machine):
         margin = _WORKING_POINT_MARGIN * (hi - lo)
         return fp, linearize_flow(fp, float(np.clip(flow, lo + margin, hi - margin)))
 
+    def machine_check(self, lo_rate_kg_ha: float, hi_rate_kg_ha: float, speed_range_m_s: tuple[float, float],
+                      density_kg_l: float | None, working_speed_m_s: float) -> _SprayerCheck:
+        """The nozzles for the shaft (`_SprayerCheck`): the boom's flow (L/min) must stay within what its
+        nozzles give in their pressure range (under PWM: their duty range at the held pressure;
+        `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`), the map's kg/ha being L/ha times the
+        liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
+        change is the working speeds or the nozzle size (`SprayerSpec.suggest_nozzle`). A nozzle that
+        cannot apply the map's rates at any speed, or no density: `VehicleError` naming the table."""
+        if density_kg_l is None:
+            raise VehicleError("[product] density_kg_l: a sprayer's kg are litres times the liquid's "
+                               "density, got none (water: 1.0)")
+        try:
+            return self._nozzle_check(lo_rate_kg_ha, hi_rate_kg_ha, speed_range_m_s, density_kg_l,
+                                      working_speed_m_s)
+        except VehicleError as exc:
+            raise VehicleError(f"[implement] {exc}") from None
+
+    def _nozzle_check(self, lo_rate_kg_ha: float, hi_rate_kg_ha: float, speed_range_m_s: tuple[float, float],
+                      density_kg_l: float, working_speed_m_s: float) -> _SprayerCheck:
+        """`machine_check`'s figures (the nozzles' own messages unprefixed)."""
+        spec, width = self.spec, self.implement.width_m
+        (v_lo, v_hi), n = speed_range_m_s, spec.nozzle_count(width)
+        q_lo, q_hi = spec.nozzle_flow_range_l_min()
+        lo_l, hi_l = lo_rate_kg_ha / density_kg_l, hi_rate_kg_ha / density_kg_l
+        slowest = fastest = math.nan
+        suggested = None
+        if math.isfinite(hi_rate_kg_ha):
+            slowest, fastest = spec.check_rates(lo_l, hi_l)
+            suggested = spec.suggest_nozzle(lo_l, hi_l, working_speed_m_s)
+        return _SprayerCheck(
+            rate_min_kg_ha=lo_rate_kg_ha, rate_max_kg_ha=hi_rate_kg_ha,
+            speed_min_m_s=v_lo, speed_max_m_s=v_hi,
+            rpm_min=float(boom_flow_l_min(lo_l, v_lo, width)),
+            rpm_max=float(boom_flow_l_min(hi_l, v_hi, width)),
+            shaft_rpm_min=q_lo * n, shaft_rpm_max=q_hi * n, min_speed_m_s=slowest, max_speed_m_s=fastest,
+            min_width_m=0.0, narrowest_section_m=float(self.implement.section_widths.min()),
+            kg_per_rev=math.nan, kg_per_rev_min=math.nan, kg_per_rev_max=math.nan,
+            nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi,
+            working_speed_m_s=working_speed_m_s, density_kg_l=density_kg_l, nozzle_suggested=suggested)
+
     def kg_per_rev(self, product) -> float:
         """Product per metered litre, kg: the true litres behind it (the meter reads ``1 +
         flow_meter_error_pct / 100`` times what flows) times the density."""
@@ -145,8 +190,7 @@ class Sprayer(Machine):
         shared by the open nozzles. `limits` false lifts the ranges. 0 where the section is closed."""
         spec, open_nozzle = self.spec, states.actual[:, self.nozzle_section]
         if self.pwm:
-            speed = np.abs(states.motion.speed_m_s[:, None]
-                           - states.motion.yaw_rate_rad_s[:, None] * self.nozzle_offsets_m)
+            speed = np.abs(states.motion.ground_speed_m_s(self.nozzle_offsets_m))
             q_full = float(nozzle_flow_l_min(spec.q_ref_l_min, spec.pwm_pressure_bar))
             duty = pwm_duty_pct(rate_l_ha[:, self.nozzle_section], speed, spec.nozzle_spacing_m, q_full,
                                 spec.duty_range_pct if limits else (0.0, np.inf))
@@ -177,8 +221,7 @@ class Sprayer(Machine):
         section's own, ``v - yaw_rate * offset`` (PWM: its nozzles' mean)."""
         if not self.pwm:
             return super().drive_speed_m_s(motion)
-        offsets = self.implement.section_offsets_m
-        return np.abs(motion.speed_m_s[:, None] - motion.yaw_rate_rad_s[:, None] * offsets)
+        return np.abs(motion.ground_speed_m_s(self.implement.section_offsets_m))
 
     def combined(self, per_drive: np.ndarray) -> np.ndarray:
         return per_drive.sum(axis=1)   # the boom's flow (L/min) or litres: the sections' together
@@ -208,6 +251,59 @@ class Sprayer(Machine):
                    cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
         return StripPlan.of(track, states, delay_s, period_s, cell_m, ticks, tick_m, first_tick,
                             own_drives=self.pwm)
+
+
+@dataclass(frozen=True)
+class _SprayerCheck(MachineCheck):
+    """`MachineCheck` of a sprayer: ``rpm_*`` are the boom's flows (L/min) and ``shaft_rpm_*`` what its
+    nozzles give over the full width; ``min_speed_m_s``/``max_speed_m_s`` where every nozzle stays in
+    its range (`SprayerSpec.speed_range_m_s`); ``min_width_m`` 0 and the ``kg_per_rev`` fields NaN (no
+    shaft). Adds the nozzle, its flow range and the size that would cover the map at the working speed.
+
+    Attributes
+    ----------
+    nozzle : str
+        The ISO 10625 size on the boom.
+    nozzle_flow_min_l_min, nozzle_flow_max_l_min : float
+        One nozzle's flow range, L/min (pressure range; PWM: duty range at the held pressure).
+    working_speed_m_s : float
+        The tractor's working speed.
+    nozzle_suggested : str or None
+        The size that covers the map's rates at the working speed with the most margin (None: none).
+    density_kg_l : float
+        The liquid's density: the map's kg/ha over it are the L/ha the text shows.
+    """
+
+    nozzle: str = ""
+    nozzle_flow_min_l_min: float = math.nan
+    nozzle_flow_max_l_min: float = math.nan
+    working_speed_m_s: float = math.nan
+    nozzle_suggested: str | None = None
+    density_kg_l: float = 1.0
+
+    def text(self, grid=None) -> str:
+        """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change;
+        the rates in L/ha and in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
+        if not math.isfinite(self.rate_max_kg_ha):
+            return "Machine check: the map asks for no product inside the field."
+        verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
+        lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
+        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
+        lo, hi = rate_text(rates["rate_min"]), rate_text(rates["rate_max"])
+        also = "" if unit == "L/ha" else f"({lo}-{hi} {unit}) "
+        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha {also}at "
+                 f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
+                 f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
+                 f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",
+                 f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
+                 f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
+        if not self.can_apply:
+            lines.append(f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
+                         f"{self.max_speed_m_s:.2f} m/s, or")
+            lines.append(f"  set [implement] nozzle = {self.nozzle_suggested!r} to apply it at "
+                         f"{self.working_speed_m_s:.2f} m/s." if self.nozzle_suggested else
+                         f"  no nozzle size applies it at {self.working_speed_m_s:.2f} m/s.")
+        return "\n".join(lines)
 
 
 def check_liquid(scenario):

@@ -59,6 +59,12 @@ class Motion:
         distance_m = np.maximum(v * moving_s + 0.5 * a * moving_s * moving_s, 0.0)
         return distance_m, moving_s
 
+    def ground_speed_m_s(self, offsets_m) -> np.ndarray:
+        """The ground speed along the heading of points at lateral offsets `offsets_m` (m, left
+        positive, shape (k,)) across the implement: ``v - yaw_rate * offset``, m/s (m, k); negative
+        where the point moves backwards (the inner end of a turn tighter than its offset)."""
+        return self.speed_m_s[:, None] - self.yaw_rate_rad_s[:, None] * np.asarray(offsets_m, float)
+
     def ahead(self, lead_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The pose `lead_s` s ahead along the predicted arc: (x_m, y_m, cos, sin) of its heading.
 

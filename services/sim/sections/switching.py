@@ -236,6 +236,10 @@ class _Coverage:
     by its own latency plus the delivery delay: where its strip will be is predicted from the
     sensed pose, speed, acceleration and yaw rate (`Motion.ahead`: each section by its own ground
     speed), whether the path works there is read off the plan at the distance travelled by then.
+    A section whose own ground speed is at most ``section_min_speed_m_s`` is off, as a terminal's slow
+    speed cutoff (AgOpenGPS compares each section's speed with it): the inner end of a turn tighter
+    than its offset pivots or moves backwards, and a gated meter's share of product for its width
+    would pile up where it stands.
     The gates follow the commands after ``section_on_delay_s`` / ``section_off_delay_s``
     (`GateLine`). Exact at constant acceleration and yaw rate; where they change within the
     look-ahead, longer latencies leave more skips and overlap, as the terminals' manuals warn.
@@ -278,6 +282,8 @@ class _Coverage:
         self.poses.append(np.stack([motion.x_m, motion.y_m, np.cos(heading), np.sin(heading)]))
         ahead = [(motion.ahead(lead), self._working(s_m + motion.travel(lead)[0]))
                  for lead in (self.lead_on_s, self.lead_off_s)]
+        imp = self.implement
+        moving = motion.ground_speed_m_s(imp.section_offsets_m) > imp.section_min_speed_m_s
         before = np.concatenate(([self.last_pass], passes[:-1]))
         ends = np.flatnonzero((before >= 0) & (passes != before))
         commanded, actual = np.zeros((m, sections), bool), np.zeros((m, sections), bool)
@@ -286,7 +292,7 @@ class _Coverage:
                 self._mark(tick + int(a))
             if b <= a:
                 continue
-            won, woff = (self._wanted(pose, work, a, b) for pose, work in ahead)
+            won, woff = (self._wanted(pose, work, a, b) & moving[a:b] for pose, work in ahead)
             commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
             self.last_command = commanded[b - 1]
             actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
