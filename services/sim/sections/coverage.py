@@ -18,7 +18,9 @@ from maps.rasterize import fill_rings
 from services.sim.sections.strips import Poses, Strip
 from vehicle import Implement
 
-_TREATED, _OUTSIDE = np.uint8(1), np.uint8(2)  # bits of the coverage raster
+# Bits of the coverage raster, a nibble apart: a section's codes summed count both at once (`_read`).
+_TREATED, _OUTSIDE = np.uint8(1), np.uint8(16)
+_NIBBLE = 15   # a section of at most this many points counts both flags in one sum
 _CELLS_PER_SECTION = 8  # default coverage cell: the narrowest section / this
 _MAX_COVERAGE_CELLS = 16_000_000  # 16 MB of coverage raster at most; coarser cells beyond
 _MIN_COVERAGE_CELL_M = 0.05
@@ -111,8 +113,11 @@ class CoverageRaster:
         np.copyto(part, fx, casting="unsafe")
         cell += part
         np.take(self.state.reshape(-1), cell, out=code, mode="clip")  # in the raster: clipping is moot
+        if strip.counts.max() <= _NIBBLE:   # one sum: treated points in the low nibble, outside in the high
+            both = strip.count(code)
+            return both & _NIBBLE, both >> 4
         treated = strip.count(np.bitwise_and(code, _TREATED, out=flags))
-        return treated, strip.count(np.right_shift(code, 1, out=flags))
+        return treated, strip.count(np.right_shift(code, 4, out=flags))
 
     def treated(self) -> str:
         """The treated cells as plain data: the `_TREATED` bits packed, zlib-compressed, base64.
