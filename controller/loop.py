@@ -292,7 +292,7 @@ class ClosedLoop:
         o = self._ns + 3
         rec = np.empty((t.shape[0], 4, self.n))
         if self._scalar and not isinstance(load_torque_nm, np.ndarray):
-            rec[:, :, 0] = self._run_scalar(t[:, 0].tolist(), load_torque_nm)[:, o:o + 4]
+            rec[:, :, 0] = self._run_scalar(t[:, 0], load_torque_nm)[:, o:o + 4]
         elif self._scalar:
             flat = rec[:, :, 0]
             advance = self._advance
@@ -304,38 +304,42 @@ class ClosedLoop:
             self._run_shared_plant(t[:, :1] if t.strides[1] == 0 else t, load_torque_nm, rec)
         return StepOutput(rec[:, OUT_RPM], rec[:, OUT_REV], rec[:, OUT_CURRENT], rec[:, OUT_MEASURED])
 
-    def _run_scalar(self, targets: list, load) -> np.ndarray:
-        """`_advance`'s one-loop path over `targets` (floats), its arithmetic unchanged (the same
-        product into a row of a history instead of a fresh array, so bit for bit the same), with the
-        per-tick Python work cut: the products (K, R) after each tick."""
+    def _run_scalar(self, targets: np.ndarray, load) -> np.ndarray:
+        """`_advance`'s one-loop path over `targets` (K,), its arithmetic unchanged (the same clip of
+        the targets and the same ``gr * r``, taken over the array at once, and the same product into a
+        row of a history instead of a fresh array, so bit for bit the same), with the per-tick Python
+        work cut: the slots each tick reads and writes go through a memoryview of the history (no numpy
+        scalar per access); the products (K, R) after each tick."""
         gr, ka, ilo, ihi, rmax, ks, g_acc = self._f
         ns, iu, M = self._ns, self._iu, self._M
-        nin, positional = ns + 3, self.form == "positional"
+        width, nin, positional = M.shape[0], ns + 3, self.form == "positional"
         ring0, acc = self._lay.ring0, self._lay.pid0 + ACC
-        history = np.empty((len(targets) + 1, M.shape[0]))
+        nan = np.flatnonzero(np.isnan(targets))
+        ticks = targets[:nan[0]] if nan.size else targets
+        r_all = np.where(ticks >= 0.0, np.where(ticks > rmax, rmax, ticks), 0.0)   # `_advance`'s clip
+        history = np.empty((len(ticks) + 1, width))
         history[0] = self._v
+        slot = memoryview(history.reshape(-1))
         product = M.dot    # the bound method: no dispatch per tick
-        # Tick k reads row k (its inputs written first) and writes row k + 1.
-        for r, v, inputs, out in zip(targets, history[:-1], history[:-1, :nin], history[1:], strict=True):
-            if not r >= 0.0:
-                if r != r:
-                    self._v = v.copy()
-                    raise ControllerError(f"target_shaft_rpm must be a number, got {r!r}")
-                r = 0.0
-            elif r > rmax:
-                r = rmax
-            unsat = ka * (v.item(iu) + gr * r)
-            v[ns] = ilo if unsat < ilo else ihi if unsat > ihi else unsat
-            v[ns + 1] = r
+        # Tick k reads row k (its inputs written first) and writes row k + 1; `at` is row k's offset.
+        at = 0
+        for r, gr_r, inputs, out in zip(r_all.tolist(), (gr * r_all).tolist(), history[:-1, :nin],
+                                        history[1:], strict=True):
+            unsat = ka * (slot[at + iu] + gr_r)
+            slot[at + ns] = ilo if unsat < ilo else ihi if unsat > ihi else unsat
+            slot[at + ns + 1] = r
             if load:     # the product leaves the input slots at zero
-                v[ns + 2] = load
+                slot[at + ns + 2] = load
             product(inputs, out)
             if positional:
-                e = ks * (r - v.item(ring0))
+                e = ks * (r - slot[at + ring0])
                 if (unsat > ihi and e > 0) or (unsat < ilo and e < 0):   # clamping anti-windup
                     out[acc] -= e
                     out[iu] -= g_acc * e
+            at += width
         self._v = history[-1].copy()
+        if nan.size:
+            raise ControllerError(f"target_shaft_rpm must be a number, got {float(targets[nan[0]])!r}")
         return history[1:]
 
     def _run_shared_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:

@@ -184,10 +184,9 @@ class AsApplied:
         for acc, _ in pairs:
             acc._target = acc._acc
         for samples in footprint.samples(step, unit, slice(0, footprint.items)):
-            corners = self.raster.corners(samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x),
-                                          samples.flat(samples.ext_y))
+            terms = self._terms(samples)   # the sub-cells and shares, once for every meter
             for (acc, _), mass in zip(pairs, masses, strict=True):
-                acc._deposit(samples, mass[samples.items], corners)
+                acc._deposit(samples, mass[samples.items], terms)
         for (acc, _), mass in zip(pairs, masses, strict=True):
             acc.total_kg += float(mass.sum())
             acc.items += int(mass.size)
@@ -199,9 +198,8 @@ class AsApplied:
                                                           for v in (x0, y0, x1, y1, width_m, mass_kg)))
         self.deposit(Strips(x0, y0, x1, y1, width), mass, pass_index)
 
-    def _deposit(self, samples: Samples, mass: np.ndarray, corners=None) -> None:
-        """Spread `samples` carrying `mass` (per item); `corners`: `SubcellRaster.corners` of the
-        samples, if known."""
+    def _deposit(self, samples: Samples, mass: np.ndarray, terms=None) -> None:
+        """Spread `samples` carrying `mass` (per item); `terms`: `_terms` of the samples, if known."""
         n = samples.per_item
         area = np.where(mass > 0, samples.swept, 0.0)  # items carrying no product sweep no coverage
         if samples.weight is None:
@@ -209,27 +207,32 @@ class AsApplied:
         else:
             load = samples.flat(mass) * np.broadcast_to(samples.weight, samples.x.shape).ravel() \
                 + 1j * samples.flat(area / n)
-        if corners is None:
-            corners = self.raster.corners(samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x),
-                                          samples.flat(samples.ext_y))
-        self._spread(corners, load)
+        self._spread(self._terms(samples) if terms is None else terms, load)
 
-    def _spread(self, corners, load):
-        """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps (`corners`:
-        `SubcellRaster.corners` of the samples, left unchanged)."""
-        r0, r1, c0, c1, wr, wc = corners
+    def _terms(self, samples: Samples):
+        """What `_spread` needs of the samples' boxes, the same for any load: the corner sub-cells
+        (`SubcellRaster.corners`: r0, c0), the flat indices of the four sub-cells each box overlaps
+        and the shares of the rows and columns, (1 - wc, wc, 1 - wr, wr)."""
+        r0, r1, c0, c1, wr, wc = self.raster.corners(samples.x.ravel(), samples.y.ravel(),
+                                                     samples.flat(samples.ext_x), samples.flat(samples.ext_y))
+        cols = self.raster.shape[1]
+        r0_flat, r1_flat = r0 * cols, r1 * cols
+        cells = (r0_flat + c0, r0_flat + c1, r1_flat + c0, r1_flat + c1)
+        return r0, c0, cells, (1.0 - wc, wc, 1.0 - wr, wr)
+
+    def _spread(self, terms, load):
+        """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps (`terms`:
+        `_terms` of the samples, left unchanged)."""
+        r0, c0, (low_low, low_high, high_low, high_high), (wc_low, wc_high, wr_low, wr_high) = terms
         if self._target is not self._acc:
             self._widen_window(r0, c0)
-        cols = self.raster.shape[1]
-        r0 = r0 * cols
-        r1 = r1 * cols
-        lc = load * (1.0 - wc)
-        hc = load * wc
+        lc = load * wc_low
+        hc = load * wc_high
         acc = self._target
-        np.add.at(acc, r0 + c0, lc * (1.0 - wr))
-        np.add.at(acc, r0 + c1, hc * (1.0 - wr))
-        np.add.at(acc, r1 + c0, lc * wr)
-        np.add.at(acc, r1 + c1, hc * wr)
+        np.add.at(acc, low_low, lc * wr_low)
+        np.add.at(acc, low_high, hc * wr_low)
+        np.add.at(acc, high_low, lc * wr_high)
+        np.add.at(acc, high_high, hc * wr_high)
 
     # --- passes --------------------------------------------------------------------------------
     def _begin_pass(self, index: int) -> None:

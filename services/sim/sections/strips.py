@@ -126,7 +126,9 @@ class Strip:
         return cls(offsets, np.cumsum(counts) - counts, counts, edges)
 
     def count(self, flags: np.ndarray) -> np.ndarray:
-        """Per section, how many of its points are flagged: (points, m) 0/1 -> (m, sections)."""
+        """Per section, how many of its points are flagged: (points, m) 0/1 -> (m, sections). Other
+        byte values are summed alike, in bytes where a section has at most 255 points: the caller keeps
+        such sums below 256 (`CoverageRaster._read`: two flags a nibble apart, at most 15 points)."""
         # Points along the first axis: the sum over each section's points adds whole rows.
         if (self.counts == self.counts[0]).all():  # equal sections: one reshaped sum, 5x faster
             # Summed in bytes where a section's count fits one (6x faster than in int32).
