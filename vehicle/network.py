@@ -1,10 +1,11 @@
 """The SUMO road network of a coverage path: one single-lane edge per segment, built by netconvert.
 
-Each path segment becomes an edge whose shape is the segment's polyline and whose ``length`` is the
-planned length (so SUMO's lane position is planned arc length); a lead-out edge lets the tractor's
-front drive on while the implement, behind it, finishes the last segment. Plain XML nodes and edges
-are converted by the ``netconvert`` of the eclipse-sumo package, without internal junction lanes, and
-the result is cached under a hash of everything that goes into it.
+Each path segment becomes an edge whose shape is the segment's polyline (thinned to points at least
+1 m apart: `NETCONVERT_OPTIONS`) and whose ``length`` is the planned length (so SUMO's lane position
+is planned arc length); a lead-out edge lets the tractor's front drive on while the implement, behind
+it, finishes the last segment. Plain XML nodes and edges are converted by the ``netconvert`` of the
+eclipse-sumo package, without internal junction lanes, and the result is cached under a hash of
+everything that goes into it.
 """
 
 from __future__ import annotations
@@ -27,6 +28,11 @@ NETCONVERT_OPTIONS = (
     "--no-turnarounds", "true",
     "--junctions.limit-turn-speed", "-1",     # edge speeds alone set the speed in turns
     "--geometry.remove", "false",
+    # Every step SUMO walks the lane's shape from its start to place the vehicle (its x, y and angle,
+    # which vrsim does not read: the driver takes lane positions). Turns are planned every 0.25 m:
+    # thinned to 1 m, a tick of the default scenario costs 4.5 % fewer instructions. Lengths, speeds
+    # and connections, all that moves the tractor, stay (the drive is the same to the bit).
+    "--geometry.min-dist", "1",
     "--no-warnings", "true",
     "--verbose", "false",
 )
