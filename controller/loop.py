@@ -459,7 +459,7 @@ class ClosedLoop:
 
     def _array_law(self, kc: np.ndarray, ns: int):
         """`_float_law` over arrays, for many loops: the same products and sums in the same order
-        (`tests/unit/test_controller_loop.py` runs both on one run's targets)."""
+        (`tests/unit/test_controller_multiloop.py` runs both on a run's targets)."""
         w0, ilo, ihi = ns + 8, self._ilo, self._ihi
         products, unsat = np.empty_like(kc), np.empty(kc.shape[1])
         multiply, add = np.multiply, np.add.reduce
