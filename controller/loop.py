@@ -31,6 +31,11 @@ ACC, E1, E2, Y1, Y2 = range(N_PID)
 # Extra entries of the product's input after the state, and extra rows of its output after the state.
 IN_CURRENT, IN_TARGET, IN_LOAD = range(3)
 OUT_REV, OUT_RPM, OUT_CURRENT, OUT_MEASURED = range(4)
+# n loops of one plant: the floats of the products held before their outputs are recorded (a block of
+# ticks that stays in the cache), and the most loops whose PID law runs in Python floats (up to here
+# their arithmetic costs less than a numpy call).
+SHARED_BLOCK_FLOATS = 1 << 16
+FLOAT_LAW_LOOPS = 4
 
 
 class StepOutput:
@@ -347,11 +352,11 @@ class ClosedLoop:
         one plant, with the per-tick Python work cut (a batch of variants runs 10^5 ticks).
 
         The state is held transposed (a row per entry, a column per loop: each tick writes contiguous
-        rows and the product goes into a spare buffer), and the PID output is a weighted sum of four
-        rows the product computes for every loop alike: the loops' gain rows are linear in
-        (1, kp, ki T, kd / T) (`pid_terms`), so g . s + g_r r is those weights times four shared
-        basis outputs, which the product yields from the state and the next tick's target (an extra
-        input). Equal to `_advance` per tick to rounding (the sums are taken in another order). A call
+        rows and the product goes into the next tick's: `_shared_ticks`), and the PID output is a
+        weighted sum of four rows the product computes for every loop alike: the loops' gain rows are
+        linear in (1, kp, ki T, kd / T) (`pid_terms`), so g . s + g_r r is those weights times four
+        shared basis outputs, which the product yields from the state and the next tick's target (an
+        extra input). Equal to `_advance` per tick to rounding (the sums are taken in another order). A call
         that continues the last one (nothing stepped or set in between) starts from its last tick's
         product, as one call would: a run split into calls anywhere gives the one call's numbers bit
         for bit (a loop restored from `state` starts from the state, equal to rounding).
@@ -360,7 +365,7 @@ class ClosedLoop:
         r_all = np.minimum(np.maximum(t[:, 0] if common else t, 0.0), self._rmax[0] if common else self._rmax)
         if np.isnan(r_all).any():
             raise ControllerError("target_shaft_rpm must be numbers, got NaN")
-        ns, ilo, ihi, ks = self._ns, self._ilo, self._ihi, self._ks
+        ns, ks = self._ns, self._ks
         weights, basis = self._terms
         gamma, delta = _gain_vectors(basis, np.full(len(basis), ks[0]), self._lay)
         out0, w0, nin = ns + 4, ns + 8, ns + 4     # outputs, basis outputs; inputs: ..., next target
@@ -374,8 +379,7 @@ class ClosedLoop:
         pairs = np.zeros((len(r_all), 2, 1 if common else self.n))     # (this target, the next one)
         pairs[:, 0] = r_all if not common else r_all[:, None]
         pairs[:-1, 1] = pairs[1:, 0]
-        with_load = isinstance(load, np.ndarray) or bool(load)
-        ring0, acc, positional = self._lay.ring0, self._lay.pid0 + ACC, self.form == "positional"
+        acc = self._lay.pid0 + ACC
         v = np.zeros((ns + 12, self.n))
         v[:ns] = np.atleast_2d(self._v)[:, :ns].T
         spare = np.empty_like(v)
@@ -388,34 +392,87 @@ class ClosedLoop:
             v[w0:] = spare[w0:]
         elif len(r_all):
             v[w0:] = gamma @ v[:ns] + delta[:, None] * pairs[0, 0]
-        held = None
-        cur = v[ns + IN_CURRENT]
-        for k in range(len(r_all)):
-            unsat = np.einsum("bj,bj->j", kc, v[w0:])
-            saturate(unsat, ilo, ihi, out=cur)
-            v[ns + IN_TARGET:ns + 4:2] = pairs[k]
-            if with_load:
-                v[ns + IN_LOAD] = load
-            out = np.dot(mx, v[:nin], out=spare)
-            held = None
-            if positional:      # clamping anti-windup: the error sum and the basis outputs after it
-                e = ks * (pairs[k, 0] - v[ring0])
-                frozen = clamped(unsat, e, ilo, ihi)
-                if frozen.any():
-                    held = np.where(frozen, e, 0.0)
-                    out[acc] -= held
-                    out[w0:] -= gamma[:, acc, None] * held
-            rec[k] = out[out0:out0 + 4]
-            v, spare = out, v
-            cur = v[ns + IN_CURRENT]
-        if len(r_all):
-            self._resume = (spare[:nin].copy(), held)   # `spare`: the last tick's inputs
+        v = self._shared_ticks(v, mx, kc, gamma[:, acc], pairs, load, rec)
         state = np.zeros_like(np.atleast_2d(self._v))
         state[:, :ns] = v[:ns].T
         state[:, ns + 3:ns + 7] = v[out0:out0 + 4].T
         if self._cached_u:
             state[:, self._iu] = state[:, :ns] @ self._g[0]
         self._v = state
+
+    def _shared_ticks(self, v: np.ndarray, mx: np.ndarray, kc: np.ndarray, g_acc: np.ndarray,
+                      pairs: np.ndarray, load, rec: np.ndarray) -> np.ndarray:
+        """The ticks of `_run_shared_plant`: from `v` (ns + 12, n), the state with this tick's basis
+        outputs, through the product `mx` (ns + 12, ns + 4), the loops' weights `kc` (4, n), the basis
+        outputs' coefficients on the error sum `g_acc` (4,) and the targets `pairs` (K, 2, 1 or n);
+        the outputs go into `rec` (K, 4, n). Returns the last product and keeps `_resume`.
+
+        Each tick's product goes straight into the next tick's vector in a history of a block of
+        ticks, whose outputs are recorded a block at a time. The unsaturated PID output of a loop is
+        ``0 + p0 + p1 + p2 + p3`` (in this order, each step rounded) of its four products
+        ``p = kc * w`` with the basis outputs w, as ``einsum("bj,bj->j", kc, w)`` sums them: in floats
+        for a few loops (`_float_law`), over arrays for many (`_array_law`).
+        """
+        ns, n = self._ns, self.n
+        out0, w0, nin = ns + 4, ns + 8, ns + 4
+        law = (self._float_law if n <= FLOAT_LAW_LOOPS else self._array_law)(kc, ns)
+        with_load = isinstance(load, np.ndarray) or bool(load)
+        positional, ring0, acc = self.form == "positional", self._lay.ring0, self._lay.pid0 + ACC
+        ilo, ihi, ks = self._ilo, self._ihi, self._ks
+        g_col = g_acc[:, None]
+        dot = np.dot
+        block = max(1, SHARED_BLOCK_FLOATS // v.size)
+        hist = np.empty((min(block, len(pairs)) + 1, *v.shape))
+        hist[0] = v
+        held = None
+        for start in range(0, len(pairs), block):
+            m = min(block, len(pairs) - start)
+            for h, nxt, pair in zip(hist[:m], hist[1:m + 1], pairs[start:start + m], strict=True):
+                unsat = law(h)
+                h[ns + IN_TARGET:ns + 4:2] = pair
+                if with_load:
+                    h[ns + IN_LOAD] = load
+                dot(mx, h[:nin], out=nxt)
+                held = None
+                if positional:      # clamping anti-windup: the error sum and the basis outputs after it
+                    e = ks * (pair[0] - h[ring0])
+                    frozen = clamped(np.asarray(unsat), e, ilo, ihi)
+                    if frozen.any():
+                        held = np.where(frozen, e, 0.0)
+                        nxt[acc] -= held
+                        nxt[w0:] -= g_col * held
+            rec[start:start + m] = hist[1:m + 1, out0:out0 + 4]
+            if start + m == len(pairs):
+                self._resume = (hist[m - 1, :nin].copy(), held)   # the last tick's inputs
+            hist[0] = hist[m]
+        return hist[0]
+
+    def _float_law(self, kc: np.ndarray, ns: int):
+        """The PID law of a few loops in Python floats (a numpy call costs more than their arithmetic):
+        ``law(h)`` writes the saturated currents into row `ns` of a tick's vector `h` from its basis
+        outputs and returns the unsaturated ones (a list)."""
+        weights, w0 = kc.T.tolist(), ns + 8
+        lo, hi = float(self._ilo[0]), float(self._ihi[0])
+
+        def law(h):
+            unsat = [0.0 + c0 * a + c1 * b + c2 * c + c3 * d
+                     for (c0, c1, c2, c3), a, b, c, d in zip(weights, *h[w0:].tolist(), strict=True)]
+            h[ns] = [lo if u < lo else hi if u > hi else u for u in unsat]   # `saturate` inline
+            return unsat
+        return law
+
+    def _array_law(self, kc: np.ndarray, ns: int):
+        """`_float_law` over arrays, for many loops: the same products and sums in the same order
+        (`tests/unit/test_controller_multiloop.py` runs both on a run's targets)."""
+        w0, ilo, ihi = ns + 8, self._ilo, self._ihi
+        products, unsat = np.empty_like(kc), np.empty(kc.shape[1])
+        multiply, add = np.multiply, np.add.reduce
+
+        def law(h):
+            add(multiply(kc, h[w0:], out=products), axis=0, out=unsat, initial=0.0)
+            saturate(unsat, ilo, ihi, out=h[ns])
+            return unsat
+        return law
 
     def _run_per_plant(self, t: np.ndarray, load, rec: np.ndarray) -> None:
         """`_advance` over the rows of `t` (K, n) for n loops of their own plants (one product each),

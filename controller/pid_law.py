@@ -16,9 +16,9 @@ valve really got, so it never winds up beyond a limit; the positional form stops
 that would push a saturated output further.
 
 `saturate` and `clamped` work on one loop's floats and on n loops' arrays alike (`controller.ops`).
-The one-loop path of `ClosedLoop._advance` writes them out inline (a function call is a tenth of its
-tick); `tests/unit/test_controller_law.py` proves it equal to them over random gains, limits and
-targets.
+The one-loop path of `ClosedLoop._advance` and the few-loop law of its shared-plant path
+(`ClosedLoop._float_law`) write `saturate` out inline (a function call is a tenth of a tick);
+`tests/unit/test_controller_law.py` proves them equal to it over random gains, limits and targets.
 """
 
 from __future__ import annotations
