@@ -5,9 +5,12 @@ second or more) overlaps the simulation on another core; after the run it draws 
 and timeseries.png while the run's process writes the GeoTIFFs, the track files and the TimeLog. A process,
 not a thread: drawing holds the GIL.
 
-The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path)
-arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply per job
-goes back pickled on its stdout, in order. Each job is drawn in a child forked from the worker (fork
+The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path
+or None, priority) arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and
+one reply per job goes back pickled on its stdout, in order (a job without a path is drawn in memory:
+its reply holds the PNG's bytes). A job may come while the run still goes on (timeseries.png's minute
+is known early: `services.outputs.early`): it is drawn at a low priority, on what the run leaves of
+the cores. Each job is drawn in a child forked from the worker (fork
 copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
 run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
 reply, not a lost worker.
@@ -34,6 +37,7 @@ import threading
 
 # What a job may ask for, from services.outputs.plots.
 DRAWINGS = ("draw_maps", "draw_sections", "draw_timeseries")
+LOW_PRIORITY = 10   # the nice value of the imports and of a job drawn while the run goes on
 _LENGTH = struct.Struct("<Q")  # each job's length, before it
 
 
@@ -51,15 +55,17 @@ class PlotWorker:
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return self
 
-    def submit(self, drawing: str, picture, path: str) -> None:
-        """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path`; returns at once.
+    def submit(self, drawing: str, picture, path: str | None, low_priority: bool = False) -> None:
+        """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path` (None: into memory, the PNG's
+        bytes are the job's `result`); returns at once. `low_priority`: drawn at a nice value of
+        `LOW_PRIORITY` (while the run goes on).
 
         A picture is megabytes and the pipe holds 64 KB: written here, the next job would wait for
         the worker to finish drawing the last. A thread writes the jobs in order instead."""
         if self._writer is None:
             self._writer = threading.Thread(target=self._write_jobs, name="plot-jobs", daemon=True)
             self._writer.start()
-        job = pickle.dumps((drawing, picture, path), protocol=pickle.HIGHEST_PROTOCOL)
+        job = pickle.dumps((drawing, picture, path, low_priority), protocol=pickle.HIGHEST_PROTOCOL)
         self._jobs.put(_LENGTH.pack(len(job)) + job)
 
     def _write_jobs(self) -> None:
@@ -73,23 +79,27 @@ class PlotWorker:
         finally:
             stdin.close()
 
-    def result(self) -> None:
-        """Wait for the next job; what went wrong in the worker is raised here (a RuntimeError: a bug)."""
+    def result(self) -> str | bytes:
+        """Wait for the next job: its path, or the PNG's bytes of a job without one; what went wrong in
+        the worker is raised here (a RuntimeError: a bug)."""
         try:
             status, detail = pickle.load(self.proc.stdout)
         except EOFError:
             raise RuntimeError(f"the plot worker ended (exit code {self.proc.wait()})") from None
         if status != "ok":
             raise RuntimeError(f"the plot worker: {detail}")
+        return detail
 
     def close(self) -> None:
-        """End the worker (after its pending jobs)."""
+        """End the worker (after its pending jobs, whose replies nobody waits for any more: read and
+        dropped, a PNG's bytes would fill the pipe and the worker would wait for a reader)."""
         if self.proc is not None:
             if self._writer is None:
                 self.proc.stdin.close()
             else:
                 self._jobs.put(None)
                 self._writer.join()
+            self.proc.stdout.read()
             self.proc.wait()
             self.proc.stdout.close()
             self.proc = None
@@ -139,24 +149,32 @@ def _whole_jobs(pending: bytearray):
 
 def _import_matplotlib() -> None:
     """Import matplotlib and the drawing code, in this thread at a low priority."""
-    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
+    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), LOW_PRIORITY)
     import matplotlib.figure  # noqa: F401 - what every drawing needs
 
     from services.outputs import plots  # noqa: F401
 
 
-def _drawn(job: bytes) -> tuple[str, str]:
+def _drawn(job: bytes) -> tuple[str, str | bytes]:
     """Draw one pickled job; its reply."""
+    import io
+
     from services.outputs import plots
 
-    drawing, picture, path = pickle.loads(job)
+    drawing, picture, path, low_priority = pickle.loads(job)
+    if low_priority:
+        os.setpriority(os.PRIO_PROCESS, 0, LOW_PRIORITY)
     try:
         if drawing not in DRAWINGS:
             raise ValueError(f"unknown drawing {drawing!r}")
-        getattr(plots, drawing)(picture, path)
-        return ("ok", path)
+        if path is not None:
+            getattr(plots, drawing)(picture, path)
+            return ("ok", path)
+        png = io.BytesIO()
+        getattr(plots, drawing)(picture, png)
+        return ("ok", png.getvalue())
     except Exception as exc:  # noqa: BLE001 - reported to the caller, which raises it
-        return ("error", f"{drawing} {path}: {type(exc).__name__}: {exc}")
+        return ("error", f"{drawing} {path or 'in memory'}: {type(exc).__name__}: {exc}")
 
 
 if __name__ == "__main__":

@@ -115,11 +115,16 @@ def sections_picture(result) -> SectionsPicture:
 def series_picture(result) -> SeriesPicture:
     """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start),
     `services.sim.kept.SeriesWindow`, the rates in the map's unit."""
-    w, grid = result.kept.series, result.world.grid
+    return window_picture(result.kept.series, result.world)
+
+
+def window_picture(w: dict, world) -> SeriesPicture:
+    """timeseries.png's content of a `services.sim.kept.SeriesWindow`'s ``series`` `w` of a run of
+    `world` (`services.sim.world.World`)."""
+    grid = world.grid
     rates = (grid.in_map_unit(w["prescribed_kg_ha"]), grid.in_map_unit(w["applied_kg_ha"]))
     return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], *rates,
-                         f"{result.world.scenario.name}: shaft speed and rate around rate steps",
-                         grid.map_unit)
+                         f"{world.scenario.name}: shaft speed and rate around rate steps", grid.map_unit)
 
 
 def _draw_panels(fig, panels, extent, outline, unit: str):
