@@ -3,10 +3,10 @@ long before the run ends, and the picture's process has a core to spare once SUM
 
 `EarlyTimeseries` is a track sink of a streamed run (`services.sim.streamed.run_streamed`): it is given
 each accounted stretch's rows, as the track files are, keeps the same window of them as the run does,
-and hands the picture to the plot worker as soon as the window is whole, to be drawn in memory at a
-low priority (`services.outputs.plot_worker`). `services.outputs.write.write_outputs` then writes the
-PNG's bytes instead of drawing it after the run (the same bytes: the same window of the same rows,
-drawn by the same function).
+and hands the picture to the plot worker as soon as the window is whole, to be drawn in memory once
+the worker's imports are done (`services.outputs.plot_worker`). `services.outputs.write.write_outputs`
+then writes the PNG's bytes instead of drawing it after the run (the same bytes: the same window of
+the same rows, drawn by the same function).
 """
 
 from __future__ import annotations
@@ -38,6 +38,5 @@ class EarlyTimeseries:
         if self.window.complete:
             from services.outputs.plots import window_picture
 
-            self.plotter.submit("draw_timeseries", window_picture(self.window.series, self.world), None,
-                                low_priority=True)
+            self.plotter.submit("draw_timeseries", window_picture(self.window.series, self.world), None)
             self.submitted = True

@@ -1,19 +1,20 @@
 """A second process that draws a run's pictures while the first writes the other files.
 
 `vrsim run` starts it (`PlotWorker.start`) before it simulates, so its matplotlib import (a third of a
-second or more) overlaps the simulation on another core; after the run it draws map.png, sections.png
-and timeseries.png while the run's process writes the GeoTIFFs, the track files and the TimeLog. A process,
-not a thread: drawing holds the GIL.
+second or more) overlaps the simulation on another core; after the run it draws map.png and
+sections.png (timeseries.png too, unless it was drawn as the run went) while the run's process writes
+the GeoTIFFs, the track files and the TimeLog. A process, not a thread: drawing holds the GIL.
 
 The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path
-or None, priority) arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and
-one reply per job goes back pickled on its stdout, in order (a job without a path is drawn in memory:
-its reply holds the PNG's bytes). A job may come while the run still goes on (timeseries.png's minute
-is known early: `services.outputs.early`): it is drawn at a low priority, on what the run leaves of
-the cores. Each job is drawn in a child forked from the worker (fork
-copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
-run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
-reply, not a lost worker.
+or None) arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply
+per job goes back pickled on its stdout, in order (a job without a path is drawn in memory: its reply
+holds the PNG's bytes). A job may come while the run still goes on (timeseries.png's minute is known
+early: `services.outputs.early`); like any, it is drawn once the low-priority imports are done, that
+is once the cores have had time to spare. (Drawn at a low priority too, on a busy machine it was
+drawn last, 0.26 s after the run's other pictures.) Each job is drawn in a child forked from the
+worker (fork copies no import: matplotlib is loaded once), so the pictures are drawn side by side on
+the cores the run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is
+an error reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
 matplotlib and vrsim's drawing code in a thread at a low priority (a Linux thread has its own nice
 value), so the import takes what the run's processes leave of the cores; the children it forks draw
@@ -37,7 +38,6 @@ import threading
 
 # What a job may ask for, from services.outputs.plots.
 DRAWINGS = ("draw_maps", "draw_sections", "draw_timeseries")
-LOW_PRIORITY = 10   # the nice value of the imports and of a job drawn while the run goes on
 _LENGTH = struct.Struct("<Q")  # each job's length, before it
 
 
@@ -55,17 +55,16 @@ class PlotWorker:
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return self
 
-    def submit(self, drawing: str, picture, path: str | None, low_priority: bool = False) -> None:
+    def submit(self, drawing: str, picture, path: str | None) -> None:
         """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path` (None: into memory, the PNG's
-        bytes are the job's `result`); returns at once. `low_priority`: drawn at a nice value of
-        `LOW_PRIORITY` (while the run goes on).
+        bytes are the job's `result`); returns at once.
 
         A picture is megabytes and the pipe holds 64 KB: written here, the next job would wait for
         the worker to finish drawing the last. A thread writes the jobs in order instead."""
         if self._writer is None:
             self._writer = threading.Thread(target=self._write_jobs, name="plot-jobs", daemon=True)
             self._writer.start()
-        job = pickle.dumps((drawing, picture, path, low_priority), protocol=pickle.HIGHEST_PROTOCOL)
+        job = pickle.dumps((drawing, picture, path), protocol=pickle.HIGHEST_PROTOCOL)
         self._jobs.put(_LENGTH.pack(len(job)) + job)
 
     def _write_jobs(self) -> None:
@@ -149,7 +148,7 @@ def _whole_jobs(pending: bytearray):
 
 def _import_matplotlib() -> None:
     """Import matplotlib and the drawing code, in this thread at a low priority."""
-    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), LOW_PRIORITY)
+    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)
     import matplotlib.figure  # noqa: F401 - what every drawing needs
 
     from services.outputs import plots  # noqa: F401
@@ -161,9 +160,7 @@ def _drawn(job: bytes) -> tuple[str, str | bytes]:
 
     from services.outputs import plots
 
-    drawing, picture, path, low_priority = pickle.loads(job)
-    if low_priority:
-        os.setpriority(os.PRIO_PROCESS, 0, LOW_PRIORITY)
+    drawing, picture, path = pickle.loads(job)
     try:
         if drawing not in DRAWINGS:
             raise ValueError(f"unknown drawing {drawing!r}")
