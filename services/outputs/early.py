@@ -29,9 +29,12 @@ class EarlyTimeseries:
         self.submitted = False
 
     def world_built(self, world) -> None:
+        """The run's world (`services.sim.world.World`): its grid gives the rates' unit, its scenario
+        the title."""
         self.world = world
 
     def __call__(self, rows: dict) -> None:
+        """The next stretch's track rows (`services.sim.bounded.BoundedAccount`'s)."""
         if self.submitted:
             return
         self.window.add({k: rows[k] for k in SERIES_KEYS}, rows["implement_on"])
