@@ -102,24 +102,28 @@ def _run(args, driver) -> int:
     # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
-    track = None
+    track = early = None
     try:
+        from services.outputs.early import EarlyTimeseries
         from services.outputs.summary import summary_json, text_summary
         from services.outputs.track import TrackFiles
         from services.outputs.write import outputs_line, write_outputs
         from services.sim.as_run import with_settings
 
         out_dir = args.out or default_out_dir(sc.name)
-        # The track is written as the run accounts it (its memory is the map's and a part's).
+        # The track is written as the run accounts it (its memory is the map's and a part's), and
+        # timeseries.png drawn once its minute has been driven.
         track = TrackFiles(driver.planned[0], out_dir, sc.output.track_formats)
+        early = EarlyTimeseries(plotter) if plotter is not None else None
         _started()
         try:
             result = run_streamed(sc, progress=progress, worker=driver, error_split=sc.output.html,
-                                  track_sink=track)
+                                  track_sink=_sinks(track, early),
+                                  on_world=early.world_built if early is not None else None)
         finally:
             progress.close()
         t0 = time.perf_counter()
-        write_outputs(result, out_dir, plotter, track)
+        write_outputs(result, out_dir, plotter, track, early)
         track = None
     finally:
         if track is not None:
@@ -135,6 +139,16 @@ def _run(args, driver) -> int:
         print(text_summary(result.summary))
         print(outputs_line(out_dir, sc.output.track_formats))
     return 0
+
+
+def _sinks(*sinks):
+    """One track sink that hands each stretch's rows to each of `sinks` (None: left out)."""
+    sinks = [sink for sink in sinks if sink is not None]
+
+    def each(rows: dict) -> None:
+        for sink in sinks:
+            sink(rows)
+    return each
 
 
 def _scenario(args):

@@ -1,16 +1,20 @@
 """A second process that draws a run's pictures while the first writes the other files.
 
 `vrsim run` starts it (`PlotWorker.start`) before it simulates, so its matplotlib import (a third of a
-second or more) overlaps the simulation on another core; after the run it draws map.png, sections.png
-and timeseries.png while the run's process writes the GeoTIFFs, the track files and the TimeLog. A process,
-not a thread: drawing holds the GIL.
+second or more) overlaps the simulation on another core; after the run it draws map.png and
+sections.png (timeseries.png too, unless it was drawn as the run went) while the run's process writes
+the GeoTIFFs, the track files and the TimeLog. A process, not a thread: drawing holds the GIL.
 
-The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path)
-arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply per job
-goes back pickled on its stdout, in order. Each job is drawn in a child forked from the worker (fork
-copies no import: matplotlib is loaded once), so the pictures are drawn side by side on the cores the
-run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is an error
-reply, not a lost worker.
+The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path
+or None) arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply
+per job goes back pickled on its stdout, in order (a job without a path is drawn in memory: its reply
+holds the PNG's bytes). A job may come while the run still goes on (timeseries.png's minute is known
+early: `services.outputs.early`); like any, it is drawn once the low-priority imports are done, that
+is once the cores have had time to spare. (Drawn at a low priority too, on a busy machine it was
+drawn last, 0.26 s after the run's other pictures.) Each job is drawn in a child forked from the
+worker (fork copies no import: matplotlib is loaded once), so the pictures are drawn side by side on
+the cores the run's process leaves (`common.forked.Forked`), and a drawing that crashes its process is
+an error reply, not a lost worker.
 Both ends are vrsim's own processes (pickle is no format for anything else). The worker imports numpy,
 matplotlib and vrsim's drawing code in a thread at a low priority (a Linux thread has its own nice
 value), so the import takes what the run's processes leave of the cores; the children it forks draw
@@ -51,8 +55,9 @@ class PlotWorker:
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return self
 
-    def submit(self, drawing: str, picture, path: str) -> None:
-        """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path`; returns at once.
+    def submit(self, drawing: str, picture, path: str | None) -> None:
+        """Ask for `drawing` (one of `DRAWINGS`) of `picture` into `path` (None: into memory, the PNG's
+        bytes are the job's `result`); returns at once.
 
         A picture is megabytes and the pipe holds 64 KB: written here, the next job would wait for
         the worker to finish drawing the last. A thread writes the jobs in order instead."""
@@ -73,23 +78,27 @@ class PlotWorker:
         finally:
             stdin.close()
 
-    def result(self) -> None:
-        """Wait for the next job; what went wrong in the worker is raised here (a RuntimeError: a bug)."""
+    def result(self) -> str | bytes:
+        """Wait for the next job: its path, or the PNG's bytes of a job without one; what went wrong in
+        the worker is raised here (a RuntimeError: a bug)."""
         try:
             status, detail = pickle.load(self.proc.stdout)
         except EOFError:
             raise RuntimeError(f"the plot worker ended (exit code {self.proc.wait()})") from None
         if status != "ok":
             raise RuntimeError(f"the plot worker: {detail}")
+        return detail
 
     def close(self) -> None:
-        """End the worker (after its pending jobs)."""
+        """End the worker (after its pending jobs, whose replies nobody waits for any more: read and
+        dropped, a PNG's bytes would fill the pipe and the worker would wait for a reader)."""
         if self.proc is not None:
             if self._writer is None:
                 self.proc.stdin.close()
             else:
                 self._jobs.put(None)
                 self._writer.join()
+            self.proc.stdout.read()
             self.proc.wait()
             self.proc.stdout.close()
             self.proc = None
@@ -145,18 +154,24 @@ def _import_matplotlib() -> None:
     from services.outputs import plots  # noqa: F401
 
 
-def _drawn(job: bytes) -> tuple[str, str]:
+def _drawn(job: bytes) -> tuple[str, str | bytes]:
     """Draw one pickled job; its reply."""
+    import io
+
     from services.outputs import plots
 
     drawing, picture, path = pickle.loads(job)
     try:
         if drawing not in DRAWINGS:
             raise ValueError(f"unknown drawing {drawing!r}")
-        getattr(plots, drawing)(picture, path)
-        return ("ok", path)
+        if path is not None:
+            getattr(plots, drawing)(picture, path)
+            return ("ok", path)
+        png = io.BytesIO()
+        getattr(plots, drawing)(picture, png)
+        return ("ok", png.getvalue())
     except Exception as exc:  # noqa: BLE001 - reported to the caller, which raises it
-        return ("error", f"{drawing} {path}: {type(exc).__name__}: {exc}")
+        return ("error", f"{drawing} {path or 'in memory'}: {type(exc).__name__}: {exc}")
 
 
 if __name__ == "__main__":

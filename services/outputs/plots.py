@@ -88,7 +88,9 @@ def map_picture(result) -> MapPicture:
     extent, (west, south), outline = _frame(result)
     x_m, y_m = result.kept.path_xy   # thinned (`services.sim.kept.PathPoints`)
     s = result.summary
-    return MapPicture(grid.in_map_unit(grid.rates_kg_ha), grid.in_map_unit(result.as_applied.applied_kg_ha),
+    # The deposit's rasters, read once by the run (each read of `result.as_applied` sums them again).
+    applied = result.accounts.deposit.applied_kg_ha
+    return MapPicture(grid.in_map_unit(grid.rates_kg_ha), grid.in_map_unit(applied),
                       result.in_field, extent, outline, (x_m - west, y_m - south),
                       f"{result.world.scenario.name}: MAE {s['in_rate_unit']['mae']:.1f} {grid.map_unit}, "
                       f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area",
@@ -98,14 +100,15 @@ def map_picture(result) -> MapPicture:
 def sections_picture(result) -> SectionsPicture:
     """sections.png's content of a `services.sim.run.RunResult`."""
     extent, _, outline = _frame(result)
-    cover = result.as_applied.coverage_fraction
+    deposit = result.accounts.deposit
+    cover = deposit.coverage_fraction
     s = result.summary
     titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg",
               f"Skipped: {s['skip_area_pct']:.2f} % of worked area asking for product\n"
               f"bare as prescribed (rate 0): {s['off_as_prescribed_area_pct']:.2f} % of worked area",
               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area")
     widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
-    return SectionsPicture(result.as_applied.overlap_fraction,
+    return SectionsPicture(deposit.overlap_fraction,
                            np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0),
                            np.minimum(result.limited_fraction, 1.0), result.in_field, extent, outline, titles,
                            f"{result.world.scenario.name}: {s['sections']} sections ({widths} m), section "
@@ -115,11 +118,16 @@ def sections_picture(result) -> SectionsPicture:
 def series_picture(result) -> SeriesPicture:
     """timeseries.png's content: a minute from 10 s before the first rate step (else the run's start),
     `services.sim.kept.SeriesWindow`, the rates in the map's unit."""
-    w, grid = result.kept.series, result.world.grid
+    return window_picture(result.kept.series, result.world)
+
+
+def window_picture(w: dict, world) -> SeriesPicture:
+    """timeseries.png's content of a `services.sim.kept.SeriesWindow`'s ``series`` `w` of a run of
+    `world` (`services.sim.world.World`)."""
+    grid = world.grid
     rates = (grid.in_map_unit(w["prescribed_kg_ha"]), grid.in_map_unit(w["applied_kg_ha"]))
     return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], *rates,
-                         f"{result.world.scenario.name}: shaft speed and rate around rate steps",
-                         grid.map_unit)
+                         f"{world.scenario.name}: shaft speed and rate around rate steps", grid.map_unit)
 
 
 def _draw_panels(fig, panels, extent, outline, unit: str):

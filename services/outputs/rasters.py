@@ -21,7 +21,8 @@ def write_rasters(result: RunResult, prescription_path: str, as_applied_path: st
     """Write the prescription, the applied rate and its error against the prescription (in the map's
     unit), and the pass counts."""
     grid = result.world.grid
-    applied = np.where(result.in_field, result.as_applied.applied_kg_ha, np.nan)
+    # The deposit's raster, read once by the run (each read of `result.as_applied` sums it again).
+    applied = np.where(result.in_field, result.accounts.deposit.applied_kg_ha, np.nan)
     write_map(grid, prescription_path)
     write_map(replace(grid, rates_kg_ha=applied, product="as-applied"), as_applied_path)
     write_map(replace(grid, rates_kg_ha=applied - grid.rates_kg_ha, product="applied minus prescribed",

@@ -3,7 +3,9 @@ position, speed, shaft, current, rates, sections), the same columns and units in
 
 Written part by part as a run accounts its ticks (`services.sim.bounded`: `TrackFiles` is its track
 sink), or whole from an in-process run's arrays; each file whole or not at all (`common.written`: a
-temporary name beside it, renamed when the run's outputs are done). Through pyarrow (177,000 rows in a
+temporary name beside it, renamed when the run's outputs are done). A thread makes each part's table
+and writes it (pyproj, numpy and Arrow work without the GIL: the run goes on meanwhile, on the other
+core), at most `BACKLOG_PARTS` parts behind. Through pyarrow (177,000 rows in a
 fraction of a second, where a row-by-row writer takes most of a second). In track.csv a value that does
 not exist (a rate outside the map, the applied rate at a standstill) is an empty field, so GIS tools and
 spreadsheets type the column as a number; in track.parquet it is null. Each column is rounded to its
@@ -26,6 +28,9 @@ TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("targ
                  ("shaft_rpm", 3), ("current_a", 5), ("prescribed_kg_ha", 2), ("applied_kg_ha", 2),
                  ("implement_on", None), ("sections_on", None), ("section_mask", None))
 TRACK_FILES = {"parquet": "track.parquet", "csv": "track.csv"}   # ``[output] track``'s formats
+# Parts handed to the writing thread and not yet written, at most: the track's memory stays a few
+# parts' whatever the disk's speed.
+BACKLOG_PARTS = 2
 
 
 def _track_table(field, rows: dict):
@@ -74,6 +79,8 @@ class TrackFiles:
         self.partial = None
         self.paths = {f: os.path.join(folder, TRACK_FILES[f]) for f in formats}
         self._writers: dict = {}
+        self._thread = None   # the writing thread (a one-thread pool), from the first part on
+        self._pending: list = []   # the parts handed to it (futures), oldest first
         try:
             os.makedirs(folder, exist_ok=True)
             self.partial = tempfile.mkdtemp(prefix=".track-partial-", dir=folder)
@@ -81,18 +88,39 @@ class TrackFiles:
             self._failed(exc)
 
     def __call__(self, rows: dict) -> None:
-        """Write the next ticks' rows."""
+        """Write the next ticks' rows (in the writing thread; what went wrong there is raised by a later
+        call or `finish`)."""
         if not self.paths:
             return
+        rows = {k: np.array(rows[k]) for k in _ROW_KEYS}   # the thread's own: the run's may change
+        self._settle(BACKLOG_PARTS - 1)
+        if self._thread is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._thread = ThreadPoolExecutor(1, thread_name_prefix="track-files")
+        self._pending.append(self._thread.submit(self._write, rows))
+
+    def _write(self, rows: dict) -> None:
         table = _track_table(self.field, rows)
-        try:
-            if not self._writers:
-                self._writers = {f: _writer(f, os.path.join(self.partial, TRACK_FILES[f]), table.schema)
-                                 for f in self.paths}
-            for writer in self._writers.values():
-                writer.write_table(table)
-        except OSError as exc:   # pyarrow's, a full disk say
-            self._failed(exc)
+        if not self._writers:
+            self._writers = {f: _writer(f, os.path.join(self.partial, TRACK_FILES[f]), table.schema)
+                             for f in self.paths}
+        for writer in self._writers.values():
+            writer.write_table(table)
+
+    def _settle(self, parts: int) -> None:
+        """Wait until at most `parts` parts are still to be written; a failed write is raised here."""
+        while len(self._pending) > parts:
+            try:
+                self._pending.pop(0).result()
+            except OSError as exc:   # pyarrow's, a full disk say
+                self._failed(exc)
+
+    def _stop(self) -> None:
+        """End the writing thread: the parts it has not begun are dropped, the one it writes finished."""
+        if self._thread is not None:
+            self._thread.shutdown(wait=True, cancel_futures=True)
+            self._thread, self._pending = None, []
 
     def _failed(self, exc: OSError):
         """Remove what was written and raise the one line of a folder that takes no more
@@ -106,8 +134,10 @@ class TrackFiles:
     def finish(self) -> dict[str, str]:
         """Close the files and put them in place; {file name: path}."""
         try:
+            self._settle(0)
+            self._stop()
             if self.paths and not self._writers:   # no tick: the columns alone
-                self({k: np.zeros((0, 0) if k == "sections_on" else 0) for k in _ROW_KEYS})
+                self._write({k: np.zeros((0, 0) if k == "sections_on" else 0) for k in _ROW_KEYS})
             for writer in self._writers.values():
                 writer.close()
             self._writers = {}
@@ -126,6 +156,7 @@ class TrackFiles:
         """Remove what was written (nothing under a final name changes)."""
         import shutil
 
+        self._stop()
         for writer in self._writers.values():
             with contextlib.suppress(Exception):
                 writer.close()

@@ -29,8 +29,8 @@ def outputs_line(out_dir: str, track_formats=("parquet",)) -> str:
             "summary.json)")
 
 
-def write_outputs(result: RunResult, out_dir: str, plotter=None,
-                  track: TrackFiles | None = None) -> dict[str, str]:
+def write_outputs(result: RunResult, out_dir: str, plotter=None, track: TrackFiles | None = None,
+                  early=None) -> dict[str, str]:
     """Write every output file into `out_dir`, all of them or none (`common.written.staged`: a full
     disk or a read-only folder is a `common.MapError` naming the folder, and changes no file of
     `out_dir`); returns {name: path}.
@@ -48,6 +48,9 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None,
         A run accounted part by part (``result.bounded``): the track files it wrote as it went into
         `out_dir`, put in place here with the rest (removed if the rest fails). None: written here from
         the run's arrays (a bounded run without them writes no track).
+    early : services.outputs.early.EarlyTimeseries, optional
+        `plotter`'s timeseries.png of the run, drawn as it went: if it was submitted, its bytes are
+        written (the first reply due) instead of drawing it again.
     """
     from services.outputs import plots
 
@@ -65,11 +68,19 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None,
         staged_paths = {name: os.path.join(stage, name) for name in paths}
         jobs = []
         if output.plots:  # next: the pictures take longest, in the worker
+            drawn = plotter is not None and early is not None and early.submitted
             jobs = [("draw_maps", plots.map_picture(result), staged_paths["map.png"]),
-                    ("draw_sections", plots.sections_picture(result), staged_paths["sections.png"]),
-                    ("draw_timeseries", plots.series_picture(result), staged_paths["timeseries.png"])]
+                    ("draw_sections", plots.sections_picture(result), staged_paths["sections.png"])]
             for job in jobs if plotter is not None else ():
                 plotter.submit(*job)
+            series = ("draw_timeseries", None if drawn else plots.series_picture(result),
+                      staged_paths["timeseries.png"])
+            if drawn:   # its reply comes first
+                jobs.insert(0, series)
+            else:
+                jobs.append(series)
+                if plotter is not None:
+                    plotter.submit(*series)
         try:
             logs = _write_files(result, stage, staged_paths, jobs, plotter)
             logs.update(_track(result, stage, track))
@@ -94,7 +105,10 @@ def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: lis
     while jobs:
         drawing, picture, path = jobs.pop(0)
         if plotter is not None:
-            plotter.result()  # waits; what went wrong in the worker is raised here
+            reply = plotter.result()  # waits; what went wrong in the worker is raised here
+            if isinstance(reply, bytes):  # drawn in memory as the run went (`services.outputs.early`)
+                with open(path, "wb") as fh:
+                    fh.write(reply)
         else:
             getattr(plots, drawing)(picture, path)
     if "report.html" in paths:

@@ -59,6 +59,11 @@ class SeriesWindow:
         self._recent, self.series = None, {k: v[i0:i0 + 1] for k, v in seen.items()}
         self._extend({k: v[i0 + 1:] for k, v in seen.items()})
 
+    @property
+    def complete(self) -> bool:
+        """The window's minute is whole: what comes next changes nothing of it."""
+        return self._done
+
     def finish(self) -> dict:
         """The window (from the run's first tick if no step came)."""
         if self.series is None:

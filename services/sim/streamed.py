@@ -31,7 +31,8 @@ from vehicle import track_on_path
 
 
 def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None,
-                 ticks_per_part: int = PART_TICKS, error_split: bool = False, track_sink=None) -> RunResult:
+                 ticks_per_part: int = PART_TICKS, error_split: bool = False, track_sink=None,
+                 on_world=None) -> RunResult:
     """`services.sim.run.run` of `scenario`, SUMO driving in a second process and each part accounted
     as it comes (see the module docstring): the same figures, sooner on two cores, in memory set by the
     map and one part (`services.sim.bounded`; the result keeps no per-tick arrays: ``result.bounded``).
@@ -54,6 +55,8 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
     track_sink : callable, optional
         Given each accounted stretch's per-tick rows (`services.sim.bounded.BoundedAccount`): the track
         files, written as they go.
+    on_world : callable, optional
+        Given the run's world (`services.sim.world.World`) once it is built, before the first rows.
 
     ``stage_s`` holds this process's ``build_s``, ``sensors_s``, ``control_s`` and ``metrics_s``, the
     worker's ``sumo_s`` and ``wait_s``, the time this process waited for SUMO's parts: the stages
@@ -71,6 +74,8 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
             world = build_world(scenario, planned=worker.planned)
         timer.add("build_s", worker.plan_s)
         scenario = world.scenario   # as run: what the control, the sensors and the outputs use
+        if on_world is not None:
+            on_world(world)
         core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
         gnss, speed = sensors(scenario)
         period_s = scenario.timing.control_period_s

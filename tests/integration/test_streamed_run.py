@@ -167,3 +167,23 @@ def test_vrsim_run_that_stops_early_leaves_no_drive_worker(args, code, says):
     assert done.returncode == code, done.stderr
     assert says in done.stdout + done.stderr and "Traceback" not in done.stderr
     assert _drive_workers(mark.encode()) == set()
+
+
+def test_timeseries_drawn_as_the_run_goes_is_the_one_drawn_after_it(tmp_path):
+    from services.outputs import plots
+    from services.outputs.early import EarlyTimeseries
+    from services.outputs.plot_worker import PlotWorker
+
+    worker = PlotWorker().start()
+    early = EarlyTimeseries(worker)
+    try:
+        # Zones: a rate step early in the run (a smooth map has none: its minute is the run's first, known
+        # only at the end, when no step came).
+        zones = with_changes(load(QUICK), map={"synthetic": "zones", "params": {"n_zones": 5}})
+        result = run_streamed(zones, ticks_per_part=500, track_sink=early, on_world=early.world_built)
+        assert early.submitted   # its minute was whole before the run's end
+        png = worker.result()
+    finally:
+        worker.close()
+    plots.draw_timeseries(plots.series_picture(result), str(tmp_path / "timeseries.png"))
+    assert png == (tmp_path / "timeseries.png").read_bytes()
