@@ -124,7 +124,8 @@ def _service_config(args) -> ServiceConfig:
 
 
 def _child_argv(args, options: ZenohOptions, name: str, user_code_dirs: tuple[str, ...] = ()) -> list[str]:
-    argv = [sys.executable, "-m", "services.cli", "serve", name]
+    # -P: vrsim's own modules, not a `services` package in the folder the command runs in
+    argv = [sys.executable, "-P", "-m", "services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
     argv += options.child_args(name)

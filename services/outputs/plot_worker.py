@@ -51,7 +51,8 @@ class PlotWorker:
         self._writer: threading.Thread | None = None
 
     def start(self) -> PlotWorker:
-        self.proc = subprocess.Popen([sys.executable, "-m", "services.outputs.plot_worker"],
+        # -P: vrsim's own modules, not a `services` package in the folder the command runs in
+        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.outputs.plot_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         return self
 

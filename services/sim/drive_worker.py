@@ -31,7 +31,8 @@ class DriveWorker:
 
     def __init__(self):
         self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
-        self.proc = subprocess.Popen([sys.executable, "-m", "services.sim.drive_worker"],
+        # -P: vrsim's own modules, not a `services` package in the folder the command runs in
+        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.sim.drive_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         self.planned = self.plan_s = self.sumo_s = None
 
