@@ -4,6 +4,7 @@ the test process logged in as the operator, and child-process lookup."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -142,6 +143,14 @@ class ServeAll:
             self.proc.send_signal(sig)
         try:
             return self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # say what it was doing, and leave nothing running
+            still = self.children()
+            for pid in (*still.values(), self.proc.pid):
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            self.proc.wait()
+            raise AssertionError(f"vrsim serve all did not stop within 30 s of {sig!r}; its services "
+                                 f"then: {still}; its output:\n{self.output()}") from None
         finally:
             self.log.close()
 
