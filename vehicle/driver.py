@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import bisect
 import math
-import os
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -30,7 +29,7 @@ import numpy as np
 from common.checks import check_number, check_positive
 from common.errors import VehicleError
 from vehicle.coverage import CoveragePath
-from vehicle.network import Network, build_network
+from vehicle.network import Network, build_network, import_sumo_module
 from vehicle.track import ticks_between, track_on_path
 
 _VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
@@ -160,21 +159,9 @@ class SpeedVariation:
 
 
 def import_libsumo():
-    """libsumo, imported without its side effect on the process's PROJ settings.
-
-    Imported, libsumo points ``PROJ_LIB`` and ``PROJ_DATA`` at SUMO's own proj.db (an older layout)
-    when neither is set; every CRS look-up of rasterio (and of GDAL through pyogrio) in the same process
-    imported after it then fails ("proj.db ... comes from another PROJ installation"). vrsim's SUMO
-    networks are in plain metres with no projection, so SUMO needs no PROJ data: the variables are put
-    back as they were.
-    """
-    unset = not os.environ.get("PROJ_LIB") and not os.environ.get("PROJ_DATA")
-    import libsumo
-
-    if unset:
-        os.environ.pop("PROJ_LIB", None)
-        os.environ.pop("PROJ_DATA", None)
-    return libsumo
+    """libsumo, imported without its side effect on the process's PROJ settings
+    (`vehicle.network.import_sumo_module`)."""
+    return import_sumo_module("libsumo")
 
 
 class SumoDriver:

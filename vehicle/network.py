@@ -11,6 +11,7 @@ everything that goes into it.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 import shutil
 import subprocess
@@ -58,12 +59,29 @@ class Network:
     edge_length_m: np.ndarray
 
 
+def import_sumo_module(name: str):
+    """SUMO's Python module `name` (``"sumo"``, ``"libsumo"``), imported without its side effect on
+    the process's PROJ settings.
+
+    Imported, both point ``PROJ_LIB`` and ``PROJ_DATA`` at SUMO's own proj.db (an older layout) when
+    neither is set; every CRS look-up of rasterio (and of GDAL through pyogrio) in the same process
+    after it then fails ("proj.db ... comes from another PROJ installation"), and so do the processes
+    it starts, which inherit the variables. vrsim's SUMO networks are in plain metres with no
+    projection, so SUMO needs no PROJ data: the variables are put back as they were.
+    """
+    unset = not os.environ.get("PROJ_LIB") and not os.environ.get("PROJ_DATA")
+    module = importlib.import_module(name)
+    if unset:
+        os.environ.pop("PROJ_LIB", None)
+        os.environ.pop("PROJ_DATA", None)
+    return module
+
+
 def find_netconvert() -> str:
     """Path of the ``netconvert`` shipped with eclipse-sumo (or beside the Python executable)."""
     candidates = []
     try:
-        import sumo
-
+        sumo = import_sumo_module("sumo")
         candidates.append(os.path.join(sumo.SUMO_HOME, "bin", "netconvert"))
     except ImportError:
         pass

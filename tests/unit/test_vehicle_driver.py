@@ -71,18 +71,22 @@ def test_speed_sensor_validation():
         SpeedSensor().measure([1.0, 1.0], [2.0, 2.0])
 
 
-def test_libsumo_leaves_the_process_proj_settings_as_they_were():
-    """libsumo sets PROJ_DATA to SUMO's older proj.db when unset; imported through vehicle.driver it
+def test_sumos_modules_leave_the_process_proj_settings_as_they_were():
+    """libsumo and sumo set PROJ_DATA to SUMO's older proj.db when unset; imported through vehicle it
     does not, so rasterio imported after it still resolves an EPSG code (a fresh process: the setting
     is process-wide)."""
     import os
     import subprocess
     import sys
 
-    code = ("from vehicle.driver import import_libsumo; import_libsumo(); import os, rasterio;"
-            "from rasterio.crs import CRS; assert 'PROJ_DATA' not in os.environ;"
-            "print(CRS.from_string('EPSG:2227').to_epsg())")
     env = {k: v for k, v in os.environ.items() if k not in ("PROJ_DATA", "PROJ_LIB")}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.strip() == "2227"
+    # libsumo, and the `sumo` package that finding netconvert (to build a network) imports
+    for first in ("from vehicle.driver import import_libsumo; import_libsumo()",
+                  "from vehicle.network import find_netconvert; find_netconvert()"):
+        code = (f"{first}; import os, rasterio; from rasterio.crs import CRS;"
+                "assert 'PROJ_DATA' not in os.environ and 'PROJ_LIB' not in os.environ;"
+                "print(CRS.from_string('EPSG:2227').to_epsg())")
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                              timeout=120)
+        assert done.returncode == 0, f"{first}: {done.stderr[-2000:]}"
+        assert done.stdout.strip() == "2227"
