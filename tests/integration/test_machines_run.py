@@ -25,6 +25,13 @@ def _run(name: str, **implement):
     return run(with_changes(sc, implement=implement) if implement else sc)
 
 
+@pytest.fixture(scope="module")
+def section_drives():
+    """The tight-turn scenario with a drive per section as the library has it: one run for the tests
+    that only read it."""
+    return _run("tight_turn_section_drives")
+
+
 def test_a_drive_per_section_at_least_halves_the_gated_meters_mae_on_zones_along_travel():
     gated = _run("zones_along_travel_gated_meter").summary
     per_section = _run("zones_along_travel_section_drives").summary
@@ -73,10 +80,10 @@ def turn_rates_kg_ha(result, radius_m: float = TURN_RADIUS_M) -> tuple[float, fl
     return rate(inner), rate(outer)
 
 
-def test_turn_compensation_levels_the_inner_and_outer_sections_of_a_20_m_turn():
+def test_turn_compensation_levels_the_inner_and_outer_sections_of_a_20_m_turn(section_drives):
     inner, outer = turn_rates_kg_ha(_run("tight_turn_gated_meter"))
     assert inner == pytest.approx(200 * 20 / 15, rel=0.05) and outer == pytest.approx(200 * 20 / 25, rel=0.05)
-    inner, outer = turn_rates_kg_ha(_run("tight_turn_section_drives"))
+    inner, outer = turn_rates_kg_ha(section_drives)
     assert inner / outer == pytest.approx(1.0, abs=0.05)
     assert inner == pytest.approx(200, rel=0.05) and outer == pytest.approx(200, rel=0.05)
     # Without turn compensation each drive runs at the centre's speed: the one meter's split again.
@@ -84,12 +91,12 @@ def test_turn_compensation_levels_the_inner_and_outer_sections_of_a_20_m_turn():
     assert inner / outer == pytest.approx(25 / 15, rel=0.05)
 
 
-def test_one_drive_on_its_speed_limit_flags_the_tick_where_the_machine_level_target_does_not():
+def test_one_drive_on_its_speed_limit_flags_the_tick_where_the_machine_level_target_does_not(section_drives):
     """A 20 m-radius turn with turn compensation: the outer section's drive turns 1.3x the centre's
     speed. With the shaft's range just above the straight passes' need, the outer drive alone sits on
     its bound in the turns while the machine-level (combined) target does not: the tick counts as
     machine-limited, and `limited_time_pct` is the share of applying ticks with any drive on a bound."""
-    straight = _run("tight_turn_section_drives")
+    straight = section_drives
     target = straight.control["target_shaft_rpm"]
     rpm_max = 1.1 * float(np.median(target[straight.accounts.setting.applying]))
     result = _run("tight_turn_section_drives", shaft_rpm_max=rpm_max)

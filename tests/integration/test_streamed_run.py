@@ -43,6 +43,12 @@ def assert_same_run(whole, bounded, rows: list[dict]):
         assert np.array_equal(getattr(a.point_log, name), getattr(b.point_log, name), equal_nan=True), name
 
 
+@pytest.fixture(scope="module")
+def quick_whole():
+    """The quick scenario's in-process run: one run for the tests that compare against it unchanged."""
+    return run(load(QUICK))
+
+
 @pytest.mark.parametrize("changes", [
     {},
     # coverage section control remembers where product landed; the look-ahead tune re-looks ticks up
@@ -50,9 +56,9 @@ def assert_same_run(whole, bounded, rows: list[dict]):
      "controller": {"kind": "smith", "look_ahead_s": "auto", "look_ahead_tune": 0.5},
      "gnss": {"kind": "dgps"}},
 ])
-def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes):
+def test_in_parts_of_any_size_the_run_is_the_in_process_run(changes, request):
     sc = with_changes(load(QUICK), **changes)
-    whole = run(sc)
+    whole = run(sc) if changes else request.getfixturevalue("quick_whole")
     ticks = len(whole.track["time_s"])
     # parts far smaller than the control core's chunks, and one not dividing them
     rows = []
@@ -80,13 +86,12 @@ def test_in_parts_a_drive_per_section_runs_as_in_process():
     assert_same_run(run(sc), run_streamed(sc, ticks_per_part=3001, track_sink=rows.append), rows)
 
 
-def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_after_it():
+def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_after_it(quick_whole):
     from services.sim.error_split import error_split
 
-    sc = load(QUICK)
-    streamed = run_streamed(sc, error_split=True)
+    streamed = run_streamed(load(QUICK), error_split=True)
     assert streamed.reference_figures is not None
-    whole = run(sc)
+    whole = quick_whole
     assert whole.reference_figures is None
     # The reference meters' product is summed part by part (`services.sim.bounded`): to rounding.
     for a, b in zip(error_split(streamed), error_split(whole), strict=True):

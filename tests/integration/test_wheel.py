@@ -21,8 +21,13 @@ from tests.conftest import ROOT
 SOURCES = ("pyproject.toml", "README.md", "common", "maps", "vehicle", "controller", "services")
 
 
+# A user's environment: a PYTHONPATH naming the checkout (as when the tests run from a worktree) would
+# put the checkout before the installed copy, and `vrsim accuracy` would run the whole library.
+USER_ENV = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+
 def sh(*args, cwd=None, timeout=300):
-    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=timeout, env=USER_ENV)
 
 
 @pytest.fixture(scope="module")
