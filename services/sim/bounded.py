@@ -206,17 +206,20 @@ class BoundedAccount:
         sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
                                None, motion, None if states.steps_on is None else states.steps_on[:n])
         control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
-        masses = []
+        metered = []
         for j, reference in enumerate(REFERENCES):
             ref, self.ref_rev[j] = reference_metered_kg(self.world, self.machine, sensed, control, *reference,
                                                         start_rev=self.ref_rev[j])
-            masses.append(plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
+            metered.append(ref[:, 0] if self.machine.drives == 1 else ref)
             self.ref_kg[j] += float(ref.sum())
             if j == 0 and not isinstance(plan, StripPlan):
                 strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
                                       self.tick_m, self.first)
                 self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
-        return list(zip(self.refs, masses, strict=True))
+        # The meters' strips in one product with the plan's map, a column each (each column's sums as
+        # a product of its own).
+        masses = plan.mass_kg(np.stack(metered, axis=-1))
+        return [(raster, masses[:, j]) for j, raster in enumerate(self.refs)]
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
