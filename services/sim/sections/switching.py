@@ -292,8 +292,8 @@ class _Coverage:
                 self._mark(tick + int(a))
             if b <= a:
                 continue
-            won, woff = (self._wanted(pose, work, a, b) & moving[a:b] for pose, work in ahead)
-            commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
+            commanded[a:b] = command(*self._both_wanted(ahead, moving, a, b), self.lag.on_first,
+                                     self.last_command)
             self.last_command = commanded[b - 1]
             actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
             self.gate_rows.append(actual[a:b])
@@ -325,6 +325,25 @@ class _Coverage:
     def _working(self, s_m):
         """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
         return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
+
+    def _both_wanted(self, ahead, moving, a: int, b: int):
+        """`gates.command`'s two look-aheads (on, off) of ticks [a, b): bool (b - a, sections) each.
+
+        The command follows one of them (the longer lead's) and the other only decides a section
+        where that one does not: on first, where product is not wanted on; off first, where it is
+        wanted off. So the other is read off the raster only at the ticks where it decides a section
+        and works; elsewhere it is False, which either is its value (not working) or is never read.
+        """
+        on_first = self.lag.on_first
+        (pose, work), (other_pose, other_work) = ahead if on_first else ahead[::-1]
+        value = self._wanted(pose, work, a, b) & moving[a:b]
+        decides = ~value.all(axis=1) if on_first else value.any(axis=1)
+        rows = a + np.flatnonzero(decides & other_work[a:b])
+        other = np.zeros_like(value)
+        if rows.size:
+            other[rows - a] = self._wanted(tuple(p[rows] for p in other_pose), other_work[rows], 0,
+                                           rows.size) & moving[rows]
+        return (value, other) if on_first else (other, value)
 
     def _wanted(self, pose, working, a, b):
         """Whether each section's product is wanted across the predicted `pose` (x, y, cos, sin) of
