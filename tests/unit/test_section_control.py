@@ -371,8 +371,9 @@ def test_the_second_look_ahead_read_where_it_decides_gives_the_commands_of_both_
     path = planned_path(field, imp.width_m, 35.0)
     states = switch_sections(track, imp, field.polygon, path, MAP_CELL_M)
 
-    def both_everywhere(self, ahead, moving, a, b):
-        return tuple(self._wanted(pose, work, a, b) & moving[a:b] for pose, work in ahead)
+    def both_everywhere(self, motion, s_m, moving, a, b):
+        return tuple(self._wanted(*self._ahead(motion, s_m, lead_s, slice(a, b)), 0, b - a) & moving[a:b]
+                     for lead_s in (self.lead_on_s, self.lead_off_s))
 
     monkeypatch.setattr(switching._Coverage, "_both_wanted", both_everywhere)
     plain = switch_sections(track, imp, field.polygon, path, MAP_CELL_M)
