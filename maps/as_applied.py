@@ -143,7 +143,7 @@ class AsApplied:
         return (self.raster.interior(self._all().real) * extra).sum(axis=(1, 3))
 
     # --- deposits ------------------------------------------------------------------------------
-    def deposit(self, footprint: Footprint, mass_kg, pass_index=None) -> None:
+    def deposit(self, footprint: Footprint, mass_kg, pass_index=None, others=()) -> None:
         """Deposit a batch of items' product through their footprint.
 
         Parameters
@@ -156,37 +156,30 @@ class AsApplied:
             The pass each item belongs to, for `pass_count` and the overlap figures. Items of one
             pass come together, passes one after another (across calls too); a pass ends where the
             index changes.
+        others : sequence of (AsApplied, mass_kg), optional
+            Other meters' product on the same items (each raster on the same grid and sub-cells), put
+            there without passes: the samples and their sub-cells are worked out once for all (several
+            meters' product on one run's strips). This raster's figures are those of a `deposit` of its
+            own, bit for bit; theirs equal a `deposit` each up to the order of the sums (they go pass
+            by pass, as this one does).
         """
-        mass = _checked_mass(mass_kg, footprint.items)
-        step, unit = self.raster.step, metres_per_unit(self.grid.crs)
-        if pass_index is None:
-            self._target = self._acc
-            runs = [(None, slice(0, mass.size))]
-        else:
-            passes = np.broadcast_to(np.asarray(pass_index, dtype=np.int64).ravel(), mass.shape)
-            runs = [(int(passes[lo]), slice(lo, hi)) for lo, hi in _pass_runs(passes)]
-        for index, part in runs:
-            if index is not None:
-                self._begin_pass(index)
-            for samples in footprint.samples(step, unit, part):
-                self._deposit(samples, mass[samples.items])
-        self.total_kg += float(mass.sum())
-        self.items += int(mass.size)
-
-    def deposit_with(self, footprint: Footprint, mass_kg, others=()) -> None:
-        """`deposit` without passes of `mass_kg` here and of each ``(as_applied, mass_kg)`` of `others`
-        (on the same grid and sub-cells) there, through one footprint whose samples and their sub-cells
-        are worked out once: the same figures as a `deposit` each (several meters' product on one run's
-        strips)."""
         pairs = [(self, mass_kg), *others]
         masses = [_checked_mass(mass, footprint.items) for _, mass in pairs]
         step, unit = self.raster.step, metres_per_unit(self.grid.crs)
         for acc, _ in pairs:
             acc._target = acc._acc
-        for samples in footprint.samples(step, unit, slice(0, footprint.items)):
-            terms = self._terms(samples)   # the sub-cells and shares, once for every meter
-            for (acc, _), mass in zip(pairs, masses, strict=True):
-                acc._deposit(samples, mass[samples.items], terms)
+        if pass_index is None:
+            runs = [(None, slice(0, footprint.items))]
+        else:
+            passes = np.broadcast_to(np.asarray(pass_index, dtype=np.int64).ravel(), masses[0].shape)
+            runs = [(int(passes[lo]), slice(lo, hi)) for lo, hi in _pass_runs(passes)]
+        for index, part in runs:
+            if index is not None:
+                self._begin_pass(index)
+            for samples in footprint.samples(step, unit, part):
+                terms = self._terms(samples)   # the sub-cells and shares, once for every meter
+                for (acc, _), mass in zip(pairs, masses, strict=True):
+                    acc._deposit(samples, mass[samples.items], terms)
         for (acc, _), mass in zip(pairs, masses, strict=True):
             acc.total_kg += float(mass.sum())
             acc.items += int(mass.size)

@@ -178,10 +178,10 @@ class BoundedAccount:
         plan = self.machine.deposition(w, states, self.delay_s, self.period_s, self.cell_m, ticks,
                                        self.tick_m, self.first)
         product = plan.mass_kg(self.machine.deposit_kg(w))
-        self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index)
+        # The reference meters' product on the same footprint: its samples and sub-cells worked out once.
+        others = () if self.refs is None else self._references(w, states, n, plan)
+        self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index, others=others)
         self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
-        if self.refs is not None:
-            self._references(w, states, n, plan)
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
         steps = rate_steps(landing.prescribed_kg_ha[:n], on[:n])
@@ -196,28 +196,30 @@ class BoundedAccount:
         self.first += n
         self.pending = [{k: v[n:] for k, v in p.items()}]
 
-    def _references(self, w: dict, states: SectionStates, n: int, plan) -> None:
-        """Deposit the error split's reference meters' product of the stretch through the run's `plan`,
-        as `services.sim.error_split` does: each drive's target, at its own ground speed in turns (the
-        sensed motion carried from stretch to stretch)."""
+    def _references(self, w: dict, states: SectionStates, n: int, plan) -> list:
+        """The error split's reference meters' product of the stretch through the run's `plan`, as
+        `services.sim.error_split` meters it: each drive's target, at its own ground speed in turns (the
+        sensed motion carried from stretch to stretch): a (raster, kg per strip) pair each, to deposit
+        beside the run's own product (`maps.AsApplied.deposit`'s ``others``)."""
         motion = self.ref_motion.step(w["x_m"][:n], w["y_m"][:n], w["heading_rad"][:n],
                                       w["measured_speed_m_s"][:n])
         sensed = SectionStates(states.actual[:n], states.widths_m, states.offsets_m, states.pass_index[:n],
                                None, motion, None if states.steps_on is None else states.steps_on[:n])
         control = {k: w[k][:n] for k in ("drive_target_rpm", "drive_rate_kg_ha")}
-        masses = []
+        metered = []
         for j, reference in enumerate(REFERENCES):
             ref, self.ref_rev[j] = reference_metered_kg(self.world, self.machine, sensed, control, *reference,
                                                         start_rev=self.ref_rev[j])
-            masses.append(plan.mass_kg(ref[:, 0] if self.machine.drives == 1 else ref))
+            metered.append(ref[:, 0] if self.machine.drives == 1 else ref)
             self.ref_kg[j] += float(ref.sum())
             if j == 0 and not isinstance(plan, StripPlan):
                 strips = StripPlan.of(w, states, self.delay_s, self.period_s, self.cell_m, np.arange(n),
                                       self.tick_m, self.first)
                 self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
-        # One footprint for all the meters: its samples and sub-cells worked out once.
-        self.refs[0].deposit_with(plan.footprint(), masses[0],
-                                  list(zip(self.refs[1:], masses[1:], strict=True)))
+        # The meters' strips in one product with the plan's map, a column each (each column's sums as
+        # a product of its own).
+        masses = plan.mass_kg(np.stack(metered, axis=-1))
+        return [(raster, masses[:, j]) for j, raster in enumerate(self.refs)]
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""

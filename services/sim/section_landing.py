@@ -138,18 +138,19 @@ class StripPlan:
         n, sections = idx.size, actual.shape[1]
         x0, y0, x1, y1, nx, ny = frame
         width_on = actual @ states.widths_m
+        on = actual.T   # section-major: each section's ticks in a row
+        # Each open (section, tick)'s share of its drive's product, section-major as the strips are cut.
         if own_drives:
-            drives, share, drive_open = sections, actual.astype(float), actual
+            drives, share, drive_open = sections, on.astype(float), actual
         else:
             drives, drive_open = 1, (width_on > 0)[:, None]
-            share = np.divide(states.widths_m[None, :], width_on[:, None], out=np.zeros((n, sections)),
-                              where=actual & (width_on[:, None] > 0))
+            share = np.divide(states.widths_m[:, None], width_on[None, :], out=np.zeros((sections, n)),
+                              where=on & (width_on[None, :] > 0))
         if tick_m is None:
             tick_m = float(np.median(np.hypot(x1 - x0, y1 - y0))) if n else 0.0
         join = _join_ticks(cell_m, tick_m)
         # Groups along each section's ticks (section-major order), ending every `join` ticks, where the
         # section's gate changes, where the pass changes and where ticks are left out.
-        on = actual.T
         brk = np.zeros((sections, n), bool)
         brk[:, (-first_tick) % join::join] = True
         brk[:, :1] = True   # each section's first tick (a run planned in parts: its part's first pass)
@@ -168,15 +169,15 @@ class StripPlan:
                                states.widths_m[sec], np.zeros(0), passes[first], sec)
         strips = SectionStrips(*(getattr(strips, f) if f == "mass_kg" else getattr(strips, f)[order]
                                  for f in SectionStrips.__dataclass_fields__))
-        # Each open (section, tick) goes to its group's strip; a group is all open or all closed.
-        flat_on = np.flatnonzero(on.ravel())
-        group = np.cumsum(brk.ravel())[flat_on] - 1
-        rank = np.empty(order.size, np.int64)
-        rank[order] = np.arange(order.size)
-        row = rank[(np.cumsum(keep) - 1)[group]]
-        tick, section = flat_on % per_section, flat_on // per_section
-        column = tick * drives + (section if own_drives else 0)   # one drive: the tick itself
-        to_strips = sparse.csr_matrix((share[tick, section], (row, column)), shape=(order.size, n * drives))
+        # Each open (section, tick) goes to its group's strip (a group is all open or all closed, its
+        # ticks consecutive in section-major order): the map's rows in the strips' order, each row's
+        # ticks in time order (as a COO map converted would hold them).
+        count = (ends - starts + 1)[order]
+        flat = np.repeat(starts[order] - (np.cumsum(count) - count), count) + np.arange(count.sum())
+        section, tick = np.divmod(flat, per_section)
+        column = tick * drives + section if own_drives else tick   # one drive: the tick itself
+        to_strips = sparse.csr_matrix((share.ravel()[flat], column, np.concatenate(([0], np.cumsum(count)))),
+                                      shape=(order.size, n * drives))
         return cls(strips, idx, width_on, to_strips, drive_open)
 
     def footprint(self) -> Strips:

@@ -241,19 +241,30 @@ def test_applied_kg_in_a_window_is_that_window_of_applied_kg_open_pass_included(
         np.testing.assert_array_equal(acc.applied_kg_in(rows, cols), whole[rows, cols])
 
 
-def test_deposit_with_equals_a_deposit_each_bit_for_bit():
+def test_deposit_with_others_equals_a_deposit_each():
+    """Several meters through one footprint: the first (with its passes) as a deposit of its own bit for
+    bit; the others, without passes, to the order of the sums (they go pass by pass, as the first)."""
     from maps.footprint import Strips
 
     x0, y0, x1, y1, mass = passes(150.0, width_m=12.0, step_m=0.2, angle_deg=25.0)
+    x1 = x1 + np.where(np.arange(x0.size) % 5, 0.0, 3.0)   # strips cut in several patterns
+    pass_index = np.arange(x0.size) * 4 // x0.size
     masses = [np.full(x0.size, mass), np.linspace(0.0, 2 * mass, x0.size),
               np.where(np.arange(x0.size) % 7, mass, 0.0)]   # the last: items without product
     strips = Strips(x0, y0, x1, y1, np.full(x0.size, 12.0))
     each = [AsApplied(field()) for _ in masses]
-    for acc, m in zip(each, masses, strict=True):
+    each[0].deposit(strips, masses[0], pass_index=pass_index)
+    for acc, m in zip(each[1:], masses[1:], strict=True):
         acc.deposit(strips, m)
     together = [AsApplied(field()) for _ in masses]
-    together[0].deposit_with(strips, masses[0], list(zip(together[1:], masses[1:], strict=True)))
-    for a, b in zip(each, together, strict=True):
-        np.testing.assert_array_equal(a.applied_kg, b.applied_kg)
-        np.testing.assert_array_equal(a.coverage_fraction, b.coverage_fraction)
-        assert (a.outside_kg, a.total_kg, a.items) == (b.outside_kg, b.total_kg, b.items)
+    together[0].deposit(strips, masses[0], pass_index=pass_index,
+                        others=list(zip(together[1:], masses[1:], strict=True)))
+    a, b = each[0], together[0]
+    for name in ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert (a.outside_kg, a.total_kg, a.items) == (b.outside_kg, b.total_kg, b.items)
+    for a, b in zip(each[1:], together[1:], strict=True):
+        np.testing.assert_allclose(b.applied_kg, a.applied_kg, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(b.coverage_fraction, a.coverage_fraction, rtol=1e-12, atol=1e-15)
+        assert b.outside_kg == pytest.approx(a.outside_kg, rel=1e-12, abs=1e-15)
+        assert (a.total_kg, a.items) == (b.total_kg, b.items)

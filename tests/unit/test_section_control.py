@@ -358,3 +358,25 @@ def test_product_with_every_gate_closed_is_refused():
     states = switch_sections(track, imp, shapely.box(500_000, 5_300_000, 500_300, 5_300_100), None, 1.0)
     with pytest.raises(ValueError, match="tick 50 meters product with every gate closed"):
         section_strips(track, np.full(100, 0.01), states, imp.delivery_delay_s, PERIOD_S, 1.0)
+
+
+@pytest.mark.parametrize("on_s, off_s", [(1.0, 0.6), (0.3, 2.0)])
+def test_the_second_look_ahead_read_where_it_decides_gives_the_commands_of_both_read_everywhere(
+        on_s, off_s, monkeypatch):
+    from services.sim.sections import switching
+
+    field = rectangle()
+    track = planned_track(field, heading_deg=35.0, speed_wave=0.2)
+    imp = Implement(section_on_delay_s=on_s, section_off_delay_s=off_s)
+    path = planned_path(field, imp.width_m, 35.0)
+    states = switch_sections(track, imp, field.polygon, path, MAP_CELL_M)
+
+    def both_everywhere(self, motion, s_m, moving, a, b):
+        return tuple(self._wanted(*self._ahead(motion, s_m, lead_s, slice(a, b)), 0, b - a) & moving[a:b]
+                     for lead_s in (self.lead_on_s, self.lead_off_s))
+
+    monkeypatch.setattr(switching._Coverage, "_both_wanted", both_everywhere)
+    plain = switch_sections(track, imp, field.polygon, path, MAP_CELL_M)
+    assert plain.commanded.any() and not plain.commanded.all()
+    np.testing.assert_array_equal(states.commanded, plain.commanded)
+    np.testing.assert_array_equal(states.actual, plain.actual)

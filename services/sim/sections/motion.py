@@ -79,8 +79,8 @@ class Motion:
         return (self.x_m + chord_m * np.cos(middle), self.y_m + chord_m * np.sin(middle),
                 np.cos(end), np.sin(end))
 
-    def part(self, part: slice) -> Motion:
-        """The ticks `part`."""
+    def part(self, part) -> Motion:
+        """The ticks `part` (a slice or indices)."""
         return Motion(*(getattr(self, f)[part] for f in Motion.__dataclass_fields__))
 
     @classmethod

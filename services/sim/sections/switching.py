@@ -280,8 +280,6 @@ class _Coverage:
         s_m = np.asarray(s_m, float)
         heading = motion.heading_rad
         self.poses.append(np.stack([motion.x_m, motion.y_m, np.cos(heading), np.sin(heading)]))
-        ahead = [(motion.ahead(lead), self._working(s_m + motion.travel(lead)[0]))
-                 for lead in (self.lead_on_s, self.lead_off_s)]
         imp = self.implement
         moving = motion.ground_speed_m_s(imp.section_offsets_m) > imp.section_min_speed_m_s
         before = np.concatenate(([self.last_pass], passes[:-1]))
@@ -292,8 +290,8 @@ class _Coverage:
                 self._mark(tick + int(a))
             if b <= a:
                 continue
-            won, woff = (self._wanted(pose, work, a, b) & moving[a:b] for pose, work in ahead)
-            commanded[a:b] = command(won, woff, self.lag.on_first, self.last_command)
+            commanded[a:b] = command(*self._both_wanted(motion, s_m, moving, a, b), self.lag.on_first,
+                                     self.last_command)
             self.last_command = commanded[b - 1]
             actual[a:b] = self.gates.push(commanded[a:b], tick + int(a))
             self.gate_rows.append(actual[a:b])
@@ -325,6 +323,30 @@ class _Coverage:
     def _working(self, s_m):
         """Whether the planned path works at distances `s_m` along it (False beyond its end)."""
         return self.segment_works[self.path.segment_at(s_m)] & (s_m < self.path.length_m)
+
+    def _both_wanted(self, motion, s_m, moving, a: int, b: int):
+        """`gates.command`'s two look-aheads (on, off) of ticks [a, b): bool (b - a, sections) each.
+
+        The command follows one of them (the longer lead's) and the other only decides a section
+        where that one does not: on first, where product is not wanted on; off first, where it is
+        wanted off. So the other is predicted and read off the raster only at the ticks where it decides
+        a section (a few per cent of them); elsewhere it is False, which is never read.
+        """
+        on_first = self.lag.on_first
+        lead_s, other_s = (self.lead_on_s, self.lead_off_s) if on_first else (self.lead_off_s, self.lead_on_s)
+        value = self._wanted(*self._ahead(motion, s_m, lead_s, slice(a, b)), 0, b - a) & moving[a:b]
+        rows = a + np.flatnonzero(~value.all(axis=1) if on_first else value.any(axis=1))
+        other = np.zeros_like(value)
+        if rows.size:
+            wanted = self._wanted(*self._ahead(motion, s_m, other_s, rows), 0, rows.size)
+            other[rows - a] = wanted & moving[rows]
+        return (value, other) if on_first else (other, value)
+
+    def _ahead(self, motion, s_m, lead_s: float, ticks):
+        """The pose (x, y, cos, sin) predicted `lead_s` ahead of `ticks` (a slice or indices) and whether
+        the planned path works there."""
+        part = motion.part(ticks)
+        return part.ahead(lead_s), self._working(s_m[ticks] + part.travel(lead_s)[0])
 
     def _wanted(self, pose, working, a, b):
         """Whether each section's product is wanted across the predicted `pose` (x, y, cos, sin) of
