@@ -57,8 +57,15 @@ def test_a_side_over_a_treated_strip_keeps_the_steps_that_fit_and_one_step_is_on
     assert steps.shape == (track["x_m"].size, 2) and steps.max() == 4
     np.testing.assert_array_equal(stepped.actual, steps > 0)   # a side is on where a step is
     shortened = (steps > 0) & (steps < 4)
-    assert shortened.sum() > 100   # the overlapping pass: a side shortened where on/off shut it
-    assert (shortened & ~on_off.actual).sum() > 0.9 * shortened.sum()
+    # In the headland pass's corners (and 2 s either side) the inner side's outer bands pivot or move
+    # backwards at this constant 3 m/s, and the slow speed cutoff closes them: a side shortened there
+    # for its bands' own speed, where on/off (one section per side, at its centre) may keep it on.
+    turned = np.r_[np.abs(np.diff(np.unwrap(track["heading_rad"]))) > 1e-9, False]
+    turning = (np.convolve(turned, np.ones(81), "same") > 0)[:, None]
+    assert (shortened & turning).sum() > 100
+    straight = shortened & ~turning
+    assert straight.sum() > 100   # the overlapping pass: a side shortened where on/off shut it
+    assert (straight & ~on_off.actual).sum() > 0.9 * straight.sum()
     # Where the whole side fits, its strip is the side's: on as the on/off switch has it.
     full = steps == 4
     assert np.mean(on_off.actual[full]) > 0.99
