@@ -49,9 +49,10 @@ def main(argv: list[str]) -> int:
             continue
         results.update(json.loads(line[-1][len("BENCH-JSON "):]))
         print(f"{name}: {time.perf_counter() - t0:.1f} s")
-    with open(RESULTS, "w") as fh:
+    with open(RESULTS + ".tmp", "w") as fh:   # whole or not at all: written aside, then renamed
         json.dump(dict(sorted(results.items())), fh, indent=2)
         fh.write("\n")
+    os.replace(RESULTS + ".tmp", RESULTS)
     print(f"\nwrote {RESULTS}:")
     for key, value in sorted(results.items()):
         print(f"  {key:<40} {value:,.4g}")
