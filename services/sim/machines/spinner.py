@@ -45,6 +45,10 @@ __all__ = ["Spinner", "ThrowPlan"]
 SIDES = np.array([1.0, -1.0])   # drive 0: the left disc (+1, left of travel), drive 1: the right disc
 MIN_REACH_M = 0.1  # a side whose product the terminal let through where the true pose leaves no room
 ROOM_CHUNK = 2_000_000   # points x boundary segments at a time in the ray casting (memory)
+# A point farther than a side's full reach from the boundary has room for it across either side: only
+# the points outside the field eroded by the full reach and this margin are ray cast (`reach_m`). The
+# erosion's round corners are chords of their arcs, inside by under 0.5 % of the radius: within the margin.
+FAR_MARGIN_M, FAR_MARGIN_SHARE = 1.0, 0.01
 
 
 @register_machine
@@ -59,6 +63,7 @@ class Spinner(Machine):
         self.pattern = self.spec.transverse_pattern()
         self.centre_m = np.array([self.pattern.side_centre_m(int(s)) for s in SIDES])
         self._reach_of, self._reach = None, None
+        self._far = None   # the field eroded by a side's full reach (`_far_inside`), made when first used
 
     @property
     def drives(self) -> int:
@@ -89,9 +94,24 @@ class Spinner(Machine):
         """Each side's reach, m (n, 2), for product landing on the line through (x_m, y_m) along the
         heading (cos, sin): the room to the field boundary across each side, cut by
         `SpinnerSpec.side_reach_m` (half the spread width with no boundary known)."""
-        if self.field_polygon is None:
-            return self.spec.side_reach_m(np.full((np.size(x_m), 2), np.inf))
-        return self.spec.side_reach_m(_room_m(self.field_polygon, x_m, y_m, -sin, cos))
+        x_m, y_m, cos, sin = (np.asarray(v, float) for v in (x_m, y_m, cos, sin))
+        room = np.full((x_m.size, 2), np.inf)   # inf: no boundary within reach
+        if self.field_polygon is not None:   # the points far inside have room for the full reach
+            near = ~self._far_inside(x_m, y_m)
+            room[near] = _room_m(self.field_polygon, x_m[near], y_m[near], -sin[near], cos[near])
+        return self.spec.side_reach_m(room)
+
+    def _far_inside(self, x_m, y_m) -> np.ndarray:
+        """Whether each point (m) lies inside the field farther than a side's full reach from its
+        boundary (bool, shape of `x_m`): the room to the boundary it would be ray cast for is more
+        than the full reach in any direction, so `SpinnerSpec.side_reach_m` makes it the full reach."""
+        import shapely
+
+        if self._far is None:
+            h = self.spec.half_width_m
+            self._far = self.field_polygon.buffer(-(h * (1.0 + FAR_MARGIN_SHARE) + FAR_MARGIN_M))
+            shapely.prepare(self._far)
+        return shapely.contains_xy(self._far, x_m, y_m)
 
     def steps_reach_m(self, states: SectionStates) -> np.ndarray:
         """Each side's reach over treated ground, m (n, 2): its steps on (`SectionStates.steps_on`,
