@@ -172,3 +172,24 @@ def test_the_bands_wanted_and_the_steps_on_are_those_counted_band_by_band(steps)
         leading = np.array([next((k for k in range(steps) if not row[k]), steps) for row in bands])
         np.testing.assert_array_equal(on[:, side], leading)
     assert on.dtype == np.int64
+
+
+@pytest.mark.parametrize("border_spreading", [True, False])
+def test_the_reach_far_from_the_boundary_is_the_full_reach_the_ray_cast_gives(border_spreading):
+    import shapely
+
+    from services.sim.machines.spinner import _room_m
+
+    # An L with a hole: reflex corners, whose erosion is rounded.
+    field = shapely.Polygon([(0, 0), (300, 0), (300, 120), (110, 120), (110, 250), (0, 250)],
+                            holes=[[(40, 40), (70, 40), (70, 70), (40, 70)]])
+    imp = Implement(kind="spinner", width_m=24.0, sections=2,
+                    machine=SpinnerSpec(spread_width_m=36.0, border_spreading=border_spreading))
+    machine = machine_for(imp, field)
+    rng = np.random.default_rng(5)
+    x, y, h = rng.uniform(-20, 320, 40_000), rng.uniform(-20, 270, 40_000), rng.uniform(-4, 4, 40_000)
+    reach = machine.reach_m(x, y, np.cos(h), np.sin(h))
+    ray_cast = imp.machine.side_reach_m(_room_m(field, x, y, -np.sin(h), np.cos(h)))
+    np.testing.assert_array_equal(reach, ray_cast)
+    far = (reach == 18.0).all(axis=1)
+    assert 0.2 < far.mean() < 0.8 and (reach == 0.0).any() and ((reach > 0) & (reach < 18.0)).any()
