@@ -242,11 +242,17 @@ def _by_side(spans: StripPlan, levels: int) -> StripPlan:
     product is their side's disc's."""
     from scipy import sparse
 
-    m = spans.to_strips.tocoo()
-    tick, virtual = np.divmod(m.col, 2 * levels)
-    to_sides = sparse.csr_matrix((m.data, (m.row, tick * 2 + virtual % 2)),
+    m = spans.to_strips
+    # An item is one virtual section's: its columns (tick, virtual section) become (tick, side), still in
+    # time order, as many and in the same order (the sums of `StripPlan.mass_kg` alike).
+    tick, virtual = np.divmod(m.indices, 2 * levels)
+    to_sides = sparse.csr_matrix((m.data, tick * 2 + virtual % 2, m.indptr),
                                  shape=(m.shape[0], spans.ticks.size * 2))
-    drive_open = spans.drive_open.reshape(-1, levels, 2).any(axis=1)
+    # A side's drive is open where any of its levels is (an OR level by level: `any` over the middle axis
+    # of (ticks, levels, 2) takes ten times as long).
+    drive_open = spans.drive_open[:, :2].copy()
+    for level in range(1, levels):
+        drive_open |= spans.drive_open[:, 2 * level:2 * level + 2]
     return dataclasses.replace(spans, to_strips=to_sides, drive_open=drive_open)
 
 
