@@ -197,9 +197,10 @@ class AsApplied:
         area = np.where(mass > 0, samples.swept, 0.0)  # items carrying no product sweep no coverage
         if samples.weight is None:
             load = samples.flat((mass + 1j * area) / n)
-        else:
-            load = samples.flat(mass) * np.broadcast_to(samples.weight, samples.x.shape).ravel() \
-                + 1j * samples.flat(area / n)
+        else:   # the load at the weights' shape (the same arithmetic per sample), copied to every sample once
+            per_item = (samples.x.shape[0], *(1,) * (samples.x.ndim - 1))
+            load = mass.reshape(per_item) * samples.weight + 1j * (area / n).reshape(per_item)
+            load = np.broadcast_to(load, samples.x.shape).ravel()
         self._spread(self._terms(samples) if terms is None else terms, load)
 
     def _terms(self, samples: Samples):

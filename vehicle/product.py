@@ -156,4 +156,5 @@ def metered_kg(forward_rev, kg_per_rev: float, product: Product, seed: int, star
         whole = np.floor(p).astype(int)
         return cumulative[whole] + factors[whole] * (p - whole)
 
-    return (integral(position[1:]) - integral(position[:-1])) * true_kg_per_rev, position[-1]
+    at = integral(position)   # once at each position: a tick's end is the next one's start
+    return (at[1:] - at[:-1]) * true_kg_per_rev, position[-1]

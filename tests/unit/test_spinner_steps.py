@@ -131,3 +131,65 @@ def test_a_shortened_side_meters_its_patterns_share_within_its_reach_and_throws_
     assert left.max() == 0.0 and right[:8].min() > 0.0   # the left side's 4.5 m, the right side's 18
     total = applied.applied_kg_ha.sum() * grid.cell_area_m2 / 1e4 + applied.outside_kg
     assert total == pytest.approx(drive_kg.sum(), rel=1e-9)
+
+
+def _reach_by_side(steps, counts, treated, outside, treated_pct, outside_pct):
+    """The stepped switch's decision side by side, band by band, in integers: a side's reach is the
+    most bands from the centre line out whose points fit both limits; the bands within it wanted."""
+    m, wanted = treated.shape[0], np.zeros(treated.shape, bool)
+    for side in (range(steps - 1, -1, -1), range(steps, 2 * steps)):   # each side's bands, centre line out
+        bands = list(side)
+        for row in range(m):
+            reach = 0
+            for k in range(1, steps + 1):
+                strip = bands[:k]
+                total = int(counts[strip].sum())
+                if (100 * int(treated[row, strip].sum()) <= treated_pct * total
+                        and 100 * int(outside[row, strip].sum()) <= outside_pct * total):
+                    reach = k
+            wanted[row, bands[:reach]] = True
+    return wanted
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4, 16])
+def test_the_bands_wanted_and_the_steps_on_are_those_counted_band_by_band(steps):
+    from services.sim.sections.switching import _BandReach
+
+    rng = np.random.default_rng(steps)
+    counts = rng.integers(4, 40, 2 * steps)
+    m = 300
+    treated = rng.integers(0, counts + 1, (m, 2 * steps)) * (rng.random((m, 2 * steps)) < 0.6)
+    outside = rng.integers(0, counts + 1, (m, 2 * steps)) * (rng.random((m, 2 * steps)) < 0.2)
+    for treated_pct, outside_pct in ((50.0, 50.0), (10.0, 0.0), (33.3, 100.0)):
+        reach = _BandReach(steps, counts, treated_pct, outside_pct)
+        wanted = reach.wanted(treated.astype(np.int32), outside.astype(np.int32))
+        expected = _reach_by_side(steps, counts, treated, outside, treated_pct, outside_pct)
+        np.testing.assert_array_equal(wanted, expected)
+        assert 0 < wanted.mean() < 1
+    gates = rng.random((m, 2 * steps)) < 0.8
+    on = reach.steps_on(gates)
+    for side, bands in enumerate((gates[:, steps - 1::-1], gates[:, steps:])):
+        leading = np.array([next((k for k in range(steps) if not row[k]), steps) for row in bands])
+        np.testing.assert_array_equal(on[:, side], leading)
+    assert on.dtype == np.int64
+
+
+@pytest.mark.parametrize("border_spreading", [True, False])
+def test_the_reach_far_from_the_boundary_is_the_full_reach_the_ray_cast_gives(border_spreading):
+    import shapely
+
+    from services.sim.machines.spinner import _room_m
+
+    # An L with a hole: reflex corners, whose erosion is rounded.
+    field = shapely.Polygon([(0, 0), (300, 0), (300, 120), (110, 120), (110, 250), (0, 250)],
+                            holes=[[(40, 40), (70, 40), (70, 70), (40, 70)]])
+    imp = Implement(kind="spinner", width_m=24.0, sections=2,
+                    machine=SpinnerSpec(spread_width_m=36.0, border_spreading=border_spreading))
+    machine = machine_for(imp, field)
+    rng = np.random.default_rng(5)
+    x, y, h = rng.uniform(-20, 320, 40_000), rng.uniform(-20, 270, 40_000), rng.uniform(-4, 4, 40_000)
+    reach = machine.reach_m(x, y, np.cos(h), np.sin(h))
+    ray_cast = imp.machine.side_reach_m(_room_m(field, x, y, -np.sin(h), np.cos(h)))
+    np.testing.assert_array_equal(reach, ray_cast)
+    far = (reach == 18.0).all(axis=1)
+    assert 0.2 < far.mean() < 0.8 and (reach == 0.0).any() and ((reach > 0) & (reach < 18.0)).any()

@@ -45,6 +45,10 @@ __all__ = ["Spinner", "ThrowPlan"]
 SIDES = np.array([1.0, -1.0])   # drive 0: the left disc (+1, left of travel), drive 1: the right disc
 MIN_REACH_M = 0.1  # a side whose product the terminal let through where the true pose leaves no room
 ROOM_CHUNK = 2_000_000   # points x boundary segments at a time in the ray casting (memory)
+# A point farther than a side's full reach from the boundary has room for it across either side: only
+# the points outside the field eroded by the full reach and this margin are ray cast (`reach_m`). The
+# erosion's round corners are chords of their arcs, inside by under 0.5 % of the radius: within the margin.
+FAR_MARGIN_M, FAR_MARGIN_SHARE = 1.0, 0.01
 
 
 @register_machine
@@ -59,6 +63,7 @@ class Spinner(Machine):
         self.pattern = self.spec.transverse_pattern()
         self.centre_m = np.array([self.pattern.side_centre_m(int(s)) for s in SIDES])
         self._reach_of, self._reach = None, None
+        self._far = None   # the field eroded by a side's full reach (`_far_inside`), made when first used
 
     @property
     def drives(self) -> int:
@@ -89,9 +94,24 @@ class Spinner(Machine):
         """Each side's reach, m (n, 2), for product landing on the line through (x_m, y_m) along the
         heading (cos, sin): the room to the field boundary across each side, cut by
         `SpinnerSpec.side_reach_m` (half the spread width with no boundary known)."""
-        if self.field_polygon is None:
-            return self.spec.side_reach_m(np.full((np.size(x_m), 2), np.inf))
-        return self.spec.side_reach_m(_room_m(self.field_polygon, x_m, y_m, -sin, cos))
+        x_m, y_m, cos, sin = (np.asarray(v, float) for v in (x_m, y_m, cos, sin))
+        room = np.full((x_m.size, 2), np.inf)   # inf: no boundary within reach
+        if self.field_polygon is not None:   # the points far inside have room for the full reach
+            near = ~self._far_inside(x_m, y_m)
+            room[near] = _room_m(self.field_polygon, x_m[near], y_m[near], -sin[near], cos[near])
+        return self.spec.side_reach_m(room)
+
+    def _far_inside(self, x_m, y_m) -> np.ndarray:
+        """Whether each point (m) lies inside the field farther than a side's full reach from its
+        boundary (bool, shape of `x_m`): the room to the boundary it would be ray cast for is more
+        than the full reach in any direction, so `SpinnerSpec.side_reach_m` makes it the full reach."""
+        import shapely
+
+        if self._far is None:
+            h = self.spec.half_width_m
+            self._far = self.field_polygon.buffer(-(h * (1.0 + FAR_MARGIN_SHARE) + FAR_MARGIN_M))
+            shapely.prepare(self._far)
+        return shapely.contains_xy(self._far, x_m, y_m)
 
     def steps_reach_m(self, states: SectionStates) -> np.ndarray:
         """Each side's reach over treated ground, m (n, 2): its steps on (`SectionStates.steps_on`,
@@ -222,11 +242,17 @@ def _by_side(spans: StripPlan, levels: int) -> StripPlan:
     product is their side's disc's."""
     from scipy import sparse
 
-    m = spans.to_strips.tocoo()
-    tick, virtual = np.divmod(m.col, 2 * levels)
-    to_sides = sparse.csr_matrix((m.data, (m.row, tick * 2 + virtual % 2)),
+    m = spans.to_strips
+    # An item is one virtual section's: its columns (tick, virtual section) become (tick, side), still in
+    # time order, as many and in the same order (the sums of `StripPlan.mass_kg` alike).
+    tick, virtual = np.divmod(m.indices, 2 * levels)
+    to_sides = sparse.csr_matrix((m.data, tick * 2 + virtual % 2, m.indptr),
                                  shape=(m.shape[0], spans.ticks.size * 2))
-    drive_open = spans.drive_open.reshape(-1, levels, 2).any(axis=1)
+    # A side's drive is open where any of its levels is (an OR level by level: `any` over the middle axis
+    # of (ticks, levels, 2) takes ten times as long).
+    drive_open = spans.drive_open[:, :2].copy()
+    for level in range(1, levels):
+        drive_open |= spans.drive_open[:, 2 * level:2 * level + 2]
     return dataclasses.replace(spans, to_strips=to_sides, drive_open=drive_open)
 
 

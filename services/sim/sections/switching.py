@@ -395,11 +395,13 @@ class _SteppedCoverage(_Coverage):
         bands = dataclasses.replace(implement, kind=DEFAULT_KIND, machine=None, sections=2 * steps,
                                     section_widths_m=(width,) * (2 * steps))
         super().__init__(bands, polygon, path, period_s, map_cell_m)
+        self._reach = _BandReach(steps, self.strip.counts, *self.limits)
 
     def step(self, motion, on, s_m, passes, tick):
         commanded, actual, _ = super().step(motion, on, s_m, passes, tick)
-        steps_on = self._inward(actual).sum(axis=2)
-        return self._sides(self._inward(commanded).sum(axis=2)), self._sides(steps_on), steps_on
+        # A side is on where its innermost band is (its steps on from the centre line out: at least 1).
+        inner = [self.steps - 1, self.steps]
+        return self._sides(commanded[:, inner]), self._sides(actual[:, inner]), self._reach.steps_on(actual)
 
     def _cell_m(self, implement, map_cell_m) -> float:
         """The sides' coverage cell (`coverage_cell_m`): as fine as a whole side's, not a band's (the
@@ -407,33 +409,56 @@ class _SteppedCoverage(_Coverage):
         return coverage_cell_m(self.sides, map_cell_m)
 
     def _decide(self, x_m, y_m, cos, sin):
-        s = self.steps
-        counts = self._by_side(self.strip.counts[None, :])
-        treated_pct, outside_pct = self.limits
-        treated, outside = (np.cumsum(self._by_side(f), axis=2)
-                            for f in self.raster.flagged(self.strip, x_m, y_m, cos, sin))
-        total = np.cumsum(counts, axis=2)
-        fits = (treated * 100.0 <= treated_pct * total) & (outside * 100.0 <= outside_pct * total)
-        # The reach: the largest k that fits (0: none); the bands within it wanted.
-        reach = np.where(fits, np.arange(1, s + 1), 0).max(axis=2)
-        inward = np.arange(1, s + 1)[None, None, :] <= reach[:, :, None]
-        return np.concatenate([inward[:, 0, ::-1], inward[:, 1]], axis=1)   # the bands, left to right
+        return self._reach.wanted(*self.raster.flagged(self.strip, x_m, y_m, cos, sin))
 
-    def _by_side(self, bands: np.ndarray) -> np.ndarray:
-        """Each side's bands from the centre line out (m, 2, steps), of the bands left to right
-        (m, 2 * steps)."""
-        s = self.steps
-        return np.stack([bands[:, s - 1::-1], bands[:, s:]], axis=1)
-
-    def _inward(self, bands: np.ndarray) -> np.ndarray:
-        """Each side's bands from the centre line out, each only with every band inside it: bool
-        (m, 2, steps) of the bands left to right (m, 2 * steps)."""
-        return np.logical_and.accumulate(self._by_side(bands), axis=2)
-
-    def _sides(self, steps_on: np.ndarray) -> np.ndarray:
-        """The sections' gates (m, sections) from the sides' steps on (m, 2)."""
-        on = steps_on > 0
+    def _sides(self, on: np.ndarray) -> np.ndarray:
+        """The sections' gates (m, sections) from whether each side is on (m, 2)."""
         return on if self.sides.sections == 2 else on.any(axis=1, keepdims=True)
+
+
+class _BandReach:
+    """A spinner's sides cut into `steps` bands each, the bands left to right (``2 * steps``, the left
+    side's outermost first): the bands wanted from their points on treated ground and outside the field,
+    and each side's steps on from the bands' gates, as sums over a side's bands from the centre line out.
+
+    The sums over bands are products with 0/1 matrices in float32: the counts are small integers (a
+    strip's points times 100 stay far below 2**24), so every sum is exact in any order, and the limits'
+    comparisons are those of the counts as integers.
+    """
+
+    def __init__(self, steps: int, counts: np.ndarray, treated_pct: float, outside_pct: float):
+        bands = np.arange(2 * steps)
+        right = bands >= steps
+        out = np.where(right, bands - steps, steps - 1 - bands)   # a band's place out from the centre line
+        same = right[:, None] == right[None, :]
+        # within[i, j]: band i lies in band j's strip (its side's bands from the centre line out to j);
+        # beyond[i, j]: band i is band j or lies further out on its side.
+        within = same & (out[:, None] <= out[None, :])
+        self._within_pct = (within * 100.0).astype(np.float32)
+        self._beyond = (same & (out[:, None] >= out[None, :])).astype(np.float32)
+        total = np.asarray(counts, np.int64) @ within.astype(np.int64)   # each band's strip's points
+        self._limits = (treated_pct * total, outside_pct * total)
+        # A side's bands on (bits from the centre line out) -> its steps on: the bits on before the first off.
+        self._code = np.zeros((2 * steps, 2), np.int64)
+        self._code[:steps, 0] = 1 << out[:steps]
+        self._code[steps:, 1] = 1 << out[steps:]
+        codes = np.arange(1 << steps)
+        self._leading = np.array([(c ^ (c + 1)).bit_length() - 1 for c in codes.tolist()], np.int64)
+
+    def wanted(self, treated: np.ndarray, outside: np.ndarray) -> np.ndarray:
+        """Whether each band's product is wanted, bool (m, bands), from each band's points on treated
+        ground and outside the field (int, (m, bands)): a side's reach is the largest number of bands
+        from the centre line whose strip lies no more than the limits' percentages on treated ground and
+        outside (0: none), its bands within it wanted."""
+        treated_limit, outside_limit = self._limits
+        fits = ((treated.astype(np.float32) @ self._within_pct <= treated_limit)
+                & (outside.astype(np.float32) @ self._within_pct <= outside_limit))
+        return fits.astype(np.float32) @ self._beyond > 0   # a strip at or beyond the band fits
+
+    def steps_on(self, gates: np.ndarray) -> np.ndarray:
+        """Each side's steps on (m, 2; int): its bands' gates (bool (m, bands)) on from the centre line
+        out, up to the first off."""
+        return self._leading[gates @ self._code]
 
 
 # The ways of switching by ``[implement] section_control``: name -> class.
