@@ -149,6 +149,11 @@ def test_shared_plant_loops_give_the_recorded_numbers_bit_for_bit(case):
 def test_the_pid_outputs_in_floats_and_over_arrays_are_the_same_numbers(case, monkeypatch):
     monkeypatch.setattr(loop_module, "FLOAT_LAW_LOOPS", 0)
     arrays = _outputs(case)
+    # by einsum, a tick a block in two vectors that change places (as thousands of loops run)
+    with monkeypatch.context() as m:
+        m.setattr(loop_module, "EINSUM_LAW_LOOPS", 0)
+        m.setattr(loop_module, "SHARED_BLOCK_FLOATS", 1)
+        np.testing.assert_array_equal(_outputs(case), arrays)
     monkeypatch.setattr(loop_module, "FLOAT_LAW_LOOPS", 100)
     np.testing.assert_array_equal(_outputs(case), arrays)
 
