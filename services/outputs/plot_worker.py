@@ -49,11 +49,18 @@ class PlotWorker:
         self.proc = None
         self._jobs: queue.SimpleQueue = queue.SimpleQueue()   # pickled jobs; None ends them
         self._writer: threading.Thread | None = None
+        self._replies: queue.SimpleQueue = queue.SimpleQueue()   # unpickled replies; None: the worker ended
+        self._reader: threading.Thread | None = None
 
     def start(self) -> PlotWorker:
         # -P: vrsim's own modules, not a `services` package in the folder the command runs in
         self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.outputs.plot_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        # Replies are read as they come, not when `result` asks: a PNG's bytes fill the pipe, and a
+        # worker blocked writing one reads no job (map.png's waited 0.5 s for the caller's first
+        # `result`, after the run's other files, in `vrsim run huge`).
+        self._reader = threading.Thread(target=self._read_replies, name="plot-replies", daemon=True)
+        self._reader.start()
         return self
 
     def submit(self, drawing: str, picture, path: str | None) -> None:
@@ -82,24 +89,33 @@ class PlotWorker:
     def result(self) -> str | bytes:
         """Wait for the next job: its path, or the PNG's bytes of a job without one; what went wrong in
         the worker is raised here (a RuntimeError: a bug)."""
-        try:
-            status, detail = pickle.load(self.proc.stdout)
-        except EOFError:
-            raise RuntimeError(f"the plot worker ended (exit code {self.proc.wait()})") from None
+        reply = self._replies.get()
+        if reply is None:
+            self._replies.put(None)   # every later `result` too
+            raise RuntimeError(f"the plot worker ended (exit code {self.proc.wait()})")
+        status, detail = reply
         if status != "ok":
             raise RuntimeError(f"the plot worker: {detail}")
         return detail
 
+    def _read_replies(self) -> None:
+        stdout = self.proc.stdout
+        try:
+            while True:
+                self._replies.put(pickle.load(stdout))
+        except (EOFError, pickle.UnpicklingError, ValueError):   # it ended (perhaps mid-reply), or closed
+            self._replies.put(None)
+
     def close(self) -> None:
-        """End the worker (after its pending jobs, whose replies nobody waits for any more: read and
-        dropped, a PNG's bytes would fill the pipe and the worker would wait for a reader)."""
+        """End the worker after its pending jobs (whose replies nobody waits for any more: the reader
+        drops them)."""
         if self.proc is not None:
             if self._writer is None:
                 self.proc.stdin.close()
             else:
                 self._jobs.put(None)
                 self._writer.join()
-            self.proc.stdout.read()
+            self._reader.join()
             self.proc.wait()
             self.proc.stdout.close()
             self.proc = None

@@ -6,6 +6,7 @@ import csv
 import json
 import os
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -264,6 +265,39 @@ def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_end
             assert im.size[0] > 900, name
     assert not (tmp_path / "b.png").exists()
     assert drawers == []  # every drawing process reaped once it replied
+
+
+def test_a_reply_nobody_asked_for_yet_does_not_hold_up_the_next_drawing(tmp_path):
+    """A PNG drawn into memory is larger than the pipe: the worker must not wait for the caller's
+    `result` before it takes the next job (map.png waited for the run's other files so)."""
+    from services.outputs.plot_worker import PlotWorker
+    from services.outputs.plots import SeriesPicture
+
+    t = np.arange(0.0, 60.0, 0.05)
+    noisy = SeriesPicture(t, 100 + 10 * np.sin(t), 99 + 10 * np.cos(3 * t), 150 + 0 * t, 149 + 0 * t,
+                          "a minute", "kg/ha")
+    worker = PlotWorker().start()
+    try:
+        worker.submit("draw_timeseries", noisy, None)                    # its reply: the PNG's bytes
+        _wait_for(lambda: _children(worker.proc.pid))         # drawing it
+        _wait_for(lambda: not _children(worker.proc.pid))     # drawn, its reply sent or stuck in the pipe
+        worker.submit("draw_timeseries", noisy, str(tmp_path / "next.png"))
+        deadline = time.monotonic() + 30.0
+        while not (tmp_path / "next.png").exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert (tmp_path / "next.png").exists()   # drawn before anyone read the first reply
+        png = worker.result()
+        assert len(png) > 1 << 16 and png.startswith(b"\x89PNG")  # more than the pipe holds
+        assert worker.result() == str(tmp_path / "next.png")
+    finally:
+        worker.close()
+
+
+def _wait_for(condition, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
 
 
 def _children(pid: int) -> list[int]:

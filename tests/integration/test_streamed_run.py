@@ -138,6 +138,25 @@ def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypa
     assert started[0].poll() == -9
 
 
+def test_sumo_may_drive_parts_ahead_of_the_run():
+    """SUMO's pipe holds several parts (`PIPE_BYTES`), where the system allows it: SUMO does not wait
+    on each part's write while the run accounts a slow one."""
+    import fcntl
+
+    from services.sim.drive_worker import PART_TICKS, PIPE_BYTES
+
+    worker = DriveWorker()
+    try:
+        held_bytes = fcntl.fcntl(worker.proc.stdout.fileno(), fcntl.F_GETPIPE_SZ)
+    finally:
+        worker.close()
+    with open("/proc/sys/fs/pipe-max-size") as fh:
+        allowed_bytes = int(fh.read())
+    part_bytes = 3 * 8 * PART_TICKS   # time, distance along the path and speed, float64
+    assert PIPE_BYTES >= 8 * part_bytes
+    assert held_bytes >= (PIPE_BYTES if PIPE_BYTES <= allowed_bytes else 1 << 16)
+
+
 def _drive_workers(mark: bytes) -> set[int]:
     """Drive workers whose environment carries `mark`: started by this test's command (other runs on
     the machine, a parallel test's or a developer's, are not this test's business)."""
