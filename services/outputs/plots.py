@@ -141,8 +141,10 @@ def _draw_panels(fig, panels, extent, outline, unit: str):
     on each; returns the axes."""
     axes = fig.subplots(1, 3)
     for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
+        # Nearest cells coloured after resampling (the same pixels as before it, matplotlib's choice
+        # near 1:1): a single channel resampled, half the image's CPU.
         im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
-                       interpolation="nearest")
+                       interpolation="nearest", interpolation_stage="data")
         ax.plot(*outline, color="k", lw=0.8)
         # At the axes' top (y=1): no title placement, which measures every tick label of the figure's
         # axes to keep the title clear of top ticks these maps do not have.
