@@ -162,7 +162,7 @@ def _import_matplotlib() -> None:
 
 def _drawn(job: bytes) -> tuple[str, str | bytes]:
     """Draw one pickled job; its reply. In a child that exits once it has drawn: its garbage goes with
-    it, and no collection pass runs (3-15 ms of a drawing's 0.1-0.2 s)."""
+    it, and no collection pass runs (about 5 ms of map.png's 0.2 s)."""
     import gc
     import io
 
