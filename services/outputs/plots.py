@@ -130,18 +130,30 @@ def window_picture(w: dict, world) -> SeriesPicture:
                          f"{world.scenario.name}: shaft speed and rate around rate steps", grid.map_unit)
 
 
+def _save(fig, path) -> None:
+    """Write `fig` as a PNG at 90 dpi, deflated at zlib's level 1: about half the encoding's CPU of
+    its default level 6 (0.013 s of map.png's 0.2 s) for up to a sixth more bytes."""
+    fig.savefig(path, dpi=90, pil_kwargs={"compress_level": 1})
+
+
 def _draw_panels(fig, panels, extent, outline, unit: str):
     """Three maps side by side: panels of (data, title, colour map, low, high), the field's outline
     on each; returns the axes."""
     axes = fig.subplots(1, 3)
     for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
+        # Nearest cells coloured after resampling (the same pixels as before it, matplotlib's choice
+        # near 1:1): a single channel resampled, half the image's CPU.
         im = ax.imshow(data, extent=extent, origin="upper", cmap=cmap, vmin=lo, vmax=hi,
-                       interpolation="nearest")
+                       interpolation="nearest", interpolation_stage="data")
         ax.plot(*outline, color="k", lw=0.8)
-        ax.set_title(title)
+        # At the axes' top (y=1): no title placement, which measures every tick label of the figure's
+        # axes to keep the title clear of top ticks these maps do not have.
+        ax.set_title(title, y=1.0)
         ax.set_aspect("equal")
         ax.set_xlabel("east (m)")
-        fig.colorbar(im, ax=ax, label=unit, shrink=0.85)
+        # Placed from the panel's box (same place, same pixels) rather than by splitting its gridspec
+        # cell into a new gridspec: fewer objects to build.
+        fig.colorbar(im, ax=ax, label=unit, shrink=0.85, use_gridspec=False)
     axes[0].set_ylabel("north (m) of the map's south-west corner")
     return axes
 
@@ -163,7 +175,7 @@ def draw_maps(pic: MapPicture, path: str) -> None:
     axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, pic.unit)
     axes[0].plot(*pic.path_xy, color="w", lw=0.3, alpha=0.6)
     fig.suptitle(pic.title)
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
 
 
 def draw_sections(pic: SectionsPicture, path: str) -> None:
@@ -175,7 +187,7 @@ def draw_sections(pic: SectionsPicture, path: str) -> None:
                        strict=True))
     _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "share of the cell")
     fig.suptitle(pic.title)
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
 
 
 def draw_timeseries(pic: SeriesPicture, path: str) -> None:
@@ -191,4 +203,4 @@ def draw_timeseries(pic: SeriesPicture, path: str) -> None:
     ax2.set_xlabel("time (s)")
     ax2.legend(loc="upper right")
     fig.suptitle(pic.title)
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
