@@ -104,8 +104,9 @@ def sections_picture(result) -> SectionsPicture:
     cover = deposit.coverage_fraction
     s = result.summary
     titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg",
-              f"Skipped: {s['skip_area_pct']:.2f} % of worked area asking for product\n"
-              f"bare as prescribed (rate 0): {s['off_as_prescribed_area_pct']:.2f} % of worked area",
+              # Lines no wider than the panel: the colour bar beside it would hide their ends.
+              f"Of worked area: skipped {s['skip_area_pct']:.2f} %\n(where the map asks for product),\n"
+              f"bare as prescribed (rate 0) {s['off_as_prescribed_area_pct']:.2f} %",
               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area")
     widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
     return SectionsPicture(deposit.overlap_fraction,
