@@ -61,9 +61,10 @@ class CoverageRaster:
         self.west, self.north = minx - margin, maxy + margin
         self.cols = math.ceil((maxx + margin - self.west) / cell)
         self.rows = math.ceil((self.north - miny + margin) / cell)
-        inside = np.zeros((self.rows, self.cols), bool)
-        fill_rings(inside, *_polygon_rings(field_polygon), self.west, self.north, cell)
-        self.state = np.where(inside, np.uint8(0), _OUTSIDE)
+        # The field's cells filled with the outside bit, then every cell's bit flipped (in place).
+        self.state = np.zeros((self.rows, self.cols), np.uint8)
+        fill_rings(self.state, *_polygon_rings(field_polygon), self.west, self.north, cell, value=_OUTSIDE)
+        self.state ^= _OUTSIDE
         self._work: list[np.ndarray] | None = None  # `_read`'s work arrays
 
     def wanted(self, strip: Strip, x_m, y_m, cos, sin, treated_pct: float, outside_pct: float):

@@ -71,7 +71,11 @@ class Motion:
         The chord of an arc of length d turning by dh is ``d sinc(dh / 2)`` long, along the heading
         turned by dh / 2.
         """
-        distance_m, moving_s = self.travel(lead_s)
+        return self.pose_after(*self.travel(lead_s))
+
+    def pose_after(self, distance_m: np.ndarray, moving_s: np.ndarray):
+        """`ahead`'s pose from what `travel` gives for its lead: the centre's distance [m] and the time it
+        moves [s] (for a caller that needs the distance too)."""
         turn = self.yaw_rate_rad_s * moving_s
         chord_m = distance_m * np.sinc(turn / (2 * np.pi))   # np.sinc(x) = sin(pi x) / (pi x)
         middle = self.heading_rad + 0.5 * turn

@@ -346,7 +346,8 @@ class _Coverage:
         """The pose (x, y, cos, sin) predicted `lead_s` ahead of `ticks` (a slice or indices) and whether
         the planned path works there."""
         part = motion.part(ticks)
-        return part.ahead(lead_s), self._working(s_m[ticks] + part.travel(lead_s)[0])
+        distance_m, moving_s = part.travel(lead_s)
+        return part.pose_after(distance_m, moving_s), self._working(s_m[ticks] + distance_m)
 
     def _wanted(self, pose, working, a, b):
         """Whether each section's product is wanted across the predicted `pose` (x, y, cos, sin) of
