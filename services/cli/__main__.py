@@ -1,7 +1,6 @@
-"""``python -m services.cli``: the `vrsim` command (how `vrsim serve all` starts its children)."""
+"""``python -m services.cli``: the `vrsim` command (how `vrsim serve all` starts its children), the same
+entry as the installed script (`main.console`: `vrsim run` exits without the interpreter's teardown)."""
 
-import sys
+from services.cli.main import console
 
-from services.cli.main import main
-
-sys.exit(main())
+console()

@@ -78,9 +78,10 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 
 def console() -> None:
-    """The `vrsim` executable: `main`, then the exit. A command whose module sets ``EXIT_AT_ONCE``
-    (everything it wrote is closed when it returns) exits without the interpreter's teardown of the
-    libraries it loaded (GDAL, Arrow, PROJ: a fifth of a second of `vrsim run`)."""
+    """The `vrsim` executable (and ``python -m services.cli``): `main`, then the exit. A command whose
+    module sets ``EXIT_AT_ONCE`` (everything it wrote is closed when it returns) exits without the
+    interpreter's teardown of the libraries it loaded (GDAL, Arrow, PROJ: a fifth of a second of
+    `vrsim run`)."""
     args = _parse(sys.argv[1:])
     code = _run_command(args)
     if args._exit_at_once:
