@@ -65,11 +65,21 @@ class SubcellRaster:
         full = parts.reshape(parts.shape[0], *self.shape)
         return full[:, [0, -1], :].sum(axis=(1, 2)) + full[:, 1:-1, [0, -1]].sum(axis=(1, 2))
 
-    def cell_subs(self) -> np.ndarray:
-        """The flat indices of each cell's s x s sub-cells, cell by cell (row-major): (cells, s * s)."""
-        s, rows, cols = self.subcells, self.grid.rows, self.grid.cols
-        cell_r, cell_c, i, j = np.indices((rows, cols, s, s)).reshape(4, -1)
-        return ((cell_r * s + i + 1) * self.shape[1] + cell_c * s + j + 1).reshape(rows * cols, s * s)
+    def cell_subs(self, cells=None) -> np.ndarray:
+        """The flat indices of the s x s sub-cells of `cells` (flat cell indices, row-major; default
+        every cell), cell by cell, each cell's row by row: (cells, s * s)."""
+        s, width = self.subcells, self.shape[1]
+        cells = np.arange(self.grid.rows * self.grid.cols) if cells is None else np.asarray(cells, np.int64)
+        cell_r, cell_c = np.divmod(cells, self.grid.cols)
+        i, j = np.divmod(np.arange(s * s), s)
+        return ((cell_r * s + 1) * width + cell_c * s + 1)[:, None] + (i * width + j)[None, :]
+
+    def cell_of(self, subs) -> np.ndarray:
+        """The flat cell index of each of the flat sub-cell indices `subs` (-1: the ring)."""
+        s, (height, width) = self.subcells, self.shape
+        r, c = np.divmod(np.asarray(subs, np.int64) - (width + 1), width)   # less the ring
+        inside = (r >= 0) & (r < height - 2) & (c >= 0) & (c < width - 2)
+        return np.where(inside, r // s * self.grid.cols + c // s, -1)
 
     # --- the rules per sub-cell, shared by both modes ------------------------------------------
     def covered(self, swept: np.ndarray) -> np.ndarray:
