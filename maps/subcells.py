@@ -81,6 +81,26 @@ class SubcellRaster:
         inside = (r >= 0) & (r < height - 2) & (c >= 0) & (c < width - 2)
         return np.where(inside, r // s * self.grid.cols + c // s, -1)
 
+    def cell_sums(self, blocks: np.ndarray) -> np.ndarray:
+        """Per cell the sum of its sub-cells' float values, from (rows, s, cols, s) `blocks`:
+        ``blocks.sum(axis=(1, 3))`` to the bit, in its order (each row of a cell's sub-cells from the
+        left, then the rows from the top), without numpy's loop call per row of s sub-cells (7 times
+        slower at s = 2)."""
+        s = blocks.shape[1]
+        if s >= 8:   # numpy sums 8 or more in a row pairwise
+            return blocks.sum(axis=(1, 3))
+        total = None
+        for i in range(s):
+            row = blocks[:, i, :, 0] + 0.0   # a copy, from 0 as numpy starts (a sum of -0.0s is 0.0)
+            for j in range(1, s):
+                row += blocks[:, i, :, j]
+            total = row if total is None else total + row
+        return total
+
+    def cell_means(self, blocks: np.ndarray) -> np.ndarray:
+        """``blocks.mean(axis=(1, 3))`` to the bit (`cell_sums`, divided by the sub-cells' count)."""
+        return self.cell_sums(blocks) / blocks.shape[1] ** 2
+
     # --- the rules per sub-cell, shared by both modes ------------------------------------------
     def covered(self, swept: np.ndarray) -> np.ndarray:
         """Share of each sub-cell swept, from its swept area (clipped at 1)."""
