@@ -229,6 +229,13 @@ class AsApplied:
         np.add.at(acc, high_high, hc * wr_high)
 
     # --- passes --------------------------------------------------------------------------------
+    def close_pass(self) -> None:
+        """End the open pass, if any: no more items of it come (a deposit of its index starts a pass
+        of its own). The figures stay the same to the bit; the reads no longer add the open pass's
+        raster to the rest, each on its own."""
+        if self._pass is not None:
+            self._close_pass()
+
     def _begin_pass(self, index: int) -> None:
         """Close the open pass if it is another, and deposit into pass `index`'s own raster."""
         if index != self._pass:
@@ -246,6 +253,7 @@ class AsApplied:
             rows, cols = window
             self._capped[rows, cols] += capped
             self._count[rows.start // s: rows.stop // s, cols.start // s: cols.stop // s] += count
+        if self._window is not None:   # also a pass that put product off the grid only
             shape = self.raster.shape
             touched = self._touched()
             self._acc.reshape(shape)[touched] += self._pass_acc.reshape(shape)[touched]

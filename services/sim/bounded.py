@@ -264,6 +264,7 @@ class BoundedAccount:
     # --- the end ---------------------------------------------------------------------------------
     def _result(self) -> RunResult:
         world, grid, acc = self.world, self.world.grid, self.acc
+        acc.close_pass()   # the drive is over: each read below no longer adds the last pass's raster
         in_field = cells_in_field(grid, world.field.polygon)
         worked, cover = self.worked.fraction(), acc.coverage_fraction
         # numpy's pairwise sum over the whole run, as the in-process run's.
