@@ -84,27 +84,31 @@ class SubcellRaster:
     def cell_sums(self, blocks: np.ndarray) -> np.ndarray:
         """Per cell the sum of its sub-cells' float values, from (rows, s, cols, s) `blocks`:
         ``blocks.sum(axis=(1, 3))`` to the bit, in its order (each row of a cell's sub-cells from the
-        left, then the rows from the top), without numpy's loop call per row of s sub-cells (7 times
+        left, then the rows from the top), without numpy's loop call per row of s sub-cells (5 times
         slower at s = 2)."""
         s = blocks.shape[1]
         if s >= 8:   # numpy sums 8 or more in a row pairwise
             return blocks.sum(axis=(1, 3))
-        total = None
-        for i in range(s):
-            row = blocks[:, i, :, 0] + 0.0   # a copy, from 0 as numpy starts (a sum of -0.0s is 0.0)
-            for j in range(1, s):
-                row += blocks[:, i, :, j]
-            total = row if total is None else total + row
+        rows = blocks[..., 0] + 0.0   # (rows, s, cols), from 0 as numpy starts (a sum of -0.0s is 0.0)
+        for j in range(1, s):
+            rows += blocks[..., j]
+        total = rows[:, 0]
+        for i in range(1, s):
+            total = total + rows[:, i]
         return total
 
     def cell_means(self, blocks: np.ndarray) -> np.ndarray:
         """``blocks.mean(axis=(1, 3))`` to the bit (`cell_sums`, divided by the sub-cells' count)."""
-        return self.cell_sums(blocks) / blocks.shape[1] ** 2
+        total = self.cell_sums(blocks)   # a new array: divided in place (a new one costs more)
+        total /= blocks.shape[1] ** 2
+        return total
 
     # --- the rules per sub-cell, shared by both modes ------------------------------------------
+    # (Each works in the one new array it returns: a second one costs more than the arithmetic.)
     def covered(self, swept: np.ndarray) -> np.ndarray:
         """Share of each sub-cell swept, from its swept area (clipped at 1)."""
-        return np.minimum(swept / self.sub_area, 1.0)
+        share = swept / self.sub_area
+        return np.minimum(share, 1.0, out=share)
 
     def pass_puts_on(self, swept_per_cell: np.ndarray) -> np.ndarray:
         """Whether a pass put product on a cell: it swept at least half of it (its sub-cells' sum)."""
@@ -114,13 +118,17 @@ class SubcellRaster:
     def overlap_share(self, capped: np.ndarray) -> np.ndarray:
         """Share of each sub-cell swept by more than one pass, from the sum over passes of each one's
         swept area capped at the sub-cell's: a lower bound of the area two passes share."""
-        return np.maximum(capped - self.sub_area, 0.0) / self.sub_area
+        share = capped - self.sub_area
+        np.maximum(share, 0.0, out=share)
+        share /= self.sub_area
+        return share
 
     def beyond_first(self, capped: np.ndarray) -> np.ndarray:
         """Share of each sub-cell's product beyond the first pass (the overlapping share of its
         passes' swept area), from the same capped sum."""
-        return np.divide(np.maximum(capped - self.sub_area, 0.0), capped, out=np.zeros(capped.shape),
-                         where=capped > 0)
+        share = capped - self.sub_area
+        np.maximum(share, 0.0, out=share)   # 0 where nothing is capped (capped <= 0)
+        return np.divide(share, capped, out=share, where=capped > 0)
 
 
 def _split(f: np.ndarray, half: np.ndarray, n: int):
