@@ -483,8 +483,9 @@ _POINT_WKB = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f
 
 
 def _points_wkb(x: np.ndarray, y: np.ndarray):
-    """The points' WKB as an Arrow binary array: `shapely.to_wkb` of `shapely.points`, byte for byte,
-    written straight into one buffer (shapely makes a Python bytes object a point, 10 times slower)."""
+    """The points' WKB as an Arrow binary array: `shapely.to_wkb` of `shapely.points`, byte for byte
+    (on a little-endian machine: shapely writes the machine's order), written straight into one buffer
+    (shapely makes a Python bytes object a point, 10 times slower)."""
     import pyarrow as pa
 
     records = np.empty(x.size, _POINT_WKB)
