@@ -82,7 +82,7 @@ class AsApplied:
     @property
     def applied_kg(self) -> np.ndarray:
         """Applied product per cell, kg, shape (rows, cols)."""
-        return self.raster.interior(self._all().real).sum(axis=(1, 3))
+        return self.raster.cell_sums(self.raster.interior(self._all().real))
 
     def applied_kg_in(self, rows: slice, cols: slice) -> np.ndarray:
         """`applied_kg` of a window of cells (slices of rows and columns, steps of 1), reading only
@@ -94,7 +94,7 @@ class AsApplied:
         part = self._acc.reshape(self.raster.shape)[window].real
         if self._pass is not None:
             part = part + self._pass_acc.reshape(self.raster.shape)[window].real
-        return part.reshape(max(r1 - r0, 0), s, max(c1 - c0, 0), s).sum(axis=(1, 3))
+        return self.raster.cell_sums(part.reshape(max(r1 - r0, 0), s, max(c1 - c0, 0), s))
 
     @property
     def applied_kg_ha(self) -> np.ndarray:
@@ -109,7 +109,7 @@ class AsApplied:
     @property
     def coverage_fraction(self) -> np.ndarray:
         """Share of each cell's area that product was applied to, in [0, 1], shape (rows, cols)."""
-        return self.raster.covered(self.raster.interior(self._all().imag)).mean(axis=(1, 3))
+        return self.raster.cell_means(self.raster.covered(self.raster.interior(self._all().imag)))
 
     def as_grid(self) -> Grid:
         """The applied rates as a `Grid` on the prescription's geometry (cells never covered: NaN)."""
@@ -133,14 +133,14 @@ class AsApplied:
         sub-cells. A pass that sweeps the same ground twice (a turn) does not overlap itself.
         """
         capped = self.raster.blocks(self._with_open_pass()[0])
-        return self.raster.overlap_share(capped).mean(axis=(1, 3))
+        return self.raster.cell_means(self.raster.overlap_share(capped))
 
     @property
     def overlap_kg(self) -> np.ndarray:
         """Product applied beyond the first pass on each cell, kg, shape (rows, cols): per sub-cell,
         its product times the share of its passes' swept area that overlaps."""
         extra = self.raster.beyond_first(self.raster.blocks(self._with_open_pass()[0]))
-        return (self.raster.interior(self._all().real) * extra).sum(axis=(1, 3))
+        return self.raster.cell_sums(self.raster.interior(self._all().real) * extra)
 
     # --- deposits ------------------------------------------------------------------------------
     def deposit(self, footprint: Footprint, mass_kg, pass_index=None, others=()) -> None:
@@ -229,6 +229,13 @@ class AsApplied:
         np.add.at(acc, high_high, hc * wr_high)
 
     # --- passes --------------------------------------------------------------------------------
+    def close_pass(self) -> None:
+        """End the open pass, if any: no more items of it come (a deposit of its index starts a pass
+        of its own). The figures stay the same to the bit; the reads no longer add the open pass's
+        raster to the rest, each on its own."""
+        if self._pass is not None:
+            self._close_pass()
+
     def _begin_pass(self, index: int) -> None:
         """Close the open pass if it is another, and deposit into pass `index`'s own raster."""
         if index != self._pass:
@@ -246,6 +253,7 @@ class AsApplied:
             rows, cols = window
             self._capped[rows, cols] += capped
             self._count[rows.start // s: rows.stop // s, cols.start // s: cols.stop // s] += count
+        if self._window is not None:   # also a pass that put product off the grid only
             shape = self.raster.shape
             touched = self._touched()
             self._acc.reshape(shape)[touched] += self._pass_acc.reshape(shape)[touched]
@@ -269,7 +277,7 @@ class AsApplied:
         if i1 <= i0 or j1 <= j0:
             return None, None, None
         swept = self._pass_acc.reshape(shape)[1 + i0: 1 + i1, 1 + j0: 1 + j1].imag
-        blocks = swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s).sum(axis=(1, 3))
+        blocks = self.raster.cell_sums(swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s))
         return np.minimum(swept, area), self.raster.pass_puts_on(blocks), (slice(i0, i1), slice(j0, j1))
 
     def _with_open_pass(self):

@@ -78,21 +78,15 @@ class ColumnDeposit:
         self.weights = (sparse.csr_matrix((_joined(mass_w, float), where), shape=(raster.size, k))
                         if weighted else self.area)
         self._to_pass = None if pass_index is None else _runs_matrix(pass_index, k)
-        # The ring coordinates of each cell's s x s sub-cells, cell by cell (row-major cells), and the
-        # cell of each sub-cell of the raster (-1: the ring), to recompute the cells an item touches.
-        rows, cols = grid.rows, grid.cols
-        self._cell_subs = raster.cell_subs()
-        self._sub_cell = np.full(raster.size, -1, np.int64)
-        self._sub_cell[self._cell_subs] = np.arange(rows * cols)[:, None]
+        # The cells any item touches: elsewhere every swept-area term is 0 (no sub-cell swept).
+        touched = raster.cell_of(np.flatnonzero(np.diff(self.area.indptr)))
+        self._touched = np.unique(touched[touched >= 0])
         self._by_item = None    # the area weights by item (CSC), made on first use
         self._base = None       # (pattern, its `_terms_at` over every cell): the first one seen
         self._sub_weights = None  # the weights of the sub-cells of cells, cell by cell (CSR), first use
-        # The weights summed per cell and over the ring: applied and outside kg straight from masses.
-        sub = np.flatnonzero(self._sub_cell >= 0)
-        per_cell = sparse.csr_matrix((np.ones(sub.size), (self._sub_cell[sub], sub)),
-                                     shape=(rows * cols, raster.size))
-        self._cell_weights = (per_cell @ self.weights).tocsr()
-        self._ring_weights = np.asarray(self.weights[self._sub_cell < 0].sum(axis=0)).ravel()
+        # The weights summed per cell and over the ring (applied and outside kg straight from masses),
+        # made on first use: what only `apply` reads.
+        self._cell_weights = self._ring_weights = None
 
     @property
     def items(self) -> int:
@@ -113,14 +107,16 @@ class ColumnDeposit:
         grid = self._raster.grid
         shape = (grid.rows, grid.cols)
         terms, which, patched = self._patterns_of(mass)
+        if self._cell_weights is None:
+            self._sum_weights()
         out = dict(applied_kg=np.asarray(self._cell_weights @ mass).T.reshape(-1, *shape),
                    coverage_fraction=np.stack([terms[u][0].reshape(shape) for u in which]),
                    outside_kg=self._ring_weights @ mass, cell_area_m2=self._cell_area_m2)
         if self._to_pass is not None:
             # A sub-cell's product beyond the first pass is its share `extra` of the product on it.
             if self._sub_weights is None:
-                self._sub_weights = self.weights[self._cell_subs.ravel()].tocsr()
-            cells, s2 = self._cell_subs.shape
+                self._sub_weights = self.weights[self._raster.cell_subs().ravel()].tocsr()
+            cells, s2 = grid.rows * grid.cols, self._raster.subcells ** 2
             per_sub = np.asarray(self._sub_weights @ mass).reshape(cells, s2, -1)   # kg
             overlap_kg = np.einsum("cs,csn->nc", self._base[1][3], per_sub)
             for u, at in enumerate(patched):   # a pattern's own terms differ at its patched cells only
@@ -132,6 +128,18 @@ class ColumnDeposit:
                        overlap_fraction=np.stack([terms[u][2].reshape(shape) for u in which]),
                        overlap_kg=overlap_kg.reshape(-1, *shape))
         return AppliedColumns(**out)
+
+    def _sum_weights(self) -> None:
+        """The weights summed per cell (CSR, cells x items) and over the ring (items,)."""
+        from scipy import sparse
+
+        raster = self._raster
+        cell = raster.cell_of(np.arange(raster.size))
+        sub = np.flatnonzero(cell >= 0)
+        per_cell = sparse.csr_matrix((np.ones(sub.size), (cell[sub], sub)),
+                                     shape=(raster.grid.rows * raster.grid.cols, raster.size))
+        self._cell_weights = (per_cell @ self.weights).tocsr()
+        self._ring_weights = np.asarray(self.weights[cell < 0].sum(axis=0)).ravel()
 
     def coverage_fraction(self, mass_kg) -> np.ndarray:
         """Only `apply`'s ``coverage_fraction``: (n, rows, cols), for mass columns (k, n)."""
@@ -152,7 +160,7 @@ class ColumnDeposit:
         which = np.array([first.setdefault(row.tobytes(), len(first)) for row in packed], dtype=np.int64)
         patterns = carries[np.unique(which, return_index=True)[1]]
         if self._base is None:
-            self._base = (patterns[0], self._terms_at(patterns[0], np.arange(self._cell_subs.shape[0])))
+            self._base = (patterns[0], self._terms_everywhere(patterns[0]))
         base_pattern, base = self._base
         terms, patched_cells = [], []
         for pattern in patterns:
@@ -163,8 +171,7 @@ class ColumnDeposit:
                 continue
             if self._by_item is None:
                 self._by_item = self.area.tocsc()
-            touched = self._by_item[:, differ].indices
-            cells = np.unique(self._sub_cell[touched])
+            cells = np.unique(self._raster.cell_of(self._by_item[:, differ].indices))
             cells = cells[cells >= 0]
             patched = [None if t is None else t.copy() for t in base]
             for whole, part in zip(patched, self._terms_at(pattern, cells), strict=True):
@@ -174,6 +181,19 @@ class ColumnDeposit:
             patched_cells.append(cells)
         return terms, which, patched_cells
 
+    def _terms_everywhere(self, carries: np.ndarray):
+        """`_terms_at` every cell: worked out at the cells the items touch, 0 elsewhere."""
+        raster = self._raster
+        cells = raster.grid.rows * raster.grid.cols
+        whole = []
+        for part in self._terms_at(carries, self._touched):
+            if part is not None:
+                full = np.zeros((cells, *part.shape[1:]), part.dtype)
+                full[self._touched] = part
+                part = full
+            whole.append(part)
+        return tuple(whole)
+
     def _terms_at(self, carries: np.ndarray, cells: np.ndarray):
         """For items carrying product where `carries`, at `cells` (flat cell indices): the coverage,
         and with passes the pass count and the overlap share, each shape (m,), and each sub-cell's
@@ -182,7 +202,7 @@ class ColumnDeposit:
 
         raster = self._raster
         area, s2 = raster.sub_area, raster.subcells ** 2
-        rows = self.area[self._cell_subs[cells].ravel()]                  # (m * s * s, items)
+        rows = self.area[raster.cell_subs(cells).ravel()]                 # (m * s * s, items)
         swept = self.swept * carries
         cover = raster.covered(np.asarray(rows @ swept).reshape(-1, s2)).mean(axis=1)
         if self._to_pass is None:

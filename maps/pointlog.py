@@ -455,12 +455,12 @@ def write_points(log: PointLog, path) -> str:
         raise MapError(f"{path}: folder {folder} does not exist")
     lon, lat = log.lonlat()
     keep = np.isfinite(lon) & np.isfinite(lat)
-    geometry = shapely.to_wkb(shapely.points(lon[keep], lat[keep]))
     shapefile = lower.endswith(".zip")
     fields = _fields(log, keep, text_time=shapefile)
     names, values = list(fields), list(fields.values())
     try:
         if shapefile:
+            geometry = shapely.to_wkb(shapely.points(lon[keep], lat[keep]))
             _write_zipped_shapefile(path, geometry, names, values)
         else:
             if os.path.exists(path):
@@ -469,12 +469,29 @@ def write_points(log: PointLog, path) -> str:
             # pyogrio.raw.write takes 0.7 s for 9,000 points; this, 0.05 s).
             import pyarrow as pa
 
-            table = pa.table({**dict(zip(names, values, strict=True)), "geometry": pa.array(geometry)})
+            table = pa.table({**dict(zip(names, values, strict=True)),
+                              "geometry": _points_wkb(lon[keep], lat[keep])})
             pyogrio.raw.write_arrow(table, path, driver="GPKG", geometry_type="Point", crs="EPSG:4326",
                                     layer="as_applied_points", geometry_name="geometry")
     except (OSError, pyogrio.errors.DataSourceError, pyogrio.errors.FieldError) as exc:
         raise MapError(f"{path}: cannot write: {exc}") from None
     return path
+
+
+# A 2D point's WKB: byte order (1: little-endian), geometry type (1: point), x, y.
+_POINT_WKB = np.dtype([("order", "u1"), ("type", "<u4"), ("x", "<f8"), ("y", "<f8")])
+
+
+def _points_wkb(x: np.ndarray, y: np.ndarray):
+    """The points' WKB as an Arrow binary array: `shapely.to_wkb` of `shapely.points`, byte for byte
+    (on a little-endian machine: shapely writes the machine's order), written straight into one buffer
+    (shapely makes a Python bytes object a point, 10 times slower)."""
+    import pyarrow as pa
+
+    records = np.empty(x.size, _POINT_WKB)
+    records["order"], records["type"], records["x"], records["y"] = 1, 1, x, y
+    offsets = np.arange(x.size + 1, dtype=np.int32) * _POINT_WKB.itemsize
+    return pa.Array.from_buffers(pa.binary(), x.size, [None, pa.py_buffer(offsets), pa.py_buffer(records)])
 
 
 def _fields(log: PointLog, keep: np.ndarray, text_time: bool) -> dict[str, np.ndarray]:

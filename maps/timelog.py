@@ -358,19 +358,14 @@ def encode_records(time: np.ndarray, lat_deg, lon_deg, status, values: np.ndarra
     head["east"] = np.where(fix, np.rint(np.where(fix, lon, 0.0) * 1e7), 0)
     head["status"] = np.broadcast_to(status, n)
     head["count"] = logged.sum(axis=1)
-    record, index = np.nonzero(logged)
-    pairs = np.zeros(record.size, dtype=WRITE_VALUE)
-    pairs["index"] = index
-    pairs["value"] = np.asarray(values)[record, index]
-    counts = head["count"].astype(np.int64)
-    sizes = WRITE_RECORD.itemsize + WRITE_VALUE.itemsize * counts
-    starts = np.cumsum(sizes) - sizes
-    out = np.zeros(int(sizes.sum()), dtype=np.uint8)
-    out[starts[:, None] + np.arange(WRITE_RECORD.itemsize)] = head.view(np.uint8).reshape(n, -1)
-    slot = np.arange(record.size) - (np.cumsum(counts) - counts)[record]
-    at = starts[record] + WRITE_RECORD.itemsize + WRITE_VALUE.itemsize * slot
-    out[at[:, None] + np.arange(WRITE_VALUE.itemsize)] = pairs.view(np.uint8).reshape(record.size, -1)
-    return out.tobytes()
+    # Every record with all k (index, value) pairs, then the pairs not logged left out (row by row).
+    full = np.zeros(n, dtype=[("head", WRITE_RECORD), ("pairs", WRITE_VALUE, (logged.shape[1],))])
+    full["head"] = head
+    full["pairs"]["index"] = np.arange(logged.shape[1])
+    full["pairs"]["value"] = values
+    keep = np.concatenate([np.ones((n, WRITE_RECORD.itemsize), bool),
+                           np.repeat(logged, WRITE_VALUE.itemsize, axis=1)], axis=1)
+    return full.view(np.uint8).reshape(n, -1)[keep].tobytes()
 
 
 def header_xml(ddis, elements) -> bytes:

@@ -98,6 +98,8 @@ class BoundedAccount:
         self.acc = AsApplied(grid)
         self.worked = WorkedArea(grid)
         self.machine = machine_for(imp, world.field.polygon)
+        # The field's cells, for the result: found now, while SUMO drives, not after the drive.
+        self.in_field = cells_in_field(grid, world.field.polygon)
         self.refs = [AsApplied(grid) for _ in REFERENCES] if references else None
         # The spread pattern's reference: the unclipped product on the sections' strips (only a kind
         # whose footprint is not strips needs its own raster: for the others it is the first reference).
@@ -264,7 +266,8 @@ class BoundedAccount:
     # --- the end ---------------------------------------------------------------------------------
     def _result(self) -> RunResult:
         world, grid, acc = self.world, self.world.grid, self.acc
-        in_field = cells_in_field(grid, world.field.polygon)
+        acc.close_pass()   # the drive is over: each read below no longer adds the last pass's raster
+        in_field = self.in_field
         worked, cover = self.worked.fraction(), acc.coverage_fraction
         # numpy's pairwise sum over the whole run, as the in-process run's.
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())

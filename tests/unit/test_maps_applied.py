@@ -241,6 +241,26 @@ def test_applied_kg_in_a_window_is_that_window_of_applied_kg_open_pass_included(
         np.testing.assert_array_equal(acc.applied_kg_in(rows, cols), whole[rows, cols])
 
 
+
+def test_closing_the_open_pass_keeps_every_figure_to_the_bit():
+    acc = AsApplied(field(), subcells=2)
+    acc.add_strips(500_025.0, 5_300_000.0, 500_031.0, 5_300_100.0, 20.0, 20.0, pass_index=0)
+    acc.add_strips(500_045.0, 5_300_010.0, 500_040.0, 5_300_060.0, 12.0, 7.0, pass_index=1)  # open
+    names = ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count", "outside_kg")
+    before = {name: getattr(acc, name) for name in names}
+    acc.close_pass()
+    acc.close_pass()   # none open: nothing to do
+    for name in names:
+        np.testing.assert_array_equal(getattr(acc, name), before[name], err_msg=name)
+
+
+def test_a_pass_off_the_grid_keeps_its_product_once_closed():
+    acc = AsApplied(field())
+    acc.add_strips(499_000.0, 5_300_050.0, 499_001.0, 5_300_050.0, 3.0, 1.0, pass_index=0)  # off the grid
+    acc.add_strips(500_050.0, 5_300_050.0, 500_051.0, 5_300_050.0, 3.0, 1.0, pass_index=1)
+    acc.close_pass()
+    assert acc.outside_kg == pytest.approx(1.0) and acc.applied_kg.sum() == pytest.approx(1.0)
+
 def test_deposit_with_others_equals_a_deposit_each():
     """Several meters through one footprint: the first (with its passes) as a deposit of its own bit for
     bit; the others, without passes, to the order of the sums (they go pass by pass, as the first)."""
