@@ -288,3 +288,19 @@ def test_deposit_with_others_equals_a_deposit_each():
         np.testing.assert_allclose(b.coverage_fraction, a.coverage_fraction, rtol=1e-12, atol=1e-15)
         assert b.outside_kg == pytest.approx(a.outside_kg, rel=1e-12, abs=1e-15)
         assert (a.total_kg, a.items) == (b.total_kg, b.items)
+
+
+@pytest.mark.parametrize("subcells", range(1, 10))
+def test_a_cells_sum_of_its_subcells_is_numpys_to_the_bit(subcells):
+    """`SubcellRaster.cell_sums` adds in numpy's order (`blocks.sum(axis=(1, 3))`), which the
+    as-applied figures were recorded with: a numpy that sums otherwise fails here, not in a figure."""
+    from maps.subcells import SubcellRaster
+
+    rng = np.random.default_rng(subcells)
+    grid = Grid(np.ones((3, 4)), Affine(4.0, 0, 0, 0, -4.0, 12.0), "EPSG:32633")
+    shape = (3, subcells, 4, subcells)
+    # A wide range of magnitudes (any other order of the additions rounds otherwise), and signed zeros.
+    blocks = rng.lognormal(0.0, 3.0, shape) * rng.choice([0.0, -0.0, 1.0, 1.0], shape)
+    raster = SubcellRaster(grid, subcells)
+    assert raster.cell_sums(blocks).tobytes() == blocks.sum(axis=(1, 3)).tobytes()
+    assert raster.cell_means(blocks).tobytes() == blocks.mean(axis=(1, 3)).tobytes()
