@@ -1,6 +1,9 @@
 """``python -m services.cli``: the `vrsim` command (how `vrsim serve all` starts its children), the same
-entry as the installed script (`main.console`: `vrsim run` exits without the interpreter's teardown)."""
+entry as the installed script (`main.console`, with `leave`: `vrsim run` exits without the
+interpreter's teardown)."""
 
-from services.cli.main import console
+import sys
 
-console()
+from services.cli.main import main
+
+sys.exit(main(leave=True))

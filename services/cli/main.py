@@ -78,25 +78,26 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 
 def console() -> None:
-    """The `vrsim` executable (and ``python -m services.cli``): `main`, then the exit. A command whose
-    module sets ``EXIT_AT_ONCE`` (everything it wrote is closed when it returns) exits without the
-    interpreter's teardown of the libraries it loaded (GDAL, Arrow, PROJ: a fifth of a second of
-    `vrsim run`)."""
-    args = _parse(sys.argv[1:])
+    """The `vrsim` executable (and ``python -m services.cli``): `main`, then the exit."""
+    sys.exit(main(leave=True))
+
+
+def main(argv: list[str] | None = None, *, leave: bool = False) -> int:
+    """Run the command line `argv` (default: this process's); returns the exit code.
+
+    With `leave` (the executable's, `console`), a command whose module sets ``EXIT_AT_ONCE`` (everything
+    it wrote is closed when it returns) ends the process here, without the interpreter's teardown of
+    the libraries it loaded (GDAL, Arrow, PROJ: a fifth of a second of `vrsim run`)."""
+    args = _parse(sys.argv[1:] if argv is None else argv)
     code = _run_command(args)
-    if args._exit_at_once:
+    if leave and args._exit_at_once:
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
             except BrokenPipeError:  # `vrsim run --json | head -1`: the reader has what it wanted
                 pass
         os._exit(code)
-    sys.exit(code)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line `argv` (default: this process's); returns the exit code."""
-    return _run_command(_parse(sys.argv[1:] if argv is None else argv))
+    return code
 
 
 def _run_command(args: argparse.Namespace) -> int:
@@ -133,4 +134,4 @@ def _user_code_error(exc: BaseException) -> bool:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    console()
