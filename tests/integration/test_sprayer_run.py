@@ -121,6 +121,10 @@ def test_bad_sprayer_input_is_one_line_naming_file_key_and_value(tmp_path):
                          ("implement.sections=5", "[implement] section_widths_m: section 3 (2.4 m)")):
         p = _vrsim("run", small, "--quiet", "--out", str(tmp_path / "bad"), "--set", change)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and f"{small}: {says}" in p.stderr, p.stderr
+    # The machine check alone (no loop built) says a boom its nozzles do not fit as the run does.
+    p = _vrsim("run", small, "--check", "--set", "implement.sections=5")
+    assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
+    assert f"{small}: [implement] section_widths_m: section 3 (2.4 m)" in p.stderr, p.stderr
     for args, says in ((("--set", "product.form=granular"), "[product] form 'granular': a sprayer meters"),
                        (("--seconds", "0"), "--seconds 0.0: must be"),
                        (("--jug-error-ml", "-1"), "--jug-error-ml -1.0: must be")):

@@ -130,7 +130,10 @@ class Sprayer(Machine):
         `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`), the map's kg/ha being L/ha times the
         liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
         change is the working speeds or the nozzle size (`SprayerSpec.suggest_nozzle`). A nozzle that
-        cannot apply the map's rates at any speed, or no density: `VehicleError` naming the table."""
+        cannot apply the map's rates at any speed, a boom its nozzles do not fit, or no density:
+        `VehicleError` naming the table."""
+        if self.layout_error is not None:   # `vrsim run --check` builds no loop: said here too
+            raise VehicleError(f"[implement] {self.layout_error}")
         if density_kg_l is None:
             raise VehicleError("[product] density_kg_l: a sprayer's kg are litres times the liquid's "
                                "density, got none (water: 1.0)")
