@@ -17,6 +17,7 @@ import os
 import pickle
 import subprocess
 import sys
+import threading
 import time
 
 # What SUMO drives before it sends (about 0.04 s of SUMO): the last part's control is what is left
@@ -40,7 +41,7 @@ class DriveWorker:
         self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.sim.drive_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         _enlarge(self.proc.stdout, PIPE_BYTES)
-        self.planned = self.plan_s = self.sumo_s = None
+        self.planned = self.plan_s = self.sumo_s = self._sending = None
 
     def drive(self, scenario, ticks_per_part: int = PART_TICKS) -> None:
         """Plan `scenario`'s path here (`services.sim.world.plan_path`: its errors are raised here) and
@@ -52,12 +53,13 @@ class DriveWorker:
         clock = time.perf_counter()
         self.planned = plan_path(scenario)
         self.plan_s = time.perf_counter() - clock
-        try:
-            pickle.dump((DriveJob.of(scenario, self.planned[1]), ticks_per_part), self.proc.stdin,
-                        protocol=pickle.HIGHEST_PROTOCOL)
-            self.proc.stdin.close()
-        except BrokenPipeError:  # it is gone already: `parts` says how
-            pass
+        job = pickle.dumps((DriveJob.of(scenario, self.planned[1]), ticks_per_part),
+                           protocol=pickle.HIGHEST_PROTOCOL)
+        # The job is more than the pipe holds (0.3 MB for the default field, 1 MB for huge's), and the
+        # worker reads it once libsumo is imported: a thread writes it, and this process goes on.
+        self._sending = threading.Thread(target=_send, args=(self.proc.stdin, job), name="drive-job",
+                                         daemon=True)
+        self._sending.start()
 
     def parts(self):
         """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `sumo_s` (the
@@ -89,8 +91,19 @@ class DriveWorker:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
+        if self._sending is not None:   # ends once the job is written, or at the dead worker's pipe
+            self._sending.join()
         for pipe in (self.proc.stdin, self.proc.stdout):
             pipe.close()
+
+
+def _send(pipe, job: bytes) -> None:
+    """Write `job` into `pipe` and close it; a worker gone meanwhile is left to `parts` to say."""
+    try:
+        pipe.write(job)
+        pipe.close()
+    except (BrokenPipeError, ValueError):   # gone, or its pipe closed by `close`
+        pass
 
 
 def _enlarge(pipe, size_bytes: int) -> None:

@@ -157,6 +157,35 @@ def test_sumo_may_drive_parts_ahead_of_the_run():
     assert held_bytes >= (PIPE_BYTES if PIPE_BYTES <= allowed_bytes else 1 << 16)
 
 
+def test_handing_sumo_its_job_does_not_wait_for_sumo_to_read_it():
+    """The job is more than a pipe holds and SUMO reads it once libsumo is imported: `drive` returns
+    at once (the run builds its world meanwhile), and SUMO gets the job whole when it reads."""
+    import fcntl
+    import pickle
+    import threading
+
+    from services.sim.drive_job import DriveJob
+    from services.sim.drive_worker import PART_TICKS
+    from services.sim.world import plan_path
+
+    sc = load("default")
+    job_bytes = len(pickle.dumps(DriveJob.of(sc, plan_path(sc)[1]), protocol=pickle.HIGHEST_PROTOCOL))
+    worker = DriveWorker()
+    try:
+        assert job_bytes > fcntl.fcntl(worker.proc.stdin.fileno(), fcntl.F_GETPIPE_SZ)
+        os.kill(worker.proc.pid, signal.SIGSTOP)   # a worker that reads nothing yet
+        handing = threading.Thread(target=worker.drive, args=(sc,))
+        handing.start()
+        handing.join(timeout=30.0)
+        assert not handing.is_alive()
+        os.kill(worker.proc.pid, signal.SIGCONT)
+        time_s, _, _ = next(worker.parts())   # the job arrived whole: SUMO drives it
+        assert len(time_s) == PART_TICKS
+    finally:
+        os.kill(worker.proc.pid, signal.SIGCONT)
+        worker.close()
+
+
 def _drive_workers(mark: bytes) -> set[int]:
     """Drive workers whose environment carries `mark`: started by this test's command (other runs on
     the machine, a parallel test's or a developer's, are not this test's business)."""
