@@ -102,7 +102,7 @@ def _send(pipe, job: bytes) -> None:
     try:
         pipe.write(job)
         pipe.close()
-    except (BrokenPipeError, ValueError):   # gone, or its pipe closed by `close`
+    except BrokenPipeError:   # the worker is gone (killed by `close`, or dead)
         pass
 
 
