@@ -5,10 +5,12 @@ what has been driven so far.
 ``python -m services.sim.drive_worker`` imports SUMO and the vehicle room first (nothing of the
 scenario's parser, the controllers or the maps), then reads a `services.sim.drive_job.DriveJob` and
 the ticks per part, pickled, on stdin; on stdout go ``("part", time_s, s_m, speed_m_s)`` for each part
-(`vehicle.SumoDriver.run_parts`), then ``("done", sumo_s)``; or ``("error", kind, message)`` for a
-path that cannot be driven (``kind`` names the `common.VrsimError` subclass). Both ends are vrsim's
-own processes (pickle is no format for anything else). `DriveWorker` is the first process's end. This
-module imports nothing heavy itself, so that `vrsim run` can start the worker before its own imports.
+(`vehicle.SumoDriver.run_parts`), then ``("done", sumo_s)`` (the drive's wall time, less the time its
+parts took to hand over: waiting for room in a full pipe is the run's time, not SUMO's); or
+``("error", kind, message)`` for a path that cannot be driven (``kind`` names the `common.VrsimError`
+subclass). Both ends are vrsim's own processes (pickle is no format for anything else). `DriveWorker`
+is the first process's end. This module imports nothing heavy itself, so that `vrsim run` can start
+the worker before its own imports.
 """
 
 from __future__ import annotations
@@ -63,8 +65,8 @@ class DriveWorker:
 
     def parts(self):
         """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `sumo_s` (the
-        drive's wall time in the worker). Raises the worker's `common.VrsimError`,
-        or RuntimeError if it ended without a word (a bug or a kill)."""
+        drive's wall time in the worker, less the time its parts waited for room in the pipe). Raises the
+        worker's `common.VrsimError`, or RuntimeError if it ended without a word (a bug or a kill)."""
         from common import errors
 
         while True:
@@ -133,11 +135,14 @@ def _serve(stdin, stdout) -> None:
     except EOFError:  # the caller gave up before the drive (a bad scenario, --check)
         return
     try:
-        clock = time.perf_counter()
+        clock, handing_s = time.perf_counter(), 0.0
         with job.driving() as driver:
             for part in driver.run_parts(ticks):
+                handed = time.perf_counter()
                 send(("part", *part))
-        send(("done", time.perf_counter() - clock))
+                handing_s += time.perf_counter() - handed
+        # SUMO's own time: without the time a part waited for room in a full pipe (the run's, not SUMO's)
+        send(("done", time.perf_counter() - clock - handing_s))
     except VrsimError as exc:
         send(("error", type(exc).__name__, str(exc)))
 

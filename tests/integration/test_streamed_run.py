@@ -157,6 +157,31 @@ def test_sumo_may_drive_parts_ahead_of_the_run():
     assert held_bytes >= (PIPE_BYTES if PIPE_BYTES <= allowed_bytes else 1 << 16)
 
 
+def _sumo_s(stall_s: float) -> float:
+    """`DriveWorker.sumo_s` of the default scenario's drive, read at once or with the run stalled for
+    `stall_s` after the first part (SUMO fills the pipe, then waits for room)."""
+    import time
+
+    worker = DriveWorker()
+    try:
+        worker.drive(load("default"))
+        for k, _ in enumerate(worker.parts()):
+            if k == 0:
+                time.sleep(stall_s)
+    finally:
+        worker.close()
+    return worker.sumo_s
+
+
+def test_sumo_s_is_sumos_time_not_the_time_its_parts_waited_for_the_run():
+    """A run that accounts slowly keeps SUMO waiting on a full pipe: that wait is the run's, and
+    ``stage_s["sumo_s"]`` says how long SUMO took to drive (0.6 s of the default drive, not 3.6)."""
+    stall_s = 3.0
+    prompt_s, stalled_s = _sumo_s(0.0), _sumo_s(stall_s)
+    print(f"sumo_s read at once {prompt_s:.2f} s, with the run stalled {stall_s:g} s: {stalled_s:.2f} s")
+    assert 0 < stalled_s < prompt_s + stall_s / 2
+
+
 def test_handing_sumo_its_job_does_not_wait_for_sumo_to_read_it():
     """The job is more than a pipe holds and SUMO reads it once libsumo is imported: `drive` returns
     at once (the run builds its world meanwhile), and SUMO gets the job whole when it reads."""
