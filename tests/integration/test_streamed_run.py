@@ -175,7 +175,7 @@ def _sumo_s(stall_s: float) -> float:
 
 def test_sumo_s_is_sumos_time_not_the_time_its_parts_waited_for_the_run():
     """A run that accounts slowly keeps SUMO waiting on a full pipe: that wait is the run's, and
-    ``stage_s["sumo_s"]`` says how long SUMO took to drive (0.6 s of the default drive, not 3.6)."""
+    ``stage_s["sumo_s"]`` says how long SUMO took to drive (0.5 s of the default drive, not 3.4)."""
     stall_s = 3.0
     prompt_s, stalled_s = _sumo_s(0.0), _sumo_s(stall_s)
     print(f"sumo_s read at once {prompt_s:.2f} s, with the run stalled {stall_s:g} s: {stalled_s:.2f} s")
