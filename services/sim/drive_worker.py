@@ -141,7 +141,8 @@ def _serve(stdin, stdout) -> None:
                 handed = time.perf_counter()
                 send(("part", *part))
                 handing_s += time.perf_counter() - handed
-        # SUMO's own time: without the time a part waited for room in a full pipe (the run's, not SUMO's)
+        # SUMO's own time: less handing the parts over (pickled in microseconds; the rest is waiting
+        # for room in a full pipe, the run's time, not SUMO's)
         send(("done", time.perf_counter() - clock - handing_s))
     except VrsimError as exc:
         send(("error", type(exc).__name__, str(exc)))
