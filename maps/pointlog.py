@@ -75,6 +75,11 @@ class PointLog:
         Per-section states, section 1 the leftmost (default: none known, shape (n, 0)).
     gnss_status : array_like of int, optional
         ISO 11783 position status per record (default 15, not available).
+    section_id : array_like of int, optional
+        The section a record is of, in a log with one record per section (John Deere's
+        ``SECTIONID``); -1 where the record is the whole machine's (default).
+    distance_m : array_like, optional
+        Distance travelled since the previous record, m (John Deere's ``DISTANCE``); NaN unknown.
     source, format : str
         Where it came from, and ``"shapefile"``, ``"gpkg"``, ``"taskdata"`` or ``"run"``.
     """
@@ -93,6 +98,8 @@ class PointLog:
     work_on: np.ndarray | None = None
     sections_on: np.ndarray | None = None
     gnss_status: np.ndarray | None = None
+    section_id: np.ndarray | None = None
+    distance_m: np.ndarray | None = None
     source: str = ""
     format: str = ""
 
@@ -100,12 +107,14 @@ class PointLog:
         self.x = np.asarray(self.x, dtype=np.float64).ravel()
         n = self.x.size
         self.crs = as_crs(self.crs, f"{self._where()}: crs")
-        for name in ("y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m"):
+        for name in ("y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m", "distance_m"):
             value = getattr(self, name)
             setattr(self, name, self._column(name, np.nan if value is None else value, np.float64, n))
         self.work_on = self._column("work_on", True if self.work_on is None else self.work_on, bool, n)
         status = NOT_AVAILABLE if self.gnss_status is None else self.gnss_status
         self.gnss_status = self._column("gnss_status", status, np.uint8, n)
+        self.section_id = self._column("section_id", -1 if self.section_id is None else self.section_id,
+                                       np.int64, n)
         sections = np.zeros((n, 0), dtype=bool) if self.sections_on is None else self.sections_on
         sections = np.asarray(sections, dtype=bool)
         if sections.ndim != 2 or sections.shape[0] != n:
@@ -166,7 +175,7 @@ class PointLog:
 
 
 COLUMNS = ("x", "y", "applied", "target", "time_s", "heading_deg", "speed_m_s", "width_m", "work_on",
-           "sections_on", "gnss_status")  # the per-record arrays of a PointLog
+           "sections_on", "gnss_status", "section_id", "distance_m")  # the per-record arrays of a PointLog
 
 
 # ---------------------------------------------------------------------- reading
@@ -185,6 +194,8 @@ HEADING_NAMES = ("hdg_deg", "heading", "heading_deg", "course")
 SPEED_NAMES = ("speed_m_s", "speed")
 WIDTH_NAMES = ("width_m", "swathwidth", "swath_width", "swathwidt", "width")
 WORK_NAMES = ("work", "work_on", "work_state", "implement_on")
+SECTION_NAMES = ("sectionid", "section_id", "section")
+DISTANCE_NAMES = ("distance", "distance_m", "dist")
 DEERE_UNIT = re.compile(r"([A-Za-z]+)(-?\d+)")
 
 
@@ -258,12 +269,15 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
     rate_unit = unit or _rate_unit(path, fields, units, applied_name)
     time_s, start = _times(path, fields, time_field)
     work = _optional(path, fields, WORK_NAMES)  # the work state: other than 0 is on; not logged: on
+    section = _optional(path, fields, SECTION_NAMES)
     return PointLog(
         xy[:, 0], xy[:, 1], src_crs, applied=_numbers(path, fields[applied_name], applied_name),
         target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
         width_m=_length(path, fields, WIDTH_NAMES, units), work_on=None if work is None else work != 0,
+        section_id=None if section is None else np.where(np.isfinite(section), section, -1).astype(np.int64),
+        distance_m=_length(path, fields, DISTANCE_NAMES, units),
         source=f"{path}:{layer}" if layer else path,
         format="gpkg" if path.lower().endswith(".gpkg") else "shapefile")
 

@@ -20,6 +20,7 @@ from services.sim.scenario import Scenario, as_dict
 from services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
 from vehicle.product import metered_kg
+from vehicle.response import StartupClock
 
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
@@ -33,9 +34,14 @@ def plant_for(scenario: Scenario) -> PlantParams:
                                shaft_rpm_max=imp.shaft_rpm_max)
 
 
-def machine_plant(scenario: Scenario, grid: Grid) -> PlantParams:
-    """The plant each metering drive's loop closes: the kind's (`Machine.loop_plant`), from `plant_for`'s."""
-    return machine_for(scenario.implement).loop_plant(plant_for(scenario), scenario, grid)
+def machine_plant(scenario: Scenario, grid: Grid, machine=None) -> PlantParams:
+    """The plant each metering drive's loop closes: the kind's (`Machine.loop_plant`), from `plant_for`'s,
+    with the machine's dead time (``[response] dead_time_s``) inside the loop, on its sensor's delay.
+    `machine`: the kind's run-time part when the caller has it (it binds the product to it)."""
+    machine = machine_for(scenario.implement) if machine is None else machine
+    plant = machine.loop_plant(plant_for(scenario), scenario, grid)
+    dead_s = scenario.response.dead_time_s
+    return plant if dead_s == 0 else dataclasses.replace(plant, sensor_delay_s=plant.sensor_delay_s + dead_s)
 
 
 def config_as_run(scenario: Scenario) -> dict:
@@ -83,8 +89,7 @@ class ControlCore:
         self.policy = RatePolicy(mode=scenario.map.policy,
                                  default_rate_kg_ha=scenario.map.default_rate_kg_ha)
         self.machine = machine_for(self.implement, field_polygon)
-        timing, cfg, plant = scenario.timing, scenario.controller, self.machine.loop_plant(
-            plant_for(scenario), scenario, grid)
+        timing, cfg, plant = scenario.timing, scenario.controller, machine_plant(scenario, grid, self.machine)
         self.plant = plant
         try:   # a loop per metering drive, all advanced by one lifted matrix product per period
             self.loop = build_loop(plant, cfg, control_period_s=timing.control_period_s,
@@ -100,6 +105,8 @@ class ControlCore:
                                     self.machine.side_steps)
         self.last_rate_kg_ha = np.full(self.machine.drives, np.nan)   # each drive's, for the policy
         self.product, self.seed = scenario.product, scenario.seed
+        self.response = scenario.response
+        self.startup = StartupClock(self.response, self.period_s) if self.response.has_startup else None
         # Forward revolutions so far, each drive's (or each column's, sweeps' variants): the product's
         # flow factors run on them (`vehicle.product.metered_kg`).
         self.meter_rev = np.zeros(self.machine.drives)
@@ -119,7 +126,8 @@ class ControlCore:
                 "last_rate_kg_ha": _number_or_list(self.last_rate_kg_ha),
                 "tuner": None if self.tuner is None else self.tuner.state(),
                 "sections": self.switch.state(),
-                "meter_rev": _number_or_list(self.meter_rev)}
+                "meter_rev": _number_or_list(self.meter_rev),
+                "startup": None if self.startup is None else self.startup.state()}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
@@ -130,6 +138,8 @@ class ControlCore:
             self.tuner.set_state(state["tuner"])
         self.switch.set_state(state["sections"])
         self.meter_rev = np.atleast_1d(np.asarray(state["meter_rev"], dtype=float))
+        if self.startup is not None and state.get("startup") is not None:
+            self.startup.set_state(state["startup"])
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
@@ -138,17 +148,21 @@ class ControlCore:
         states = self.switch.step(x_m, y_m, heading_rad, speed_m_s, implement_on, s_m)
         return self._targets(states)
 
-    def _targets(self, states: SectionStates) -> dict[str, np.ndarray]:
+    def _targets(self, states: SectionStates, rate_kg_ha: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Stage 1 with the sections' states of these ticks known (with the motion the terminal
-        sensed, `SectionStates.motion`); advances the policy's memory."""
+        sensed, `SectionStates.motion`); advances the policy's memory. `rate_kg_ha` (n, drives): the
+        rates the terminal was given (a replayed log's targets) instead of the map's at the landing points."""
         machine = self.machine
         lx, ly, drive_x, drive_y = machine.landing(states.motion, self.look_ahead_s)
-        found = self.grid.lookup(drive_x, drive_y)
-        rate = np.column_stack([self.policy.apply(found.rate_kg_ha[:, d], found.inside[:, d], last)
-                                for d, last in enumerate(self.last_rate_kg_ha)]).reshape(drive_x.shape)
+        if rate_kg_ha is None:
+            found = self.grid.lookup(drive_x, drive_y)
+            rate = np.column_stack([self.policy.apply(found.rate_kg_ha[:, d], found.inside[:, d], last)
+                                    for d, last in enumerate(self.last_rate_kg_ha)]).reshape(drive_x.shape)
+        else:
+            rate = np.asarray(rate_kg_ha, dtype=float).reshape(drive_x.shape)
         if len(rate):
             self.last_rate_kg_ha = rate[-1].copy()
-        target = machine.drive_targets(rate, states)
+        target = machine.drive_targets(rate, self._preset(states))
         steps = {} if states.steps_on is None else {STEPS_KEY: states.steps_on}
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": machine.prescribed(rate, states),
                 "target_shaft_rpm": machine.combined(target), "drive_rate_kg_ha": rate,
@@ -156,6 +170,31 @@ class ControlCore:
                 "width_on_m": states.width_on_m, "sections_on": states.actual,
                 "sections_commanded": states.commanded,
                 "drive_open": machine.drive_open(states), **steps}
+
+    def _preset(self, states: SectionStates) -> SectionStates:
+        """The states the targets are computed from: within a pass start's hold the motion's speed
+        raised to the machine's preset speed (``[response]``, `vehicle.response.StartupClock`)."""
+        if self.startup is None:
+            return states
+        speed = self.startup.target_speed_m_s(states.motion.speed_m_s, states.actual.any(axis=1))
+        return dataclasses.replace(states, motion=dataclasses.replace(states.motion, speed_m_s=speed))
+
+    def run_states(self, states: SectionStates, rate_kg_ha: np.ndarray) -> dict[str, np.ndarray]:
+        """Both stages over ticks whose section states and rates are given (a replayed log: the gates
+        the machine logged, the motion it sensed, the targets it was given, kg/ha (n, drives)); arrays
+        keyed as `CONTROL_KEYS`. The same stage 1, loop and metering as `run_track`."""
+        rec = self._targets(states, rate_kg_ha)
+        return self._closed(rec)
+
+    def _closed(self, rec: dict) -> dict[str, np.ndarray]:
+        """The loop over stage 1's `rec` (one chunk) and the product it meters."""
+        out = self.loop.run(rec["drive_target_rpm"], context=context_track(rec))
+        rec.update(drive_rev=out.shaft_rev, shaft_rpm=self.machine.combined(out.shaft_rpm),
+                   shaft_rev=self.machine.combined(out.shaft_rev),
+                   current_a=self.machine.combined(out.current_a))
+        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"])
+        rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
+        return {key: rec[key] for key in (*CONTROL_KEYS, STEPS_KEY) if key in rec}
 
     def run_track(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None,
                   progress=None) -> dict[str, np.ndarray]:
@@ -211,6 +250,8 @@ class ControlCore:
         forward = np.maximum(shaft_rev, 0.0)
         kg, end_rev = metered_kg(forward, self.machine.kg_per_rev(self.product), self.product, self.seed,
                                  self.meter_rev)
+        if self.response.gain != 1.0:   # the machine's steady offset from its target (`[response]`)
+            kg = kg * self.response.gain
         self.meter_rev = np.atleast_1d(end_rev)
         share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
         return np.where(np.asarray(applying, bool), kg * share, 0.0)

@@ -3,7 +3,8 @@
 Every table maps onto one configuration dataclass of the package that owns the concept
 (``[implement]`` -> `vehicle.Implement`, ``[tractor]`` -> `vehicle.DriveConfig`, ``[gnss]`` ->
 `vehicle.GnssConfig`, ``[controller]`` -> `controller.ControllerConfig`, ``[plant]`` ->
-`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`), so a key is named and
+`controller.PlantParams`, ``[product]`` -> `vehicle.product.Product`, ``[response]`` ->
+`vehicle.response.MachineResponse`), so a key is named and
 documented once, where it is used. Loading checks every key: unknown keys, wrong types and values
 the owning dataclass refuses all raise a `ScenarioError` that names the file, the table and key, and
 the value.
@@ -36,6 +37,7 @@ from services.sim.tables import build, no_unknown, typed
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
 from vehicle.product import Product
+from vehicle.response import MachineResponse
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")
@@ -142,6 +144,7 @@ class Scenario:
     timing: TimingSpec
     output: OutputSpec
     product: Product = field(default_factory=Product)   # what the machine meters (its truth, too)
+    response: MachineResponse = field(default_factory=MachineResponse)   # beyond the plant: a log's fit
 
     def path(self, relative: str) -> str:
         """A path from the scenario file, resolved against the file's folder."""
@@ -150,7 +153,7 @@ class Scenario:
 
 # The tables of a scenario file (in the order `to_toml` writes them) and all its top-level keys.
 TABLES = ("field", "map", "implement", "tractor", "gnss", "speed_sensor", "controller", "plant", "timing",
-          "output", "product")
+          "output", "product", "response")
 TOP_KEYS = {"name", "seed", "description", *TABLES}
 
 
@@ -233,6 +236,7 @@ def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override])
         timing=build(TimingSpec, doc.get("timing", {}), source, "timing"),
         output=build(OutputSpec, doc.get("output", {}), source, "output"),
         product=build(Product, doc.get("product", {}), source, "product"),
+        response=build(MachineResponse, doc.get("response", {}), source, "response"),
     )
     _machine_once(doc.get("plant", {}), source)
     _check(scenario)
