@@ -33,8 +33,8 @@ __all__ = ["MachineRecords", "machine_records", "SESSION_GAP_S", "SPEED_SMOOTH_S
 SESSION_GAP_S = 60.0       # records further apart than this belong to different sessions
 SPEED_SMOOTH_S = 1.0       # speeds from distances are averaged over this window
 MAX_SECTIONS = 64          # ISO 11783 condensed work states go to 16 x 16; 64 as AgOpenGPS's sections
-WIDTH_STEP_TOLERANCE = 0.02
-REGULAR_JITTER = 0.1       # intervals this close to the median one are the logger's regular period   # distinct widths closer than this share of the widest are one width
+WIDTH_STEP_TOLERANCE = 0.02   # distinct widths closer than this share of the widest are one width
+REGULAR_JITTER = 0.1       # intervals this close to the median one are the logger's regular period
 
 
 @dataclass
@@ -102,7 +102,8 @@ class MachineRecords:
                               per_section=self.per_section, source=self.source)
 
 
-ROW_FIELDS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "sections_on", "target", "applied", "session")
+ROW_FIELDS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "sections_on", "target", "applied",
+              "session")
 
 
 def machine_records(log: PointLog) -> MachineRecords:
@@ -129,7 +130,8 @@ def machine_records(log: PointLog) -> MachineRecords:
     for name in ("x", "y", "applied"):
         values = getattr(log, name)
         if not np.isfinite(values).any():
-            raise MapError(f"{where}: no record has {'a position' if name != 'applied' else 'an applied rate'}")
+            what = "an applied rate" if name == "applied" else "a position"
+            raise MapError(f"{where}: no record has {what}")
     times, row = np.unique(t, return_inverse=True)
     per_section = times.size < t.size and (log.section_id >= 0).all()
     if per_section:
@@ -137,8 +139,9 @@ def machine_records(log: PointLog) -> MachineRecords:
     else:
         if times.size < t.size:
             i = int(np.argmax(np.diff(t) == 0)) + 1
-            raise MapError(f"{where}: record {i} has the time of record {i - 1} ({t[i]:.3f} s) but no section "
-                           "of its own (no SECTIONID): a log has one record per time, or one per section")
+            raise MapError(f"{where}: record {i} has the time of record {i - 1} ({t[i]:.3f} s) but no "
+                           "section of its own (no SECTIONID): a log has one record per time, or one per "
+                           "section")
         sections_on, widths = _sections_from_widths(log, where)
         offsets = _offsets(widths)
         x, y = log.x, log.y
@@ -217,7 +220,8 @@ def _sections_from_widths(log: PointLog, where: str):
         levels = np.linspace(0, full, MAX_SECTIONS + 1)[1:]
     widths = np.diff(np.concatenate(([0.0], levels)))
     cum = np.cumsum(widths)
-    on = (cum[None, :] <= np.nan_to_num(width)[:, None] + 0.5 * WIDTH_STEP_TOLERANCE * full) & log.work_on[:, None]
+    reach = np.nan_to_num(width)[:, None] + 0.5 * WIDTH_STEP_TOLERANCE * full
+    on = (cum[None, :] <= reach) & log.work_on[:, None]
     return on, widths
 
 

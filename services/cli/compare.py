@@ -22,6 +22,9 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="folder for compare.html and its pictures "
                              "(default: runs/compare-<scenario>-<time>/)")
+    from services.cli.options import add_overrides
+
+    add_overrides(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
 
 
@@ -39,13 +42,13 @@ def _look_ahead_arg(text: str | None):
 
 
 def run(args) -> int:
+    from services.cli.options import load_scenario
     from services.cli.run import Progress, default_out_dir
     from services.outputs.compare import table_text, write_page
     from services.outputs.encode import dumps_text
-    from services.sim import scenario
     from services.sim.compare import compare
 
-    sc = scenario.load(args.scenario)
+    sc = load_scenario(args)
     bars = {}
 
     def progress(label, done, total):

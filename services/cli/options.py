@@ -28,12 +28,17 @@ def add_overrides(parser, help_text: str = "override a scenario key, as for vrsi
     """``--set KEY=VALUE`` (repeatable): scenario keys changed on the command line (`load_scenario`)."""
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                         help=help_text)
+    parser.add_argument("--machine", metavar="FILE",
+                        help="a machine file (machine_fit.toml from vrsim fit: the twin of your machine) whose "
+                             "tables replace the scenario's keys they name (before --set)")
 
 
 def load_scenario(args):
-    """``args.scenario`` (a file or a built-in name) loaded with its ``--set`` overrides, checked as a
-    file's values are."""
+    """``args.scenario`` (a file or a built-in name) loaded with ``--machine``'s keys and then its
+    ``--set`` overrides, checked as a file's values are."""
     from services.sim import scenario
     from services.sim.overrides import parse_assignment
+    from services.sim.replay_setup import machine_overrides
 
-    return scenario.load(args.scenario, [parse_assignment(text) for text in args.overrides])
+    machine = machine_overrides(args.machine) if getattr(args, "machine", None) else []
+    return scenario.load(args.scenario, [*machine, *(parse_assignment(text) for text in args.overrides)])

@@ -27,19 +27,22 @@ def configure(parser) -> None:
                         help="folder for best_controller.toml and history.csv "
                              "(default: runs/tune-<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the outcome as one JSON object")
+    from services.cli.options import add_overrides
+
+    add_overrides(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress line on stderr")
 
 
 def run(args) -> int:
+    from services.cli.options import load_scenario
     from services.cli.run import default_out_dir
     from services.outputs.encode import dumps_text
     from services.outputs.tune import tune_text, write_tune
-    from services.sim import scenario
     from services.sim.tune import check_objective, parse_param, tune
 
     params = [parse_param(p) for p in args.param]
     check_objective(args.objective)
-    sc = scenario.load(args.scenario)
+    sc = load_scenario(args)
 
     def progress(done, best):
         if not args.quiet and sys.stderr.isatty():

@@ -31,11 +31,11 @@ from controller import build_loop
 from maps.log_records import MachineRecords
 from services.sim.as_run import resolved_controller
 from services.sim.core import machine_plant
-from services.sim.replay import Replay, _grid, _pair, replay_records
+from services.sim.replay import Replay, figures, replay_records, working_point_grid
 from services.sim.scenario import Scenario
 from vehicle.response import MachineResponse
 
-__all__ = ["FIT_PARAMS", "FitParam", "MachineFit", "fit_machine", "fitted_scenario", "fragment_text"]
+__all__ = ["FIT_PARAMS", "FitParam", "MachineFit", "fit_machine", "fragment_text", "time_constants"]
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def _base(scenario: Scenario, records: MachineRecords) -> Scenario:
 def _grid_for(scenario: Scenario, records: MachineRecords):
     from maps.units import convert_rate
     rate = convert_rate(records.target, records.unit or "kg/ha", "kg/ha", scenario.product.density_kg_l)
-    return _grid(records, rate)
+    return working_point_grid(records, rate)
 
 
 def _has_pass_start(rp: Replay, use: np.ndarray) -> bool:
@@ -247,15 +247,7 @@ def _uncertainty(best, free, base) -> tuple[dict, dict, dict]:
 
 def _part(rp: Replay, rows: np.ndarray) -> dict:
     """The figures of replay `rp` over `rows`, overall and per event class."""
-    from services.sim.replay import EVENT_CLASSES
-
-    rec = rp.records
-    keep = rows & np.isfinite(rp.simulated)
-    out = _pair(rec.applied, rp.simulated, rec.target, keep)
-    for name in EVENT_CLASSES:
-        part = _pair(rec.applied, rp.simulated, rec.target, keep & (rp.event == name))
-        out.update({f"{name}_{k}": v for k, v in part.items()})
-    return out
+    return figures(rp.records.applied, rp.simulated, rp.records.target, rp.event, rows)
 
 
 def time_constants(scenario: Scenario, records: MachineRecords) -> tuple[float, float]:
@@ -266,16 +258,14 @@ def time_constants(scenario: Scenario, records: MachineRecords) -> tuple[float, 
     period_s = scenario.timing.control_period_s
     loop = build_loop(plant, scenario.controller, control_period_s=period_s,
                       plant_step_s=scenario.timing.plant_step_s)
-    working = float(grid.rates_kg_ha[0, 0]) or 1.0
-    flow = _working_flow(scenario, plant)
+    flow = _working_flow(plant)
     n = int(STEP_SETTLE_S / period_s)
     target = np.concatenate([np.full(n, 0.5 * flow), np.full(n, flow), np.full(n, 0.5 * flow)])
     out = np.asarray(loop.run(target).shaft_rev).reshape(-1) * 60.0 / period_s
-    del working
     return _t63(out[n - 1:2 * n], period_s), _t63(out[2 * n - 1:], period_s)
 
 
-def _working_flow(scenario: Scenario, plant) -> float:
+def _working_flow(plant) -> float:
     """A target inside the loop's range: three quarters of its highest [its units per minute]."""
     return 0.75 * plant.shaft_rpm_max if math.isfinite(plant.shaft_rpm_max) else 1.0
 
@@ -286,10 +276,6 @@ def _t63(y: np.ndarray, period_s: float) -> float:
         return float("nan")
     crossed = np.flatnonzero((y - start) / (end - start) >= 0.632)
     return float(crossed[0] * period_s) if crossed.size else float("nan")
-
-
-def fitted_scenario(fit: MachineFit) -> Scenario:
-    return fit.scenario
 
 
 def fragment_text(fit: MachineFit, source: str) -> str:
@@ -305,8 +291,9 @@ def fragment_text(fit: MachineFit, source: str) -> str:
     product = {k: getattr(sc.product, k) for k in ("form", "density_kg_l") if getattr(sc.product, k) is not None}
     tables = {"implement": implement, "product": product, "controller": controller,
               "response": dataclasses.asdict(sc.response)}
-    lines = [f"# The machine of {source}, fitted by vrsim fit: give it with --machine to vrsim run, replay,",
-             "# compare and tune. [response] and the controller's gains are fitted; the rest is the machine replayed."]
+    lines = [f"# The machine of {source}, fitted by vrsim fit: give it with --machine to vrsim run,",
+             "# replay, compare and tune. [response] and the controller's gains are fitted; the rest is",
+             "# the machine that was replayed."]
     for name, table in tables.items():
         lines += ["", f"[{name}]"]
         lines += [f"{k} = {toml_value(v)}" for k, v in table.items() if v is not None]

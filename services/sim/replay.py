@@ -33,7 +33,8 @@ from services.sim.scenario import Scenario
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import MotionTrend
 
-__all__ = ["EVENT_CLASSES", "Replay", "replay_records", "figures", "STANDSTILL_M_S"]
+__all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "figures", "replay_records", "working_point_grid",
+           "STANDSTILL_M_S"]
 
 STANDSTILL_M_S = 0.5        # records slower than this are standstill: left out of the figures, counted
 EVENT_WINDOW_S = 8.0        # a record this soon after an event belongs to its class
@@ -102,7 +103,7 @@ def _session(rec: MachineRecords, scenario: Scenario) -> np.ndarray:
     on = rec.sections_on[prev]
     density = scenario.product.density_kg_l
     rate_kg_ha = convert_rate(rec.target[prev], rec.unit or "kg/ha", "kg/ha", density)
-    core = ControlCore(_grid(rec, rate_kg_ha), scenario, None)
+    core = ControlCore(working_point_grid(rec, rate_kg_ha), scenario, None)
     motion = MotionTrend(period_s).step(x, y, heading, speed)
     opened = on.any(axis=1) & ~np.concatenate(([False], on.any(axis=1)[:-1]))
     pass_index = np.where(on.any(axis=1), np.cumsum(opened) - 1, -1)
@@ -114,10 +115,11 @@ def _session(rec: MachineRecords, scenario: Scenario) -> np.ndarray:
     kg_s = np.interp(t - delay_s, t, control["metered_kg"] / period_s, left=0.0)
     ground_m2_s = speed * states.width_on_m
     tick_kg_ha = np.divide(kg_s * 1e4, ground_m2_s, out=np.full(t.size, np.nan), where=ground_m2_s > 0)
-    return convert_rate(_per_record(t, tick_kg_ha, rec.time_s, period_s), "kg/ha", rec.unit or "kg/ha", density)
+    per_record = _per_record(t, tick_kg_ha, rec.time_s, period_s)
+    return convert_rate(per_record, "kg/ha", rec.unit or "kg/ha", density)
 
 
-def _grid(rec: MachineRecords, rate_kg_ha: np.ndarray) -> Grid:
+def working_point_grid(rec: MachineRecords, rate_kg_ha: np.ndarray) -> Grid:
     """A one-cell prescription at the log's median positive target: the loop's working point."""
     positive = rate_kg_ha[np.isfinite(rate_kg_ha) & (rate_kg_ha > 0)]
     rate = float(np.median(positive)) if positive.size else 0.0
@@ -174,14 +176,14 @@ def _counting(rec: MachineRecords) -> np.ndarray:
 def figures(logged, simulated, target, event, counts) -> dict:
     """The twin's figures against the log and the target's, overall and per event class (``<figure>``
     and ``<class>_<figure>``); a class with no record counting gives None."""
-    out = _pair(logged, simulated, target, counts & np.isfinite(simulated))
+    out = compare_to_log(logged, simulated, target, counts & np.isfinite(simulated))
     for name in EVENT_CLASSES:
-        part = _pair(logged, simulated, target, counts & np.isfinite(simulated) & (event == name))
+        part = compare_to_log(logged, simulated, target, counts & np.isfinite(simulated) & (event == name))
         out.update({f"{name}_{k}": v for k, v in part.items()})
     return out
 
 
-def _pair(logged, simulated, target, keep) -> dict:
+def compare_to_log(logged, simulated, target, keep) -> dict:
     twin, base = _vs_log(logged[keep], simulated[keep]), _vs_log(logged[keep], target[keep])
     return {"compared_records": int(keep.sum()), **twin, **{f"target_{k}": v for k, v in base.items()}}
 
