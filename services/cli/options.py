@@ -29,8 +29,8 @@ def add_overrides(parser, help_text: str = "override a scenario key, as for vrsi
     parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                         help=help_text)
     parser.add_argument("--machine", metavar="FILE",
-                        help="a machine file (machine_fit.toml from vrsim fit: the twin of your machine) whose "
-                             "tables replace the scenario's keys they name (before --set)")
+                        help="a machine file (machine_fit.toml from vrsim fit: the twin of your machine) "
+                             "whose tables replace the scenario's keys they name (before --set)")
 
 
 def load_scenario(args):

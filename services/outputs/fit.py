@@ -20,8 +20,9 @@ def fit_summary(fit: MachineFit, validated: dict | None = None) -> dict:
                        "identified": p.name not in fit.not_identified,
                        "why_not": fit.not_identified.get(p.name)} for p in FIT_PARAMS}
     return {"converged": fit.converged, "evaluations": fit.evaluations, "parameters": params,
-            "rise_time_constant_s": fit.rise_time_constant_s, "fall_time_constant_s": fit.fall_time_constant_s,
-            "fitted": fit.fitted, "judged": fit.judged, "default_machine": fit.default, "validated": validated}
+            "rise_time_constant_s": fit.rise_time_constant_s,
+            "fall_time_constant_s": fit.fall_time_constant_s, "fitted": fit.fitted, "judged": fit.judged,
+            "default_machine": fit.default, "validated": validated}
 
 
 def write_fit(fit: MachineFit, summary: dict, out_dir: str, source: str) -> dict[str, str]:
@@ -49,7 +50,8 @@ def fit_text(fit: MachineFit, validated: dict | None, out_dir: str, unit: str) -
                                     ("on the records held out", fit.judged, fit.default["judged"]),
                                     ("on the validation log", validated or {}, None)):
         if figures and figures.get("compared_records"):
-            lines += [f"Twin vs log {title} ({figures['compared_records']} records), mean absolute error [{unit}]:"]
+            lines += [f"Twin vs log {title} ({figures['compared_records']} records), mean absolute "
+                      f"error [{unit}]:"]
             lines += [_row(name, figures, default) for name in ("", *EVENT_CLASSES)]
     lines.append(f"  machine in {os.path.join(out_dir, 'machine_fit.toml')} (give it with --machine)")
     return "\n".join(lines)

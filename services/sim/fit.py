@@ -54,7 +54,7 @@ FIT_PARAMS = (FitParam("dead_time_s", "s", 0.0, 4.0), FitParam("startup_speed_m_
               FitParam("loop_gain", "-", 0.02, 20.0, log=True))
 PRESET = ("startup_speed_m_s", "startup_hold_s")
 MAX_EVALUATIONS = 60          # replays per start of the optimizer
-ROBUST_SCALE = 0.01           # residuals (share of the target) beyond this weigh as their size, not its square
+ROBUST_SCALE = 0.01           # residuals (share of the target) beyond this weigh as their size
 UNIDENTIFIABLE_SPREAD = 0.25  # a standard deviation over this share of the bounds: not identified
 STEP_SETTLE_S = 60.0          # a simulated step runs this long for the time constants
 
@@ -96,7 +96,8 @@ class MachineFit:
     evaluations: int
 
 
-def fit_machine(records: MachineRecords, scenario: Scenario, fit_rows: np.ndarray | None = None) -> MachineFit:
+def fit_machine(records: MachineRecords, scenario: Scenario,
+                fit_rows: np.ndarray | None = None) -> MachineFit:
     """Fit `scenario`'s machine to `records` on the rows `fit_rows` (bool (n,); default all), judging on
     the others (see the module docstring)."""
     fit_rows = np.ones(records.rows, bool) if fit_rows is None else np.asarray(fit_rows, bool)
@@ -132,7 +133,8 @@ def fit_machine(records: MachineRecords, scenario: Scenario, fit_rows: np.ndarra
 
 def _base(scenario: Scenario, records: MachineRecords) -> Scenario:
     """`scenario` with its controller's gains as numbers (the loop gain scales them)."""
-    plant = machine_plant(dataclasses.replace(scenario, response=MachineResponse()), _grid_for(scenario, records))
+    at_rest = dataclasses.replace(scenario, response=MachineResponse())
+    plant = machine_plant(at_rest, _grid_for(scenario, records))
     cfg = resolved_controller(scenario.controller, plant, scenario.timing.control_period_s)
     return dataclasses.replace(scenario, controller=cfg)
 
@@ -155,8 +157,8 @@ def _candidate(base: Scenario, free, z) -> Scenario:
     cfg = base.controller
     scaled = {k: getattr(cfg, k) * gain for k in ("kp", "ki", "kd") if getattr(cfg, k) is not None}
     if not scaled and gain != 1.0:
-        raise ScenarioError(f"{base.source}: [controller] kind {cfg.kind!r} has no gains to fit; fit a PID-family "
-                            "controller")
+        raise ScenarioError(f"{base.source}: [controller] kind {cfg.kind!r} has no gains to fit; fit a "
+                            "PID-family controller")
     return dataclasses.replace(base, response=response, controller=dataclasses.replace(cfg, **scaled))
 
 
@@ -280,15 +282,16 @@ def _t63(y: np.ndarray, period_s: float) -> float:
 
 def fragment_text(fit: MachineFit, source: str) -> str:
     """``machine_fit.toml``: the fitted machine as a fragment of scenario tables (`--machine FILE`)."""
-    from services.sim.scenario import toml_value
     from services.sim.machines.keys import implement_table
+    from services.sim.scenario import toml_value
 
     sc = fit.scenario
     implement = {k: v for k, v in implement_table(sc.implement).items()
                  if k not in ("section_control", "delivery_delay_s") and v is not None}
     cfg = sc.controller
     controller = {"kind": cfg.kind, "gains": "manual", "kp": cfg.kp, "ki": cfg.ki, "kd": cfg.kd}
-    product = {k: getattr(sc.product, k) for k in ("form", "density_kg_l") if getattr(sc.product, k) is not None}
+    product = {k: getattr(sc.product, k) for k in ("form", "density_kg_l")
+               if getattr(sc.product, k) is not None}
     tables = {"implement": implement, "product": product, "controller": controller,
               "response": dataclasses.asdict(sc.response)}
     lines = [f"# The machine of {source}, fitted by vrsim fit: give it with --machine to vrsim run,",
