@@ -190,7 +190,7 @@ def _optimize(residuals, free, base):
     hi = np.array([_coord(p, p.hi) for p in free])
     step = np.array([0.05 if p.log else 0.02 * (p.hi - p.lo) for p in free])
     best = None
-    for x in _starts(free, x0, lo, hi):
+    for x in _starts(residuals, free, x0, lo, hi):
         try:
             found = least_squares(residuals, x, bounds=(lo, hi), x_scale=(hi - lo) / 4, loss="soft_l1",
                                   f_scale=ROBUST_SCALE, diff_step=step / np.maximum(np.abs(x), 1e-3),
@@ -204,19 +204,30 @@ def _optimize(residuals, free, base):
     return best
 
 
-def _starts(free, x0, lo, hi) -> list[np.ndarray]:
-    """Where the optimizer starts: the usual machine, and with a longer preset and dead time (a pass
-    start's error has local minima in the preset's hold)."""
+def _starts(residuals, free, x0, lo, hi) -> list[np.ndarray]:
+    """Where the optimizer starts: the best two of a coarse grid over the preset and the dead time
+    (a pass start's error is flat where the preset speed is below the tractor's: a gradient finds no
+    way out there), by their robust cost."""
     names = [p.name for p in free]
-    starts = [np.clip(x0, lo, hi)]
-    for hold_s, dead_s in ((6.0, 1.0),):
-        x = x0.copy()
-        if "startup_hold_s" in names:
-            x[names.index("startup_hold_s")] = hold_s
-        if "dead_time_s" in names:
-            x[names.index("dead_time_s")] = dead_s
-        starts.append(np.clip(x, lo, hi))
-    return starts
+    grid = [np.clip(x0, lo, hi)]
+    speeds = (0.7, 1.0, 1.4) if "startup_speed_m_s" in names else (None,)
+    for factor in speeds:
+        for hold_s, dead_s in ((2.0, 0.2), (5.0, 1.0), (10.0, 0.5)):
+            x = x0.copy()
+            if factor is not None:
+                x[names.index("startup_speed_m_s")] = x0[names.index("startup_speed_m_s")] * factor
+                x[names.index("startup_hold_s")] = hold_s
+            if "dead_time_s" in names:
+                x[names.index("dead_time_s")] = dead_s
+            grid.append(np.clip(x, lo, hi))
+    cost = [_robust_cost(residuals(x)) for x in grid]
+    return [grid[i] for i in np.argsort(cost)[:2]]
+
+
+def _robust_cost(r: np.ndarray) -> float:
+    """least_squares' soft L1 cost at `ROBUST_SCALE`."""
+    z = (r / ROBUST_SCALE) ** 2
+    return float(np.sum(2 * (np.sqrt(1 + z) - 1)))
 
 
 def _uncertainty(best, free, base) -> tuple[dict, dict, dict]:
