@@ -101,5 +101,6 @@ def test_a_log_without_pass_starts_says_the_preset_is_not_identifiable(tmp_path)
     # The slice begins with the boom open (a pass start by the log's records, of no transient): either
     # no pass start is fitted on, or one that does not move with the preset.
     assert "startup_hold_s" in found.not_identified
-    reasons = ("no pass start (sections opening) in the records fitted on", "changing it moves no record's rate")
+    reasons = ("no pass start (sections opening) in the records fitted on",
+               "changing it moves no record's rate")
     assert found.not_identified["startup_hold_s"] in reasons
