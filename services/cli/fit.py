@@ -27,7 +27,7 @@ def configure(parser) -> None:
 
 def run(args) -> int:
     from common import ScenarioError
-    from services.cli.log_options import records_and_scenario
+    from services.cli.log_options import replay_input
     from services.cli.run import default_out_dir
     from services.outputs.encode import dumps_text
     from services.outputs.fit import fit_summary, fit_text, write_fit
@@ -35,7 +35,7 @@ def run(args) -> int:
     from services.sim.replay import replay_records
     from services.sim.replay_setup import replay_scenario
 
-    records, scenario = records_and_scenario(args, args.log)
+    records, scenario, _ = replay_input(args, args.log)
     rows = None
     if args.split is not None:
         if not 0.0 < args.split < 1.0:
@@ -45,7 +45,7 @@ def run(args) -> int:
     fit = fit_machine(records, scenario, rows)
     validated = None
     if args.validate:
-        other, _ = records_and_scenario(args, args.validate)   # the fitted machine with its sections
+        other, _, _ = replay_input(args, args.validate, select=False)   # the fitted machine, its sections
         validated = replay_records(other, replay_scenario(other, fit.scenario)).summary
     out = args.out or default_out_dir("fit", "machine")
     summary = fit_summary(fit, validated)

@@ -1,41 +1,170 @@
 """The options of the commands that read a machine's as-applied log as a drive (`vrsim replay`,
-`vrsim fit`): the log, how to read it, and the machine to run it with."""
+`vrsim fit`): the log, how to read it, which of its records, and the machine to run it with
+(`replay_input`)."""
 
 from __future__ import annotations
 
 
 def add_log_options(parser) -> None:
-    parser.add_argument("log", help="the as-applied log: a John Deere point export (zipped shapefile), a "
-                                    "GeoPackage, or a TASKDATA with TimeLogs")
+    parser.add_argument("log", help="the log: a point shapefile (.shp or zipped, e.g. a John Deere "
+                                    "export), a GeoPackage, or a TASKDATA (folder, TASKDATA.XML or .zip) "
+                                    "with TimeLogs")
     parser.add_argument("--scenario", metavar="FILE",
-                        help="the machine and controller (a scenario file); default: made from the log "
-                             "(a volume rate: a boom sprayer with flow control)")
+                        help="the machine: a scenario TOML file or built-in name, given the log's sections "
+                             "(default: made from the log: a boom sprayer for a volume rate, else the "
+                             "built-in default's meter)")
     parser.add_argument("--machine", metavar="FILE",
-                        help="a machine file (machine_fit.toml from vrsim fit) set over the scenario")
-    parser.add_argument("--layer", metavar="NAME", help="the layer of a file holding several")
-    parser.add_argument("--product", metavar="NAME|PDTn", help="the product of a TASKDATA holding several")
-    parser.add_argument("--rate-field", metavar="NAME", help="attribute (or DDI) of the applied rate")
-    parser.add_argument("--target-field", metavar="NAME", help="attribute (or DDI) of the target rate")
-    parser.add_argument("--unit", help="unit of the log's rates when it does not say (gal/ac, L/ha, "
-                                       "kg/ha, ...)")
+                        help="a machine fragment (TOML tables of scenario keys, e.g. machine_fit.toml) set "
+                             "on the scenario")
+    parser.add_argument("--prescription", metavar="MAP",
+                        help="take each record's target from this map at its position (any map vrsim "
+                             "reads) instead of the logged target")
+    parser.add_argument("--layer", metavar="NAME",
+                        help="the layer of a zip, folder or GeoPackage holding several (listed when none "
+                             "is named)")
+    parser.add_argument("--product", metavar="NAME",
+                        help="the product of a TASKDATA (the log's or the prescription's) holding several")
+    parser.add_argument("--rate-field", metavar="F",
+                        help="attribute (or TimeLog DDI) of the applied rate (default: found by name: "
+                             "AppliedRate, applied, ...; DDI 7, else 2)")
+    parser.add_argument("--target-field", metavar="F",
+                        help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
+                             "DDI 6, else 1)")
+    parser.add_argument("--unit", metavar="U",
+                        help="unit of the log's rates when it does not say (kg/ha, lb/ac, L/ha, gal/ac, "
+                             "...)")
     parser.add_argument("--crs", help="CRS of a shapefile without .prj")
+    parser.add_argument("--session", metavar="N", type=int, nargs="+", action="extend",
+                        help="only these sessions (from 0; records more than 60 s apart begin a new "
+                             "session; default: all)")
+    parser.add_argument("--start-s", type=float, metavar="S",
+                        help="only records from S seconds after the log's first record")
+    parser.add_argument("--end-s", type=float, metavar="S",
+                        help="only records up to S seconds after the log's first record")
 
 
-def records_and_scenario(args, path: str):
-    """The log at `path` as machine records (`maps.log_records`) and the scenario that replays it
-    (`services.sim.replay_setup.replay_scenario`: ``--scenario`` or the log's, ``--machine`` over it)."""
+def replay_input(args, path: str, select: bool = True):
+    """(records, scenario, extras) of the log at `path`: its records (`maps.log_records`; with `select`,
+    those of ``--session`` between ``--start-s`` and ``--end-s``), the scenario that replays them
+    (`services.sim.replay_setup.replay_scenario`: ``--scenario`` or the log's, ``--machine`` over it),
+    and what the summary should say of the choices (``log_sessions``, ``target_from``, ...)."""
+    from maps.log_records import machine_records
+    from maps.pointlog import read_point_log
+
+    log = read_point_log(path, rate_field=args.rate_field, target_field=args.target_field,
+                         unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
+    log = _with_unit(log, args.unit)
+    chosen = (args.session, args.start_s, args.end_s) if select else (None, None, None)
+    records, sessions = _selected(machine_records(log), *chosen)
+    records, scenario, extra = _machine_and_target(records, args)
+    return records, scenario, {"log": records.source, "log_sessions": sessions, **extra}
+
+
+def _with_unit(log, unit: str | None):
+    """`log` with its rates' unit checked (and ``--unit`` where the log does not say one)."""
     from dataclasses import replace
 
-    import maps
-    from maps.log_records import machine_records
+    from common import MapError
+    from maps.units import is_rate_unit, rate_unit
+
+    if unit and not log.unit:   # a TimeLog of a DDI vrsim knows no unit of
+        log = replace(log, unit=unit)
+    if not is_rate_unit(log.unit):
+        raise MapError(f"{log.source}: the unit of its rates is {log.unit or 'not stated'!r}; give it with "
+                       "--unit (kg/ha, lb/ac, L/ha, gal/ac, ...)")
+    return replace(log, unit=rate_unit(log.unit))
+
+
+def _selected(records, sessions, start_s, end_s):
+    """(records, the log's session numbers kept): the records of `sessions` (all: None) between
+    `start_s` and `end_s` (seconds since the log's first record), their sessions renumbered from 0."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from common import MapError
+
+    keep = np.ones(records.rows, dtype=bool)
+    if sessions:
+        bad = [s for s in sessions if not 0 <= s < records.sessions]
+        if bad:
+            raise MapError(f"--session {bad[0]}: {records.source} has {records.sessions} session(s), "
+                           f"numbered 0 to {records.sessions - 1}")
+        keep &= np.isin(records.session, sessions)
+    keep &= _window(records, start_s, end_s)
+    if not keep.any():
+        given = " ".join(f"{name} {value:g}" for name, value in (("--start-s", start_s), ("--end-s", end_s))
+                         if value is not None)
+        raise MapError(f"{given}: no record of {records.source} in that window "
+                       f"(its records run from {records.time_s[0]:.1f} to {records.time_s[-1]:.1f} s"
+                       f"{' in the sessions chosen' if sessions else ''})")
+    part = records.take(keep)
+    chosen, session = np.unique(part.session, return_inverse=True)
+    return replace(part, session=session.astype(records.session.dtype)), [int(s) for s in chosen]
+
+
+def _window(records, start_s, end_s):
+    """The records from `start_s` to `end_s` (None: no bound), both checked."""
+    import math
+
+    from common import MapError
+
+    for name, value in (("--start-s", start_s), ("--end-s", end_s)):
+        if value is not None and not math.isfinite(value):
+            raise MapError(f"{name} {value}: must be a number of seconds since the log's first record")
+    if start_s is not None and end_s is not None and end_s <= start_s:
+        raise MapError(f"--end-s {end_s:g}: must be after --start-s {start_s:g}")
+    lo = -math.inf if start_s is None else start_s
+    hi = math.inf if end_s is None else end_s
+    return (records.time_s >= lo) & (records.time_s <= hi)
+
+
+def _machine_and_target(records, args):
+    """(records, scenario, summary extras): the scenario a replay runs (`replay_scenario`), and with
+    ``--prescription`` the records' target taken from the map; a log without a target exits 2."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from common import MapError
     from services.sim.replay_setup import machine_overrides, replay_scenario
     from services.sim.scenario import load
 
-    log = maps.read_point_log(path, rate_field=args.rate_field, target_field=args.target_field,
-                              unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
-    if args.unit and not log.unit:
-        log = replace(log, unit=args.unit)
-    records = machine_records(log)
-    fragment = machine_overrides(args.machine) if args.machine else []
-    scenario = load(args.scenario) if args.scenario else None
-    return records, replay_scenario(records, scenario, fragment)
+    user = load(args.scenario) if args.scenario else None
+    fragment = machine_overrides(args.machine) if args.machine else ()
+    scenario = replay_scenario(records, user, fragment)
+    extra = {"target_from": "log"}
+    if args.prescription:
+        target, off = _prescribed(records, args.prescription, args.product, scenario.product.density_kg_l)
+        records = replace(records, target=target)
+        scenario = replay_scenario(records, user, fragment)   # a machine from the log suits these rates
+        extra = {"target_from": args.prescription, "off_prescription_records": off}
+    elif not np.isfinite(records.target).any():
+        field = (f"--target-field {args.target_field}" if args.target_field
+                 else "found by name: TargetRate, target, ...; DDI 6, else 1")
+        raise MapError(f"{records.source}: its target rate ({field}) holds no value: a replay needs each "
+                       "record's target; give a prescription with --prescription MAP")
+    return records, scenario, extra
+
+
+def _prescribed(records, path: str, product: str | None, density_kg_l: float | None):
+    """(target, off): the prescription at each record's position in the log's unit (0 where a record
+    lies off the map or on a nodata cell: no rate given there), and how many records that is."""
+    import numpy as np
+
+    import maps
+    from common import MapError
+    from maps.units import convert_rate
+
+    grid = maps.read_map(path, product=product, density_kg_l=density_kg_l)
+    found = grid.lookup(records.x_m, records.y_m, crs=records.crs)   # reprojected to the map's CRS
+    on_map = np.isfinite(found.rate_kg_ha)
+    if not on_map.any():
+        raise MapError(f"--prescription {path}: no record of {records.source} lies on the map's rates "
+                       "(another field, or another CRS)")
+    try:
+        target = convert_rate(found.rate_kg_ha, grid.unit, records.unit, density_kg_l)
+    except MapError as exc:
+        raise MapError(f"--prescription {path} ({grid.map_unit}) against the log's {records.unit}: {exc}; "
+                       "give [product] density_kg_l in --scenario or --machine") from None
+    return np.where(on_map, target, 0.0), int((~on_map).sum())

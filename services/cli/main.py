@@ -25,8 +25,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from common import VrsimError, __version__  # noqa: E402
 
 # Order is the order `vrsim --help` lists them in.
-COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "report", "controller", "machine", "paper", "map",
-            "serve", "query", "accuracy", "calibrate")
+COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "replay", "report", "controller", "machine",
+            "paper", "map", "serve", "query", "accuracy", "calibrate", "fit")
 
 
 def _available_commands(names=COMMANDS):

@@ -21,6 +21,7 @@ residual, or a standard deviation as wide as its range.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -53,7 +54,9 @@ FIT_PARAMS = (FitParam("dead_time_s", "s", 0.0, 4.0), FitParam("startup_speed_m_
               FitParam("startup_hold_s", "s", 0.0, 15.0), FitParam("calibration_error_pct", "%", -20.0, 20.0),
               FitParam("loop_gain", "-", 0.02, 20.0, log=True))
 PRESET = ("startup_speed_m_s", "startup_hold_s")
-MAX_EVALUATIONS = 60          # replays per start of the optimizer
+MAX_EVALUATIONS = 60          # replays per stage of the optimizer
+DEAD_TIME_GRID_S = (0.0, 0.3, 0.7, 1.2, 2.0, 3.0)   # dead times tried before the loop's least squares
+PRESET_GRID = ((0.5, 0.75, 1.0, 1.25, 1.6, 2.0), (1.0, 2.0, 3.5, 5.0, 8.0, 12.0))   # x working speed, s
 ROBUST_SCALE = 0.01           # residuals (share of the target) beyond this weigh as their size
 UNIDENTIFIABLE_SPREAD = 0.25  # a standard deviation over this share of the bounds: not identified
 STEP_SETTLE_S = 60.0          # a simulated step runs this long for the time constants
@@ -99,7 +102,13 @@ class MachineFit:
 def fit_machine(records: MachineRecords, scenario: Scenario,
                 fit_rows: np.ndarray | None = None) -> MachineFit:
     """Fit `scenario`'s machine to `records` on the rows `fit_rows` (bool (n,); default all), judging on
-    the others (see the module docstring)."""
+    the others (see the module docstring).
+
+    In stages: the loop (dead time, offset, loop gain) on the records away from pass starts with no
+    preset; the preset on a grid of speeds and holds, on the pass starts' records with that loop (the
+    pass-start error is flat wherever the preset speed is below the tractor's, and rugged in the hold:
+    a gradient alone stops in the first dip); then everything together from there, and from the usual
+    machine: the better of the two (by the robust cost on the records fitted on) is the fit."""
     fit_rows = np.ones(records.rows, bool) if fit_rows is None else np.asarray(fit_rows, bool)
     base = _base(scenario, records)
     first = replay_records(records, base)
@@ -107,28 +116,103 @@ def fit_machine(records: MachineRecords, scenario: Scenario,
     if use.sum() < 10:
         raise ScenarioError(f"{records.source}: {int(use.sum())} records to fit on (moving, a section open, "
                             "applied rate logged): too few to fit a machine")
-    free = [p for p in FIT_PARAMS if not (p.name in PRESET and not _has_pass_start(first, use))]
-    scale = float(np.nanmedian(np.abs(records.target[use]))) or 1.0
-    counter = [0]
-
-    def residuals(z):
-        counter[0] += 1
-        sim = replay_records(records, _candidate(base, free, z)).simulated[use]
-        return np.nan_to_num((sim - records.applied[use]) / scale, nan=0.0)
-
-    best = _optimize(residuals, free, base)
-    fitted = _candidate(base, free, best.x)
+    problem = _Problem(records, base, use)
+    starts = use & (first.event == "pass_start")
+    loop = [p for p in FIT_PARAMS if p.name not in PRESET]
+    free = list(FIT_PARAMS) if starts.any() else loop
+    usual = {p.name: _start(p, base) for p in FIT_PARAMS}
+    if not starts.any():
+        usual.update({name: 0.0 for name in PRESET})
+    staged = dict(usual)
+    away = use & ~starts
+    if away.sum() >= 10:
+        staged.update(problem.grid(staged, away, {"dead_time_s": DEAD_TIME_GRID_S}, preset_off=True))
+        staged.update(problem.solve(loop, staged, away, preset_off=True).values)
+    if starts.any():
+        staged.update(problem.preset_grid(staged, starts))
+    # From the staged start and from the usual machine: the one the log fits better.
+    best = min((problem.solve(free, start, use) for start in (staged, usual)), key=lambda s: s.cost)
+    fitted = _candidate(base, best.values)
     final = replay_records(records, fitted)
-    values, std, why = _uncertainty(best, free, base)
+    why = best.not_identified
     for p in FIT_PARAMS:
         if p not in free:
             why[p.name] = "no pass start (sections opening) in the records fitted on"
+            best.values[p.name] = 0.0
     rise_s, fall_s = time_constants(fitted, records)
-    return MachineFit(values=values, std=std, not_identified=why, rise_time_constant_s=rise_s,
+    return MachineFit(values=best.values, std=best.std, not_identified=why, rise_time_constant_s=rise_s,
                       fall_time_constant_s=fall_s, scenario=fitted,
                       fitted=_part(final, use), judged=_part(final, first.counts & ~fit_rows),
                       default={"fitted": _part(first, use), "judged": _part(first, first.counts & ~fit_rows)},
-                      converged=bool(best.success), evaluations=counter[0])
+                      converged=best.converged, evaluations=problem.evaluations)
+
+
+@dataclass
+class _Solved:
+    values: dict
+    std: dict
+    not_identified: dict
+    converged: bool
+    cost: float
+
+
+class _Problem:
+    """The replays of one log's candidate machines, counted, as residuals of the optimizer."""
+
+    def __init__(self, records: MachineRecords, base: Scenario, use: np.ndarray):
+        self.records, self.base = records, base
+        self.scale = float(np.nanmedian(np.abs(records.target[use]))) or 1.0
+        self.evaluations = 0
+
+    def residuals(self, values: dict, rows: np.ndarray) -> np.ndarray:
+        """Twin minus log over `rows`, in shares of the median target (NaN: 0)."""
+        self.evaluations += 1
+        sim = replay_records(self.records, _candidate(self.base, values)).simulated[rows]
+        return np.nan_to_num((sim - self.records.applied[rows]) / self.scale, nan=0.0)
+
+    def solve(self, free, values: dict, rows: np.ndarray, preset_off: bool = False) -> _Solved:
+        """Least squares over `free` from `values` (the others held), on `rows`."""
+        from scipy.optimize import least_squares
+
+        held = dict(values, **({name: 0.0 for name in PRESET} if preset_off else {}))
+
+        def fun(z):
+            return self.residuals({**held, **_values(free, z)}, rows)
+
+        x0 = np.array([_coord(p, held[p.name]) for p in free])
+        lo = np.array([_coord(p, p.lo) for p in free])
+        hi = np.array([_coord(p, p.hi) for p in free])
+        x0 = np.clip(x0, lo, hi)
+        step = np.array([0.05 if p.log else 0.02 * (p.hi - p.lo) for p in free])
+        try:
+            found = least_squares(fun, x0, bounds=(lo, hi), x_scale=(hi - lo) / 4, loss="soft_l1",
+                                  f_scale=ROBUST_SCALE, diff_step=step / np.maximum(np.abs(x0), 1e-3),
+                                  max_nfev=MAX_EVALUATIONS, xtol=1e-4, ftol=1e-6)
+        except VrsimError:
+            raise
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise ScenarioError(f"the fit failed: {exc}") from None
+        std, why = _uncertainty(found, free)
+        return _Solved({**held, **_values(free, found.x)}, std, why, bool(found.success), float(found.cost))
+
+    def preset_grid(self, values: dict, rows: np.ndarray) -> dict:
+        """The preset (speed, hold) of the least robust cost on `rows` over `PRESET_GRID`, the rest held."""
+        speed = self.base.tractor.working_speed_m_s
+        return self.grid(values, rows, {"startup_speed_m_s": [f * speed for f in PRESET_GRID[0]],
+                                        "startup_hold_s": PRESET_GRID[1]})
+
+    def grid(self, values: dict, rows: np.ndarray, axes: dict, preset_off: bool = False) -> dict:
+        """Of every combination of `axes` (name -> values tried), the one of the least robust cost on
+        `rows`, the other parameters held at `values`."""
+        held = dict(values, **({name: 0.0 for name in PRESET} if preset_off else {}))
+        names = list(axes)
+        tried = [dict(zip(names, combo, strict=True)) for combo in itertools.product(*axes.values())]
+        cost = [_robust_cost(self.residuals({**held, **t}, rows)) for t in tried]
+        return tried[int(np.argmin(cost))]
+
+
+def _values(free, z) -> dict:
+    return {p.name: _value(p, v) for p, v in zip(free, z, strict=True)}
 
 
 def _base(scenario: Scenario, records: MachineRecords) -> Scenario:
@@ -145,13 +229,9 @@ def _grid_for(scenario: Scenario, records: MachineRecords):
     return working_point_grid(records, rate)
 
 
-def _has_pass_start(rp: Replay, use: np.ndarray) -> bool:
-    return bool(((rp.event == "pass_start") & use).any())
-
-
-def _candidate(base: Scenario, free, z) -> Scenario:
-    """The machine at optimizer coordinates `z` (one per free parameter)."""
-    values = {p.name: _value(p, v) for p, v in zip(free, z, strict=True)}
+def _candidate(base: Scenario, values: dict) -> Scenario:
+    """The machine with fitted `values` (`FIT_PARAMS`' names; the loop gain scales the base's gains)."""
+    values = dict(values)
     gain = values.pop("loop_gain", 1.0)
     response = dataclasses.replace(base.response, **values)
     cfg = base.controller
@@ -182,80 +262,32 @@ def _start(p: FitParam, base: Scenario) -> float:
     return getattr(base.response, p.name)
 
 
-def _optimize(residuals, free, base):
-    from scipy.optimize import least_squares
-
-    x0 = np.array([_coord(p, _start(p, base)) for p in free])
-    lo = np.array([_coord(p, p.lo) for p in free])
-    hi = np.array([_coord(p, p.hi) for p in free])
-    step = np.array([0.05 if p.log else 0.02 * (p.hi - p.lo) for p in free])
-    best = None
-    for x in _starts(residuals, free, x0, lo, hi):
-        try:
-            found = least_squares(residuals, x, bounds=(lo, hi), x_scale=(hi - lo) / 4, loss="soft_l1",
-                                  f_scale=ROBUST_SCALE, diff_step=step / np.maximum(np.abs(x), 1e-3),
-                                  max_nfev=MAX_EVALUATIONS, xtol=1e-4, ftol=1e-6)
-        except VrsimError:
-            raise
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            raise ScenarioError(f"the fit failed: {exc}") from None
-        if best is None or found.cost < best.cost:
-            best = found
-    return best
-
-
-def _starts(residuals, free, x0, lo, hi) -> list[np.ndarray]:
-    """Where the optimizer starts: the best two of a coarse grid over the preset and the dead time
-    (a pass start's error is flat where the preset speed is below the tractor's: a gradient finds no
-    way out there), by their robust cost."""
-    names = [p.name for p in free]
-    grid = [np.clip(x0, lo, hi)]
-    speeds = (0.7, 1.0, 1.4) if "startup_speed_m_s" in names else (None,)
-    for factor in speeds:
-        for hold_s, dead_s in ((2.0, 0.2), (5.0, 1.0), (10.0, 0.5)):
-            x = x0.copy()
-            if factor is not None:
-                x[names.index("startup_speed_m_s")] = x0[names.index("startup_speed_m_s")] * factor
-                x[names.index("startup_hold_s")] = hold_s
-            if "dead_time_s" in names:
-                x[names.index("dead_time_s")] = dead_s
-            grid.append(np.clip(x, lo, hi))
-    cost = [_robust_cost(residuals(x)) for x in grid]
-    return [grid[i] for i in np.argsort(cost)[:2]]
-
-
 def _robust_cost(r: np.ndarray) -> float:
     """least_squares' soft L1 cost at `ROBUST_SCALE`."""
     z = (r / ROBUST_SCALE) ** 2
     return float(np.sum(2 * (np.sqrt(1 + z) - 1)))
 
 
-def _uncertainty(best, free, base) -> tuple[dict, dict, dict]:
-    """Values, standard deviations and the parameters not identified, from the optimum's Jacobian."""
+def _uncertainty(best, free) -> tuple[dict, dict]:
+    """Standard deviations and the parameters not identified, from the optimum's Jacobian."""
     J, r = np.asarray(best.jac, float), np.asarray(best.fun, float)
     dof = max(1, r.size - len(free))
     s2 = float(r @ r) / dof
     cov = np.linalg.pinv(J.T @ J) * s2
-    values, std, why = {}, {}, {}
+    std, why = {}, {}
     for i, p in enumerate(free):
         value = _value(p, best.x[i])
         sd_z = math.sqrt(max(cov[i, i], 0.0))
         sd = value * sd_z if p.log else sd_z   # a log coordinate's spread, to first order
         span = (_coord(p, p.hi) - _coord(p, p.lo))
-        values[p.name] = value
+        std[p.name] = None
         if not np.any(J[:, i]):
             why[p.name] = "changing it moves no record's rate"
-            std[p.name] = None
         elif sd_z > UNIDENTIFIABLE_SPREAD * span:
             why[p.name] = f"its standard deviation ({sd:.3g} {p.unit}) spans its range"
-            std[p.name] = None
         else:
             std[p.name] = sd
-    for p in FIT_PARAMS:
-        if p not in free:
-            values[p.name] = 1.0 if p.name == "loop_gain" else getattr(base.response, p.name)
-            std[p.name] = None
-    return values, std, why
+    return std, why
 
 
 def _part(rp: Replay, rows: np.ndarray) -> dict:

@@ -6,7 +6,10 @@ The control core a field run uses (`services.sim.core.ControlCore.run_states`: t
 targets, its loop, its metering; the scenario's ``[response]``) runs that drive tick by tick, and the
 simulated rate is read at the log's own timestamps as the machine logs it: its flow meter's reading
 (the loop plant's sensor delay, the dead time included) over the ground the open sections cover at
-the logged speed, averaged over the ticks since the previous record, in the log's unit.
+the logged speed, averaged over the ticks since the previous record, in the log's unit. A session
+whose first record shows the machine settled on its target began mid-pass (a log cut or resumed): the
+machine runs in at that record's state for `LEAD_IN_S` first; otherwise it starts at rest, and its
+first record is a pass start.
 
 The figures compare the twin with the log (``*_vs_log``) beside the same figures of the target as the
 prediction (``target_*_vs_log``: what a twin must beat), over all the records that count and per event
@@ -16,7 +19,6 @@ records with every section closed do not count; they are counted.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -40,6 +42,8 @@ STANDSTILL_M_S = 0.5        # records slower than this are standstill: left out 
 EVENT_WINDOW_S = 8.0        # a record this soon after an event belongs to its class
 RATE_STEP_FRACTION = 0.02   # a target change larger than this share is a rate step
 MIN_SESSION_S = 3.0         # a session shorter than this cannot be replayed
+SETTLED_FRACTION = 0.1      # a first record this close to its target: the machine was already running
+LEAD_IN_S = 30.0            # ... and runs in this long at that record's state before it
 EVENT_CLASSES = ("pass_start", "rate_step", "section_change", "steady")
 
 
@@ -79,7 +83,7 @@ def replay_records(records: MachineRecords, scenario: Scenario) -> Replay:
     for s in range(records.sessions):
         rows = np.flatnonzero(records.session == s)
         simulated[rows] = _session(records.take(rows), scenario)
-    event = event_classes(records)
+    event = _event_classes(records)
     counts = _counting(records)
     summary = figures(records.applied, simulated, records.target, event, counts)
     summary.update(sessions=records.sessions, records=records.rows,
@@ -95,7 +99,10 @@ def _session(rec: MachineRecords, scenario: Scenario) -> np.ndarray:
         raise ScenarioError(f"{rec.source}: a session of {duration_s:.1f} s from {rec.time_s[0]:.1f} s is "
                             f"shorter than {MIN_SESSION_S:g} s: too short to replay (choose another session)")
     period_s = scenario.timing.control_period_s
-    t = rec.time_s[0] + period_s * np.arange(math.ceil(duration_s / period_s) + 1)
+    # A session that begins settled began before its first record: the machine runs in at that
+    # record's state first (np.interp holds the first record's values before it).
+    lead_s = LEAD_IN_S if _settled_at_start(rec)[0] else 0.0
+    t = rec.time_s[0] - lead_s + period_s * np.arange(math.ceil((duration_s + lead_s) / period_s) + 1)
     prev = np.clip(np.searchsorted(rec.time_s, t, side="right") - 1, 0, rec.rows - 1)
     x, y = (np.interp(t, rec.time_s, a) for a in (rec.x_m, rec.y_m))
     heading = np.interp(t, rec.time_s, rec.heading_rad)
@@ -139,7 +146,7 @@ def _per_record(t: np.ndarray, tick_value: np.ndarray, record_s: np.ndarray, per
     return np.divide(csum[k + 1] - csum[start], n, out=np.full(k.size, np.nan), where=n > 0)
 
 
-def event_classes(rec: MachineRecords) -> np.ndarray:
+def _event_classes(rec: MachineRecords) -> np.ndarray:
     """Each record's event class: within `EVENT_WINDOW_S` after the sections opened from all closed
     (or a session began with them open) ``pass_start``; after the target changed by more than
     `RATE_STEP_FRACTION` ``rate_step``; after the open width changed ``section_change``; else ``steady``."""
@@ -147,6 +154,7 @@ def event_classes(rec: MachineRecords) -> np.ndarray:
     width = rec.width_on_m
     new_session = np.concatenate(([True], rec.session[1:] != rec.session[:-1]))
     prev_on = np.concatenate(([False], on[:-1])) & ~new_session
+    prev_on[new_session] = _settled_at_start(rec)   # a session that begins settled began mid-pass
     target = np.nan_to_num(rec.target)
     prev_target = np.concatenate(([target[0]], target[:-1]))
     events = {
@@ -158,6 +166,15 @@ def event_classes(rec: MachineRecords) -> np.ndarray:
     for name in reversed(EVENT_CLASSES[:-1]):   # the first class wins where windows overlap
         out[_within(rec.time_s, rec.session, events[name])] = name
     return out.astype(str)
+
+
+def _settled_at_start(rec: MachineRecords) -> np.ndarray:
+    """Per session: whether its first record shows the machine settled (a section open, the applied rate
+    within `SETTLED_FRACTION` of the target): the log began mid-pass, not where the sections opened."""
+    first = np.flatnonzero(np.concatenate(([True], rec.session[1:] != rec.session[:-1])))
+    applied, target = rec.applied[first], rec.target[first]
+    near = np.abs(applied - target) <= SETTLED_FRACTION * np.abs(target)
+    return rec.sections_on[first].any(axis=1) & near & (target > 0)
 
 
 def _within(t: np.ndarray, session: np.ndarray, event: np.ndarray) -> np.ndarray:
@@ -205,8 +222,3 @@ def lonlat(records: MachineRecords) -> tuple[np.ndarray, np.ndarray]:
     """The records' positions in WGS84 (for the outputs)."""
     lon, lat = transform_xy(records.x_m, records.y_m, records.crs, "EPSG:4326")
     return np.asarray(lon, float), np.asarray(lat, float)
-
-
-def with_response(scenario: Scenario, **response) -> Scenario:
-    """`scenario` with ``[response]`` values changed (the fit's candidates)."""
-    return dataclasses.replace(scenario, response=dataclasses.replace(scenario.response, **response))

@@ -15,7 +15,9 @@ from services.sim.fit import fit_machine
 from services.sim.replay import replay_records
 from services.sim.replay_setup import replay_scenario
 
-TRUE = {"dead_time_s": 1.0, "startup_speed_m_s": 4.5, "startup_hold_s": 3.0, "calibration_error_pct": 4.0}
+# The preset speed within what the nozzles' top pressure lets through (above it the flow is the same
+# for any preset: the log cannot tell them apart, and the fit says so).
+TRUE = {"dead_time_s": 1.0, "startup_speed_m_s": 3.6, "startup_hold_s": 3.0, "calibration_error_pct": 4.0}
 TRUE_LOOP_GAIN = 0.5
 TOLERANCE = {"dead_time_s": 0.2, "startup_speed_m_s": 1.0, "startup_hold_s": 1.0,
              "calibration_error_pct": 0.5, "loop_gain": 0.3 * TRUE_LOOP_GAIN}
@@ -79,12 +81,7 @@ def test_fit_recovers_the_loop_of_the_machine_that_wrote_the_log(fitted):
     assert fitted.fitted["mae_vs_log"] < fitted.default["fitted"]["mae_vs_log"]
 
 
-def test_fit_recovers_the_pass_start_preset(fitted, request):
-    if "5hz" in request.node.name:
-        request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "at 5 Hz the preset's hold lands in a local minimum of the robust cost (found 10.0 s for 3.0 s; "
-            "the replay with the true values gives 0 error): the coarse start grid over the preset does "
-            "not find its basin yet (at 1 Hz it does)")))
+def test_fit_recovers_the_pass_start_preset(fitted):
     for name in ("startup_speed_m_s", "startup_hold_s"):
         assert abs(fitted.values[name] - TRUE[name]) <= TOLERANCE[name], (name, fitted.values[name])
     assert fitted.fitted["mae_vs_log"] < 0.25 * fitted.fitted["target_mae_vs_log"]
