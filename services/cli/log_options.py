@@ -34,6 +34,8 @@ def add_log_options(parser) -> None:
                         help="unit of the log's rates when it does not say (kg/ha, lb/ac, L/ha, gal/ac, "
                              "...)")
     parser.add_argument("--crs", help="CRS of a shapefile without .prj")
+    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
+                        help="override a key of the machine, after --machine (controller.kp=0.8; repeatable)")
     parser.add_argument("--session", metavar="N", type=int, nargs="+", action="extend",
                         help="only these sessions (from 0; records more than 60 s apart begin a new "
                              "session; default: all)")
@@ -49,15 +51,21 @@ def replay_input(args, path: str, select: bool = True):
     (`services.sim.replay_setup.replay_scenario`: ``--scenario`` or the log's, ``--machine`` over it),
     and what the summary should say of the choices (``log_sessions``, ``target_from``, ...)."""
     from maps.log_records import machine_records
-    from maps.pointlog import read_point_log
 
-    log = read_point_log(path, rate_field=args.rate_field, target_field=args.target_field,
-                         unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
-    log = _with_unit(log, args.unit)
+    log = read_log(path, args.rate_field, args.target_field, args.unit, args.crs, args.layer, args.product)
     chosen = (args.session, args.start_s, args.end_s) if select else (None, None, None)
     records, sessions = _selected(machine_records(log), *chosen)
     records, scenario, extra = _machine_and_target(records, args)
     return records, scenario, {"log": records.source, "log_sessions": sessions, **extra}
+
+
+def read_log(path: str, rate_field=None, target_field=None, unit=None, crs=None, layer=None, product=None):
+    """The as-applied log at `path` (`maps.pointlog.read_point_log`) with its rates' unit checked."""
+    from maps.pointlog import read_point_log
+
+    log = read_point_log(path, rate_field=rate_field, target_field=target_field, unit=unit, crs=crs,
+                         layer=layer, product=product)
+    return _with_unit(log, unit)
 
 
 def _with_unit(log, unit: str | None):
@@ -127,11 +135,13 @@ def _machine_and_target(records, args):
     import numpy as np
 
     from common import MapError
-    from services.sim.replay_setup import machine_overrides, replay_scenario
+    from services.sim.replay_setup import replay_scenario
     from services.sim.scenario import load
 
     user = load(args.scenario) if args.scenario else None
-    fragment = machine_overrides(args.machine) if args.machine else ()
+    from services.cli.options import overrides_of
+
+    fragment = overrides_of(args)
     scenario = replay_scenario(records, user, fragment)
     extra = {"target_from": "log"}
     if args.prescription:

@@ -34,11 +34,17 @@ def add_overrides(parser, help_text: str = "override a scenario key, as for vrsi
 
 
 def load_scenario(args):
-    """``args.scenario`` (a file or a built-in name) loaded with ``--machine``'s keys and then its
-    ``--set`` overrides, checked as a file's values are."""
+    """``args.scenario`` (a file or a built-in name) loaded with `overrides_of`, checked as a file's
+    values are."""
     from services.sim import scenario
+
+    return scenario.load(args.scenario, overrides_of(args))
+
+
+def overrides_of(args) -> list:
+    """``--machine``'s keys, then the ``--set`` overrides, as (dotted key, value) pairs."""
     from services.sim.overrides import parse_assignment
     from services.sim.replay_setup import machine_overrides
 
     machine = machine_overrides(args.machine) if getattr(args, "machine", None) else []
-    return scenario.load(args.scenario, [*machine, *(parse_assignment(text) for text in args.overrides)])
+    return [*machine, *(parse_assignment(text) for text in getattr(args, "overrides", ()))]

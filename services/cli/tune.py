@@ -9,7 +9,13 @@ HELP = "search a controller's parameters for the best figure on a field (differe
 
 
 def configure(parser) -> None:
-    parser.add_argument("scenario", help="scenario TOML file or built-in name (default, large)")
+    parser.add_argument("scenario", nargs="?", default=None,
+                        help="scenario TOML file or built-in name (default, large); with --log, the machine "
+                             "(default: the log's)")
+    parser.add_argument("--log", metavar="LOG",
+                        help="judge candidates on this as-applied log's drive, replayed with the machine "
+                             "(--machine machine_fit.toml: your machine's twin); objective "
+                             "twin_mae_vs_target")
     parser.add_argument("--controller", metavar="KIND|FILE", default=None,
                         help="the controller to tune: a kind with its defaults (P, PI, PID, aog_pi, ff_pi, "
                              "smith, fuzzy_pid, ...) or a TOML file with a [controller] table (any kind, "
@@ -34,6 +40,7 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
+    from common import ScenarioError
     from services.cli.options import load_scenario
     from services.cli.run import default_out_dir
     from services.outputs.encode import dumps_text
@@ -41,15 +48,21 @@ def run(args) -> int:
     from services.sim.tune import check_objective, parse_param, tune
 
     params = [parse_param(p) for p in args.param]
-    check_objective(args.objective)
-    sc = load_scenario(args)
+    check_objective(args.objective, args.log is not None)
+    records = None
+    if args.log:
+        records, sc = _log_and_machine(args)
+    elif args.scenario is None:
+        raise ScenarioError("vrsim tune: give a SCENARIO, or --log LOG to tune on a machine's own log")
+    else:
+        sc = load_scenario(args)
 
     def progress(done, best):
         if not args.quiet and sys.stderr.isatty():
             sys.stderr.write(f"\rvrsim tune: {done} evaluations, best {args.objective} {best}   ")
             sys.stderr.flush()
 
-    result = tune(sc, args.controller, params, args.objective, args.budget, args.seed, progress)
+    result = tune(sc, args.controller, params, args.objective, args.budget, args.seed, progress, log=records)
     if not args.quiet and sys.stderr.isatty():
         sys.stderr.write("\n")
     paths = write_tune(result, args.out or default_out_dir(sc.name, "tune"))
@@ -63,3 +76,17 @@ def run(args) -> int:
         print(tune_text(result))
         print(f"  files: {paths['best_controller']}, {paths['history']}")
     return 0
+
+
+def _log_and_machine(args):
+    """(records, scenario): the log of ``--log`` and the machine that replays it (SCENARIO or the log's,
+    then ``--machine`` and ``--set``)."""
+    from maps.log_records import machine_records
+    from services.cli.log_options import read_log
+    from services.cli.options import overrides_of
+    from services.sim.replay_setup import replay_scenario
+    from services.sim.scenario import load
+
+    records = machine_records(read_log(args.log))
+    user = load(args.scenario) if args.scenario else None
+    return records, replay_scenario(records, user, overrides_of(args))

@@ -192,8 +192,12 @@ def _counting(rec: MachineRecords) -> np.ndarray:
 
 def figures(logged, simulated, target, event, counts) -> dict:
     """The twin's figures against the log and the target's, overall and per event class (``<figure>``
-    and ``<class>_<figure>``); a class with no record counting gives None."""
-    out = compare_to_log(logged, simulated, target, counts & np.isfinite(simulated))
+    and ``<class>_<figure>``; a class with no record counting gives None), and ``twin_mae_vs_target``."""
+    keep = counts & np.isfinite(simulated)
+    out = compare_to_log(logged, simulated, target, keep)
+    # The twin's own error against its target, beside the machine's (``target_mae_vs_log``): what a
+    # controller tuned on the twin is judged by.
+    out["twin_mae_vs_target"] = float(np.mean(np.abs(simulated[keep] - target[keep]))) if keep.any() else None
     for name in EVENT_CLASSES:
         part = compare_to_log(logged, simulated, target, counts & np.isfinite(simulated) & (event == name))
         out.update({f"{name}_{k}": v for k, v in part.items()})

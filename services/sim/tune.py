@@ -41,6 +41,8 @@ from services.sim.variants import run_variants
 PID_TUNABLE = ("kp", "ki", "kd")   # the PID family's numeric keys (its gains are then "manual")
 TOP_LEVEL = ("look_ahead_s",)      # keys of [controller] itself that any kind can tune
 SENSES = {m.key: m.sense for m in METRICS if m.sense is not None}
+# On a replayed log (`tune(..., log=...)`): the twin's error against its targets on the log's drive.
+LOG_SENSES = {"twin_mae_vs_target": "min"}
 GENERATIONS = 6                    # the budget is shared so that about this many generations fit
 MAX_POPSIZE = 15                   # scipy's default multiplier
 
@@ -85,11 +87,14 @@ def parse_param(text: str) -> TuneParam:
     return TuneParam(name.strip(), lo, hi)
 
 
-def check_objective(metric: str) -> str:
-    """The metric's sense; `ScenarioError` listing the figures that have one otherwise."""
-    if metric not in SENSES:
-        raise ScenarioError(f"--objective {metric!r}: not a figure to optimise (one of {', '.join(SENSES)})")
-    return SENSES[metric]
+def check_objective(metric: str, log: bool = False) -> str:
+    """The metric's sense (on a replayed log's drive: `LOG_SENSES`); `ScenarioError` listing the
+    figures that have one otherwise."""
+    senses = LOG_SENSES if log else SENSES
+    if metric not in senses:
+        raise ScenarioError(f"--objective {metric!r}: not a figure to optimise"
+                            f"{' on a log' if log else ''} (one of {', '.join(senses)})")
+    return senses[metric]
 
 
 def _base_config(scenario: Scenario, controller: str | None = None) -> ControllerConfig:
@@ -158,8 +163,11 @@ def _generations_for(budget: int, dims: int) -> tuple[int, int]:
 
 
 def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam], objective: str,
-         budget: int, seed: int = 0, progress: Callable[[int, float], None] | None = None) -> TuneResult:
-    """Search `params` of a controller for the best `objective` on `scenario`'s field.
+         budget: int, seed: int = 0, progress: Callable[[int, float], None] | None = None,
+         log=None) -> TuneResult:
+    """Search `params` of a controller for the best `objective` on `scenario`'s field, or on the drive of
+    a machine's own log (`log`: `maps.log_records.MachineRecords`, replayed with `scenario`'s machine,
+    `services.sim.replay`: a controller tuned on the twin of the user's machine).
 
     Parameters
     ----------
@@ -178,6 +186,9 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
         Seeds the search (the drive keeps the scenario's seed).
     progress : callable, optional
         ``progress(evaluations, best objective so far)`` after each generation.
+    log : maps.log_records.MachineRecords, optional
+        The drive to judge candidates on instead of the field's: each one replays the log
+        (`LOG_SENSES` are its objectives).
 
     Raises
     ------
@@ -187,7 +198,7 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
     """
     from scipy.optimize import differential_evolution
 
-    sense = check_objective(objective)
+    sense = check_objective(objective, log is not None)
     if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
         raise ScenarioError(f"--budget must be an integer >= 1, got {budget!r}")
     if not params:
@@ -197,7 +208,7 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
         raise ScenarioError(f"--param: a parameter is given twice: {names}")
     base = _base_config(scenario, controller)
     _check_params(base, params, scenario)
-    shared = drive_of(scenario)
+    judge = _replays(log, scenario) if log is not None else _field_runs(drive_of(scenario))
     history: list[dict] = []
     best = [math.inf]
 
@@ -209,7 +220,7 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
 
     def evaluate(x: np.ndarray) -> np.ndarray:      # x: (params, population)
         columns = np.atleast_2d(x).T
-        summaries = run_variants(shared, [_config_at(base, params, v) for v in columns])
+        summaries = judge([_config_at(base, params, v) for v in columns])
         scores = np.array([score(s) for s in summaries])
         generation = 1 + max((h["generation"] for h in history), default=0)
         for v, s, sc in zip(columns, summaries, scores, strict=True):
@@ -226,12 +237,25 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
                                    maxiter=maxiter, vectorized=True, updating="deferred", polish=False,
                                    rng=np.random.default_rng(seed))
     best_cfg = _config_at(base, params, found.x)
-    tuned, baseline = run_variants(shared, [best_cfg, scenario.controller])
+    tuned, baseline = judge([best_cfg, scenario.controller])
     return TuneResult(scenario=scenario.name, objective=objective, sense=sense, params=tuple(params),
                       best=best_cfg, best_values=dict(zip(names, map(float, found.x), strict=True)),
                       best_objective=tuned.get(objective), evaluations=len(history),
                       generations=history[-1]["generation"] if history else 0, history=history,
                       tuned=tuned, baseline=baseline)
+
+
+def _field_runs(shared):
+    """Candidates judged on the scenario's field: one batch of variants over one shared drive."""
+    return lambda configs: run_variants(shared, configs)
+
+
+def _replays(log, scenario: Scenario):
+    """Candidates judged on a machine's log: each replays it with the scenario's machine."""
+    from services.sim.replay import replay_records
+
+    return lambda configs: [replay_records(log, dataclasses.replace(scenario, controller=c)).summary
+                            for c in configs]
 
 
 def _unscore(score: float, sense: str) -> float | None:
