@@ -254,38 +254,36 @@ def _width_mean(values: np.ndarray, log: PointLog, row: np.ndarray, rows: int) -
 
 
 def _speed(t, x, y, speed, distance, session) -> np.ndarray:
-    """Ground speed per row, m/s: the log's, else distance over time, else the positions' (smoothed)."""
-    if np.isfinite(speed).all():
-        return speed
+    """Ground speed per row, m/s, averaged over `SPEED_SMOOTH_S` (a logged speed's resolution steps and
+    a distance's jitter would each move the target flow): from the log's speed, else its distance over
+    the logger's period, else the positions."""
     dt = np.diff(t, prepend=np.nan)
     new = np.concatenate(([True], session[1:] != session[:-1]))
-    if np.isfinite(distance).sum() > 0.9 * distance.size:
-        d = np.where(np.isfinite(distance), distance, 0.0)
-    else:
-        d = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
-    d = np.where(new, 0.0, d)
     dt = np.where(new | ~np.isfinite(dt), 0.0, dt)
     step = np.median(dt[dt > 0]) if (dt > 0).any() else SPEED_SMOOTH_S
     # A machine logs at a regular period and stamps its records with a few ms of jitter (a 5 Hz
     # export's 0.195 and 0.204 s, with the same distance each): the distance is over the period.
-    regular = np.abs(dt - step) <= REGULAR_JITTER * step
-    dt = np.where(regular, step, dt)
-    # Distance over the time, both summed over a window.
+    dt = np.where(np.abs(dt - step) <= REGULAR_JITTER * step, step, dt)
+    logged = np.isfinite(speed)
+    if logged.all():
+        d = speed * dt
+    elif np.isfinite(distance).sum() > 0.9 * distance.size:
+        d = np.where(np.isfinite(distance), distance, 0.0)
+    else:
+        d = np.hypot(np.diff(x, prepend=x[0]), np.diff(y, prepend=y[0]))
+    d = np.where(new, 0.0, d)
+    one = np.where(dt > 0, d / np.where(dt > 0, dt, 1.0), 0.0)
+    alone = np.where(logged, speed, one)   # a row with no neighbour in its window
     out = np.empty_like(t)
     half_s = max(SPEED_SMOOTH_S, 2.5 * step) / 2
-    for s in np.unique(session):
+    for s in np.unique(session):   # distance over time, both summed over the window
         idx = np.flatnonzero(session == s)
-        cd, ct = np.cumsum(d[idx]), np.cumsum(dt[idx])
-        tt = t[idx]
+        cd, ct, tt = np.cumsum(d[idx]), np.cumsum(dt[idx]), t[idx]
         lo = np.searchsorted(tt, tt - half_s, side="left")
         hi = np.searchsorted(tt, tt + half_s, side="right") - 1
         lo = np.minimum(lo, hi)
         span = ct[hi] - ct[lo]
-        moved = cd[hi] - cd[lo]
-        one = np.where(dt[idx] > 0, d[idx] / np.where(dt[idx] > 0, dt[idx], 1.0), 0.0)
-        out[idx] = np.where(span > 0, moved / np.where(span > 0, span, 1.0), one)
-    if np.isfinite(speed).any():
-        out = np.where(np.isfinite(speed), speed, out)
+        out[idx] = np.where(span > 0, (cd[hi] - cd[lo]) / np.where(span > 0, span, 1.0), alone[idx])
     return out
 
 
