@@ -1,7 +1,8 @@
 """What `vrsim replay` prints and writes: the figures as a short table (`text_replay`), and with
 ``--out DIR`` replay.parquet (one row per log timestamp), replay.png (logged, simulated and target
-rate over time, a panel per session) and summary.json (the figures, through the one JSON encoder),
-the three whole or not at all (`common.written.staged`, summary.json last).
+rate over time, a panel per session), replay_map.png (the logged rate and the twin minus the log on
+the field) and summary.json (the figures, through the one JSON encoder), all whole or not at all
+(`common.written.staged`, summary.json last).
 
 Besides `services.sim.replay.Replay`'s figures, the summary may say what `vrsim replay` chose:
 ``log_sessions`` (the log's index of each session replayed, which the outputs number sessions by),
@@ -20,7 +21,7 @@ from services.outputs.encode import dumps_text
 from services.outputs.plots import figure
 from services.sim.replay import EVENT_CLASSES, STANDSTILL_M_S, Replay, lonlat
 
-REPLAY_FILES = ("replay.parquet", "replay.png", "summary.json")
+REPLAY_FILES = ("replay.parquet", "replay.png", "replay_map.png", "summary.json")
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 1 mm, 1e-4 of the rate unit; None: as is
 REPLAY_COLUMNS = (("time_s", 3), ("session", None), ("lon", 8), ("lat", 8), ("speed_m_s", 3),
                   ("sections_on", None), ("width_on_m", 3), ("target", 4), ("logged_applied", 4),
@@ -121,12 +122,13 @@ def text_replay(rp: Replay) -> str:
 
 # ----------------------------------------------------------------------------------------- files
 def write_replay(rp: Replay, out_dir: str) -> dict[str, str]:
-    """Write replay.parquet, replay.png and summary.json of `rp` into `out_dir` (created), whole or
+    """Write replay.parquet, replay.png, replay_map.png and summary.json of `rp` into `out_dir` (created), whole or
     not at all; {file name: path}. Sessions are numbered as in the log (`_log_sessions`)."""
     with staged(out_dir, last=("summary.json",), error=MapError) as stage:
         paths = {name: os.path.join(stage, name) for name in REPLAY_FILES}
         _write_parquet(rp, paths["replay.parquet"])
         _plot_replay(rp, paths["replay.png"])
+        _plot_replay_map(rp, paths["replay_map.png"])
         with open(paths["summary.json"], "w") as fh:
             fh.write(dumps_text(rp.summary, indent=True) + "\n")
     return {name: os.path.join(out_dir, name) for name in REPLAY_FILES}
@@ -205,3 +207,34 @@ def _mae(pred: np.ndarray, log: np.ndarray) -> float | None:
     err = pred - log
     err = err[np.isfinite(err)]
     return float(np.mean(np.abs(err))) if err.size else None
+
+
+# --------------------------------------------------------------------------------- replay_map.png
+def _plot_replay_map(rp: Replay, path: str) -> None:
+    """The records on the field: the logged rate, and the twin minus the log (a diverging scale
+    symmetric about 0, at least 1 % of the median target either way), in metres of the log's UTM zone
+    from its south-west corner; records that do not count are left out."""
+    rec, unit = rp.records, rp.records.unit or "unit not stated"
+    keep = rp.counts & np.isfinite(rp.simulated)
+    step = max(1, int(keep.sum()) // (4 * MAX_PLOT_POINTS))
+    rows = np.flatnonzero(keep)[::step]
+    x, y = rec.x_m[rows] - rec.x_m[rows].min(), rec.y_m[rows] - rec.y_m[rows].min()
+    err = rp.simulated[rows] - rec.applied[rows]
+    floor = 0.01 * float(np.nanmedian(np.abs(rec.target[rows]))) if rows.size else 1.0
+    emax = max(float(np.nanpercentile(np.abs(err), 99)) if rows.size else 0.0, floor, 1e-9)
+    # The logged rate's colours span its 1st to 99th percentile: a start-up's peak would flatten the rest.
+    low, high = np.nanpercentile(rec.applied[rows], [1, 99]) if rows.size else (0.0, 1.0)
+    aspect = float(np.ptp(y) / max(np.ptp(x), 1.0)) if rows.size else 1.0
+    fig = figure(12, float(np.clip(3.0 * aspect, 4.0, 9.0)), layout="constrained")
+    for ax, values, title, cmap, lim in (
+            (fig.add_subplot(1, 2, 1), rec.applied[rows], f"logged applied ({unit})", "viridis", (low, high)),
+            (fig.add_subplot(1, 2, 2), err, f"twin minus log ({unit})", "RdBu_r", (-emax, emax))):
+        kw = {"vmin": lim[0], "vmax": lim[1]}
+        points = ax.scatter(x, y, c=values, s=2, cmap=cmap, linewidths=0, **kw)
+        fig.colorbar(points, ax=ax, shrink=0.8)
+        ax.set_title(title, fontsize="small")
+        ax.set_aspect("equal")
+        ax.set_xlabel("east (m)")
+        ax.set_ylabel("north (m)")
+    fig.suptitle(f"{os.path.basename(os.path.normpath(rec.source))}: {rows.size:,} records on the map")
+    fig.savefig(path, dpi=90)

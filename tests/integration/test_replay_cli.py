@@ -1,5 +1,5 @@
 """`vrsim replay LOG`, the real executable: the John Deere sample exports replayed (figures, replay.parquet,
-replay.png, summary.json), a prescription as the target, sessions and a time window chosen, and bad
+replay.png, replay_map.png, summary.json), a prescription as the target, sessions and a time window chosen, and bad
 input refused with exit 2 and one line naming the file or option and the value."""
 
 import json
@@ -73,9 +73,10 @@ def test_each_section_export_replays_with_its_files(shared_dir, tmp_path):
     for key in ("standstill_records", "closed_records"):
         assert isinstance(got[key], int)
     assert 0 < got["mae_vs_log"] < 1.0 and got["compared_records"] > 3000
-    assert sorted(os.listdir(out)) == ["replay.parquet", "replay.png", "summary.json"]
+    assert sorted(os.listdir(out)) == ["replay.parquet", "replay.png", "replay_map.png", "summary.json"]
     assert json.loads((out / "summary.json").read_text()) == {k: v for k, v in got.items() if k != "out_dir"}
-    assert (out / "replay.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for picture in ("replay.png", "replay_map.png"):
+        assert (out / picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     table = pq.read_table(out / "replay.parquet")
     assert table.num_rows == 3902 and table.column_names == COLUMNS
     assert table.schema.metadata[b"rate_unit"] == b"gal/ac"
