@@ -39,7 +39,18 @@ def replay_scenario(records: MachineRecords, scenario: Scenario | None = None,
     else:
         text, source, base_dir = to_toml(scenario), scenario.source, scenario.base_dir
     sections = _section_overrides(records, scenario)
-    return parse(text, source, base_dir, overrides=[*sections, *fragment])
+    machine = parse(text, source, base_dir, overrides=[*sections, *fragment])
+    _check_unit(records, machine)
+    return machine
+
+
+def _check_unit(records: MachineRecords, machine: Scenario) -> None:
+    """A log of a volume rate is a liquid's: the machine replaying it must meter one."""
+    unit = records.unit or "kg/ha"
+    if rate_kind(unit) == "volume" and machine.product.form != "liquid":
+        raise ScenarioError(f"{machine.source}: [product] form = {machine.product.form!r}, but "
+                            f"{records.source} logs a volume rate ({unit}): replay it with a machine that "
+                            "meters a liquid (a sprayer's --scenario or --machine)")
 
 
 def machine_overrides(path: str) -> list[Override]:

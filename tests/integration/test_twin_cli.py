@@ -104,6 +104,7 @@ def test_tune_on_the_log_beats_the_machines_own_gains_and_its_logged_error(fitte
     (["fit", EACH_SECTION, "--start-s", "0", "--end-s", "2"], "too short to replay"),
     (["tune", "--log", EACH_SECTION, "--param", "kp=0.1:1", "--objective", "mae_kg_ha"], "on a log"),
     (["tune", "--param", "kp=0.1:1", "--objective", "mae_kg_ha"], "--log"),
+    (["fit", EACH_SECTION, "--scenario", "default"], "logs a volume rate (gal/ac)"),
 ])
 def test_bad_input_exits_2_with_one_line(args, message, tmp_path):
     p = vrsim(*args, "--out", tmp_path)
