@@ -6,8 +6,11 @@ follows the coil current), reduced to what a spray regulating valve needs:
 * **valve**: opening ``x`` in [0, 1] follows ``x_cmd = clip((I - I_db) / (I_max - I_db), 0, 1)``
   with one time constant ``tau`` (a dead band ``I_db`` below which the spool does not move);
 * **flow**: set by the opening and the nozzles' square-root law, the boom an orifice of
-  ``K_b = sum(q_ref / sqrt(3 bar))`` over its open nozzles (``Q_b = K_b sqrt(p)``), the boom line's
-  fill time neglected (it is short beside ``tau``):
+  ``K_b = sum(q_ref / sqrt(3 bar))`` over its open nozzles (``Q_b = K_b sqrt(p)``), ``q_ref`` a
+  nozzle's flow *of the liquid sprayed* at 3 bar (its water rating times ``sqrt(1 / SG)``: the caller's,
+  `vehicle.sprayer.SprayerSpec.rated_flow_l_min`; the defaults below scale with ``K_b``, so pump and
+  valve keep their share of the boom's flow), the boom line's fill time neglected (it is short beside
+  ``tau``):
 
   - ``bypass`` (in the return line of a positive-displacement pump of flow ``Q_p``; opening ``x``
     closes the bypass orifice ``(1 - x) C``): ``Q_b = Q_p K_b / (K_b + (1 - x) C)``;
@@ -55,7 +58,8 @@ class FlowPlant:
     Parameters
     ----------
     boom_coeff_l_min_bar : float
-        K_b, the open nozzles' flow per sqrt(bar) [L/min/bar^0.5]: N q_ref / sqrt(3).
+        K_b, the open nozzles' flow per sqrt(bar) [L/min/bar^0.5]: N q_ref / sqrt(3), ``q_ref`` of the
+        liquid sprayed (`vehicle.sprayer.SprayerSpec.rated_flow_l_min` with its density).
     valve : {"bypass", "inline"}
     pressure_max_bar : float
         Top of the nozzles' pressure range [bar]; sizes the defaults of pump and valve.

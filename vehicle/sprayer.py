@@ -7,6 +7,12 @@ bounds the flow of each nozzle, and so the speeds at which a rate (L/ha) can be 
 ``spacing`` metres apart must give ``rate * speed * spacing * 0.006`` L/min. The boom's target flow is
 ``rate [L/ha] * speed [m/s] * width [m] * 60 / 10 000`` L/min (m^2/s over 10 000 m^2/ha, times 60 s/min).
 
+The ratings are for water. A nozzle is an orifice, ``q = C A sqrt(2 dp / rho)``: at the same pressure
+it passes ``sqrt(1 / SG)`` times its water flow of a liquid of specific gravity ``SG = rho / 1 kg/L``
+(`density_flow_factor`, the catalogues' conversion factor: UAN 28 % at 1.28 kg/L, 0.884). Every flow
+at a pressure here (`nozzle_flow_l_min`, and through it the flow range, speeds, nozzle advice and
+PWM's open flow) takes the liquid's density; none given is water's.
+
 The flow meter counts pulses; the terminal divides them by the configured pulses per litre, while
 the meter's true constant differs by its calibration error: the controller sees the meter's flow,
 the ground gets the true flow.
@@ -31,14 +37,15 @@ from common.checks import check_number, check_positive, in_range
 from common.errors import VehicleError
 from vehicle.machines import MachineSpec, register_spec
 
-__all__ = ["NOZZLE_FLOW_L_MIN", "FlowMeter", "SprayerSpec", "applied_rate_l_ha", "boom_flow_l_min",
-           "nozzle_flow_l_min", "nozzle_pressure_bar", "nozzle_speeds_m_s", "pwm_duty_pct",
-           "pwm_open_fraction", "pwm_phases"]
+__all__ = ["NOZZLE_FLOW_L_MIN", "WATER_DENSITY_KG_L", "FlowMeter", "SprayerSpec", "applied_rate_l_ha",
+           "boom_flow_l_min", "density_flow_factor", "nozzle_flow_l_min", "nozzle_pressure_bar",
+           "nozzle_speeds_m_s", "pwm_duty_pct", "pwm_open_fraction", "pwm_phases"]
 
 #: ISO 10625 size code -> nominal flow at `REF_PRESSURE_BAR` [L/min].
 NOZZLE_FLOW_L_MIN = {"01": 0.4, "015": 0.6, "02": 0.8, "025": 1.0, "03": 1.2, "04": 1.6, "05": 2.0,
                      "06": 2.4, "08": 3.2}
 REF_PRESSURE_BAR = 3.0
+WATER_DENSITY_KG_L = 1.0   # the liquid of the ratings: specific gravity is a density over this
 L_HA_M2_PER_L_MIN_S = 10_000.0 / 60.0   # rate [L/ha] * speed [m/s] * width [m] / this = flow [L/min]
 VALVES = ("bypass", "inline")
 CONTROLS = ("flow", "pwm")
@@ -46,14 +53,32 @@ PWM_HZ_RANGE = (10.0, 30.0)
 FLOW_METER_ERROR_MAX_PCT = 50.0   # a meter further off than this is a typo, not a calibration
 
 
-def nozzle_flow_l_min(q_ref_l_min, pressure_bar):
-    """Flow of a nozzle rated `q_ref_l_min` at 3 bar, at `pressure_bar` [L/min]: the square-root law."""
-    return np.asarray(q_ref_l_min, float) * np.sqrt(np.asarray(pressure_bar, float) / REF_PRESSURE_BAR)
+def density_flow_factor(density_kg_l: float | None = None) -> float:
+    """A nozzle's flow of a liquid of `density_kg_l` [kg/L] over its flow of water at the same pressure
+    [-]: ``sqrt(1 / SG)``, ``SG = density_kg_l / WATER_DENSITY_KG_L`` (an orifice passes ``q = C A
+    sqrt(2 dp / rho)``; nozzle catalogues' conversion factor for solutions other than water, e.g.
+    TeeJet's 0.88 for 28 % N at 1.28). The one place the density enters a nozzle's flow.
+
+    None (the product's density not stated) is taken as water: 1.0, as is a density of 1.0, exactly.
+    """
+    if density_kg_l is None:
+        return 1.0
+    check_positive(density_kg_l, "sprayer: the liquid's density_kg_l", VehicleError, unit="kg/L")
+    return math.sqrt(WATER_DENSITY_KG_L / density_kg_l)
 
 
-def nozzle_pressure_bar(q_ref_l_min, flow_l_min):
-    """Pressure at which a nozzle rated `q_ref_l_min` at 3 bar gives `flow_l_min` [bar]."""
-    return REF_PRESSURE_BAR * (np.asarray(flow_l_min, float) / np.asarray(q_ref_l_min, float)) ** 2
+def nozzle_flow_l_min(q_ref_l_min, pressure_bar, density_kg_l: float | None = None):
+    """Flow of a nozzle rated `q_ref_l_min` of water at 3 bar, at `pressure_bar` [L/min], of a liquid of
+    `density_kg_l` [kg/L] (None: water): the square-root law times `density_flow_factor`."""
+    return (np.asarray(q_ref_l_min, float) * density_flow_factor(density_kg_l)
+            * np.sqrt(np.asarray(pressure_bar, float) / REF_PRESSURE_BAR))
+
+
+def nozzle_pressure_bar(q_ref_l_min, flow_l_min, density_kg_l: float | None = None):
+    """Pressure at which a nozzle rated `q_ref_l_min` of water at 3 bar gives `flow_l_min` [bar] of a
+    liquid of `density_kg_l` [kg/L] (None: water): the inverse of `nozzle_flow_l_min`."""
+    q_ref = nozzle_flow_l_min(q_ref_l_min, REF_PRESSURE_BAR, density_kg_l)
+    return REF_PRESSURE_BAR * (np.asarray(flow_l_min, float) / q_ref) ** 2
 
 
 def boom_flow_l_min(rate_l_ha, speed_m_s, width_m):
@@ -124,7 +149,8 @@ class SprayerSpec(MachineSpec):
     nozzle_spacing_m : float
         Distance between nozzles along the boom [m].
     pressure_range_bar : tuple of float
-        The nozzle's working pressures (low, high) [bar]: the machine's limit.
+        The nozzle's working pressures (low, high) [bar]: the machine's limit. The flows they give depend
+        on the liquid (`density_flow_factor`): the methods below take its ``density_kg_l`` (None: water).
     flow_meter_pulses_per_l : float
         The flow meter's configured constant [pulses/L].
     flow_meter_error_pct : float
@@ -178,25 +204,31 @@ class SprayerSpec(MachineSpec):
 
     @property
     def q_ref_l_min(self) -> float:
-        """The nozzle's flow at 3 bar [L/min]."""
+        """The nozzle's rated flow of water at 3 bar [L/min] (`rated_flow_l_min`: of a liquid)."""
         return NOZZLE_FLOW_L_MIN[self.nozzle]
+
+    def rated_flow_l_min(self, density_kg_l: float | None = None) -> float:
+        """The nozzle's flow at 3 bar of a liquid of `density_kg_l` [L/min] (None: water's rating)."""
+        return float(nozzle_flow_l_min(self.q_ref_l_min, REF_PRESSURE_BAR, density_kg_l))
 
     @property
     def meter(self) -> FlowMeter:
         """The boom's flow meter."""
         return FlowMeter(self.flow_meter_pulses_per_l, self.flow_meter_error_pct)
 
-    def nozzle_flow_range_l_min(self, nozzle: str | None = None) -> tuple[float, float]:
-        """Lowest and highest mean flow of one nozzle [L/min] (of size `nozzle`, default this one's).
+    def nozzle_flow_range_l_min(self, nozzle: str | None = None,
+                                density_kg_l: float | None = None) -> tuple[float, float]:
+        """Lowest and highest mean flow of one nozzle [L/min] (of size `nozzle`, default this one's) of a
+        liquid of `density_kg_l` [kg/L] (None: water).
 
         Flow control: the flows at the ends of the pressure range. PWM: the duty range at the held
         pressure.
         """
         q_ref = NOZZLE_FLOW_L_MIN[nozzle or self.nozzle]
         if self.control == "pwm":
-            q = float(nozzle_flow_l_min(q_ref, self.pwm_pressure_bar))
+            q = float(nozzle_flow_l_min(q_ref, self.pwm_pressure_bar, density_kg_l))
             return q * self.duty_range_pct[0] / 100.0, q * self.duty_range_pct[1] / 100.0
-        lo, hi = nozzle_flow_l_min(q_ref, self.pressure_range_bar)
+        lo, hi = nozzle_flow_l_min(q_ref, self.pressure_range_bar, density_kg_l)
         return float(lo), float(hi)
 
     def nozzle_count(self, width_m: float) -> int:
@@ -214,8 +246,10 @@ class SprayerSpec(MachineSpec):
         return (np.arange(n) - (n - 1) / 2.0) * self.nozzle_spacing_m
 
     def speed_range_m_s(self, rate_min_l_ha: float, rate_max_l_ha: float | None = None,
-                        nozzle: str | None = None) -> tuple[float, float] | None:
-        """Speeds [m/s] at which every rate in [min, max] (L/ha, > 0) keeps the nozzles in range.
+                        nozzle: str | None = None,
+                        density_kg_l: float | None = None) -> tuple[float, float] | None:
+        """Speeds [m/s] at which every rate in [min, max] (L/ha, > 0) of a liquid of `density_kg_l`
+        (kg/L; None: water) keeps the nozzles in range.
 
         None when no speed does (the nozzle's flow ratio is narrower than the rates'); `nozzle`
         tries another size on this boom.
@@ -223,29 +257,33 @@ class SprayerSpec(MachineSpec):
         rate_max = rate_min_l_ha if rate_max_l_ha is None else rate_max_l_ha
         check_positive(rate_min_l_ha, "sprayer: lowest rate", VehicleError, unit="L/ha")
         check_number(rate_max, "sprayer: highest rate", VehicleError, lo=rate_min_l_ha, unit="L/ha")
-        q_lo, q_hi = self.nozzle_flow_range_l_min(nozzle)
+        q_lo, q_hi = self.nozzle_flow_range_l_min(nozzle, density_kg_l)
         per_speed = self.nozzle_spacing_m / L_HA_M2_PER_L_MIN_S     # L/min per (L/ha * m/s)
         v_lo, v_hi = q_lo / (rate_min_l_ha * per_speed), q_hi / (rate_max * per_speed)
         return (v_lo, v_hi) if v_lo <= v_hi else None
 
-    def suggest_nozzle(self, rate_min_l_ha: float, rate_max_l_ha: float, speed_m_s: float) -> str | None:
-        """The ISO size that covers rates [min, max] (L/ha) at `speed_m_s` with the most margin (the
-        needed flows centred in its range, in log terms), or None if no size does."""
+    def suggest_nozzle(self, rate_min_l_ha: float, rate_max_l_ha: float, speed_m_s: float,
+                       density_kg_l: float | None = None) -> str | None:
+        """The ISO size that covers rates [min, max] (L/ha) of a liquid of `density_kg_l` (kg/L; None:
+        water) at `speed_m_s` with the most margin (the needed flows centred in its range, in log
+        terms), or None if no size does."""
         check_positive(speed_m_s, "sprayer: working speed", VehicleError, unit="m/s")
         best, best_margin = None, -math.inf
         for size in NOZZLE_FLOW_L_MIN:
-            span = self.speed_range_m_s(rate_min_l_ha, rate_max_l_ha, size)
+            span = self.speed_range_m_s(rate_min_l_ha, rate_max_l_ha, size, density_kg_l)
             if span is not None and span[0] <= speed_m_s <= span[1]:
                 margin = min(math.log(speed_m_s / span[0]), math.log(span[1] / speed_m_s))
                 if margin > best_margin:
                     best, best_margin = size, margin
         return best
 
-    def check_rates(self, rate_min_l_ha: float, rate_max_l_ha: float) -> tuple[float, float]:
-        """The speed range of `speed_range_m_s`; a `VehicleError` naming the nozzle when there is none."""
-        span = self.speed_range_m_s(rate_min_l_ha, rate_max_l_ha)
+    def check_rates(self, rate_min_l_ha: float, rate_max_l_ha: float,
+                    density_kg_l: float | None = None) -> tuple[float, float]:
+        """The speed range of `speed_range_m_s` (a liquid of `density_kg_l`, None: water); a
+        `VehicleError` naming the nozzle when there is none."""
+        span = self.speed_range_m_s(rate_min_l_ha, rate_max_l_ha, density_kg_l=density_kg_l)
         if span is None:
-            q_lo, q_hi = self.nozzle_flow_range_l_min()
+            q_lo, q_hi = self.nozzle_flow_range_l_min(density_kg_l=density_kg_l)
             raise VehicleError(f"sprayer: nozzle {self.nozzle!r} ({q_lo:.3g}-{q_hi:.3g} L/min per nozzle) "
                                f"cannot apply {rate_min_l_ha:g}-{rate_max_l_ha:g} L/ha at any speed: the "
                                f"rates span {rate_max_l_ha / rate_min_l_ha:.3g}x, the nozzle "
@@ -291,7 +329,8 @@ def pwm_duty_pct(rate_l_ha, nozzle_speed_m_s, spacing_m: float, nozzle_flow_l_mi
     spacing_m : float
         Nozzle spacing [m].
     nozzle_flow_l_min : float
-        A fully open nozzle's flow at the held pressure [L/min].
+        A fully open nozzle's flow at the held pressure [L/min], of the liquid sprayed
+        (`nozzle_flow_l_min` with its density).
     duty_range_pct : (float, float)
         The solenoid's lowest and highest duty [%].
     """

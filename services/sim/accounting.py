@@ -167,7 +167,7 @@ class Setting:
         grid, implement = world.grid, world.scenario.implement
         in_field = cells_in_field(grid, world.field.polygon)
         applying = control["width_on_m"] > 0
-        limited = machine_for(implement).limited(control) & applying
+        limited = machine_for(implement).limited(control, world.scenario.product) & applying
         return cls(world, track, landing, in_field, worked_fraction(track, implement.width_m, grid),
                    limited, applying,
                    rate_steps(landing.prescribed_kg_ha, np.asarray(track["implement_on"], bool)),

@@ -226,7 +226,8 @@ class BoundedAccount:
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
         applying = w["width_on_m"][:n] > 0
-        limited = self.machine.limited({k: w[k][:n] for k in CONTROL_KEYS if k in w}) & applying
+        window = {k: w[k][:n] for k in CONTROL_KEYS if k in w}
+        limited = self.machine.limited(window, self.world.scenario.product) & applying
         self.applying += int(np.count_nonzero(applying))
         self.limited += int(np.count_nonzero(limited))
         idx = np.flatnonzero(limited)

@@ -22,7 +22,8 @@ only how long the test takes. Pure and seeded by the scenario's seed: the same s
 give the same measurement.
 
 A liquid product on a sprayer (`LiquidCalibration`): the *catch test* calibrates the flow meter's
-pulses per litre. The boom sprays at the nozzles' reference 3 bar for ``seconds`` while the terminal
+pulses per litre. The boom sprays the product at the nozzles' reference 3 bar for ``seconds`` (each
+nozzle its water rating times ``sqrt(1 / SG)``, `vehicle.sprayer.density_flow_factor`) while the terminal
 counts the meter's pulses; the operator catches each nozzle's output in a jug and reads it (each
 reading with a random error, normal with standard deviation ``jug_error_ml``; one nozzle's catch
 alone would carry the nozzles' spread, so all are caught), and the meter's constant measured is
@@ -287,12 +288,12 @@ def _liquid(scenario: Scenario, seconds: float, jug_error_ml: float, **_) -> Liq
     if not in_range(jug_error_ml, 0.0, MAX_JUG_ERROR_ML):
         raise VrsimError(f"--jug-error-ml {jug_error_ml!r}: must be a number of millilitres in "
                          f"[0, {MAX_JUG_ERROR_ML:g}]")
-    check_liquid(scenario)
+    product = check_liquid(scenario)
     imp, seed = scenario.implement, scenario.seed
     spec = imp.machine
     nozzles = spec.nozzle_count(imp.width_m)
-    # Each nozzle gives its rated flow at 3 bar; the product's flow variability over the boom's litres.
-    nominal_l = nozzles * spec.q_ref_l_min * seconds / 60.0
+    # Each nozzle gives its rated flow of the product at 3 bar; its flow variability over the boom's litres.
+    nominal_l = nozzles * spec.rated_flow_l_min(product.density_kg_l) * seconds / 60.0
     caught_l = float(metered_kg(np.array([nominal_l]), 1.0, scenario.product, seed,
                                 stream=_CATCH_STREAM)[0][0])
     misread_ml = np.random.default_rng([seed, _SCALE_STREAM]).normal(0.0, 1.0, nozzles) * jug_error_ml

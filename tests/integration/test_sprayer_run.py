@@ -20,6 +20,30 @@ def test_pwm_turn_compensation_levels_a_20_m_turn_and_one_valve_follows_the_geom
     assert inner / outer == pytest.approx(25 / 15, rel=0.05)
 
 
+def test_uan_under_flow_control_follows_its_map_within_the_nozzles_flows_of_it():
+    """sprayer_l_ha_geotiff: UAN 28 % (1.28 kg/L) through 04 nozzles at 1-5 bar under flow control. A nozzle
+    passes sqrt(1 / 1.28) of its water rating at a pressure (`vehicle.sprayer.density_flow_factor`): the
+    run's machine check has the flows and speeds of water times 0.884, and the loop, its plant the boom's
+    orifice for UAN, applies the map (140-220 L/ha) in its own unit."""
+    import math
+
+    from vehicle.sprayer import SprayerSpec
+
+    result = run(load(os.path.join(LIBRARY, "sprayer_l_ha_geotiff.toml")))
+    f = math.sqrt(1 / 1.28)
+    water = SprayerSpec(nozzle="04", pressure_range_bar=(1.0, 5.0))
+    check = result.machine_check
+    q_lo, q_hi = water.nozzle_flow_range_l_min()
+    assert (check.nozzle_flow_min_l_min, check.nozzle_flow_max_l_min) == pytest.approx((q_lo * f, q_hi * f))
+    lo_l, hi_l = check.rate_min_kg_ha / 1.28, check.rate_max_kg_ha / 1.28
+    v_lo, v_hi = water.speed_range_m_s(lo_l, hi_l)
+    assert (check.min_speed_m_s, check.max_speed_m_s) == pytest.approx((v_lo * f, v_hi * f))
+    assert check.can_apply and check.nozzle_suggested == "05"
+    summary = result.summary
+    assert summary["rate_unit"] == "L/ha" and abs(summary["mass_balance_pct"]) < 2.0
+    assert summary["in_rate_unit"]["mae"] < 0.05 * lo_l and summary["within_10pct_area_pct"] > 90.0
+
+
 SPRAYER_FIELD = """
 name = "sprayer_variants"
 seed = 4

@@ -14,6 +14,7 @@ from vehicle.sprayer import (
     SprayerSpec,
     applied_rate_l_ha,
     boom_flow_l_min,
+    density_flow_factor,
     nozzle_flow_l_min,
     nozzle_pressure_bar,
     nozzle_speeds_m_s,
@@ -37,6 +38,44 @@ def test_nozzle_flow_follows_iso_table():
 def test_nozzle_pressure_inverts_the_law():
     p = np.array([1.5, 2.0, 3.0, 5.0])
     assert nozzle_pressure_bar(0.8, nozzle_flow_l_min(0.8, p)) == pytest.approx(p)
+
+
+def test_a_denser_liquid_passes_sqrt_one_over_its_specific_gravity_of_the_water_rating():
+    # An orifice, q = C A sqrt(2 dp / rho): UAN 28 % at 1.28 kg/L, TeeJet's conversion factor 0.88
+    assert density_flow_factor(1.28) == pytest.approx(0.88, abs=0.005)
+    assert density_flow_factor(1.28) == pytest.approx(np.sqrt(1 / 1.28), rel=1e-15)
+    assert nozzle_flow_l_min(NOZZLE_FLOW_L_MIN["04"], 3.0, 1.28) == pytest.approx(1.414, abs=5e-4)
+    assert nozzle_flow_l_min(1.6, 5.0, 1.28) == pytest.approx(1.6 * np.sqrt(5 / 3) / np.sqrt(1.28))
+    # the same flow needs SG times the pressure
+    assert nozzle_pressure_bar(1.6, 1.6, 1.28) == pytest.approx(3.0 * 1.28)
+    p = np.array([1.0, 2.0, 5.0])
+    assert nozzle_pressure_bar(1.6, nozzle_flow_l_min(1.6, p, 1.28), 1.28) == pytest.approx(p)
+    # water, stated or not, is the rating itself, bit for bit
+    assert density_flow_factor(None) == density_flow_factor(1.0) == 1.0
+    q = nozzle_flow_l_min(NOZZLE_FLOW_L_MIN["06"], np.linspace(1.0, 8.0, 15))
+    assert np.array_equal(nozzle_flow_l_min(NOZZLE_FLOW_L_MIN["06"], np.linspace(1.0, 8.0, 15), 1.0), q)
+    with pytest.raises(VehicleError, match="density_kg_l"):
+        density_flow_factor(0.0)
+
+
+def test_the_pressure_range_speeds_and_advice_follow_the_liquids_flows():
+    f = np.sqrt(1 / 1.28)
+    spec = SprayerSpec(nozzle="04", pressure_range_bar=(1.0, 5.0))
+    water = spec.nozzle_flow_range_l_min()
+    assert spec.nozzle_flow_range_l_min(density_kg_l=1.28) == pytest.approx((water[0] * f, water[1] * f))
+    assert spec.nozzle_flow_range_l_min(density_kg_l=None) == water
+    assert spec.rated_flow_l_min(1.28) == pytest.approx(1.6 * f) and spec.rated_flow_l_min() == 1.6
+    lo, hi = spec.speed_range_m_s(160.0, 220.0)
+    assert spec.speed_range_m_s(160.0, 220.0, density_kg_l=1.28) == pytest.approx((lo * f, hi * f))
+    assert spec.check_rates(160.0, 220.0, 1.28) == pytest.approx((lo * f, hi * f))
+    # 160-220 L/ha at 2.5 m/s: 1.2-1.65 L/min a nozzle; an 04 gives 0.92-2.07 of water, 0.82-1.83 of UAN,
+    # which a 05 (1.02-2.28) centres better
+    assert spec.suggest_nozzle(160.0, 220.0, 2.5) == "04"
+    assert spec.suggest_nozzle(160.0, 220.0, 2.5, 1.28) == "05"
+    with pytest.raises(VehicleError, match=r"nozzle '04' \(0\.816-1\.83 L/min per nozzle\)"):
+        spec.check_rates(50.0, 400.0, 1.28)
+    pwm = SprayerSpec(nozzle="02", control="pwm", duty_range_pct=(10.0, 100.0), pwm_pressure_bar=3.0)
+    assert pwm.nozzle_flow_range_l_min(density_kg_l=1.28) == pytest.approx((0.08 * f, 0.8 * f))
 
 
 def test_boom_flow_and_its_inverse():

@@ -2,6 +2,7 @@
 (services/sim/limits.py) without SUMO: targets, nozzles per section, kg per metered litre, limits."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -112,3 +113,85 @@ def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out
     sprayer = scenario.with_changes(scenario.load("default"), implement={"kind": "sprayer", "nozzle": "08"})
     assert "kg_per_rev" not in implement_table(sprayer.implement)
     assert implement_table(sprayer.implement)["nozzle"] == "08"
+
+
+def _uan_loop(imp: Implement, rate_l_ha: float, density_kg_l: float = 1.28):
+    """`imp`'s sprayer with its loop built for a product of `density_kg_l` on a map of `rate_l_ha`."""
+
+    from controller import PlantParams
+
+    machine = machine_for(imp)
+    sc = SimpleNamespace(source="uan.toml", product=Product(form="liquid", density_kg_l=density_kg_l),
+                         tractor=SimpleNamespace(working_speed_m_s=2.5))
+    grid = SimpleNamespace(rates_kg_ha=np.array([rate_l_ha * density_kg_l]))
+    machine.loop_plant(PlantParams(), sc, grid)
+    return machine, sc
+
+
+def test_uan_moves_the_booms_orifice_its_targets_range_and_the_machine_check():
+    """UAN 28 % at 1.28 kg/L through 04 nozzles at 1-5 bar: each passes sqrt(1 / 1.28) of its water rating
+    at a pressure (1.414 L/min at 3 bar), the loop's plant, the targets' clip, the limited ticks and the
+    machine check (flows, speeds, nozzle advice) all with it."""
+    f = math.sqrt(1 / 1.28)
+    imp = _sprayer(nozzle="04", pressure_range_bar=(1.0, 5.0))
+    water = SprayerSpec(nozzle="04", pressure_range_bar=(1.0, 5.0)).nozzle_flow_range_l_min()
+    machine, sc = _uan_loop(imp, 190.0)
+    fp, _ = machine.flow_linearization(sc, SimpleNamespace(rates_kg_ha=np.array([190.0 * 1.28])))
+    assert fp.boom_coeff_l_min_bar == pytest.approx(24 * 1.6 * f / math.sqrt(3.0))
+    assert fp.pressure_bar(24 * 1.414) == pytest.approx(3.0, abs=0.005)       # 24 nozzles' 1.414 L/min
+    assert fp.pressure_bar(24 * water[1] * f) == pytest.approx(5.0)
+    # 10 L/ha: below the low end, held at 1 bar's flow of UAN; 0.9 L/min a nozzle is within UAN's range
+    # (0.82-1.83) though below water's (0.92-2.07); 2 L/min beyond it
+    need = np.array([0.9, 2.0]) / boom_flow_l_min(1.0, 2.5, 0.5)             # L/ha for those flows
+    rate_kg = np.array([[10.0], [need[0]], [need[1]]]) * 1.28
+    target = machine.drive_targets(rate_kg, _states(imp, [2.5] * 3, [0.0] * 3))[:, 0]
+    assert target == pytest.approx([24 * water[0] * f, 24 * 0.9, 24 * water[1] * f])
+    control = {"drive_target_rpm": target[:, None], "sections_on": np.ones((3, 6), bool)}
+    assert machine.limited(control).tolist() == [True, False, True]
+    uan = Product(form="liquid", density_kg_l=1.28)
+    assert machine_for(imp).limited(control, uan).tolist() == [True, False, True]
+    # the check: rates in kg/ha are L/ha x 1.28; the nozzles' flows and speeds are water's times f
+    dry = machine_check(np.array([160.0, 220.0]), (2.38, 2.62), imp, 1.0, 2.5)
+    wet = machine_check(np.array([160.0, 220.0]) * 1.28, (2.38, 2.62), imp, 1.28, 2.5)
+    assert wet.nozzle_flow_min_l_min == pytest.approx(water[0] * f)
+    assert wet.nozzle_flow_max_l_min == pytest.approx(water[1] * f)
+    assert wet.shaft_rpm_max == pytest.approx(24 * water[1] * f)
+    assert wet.min_speed_m_s == pytest.approx(dry.min_speed_m_s * f)
+    assert wet.max_speed_m_s == pytest.approx(dry.max_speed_m_s * f)
+    assert wet.rpm_max == pytest.approx(dry.rpm_max)                          # the same litres
+    assert (dry.nozzle_suggested, wet.nozzle_suggested) == ("04", "05")
+    assert "giving 19.6-43.8 L/min of a 1.28 kg/L liquid (0.884 times water's)." in wet.text()
+    assert "kg/L" not in dry.text() and "giving 22.2-49.6 L/min.\n" in dry.text()
+
+
+def test_pwm_opens_each_nozzle_to_its_flow_of_the_liquid():
+    f = math.sqrt(1 / 1.28)
+    imp = _sprayer(nozzle="05", control="pwm", pwm_pressure_bar=4.0)
+    machine, _ = _uan_loop(imp, 200.0)
+    q_open = 2.0 * math.sqrt(4.0 / 3.0) * f                                   # 2.04 L/min of UAN at 4 bar
+    # a section's 4 nozzles: 2.2 L/min each is more than fully open; 1.5 L/min a duty of 73 %
+    need = np.array([2.2, 1.5]) / boom_flow_l_min(1.0, 2.5, 0.5)
+    target = machine.drive_targets(np.repeat(need[:, None], 6, axis=1) * 1.28,
+                                   _states(imp, [2.5, 2.5], [0.0, 0.0]))
+    assert target == pytest.approx(np.array([[4 * q_open] * 6, [4 * 1.5] * 6]))
+    uan = Product(form="liquid", density_kg_l=1.28)
+    unlimited = machine.unlimited_targets(np.repeat(need[:, None], 6, axis=1) * 1.28,
+                                          _states(imp, [2.5, 2.5], [0.0, 0.0]), uan)
+    assert unlimited == pytest.approx(np.array([[4 * 2.2] * 6, [4 * 1.5] * 6]))
+
+
+def test_the_catch_test_catches_the_liquids_flow_at_3_bar():
+    """`vrsim calibrate`'s boom sprays the product: 24 06 nozzles give 57.6 L of water in a minute at 3 bar,
+    sqrt(1 / 1.28) of that of UAN; the meter's constant measured is the same."""
+    import os
+
+    from services.sim import scenario
+    from services.sim.calibrate import calibrate
+    from tests.conftest import ROOT
+
+    path = os.path.join(ROOT, "scenarios", "sprayer.toml")
+    water = calibrate(scenario.load(path), seconds=60.0, jug_error_ml=0.0)
+    uan = calibrate(scenario.load(path, [("product.density_kg_l", 1.28)]), seconds=60.0, jug_error_ml=0.0)
+    assert water.caught_l == pytest.approx(24 * 2.4)
+    assert uan.caught_l == pytest.approx(24 * 2.4 * math.sqrt(1 / 1.28))
+    assert uan.measured_pulses_per_l == pytest.approx(600.0, rel=1e-4)

@@ -95,10 +95,11 @@ class Machine(ABC):
         """What `rev` revolutions meter by the configured constant, kg: ``[implement] kg_per_rev``."""
         return self.implement.mass_kg(rev)
 
-    def limited(self, control: dict) -> np.ndarray:
+    def limited(self, control: dict, product=None) -> np.ndarray:
         """Where a drive's target (``control["drive_target_rpm"]``, a run's control arrays) sits on a bound
         of the machine's range, bool (n,): a closed drive's target is 0, never on a bound, so any
-        drive's flags the tick."""
+        drive's flags the tick. `product`: the run's, for a kind whose range depends on it (a sprayer's
+        nozzles pass less of a denser liquid); a shaft's does not."""
         return self.implement.shaft_limited(control["drive_target_rpm"]).any(axis=1)
 
     def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:

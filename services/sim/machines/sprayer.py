@@ -7,6 +7,9 @@ The terminal sets its target from the flow meter's configured constant, so the l
 *reading* on target; the true flow is the reading over the meter's gain (``flow_meter_error_pct``),
 and product is true litres times ``[product] density_kg_l`` (`Sprayer.kg_per_rev`, the one place in
 `services.sim.core.ControlCore._metered_kg`). The map's kg/ha are litres per hectare times the density.
+The density also sets what a nozzle passes at a pressure (`vehicle.sprayer.density_flow_factor`: its
+water rating times ``sqrt(1 / SG)``): the boom's orifice coefficient, the pressure range's flows, PWM's
+open flow, the machine check and its nozzle advice all take it from the product.
 
 - ``control = "flow"``: one loop for the boom. Its target is the flow for the rate at the boom's
   centre where spray now lands, at the centre's sensed speed, over the open sections' nozzles, held
@@ -44,7 +47,14 @@ from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
 from vehicle import Implement
-from vehicle.sprayer import REF_PRESSURE_BAR, boom_flow_l_min, nozzle_flow_l_min, pwm_duty_pct
+from vehicle.sprayer import (
+    REF_PRESSURE_BAR,
+    WATER_DENSITY_KG_L,
+    boom_flow_l_min,
+    density_flow_factor,
+    nozzle_flow_l_min,
+    pwm_duty_pct,
+)
 
 _WORKING_POINT_MARGIN = 0.02   # keep the linearization's flow this far inside the valve's range
 
@@ -107,9 +117,10 @@ class Sprayer(Machine):
                                    current_max_a=hi / metered_per_a, shaft_rpm_max=hi * (1.0 - 1e-9))
 
     def flow_linearization(self, scenario, grid) -> tuple[FlowPlant, FlowLinearization]:
-        """One loop's `controller.FlowPlant` and its `controller.linearize_flow` at the working point."""
-        spec, nozzles = self.spec, len(self.nozzle_offsets_m) / self.drives
-        coeff = nozzles * spec.q_ref_l_min / np.sqrt(REF_PRESSURE_BAR)
+        """One loop's `controller.FlowPlant` and its `controller.linearize_flow` at the working point; the
+        boom's orifice coefficient is its nozzles' flow of the bound liquid (`density_kg_l`) at 3 bar."""
+        spec, nozzles, density = self.spec, len(self.nozzle_offsets_m) / self.drives, self.density_kg_l
+        coeff = nozzles * spec.rated_flow_l_min(density) / np.sqrt(REF_PRESSURE_BAR)
         tau = {"valve_time_constant_s": 1.0 / spec.pwm_hz} if self.pwm else {}
         fp = FlowPlant(coeff, valve=spec.valve, pressure_max_bar=spec.pressure_range_bar[1],
                        meter_gain=spec.meter.gain, **tau)
@@ -118,7 +129,7 @@ class Sprayer(Machine):
         # The nozzles' flow there, held in their range as the targets are.
         per_nozzle = float(boom_flow_l_min(rate_l_ha, scenario.tractor.working_speed_m_s,
                                            spec.nozzle_spacing_m))
-        flow = nozzles * float(np.clip(per_nozzle, *spec.nozzle_flow_range_l_min()))
+        flow = nozzles * float(np.clip(per_nozzle, *spec.nozzle_flow_range_l_min(density_kg_l=density)))
         lo, hi = fp.flow_range_l_min()
         margin = _WORKING_POINT_MARGIN * (hi - lo)
         return fp, linearize_flow(fp, float(np.clip(flow, lo + margin, hi - margin)))
@@ -127,7 +138,8 @@ class Sprayer(Machine):
                       density_kg_l: float | None, working_speed_m_s: float) -> _SprayerCheck:
         """The nozzles for the shaft (`_SprayerCheck`): the boom's flow (L/min) must stay within what its
         nozzles give in their pressure range (under PWM: their duty range at the held pressure;
-        `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`), the map's kg/ha being L/ha times the
+        `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`) of the liquid (its density's
+        `vehicle.sprayer.density_flow_factor` times water's), the map's kg/ha being L/ha times the
         liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
         change is the working speeds or the nozzle size (`SprayerSpec.suggest_nozzle`). A nozzle that
         cannot apply the map's rates at any speed, a boom its nozzles do not fit, or no density:
@@ -148,13 +160,13 @@ class Sprayer(Machine):
         """`machine_check`'s figures (the nozzles' own messages unprefixed)."""
         spec, width = self.spec, self.implement.width_m
         (v_lo, v_hi), n = speed_range_m_s, spec.nozzle_count(width)
-        q_lo, q_hi = spec.nozzle_flow_range_l_min()
+        q_lo, q_hi = spec.nozzle_flow_range_l_min(density_kg_l=density_kg_l)
         lo_l, hi_l = lo_rate_kg_ha / density_kg_l, hi_rate_kg_ha / density_kg_l
         slowest = fastest = math.nan
         suggested = None
         if math.isfinite(hi_rate_kg_ha):
-            slowest, fastest = spec.check_rates(lo_l, hi_l)
-            suggested = spec.suggest_nozzle(lo_l, hi_l, working_speed_m_s)
+            slowest, fastest = spec.check_rates(lo_l, hi_l, density_kg_l)
+            suggested = spec.suggest_nozzle(lo_l, hi_l, working_speed_m_s, density_kg_l)
         return _SprayerCheck(
             rate_min_kg_ha=lo_rate_kg_ha, rate_max_kg_ha=hi_rate_kg_ha,
             speed_min_m_s=v_lo, speed_max_m_s=v_hi,
@@ -185,32 +197,36 @@ class Sprayer(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return states.actual if self.pwm else (states.width_on_m > 0)[:, None]
 
-    def nozzle_flow_l_min(self, rate_l_ha: np.ndarray, states: SectionStates,
+    def nozzle_flow_l_min(self, rate_l_ha: np.ndarray, states: SectionStates, density_kg_l: float,
                           limits: bool = True) -> np.ndarray:
-        """Each nozzle's target flow, L/min (n, N), for the rates in L/ha (n, drives): under PWM at its
-        section's rate and its own ground speed, its duty within the duty range; with flow control the
-        boom's flow (for the centre's rate and speed over the open nozzles, within the pressure range)
-        shared by the open nozzles. `limits` false lifts the ranges. 0 where the section is closed."""
+        """Each nozzle's target flow, L/min (n, N), for the rates in L/ha (n, drives) of a liquid of
+        `density_kg_l`: under PWM at its section's rate and its own ground speed, its duty within the
+        duty range (of the liquid's open flow); with flow control the boom's flow (for the centre's rate
+        and speed over the open nozzles, within the pressure range's flows of the liquid) shared by the
+        open nozzles. `limits` false lifts the ranges. 0 where the section is closed."""
         spec, open_nozzle = self.spec, states.actual[:, self.nozzle_section]
         if self.pwm:
             speed = np.abs(states.motion.ground_speed_m_s(self.nozzle_offsets_m))
-            q_full = float(nozzle_flow_l_min(spec.q_ref_l_min, spec.pwm_pressure_bar))
+            q_full = float(nozzle_flow_l_min(spec.q_ref_l_min, spec.pwm_pressure_bar, density_kg_l))
             duty = pwm_duty_pct(rate_l_ha[:, self.nozzle_section], speed, spec.nozzle_spacing_m, q_full,
                                 spec.duty_range_pct if limits else (0.0, np.inf))
             return np.where(open_nozzle, duty / 100.0 * q_full, 0.0)
         per_nozzle = boom_flow_l_min(rate_l_ha[:, 0], states.motion.speed_m_s, spec.nozzle_spacing_m)
         if limits:
-            per_nozzle = np.where(per_nozzle > 0, np.clip(per_nozzle, *spec.nozzle_flow_range_l_min()), 0.0)
+            q_range = spec.nozzle_flow_range_l_min(density_kg_l=density_kg_l)
+            per_nozzle = np.where(per_nozzle > 0, np.clip(per_nozzle, *q_range), 0.0)
         return np.where(open_nozzle, per_nozzle[:, None], 0.0)
 
     def drive_targets(self, rate_kg_ha: np.ndarray, states: SectionStates) -> np.ndarray:
         """Each loop's target, metered L/min (the terminal takes its meter at its word): the boom's
         (flow control) or each section's nozzles' (PWM)."""
-        return self._per_drive(self.nozzle_flow_l_min(rate_kg_ha / self.density_kg_l, states))
+        density = self.density_kg_l
+        return self._per_drive(self.nozzle_flow_l_min(rate_kg_ha / density, states, density))
 
     def unlimited_targets(self, rate_kg_ha: np.ndarray, states: SectionStates, product) -> np.ndarray:
         """`drive_targets` with the nozzles' pressure (PWM: duty) range lifted, for `product`'s density."""
-        flow = self.nozzle_flow_l_min(rate_kg_ha / product.density_kg_l, states, limits=False)
+        density = product.density_kg_l
+        flow = self.nozzle_flow_l_min(rate_kg_ha / density, states, density, limits=False)
         return self._per_drive(flow)
 
     def _per_drive(self, nozzle_flow_l_min: np.ndarray) -> np.ndarray:
@@ -237,10 +253,12 @@ class Sprayer(Machine):
         weight = np.where(states.actual.any(axis=1, keepdims=True), states.actual, True) * widths
         return (rate_kg_ha * weight).sum(axis=1) / weight.sum(axis=1)
 
-    def limited(self, control: dict) -> np.ndarray:
+    def limited(self, control: dict, product=None) -> np.ndarray:
         """Where an open nozzle's target sits at an end of its flow range (the pressure range; under PWM
-        the duty range at the held pressure)."""
-        q_lo, q_hi = self.spec.nozzle_flow_range_l_min()
+        the duty range at the held pressure) of `product`'s liquid (None: the one `loop_plant` bound;
+        a sprayer never bound, water's)."""
+        density = self.density_kg_l if product is None else product.density_kg_l
+        q_lo, q_hi = self.spec.nozzle_flow_range_l_min(density_kg_l=density)
         target = np.asarray(control["drive_target_rpm"], float)
         on = np.asarray(control["sections_on"], bool)
         nozzles = (on * self.nozzles_per_section) if self.pwm else (on @ self.nozzles_per_section)[:, None]
@@ -268,13 +286,15 @@ class _SprayerCheck(MachineCheck):
     nozzle : str
         The ISO 10625 size on the boom.
     nozzle_flow_min_l_min, nozzle_flow_max_l_min : float
-        One nozzle's flow range, L/min (pressure range; PWM: duty range at the held pressure).
+        One nozzle's flow range of the liquid, L/min (pressure range; PWM: duty range at the held
+        pressure), its water rating's times `vehicle.sprayer.density_flow_factor`.
     working_speed_m_s : float
         The tractor's working speed.
     nozzle_suggested : str or None
         The size that covers the map's rates at the working speed with the most margin (None: none).
     density_kg_l : float
-        The liquid's density: the map's kg/ha over it are the L/ha the text shows.
+        The liquid's density: the map's kg/ha over it are the L/ha the text shows; the nozzles' flows
+        are of it (the text says so when it is not water's).
     """
 
     nozzle: str = ""
@@ -294,10 +314,13 @@ class _SprayerCheck(MachineCheck):
         rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
         lo, hi = rate_text(rates["rate_min"]), rate_text(rates["rate_max"])
         also = "" if unit == "L/ha" else f"({lo}-{hi} {unit}) "
+        liquid = ("" if self.density_kg_l == WATER_DENSITY_KG_L else
+                  f" of a {self.density_kg_l:g} kg/L liquid ({density_flow_factor(self.density_kg_l):.3f} "
+                  "times water's)")
         lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha {also}at "
                  f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
-                 f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min.",
+                 f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min{liquid}.",
                  f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
                  f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
         if not self.can_apply:
