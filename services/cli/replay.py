@@ -14,7 +14,8 @@ def configure(parser) -> None:
     add_log_options(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     parser.add_argument("--out", metavar="DIR",
-                        help="also write replay.parquet, replay.png, replay_map.png and summary.json into DIR")
+                        help="also write replay.parquet, replay.png, replay_map.png and summary.json "
+                             "into DIR")
 
 
 def run(args) -> int:

@@ -122,8 +122,9 @@ def text_replay(rp: Replay) -> str:
 
 # ----------------------------------------------------------------------------------------- files
 def write_replay(rp: Replay, out_dir: str) -> dict[str, str]:
-    """Write replay.parquet, replay.png, replay_map.png and summary.json of `rp` into `out_dir` (created), whole or
-    not at all; {file name: path}. Sessions are numbered as in the log (`_log_sessions`)."""
+    """Write replay.parquet, replay.png, replay_map.png and summary.json of `rp` into `out_dir`
+    (created), whole or not at all; {file name: path}. Sessions are numbered as in the log
+    (`_log_sessions`)."""
     with staged(out_dir, last=("summary.json",), error=MapError) as stage:
         paths = {name: os.path.join(stage, name) for name in REPLAY_FILES}
         _write_parquet(rp, paths["replay.parquet"])

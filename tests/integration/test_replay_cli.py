@@ -1,6 +1,7 @@
-"""`vrsim replay LOG`, the real executable: the John Deere sample exports replayed (figures, replay.parquet,
-replay.png, replay_map.png, summary.json), a prescription as the target, sessions and a time window chosen, and bad
-input refused with exit 2 and one line naming the file or option and the value."""
+"""`vrsim replay LOG`, the real executable: the John Deere sample exports replayed (figures,
+replay.parquet, replay.png, replay_map.png, summary.json), a prescription as the target, sessions and a
+time window chosen, and bad input refused with exit 2 and one line naming the file or option and the
+value."""
 
 import json
 import os
