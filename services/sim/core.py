@@ -20,8 +20,9 @@ from services.sim.scenario import Scenario, as_dict
 from services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
 from vehicle.product import metered_kg
-from vehicle.response import StartupClock
+from vehicle.response import PassClock
 
+OPENING_KEY = "opening_gain"   # stage 1's factor of a pass start's opening transient per tick (n,)
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
 
@@ -106,7 +107,7 @@ class ControlCore:
         self.last_rate_kg_ha = np.full(self.machine.drives, np.nan)   # each drive's, for the policy
         self.product, self.seed = scenario.product, scenario.seed
         self.response = scenario.response
-        self.startup = StartupClock(self.response, self.period_s) if self.response.has_startup else None
+        self.passes = PassClock(self.response, self.period_s) if self.response.follows_passes else None
         # Forward revolutions so far, each drive's (or each column's, sweeps' variants): the product's
         # flow factors run on them (`vehicle.product.metered_kg`).
         self.meter_rev = np.zeros(self.machine.drives)
@@ -127,7 +128,7 @@ class ControlCore:
                 "tuner": None if self.tuner is None else self.tuner.state(),
                 "sections": self.switch.state(),
                 "meter_rev": _number_or_list(self.meter_rev),
-                "startup": None if self.startup is None else self.startup.state()}
+                "passes": None if self.passes is None else self.passes.state()}
 
     def set_state(self, state: dict) -> None:
         """Continue from `state` (from `state`, also after JSON: lists for arrays, null for NaN)."""
@@ -138,8 +139,8 @@ class ControlCore:
             self.tuner.set_state(state["tuner"])
         self.switch.set_state(state["sections"])
         self.meter_rev = np.atleast_1d(np.asarray(state["meter_rev"], dtype=float))
-        if self.startup is not None and state.get("startup") is not None:
-            self.startup.set_state(state["startup"])
+        if self.passes is not None and state.get("passes") is not None:
+            self.passes.set_state(state["passes"])
 
     def targets(self, x_m, y_m, heading_rad, speed_m_s, implement_on, s_m=None) -> dict[str, np.ndarray]:
         """Stage 1 over arrays of ticks (shape (n,)); advances the policy's and the sections' memory.
@@ -162,21 +163,23 @@ class ControlCore:
             rate = np.asarray(rate_kg_ha, dtype=float).reshape(drive_x.shape)
         if len(rate):
             self.last_rate_kg_ha = rate[-1].copy()
-        target = machine.drive_targets(rate, self._preset(states))
+        since_s = None if self.passes is None else self.passes.since_open_s(states.actual.any(axis=1))
+        target = machine.drive_targets(rate, self._preset(states, since_s))
         steps = {} if states.steps_on is None else {STEPS_KEY: states.steps_on}
         return {"landing_x_m": lx, "landing_y_m": ly, "prescribed_kg_ha": machine.prescribed(rate, states),
                 "target_shaft_rpm": machine.combined(target), "drive_rate_kg_ha": rate,
                 "drive_target_rpm": target, "drive_speed_m_s": machine.drive_speed_m_s(states.motion),
                 "width_on_m": states.width_on_m, "sections_on": states.actual,
                 "sections_commanded": states.commanded,
-                "drive_open": machine.drive_open(states), **steps}
+                "drive_open": machine.drive_open(states), **steps,
+                **({} if since_s is None else {OPENING_KEY: self.passes.opening_gain(since_s)})}
 
-    def _preset(self, states: SectionStates) -> SectionStates:
+    def _preset(self, states: SectionStates, since_open_s) -> SectionStates:
         """The states the targets are computed from: within a pass start's hold the motion's speed
-        raised to the machine's preset speed (``[response]``, `vehicle.response.StartupClock`)."""
-        if self.startup is None:
+        raised to the machine's preset speed (``[response]``, `vehicle.response.PassClock`)."""
+        if not self.response.has_startup:
             return states
-        speed = self.startup.target_speed_m_s(states.motion.speed_m_s, states.actual.any(axis=1))
+        speed = self.passes.target_speed_m_s(states.motion.speed_m_s, since_open_s)
         return dataclasses.replace(states, motion=dataclasses.replace(states.motion, speed_m_s=speed))
 
     def run_states(self, states: SectionStates, rate_kg_ha: np.ndarray) -> dict[str, np.ndarray]:
@@ -192,7 +195,7 @@ class ControlCore:
         rec.update(drive_rev=out.shaft_rev, shaft_rpm=self.machine.combined(out.shaft_rpm),
                    shaft_rev=self.machine.combined(out.shaft_rev),
                    current_a=self.machine.combined(out.current_a))
-        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"])
+        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"], gain=rec.get(OPENING_KEY))
         rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
         return {key: rec[key] for key in (*CONTROL_KEYS, STEPS_KEY) if key in rec}
 
@@ -233,15 +236,16 @@ class ControlCore:
             if progress is not None:
                 progress(start, n)
         rec = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"])
+        rec["drive_kg"] = self._metered_kg(rec["drive_rev"], rec["drive_open"], gain=rec.get(OPENING_KEY))
         rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
         return {key: rec[key] for key in (*CONTROL_KEYS, STEPS_KEY) if key in rec}
 
-    def _metered_kg(self, shaft_rev, applying, drive=None) -> np.ndarray:
+    def _metered_kg(self, shaft_rev, applying, drive=None, gain=None) -> np.ndarray:
         """Product metered, kg, from each drive's revolutions (n, drives) and whether its product
         reaches the ground (n, drives): the one place product comes from revolutions; each drive meters
         its share of ``kg_per_rev`` (`services.sim.machines.Machine.drive_share`). `drive`: which drive
-        each column is (sweeps' variants run a column per variant and drive); default one per drive."""
+        each column is (sweeps' variants run a column per variant and drive); default one per drive.
+        `gain` (n,): the opening transient's factor per tick (stage 1's `OPENING_KEY`), if any."""
         # Sections off close the gate: what the shaft turns then stays in the hopper. An underdamped
         # motor can swing briefly backwards when it brakes hard; a roller turning back meters nothing
         # (it does not lift product off the ground), so only forward revolutions count.
@@ -252,6 +256,8 @@ class ControlCore:
                                  self.meter_rev)
         if self.response.gain != 1.0:   # the machine's steady offset from its target (`[response]`)
             kg = kg * self.response.gain
+        if gain is not None:   # a pass start's opening transient (`[response]`)
+            kg = kg * np.asarray(gain)[:, None]
         self.meter_rev = np.atleast_1d(end_rev)
         share = self.machine.drive_share if drive is None else self.machine.drive_share[drive]
         return np.where(np.asarray(applying, bool), kg * share, 0.0)

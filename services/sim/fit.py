@@ -6,8 +6,9 @@ moves the candidates to the smallest robust (soft L1: about the absolute beyond 
 target) difference between the twin's and the logged applied
 rate on the records it fits on. The parameters (`FIT_PARAMS`):
 
-* ``dead_time_s``, ``startup_speed_m_s``, ``startup_hold_s`` and ``calibration_error_pct`` of
-  ``[response]`` (`vehicle.response.MachineResponse`);
+* ``dead_time_s``, ``startup_speed_m_s``, ``startup_hold_s``, ``opening_peak_pct``,
+  ``opening_time_constant_s`` and ``calibration_error_pct`` of ``[response]``
+  (`vehicle.response.MachineResponse`);
 * ``loop_gain``: the machine's controller gains over the scenario's (kp, ki and kd together): how
   fast its loop follows a changing target. The fitted loop's rise and fall time constants (63 % of a
   step up and down, the dead time included) are reported beside it.
@@ -51,12 +52,15 @@ class FitParam:
 
 
 FIT_PARAMS = (FitParam("dead_time_s", "s", 0.0, 4.0), FitParam("startup_speed_m_s", "m/s", 0.0, 12.0),
-              FitParam("startup_hold_s", "s", 0.0, 15.0), FitParam("calibration_error_pct", "%", -20.0, 20.0),
+              FitParam("startup_hold_s", "s", 0.0, 15.0), FitParam("opening_peak_pct", "%", -100.0, 300.0),
+              FitParam("opening_time_constant_s", "s", 0.0, 15.0),
+              FitParam("calibration_error_pct", "%", -20.0, 20.0),
               FitParam("loop_gain", "-", 0.02, 20.0, log=True))
-PRESET = ("startup_speed_m_s", "startup_hold_s")
-MAX_EVALUATIONS = 60          # replays per stage of the optimizer
+PASS_START = ("startup_speed_m_s", "startup_hold_s", "opening_peak_pct", "opening_time_constant_s")
+MAX_EVALUATIONS = 25          # optimizer steps per stage (each also replays once per parameter)
 DEAD_TIME_GRID_S = (0.0, 0.3, 0.7, 1.2, 2.0, 3.0)   # dead times tried before the loop's least squares
 PRESET_GRID = ((0.5, 0.75, 1.0, 1.25, 1.6, 2.0), (1.0, 2.0, 3.5, 5.0, 8.0, 12.0))   # x working speed, s
+OPENING_GRID = ((-60.0, 0.0, 30.0, 80.0, 200.0), (0.5, 1.5, 4.0))   # peak %, time constant s
 ROBUST_SCALE = 0.01           # residuals (share of the target) beyond this weigh as their size
 UNIDENTIFIABLE_SPREAD = 0.25  # a standard deviation over this share of the bounds: not identified
 STEP_SETTLE_S = 60.0          # a simulated step runs this long for the time constants
@@ -107,8 +111,8 @@ def fit_machine(records: MachineRecords, scenario: Scenario,
     In stages: the loop (dead time, offset, loop gain) on the records away from pass starts with no
     preset; the preset on a grid of speeds and holds, on the pass starts' records with that loop (the
     pass-start error is flat wherever the preset speed is below the tractor's, and rugged in the hold:
-    a gradient alone stops in the first dip); then everything together from there, and from the usual
-    machine: the better of the two (by the robust cost on the records fitted on) is the fit."""
+    a gradient alone stops in the first dip); then everything together, from there or from the usual
+    machine, whichever the log fits better (by the robust cost on the records fitted on)."""
     fit_rows = np.ones(records.rows, bool) if fit_rows is None else np.asarray(fit_rows, bool)
     base = _base(scenario, records)
     first = replay_records(records, base)
@@ -118,20 +122,21 @@ def fit_machine(records: MachineRecords, scenario: Scenario,
                             "applied rate logged): too few to fit a machine")
     problem = _Problem(records, base, use)
     starts = use & (first.event == "pass_start")
-    loop = [p for p in FIT_PARAMS if p.name not in PRESET]
+    loop = [p for p in FIT_PARAMS if p.name not in PASS_START]
     free = list(FIT_PARAMS) if starts.any() else loop
     usual = {p.name: _start(p, base) for p in FIT_PARAMS}
     if not starts.any():
-        usual.update({name: 0.0 for name in PRESET})
+        usual.update({name: 0.0 for name in PASS_START})
     staged = dict(usual)
     away = use & ~starts
     if away.sum() >= 10:
         staged.update(problem.grid(staged, away, {"dead_time_s": DEAD_TIME_GRID_S}, preset_off=True))
         staged.update(problem.solve(loop, staged, away, preset_off=True).values)
     if starts.any():
-        staged.update(problem.preset_grid(staged, starts))
-    # From the staged start and from the usual machine: the one the log fits better.
-    best = min((problem.solve(free, start, use) for start in (staged, usual)), key=lambda s: s.cost)
+        staged.update(problem.pass_start_grid(staged, starts))
+    # All together, from the staged values or the usual machine, whichever the log fits better.
+    start = min((staged, usual), key=lambda values: _robust_cost(problem.residuals(values, use)))
+    best = problem.solve(free, start, use)
     fitted = _candidate(base, best.values)
     final = replay_records(records, fitted)
     why = best.not_identified
@@ -174,7 +179,7 @@ class _Problem:
         """Least squares over `free` from `values` (the others held), on `rows`."""
         from scipy.optimize import least_squares
 
-        held = dict(values, **({name: 0.0 for name in PRESET} if preset_off else {}))
+        held = dict(values, **({name: 0.0 for name in PASS_START} if preset_off else {}))
 
         def fun(z):
             return self.residuals({**held, **_values(free, z)}, rows)
@@ -195,16 +200,20 @@ class _Problem:
         std, why = _uncertainty(found, free)
         return _Solved({**held, **_values(free, found.x)}, std, why, bool(found.success), float(found.cost))
 
-    def preset_grid(self, values: dict, rows: np.ndarray) -> dict:
-        """The preset (speed, hold) of the least robust cost on `rows` over `PRESET_GRID`, the rest held."""
+    def pass_start_grid(self, values: dict, rows: np.ndarray) -> dict:
+        """The preset (speed, hold) of the least robust cost on `rows` over `PRESET_GRID`, then with it
+        the opening transient (peak, time constant) over `OPENING_GRID`; the rest held."""
         speed = self.base.tractor.working_speed_m_s
-        return self.grid(values, rows, {"startup_speed_m_s": [f * speed for f in PRESET_GRID[0]],
-                                        "startup_hold_s": PRESET_GRID[1]})
+        off = {"opening_peak_pct": 0.0, "opening_time_constant_s": 0.0}
+        preset = {"startup_speed_m_s": [f * speed for f in PRESET_GRID[0]], "startup_hold_s": PRESET_GRID[1]}
+        opening = {"opening_peak_pct": OPENING_GRID[0], "opening_time_constant_s": OPENING_GRID[1]}
+        found = self.grid({**values, **off}, rows, preset)
+        return {**found, **self.grid({**values, **found}, rows, opening)}
 
     def grid(self, values: dict, rows: np.ndarray, axes: dict, preset_off: bool = False) -> dict:
         """Of every combination of `axes` (name -> values tried), the one of the least robust cost on
         `rows`, the other parameters held at `values`."""
-        held = dict(values, **({name: 0.0 for name in PRESET} if preset_off else {}))
+        held = dict(values, **({name: 0.0 for name in PASS_START} if preset_off else {}))
         names = list(axes)
         tried = [dict(zip(names, combo, strict=True)) for combo in itertools.product(*axes.values())]
         cost = [_robust_cost(self.residuals({**held, **t}, rows)) for t in tried]
@@ -212,7 +221,9 @@ class _Problem:
 
 
 def _values(free, z) -> dict:
-    return {p.name: _value(p, v) for p, v in zip(free, z, strict=True)}
+    """The parameters at optimizer coordinates `z`, within their bounds (the finite differences may
+    step a rounding past one)."""
+    return {p.name: min(max(_value(p, v), p.lo), p.hi) for p, v in zip(free, z, strict=True)}
 
 
 def _base(scenario: Scenario, records: MachineRecords) -> Scenario:
@@ -259,6 +270,8 @@ def _start(p: FitParam, base: Scenario) -> float:
         return 3.0
     if p.name == "dead_time_s":
         return 0.5
+    if p.name == "opening_time_constant_s":
+        return 1.5
     return getattr(base.response, p.name)
 
 

@@ -43,7 +43,7 @@ from controller import ControllerConfig, build_variant_loops
 from maps import AppliedColumns, ColumnDeposit
 from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import RUN_CHUNK, ControlCore, context_track, machine_plant
+from services.sim.core import OPENING_KEY, RUN_CHUNK, ControlCore, context_track, machine_plant
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
@@ -165,8 +165,9 @@ def _batch(shared: _Shared, cfgs: list[ControllerConfig]) -> list[dict]:
             part = slice(lo, lo + RUN_CHUNK)
             targets = _loop_targets(rec["drive_target_rpm"][part], which, loop.n)
             context = context_track(rec, part, which)
+            gain = rec[OPENING_KEY][part] if OPENING_KEY in rec else None
             metered[part, idx] = shared.core._metered_kg(loop.run(targets, context=context).shaft_rev,
-                                                         rec["drive_open"][part][:, which], which)
+                                                         rec["drive_open"][part][:, which], which, gain)
     control_s = time.perf_counter() - clock
     # A variant's wall time is the sum of its shares of the work done for it.
     timers = [StageTimer({**drive.stage_s, "control_s": shared.control_s + control_s / len(cfgs),

@@ -17,20 +17,25 @@ from services.sim.replay_setup import replay_scenario
 
 # The preset speed within what the nozzles' top pressure lets through (above it the flow is the same
 # for any preset: the log cannot tell them apart, and the fit says so).
-TRUE = {"dead_time_s": 1.0, "startup_speed_m_s": 3.6, "startup_hold_s": 3.0, "calibration_error_pct": 4.0}
+TRUE = {"dead_time_s": 1.0, "startup_speed_m_s": 3.6, "startup_hold_s": 3.0, "calibration_error_pct": 4.0,
+        "opening_peak_pct": 40.0, "opening_time_constant_s": 1.5}
 TRUE_LOOP_GAIN = 0.5
 TOLERANCE = {"dead_time_s": 0.2, "startup_speed_m_s": 1.0, "startup_hold_s": 1.0,
-             "calibration_error_pct": 0.5, "loop_gain": 0.3 * TRUE_LOOP_GAIN}
+             "calibration_error_pct": 0.5, "opening_peak_pct": 10.0, "opening_time_constant_s": 0.5,
+             "loop_gain": 0.3 * TRUE_LOOP_GAIN}
 CRS = "EPSG:32632"
 
 
 def _drive(rate_hz: float) -> PointLog:
-    """Ten passes of 60 s at about 3 m/s (speed varying), 8 s turns with the boom off, the target
-    stepping between 80, 120 and 160 L/ha every 15 s."""
+    """Ten passes of 60 s, 8 s turns with the boom off, the target stepping between 80, 120 and 160 L/ha
+    every 15 s: the even passes pull away from 1 m/s to about 3 m/s (the preset acts), the odd ones
+    start flying at about 4 m/s, above the preset (only the opening transient acts)."""
     t = np.arange(0.0, 10 * 68.0, 1.0 / rate_hz)
     in_pass = (t % 68.0) < 60.0
-    speed = np.where(in_pass, 3.0 + 0.4 * np.sin(2 * np.pi * t / 23.0), 1.5)
-    speed = np.where(in_pass & ((t % 68.0) < 4.0), 1.0 + 0.5 * (t % 68.0), speed)   # pulling away
+    flying = (t // 68.0) % 2 == 1
+    speed = np.where(flying, 4.0, 3.0) + 0.4 * np.sin(2 * np.pi * t / 23.0)
+    speed = np.where(in_pass, speed, 1.5)
+    speed = np.where(in_pass & ~flying & ((t % 68.0) < 4.0), 1.0 + 0.5 * (t % 68.0), speed)   # pulling away
     heading_deg = np.where((t // 68.0) % 2 == 0, 0.0, 180.0)
     north = np.cumsum(speed * np.cos(np.radians(heading_deg))) / rate_hz
     x = 500_000.0 + 12.0 * (t // 68.0)
@@ -81,8 +86,8 @@ def test_fit_recovers_the_loop_of_the_machine_that_wrote_the_log(fitted):
     assert fitted.fitted["mae_vs_log"] < fitted.default["fitted"]["mae_vs_log"]
 
 
-def test_fit_recovers_the_pass_start_preset(fitted):
-    for name in ("startup_speed_m_s", "startup_hold_s"):
+def test_fit_recovers_the_pass_start_preset_and_opening_transient(fitted):
+    for name in ("startup_speed_m_s", "startup_hold_s", "opening_peak_pct", "opening_time_constant_s"):
         assert abs(fitted.values[name] - TRUE[name]) <= TOLERANCE[name], (name, fitted.values[name])
     assert fitted.fitted["mae_vs_log"] < 0.25 * fitted.fitted["target_mae_vs_log"]
 
