@@ -43,8 +43,7 @@ def load_scenario(args):
 
 def overrides_of(args) -> list:
     """``--machine``'s keys, then the ``--set`` overrides, as (dotted key, value) pairs."""
-    from services.sim.overrides import parse_assignment
-    from services.sim.replay_setup import machine_overrides
+    from services.sim.overrides import machine_overrides, parse_assignment
 
     machine = machine_overrides(args.machine) if getattr(args, "machine", None) else []
     return [*machine, *(parse_assignment(text) for text in getattr(args, "overrides", ()))]

@@ -1,4 +1,5 @@
-"""Dotted-key overrides of a scenario: ``vrsim run --set controller.kp=0.8`` and the axes of a sweep.
+"""Dotted-key overrides of a scenario: ``vrsim run --set controller.kp=0.8``, the axes of a sweep, and
+the tables of a machine file (``--machine machine_fit.toml``, `machine_overrides`).
 
 An override is a (dotted key, value) pair applied to the parsed TOML document *before* the scenario
 loader checks it, so an overridden value is checked exactly like one written in the file, by the same
@@ -13,7 +14,7 @@ import tomllib
 from collections.abc import Iterable
 from typing import Any
 
-from common import ScenarioError
+from common import ScenarioError, files
 
 Override = tuple[str, Any]
 
@@ -69,4 +70,20 @@ def apply(doc: dict, overrides: Iterable[Override], source: str) -> dict:
                 path = ".".join(tables[:depth + 1])
                 raise ScenarioError(f"{source}: cannot set {key}: {path} is {node!r}, not a table")
         node[last] = copy.deepcopy(value)
+    return out
+
+
+def machine_overrides(path: str) -> list[Override]:
+    """The keys of a machine fragment (a TOML file of scenario tables, e.g. ``machine_fit.toml``) as
+    dotted overrides (``response.dead_time_s``)."""
+    data = files.read_bytes(path, "toml", ScenarioError)
+    try:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ScenarioError(f"{path}: not a machine file (TOML): {exc}") from None
+    out: list[Override] = []
+    for table, keys in doc.items():
+        if not isinstance(keys, dict):
+            raise ScenarioError(f"{path}: {table} = {keys!r}: a machine file holds tables, like [response]")
+        out += [(f"{table}.{key}", value) for key, value in keys.items()]
     return out

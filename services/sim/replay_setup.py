@@ -3,26 +3,25 @@
 A log says what the machine did: its sections and their widths, its working speed and its rate unit.
 `replay_scenario` puts those into the scenario's implement (a volume rate is a sprayer's: without a
 scenario, a boom with flow control whose nozzles suit the log's rate and speed; a mass rate the
-built-in default's metering shaft), then applies a machine fragment (`machine_overrides`: a
-``machine_fit.toml`` from `vrsim fit`), whose keys are set as ``--set`` would set them and checked as
-a scenario file's.
+built-in default's metering shaft), then applies a machine fragment (a ``machine_fit.toml`` from
+`vrsim fit`, `services.sim.overrides.machine_overrides`), whose keys are set as ``--set`` would set
+them and checked as a scenario file's.
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
 
 import numpy as np
 
-from common import ScenarioError, files
+from common import ScenarioError
 from maps.log_records import MachineRecords
 from maps.units import convert_rate, rate_kind
 from services.sim.overrides import Override
 from services.sim.scenario import Scenario, parse, read, to_toml
 from vehicle.sprayer import NOZZLE_FLOW_L_MIN, boom_flow_l_min
 
-__all__ = ["machine_overrides", "replay_scenario"]
+__all__ = ["replay_scenario"]
 
 # Nozzle spacings booms are built with, m (25, 30, 50, 75 cm; 10, 15, 20, 30 in), largest first.
 SPACINGS_M = (0.762, 0.75, 0.508, 0.5, 0.381, 0.3, 0.254, 0.25)
@@ -51,22 +50,6 @@ def _check_unit(records: MachineRecords, machine: Scenario) -> None:
         raise ScenarioError(f"{machine.source}: [product] form = {machine.product.form!r}, but "
                             f"{records.source} logs a volume rate ({unit}): replay it with a machine that "
                             "meters a liquid (a sprayer's --scenario or --machine)")
-
-
-def machine_overrides(path: str) -> list[Override]:
-    """The keys of a machine fragment (a TOML file of scenario tables, e.g. ``machine_fit.toml``) as
-    dotted overrides (``response.dead_time_s``)."""
-    data = files.read_bytes(path, "toml", ScenarioError)
-    try:
-        doc = tomllib.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ScenarioError(f"{path}: not a machine file (TOML): {exc}") from None
-    out: list[Override] = []
-    for table, keys in doc.items():
-        if not isinstance(keys, dict):
-            raise ScenarioError(f"{path}: {table} = {keys!r}: a machine file holds tables, like [response]")
-        out += [(f"{table}.{key}", value) for key, value in keys.items()]
-    return out
 
 
 def _moving_speed_m_s(records: MachineRecords) -> float:

@@ -20,11 +20,11 @@ import numpy as np
 
 from common import ScenarioError
 from services.sim import scenario as scenario_mod
-from services.sim.overrides import key_parts
+from services.sim.overrides import key_parts, machine_overrides
 from services.sim.sweep.stats import METRIC_SENSE
 from services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
 
-SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "set", "axes", "report")
+SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "machine", "set", "axes", "report")
 RANGE_KEYS = ("min", "max", "n", "log")
 REPORT_KEYS = ("pareto",)
 
@@ -139,6 +139,9 @@ def parse_sweep(text: str, source: str = "<sweep>", base_dir: str = ".") -> Swee
         key_parts(key, f"{source}: [set] {key!r}")
         if key in {a.key for a in axes}:
             raise ScenarioError(f"{source}: [set] {key!r} is also an axis; set it in one place")
+    machine = typed(doc, "machine", str, source, "")
+    if machine is not None:   # a machine file's keys (machine_fit.toml); [set] and the axes over them
+        fixed = (*machine_overrides(os.path.join(base_dir, machine)), *fixed)
     return Sweep(source=source, scenarios=_scenarios(doc, source, base_dir), seeds=_seeds(doc, source),
                  design=design, samples=samples,
                  design_seed=typed(doc, "design_seed", int, source, "", default=0), fixed=fixed,
