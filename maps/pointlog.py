@@ -201,7 +201,8 @@ DEERE_UNIT = re.compile(r"([A-Za-z]+)(-?\d+)")
 
 def read_point_log(path, rate_field: str | None = None, target_field: str | None = None,
                    time_field: str | None = None, unit: str | None = None, crs=None,
-                   layer: str | None = None, product: str | None = None) -> PointLog:
+                   layer: str | None = None, product: str | None = None,
+                   target_optional: bool = False) -> PointLog:
     """Read an as-applied log: a TASKDATA with TimeLogs, a point shapefile (zipped or not) or GeoPackage.
 
     Parameters
@@ -225,6 +226,9 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
         The layer of a zip, folder or GeoPackage holding several (listed when none is named); required then.
     product : str, optional
         For a TASKDATA logging the rate of several products: the one to read (`read_taskdata_log`).
+    target_optional : bool
+        A point file with no target attribute gives NaN targets (its targets come from elsewhere, a
+        prescription) instead of an error.
     """
     path = os.fspath(path)
     files.refuse_vsi(path, MapError)
@@ -237,10 +241,11 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
     if not (os.path.isdir(path) or path.lower().endswith((".shp", ".zip", ".gpkg"))):
         raise MapError(f"{path}: an as-applied log must be a TASKDATA, a point shapefile (.shp or .zip) or a "
                        "GeoPackage (.gpkg)")
-    return _read_vector(path, rate_field, target_field, time_field, unit, crs, layer)
+    return _read_vector(path, rate_field, target_field, time_field, unit, crs, layer, target_optional)
 
 
-def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=None) -> PointLog:
+def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=None,
+                 target_optional=False) -> PointLog:
     import shapely
 
     from maps.vector import gdal_source, read_vector
@@ -265,14 +270,17 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
         src_crs = as_crs(crs, "crs")
     units = deere_units(path, os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0])
     applied_name = _pick(path, fields, rate_field, APPLIED_NAMES, "applied rate", "--rate-field")
-    target_name = _pick(path, fields, target_field, TARGET_NAMES, "target rate", "--target-field")
+    no_target = target_optional and target_field is None and _find(fields, TARGET_NAMES) is None
+    target_name = None if no_target else _pick(path, fields, target_field, TARGET_NAMES, "target rate",
+                                                "--target-field")
     rate_unit = unit or _rate_unit(path, fields, units, applied_name)
     time_s, start = _times(path, fields, time_field)
     work = _optional(path, fields, WORK_NAMES)  # the work state: other than 0 is on; not logged: on
     section = _optional(path, fields, SECTION_NAMES)
     return PointLog(
         xy[:, 0], xy[:, 1], src_crs, applied=_numbers(path, fields[applied_name], applied_name),
-        target=_numbers(path, fields[target_name], target_name), unit=rate_unit, time_s=time_s,
+        target=np.nan if target_name is None else _numbers(path, fields[target_name], target_name),
+        unit=rate_unit, time_s=time_s,
         start=start, heading_deg=_optional(path, fields, HEADING_NAMES),
         speed_m_s=_optional(path, fields, SPEED_NAMES),
         width_m=_length(path, fields, WIDTH_NAMES, units), work_on=None if work is None else work != 0,

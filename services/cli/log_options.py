@@ -52,19 +52,21 @@ def replay_input(args, path: str, select: bool = True):
     and what the summary should say of the choices (``log_sessions``, ``target_from``, ...)."""
     from maps.log_records import machine_records
 
-    log = read_log(path, args.rate_field, args.target_field, args.unit, args.crs, args.layer, args.product)
+    log = read_log(path, args.rate_field, args.target_field, args.unit, args.crs, args.layer, args.product,
+                   target_optional=bool(getattr(args, "prescription", None)))
     chosen = (args.session, args.start_s, args.end_s) if select else (None, None, None)
     records, sessions = _selected(machine_records(log), *chosen)
     records, scenario, extra = _machine_and_target(records, args)
     return records, scenario, {"log": records.source, "log_sessions": sessions, **extra}
 
 
-def read_log(path: str, rate_field=None, target_field=None, unit=None, crs=None, layer=None, product=None):
+def read_log(path: str, rate_field=None, target_field=None, unit=None, crs=None, layer=None, product=None,
+             target_optional=False):
     """The as-applied log at `path` (`maps.pointlog.read_point_log`) with its rates' unit checked."""
     from maps.pointlog import read_point_log
 
     log = read_point_log(path, rate_field=rate_field, target_field=target_field, unit=unit, crs=crs,
-                         layer=layer, product=product)
+                         layer=layer, product=product, target_optional=target_optional)
     return _with_unit(log, unit)
 
 

@@ -158,3 +158,22 @@ def test_bad_input_exits_2_with_one_line(case, logs, shared_dir, tmp_path):
     for needle in needles:
         assert needle in p.stderr, (needle, p.stderr)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_log_without_a_target_attribute_replays_on_a_prescription(logs, tmp_path):
+    """The target comes from the map: a log that never had a target column is read without one."""
+    from pyogrio.raw import read, write
+
+    meta, _, geometry, columns = read(logs["two"])
+    keep = [i for i, name in enumerate(meta["fields"]) if name != "target"]
+    bare = tmp_path / "bare.gpkg"
+    write(str(bare), geometry, [columns[i] for i in keep], [meta["fields"][i] for i in keep],
+          geometry_type="Point", crs=meta["crs"], driver="GPKG")
+    p = vrsim(bare)
+    assert p.returncode == 2 and "target" in p.stderr and "Traceback" not in p.stderr
+    x0, y0 = 500000.0, 5760000.0
+    rx = tmp_path / "rx.tif"
+    maps.write_map(maps.grid_from_bounds((x0 - 50, y0 - 50, x0 + 450, y0 + 50), 10.0, "EPSG:32632",
+                                         rates=np.full((10, 50), 140.0), unit="kg/ha"), rx)
+    got = run_json(bare, "--prescription", rx)
+    assert got["target_from"] == str(rx) and got["compared_records"] > 150
