@@ -8,8 +8,8 @@ simulated rate is read at the log's own timestamps as the machine logs it: its f
 (the loop plant's sensor delay, the dead time included) over the ground the open sections cover at
 the logged speed, averaged over the ticks since the previous record, in the log's unit. A session
 whose first record shows the machine settled on its target began mid-pass (a log cut or resumed): the
-machine runs in at that record's state for `LEAD_IN_S` first; otherwise it starts at rest, and its
-first record is a pass start.
+machine runs in at that record's state for `LEAD_IN_S` first; otherwise it starts at rest a logging
+period before its first record (whose rate is that period's), and its first record is a pass start.
 
 The figures compare the twin with the log (``*_vs_log``) beside the same figures of the target as the
 prediction (``target_*_vs_log``: what a twin must beat), over all the records that count and per event
@@ -99,9 +99,10 @@ def _session(rec: MachineRecords, scenario: Scenario) -> np.ndarray:
         raise ScenarioError(f"{rec.source}: a session of {duration_s:.1f} s from {rec.time_s[0]:.1f} s is "
                             f"shorter than {MIN_SESSION_S:g} s: too short to replay (choose another session)")
     period_s = scenario.timing.control_period_s
-    # A session that begins settled began before its first record: the machine runs in at that
-    # record's state first (np.interp holds the first record's values before it).
-    lead_s = LEAD_IN_S if _settled_at_start(rec)[0] else 0.0
+    # A record's rate is the mean of the interval before it, so the sections were open a logging period
+    # before the first record; a session that begins settled began before that: the machine runs in at
+    # the first record's state first (np.interp holds the first record's values before it).
+    lead_s = LEAD_IN_S if _settled_at_start(rec)[0] else float(np.median(np.diff(rec.time_s)))
     t = rec.time_s[0] - lead_s + period_s * np.arange(math.ceil((duration_s + lead_s) / period_s) + 1)
     prev = np.clip(np.searchsorted(rec.time_s, t, side="right") - 1, 0, rec.rows - 1)
     x, y = (np.interp(t, rec.time_s, a) for a in (rec.x_m, rec.y_m))

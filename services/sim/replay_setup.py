@@ -31,14 +31,20 @@ SPEED_MIN_M_S = 0.5
 
 def replay_scenario(records: MachineRecords, scenario: Scenario | None = None,
                     fragment: list[Override] = ()) -> Scenario:
-    """The scenario a replay of `records` runs: `scenario` (default: one made from the log), its
-    implement's sections set to the log's, then `fragment`'s keys set (see the module docstring)."""
+    """The scenario a replay of `records` runs: `scenario` (default: one made from the log) with
+    `fragment`'s keys set, then its implement's sections set to the log's: the log says what the
+    machine did, whatever sections a machine file fitted on another log has (see the module
+    docstring). A sprayer whose nozzle spacing does not divide the log's sections gets one that does."""
     if scenario is None:
         text, source, base_dir = _default_text(records), f"{records.source} (machine from the log)", "."
     else:
         text, source, base_dir = to_toml(scenario), scenario.source, scenario.base_dir
-    sections = _section_overrides(records, scenario)
-    machine = parse(text, source, base_dir, overrides=[*sections, *fragment])
+    overrides = [*fragment, *_section_overrides(records)]
+    machine = parse(text, source, base_dir, overrides=overrides)
+    widths = machine.implement.section_widths
+    if machine.implement.kind == "sprayer" and not _fits(machine.implement.machine.nozzle_spacing_m, widths):
+        machine = parse(text, source, base_dir,
+                        overrides=[*overrides, ("implement.nozzle_spacing_m", _spacing(records))])
     _check_unit(records, machine)
     return machine
 
@@ -57,18 +63,13 @@ def _moving_speed_m_s(records: MachineRecords) -> float:
     return float(np.median(moving)) if moving.size else 2.5
 
 
-def _section_overrides(records: MachineRecords, scenario: Scenario | None) -> list[Override]:
+def _section_overrides(records: MachineRecords) -> list[Override]:
     widths = [round(float(w), 6) for w in records.section_widths_m]
-    out: list[Override] = [("implement.width_m", round(sum(widths), 6)),
-                           ("implement.section_widths_m", widths), ("implement.sections", len(widths)),
-                           ("tractor.working_speed_m_s", round(_moving_speed_m_s(records), 3)),
-                           # The log's gates are what the terminal switched: no switch of vrsim's.
-                           ("implement.section_control", "off")]
-    if scenario is not None and scenario.implement.kind == "sprayer":
-        spacing = scenario.implement.machine.nozzle_spacing_m
-        if not _fits(spacing, widths):
-            out.append(("implement.nozzle_spacing_m", _spacing(records)))
-    return out
+    return [("implement.width_m", round(sum(widths), 6)), ("implement.section_widths_m", widths),
+            ("implement.sections", len(widths)),
+            ("tractor.working_speed_m_s", round(_moving_speed_m_s(records), 3)),
+            # The log's gates are what the terminal switched: no switch of vrsim's.
+            ("implement.section_control", "off")]
 
 
 def _fits(spacing: float, widths) -> bool:

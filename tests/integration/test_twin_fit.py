@@ -28,7 +28,7 @@ CRS = "EPSG:32632"
 
 def _drive(rate_hz: float) -> PointLog:
     """Ten passes of 60 s, 8 s turns with the boom off, the target stepping between 80, 120 and 160 L/ha
-    every 15 s: the even passes pull away from 1 m/s to about 3 m/s (the preset acts), the odd ones
+    every 17 s: the even passes pull away from 1 m/s to about 3 m/s (the preset acts), the odd ones
     start flying at about 4 m/s, above the preset (only the opening transient acts)."""
     t = np.arange(0.0, 10 * 68.0, 1.0 / rate_hz)
     in_pass = (t % 68.0) < 60.0
@@ -39,10 +39,12 @@ def _drive(rate_hz: float) -> PointLog:
     heading_deg = np.where((t // 68.0) % 2 == 0, 0.0, 180.0)
     north = np.cumsum(speed * np.cos(np.radians(heading_deg))) / rate_hz
     x = 500_000.0 + 12.0 * (t // 68.0)
-    target = np.array([80.0, 120.0, 160.0])[(t // 15.0).astype(int) % 3]
-    return PointLog(x, 5_300_000.0 + north, CRS, applied=target, target=target, unit="L/ha", time_s=t,
-                    start=np.datetime64("2026-05-01T08:00:00"), heading_deg=heading_deg, speed_m_s=speed,
-                    width_m=np.where(in_pass, 12.0, 0.0), work_on=in_pass, source="drive")
+    target = np.array([80.0, 120.0, 160.0])[(t // 17.0).astype(int) % 3]   # passes start at each rate
+    # Nothing applied yet: the machine writes the applied rate (a first record on target would say the
+    # log began mid-pass).
+    return PointLog(x, 5_300_000.0 + north, CRS, applied=np.zeros_like(t), target=target, unit="L/ha",
+                    time_s=t, start=np.datetime64("2026-05-01T08:00:00"), heading_deg=heading_deg,
+                    speed_m_s=speed, width_m=np.where(in_pass, 12.0, 0.0), work_on=in_pass, source="drive")
 
 
 def _true_machine_log(tmp_path, rate_hz: float) -> str:
