@@ -122,7 +122,9 @@ class ControlCore:
         where no rate was commanded yet): the loop's state (plant, sensor delay line, controller), the
         rate policy's last rate, the look-ahead tuner's state (None without the tune) and the section
         switch's (`services.sim.sections.SectionSwitch.state`: with coverage control its coverage
-        map, commands and gates). The last rate is a number for one metering drive, a list for several."""
+        map, commands and gates), the shafts' positions and the pass clock's (`vehicle.response.PassClock`;
+        None without a ``[response]`` that follows the passes). The last rate is a number for one
+        metering drive, a list for several."""
         return {"loop": self.loop.state,
                 "last_rate_kg_ha": _number_or_list(self.last_rate_kg_ha),
                 "tuner": None if self.tuner is None else self.tuner.state(),

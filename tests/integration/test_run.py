@@ -133,7 +133,17 @@ def with_uneven_flow(tmp_path) -> str:
     return path
 
 
-@pytest.mark.parametrize("policy", ["off", "hold", "tuned", "flow"])
+def with_response(tmp_path) -> str:
+    """The quick scenario with a machine's fitted response: dead time, pass-start preset and opening
+    transient (`vehicle.response`), all following the passes across batches."""
+    path = quick(tmp_path, plots=False, name="response.toml")
+    with open(path, "a") as fh:
+        fh.write("[response]\ndead_time_s = 0.7\nstartup_speed_m_s = 3.5\nstartup_hold_s = 2.0\n"
+                 "opening_peak_pct = 50.0\nopening_time_constant_s = 1.2\ncalibration_error_pct = 3.0\n")
+    return path
+
+
+@pytest.mark.parametrize("policy", ["off", "hold", "tuned", "flow", "response"])
 def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     """The controller service calls ControlCore.run_track on each lockstep batch (one tick in real-time
     mode), carrying its state over; vrsim run calls it once on the whole track: same numbers (also
@@ -141,7 +151,8 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     with a product whose flow varies revolution to revolution, its shaft position carried over)."""
     # Only the case's own file is written (each helper writes its own name or q.toml).
     path = {"off": lambda: quick(tmp_path, plots=False), "hold": lambda: with_nodata_hole(tmp_path),
-            "tuned": lambda: with_tuned_smith(tmp_path), "flow": lambda: with_uneven_flow(tmp_path)}[policy]()
+            "tuned": lambda: with_tuned_smith(tmp_path), "flow": lambda: with_uneven_flow(tmp_path),
+            "response": lambda: with_response(tmp_path)}[policy]()
     sc = scenario.load(path)
     assert sc.map.policy == ("hold" if policy == "hold" else "off")
     assert (sc.product.flow_cv_pct > 0) == (policy == "flow")
@@ -166,6 +177,8 @@ def test_batch_by_batch_core_matches_the_staged_run(tmp_path, policy):
     batched = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     if policy == "tuned":
         assert core.tuner.updates > 3 and core.look_ahead_s != core.tuner.known_delay_s
+    if policy == "response":   # the passes' clock was carried: some pass started within a batch
+        assert sc.response.follows_passes and core.passes.open_ticks < np.inf
     np.testing.assert_allclose(batched["shaft_rpm"], result.control["shaft_rpm"], rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(batched["metered_kg"], result.control["metered_kg"], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(batched["prescribed_kg_ha"], result.control["prescribed_kg_ha"])

@@ -104,7 +104,8 @@ def test_controller_kind_through_the_services_matches_vrsim_run(net, folder, nam
     started, status, report = _run_through_services(net, folder, name)
     ok, state = net.query("vrsim/tractor1/control/state")
     assert ok and state["run_id"] == started["run_id"] and state["next_tick"] == status["ticks"], state
-    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections", "meter_rev"}
+    assert set(state["core"]) == {"loop", "last_rate_kg_ha", "tuner", "sections", "meter_rev", "passes"}
+    assert state["core"]["passes"] is None   # no [response] that follows the passes
     assert state["core"]["meter_rev"] > 10   # the shaft's position, carried batch after batch
     # Section control's memory came along, batch after batch: its ticks, and the coverage map, packed.
     sections = state["core"]["sections"]

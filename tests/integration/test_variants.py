@@ -121,3 +121,20 @@ def test_variants_of_a_drive_per_section_equal_one_at_a_time_runs(shared_drive):
         assert_same_summary(got, control_and_account(per_section, cfg).summary)
     gated = run_variants(shared_drive, cfgs[-1:])[0]
     assert fast[-1]["mae_kg_ha"] < gated["mae_kg_ha"]   # the zones' edges cut sections, not the boom
+
+
+def test_variants_of_a_machine_with_a_fitted_response_equal_one_at_a_time_runs():
+    """A machine's [response] (dead time in the loop, pass-start preset, opening transient, offset):
+    the batched variants meter through the same opening factor and preset targets, so every summary
+    equals control_and_account's, and the response moves the figures."""
+    response = ("[response]\ndead_time_s = 0.6\nstartup_speed_m_s = 4.0\nstartup_hold_s = 2.0\n"
+                "opening_peak_pct = 60.0\nopening_time_constant_s = 1.5\ncalibration_error_pct = 2.0\n")
+    twin = drive(scenario.parse(FIELD + response, "twin.toml", "."))
+    cfgs = [ControllerConfig(kind="PID", gains="manual", kp=kp, ki=ki, kd=0.0) for kp, ki in ((0.2, 0.5),
+                                                                                            (0.573, 3.7))]
+    cfgs += [ControllerConfig(kind="PID"), ControllerConfig(kind="ideal")]
+    fast = run_variants(twin, cfgs)
+    for cfg, summary in zip(cfgs, fast, strict=True):
+        assert_same_summary(summary, control_and_account(twin, cfg).summary)
+    plain = run_variants(drive(scenario.parse(FIELD, "variants.toml", ".")), cfgs[2:3])[0]
+    assert fast[2]["mass_balance_pct"] > plain["mass_balance_pct"] + 1.5   # the offset and the openings
