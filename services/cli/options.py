@@ -43,7 +43,23 @@ def load_scenario(args):
 
 def overrides_of(args) -> list:
     """``--machine``'s keys, then the ``--set`` overrides, as (dotted key, value) pairs."""
-    from services.sim.overrides import machine_overrides, parse_assignment
+    from services.sim.overrides import parse_assignment
 
-    machine = machine_overrides(args.machine) if getattr(args, "machine", None) else []
+    machine = machine_file(args.machine) if getattr(args, "machine", None) else []
     return [*machine, *(parse_assignment(text) for text in getattr(args, "overrides", ()))]
+
+
+def machine_file(path: str) -> list:
+    """A machine file's keys as overrides, checked on the built-in default scenario first, so that a
+    key or value it gets wrong is reported against the machine file, not against the scenario."""
+    from common import ScenarioError
+    from services.sim.overrides import machine_overrides
+    from services.sim.scenario import load
+
+    overrides = machine_overrides(path)
+    try:
+        load(None, overrides)
+    except ScenarioError as exc:
+        message = str(exc).removeprefix("builtin:default: ")
+        raise ScenarioError(f"{path}: {message}") from None
+    return overrides

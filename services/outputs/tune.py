@@ -69,6 +69,9 @@ def tune_text(result: TuneResult) -> str:
              f"{_fmt(result.best_objective)} with {result.best.kind} {values}",
              f"  {result.evaluations} evaluations in {result.generations} generations", "",
              f"  {'figure':<34} {'tuned':>12} {'scenario':>12}"]
+    if "twin_mae_vs_target" in result.tuned:   # tuned on a log's drive (`vrsim tune --log`)
+        lines[-1] = f"  {'figure':<52} {'tuned':>10} {'machine':>10}"
+        return "\n".join(lines + _log_rows(result))
     # The rate figures in the map's own unit (`services.outputs.summary.shown`), named without _kg_ha then.
     rows, tuned = shown(result.tuned)
     baseline, units = shown(result.baseline)[1], {key: unit for _, key, unit in rows}
@@ -79,3 +82,20 @@ def tune_text(result: TuneResult) -> str:
         lines.append(f"  {name + ' [' + unit + ']':<34} {_fmt(tuned.get(m.key)):>12} "
                      f"{_fmt(baseline.get(m.key)):>12}{mark}")
     return "\n".join(lines)
+
+
+# (label, replay figure) of a tune on a log's drive, in the log's rate unit.
+LOG_ROWS = (("twin's error against its target", "twin_mae_vs_target"),
+            ("twin's error against the log", "mae_vs_log"),
+            ("machine's own logged error (target vs log)", "target_mae_vs_log"))
+
+
+def _log_rows(result: TuneResult) -> list[str]:
+    """The replay figures of the tuned controller beside the machine's own, in the log's unit."""
+    unit = result.tuned.get("rate_unit") or "log's unit"
+    out = []
+    for label, key in LOG_ROWS:
+        mark = " <" if key == result.objective else ""
+        out.append(f"  {label + ' [' + unit + ']':<52} {_fmt(result.tuned.get(key)):>10} "
+                   f"{_fmt(result.baseline.get(key)):>10}{mark}")
+    return out

@@ -113,6 +113,24 @@ def test_bad_input_exits_2_with_one_line(args, message, tmp_path):
     assert len(p.stderr.strip().splitlines()) == 1
 
 
+def test_a_machine_file_with_a_wrong_key_is_named_in_the_one_line(tmp_path):
+    bad = tmp_path / "machine_fit.toml"
+    bad.write_text("[response]\ndead_time = 1.0\n")
+    for command in (["replay", ONE_HERTZ], ["run", "--check"]):
+        p = vrsim(*command, "--machine", bad)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
+        assert f"{bad}: [response] unknown key 'dead_time'" in p.stderr
+
+
+def test_tune_on_a_log_prints_the_twins_figures(fitted, tmp_path):
+    out, _ = fitted
+    p = vrsim("tune", "--log", EACH_SECTION, "--machine", out / "machine_fit.toml", "--param", "kp=0.05:5",
+              "--objective", "twin_mae_vs_target", "--budget", "5", "--quiet", "--out", tmp_path)
+    assert p.returncode == 0, p.stderr
+    row = next(line for line in p.stdout.splitlines() if "twin's error against its target [gal/ac]" in line)
+    assert "-" not in row.split("]")[1] and row.rstrip().endswith("<")
+
+
 def test_a_fit_that_does_not_converge_exits_3_with_its_best_figures(tmp_path, monkeypatch, capsys):
     from services.cli.main import main
     from services.sim import fit
