@@ -2,9 +2,11 @@
 
 Mass per area (kg/ha, t/ha, lb/ac, g/m2), volume per area (L/ha, gal/ac (US), fl oz/ac, mL/m2) and
 count per area (seeds/ha, seeds/ac); any other spelling pint reads as one of these kinds is accepted
-too (``"kg ha-1"``, ``"lbs/ac"``, ``"l/ha"``, ``"gallon/acre"``). Rates of different kinds convert only
-with the product's density (kg/L) or the mass of one seed (g), which vrsim never guesses. vrsim
-computes in kg/ha; a map's own unit is used to read it and to show its figures.
+too (``"kg ha-1"``, ``"lbs/ac"``, ``"l/ha"``, ``"gallon/acre"``) if it is of the short grammar
+`_pint_text` checks before pint sees it (pint's parser evaluates numbers: ``9**9**9`` never returns).
+Rates of different kinds convert only with the product's density (kg/L) or the mass of one seed (g),
+which vrsim never guesses. vrsim computes in kg/ha; a map's own unit is used to read it and to show
+its figures.
 """
 
 from __future__ import annotations
@@ -25,7 +27,22 @@ _BASE_UNITS = {"mass": "kg/ha", "volume": "L/ha", "count": "seeds/ha"}
 _HINT = 'give it: [map] unit = "lb/ac" in the scenario, or --unit lb/ac (kg/ha, L/ha, gal/ac, seeds/ac ...)'
 # A unit at the end of an attribute name: "Rate_lb_ac", "rate_kg_ha", "Rate (lb/ac)", "RATE[L/ha]".
 _NAME_UNIT = re.compile(r"(?:^|[_ (\[])([A-Za-z]+)[_/]([A-Za-z0-9]+)[)\]]?$")
-_EXPONENT = re.compile(r"(?<=[A-Za-z])(-?\d+)\b")  # "m2" -> "m**2", "ha-1" -> "ha**-1"
+
+# pint's parser evaluates what it is given (``9**9**9`` never returns), so a unit reaches it only as
+# rebuilt from this grammar: factors (a unit name, perhaps with an exponent of at most 2 digits, or a
+# plain number) joined by ``/``, ``*``, ``.``, ``·`` or spaces. No parentheses, no exponent on a number.
+MAX_UNIT_CHARS = 64
+_LETTERS = "A-Za-z_%\u00b5\u03bc"  # and micro signs: "µL/m2"
+_SUPER = "\u2070\u00b9\u00b2\u00b3\u2074-\u2079"  # superscript digits, a regex class: "m²"
+_SUPERSCRIPTS = str.maketrans("\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b",
+                              "0123456789-")
+_FACTOR = re.compile(
+    rf"(?P<name>[{_LETTERS}]+(?:\d+[{_LETTERS}]+)*)"  # digits inside a name only: "gal1ac", not "m2"
+    rf"(?:(?:\^|\*\*)?(?P<exp>[-+]?\d{{1,2}})|(?P<sup>\u207b?[{_SUPER}]{{1,2}}))?(?![\d{_SUPER}])"
+    rf"|(?P<number>\d{{1,6}}(?:\.\d{{1,6}})?)(?![\d^{_SUPER}]|\*\*)")  # "1/ha"; never raised to a power
+_OPERATOR = re.compile(r"\s*([/*.\u00b7])\s*|\s+")  # between factors; spaces alone multiply
+_GRAMMAR = ("a unit is names (kg, ha, lb, ac, ...) and numbers joined by /, *, . or spaces, each name "
+            "with at most a 2-digit exponent (m2, ha-1, m^2)")
 
 
 @functools.cache
@@ -42,17 +59,45 @@ def _registry():
     return units
 
 
-@functools.cache
+def _pint_text(unit: str) -> str:
+    """`unit` rebuilt for pint from the tokens of the grammar above (``"kg ha-1"`` -> ``"kg*ha**-1"``,
+    ``"kg/m²"`` -> ``"kg/m**2"``); raises `ValueError` for anything else, before pint sees it."""
+    text, at, out = unit.strip(), 0, []
+    if len(unit) > MAX_UNIT_CHARS:
+        raise ValueError(f"is not a unit vrsim reads (over {MAX_UNIT_CHARS} characters); {_GRAMMAR}")
+    while True:
+        factor = _FACTOR.match(text, at)
+        if factor is None:
+            raise ValueError(f"is not a unit vrsim reads (at character {at + 1}); {_GRAMMAR}")
+        exp = factor["exp"] or (factor["sup"] or "").translate(_SUPERSCRIPTS)
+        out.append(factor["number"] or factor["name"] + (f"**{exp}" if exp else ""))
+        at = factor.end()
+        if at == len(text):
+            return "".join(out)
+        operator = _OPERATOR.match(text, at)
+        if operator is None:
+            raise ValueError(f"is not a unit vrsim reads (at character {at + 1}); {_GRAMMAR}")
+        out.append("/" if operator[1] == "/" else "*")
+        at = operator.end()
+
+
+def _shown_unit(unit) -> str:
+    """`unit` quoted for an error message, shortened when long (a unit from a file can be anything)."""
+    text = repr(unit)
+    return text if len(text) <= 40 else f"{text[:30]}... ({len(unit):,} characters)"
+
+
+@functools.lru_cache(maxsize=1024)  # bounded: the units read come from files and the bus
 def _read(unit: str) -> tuple[str, str, float]:
     """(`unit` as vrsim writes it, its kind, its size in SI: kg/m^2, m^3/m^2 or 1/m^2); raises
     `ValueError` saying what it is otherwise."""
-    import pint
-
-    text = _EXPONENT.sub(r"**\1", unit.strip()).replace(" ", "*")
+    text = _pint_text(unit)
     try:
         quantity = _registry().Quantity(1.0, text)
-    except (pint.errors.PintError, AttributeError, TypeError, ValueError, SyntaxError) as exc:
-        raise ValueError(f"is not a unit pint reads ({exc}); e.g. {', '.join(RATE_UNITS)}") from None
+    # pint raises what it likes on odd names (KeyError for "m**0*%"): any failure to parse is no unit.
+    except Exception as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ValueError(f"is not a unit pint reads ({first}); e.g. {', '.join(RATE_UNITS)}") from None
     kind = _KINDS.get(str(quantity.dimensionality))
     if kind is None:
         raise ValueError(f"is not a rate (mass, volume or count per area, e.g. kg/ha, L/ha, seeds/ac); it is "
@@ -72,13 +117,13 @@ def rate_unit(unit, where: str = "unit") -> str:
         ``"{where}: ..."`` when pint cannot read `unit` or it is no mass, volume or count per area.
     """
     if not isinstance(unit, str) or not unit.strip():
-        raise MapError(f"{where}: {unit!r} is not a rate unit; {_HINT}")
+        raise MapError(f"{where}: {_shown_unit(unit)} is not a rate unit; {_HINT}")
     if unit == KG_HA:  # vrsim's own unit: no need to load pint
         return KG_HA
     try:
         return _read(unit)[0]
     except ValueError as exc:
-        raise MapError(f"{where}: {unit!r} {exc}") from None
+        raise MapError(f"{where}: {_shown_unit(unit)} {exc}") from None
 
 
 def is_rate_unit(unit) -> bool:

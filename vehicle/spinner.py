@@ -13,10 +13,11 @@ Shapes (``pattern``):
 - ``"trapezoidal"``: flat over the central half of the spread width, falling linearly to zero over
   each outer quarter (the shape assumed here for a trapezoid: `TRAPEZOID_TOP_SHARE`);
 - a path to a CSV of a measured catch-tray profile (relative to the scenario's folder), one row per
-  tray: lateral offset (m, increasing, positive to the left), relative mass (>= 0). An optional
-  first row of column names and lines starting with ``#`` are skipped. The profile is linear between
-  the trays' offsets and zero beyond the first and the last; it must lie within half the spread width
-  on each side and put mass on both sides of the centre line (each disc throws one half).
+  tray: lateral offset (m, increasing, positive to the left), relative mass (>= 0), at most
+  `MAX_PROFILE_ROWS` rows (read line by line, refused past it). An optional first row of column
+  names and lines starting with ``#`` are skipped. The profile is linear between the trays' offsets
+  and zero beyond the first and the last; it must lie within half the spread width on each side and
+  put mass on both sides of the centre line (each disc throws one half).
 
 At the field boundary (`SpinnerSpec.side_reach_m`): with ``border_spreading`` the side towards the
 boundary is cut at the boundary itself, so product stays inside; without it, section control shortens
@@ -47,6 +48,8 @@ from vehicle.machines import MachineSpec, register_spec
 PATTERN_SHAPES = ("triangular", "trapezoidal")
 TRAPEZOID_TOP_SHARE = 0.5  # a trapezoid's flat top spans this share of the spread width
 MIN_PROFILE_ROWS = 3
+MAX_PROFILE_ROWS = 10_000  # a catch-tray test lays tens to hundreds of trays; checked while reading
+MAX_PROFILE_LINE = 256  # characters of one row (two numbers)
 MAX_SIDE_STEPS = 16
 MAX_THROW_DISTANCE_M = 100.0
 
@@ -216,18 +219,7 @@ def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.nd
     VehicleError
         ``"pattern FILE: row N: ..."`` naming the row (the file's line) and the value.
     """
-    try:
-        data = files.read_bytes(path, "csv", VehicleError)  # a regular file within the CSV cap
-    except VehicleError as exc:
-        raise VehicleError(f"pattern {exc}") from None
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise VehicleError(f"pattern {path}: not a text file: {exc}") from None
-    rows = [(n, line.strip()) for n, line in enumerate(text.splitlines(), start=1)
-            if line.strip() and not line.lstrip().startswith("#")]
-    if rows and not _numeric(rows[0][1].split(",")[0]):
-        rows = rows[1:]  # column names
+    rows = _profile_rows(path)
     if not rows:
         raise VehicleError(f"pattern {path}: no rows (a catch-tray profile: lateral offset m, relative mass)")
     values = np.array([_row_values(path, n, line) for n, line in rows])
@@ -256,6 +248,43 @@ def _read_profile_csv(path: str, half_width_m: float) -> tuple[np.ndarray, np.nd
             raise VehicleError(f"pattern {path}: no mass {name} of the centre line: each disc throws one "
                                "half of the profile")
     return offset, mass
+
+
+def _profile_rows(path: str) -> list[tuple[int, str]]:
+    """The profile's rows as (line number, text), column names and comments left out, read line by
+    line and refused past `MAX_PROFILE_ROWS` rows or a row of over `MAX_PROFILE_LINE` characters."""
+    try:
+        fh = files.open_text(path, "csv", VehicleError, encoding="utf-8-sig")  # a regular file, in its cap
+    except VehicleError as exc:
+        raise VehicleError(f"pattern {exc}") from None
+    try:
+        with fh:
+            return _capped_rows(path, iter(lambda: fh.readline(MAX_PROFILE_LINE + 1), ""))
+    except UnicodeDecodeError as exc:
+        raise VehicleError(f"pattern {path}: not a text file: {exc}") from None
+    except OSError as exc:
+        raise VehicleError(f"pattern {path}: cannot read: {exc.strerror}") from None
+
+
+def _capped_rows(path: str, lines) -> list[tuple[int, str]]:
+    rows: list[tuple[int, str]] = []
+    first = True  # the first row may be column names
+    for n, line in enumerate(lines, start=1):
+        if len(line.rstrip("\r\n")) > MAX_PROFILE_LINE:
+            raise VehicleError(f"pattern {path}: row {n}: over {MAX_PROFILE_LINE} characters (a row is two "
+                               "numbers: lateral offset m, relative mass)")
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        if first and not _numeric(line.split(",")[0]):
+            first = False
+            continue
+        if len(rows) == MAX_PROFILE_ROWS:
+            raise VehicleError(f"pattern {path}: over {MAX_PROFILE_ROWS:,} rows; a catch-tray profile has "
+                               "tens to hundreds of trays")
+        first = False
+        rows.append((n, line))
+    return rows
 
 
 def _check_csv_name(pattern: str) -> str:

@@ -26,7 +26,7 @@ from importlib import resources
 
 import numpy as np
 
-from common import ControllerError
+from common import ControllerError, files
 from controller import ops
 from controller.gains import GAIN_SOURCES, PidGains
 from controller.interface import LawController, LoopInfo
@@ -50,8 +50,8 @@ def _load_rules(path: str | None = None) -> np.ndarray:
             text = resources.files("controller").joinpath("data", DEFAULT_RULES).read_text()
         else:
             with open(path, encoding="utf-8") as fh:
-                text = fh.read()
-        doc = tomllib.loads(text)
+                text = fh.read(files.cap_for("toml") + 1)  # one more: over the cap is refused, not cut
+        doc = files.loads_toml(text, f"fuzzy rules {where}", ControllerError)
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ControllerError(f"fuzzy rules {where}: cannot be read: {exc}") from None
     if doc.get("terms") != list(TERMS):

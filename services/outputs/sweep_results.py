@@ -17,7 +17,7 @@ import os
 import time
 
 from common import ScenarioError
-from common.written import written
+from common.written import write_failure, written
 from services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"
@@ -93,6 +93,7 @@ class ResultsTable:
         self.csv = os.path.join(out_dir, CSV)
         self.flush_every_s = flush_every_s
         self.rows: list[dict] = []
+        _check_out_dir(out_dir)
         exists = os.path.isfile(self.parquet)
         if exists and not resume:
             raise ScenarioError(f"{self.parquet} exists: add --resume to go on with that sweep, or choose "
@@ -114,11 +115,29 @@ class ResultsTable:
 
     def flush(self) -> None:
         """Write both files now (and create `out_dir`: nothing is created before the first flush)."""
-        os.makedirs(self.out_dir, exist_ok=True)
+        try:
+            os.makedirs(self.out_dir, exist_ok=True)
+        except OSError as exc:
+            raise write_failure(exc, os.path.abspath(self.out_dir), ScenarioError) or ScenarioError(
+                f"{self.out_dir}: cannot create the folder ({exc.strerror})") from None
         if self.rows:
             _write_parquet(self.rows, self.parquet)
             _write_csv(self.rows, self.csv)
         self._flushed = time.monotonic()
+
+
+def _check_out_dir(out_dir: str) -> None:
+    """Refuse an `out_dir` that cannot be written before any run, not after the first: the nearest
+    folder of it that exists is read-only, full or not writable (`write_failure`), or is a file."""
+    near = os.path.abspath(out_dir)
+    while not os.path.lexists(near) and os.path.dirname(near) != near:
+        near = os.path.dirname(near)
+    if not os.path.isdir(near):
+        raise ScenarioError(f"{out_dir}: cannot create the folder: {near} is not a folder")
+    # No write was tried yet: write_failure judges the folder as it is (read-only, full, no access).
+    failure = write_failure(Exception(), near, ScenarioError)
+    if failure is not None:
+        raise failure
 
 
 class RunOutputs:

@@ -16,7 +16,7 @@ import os
 import tomllib
 from dataclasses import dataclass
 
-from common import ScenarioError
+from common import ScenarioError, files
 from controller import KINDS, ControllerConfig
 from controller.config import PID_KINDS
 from services.sim.as_run import with_settings
@@ -74,10 +74,10 @@ def resolve_spec(spec: str, scenario: Scenario, look_ahead=None) -> ControllerSp
 
 def _spec_table(path: str) -> dict:
     """The ``[controller]`` table of the TOML file `path`."""
+    data = files.read_bytes(path, "toml", ScenarioError)
     try:
-        with open(path, "rb") as fh:
-            doc = tomllib.load(fh)
-    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        doc = files.loads_toml(data.decode("utf-8"), f"controller spec {path}", ScenarioError)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"controller spec {path}: cannot be read as TOML: {exc}") from None
     table = doc.get("controller")
     if not isinstance(table, dict):

@@ -209,7 +209,7 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".",
 
 def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override]) -> Scenario:
     try:
-        doc = tomllib.loads(text)
+        doc = files.loads_toml(text, f"{source}: not a scenario", ScenarioError)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     doc = apply_overrides(doc, overrides, source)
@@ -382,13 +382,13 @@ def _check_map(spec: MapSpec, source: str) -> None:
     if spec.default_rate_kg_ha < 0:
         raise ScenarioError(f"{source}: [map] default_rate_kg_ha must be >= 0, got {spec.default_rate_kg_ha}")
     if spec.unit is not None:
-        if spec.file is None:
-            raise ScenarioError(f"{source}: [map] unit {spec.unit!r} is for a map file; synthetic maps "
-                                "are in kg/ha")
-        try:
+        try:  # first: a unit pint never sees unless it is short and of the grammar `rate_unit` reads
             rate_unit(spec.unit, f"{source}: [map] unit")
         except MapError as exc:
             raise ScenarioError(str(exc)) from None
+        if spec.file is None:
+            raise ScenarioError(f"{source}: [map] unit {spec.unit!r} is for a map file; synthetic maps "
+                                "are in kg/ha")
 
 
 def product_density_kg_l(scenario: Scenario) -> float | None:

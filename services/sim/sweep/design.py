@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from common import ScenarioError
+from common import ScenarioError, files
 from services.sim import scenario as scenario_mod
 from services.sim.overrides import key_parts, machine_overrides
 from services.sim.sweep.stats import METRIC_SENSE
@@ -107,10 +107,10 @@ class RunSpec:
 
 def load_sweep(path: str) -> Sweep:
     """Read and check a sweep file; every error names the file, key and value (`ScenarioError`)."""
+    data = files.read_bytes(path, "toml", ScenarioError)  # a regular file within the TOML cap
     try:
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
         raise ScenarioError(f"{path}: cannot read the sweep file: {exc}") from None
     return parse_sweep(text, path, os.path.dirname(os.path.abspath(path)))
 
@@ -118,7 +118,7 @@ def load_sweep(path: str) -> Sweep:
 def parse_sweep(text: str, source: str = "<sweep>", base_dir: str = ".") -> Sweep:
     """Check a sweep file's TOML text; scenario files in it are relative to `base_dir`."""
     try:
-        doc = tomllib.loads(text)
+        doc = files.loads_toml(text, f"{source}: not a sweep file", ScenarioError)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     no_unknown(doc, SWEEP_KEYS, source, "")
