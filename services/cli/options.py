@@ -45,11 +45,11 @@ def overrides_of(args) -> list:
     """``--machine``'s keys, then the ``--set`` overrides, as (dotted key, value) pairs."""
     from services.sim.overrides import parse_assignment
 
-    machine = machine_file(args.machine) if getattr(args, "machine", None) else []
+    machine = _machine_file(args.machine) if getattr(args, "machine", None) else []
     return [*machine, *(parse_assignment(text) for text in getattr(args, "overrides", ()))]
 
 
-def machine_file(path: str) -> list:
+def _machine_file(path: str) -> list:
     """A machine file's keys as overrides, checked on the built-in default scenario first, so that a
     key or value it gets wrong is reported against the machine file, not against the scenario."""
     from common import ScenarioError

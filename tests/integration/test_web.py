@@ -38,12 +38,12 @@ def printed_token(output: str, port: int) -> str | None:
 
 class Web:
     """HTTP to one web service on 127.0.0.1, logged in with its token (`login`): every request carries
-    the session cookie, every POST the session's CSRF token."""
+    the session cookie and key, every POST the session's CSRF token."""
 
     def __init__(self, port: int):
         self.port = port
         self.base = f"http://127.0.0.1:{port}"
-        self.token = self.cookie = self.csrf = None
+        self.token = self.cookie = self.key = self.csrf = None
 
     def login(self, token: str) -> None:
         """Open the URL with the token: the answer sets the session cookie and drops the token."""
@@ -53,7 +53,8 @@ class Web:
             conn.request("GET", f"/?token={token}")
             resp = conn.getresponse()
             resp.read()
-            assert resp.status == 303 and resp.getheader("location") == "/", resp.status
+            self.key = resp.getheader("x-vrsim-key")
+            assert resp.status == 303 and resp.getheader("location") == f"/#key={self.key}", resp.status
             self.cookie = resp.getheader("set-cookie").split(";")[0]
         finally:
             conn.close()
@@ -71,6 +72,8 @@ class Web:
                 headers: dict | None = None) -> tuple[int, bytes, str]:
         conn = http.client.HTTPConnection("127.0.0.1", self.port, timeout=130)
         mine = {"Cookie": self.cookie} if self.cookie else {}
+        if self.key:
+            mine["X-Vrsim-Key"] = self.key
         if method == "POST" and self.csrf:
             mine["X-CSRF-Token"] = self.csrf
         try:
@@ -103,7 +106,7 @@ class EventStream:
         self.sock = socket.socket()
         self.sock.connect(("127.0.0.1", web.port))
         self.sock.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{web.port}\r\nCookie: {web.cookie}\r\n"
-                          "Accept: text/event-stream\r\n\r\n".encode())
+                          f"X-Vrsim-Key: {web.key}\r\nAccept: text/event-stream\r\n\r\n".encode())
         self.headers = ""
         self.thread = threading.Thread(target=self._read, daemon=True)
         self.thread.start()

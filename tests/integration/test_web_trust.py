@@ -55,7 +55,8 @@ def login(web: Web, user: str, password: str) -> Web:
         resp.read()
     finally:
         conn.close()
-    assert resp.status == 303 and resp.getheader("location") == "/"
+    other.key = resp.getheader("x-vrsim-key")
+    assert resp.status == 303 and resp.getheader("location") == f"/#key={other.key}"
     other.cookie = resp.getheader("set-cookie").split(";")[0]
     other.csrf = other.json("/api/view")["csrf"]
     return other
@@ -149,7 +150,7 @@ class Client:
         self.sock = socket.create_connection(("127.0.0.1", web.port), timeout=30)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         self.sock.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{web.port}\r\nCookie: {web.cookie}\r\n"
-                          "Accept: text/event-stream\r\n\r\n".encode())
+                          f"X-Vrsim-Key: {web.key}\r\nAccept: text/event-stream\r\n\r\n".encode())
 
     def status(self) -> int:
         line = b""
@@ -276,9 +277,9 @@ def test_beyond_loopback_a_forged_host_is_refused_even_logged_in(wide):
     assert status == 303
     cookie = resp.getheader("set-cookie")
     assert "Secure" in cookie and "HttpOnly" in cookie
-    cookie = cookie.split(";")[0]
+    cookie, key = cookie.split(";")[0], resp.getheader("x-vrsim-key")
     host = f"127.0.0.2:{wide.web_port}"
-    status, _ = https(wide, "GET", "/api/status", {"Cookie": cookie, "Host": host})
+    status, _ = https(wide, "GET", "/api/status", {"Cookie": cookie, "X-Vrsim-Key": key, "Host": host})
     assert status == 200
     forged = f"evil.example:{wide.web_port}"  # DNS rebinding: evil.example resolved to 127.0.0.2
     status, _ = https(wide, "POST", "/api/stop", {"Cookie": cookie, "Host": forged,

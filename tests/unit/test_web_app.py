@@ -26,8 +26,9 @@ class NoBus:
     map_scale = None
 
 
-def scope(path: str, cookie: str = "") -> dict:
+def scope(path: str, cookie: str = "", key: str = "") -> dict:
     headers = [(b"host", b"127.0.0.1:8448")] + ([(b"cookie", cookie.encode())] if cookie else [])
+    headers += [(b"x-vrsim-key", key.encode())] if key else []
     return {"type": "http", "asgi": {"version": "3.0", "spec_version": "2.4"}, "http_version": "1.1",
             "method": "GET", "scheme": "http", "path": path, "raw_path": path.encode(), "query_string": b"",
             "root_path": "", "headers": headers, "server": ("127.0.0.1", 8448),
@@ -80,8 +81,9 @@ async def stalled_browser(view: LiveView, stall_s: float):
 
     drive(0)  # the run is under way when the browser comes
     await asyncio.sleep(2 * FRAME_S)
-    cookie = f"vrsim_session={logins.open('viewer')}"
-    stream = asyncio.create_task(app(scope("/events", cookie), receive, send))
+    sid = logins.open("viewer")
+    stream = asyncio.create_task(app(scope("/events", f"vrsim_session={sid}", logins.sessions[sid].key),
+                                     receive, send))
     first_seq = view.seq
     for tick in range(1, int(stall_s / FRAME_S)):  # a run goes on: a new pose every frame
         drive(tick)

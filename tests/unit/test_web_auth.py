@@ -79,8 +79,10 @@ def service(operator=True, **kwargs):
 
 
 def session(app, logins: Logins, role: str) -> tuple[dict, str]:
-    """Headers of a logged-in browser of ``role`` and its CSRF token (as the page gets it)."""
-    headers = {"cookie": f"{logins.cookie}={logins.open(role)}"}
+    """Headers of a logged-in browser of ``role`` (its cookie and the page's key) and its CSRF token (as
+    the page gets it)."""
+    sid = logins.open(role)
+    headers = {"cookie": f"{logins.cookie}={sid}", "x-vrsim-key": logins.sessions[sid].key}
     status, _, body = call(app, "GET", "/api/view", headers)
     assert status == 200
     return headers, json.loads(body)["csrf"]
@@ -105,11 +107,12 @@ def test_the_page_without_a_session_goes_to_the_login_page_which_needs_none():
 def test_the_token_in_the_url_opens_a_session_and_the_redirect_drops_it():
     app, logins, _ = service()
     status, headers, _ = call(app, "GET", "/", query=f"token={logins.token}&x=1")
-    assert status == 303 and headers["location"] == "/?x=1"
+    assert status == 303 and headers["location"] == f"/?x=1#key={headers['x-vrsim-key']}"
     cookie = headers["set-cookie"]
     assert "HttpOnly" in cookie and "SameSite=strict" in cookie and cookie.startswith("vrsim_session_8448=")
     sid = cookie.split(";")[0].split("=", 1)[1]
-    assert call(app, "GET", "/api/status", {"cookie": f"vrsim_session_8448={sid}"})[0] == 200
+    both = {"cookie": f"vrsim_session_8448={sid}", "x-vrsim-key": headers["x-vrsim-key"]}
+    assert call(app, "GET", "/api/status", both)[0] == 200
     status, _, body = call(app, "GET", "/", query="token=not-it")
     assert status == 303  # to the login page
     assert call(app, "GET", "/api/status", query="token=not-it")[0] == 401
@@ -152,7 +155,8 @@ def test_an_operators_password_on_a_viewer_service_is_a_viewer():
     form = {"content-type": "application/x-www-form-urlencoded"}
     status, headers, _ = call(app, "POST", "/login", form, b"user=operator&password=op-secret")
     sid = headers["set-cookie"].split(";")[0].split("=", 1)[1]
-    status, _, body = call(app, "GET", "/api/view", {"cookie": f"vrsim_session_8448={sid}"})
+    status, _, body = call(app, "GET", "/api/view", {"cookie": f"vrsim_session_8448={sid}",
+                                                     "x-vrsim-key": headers["x-vrsim-key"]})
     assert json.loads(body)["role"] == "viewer"
 
 
@@ -191,7 +195,8 @@ async def _streams(app, logins: Logins, n: int, reading: bool):
                                        life_send))
     while "lifespan.startup.complete" not in life_out:
         await asyncio.sleep(0.01)
-    cookie = {"cookie": f"{logins.cookie}={logins.open('viewer')}"}
+    sid = logins.open("viewer")
+    cookie = {"cookie": f"{logins.cookie}={sid}", "x-vrsim-key": logins.sessions[sid].key}
     leave = asyncio.Event()
     starts: list = []
     sent: list = []

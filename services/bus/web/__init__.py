@@ -4,9 +4,10 @@ A viewer on the bus (it subscribes and queries; its only writes, start and stop,
 `bridge.Operator` and only when it is given one) and a small HTTP server (Starlette on uvicorn) on
 127.0.0.1:8448 unless told otherwise. Modules: `live` (the state the page shows, pure), `picture`
 (colour scale, the prescription as PNG), `bridge` (the bus side), `app` (the HTTP side); the page
-itself is ``services/bus/web_static/`` (plain JavaScript and canvas, no library, no network), and
-`auth` says who may ask (a login token printed with the page's URL, or a bus user's password). See
-docs/api.md for ``/events`` and the JSON API, docs/security.md for the page's defences.
+itself is ``services/bus/web_static/`` (plain JavaScript and canvas, no library, no network),
+`auth` says who may ask (a login token printed with the page's URL, or a bus user's password), and
+`guard` how many connections may be open and for how long. See docs/api.md for ``/events`` and the
+JSON API, docs/security.md for the page's defences.
 
 Keep imports here light: ``vrsim serve`` imports this package only to call `main`.
 """
@@ -39,28 +40,36 @@ def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int
 
 
 def _bind(host: str, port: int) -> socket.socket:
-    """A listening socket, bound before anything else starts, so a taken port is a clear error."""
+    """A listening socket, bound before anything else starts, so a taken port is a clear error; its
+    ``accept`` admits connections through a `guard.Door` once `_HttpServer` gives it one."""
+    from services.bus.web.guard import BACKLOG, Listener
+
     try:
         info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
-        sock = socket.socket(info[0], socket.SOCK_STREAM)
+        sock = Listener(info[0], socket.SOCK_STREAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         sock.bind(info[4])
-        sock.listen(128)
+        sock.listen(BACKLOG)
     except OSError as exc:
         raise ServiceError(f"serve web: cannot listen on {host}:{port}: {exc.strerror or exc}") from None
     return sock
 
 
 class _HttpServer:
-    """uvicorn serving ``app`` on ``sock`` in a thread; ``stop`` is set if it ends by itself."""
+    """uvicorn serving ``app`` on ``sock`` (from `_bind`) in a thread, behind a `guard.Door` (``door``,
+    else one for this process's file limit); ``stop`` is set if it ends by itself."""
 
-    def __init__(self, app, sock: socket.socket, stop: threading.Event, tls: tuple[str, str] | None = None):
-        import uvicorn
+    def __init__(self, app, sock: socket.socket, stop: threading.Event, tls: tuple[str, str] | None = None,
+                 door=None):
+        import logging
 
-        certfile, keyfile = tls or (None, None)
-        self.server = uvicorn.Server(uvicorn.Config(app, log_level="warning", access_log=False,
-                                                    timeout_graceful_shutdown=1, lifespan="on",
-                                                    ssl_certfile=certfile, ssl_keyfile=keyfile))
+        from services.bus.web import guard
+
+        self.door = door or guard.Door(guard.cap_for(guard.raise_file_limit()), tls=tls is not None)
+        sock.door = self.door
+        self.server = guard.Server(guard.config(app, self.door, tls), self.door)
+        self.log = logging.getLogger("uvicorn.error")  # its per-request warnings: counted by the door
+        self.log.addFilter(self.door.log_filter)
         self.thread = threading.Thread(target=self._run, args=(sock, stop), name="vrsim-web-http",
                                        daemon=True)
         self.thread.start()
@@ -79,6 +88,7 @@ class _HttpServer:
     def close(self) -> None:
         self.server.should_exit = True
         self.thread.join(timeout=5.0)
+        self.log.removeFilter(self.door.log_filter)
 
 
 def _allowed_hosts(host: str) -> list[str]:

@@ -8,8 +8,9 @@ beyond), a stream keeps only the seq and epoch it sent last, sends an event in p
 `PIECE_BYTES` and is dropped when its browser has not taken a piece within `SEND_TIMEOUT_S` (uvicorn
 stops at 64 KB of unsent bytes), and streams starting on the same frame share one encoded ``hello``.
 
-Who may ask (`auth`): every route but the login page needs a session; start and stop an operator's
-session and its CSRF token; the Host header must be one of ``allowed_hosts``.
+Who may ask (`auth`): every route but the login page needs a session (its cookie, and its key but
+for the page and its static files); start and stop an operator's session and its CSRF token; the
+Host header must be one of ``allowed_hosts``. How many may connect, and for how long: `guard`.
 """
 
 from __future__ import annotations
@@ -198,10 +199,10 @@ async def _disconnected(receive) -> None:
 
 
 def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins: Logins,
-               allowed_hosts: list[str] | None = None, max_streams: int = MAX_STREAMS) -> Starlette:
-    """The Starlette app. ``operator`` None: a viewer (start and stop answer 403); ``logins``: who may
-    ask; ``allowed_hosts``: Host headers accepted (against DNS rebinding; None: any);
-    ``max_streams``: open ``/events`` streams at most."""
+               allowed_hosts: list[str] | None = None, max_streams: int = MAX_STREAMS) -> SecurityHeaders:
+    """The Starlette app, inside `SecurityHeaders` (its ``state`` is the app's). ``operator`` None: a
+    viewer (start and stop answer 403); ``logins``: who may ask; ``allowed_hosts``: Host headers
+    accepted (against DNS rebinding; None: any); ``max_streams``: open ``/events`` streams at most."""
     frames = _Frames(view)
     streams = _Streams(max_streams)
 
@@ -308,14 +309,13 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
         Route("/api/stop", api_stop, methods=["POST"]),
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
-    # Outermost first: every answer (a refused Host's too) carries the frame and content headers.
-    middleware = [Middleware(SecurityHeaders)]
-    if allowed_hosts:
-        middleware.append(Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts))
+    middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts)] if allowed_hosts else []
     middleware.append(Middleware(LoginGate, logins=logins))
     app = Starlette(routes=routes, middleware=middleware, lifespan=lifespan)
     app.state.streams = streams
-    return app
+    # Outside Starlette (whose error handler is outermost within it): every answer, a refused Host's
+    # and a 500 too, carries the frame and content headers.
+    return SecurityHeaders(app)
 
 
 async def _bus(fn, *args) -> Response:

@@ -2,15 +2,22 @@
 
 A login is the token made at start (printed with the page's URL, ``/?token=...``, as Jupyter does)
 or the password of the bus's ``operator`` or ``viewer`` user from the state folder (``/login``). It
-is exchanged for a session: a random id in an HttpOnly, SameSite=Strict cookie (Secure over TLS),
-kept here with its role and a CSRF token that the page's script sends back in ``X-CSRF-Token`` with
-every POST. Without a session every route answers 401 (the page: a redirect to ``/login``), but the
-login page and its stylesheet. See docs/security.md, "The web page".
+is exchanged for a session in two halves: a random id in an HttpOnly, SameSite=Strict cookie (Secure
+over TLS), and a key the login's redirect hands to the page in the URL's fragment (and to a script in
+``X-Vrsim-Key``), which the page keeps in its origin's storage and sends back in ``X-Vrsim-Key``. A
+browser sends the cookie to every port of the host, so a server of another local user on another
+port can be lured into receiving it; the key it never sends there. The session also holds its role
+and a CSRF token that the page's script sends back in ``X-CSRF-Token`` with every POST.
+
+Without the cookie every route answers 401 (the page: a redirect to ``/login``), but the login page
+and its stylesheet; without the key too, but the page itself and its static files (`_needs_key`),
+which hold nothing of the session. See docs/security.md, "The web page".
 """
 
 from __future__ import annotations
 
 import hmac
+import re
 import secrets
 import time
 from collections import OrderedDict
@@ -19,13 +26,17 @@ from dataclasses import dataclass
 from urllib.parse import parse_qsl, urlencode
 
 from starlette.requests import cookie_parser
-from starlette.responses import JSONResponse, RedirectResponse
+from starlette.responses import JSONResponse, PlainTextResponse, RedirectResponse
 
 TOKEN_BYTES = 32  # secrets.token_urlsafe: 43 characters
 SESSION_TTL_S = 12 * 3600.0
 MAX_SESSIONS = 256  # the oldest is forgotten beyond this (a login loop cannot grow memory)
 CSRF_HEADER = "x-csrf-token"
+KEY_HEADER = "x-vrsim-key"
 PUBLIC_PATHS = frozenset({"/login", "/favicon.ico", "/static/view.css"})
+# A redirect stays on this server: a path with one leading "/" ("//host" and, in browsers, "/\host" are
+# another host), printable ASCII (uvicorn's raw path, still percent-encoded).
+LOCAL_PATH = re.compile(r"/(?![/\\])[!-~]*")
 LOGIN_USERS = ("operator", "viewer")  # the bus's people users; a service's password is no login here
 # default-src 'self': the page's script, style, images and /events, from this server only.
 SECURITY_HEADERS = [
@@ -41,10 +52,11 @@ SECURITY_HEADERS = [
 
 @dataclass
 class Session:
-    """One logged-in browser: its ``role`` (``operator`` or ``viewer``) and CSRF token."""
+    """One logged-in browser: its ``role`` (``operator`` or ``viewer``), CSRF token and the page's key."""
 
     role: str
     csrf: str
+    key: str
     expires_s: float  # time.monotonic() after which it is gone
 
 
@@ -91,7 +103,8 @@ class Logins:
         while len(self.sessions) >= MAX_SESSIONS:
             self.sessions.popitem(last=False)
         sid = secrets.token_urlsafe(TOKEN_BYTES)
-        self.sessions[sid] = Session(role, secrets.token_urlsafe(TOKEN_BYTES), now + SESSION_TTL_S)
+        csrf, key = secrets.token_urlsafe(TOKEN_BYTES), secrets.token_urlsafe(TOKEN_BYTES)
+        self.sessions[sid] = Session(role, csrf, key, now + SESSION_TTL_S)
         return sid
 
     def find(self, headers: Mapping[str, str]) -> Session | None:
@@ -103,11 +116,32 @@ class Logins:
         return session
 
     def logged_in(self, sid: str, to: str) -> RedirectResponse:
-        """303 to ``to`` setting the session cookie."""
-        response = RedirectResponse(to, status_code=303, headers={"Cache-Control": "no-store"})
+        """303 to ``to`` setting the session cookie, with the session's key in the fragment (for the page:
+        no server sees a fragment) and in ``X-Vrsim-Key`` (for a script)."""
+        key = self.sessions[sid].key
+        response = RedirectResponse(f"{to}#key={key}", status_code=303,
+                                    headers={"Cache-Control": "no-store", KEY_HEADER: key})
         response.set_cookie(self.cookie, sid, max_age=int(SESSION_TTL_S), path="/", httponly=True,
                             samesite="strict", secure=self.secure)
         return response
+
+
+def _key_ok(session: Session, headers: Mapping[str, str]) -> bool:
+    """The request carries the session's key in ``X-Vrsim-Key`` (the cookie alone is half a session)."""
+    return _same(headers.get(KEY_HEADER, ""), session.key)
+
+
+def _needs_key(path: str) -> bool:
+    """Whether ``path`` needs the key as well as the cookie: all but the page and its static files
+    (a navigation or a ``<script src>`` cannot send a header; they are the same for everyone)."""
+    return path != "/" and not path.startswith("/static/")
+
+
+def _local_path(scope) -> str:
+    """The request's path as a redirect target on this server (``/`` for anything else)."""
+    raw = scope.get("raw_path") or scope["path"].encode("utf-8", "replace")
+    path = raw.decode("latin-1")
+    return path if LOCAL_PATH.fullmatch(path) else "/"
 
 
 def csrf_ok(session: Session, headers: Mapping[str, str]) -> bool:
@@ -120,8 +154,9 @@ def _same(given: str, expected: str) -> bool:
 
 
 class LoginGate:
-    """ASGI middleware: ``?token=`` in any URL opens a session and redirects to the URL without it; a
-    request without a session gets 401 (``/``: a redirect to ``/login``), but `PUBLIC_PATHS`. The
+    """ASGI middleware: ``?token=`` in any URL opens a session and redirects to the URL without it (a
+    path on this server only); a request without a session gets 401 (``/``: a redirect to
+    ``/login``), but `PUBLIC_PATHS`, and so does one without the session's key where `_needs_key`. The
     session is ``request.state.session``."""
 
     def __init__(self, app, logins: Logins):
@@ -140,13 +175,19 @@ class LoginGate:
                 return await _unauthorized(scope["path"], "the token is not this server's (see the URL "
                                                           "printed at start)")(scope, receive, send)
             rest = urlencode([(k, v) for k, v in query if k != "token"])
-            to = scope["path"] + (f"?{rest}" if rest else "")
+            to = _local_path(scope) + (f"?{rest}" if rest else "")
             response = self.logins.logged_in(self.logins.open(role), to)
             return await response(scope, receive, send)
         session = self.logins.find(headers)
-        if session is None and scope["path"] not in PUBLIC_PATHS:
-            return await _unauthorized(scope["path"], "log in first: open the URL printed at start "
-                                                      "(it carries a token) or /login")(scope, receive, send)
+        path = scope["path"]
+        if session is None and path not in PUBLIC_PATHS:
+            return await _unauthorized(path, "log in first: open the URL printed at start "
+                                             "(it carries a token) or /login")(scope, receive, send)
+        half = session is not None and path not in PUBLIC_PATHS and _needs_key(path)
+        if half and not _key_ok(session, headers):
+            return await _unauthorized(path, "the session's key is missing or wrong (X-Vrsim-Key: the page "
+                                             "sends it; a cookie alone is no login): log in again at "
+                                             "/login")(scope, receive, send)
         scope.setdefault("state", {})["session"] = session
         await self.app(scope, receive, send)
 
@@ -158,18 +199,30 @@ def _unauthorized(path: str, message: str):
 
 
 class SecurityHeaders:
-    """ASGI middleware: `SECURITY_HEADERS` on every response (no other site may frame the page)."""
+    """ASGI middleware, outermost (outside Starlette's own error handler, so its 500 too):
+    `SECURITY_HEADERS` on every response (no other site may frame the page). An exception before any
+    answer is answered 500 here, so uvicorn's own 500 (which carries none) is never sent."""
 
     def __init__(self, app):
         self.app = app
+        self.state = getattr(app, "state", None)
 
     async def __call__(self, scope, receive, send) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        started = False
 
         async def with_headers(message) -> None:
+            nonlocal started
             if message["type"] == "http.response.start":
+                started = True
                 message = {**message, "headers": [*message.get("headers", []), *SECURITY_HEADERS]}
             await send(message)
 
-        await self.app(scope, receive, with_headers)
+        try:
+            await self.app(scope, receive, with_headers)
+        except Exception:
+            if not started:
+                failed = PlainTextResponse("Internal Server Error", status_code=500)
+                await failed(scope, receive, with_headers)
+            raise

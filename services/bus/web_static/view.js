@@ -1,8 +1,12 @@
 // vrsim live view: one page, plain JavaScript and canvas, everything from this server (no network).
 // Data: GET /api/view (role, CSRF token, map geometry, colour scale), GET /api/map.png (the
 // prescription), /events (Server-Sent Events: `hello` = everything, then `frame` = what changed, at most
-// 20 a second). The session is an HttpOnly cookie; without one (401) the page goes to /login.
-// State for scripts and tests: window.vrsimView.
+// 20 a second, read through fetch so that it carries the key). The session is two halves: an HttpOnly
+// cookie, which the browser sends by itself (to every port of this host: another local server can be
+// lured into receiving it), and this page's key, which only this origin's script holds (localStorage is
+// per scheme, host and port) and sends in X-Vrsim-Key with every request here. A login's redirect brings
+// a new key in the URL's fragment (no server sees a fragment), taken out of the address bar at once.
+// Without a session (401) the page goes to /login. State for scripts and tests: window.vrsimView.
 "use strict";
 (() => {
   const HISTORY = 600; // chart points shown (30 s of frames at 20 a second)
@@ -29,12 +33,68 @@
   let csrf = ""; // the session's CSRF token (from /api/view), sent with every POST
   let dirty = true;
 
+  // ------------------------------------------------------------------ the session's key
+  const KEY_ITEM = "vrsim_key";
+  const keys = []; // to try, best first: the one a login just gave, then the one kept
+  const fresh = /^#key=([A-Za-z0-9_-]+)$/.exec(window.location.hash);
+  if (window.location.hash) history.replaceState(null, "", window.location.pathname + window.location.search);
+  if (fresh) keys.push(fresh[1]);
+  const kept = stored();
+  if (kept && kept !== keys[0]) keys.push(kept);
+  const withKey = (headers = {}) => ({ ...headers, "X-Vrsim-Key": keys[0] || "" });
+  const toLogin = () => window.location.assign("/login");
+
+  function stored(value) {
+    try {
+      if (value === undefined) return window.localStorage.getItem(KEY_ITEM);
+      window.localStorage.setItem(KEY_ITEM, value);
+    } catch (e) { /* storage refused (a private window's settings): the key lives as long as the page */ }
+    return null;
+  }
+
+  // The first key /api/view takes is kept (a fragment another page put in the URL cannot replace a good
+  // one); none: log in again.
+  async function pickKey() {
+    while (keys.length) {
+      const r = await fetch("/api/view", { headers: withKey() });
+      if (r.status !== 401) { stored(keys[0]); return true; }
+      keys.shift();
+    }
+    toLogin();
+    return false;
+  }
+
   // ------------------------------------------------------------------ events
-  const es = new EventSource("/events");
-  es.onopen = () => setConn(true);
-  es.onerror = () => setConn(false);
-  es.addEventListener("hello", (e) => onDoc(JSON.parse(e.data), true));
-  es.addEventListener("frame", (e) => onDoc(JSON.parse(e.data), false));
+  async function stream() {
+    for (;;) {
+      try {
+        const r = await fetch("/events", { headers: withKey({ Accept: "text/event-stream" }), cache: "no-store" });
+        if (r.status === 401) return toLogin();
+        if (r.ok) {
+          setConn(true);
+          const reader = r.body.pipeThrough(new TextDecoderStream()).getReader();
+          let buf = "";
+          for (;;) {
+            const { value, done } = await reader.read();
+            if (done) break;
+            buf += value;
+            for (let end; (end = buf.indexOf("\n\n")) >= 0; buf = buf.slice(end + 2)) onEvent(buf.slice(0, end));
+          }
+        }
+      } catch (e) { /* the connection broke: again below, as EventSource would */ }
+      setConn(false);
+      await new Promise((again) => setTimeout(again, 1000));
+    }
+  }
+
+  function onEvent(block) {
+    let kind = "", data = "";
+    for (const line of block.split("\n")) {
+      if (line.startsWith("event: ")) kind = line.slice(7);
+      else if (line.startsWith("data: ")) data += line.slice(6);
+    }
+    if (kind === "hello" || kind === "frame") onDoc(JSON.parse(data), kind === "hello"); // else a keepalive
+  }
 
   function setConn(on) {
     S.connected = on;
@@ -82,8 +142,8 @@
     S.mapVersion = version;
     values = null; // deltas wait in `pending` until the new grid is there
     const request = ++viewRequests;
-    fetch("/api/view").then((r) => {
-      if (r.status === 401) window.location.assign("/login");
+    fetch("/api/view", { headers: withKey() }).then((r) => {
+      if (r.status === 401) toLogin();
       return r.json();
     }).then((doc) => {
       if (request !== viewRequests) return; // a later request is on its way: its answer counts
@@ -105,9 +165,11 @@
       const info = doc.map.info;
       $("mapinfo").textContent = `${info.source} · ${info.crs} · ${grid.cols}×${grid.rows} cells of ` +
         `${grid.cell_x_m.toFixed(1)} m`;
-      const img = new Image();
-      img.onload = () => { mapImg = img; S.mapLoaded = true; dirty = true; };
-      img.src = doc.map.png;
+      // Fetched with the key (an <img src> could not send it), decoded without a URL of its own.
+      fetch(doc.map.png, { headers: withKey() }).then((r) => (r.ok ? r.blob() : Promise.reject(r.status)))
+        .then((blob) => createImageBitmap(blob))
+        .then((bitmap) => { mapImg = bitmap; S.mapLoaded = true; dirty = true; })
+        .catch(() => {});
       dirty = true;
     }).catch(() => { if (request === viewRequests) S.mapVersion = null; });
   }
@@ -375,7 +437,7 @@
       body = file ? await file.text() : "";
     }
     const r = await fetch(url, { method: "POST", body,
-      headers: { "Content-Type": "text/plain", "X-CSRF-Token": csrf } });
+      headers: withKey({ "Content-Type": "text/plain", "X-CSRF-Token": csrf }) });
     const doc = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
     if (!r.ok) $("opmsg").textContent = doc.error || `HTTP ${r.status}`;
   }
@@ -395,6 +457,9 @@
     }
     requestAnimationFrame(draw);
   }
-  loadView(null);
+  function start() {
+    pickKey().then((ok) => { if (ok) { stream(); loadView(null); } }, () => setTimeout(start, 1000));
+  }
+  start();
   requestAnimationFrame(draw);
 })();
