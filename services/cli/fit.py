@@ -21,7 +21,8 @@ def configure(parser) -> None:
                         help="also replay the fitted twin on another log of the same machine (never "
                              "fitted on)")
     parser.add_argument("--out", metavar="DIR", default=None,
-                        help="write machine_fit.toml and fit.json into DIR (default: runs/fit-<time>/)")
+                        help="write machine_fit.toml and fit.json into DIR (default: "
+                             "runs/fit-<log>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the fit as one JSON object")
 
 
@@ -47,7 +48,7 @@ def run(args) -> int:
     if args.validate:
         other, _, _ = replay_input(args, args.validate, select=False)   # the fitted machine, its sections
         validated = replay_records(other, replay_scenario(other, fit.scenario)).summary
-    out = args.out or default_out_dir("fit", "machine")
+    out = args.out or default_out_dir(os.path.splitext(os.path.basename(os.path.normpath(args.log)))[0], "fit")
     summary = fit_summary(fit, validated)
     write_fit(fit, summary, out, os.path.abspath(args.log))
     summary["out_dir"] = out
