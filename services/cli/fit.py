@@ -48,7 +48,8 @@ def run(args) -> int:
     if args.validate:
         other, _, _ = replay_input(args, args.validate, select=False)   # the fitted machine, its sections
         validated = replay_records(other, replay_scenario(other, fit.scenario)).summary
-    out = args.out or default_out_dir(os.path.splitext(os.path.basename(os.path.normpath(args.log)))[0], "fit")
+    stem = os.path.splitext(os.path.basename(os.path.normpath(args.log)))[0]
+    out = args.out or default_out_dir(stem, "fit")
     summary = fit_summary(fit, validated)
     write_fit(fit, summary, out, os.path.abspath(args.log))
     summary["out_dir"] = out
