@@ -78,6 +78,10 @@ class Grid:
     quantity : str
         ``"rate"`` (a prescription or an as-applied map: rates >= 0) or ``"difference"`` (signed,
         e.g. applied minus prescribed), which is no prescription.
+    zone_rates_kg_ha : array_like, optional
+        A vector map's zone rates, distinct and sorted, in `unit` (`maps.zones`: a cell its rasterizing
+        covers with more than one zone holds their area-weighted mean, which no zone asks for); None:
+        the cells' values are the map's rates (a raster).
     """
 
     rates_kg_ha: np.ndarray
@@ -91,6 +95,7 @@ class Grid:
     map_unit: str | None = None
     density_kg_l: float | None = None
     seed_mass_g: float | None = None
+    zone_rates_kg_ha: np.ndarray | None = None
 
     def __post_init__(self):
         rates = np.ascontiguousarray(self.rates_kg_ha, dtype=np.float64)
@@ -105,6 +110,8 @@ class Grid:
         if not all(math.isfinite(v) for v in tuple(t)[:6]):
             raise MapError(f"{self._where()}: transform has non-finite values {tuple(t)[:6]}")
         self.rates_kg_ha = rates
+        if self.zone_rates_kg_ha is not None:
+            self.zone_rates_kg_ha = np.unique(np.asarray(self.zone_rates_kg_ha, dtype=np.float64))
         self.crs = as_crs(self.crs, f"{self._where()}: crs")
         self.unit = rate_unit(self.unit, f"{self._where()}: unit")
         self.map_unit = rate_unit(self.map_unit or self.unit, f"{self._where()}: map unit")
@@ -127,7 +134,8 @@ class Grid:
         """This grid with its rates in its `map_unit` (what its files are written in)."""
         if self.unit == self.map_unit:
             return self
-        return replace(self, rates_kg_ha=self.in_map_unit(self.rates_kg_ha), unit=self.map_unit)
+        return replace(self, rates_kg_ha=self.in_map_unit(self.rates_kg_ha), unit=self.map_unit,
+                       zone_rates_kg_ha=self._zones_converted(self.in_map_unit))
 
     def to_kg_ha(self, density_kg_l: float | None = None, seed_mass_g: float | None = None) -> Grid:
         """This grid with its rates in kg/ha, its `map_unit` kept to show them in.
@@ -139,9 +147,17 @@ class Grid:
         if self.unit == UNIT or (kind == "count" and seed_mass_g is None) or (kind == "volume" and
                                                                               density_kg_l is None):
             return self
-        rates = convert_rate(self.rates_kg_ha, self.unit, UNIT, density_kg_l, seed_mass_g)
-        return replace(self, rates_kg_ha=rates, unit=UNIT, map_unit=self.map_unit, density_kg_l=density_kg_l,
-                       seed_mass_g=seed_mass_g)
+        def to_unit(values):
+            return convert_rate(values, self.unit, UNIT, density_kg_l, seed_mass_g)
+
+        return replace(self, rates_kg_ha=to_unit(self.rates_kg_ha), unit=UNIT, map_unit=self.map_unit,
+                       density_kg_l=density_kg_l, seed_mass_g=seed_mass_g,
+                       zone_rates_kg_ha=self._zones_converted(to_unit))
+
+    def _zones_converted(self, convert):
+        """`zone_rates_kg_ha` through `convert` (the cells' conversion, so a zone's cells keep its rate to
+        the bit); None for a raster."""
+        return None if self.zone_rates_kg_ha is None else convert(self.zone_rates_kg_ha)
 
     # ------------------------------------------------------------------ geometry
     @property

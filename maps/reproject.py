@@ -51,7 +51,7 @@ def reproject_grid(grid: Grid, dst_crs: pyproj.CRS, cell_size_m: float | None) -
     out = grid_from_bounds((west, south, east, north), size, dst_crs, source=grid.source,
                            format=grid.format, product=grid.product, quantity=grid.quantity, unit=grid.unit,
                            map_unit=grid.map_unit, density_kg_l=grid.density_kg_l,
-                           seed_mass_g=grid.seed_mass_g)
+                           seed_mass_g=grid.seed_mass_g, zone_rates_kg_ha=grid.zone_rates_kg_ha)
     rasterio.warp.reproject(grid.rates_kg_ha, out.rates_kg_ha, src_transform=grid.transform,
                             src_crs=CRS.from_wkt(grid.crs.to_wkt()), src_nodata=np.nan,
                             dst_transform=out.transform, dst_crs=CRS.from_wkt(dst_crs.to_wkt()),

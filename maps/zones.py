@@ -6,7 +6,8 @@ geometry objects) and burnt with `maps.rasterize` on a grid `s` times finer than
 direction (s = 8, less for very large grids); each cell then takes the mean rate of its covered
 sub-cells. The area weights are thus exact to 1/s^2 of a cell; a cell only partly covered takes the
 mean over its covered part (the field edge is not diluted with zeros); a cell not covered at all is
-nodata. Where zones overlap, the later feature wins.
+nodata. Where zones overlap, the later feature wins. The grid keeps the zones' rates
+(`maps.Grid.zone_rates_kg_ha`): a cell on a zone edge holds a mean of two that neither zone asks for.
 """
 
 from __future__ import annotations
@@ -140,7 +141,9 @@ def _rasterize_zones(rings: _Rings, rates, crs, cell_size_m: float | None = None
         total = np.nansum(values, axis=(1, 3))
         with np.errstate(invalid="ignore", divide="ignore"):
             out[r0:r1] = np.where(covered > 0, total / covered, np.nan)
-    return Grid(out, Affine(size, 0.0, west, 0.0, -size, north), crs, source=source, format=format)
+    # The zones' own rates beside the cells: an edge cell's mean of two zones is no rate of the map's.
+    return Grid(out, Affine(size, 0.0, west, 0.0, -size, north), crs, source=source, format=format,
+                zone_rates_kg_ha=rates)
 
 
 def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None) -> str:

@@ -35,6 +35,7 @@ from vehicle.track import ticks_between, track_on_path
 _VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
 STEP_RANGE_S = (0.001, 1.0)  # SUMO's simulation step (by default the control period), s
 MAX_SEED = 2**31 - 1  # SUMO takes its --seed as a C int
+MAX_WORKING_SPEED_M_S = 15.0  # 54 km/h: a faster working speed is not a field speed
 
 
 @dataclass(frozen=True)
@@ -85,9 +86,9 @@ class DriveConfig:
         if self.implement_offset_m < self.vehicle_length_m:
             raise VehicleError(f"DriveConfig: implement_offset_m={self.implement_offset_m} must be >= "
                                f"vehicle_length_m={self.vehicle_length_m} (the implement trails the tractor)")
-        if self.working_speed_m_s > 15.0:
+        if self.working_speed_m_s > MAX_WORKING_SPEED_M_S:
             raise VehicleError(f"DriveConfig: working_speed_m_s={self.working_speed_m_s} is not a field "
-                               "speed (> 15 m/s)")
+                               f"speed (> {MAX_WORKING_SPEED_M_S:g} m/s)")
 
     @property
     def max_speed_m_s(self) -> float:

@@ -277,6 +277,23 @@ class SprayerSpec(MachineSpec):
                     best, best_margin = size, margin
         return best
 
+    def nozzles_for(self, rate_min_l_ha: float, rate_max_l_ha: float, speed_range_m_s: tuple[float, float],
+                    density_kg_l: float | None = None) -> list[str]:
+        """The ISO sizes other than this one that cover rates [min, max] (L/ha) of a liquid of
+        `density_kg_l` (kg/L; None: water) at every speed of `speed_range_m_s` (m/s): the nearest
+        smaller and the nearest larger that do (by rated flow), the nearer first; empty if none does."""
+        v_lo, v_hi = speed_range_m_s
+        fits = []
+        for size in NOZZLE_FLOW_L_MIN:
+            span = self.speed_range_m_s(rate_min_l_ha, rate_max_l_ha, size, density_kg_l)
+            if size != self.nozzle and span is not None and span[0] <= v_lo and v_hi <= span[1]:
+                fits.append(size)
+        q_ref = self.q_ref_l_min
+        smaller = [s for s in fits if NOZZLE_FLOW_L_MIN[s] < q_ref]
+        larger = [s for s in fits if NOZZLE_FLOW_L_MIN[s] > q_ref]
+        nearest = smaller[-1:] + larger[:1]   # the table runs from the smallest size up
+        return sorted(nearest, key=lambda s: abs(math.log(NOZZLE_FLOW_L_MIN[s] / q_ref)))
+
     def check_rates(self, rate_min_l_ha: float, rate_max_l_ha: float,
                     density_kg_l: float | None = None) -> tuple[float, float]:
         """The speed range of `speed_range_m_s` (a liquid of `density_kg_l`, None: water); a

@@ -5,7 +5,9 @@ module-level imports light, since ``vrsim --help`` imports every command module)
 
 Exit codes: 0 done, 2 bad input (a `common.VrsimError` or an argparse error: one line on stderr, no
 traceback), 1 internal error (a bug; set ``VRSIM_DEBUG=1`` to see the traceback) or a crash inside a
-user-defined controller (one line with its file and line; the traceback under ``VRSIM_DEBUG=1``).
+user-defined controller (one line with its file and line; the traceback under ``VRSIM_DEBUG=1``), 3 a
+command's own "no" on fine input, which its module returns (`vrsim run --check`: the machine cannot
+apply the map, `services.cli.run.EXIT_CANNOT`; `vrsim sweep`: runs lost; `vrsim fit`: no convergence).
 """
 
 from __future__ import annotations

@@ -15,6 +15,9 @@ from services.cli.options import add_input_cap, add_overrides, apply_input_cap, 
 RUN_GC_THRESHOLD = 10_000
 HELP = "run a field scenario (file or built-in name; default: the built-in 'default')"
 EXIT_AT_ONCE = True  # every file is closed and the workers reaped when `run` returns (`main.console`)
+# `--check`: the machine cannot apply the whole map. Not 2 (the input is fine: the run runs it, and
+# under-applies) nor 0, so that a script can tell "change the machine or the speeds" from "go".
+EXIT_CANNOT = 3
 
 
 def configure(parser) -> None:
@@ -28,7 +31,8 @@ def configure(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     parser.add_argument("--check", action="store_true",
                         help="only say whether the machine can apply the map at the working speeds, and the "
-                             "highest speed at which it can; then exit (nothing is driven)")
+                             "highest speed at which it can; then exit (nothing is driven): 0 it can, 3 it "
+                             "cannot, 2 what the run would refuse")
     add_input_cap(parser)
 
 
@@ -161,15 +165,18 @@ def _scenario(args):
 
 
 def _check(args) -> int:
-    """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving)."""
+    """`vrsim run --check`: the machine check of the scenario's world (field and map, no driving), after
+    the run's own start (`services.sim.run.start_up`: what the run refuses, exit 2 with its line);
+    `EXIT_CANNOT` when the machine cannot apply the whole map."""
     import dataclasses
 
     from services.outputs.summary import summary_json
-    from services.sim.run import check_world
+    from services.sim.run import check_world, start_up
     from services.sim.world import build_world
 
     sc = _scenario(args)
     world = build_world(sc)
+    start_up(world)
     result = check_world(world)
     if args.json:
         doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply,
@@ -177,4 +184,4 @@ def _check(args) -> int:
         print(summary_json(doc))
     else:
         print(result.text(world.grid))
-    return 0
+    return 0 if result.can_apply else EXIT_CANNOT

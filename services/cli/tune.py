@@ -67,11 +67,16 @@ def run(args) -> int:
         sys.stderr.write("\n")
     paths = write_tune(result, args.out or default_out_dir(sc.name, "tune"))
     if args.json:
+        pairs = (("tuned_loop", result.tuned_loop), ("baseline_loop", result.baseline_loop))
+        loops = {key: None if loop is None else loop.to_dict() for key, loop in pairs}
         print(dumps_text({"scenario": result.scenario, "objective": result.objective, "sense": result.sense,
                           "controller": result.best.kind, "best": result.best_values,
                           "best_objective": result.best_objective, "evaluations": result.evaluations,
                           "generations": result.generations, "tuned": result.tuned,
-                          "baseline": result.baseline, **paths}, indent=True))
+                          "baseline": result.baseline, **loops, "margin_warning": result.margin_warning,
+                          **paths}, indent=True))
+        if result.margin_warning:   # not only inside the JSON: a script's log shows it too
+            print(f"vrsim tune: warning: the tuned loop's {result.margin_warning}", file=sys.stderr)
     else:
         print(tune_text(result))
         print(f"  files: {paths['best_controller']}, {paths['history']}")

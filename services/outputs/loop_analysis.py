@@ -11,8 +11,14 @@ import numpy as np
 from common import VrsimError
 from common.written import staged
 
-STEP_RPM = 100.0       # the step of step.png, from rest, as in the paper's bench test
+STEP_RPM = 100.0       # a shaft's step in step.png, from rest, as in the paper's bench test
 STEP_DURATION_S = 5.0
+
+
+def _step_size(report) -> float:
+    """The step of step.png, in the loop's unit: `STEP_RPM` for a shaft; for another loop (a sprayer's
+    flow, whose range may end below 100 L/min) the response's high target, 60 % of its range."""
+    return STEP_RPM if report.unit == "rpm" else report.response.high_rpm
 
 
 def _fmt(x, spec: str = ".3g") -> str:
@@ -21,8 +27,8 @@ def _fmt(x, spec: str = ".3g") -> str:
 
 def write_pictures(report, out_dir: str) -> list[str]:
     """Write ``bode.png`` (open loop with its margins; only for a linear controller) and ``step.png``
-    (a 100 rpm step from rest: the simulated loop at 1 ms with saturation, and the linear closed loop
-    if there is one) into `out_dir`; return their paths."""
+    (a step from rest, `_step_size`: the simulated loop at 1 ms with saturation, and the linear closed
+    loop if there is one) into `out_dir`; return their paths."""
     names = ["bode.png", "step.png"] if report.loop is not None else ["step.png"]
     with staged(out_dir) as stage:  # both pictures or neither
         if report.loop is not None:
@@ -69,19 +75,20 @@ def _step(report):
     from controller.simulate import simulate
 
     timing = report.scenario.timing
-    t = timing.control_period_s
+    t, step, unit = timing.control_period_s, _step_size(report), report.unit
     fig = Figure(figsize=(7, 4))
     ax = fig.subplots()
-    sim = simulate(report.plant, report.controller, STEP_RPM, STEP_DURATION_S, t, timing.plant_step_s)
-    ax.plot(sim.t_s, sim.shaft_rpm[0], lw=0.8, label=f"simulated shaft, {timing.plant_step_s * 1e3:g} ms, "
+    sim = simulate(report.plant, report.controller, step, STEP_DURATION_S, t, timing.plant_step_s)
+    what = "shaft" if unit == "rpm" else report.quantity
+    ax.plot(sim.t_s, sim.shaft_rpm[0], lw=0.8, label=f"simulated {what}, {timing.plant_step_s * 1e3:g} ms, "
             "saturating")
     if report.loop is not None:
         lin = control.step_response(report.loop.closed_loop, T=np.arange(0.0, STEP_DURATION_S, t))
-        ax.step(lin.time, STEP_RPM * np.ravel(lin.outputs), where="post", label="linear loop, sensor reading")
-    ax.axhline(STEP_RPM, color="grey", lw=0.8)
+        ax.step(lin.time, step * np.ravel(lin.outputs), where="post", label="linear loop, sensor reading")
+    ax.axhline(step, color="grey", lw=0.8)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("shaft speed [rpm]")
-    ax.set_title(f"{report.controller.kind}: {STEP_RPM:g} rpm step from rest")
+    ax.set_ylabel(f"{report.quantity} [{unit}]")
+    ax.set_title(f"{report.controller.kind}: {step:.4g} {unit} step from rest")
     ax.legend()
     return fig
 
@@ -89,7 +96,9 @@ def _step(report):
 def text(report) -> str:
     """The readable report ``vrsim controller analyze`` prints."""
     cfg, loop, r, la = report.controller, report.loop, report.response, report.look_ahead
-    lines = [f"vrsim controller analyze: {report.scenario.name}, controller kind {cfg.kind}"]
+    alike = f", one of {report.drives} alike" if report.drives > 1 else ""
+    lines = [f"vrsim controller analyze: {report.scenario.name}, controller kind {cfg.kind}",
+             f"  machine {report.machine}: the loop of its {report.quantity} [{report.unit}]{alike}"]
     if loop is None:
         lines.append(f"  loop: {report.no_loop_reason}")
     else:
@@ -105,7 +114,8 @@ def text(report) -> str:
             "(-3 dB, target -> reading)",
         ]
     lines += [
-        f"  response, per-period shaft speed, {r.low_rpm:g} <-> {r.high_rpm:g} rpm:{'up':>10}{'down':>10}",
+        f"  response, per-period {report.quantity}, {r.low_rpm:.4g} <-> {r.high_rpm:.4g} {report.unit}:"
+        f"{'up':>10}{'down':>10}",
         *(f"    {label:<44}{_fmt(getattr(r.up, key), '.3f'):>10}{_fmt(getattr(r.down, key), '.3f'):>10}"
           for label, key in (("t50 [s]", "t50_s"), ("t63 [s]", "t63_s"), ("t90 [s]", "t90_s"),
                              ("mean lag [s]", "mean_lag_s"))),

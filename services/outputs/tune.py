@@ -1,6 +1,7 @@
 """`vrsim tune`'s files and text: the best controller as a ``[controller]`` table a scenario can
 include (``best_controller.toml``), the objective's history (``history.csv``) and the side-by-side
-figures of the tuned and the scenario's own controller."""
+figures of the tuned and the scenario's own controller, their loops' margins and a warning when the
+tuned loop's are too small (`services.sim.tune.TuneResult.margin_warning`)."""
 
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ def _controller_table(result: TuneResult) -> str:
     cfg = result.best
     keys = ["kind", *PID_KEYS, "params", "file", "class_name", "look_ahead_s", "look_ahead_tune"]
     lines = [f"# vrsim tune {result.scenario}: {result.objective} = {result.best_objective!r} after "
-             f"{result.evaluations} evaluations", "[controller]"]
+             f"{result.evaluations} evaluations", *(f"# {line}" for line in _margin_lines(result)),
+             "[controller]"]
     for key in keys:
         value = getattr(cfg, key)
         if value is None or value == {} or (key == "look_ahead_tune" and value == 0):
@@ -62,16 +64,41 @@ def _fmt(value) -> str:
     return "-" if value is None or (isinstance(value, float) and not math.isfinite(value)) else f"{value:.4g}"
 
 
+def _margin_lines(result: TuneResult) -> list[str]:
+    """The tuned loop's margins in a line (or why there are none) and, if too small, the warning."""
+    loop = result.tuned_loop
+    if loop is None:
+        return [f"loop margins: none ({result.no_loop_reason})"]
+    lines = [f"loop margins of the tuned controller: gain {_fmt(loop.gain_margin)} "
+             f"({_fmt(loop.gain_margin_db)} dB), phase {_fmt(loop.phase_margin_deg)} deg"]
+    if result.margin_warning:
+        lines.append(f"WARNING: the tuned loop's {result.margin_warning}")
+    return lines
+
+
+def _margin_rows(result: TuneResult, width: int, column: int) -> list[str]:
+    """The two loops' gain and phase margins as rows of the table (`width` of the label, `column` of each
+    value)."""
+    rows = []
+    for label, key in (("gain margin [dB]", "gain_margin_db"), ("phase margin [deg]", "phase_margin_deg")):
+        tuned, own = (None if loop is None else getattr(loop, key)
+                      for loop in (result.tuned_loop, result.baseline_loop))
+        rows.append(f"  {label:<{width}} {_fmt(tuned):>{column}} {_fmt(own):>{column}}")
+    return rows
+
+
 def tune_text(result: TuneResult) -> str:
-    """The best parameters and the figures of the tuned controller beside the scenario's own."""
+    """The best parameters and the figures of the tuned controller beside the scenario's own, their
+    loops' margins, and a warning when the tuned loop's are too small."""
     values = ", ".join(f"{k} = {v:.6g}" for k, v in result.best_values.items())
     lines = [f"vrsim tune {result.scenario}: best {result.objective} ({result.sense}) = "
              f"{_fmt(result.best_objective)} with {result.best.kind} {values}",
              f"  {result.evaluations} evaluations in {result.generations} generations", "",
              f"  {'figure':<34} {'tuned':>12} {'scenario':>12}"]
+    notes = [f"  {line}" for line in _margin_lines(result)]
     if "twin_mae_vs_target" in result.tuned:   # tuned on a log's drive (`vrsim tune --log`)
         lines[-1] = f"  {'figure':<52} {'tuned':>10} {'machine':>10}"
-        return "\n".join(lines + _log_rows(result))
+        return "\n".join(lines + _log_rows(result) + _margin_rows(result, 52, 10) + ["", *notes])
     # The rate figures in the map's own unit (`services.outputs.summary.shown`), named without _kg_ha then.
     rows, tuned = shown(result.tuned)
     baseline, units = shown(result.baseline)[1], {key: unit for _, key, unit in rows}
@@ -81,7 +108,7 @@ def tune_text(result: TuneResult) -> str:
         name = m.key if unit == m.unit else rate_key(m.key)
         lines.append(f"  {name + ' [' + unit + ']':<34} {_fmt(tuned.get(m.key)):>12} "
                      f"{_fmt(baseline.get(m.key)):>12}{mark}")
-    return "\n".join(lines)
+    return "\n".join(lines + _margin_rows(result, 34, 12) + ["", *notes])
 
 
 # (label, replay figure) of a tune on a log's drive, in the log's rate unit.

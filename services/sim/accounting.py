@@ -53,13 +53,13 @@ def cells_in_field(grid: Grid, polygon) -> np.ndarray:
 
 def check_world(world: World, in_field: np.ndarray | None = None) -> MachineCheck:
     """Whether the scenario's machine can apply its map at its working speeds (`limits.machine_check`
-    over the prescription's cells inside the field)."""
-    sc = world.scenario
+    over the prescription's cells inside the field, a vector map's read as its zones' rates)."""
+    sc, grid = world.scenario, world.grid
     if in_field is None:
-        in_field = cells_in_field(world.grid, world.field.polygon)
+        in_field = cells_in_field(grid, world.field.polygon)
     try:
-        return machine_check(world.grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement,
-                             sc.product.density_kg_l, sc.tractor.working_speed_m_s)
+        return machine_check(grid.rates_kg_ha[in_field], working_speeds(sc.tractor), sc.implement,
+                             sc.product.density_kg_l, sc.tractor.working_speed_m_s, grid.zone_rates_kg_ha)
     except VehicleError as exc:   # a sprayer's nozzle that cannot apply the map at any speed
         raise ScenarioError(f"{sc.source}: {exc}") from None
 

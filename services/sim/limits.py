@@ -19,6 +19,17 @@ so ``kg_per_rev_min`` to ``kg_per_rev_max`` puts the needed speeds inside the sh
 working speeds as they are). The terminal's configured constant is what it computes with, so the check
 uses it, not the product's true one (`vehicle.product`).
 
+The rates are the map's as the machine meets them (`_map_rates`): a raster's cell values inside the
+field, or a vector map's zone rates. Rasterizing zone polygons gives a cell on a zone edge the
+area-weighted mean of the zones it covers (`maps.zones`): a 0 and a 10 lb/ac zone make edge cells of
+1.11 lb/ac, which no zone asks for and which, taken for the map's lowest rate, would ask the meter to
+turn nine times slower. So a vector map's lowest positive and highest rate are those of the zones whose
+rates the field's cells hold; the check says which rule it used (`MachineCheck.rates_from`).
+
+Advice names only what would change something, and only field speeds (up to
+`vehicle.driver.MAX_WORKING_SPEED_M_S`): the speeds within it at which the machine can
+(`MachineCheck.speed_window_m_s`), the meter constants that can at the working speeds as they are.
+
 Each machine kind checks its own actuator (`services.sim.machines.Machine.machine_check`): by default
 the shaft (`shaft_check`, above); a kind with another one gives its own `MachineCheck` (a sprayer
 checks its nozzles, `services.sim.machines.sprayer._SprayerCheck`).
@@ -26,6 +37,7 @@ checks its nozzles, `services.sim.machines.sprayer._SprayerCheck`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -33,6 +45,13 @@ import numpy as np
 
 from services.sim.metrics import RATE_UNIT, rate_key
 from vehicle import DriveConfig, Implement
+from vehicle.driver import MAX_WORKING_SPEED_M_S
+
+RATES_FROM_CELLS = "cell values"
+RATES_FROM_ZONES = "zone rates of the vector map"
+# A cell inside one zone holds the zone's rate to rounding: the mean of its sub-cells (64 equal values
+# summed), a unit conversion, a reprojection's interpolation between equal neighbours.
+ZONE_RATE_RTOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -64,6 +83,9 @@ class MachineCheck:
         kg/rev (``kg_per_rev_max`` infinite for a shaft whose range starts at 0 rpm; NaN for a map
         with no positive rate). ``kg_per_rev_min > kg_per_rev_max``: no constant can, the map's rates
         and the working speeds span more than the shaft's range.
+    rates_from : str
+        Which of the map's values the rates are (`_map_rates`): `RATES_FROM_CELLS`, a raster's cells
+        inside the field, or `RATES_FROM_ZONES`, the zone rates the field's cells hold.
     """
 
     rate_min_kg_ha: float
@@ -81,6 +103,7 @@ class MachineCheck:
     kg_per_rev: float
     kg_per_rev_min: float
     kg_per_rev_max: float
+    rates_from: str = RATES_FROM_CELLS
 
     @property
     def can_apply(self) -> bool:
@@ -103,8 +126,9 @@ class MachineCheck:
         return {rate_key(k): float(convert(v)) for k, v in vars(self).items() if k.endswith("_kg_ha")}
 
     def text(self, grid=None) -> str:
-        """Two or three lines for the run's printout; two more naming what to change if it cannot.
-        Rates in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
+        """Three or four lines for the run's printout (the verdict, which rates, the speeds at which it
+        can, ...); two more naming what to change if it cannot. Rates in the unit of `grid`
+        (`in_rate_unit`; None: kg/ha)."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
@@ -113,12 +137,13 @@ class MachineCheck:
         lines = [f"Machine check: the meter {verdict}: {lo}-{hi} {unit} at {self.speed_min_m_s:.2f}-"
                  f"{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-{self.shaft_rpm_max:g} rpm shaft.",
-                 f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
-                 f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
+                 self.rates_line(), self.speeds_line()]
         if self.rpm_max > self.shaft_rpm_max:
             lines.append(f"  Above {self.max_speed_m_s:.2f} m/s the highest rates are under-applied.")
         if self.rpm_min < self.shaft_rpm_min:
-            lines.append(f"  Below {self.min_speed_m_s:.2f} m/s the lowest rates are over-applied.")
+            lines.append("  At every field speed the lowest rates are over-applied."
+                         if self.min_speed_m_s > MAX_WORKING_SPEED_M_S else
+                         f"  Below {self.min_speed_m_s:.2f} m/s the lowest rates are over-applied.")
         elif self.min_width_m > self.narrowest_section_m:
             lines.append(f"  With less than {self.min_width_m:.1f} m of sections on, the lowest rate at the "
                          "lowest speed is over-applied.")
@@ -126,15 +151,51 @@ class MachineCheck:
             lines += self._remedies()
         return "\n".join(lines)
 
+    def rates_line(self) -> str:
+        """Which of the map's values the check read (`rates_from`), one line."""
+        if self.rates_from == RATES_FROM_ZONES:
+            return ("  Rates: the zone rates of the vector map inside the field (a cell on a zone edge, "
+                    "rasterized to a mean of two zones, is no rate of its own).")
+        return f"  Rates: the map's {self.rates_from} inside the field."
+
+    @property
+    def speed_window_m_s(self) -> tuple[float, float] | None:
+        """The working speeds at which the full width applies the whole map, m/s, up to the highest
+        field speed (`vehicle.driver.MAX_WORKING_SPEED_M_S`); None: no field speed."""
+        lo, hi = self.min_speed_m_s, min(self.max_speed_m_s, MAX_WORKING_SPEED_M_S)
+        return (lo, hi) if lo <= hi else None
+
+    def speeds_line(self) -> str:
+        """The working speeds at which it can (`speed_window_m_s`), one line."""
+        window = self.speed_window_m_s
+        if window is None:
+            return f"  Working speeds at which it can: none ({self._no_speed()})."
+        lo, hi = window
+        capped = f"; field speeds end at {MAX_WORKING_SPEED_M_S:g} m/s" if hi < self.max_speed_m_s else ""
+        return (f"  Working speeds at which it can: {lo:.2f} to {hi:.2f} m/s (highest {hi * 3.6:.1f} "
+                f"km/h{capped}).")
+
+    def _no_speed(self) -> str:
+        """Why no field speed applies the whole map."""
+        if self.min_speed_m_s <= self.max_speed_m_s:
+            return (f"it needs {self.min_speed_m_s:.2f} m/s or more, beyond field speeds, which end at "
+                    f"{MAX_WORKING_SPEED_M_S:g} m/s")
+        return f"the map's rates span {self.rate_span:.1f}x, the shaft's speeds {self.shaft_span:.1f}x"
+
+    def speed_remedy(self) -> str:
+        """The first line of what to change: the working speeds within `speed_window_m_s`, else why none."""
+        window = self.speed_window_m_s
+        if window is not None:
+            lo, hi = window
+            return f"  To apply it all: keep the working speeds within {lo:.2f}-{hi:.2f} m/s, or"
+        if self.min_speed_m_s <= self.max_speed_m_s:
+            return f"  No field speed applies it all: {self._no_speed()}; instead"
+        return f"  No working speed applies it all: {self._no_speed()}; narrow the map's range, or"
+
     def _remedies(self) -> list[str]:
         """What to change so that the full width applies the whole map: the speeds, or the meter."""
         speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
-        if self.min_speed_m_s <= self.max_speed_m_s:
-            lines = [f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
-                     f"{self.max_speed_m_s:.2f} m/s, or"]
-        else:
-            lines = [f"  No working speed applies it all: the map's rates span {self.rate_span:.1f}x, the "
-                     f"shaft's speeds {self.shaft_span:.1f}x; narrow the map's range, or"]
+        lines = [self.speed_remedy()]
         if self.kg_per_rev_min <= self.kg_per_rev_max:
             lo = f"{self.kg_per_rev_min:.4g}"
             constants = (f"{lo}-{self.kg_per_rev_max:.4g} kg/rev" if math.isfinite(self.kg_per_rev_max)
@@ -174,15 +235,51 @@ def working_speeds(drive: DriveConfig) -> tuple[float, float]:
     return min(speeds), max(speeds)
 
 
+def _map_rates(rates_kg_ha, zone_rates_kg_ha=None) -> tuple[np.ndarray, str]:
+    """The map's rates as the machine meets them, and which rule gave them (`MachineCheck.rates_from`).
+
+    Parameters
+    ----------
+    rates_kg_ha : array_like
+        The map's cells inside the field (NaN: none).
+    zone_rates_kg_ha : array_like, optional
+        A vector map's zone rates (`maps.Grid.zone_rates_kg_ha`); None: a raster.
+
+    Returns
+    -------
+    rates : ndarray
+        A raster's: its cells' values (`RATES_FROM_CELLS`). A vector map's: the zone rates some cell
+        holds to `ZONE_RATE_RTOL`, a cell on a zone edge holding a mean of zones that none asks for
+        (`RATES_FROM_ZONES`); its cells' values should no cell hold a positive zone rate (a field no
+        wider than the edge cells).
+    """
+    rates = np.asarray(rates_kg_ha, float).ravel()
+    rates = rates[np.isfinite(rates)]
+    zones = np.unique(np.asarray([] if zone_rates_kg_ha is None else zone_rates_kg_ha, float))
+    if zones.size == 0 or rates.size == 0:
+        return rates, RATES_FROM_CELLS
+    # Each cell's nearest zone rate: the next one up or the one below it (zones sorted).
+    above = np.minimum(np.searchsorted(zones, rates), zones.size - 1)
+    below = np.maximum(above - 1, 0)
+    nearest = np.where(np.abs(rates - zones[below]) < np.abs(zones[above] - rates), below, above)
+    held = np.isclose(rates, zones[nearest], rtol=ZONE_RATE_RTOL, atol=0.0)
+    met = zones[np.unique(nearest[held])]
+    if not (met > 0).any() and (rates > 0).any():
+        return rates, RATES_FROM_CELLS
+    return met, RATES_FROM_ZONES
+
+
 def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: Implement,
-                  density_kg_l: float | None = 1.0, working_speed_m_s: float | None = None) -> MachineCheck:
+                  density_kg_l: float | None = 1.0, working_speed_m_s: float | None = None,
+                  zone_rates_kg_ha=None) -> MachineCheck:
     """Whether `implement` can apply `rates_kg_ha` at speeds within `speed_range_m_s`: its kind's check
     (`services.sim.machines.Machine.machine_check`; a shaft's by default, `shaft_check`).
 
     Parameters
     ----------
     rates_kg_ha : array_like
-        The map's rates inside the field (NaN and zero are left out: nothing to meter there).
+        The map's rates inside the field (NaN and zero are left out: nothing to meter there), read as
+        `_map_rates` reads them.
     speed_range_m_s : (float, float)
         Lowest and highest working speed (`working_speeds`).
     implement : vehicle.Implement
@@ -191,6 +288,8 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     working_speed_m_s : float, optional
         Where a kind that suggests a change (a sprayer's nozzle size) suggests it; default the middle of
         `speed_range_m_s`.
+    zone_rates_kg_ha : array_like, optional
+        A vector map's zone rates (`maps.Grid.zone_rates_kg_ha`; `_map_rates`); None: a raster.
 
     Raises
     ------
@@ -201,11 +300,12 @@ def machine_check(rates_kg_ha, speed_range_m_s: tuple[float, float], implement: 
     # Imported here: the machines' base imports this module (`shaft_check`, `MachineCheck`).
     from services.sim.machines import machine_for
 
-    rates = np.asarray(rates_kg_ha, float).ravel()
-    rates = rates[np.isfinite(rates) & (rates > 0)]
+    rates, rates_from = _map_rates(rates_kg_ha, zone_rates_kg_ha)
+    rates = rates[rates > 0]
     lo_rate, hi_rate = (float(rates.min()), float(rates.max())) if rates.size else (math.nan, math.nan)
     working = sum(speed_range_m_s) / 2.0 if working_speed_m_s is None else working_speed_m_s
-    return machine_for(implement).machine_check(lo_rate, hi_rate, speed_range_m_s, density_kg_l, working)
+    check = machine_for(implement).machine_check(lo_rate, hi_rate, speed_range_m_s, density_kg_l, working)
+    return dataclasses.replace(check, rates_from=rates_from)
 
 
 def shaft_check(implement: Implement, lo_rate: float, hi_rate: float,

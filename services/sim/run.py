@@ -53,7 +53,7 @@ from vehicle import Gnss, SpeedSensor
 # `cells_in_field` and `check_world` are the accounting's; `vrsim run --check` and the benchmarks
 # import them from here, with the run's other public names.
 __all__ = ["Drive", "RunResult", "accounted", "as_applied", "cells_in_field", "check_world",
-           "control_and_account", "drive", "measure", "run", "sensors"]
+           "control_and_account", "drive", "measure", "run", "sensors", "start_up"]
 
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
 # Memory the in-process run keeps per control tick: ~35 float64 arrays (the track, the sensors, the
@@ -292,6 +292,16 @@ def _check_arrays(world: World) -> None:
     files.check_memory(2 * ticks * ARRAY_BYTES_PER_TICK,  # the driver allocates twice the expected ticks
                        f"an in-process run of about {ticks:,.0f} ticks", f"{sc.source}: [field]",
                        ScenarioError)
+
+
+def start_up(world: World) -> tuple[ControlCore, Gnss, SpeedSensor]:
+    """What a run builds from its world before its first tick: the control core (the machine's loops,
+    its product, the controller, the look-ahead) and the sensors. Whatever the run refuses at its start
+    it refuses here, in one `ScenarioError` naming the file, the table and the key (a sprayer's product
+    that is not liquid, nozzles that do not fit the boom, a controller that does not load): `vrsim run
+    --check` builds it too, so it says no where the run would."""
+    scenario = world.scenario
+    return ControlCore(world.grid, scenario, world.field.polygon, world.path), *sensors(scenario)
 
 
 def sensors(scenario: Scenario) -> tuple[Gnss, SpeedSensor]:

@@ -22,9 +22,8 @@ import time
 
 from services.sim.accounting import StageTimer
 from services.sim.bounded import BoundedAccount
-from services.sim.core import ControlCore
 from services.sim.drive_worker import PART_TICKS, DriveWorker
-from services.sim.run import RunResult, sensors
+from services.sim.run import RunResult, start_up
 from services.sim.scenario import Scenario
 from services.sim.world import build_world
 from vehicle import track_on_path
@@ -76,8 +75,7 @@ def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None =
         scenario = world.scenario   # as run: what the control, the sensors and the outputs use
         if on_world is not None:
             on_world(world)
-        core = ControlCore(world.grid, scenario, world.field.polygon, world.path)
-        gnss, speed = sensors(scenario)
+        core, gnss, speed = start_up(world)
         period_s = scenario.timing.control_period_s
         expected = world.path.length_m / (scenario.tractor.working_speed_m_s * period_s)
         account = BoundedAccount(world, timer, started, expected, track_sink, references=error_split)

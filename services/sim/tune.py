@@ -15,6 +15,11 @@ Budget: about `budget` evaluations in whole generations: a population of ``max(5
 candidates (m from 1 to 15, so that about six generations fit), evaluated ``budget // population``
 times (at least once); the search may stop earlier when the population has converged (scipy's
 ``tol``).
+
+The objective knows nothing of stability: the best figure may come from gains at the edge of it. So
+the result holds the tuned loop's and the scenario's own loop's margins (`services.sim.analyze.loop_of`:
+python-control's `stability_margins` on the loop `vrsim controller analyze` builds, the machine's own
+plant), and a warning when the tuned loop's are below 6 dB or 45 deg (`TuneResult.margin_warning`).
 """
 
 from __future__ import annotations
@@ -28,11 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from common import ControllerError, ScenarioError
-from controller import ControllerConfig, build_controller
+from controller import ControllerConfig, PlantParams, build_controller
+from controller.analysis import LoopAnalysis
 from controller.config import PID_KINDS, USER_KIND
+from services.sim.analyze import loop_of, margin_warning
 from services.sim.as_run import resolved_controller
 from services.sim.compare import resolve_spec
-from services.sim.core import plant_for
+from services.sim.core import machine_plant, plant_for
 from services.sim.metrics import METRICS
 from services.sim.run import drive as drive_of
 from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario
@@ -70,6 +77,16 @@ class TuneResult:
     history: list[dict]      # one row per evaluation: evaluation, generation, params, objective, best
     tuned: dict              # the best controller's summary
     baseline: dict           # the scenario's own controller's summary
+    # The loops' margins on the machine's plant (`services.sim.analyze.loop_of`): None for a kind
+    # without a linear model, `no_loop_reason` says why.
+    tuned_loop: LoopAnalysis | None = None
+    baseline_loop: LoopAnalysis | None = None
+    no_loop_reason: str = ""
+
+    @property
+    def margin_warning(self) -> str | None:
+        """Why the tuned loop's margins are too small (`services.sim.analyze.margin_warning`), or None."""
+        return margin_warning(self.tuned_loop)
 
 
 def parse_param(text: str) -> TuneParam:
@@ -208,7 +225,11 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
         raise ScenarioError(f"--param: a parameter is given twice: {names}")
     base = _base_config(scenario, controller)
     _check_params(base, params, scenario)
-    judge = _replays(log, scenario) if log is not None else _field_runs(drive_of(scenario))
+    if log is not None:
+        judge, plant = _replays(log, scenario), _log_plant(log, scenario)
+    else:
+        shared = drive_of(scenario)
+        judge, plant = _field_runs(shared), machine_plant(shared.world.scenario, shared.world.grid)
     history: list[dict] = []
     best = [math.inf]
 
@@ -238,11 +259,14 @@ def tune(scenario: Scenario, controller: str | None, params: Sequence[TuneParam]
                                    rng=np.random.default_rng(seed))
     best_cfg = _config_at(base, params, found.x)
     tuned, baseline = judge([best_cfg, scenario.controller])
+    period_s = scenario.timing.control_period_s
+    tuned_loop, why = loop_of(plant, best_cfg, period_s)
     return TuneResult(scenario=scenario.name, objective=objective, sense=sense, params=tuple(params),
                       best=best_cfg, best_values=dict(zip(names, map(float, found.x), strict=True)),
                       best_objective=tuned.get(objective), evaluations=len(history),
                       generations=history[-1]["generation"] if history else 0, history=history,
-                      tuned=tuned, baseline=baseline)
+                      tuned=tuned, baseline=baseline, tuned_loop=tuned_loop,
+                      baseline_loop=loop_of(plant, scenario.controller, period_s)[0], no_loop_reason=why)
 
 
 def _field_runs(shared):
@@ -256,6 +280,16 @@ def _replays(log, scenario: Scenario):
 
     return lambda configs: [replay_records(log, dataclasses.replace(scenario, controller=c)).summary
                             for c in configs]
+
+
+def _log_plant(log, scenario: Scenario) -> PlantParams:
+    """The plant the machine's loops close on a replay of `log` (`services.sim.replay`): at the log's
+    median positive target, as the replay's core sets its working point."""
+    from maps.units import convert_rate
+    from services.sim.replay import working_point_grid
+
+    rate_kg_ha = convert_rate(log.target, log.unit or "kg/ha", "kg/ha", scenario.product.density_kg_l)
+    return machine_plant(scenario, working_point_grid(log, rate_kg_ha))
 
 
 def _unscore(score: float, sense: str) -> float | None:

@@ -272,7 +272,7 @@ def test_machine_check_before_the_run_and_the_limited_figures(tmp_path):
     path = tmp_path / "too_fast.toml"
     path.write_text(text)
     p = vrsim("run", str(path), "--check")
-    assert p.returncode == 0, p.stderr
+    assert p.returncode == 3, p.stderr   # the check's "no"
     assert "CANNOT apply the whole map" in p.stdout and "202.2 rpm of a 5-150 rpm shaft" in p.stdout
     assert "Above 2.67 m/s" in p.stdout
     # What to change: the speeds at which it can, or a meter constant that can at these speeds.

@@ -64,6 +64,12 @@ class Machine(ABC):
         bands per side, `services.sim.sections.SectionSwitch`); 1: sections only on or off."""
         return 1
 
+    @property
+    def loop_quantity(self) -> tuple[str, str]:
+        """What each drive's loop holds on target, and its unit, as `vrsim controller analyze` names them:
+        a metering shaft's speed, rpm; a kind with another actuator says its own (a sprayer's flow)."""
+        return "shaft speed", "rpm"
+
     def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
         """The plant each drive's loop closes: the scenario's shaft plant (`services.sim.core.plant_for`)
         for a metering shaft; a kind with another actuator (a sprayer's flow loop) gives its own, and

@@ -97,6 +97,11 @@ class Sprayer(Machine):
     def drive_share(self) -> np.ndarray:
         return np.ones(self.drives)   # each loop meters its own litres
 
+    @property
+    def loop_quantity(self) -> tuple[str, str]:
+        """The metered flow, L/min: the boom's (flow control) or a section's nozzles' (PWM)."""
+        return ("section's metered flow" if self.pwm else "boom's metered flow"), "L/min"
+
     def loop_plant(self, plant: PlantParams, scenario, grid) -> PlantParams:
         """The flow plant's tangent at the working point (the map's median positive rate at the
         working speed, each nozzle's flow held in its range; one section's nozzles under PWM, the
@@ -141,10 +146,10 @@ class Sprayer(Machine):
         `vehicle.sprayer.SprayerSpec.nozzle_flow_range_l_min`) of the liquid (its density's
         `vehicle.sprayer.density_flow_factor` times water's), the map's kg/ha being L/ha times the
         liquid's density. Sections closing do not change a nozzle's flow, so no width limit; what to
-        change is the working speeds or the nozzle size (`SprayerSpec.suggest_nozzle`). A nozzle that
+        change is the working speeds or the nozzle size (`SprayerSpec.nozzles_for`). A nozzle that
         cannot apply the map's rates at any speed, a boom its nozzles do not fit, or no density:
         `VehicleError` naming the table."""
-        if self.layout_error is not None:   # `vrsim run --check` builds no loop: said here too
+        if self.layout_error is not None:   # `machine_check` alone builds no loop: said here too
             raise VehicleError(f"[implement] {self.layout_error}")
         if density_kg_l is None:
             raise VehicleError("[product] density_kg_l: a sprayer's kg are litres times the liquid's "
@@ -163,10 +168,11 @@ class Sprayer(Machine):
         q_lo, q_hi = spec.nozzle_flow_range_l_min(density_kg_l=density_kg_l)
         lo_l, hi_l = lo_rate_kg_ha / density_kg_l, hi_rate_kg_ha / density_kg_l
         slowest = fastest = math.nan
-        suggested = None
+        suggested, advised = None, ()
         if math.isfinite(hi_rate_kg_ha):
             slowest, fastest = spec.check_rates(lo_l, hi_l, density_kg_l)
             suggested = spec.suggest_nozzle(lo_l, hi_l, working_speed_m_s, density_kg_l)
+            advised = tuple(spec.nozzles_for(lo_l, hi_l, speed_range_m_s, density_kg_l))
         return _SprayerCheck(
             rate_min_kg_ha=lo_rate_kg_ha, rate_max_kg_ha=hi_rate_kg_ha,
             speed_min_m_s=v_lo, speed_max_m_s=v_hi,
@@ -176,7 +182,8 @@ class Sprayer(Machine):
             min_width_m=0.0, narrowest_section_m=float(self.implement.section_widths.min()),
             kg_per_rev=math.nan, kg_per_rev_min=math.nan, kg_per_rev_max=math.nan,
             nozzle=spec.nozzle, nozzle_flow_min_l_min=q_lo, nozzle_flow_max_l_min=q_hi,
-            working_speed_m_s=working_speed_m_s, density_kg_l=density_kg_l, nozzle_suggested=suggested)
+            working_speed_m_s=working_speed_m_s, density_kg_l=density_kg_l,
+            nozzle_suggested=None if suggested == spec.nozzle else suggested, nozzles_advised=advised)
 
     def kg_per_rev(self, product) -> float:
         """Product per metered litre, kg: the true litres behind it (the meter reads ``1 +
@@ -291,7 +298,12 @@ class _SprayerCheck(MachineCheck):
     working_speed_m_s : float
         The tractor's working speed.
     nozzle_suggested : str or None
-        The size that covers the map's rates at the working speed with the most margin (None: none).
+        The size that covers the map's rates at the working speed with the most margin (None: none, or
+        the one on the boom: advice never names the setting in place).
+    nozzles_advised : tuple of str
+        What to change to if it cannot: the sizes other than the one on the boom that cover the map's
+        rates at every working speed, the nearest smaller and larger (`SprayerSpec.nozzles_for`),
+        nearer first; empty: none does.
     density_kg_l : float
         The liquid's density: the map's kg/ha over it are the L/ha the text shows; the nozzles' flows
         are of it (the text says so when it is not water's).
@@ -302,6 +314,7 @@ class _SprayerCheck(MachineCheck):
     nozzle_flow_max_l_min: float = math.nan
     working_speed_m_s: float = math.nan
     nozzle_suggested: str | None = None
+    nozzles_advised: tuple[str, ...] = ()
     density_kg_l: float = 1.0
 
     def text(self, grid=None) -> str:
@@ -321,14 +334,13 @@ class _SprayerCheck(MachineCheck):
                  f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
                  f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
                  f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min{liquid}.",
-                 f"  Working speeds at which it can: {self.min_speed_m_s:.2f} to {self.max_speed_m_s:.2f} "
-                 f"m/s (highest {self.max_speed_m_s * 3.6:.1f} km/h)."]
+                 self.rates_line(), self.speeds_line()]
         if not self.can_apply:
-            lines.append(f"  To apply it all: keep the working speeds within {self.min_speed_m_s:.2f}-"
-                         f"{self.max_speed_m_s:.2f} m/s, or")
-            lines.append(f"  set [implement] nozzle = {self.nozzle_suggested!r} to apply it at "
-                         f"{self.working_speed_m_s:.2f} m/s." if self.nozzle_suggested else
-                         f"  no nozzle size applies it at {self.working_speed_m_s:.2f} m/s.")
+            speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
+            sizes = " or ".join(repr(size) for size in self.nozzles_advised)
+            lines.append(self.speed_remedy())
+            lines.append(f"  set [implement] nozzle = {sizes} (now {self.nozzle!r}) to apply it at {speeds}."
+                         if sizes else f"  no other nozzle size applies it at {speeds}.")
         return "\n".join(lines)
 
 
