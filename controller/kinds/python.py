@@ -18,6 +18,7 @@ Errors name the user's file and line:
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import importlib.util
 import inspect
@@ -26,7 +27,7 @@ import sys
 import traceback
 from dataclasses import dataclass, field
 
-from common import ControllerError
+from common import ControllerError, files
 from controller.context import takes_context
 from controller.interface import LoopInfo, check_controller_class
 from controller.params import KindParams, param
@@ -62,6 +63,56 @@ def _line_in(exc: BaseException, path: str, fallback: int) -> int:
         return exc.lineno or fallback
     frames = [f for f in traceback.extract_tb(exc.__traceback__) if os.path.abspath(f.filename) == path]
     return frames[-1].lineno if frames else fallback
+
+
+MAX_SOURCE_BYTES = 1024 * 1024  # a controller's source file: a few kB; read whole by `check_defines_class`
+
+
+def check_defines_class(path: str, class_name: str) -> None:
+    """Refuse, without running any of it, a Python file that does not bind ``class_name`` at its top
+    level (a ``class``, an assignment or an import, perhaps under a top-level ``if`` or ``try``).
+
+    Importing a file runs its module-level code before its class can be looked at; a service that
+    loads a file a scenario from the bus names reads it as text first (a regular file of at most
+    `MAX_SOURCE_BYTES`, parsed by `ast`), so a file that holds no such class never runs.
+
+    Raises
+    ------
+    ControllerError
+        Naming the file (and line, for a syntax error) and the class.
+    """
+    data = files.read_bytes(path, None, ControllerError, limit=MAX_SOURCE_BYTES)
+    try:
+        tree = ast.parse(data, filename=path)
+    except SyntaxError as exc:
+        raise ControllerError(f"controller file {path}:{exc.lineno or 1}: cannot be loaded: "
+                              f"SyntaxError: {exc.msg}") from None
+    except (ValueError, RecursionError, MemoryError) as exc:  # null bytes; nesting the parser refuses
+        raise ControllerError(f"controller file {path}: cannot be loaded: {type(exc).__name__}") from None
+    if class_name not in _top_level_names(tree.body):
+        raise ControllerError(f"controller file {path}: no class {class_name!r} at its top level "
+                              "(refused before running it)")
+
+
+_BLOCKS = (ast.If, ast.Try, getattr(ast, "TryStar", ast.Try), ast.With, ast.ExceptHandler)
+
+
+def _top_level_names(body: list) -> set[str]:
+    """Names a module's statements bind when it is imported: classes, functions, assignments and
+    imports, looking into top-level ``if``/``try``/``with`` blocks but not into functions or classes."""
+    names: set[str] = set()
+    for node in body:
+        if isinstance(node, (ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name).split(".")[0] for a in node.names)
+        for block in ("body", "orelse", "finalbody", "handlers"):
+            if isinstance(node, _BLOCKS) and hasattr(node, block):
+                names |= _top_level_names(getattr(node, block))
+    return names
 
 
 def _load_user_class(path: str, class_name: str):

@@ -28,6 +28,9 @@ DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 DEFAULT_PREFIX = "vrsim"
 DEFAULT_MACHINE = "tractor1"
 QUERY_TIMEOUT_S = 10.0
+# What a client waits for scenario/start's reply: it comes once the scenario is built (at most
+# `services.bus.scenario.BUILD_TIMEOUT_S`, 60 s) and checked, with room for a busy machine.
+ACCEPT_TIMEOUT_S = 120.0
 SERVICES = ("map", "vehicle", "controller", "monitor", "scenario")
 _BAD_KEY_CHARS = set("*$?#[] \t\r\n")
 

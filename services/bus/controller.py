@@ -12,20 +12,26 @@ what keeps a lockstep run in step: the vehicle is never more than one batch ahea
 its state (loop, look-ahead tuner, rate policy) carried from batch to batch by the core.
 ``.../control/state`` replies with that state as JSON (`ControlCore.state`), to save or inspect it.
 
-A scenario arrives over the bus, so a ``kind = "python"`` controller runs only from a file inside a
-folder the service was started with (``--allow-user-code DIR``); anything else is refused.
+A scenario arrives over the bus, so a ``kind = "python"`` controller runs only from a file the
+operator named when the service started (``--allow-user-code PATH``: that file, or the ``.py`` files
+directly in that folder as they were listed at start; `_allowed_files`), and only when the file binds
+the scenario's class at its top level (read as text first, `check_defines_class`): anything else is
+refused naming the file before any of it runs. ``control/load?check=true`` makes only those checks
+(scenario control asks it before it accepts a run).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
 
 import numpy as np
 
-from common import ServiceError
+from common import ServiceError, VrsimError
 from common.section_masks import section_masks
+from controller.kinds.python import check_defines_class
 from services.bus import messages
 from services.bus.config import ServiceConfig
 from services.bus.dataroot import DataRoot
@@ -37,11 +43,12 @@ from services.sim.landing import applied_rate_kg_ha
 class _ControllerService:
     """The handlers of the controller service; publishes through ``publish(key, payload)``."""
 
-    def __init__(self, keys, publish, data: DataRoot, user_code_dirs: tuple[str, ...] = ()):
+    def __init__(self, keys, publish, data: DataRoot, user_code: tuple[str, ...] = ()):
         self.keys = keys
         self.publish = publish
         self.data = data
-        self.user_code_dirs = tuple(os.path.realpath(d) for d in user_code_dirs)
+        self.user_code = tuple(user_code)  # as the operator gave them, for messages
+        self.allowed = _allowed_files(self.user_code)  # {real path: the entry that allowed it}
         self.lock = threading.Lock()
         self.run_id = ""
         self.core = None
@@ -49,13 +56,18 @@ class _ControllerService:
         self.period_s = math.nan
 
     def load(self, params: Params, payload: bytes | None) -> bytes:
-        params.only()
+        params.only("check")
+        check = params.text("check", "false")
+        if check not in ("true", "false"):
+            raise ServiceError(f"{params.key}: parameter check={check!r} must be true or false")
         start = messages.RunStart.from_json(payload)
         from services.sim.core import ControlCore
         from services.sim.world import build_world
 
         sc = self.data.scenario(start.scenario_text, start.source, start.base_dir)
-        self._check_user_code(params.key, sc.controller.file)
+        sc = self._check_user_code(params.key, sc)
+        if check == "true":
+            return dumps({"loaded": False, "checked": True, "run_id": start.run_id})
         world = build_world(sc)  # section control reads the planned path ahead
         core = ControlCore(world.grid, sc, world.field.polygon, world.path)
         with self.lock:
@@ -63,15 +75,26 @@ class _ControllerService:
             self.period_s = sc.timing.control_period_s
         return dumps({"loaded": True, "run_id": start.run_id})
 
-    def _check_user_code(self, key: str, file: str | None) -> None:
-        """Refuse a user's controller file outside the allowed folders (it would run as this service)."""
-        if file is None:
-            return
-        real = os.path.realpath(file)
-        if not any(os.path.commonpath([real, d]) == d for d in self.user_code_dirs):
-            allowed = ", ".join(self.user_code_dirs) or "none"
-            raise ServiceError(f"{key}: [controller] file {file}: user code runs only from the folders this "
-                               f"controller service allows (--allow-user-code DIR; allowed: {allowed})")
+    def _check_user_code(self, key: str, sc):
+        """``sc`` with its user controller file (kind ``python``) resolved to the allowed file it is, or
+        a `ServiceError` naming the file: not one the operator named at start, or one without the
+        scenario's class at its top level. Nothing of the file runs here (it would run as this
+        service)."""
+        cfg = sc.controller
+        if cfg.file is None:
+            return sc
+        real = os.path.realpath(cfg.file)
+        if real not in self.allowed:
+            allowed = ", ".join(self.user_code) or "none"
+            raise ServiceError(f"{key}: [controller] file {cfg.file}: user code runs only from the files "
+                               "this controller service was started with (--allow-user-code FILE, or the "
+                               f".py files directly in a folder when it started; allowed: {allowed})")
+        try:
+            check_defines_class(real, cfg.class_name)
+        except VrsimError as exc:
+            raise ServiceError(f"{key}: [controller] {exc}") from None
+        # The file checked, not whatever the path names later (a link changed meanwhile).
+        return dataclasses.replace(sc, controller=dataclasses.replace(cfg, file=real))
 
     def state(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
@@ -129,6 +152,24 @@ class _ControllerService:
 
     def handlers(self) -> dict:
         return {"step": self.step, "load": self.load, "state": self.state}
+
+
+def _allowed_files(entries: tuple[str, ...]) -> dict[str, str]:
+    """{real path: entry} of the Python files ``--allow-user-code`` names: a file itself, or each
+    ``.py`` regular file directly in a folder (not in its subfolders), listed once, now. A file added
+    later, or a link changed to point elsewhere, is not among them until the service restarts."""
+    allowed: dict[str, str] = {}
+    for entry in entries:
+        real = os.path.realpath(entry)
+        if os.path.isdir(real):
+            with os.scandir(real) as listing:
+                found = [os.path.realpath(e.path) for e in listing if e.name.endswith(".py") and e.is_file()]
+        elif os.path.isfile(real):
+            found = [real]
+        else:
+            raise ServiceError(f"--allow-user-code {entry}: no such file or folder")
+        allowed.update((path, entry) for path in found)
+    return allowed
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

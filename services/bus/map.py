@@ -38,7 +38,7 @@ class _MapService:
         grid = self.grid
         if payload:
             params.only()
-            first, second, geo = messages.decode_points(payload)
+            first, second, geo = messages.decode_points(payload, messages.max_points(grid.map_unit))
             res = grid.lookup(first, second, crs="EPSG:4326" if geo else None)
             return messages.encode_rates(res.rate_kg_ha if grid.unit == KG_HA else None,
                                          grid.in_map_unit(res.rate_kg_ha), grid.map_unit, res.inside, res.row,

@@ -29,8 +29,8 @@ __all__ = [
     "Message", "Pose", "ShaftState", "RateSample", "MapRate", "RunStart", "StepAck", "RunStatus",
     "MonitorStatus",
     "encode_batch", "decode_batch", "decode_columns", "decode_points", "encode_rates",
-    "MAX_MESSAGE_BYTES", "MAX_BATCH_RECORDS", "MAX_POINTS", "MAX_POINTS_BYTES", "CLOCKS", "SPEED_RANGE",
-    "TICKS_PER_MESSAGE_RANGE", "NAN",
+    "MAX_MESSAGE_BYTES", "MAX_BATCH_RECORDS", "MAX_POINTS", "MAX_POINTS_BYTES", "MAX_RATES_REPLY_BYTES",
+    "max_points", "CLOCKS", "SPEED_RANGE", "TICKS_PER_MESSAGE_RANGE", "NAN",
 ]
 
 NAN = math.nan
@@ -92,10 +92,29 @@ class Message:
 
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # one message or batch of records (a pose batch is ~0.3 MB)
 MAX_BATCH_RECORDS = 10_000  # records in one batch (ticks_per_message is at most 1000)
-MAX_POINTS = 1_000_000  # points in one map/rate body: its reply takes ~0.3 GB while it is built
 # A map/rate body: two arrays of full-precision coordinates take ~40 bytes a point. The cap keeps the
 # parsed lists (a float is 32 bytes, and "1.0," packs one into 4 bytes) under ~0.4 GB.
 MAX_POINTS_BYTES = 48 * 1024 * 1024
+# A map/rate batch reply travels through the router, which drops any message over 65 MiB
+# (`security.MAX_BODY_BYTES` plus its overhead) without a word to either side: so the reply is kept
+# to 48 MiB. One point's `MapRate` object takes at most `_RATE_POINT_BYTES` plus its unit's bytes:
+# the keys, quotes and punctuation (67 bytes with the comma between objects), two floats of at most
+# 24 characters (orjson's shortest round trip, "-2.2250738585072014e-308"), a row and a column of at
+# most 10 digits.
+MAX_RATES_REPLY_BYTES = 48 * 1024 * 1024
+_RATE_POINT_BYTES = 67 + 2 * 24 + 2 * 10
+# Points in one map/rate query: with any unit of up to 64 ASCII characters (`maps.units.MAX_UNIT_CHARS`;
+# vrsim's own names take at most 8) a reply is at most 250,000 x 199 bytes, 47.4 MiB. (A typical kg/ha
+# reply is ~115 bytes a point: 29 MB.)
+MAX_POINTS = 250_000
+
+
+def max_points(unit: str) -> int:
+    """The most points one map/rate query may ask of a map in ``unit``: `MAX_POINTS`, fewer only for
+    a unit whose JSON text is so long (non-ASCII or escaped characters) that the reply would pass
+    `MAX_RATES_REPLY_BYTES`."""
+    per_point = _RATE_POINT_BYTES + len(dumps(unit)) - 2  # the quotes are in _RATE_POINT_BYTES
+    return min(MAX_POINTS, MAX_RATES_REPLY_BYTES // per_point)
 
 
 def _loads(data, what: str, max_bytes: int = MAX_MESSAGE_BYTES, most: tuple | None = None):
@@ -289,7 +308,8 @@ def decode_points(data, max_points: int = MAX_POINTS,
     """
     # A valid body has 2n - 1 commas for n points: more, and it holds too many points (or is not a
     # body), refused before orjson turns millions of values into Python floats.
-    most = (b",", 2 * max_points, f"more than {max_points:,} points")
+    most = (b",", 2 * max_points, f"more than {max_points:,} points in one query (a reply must stay under "
+                                  "the router's message limit: send batches)")
     doc = _loads(data, "map/rate batch", max_bytes, most)
     if not isinstance(doc, dict) or set(doc) not in ({"x", "y"}, {"lat", "lon"}):
         keys = sorted(doc) if isinstance(doc, dict) else short(doc)

@@ -2,9 +2,14 @@
 
 ``<prefix>/scenario/start`` (body: a scenario file's TOML text, or empty for the built-in default)
 parses and builds the scenario exactly as ``vrsim run`` does, so a bad one is refused with the same
-message the CLI prints (files it names must lie under the data root, `services.bus.dataroot`); then
-it loads the run into the map, controller and monitor services and starts the vehicle. The building
-runs in a thread of its own, at most `BUILD_TIMEOUT_S`, so ``status`` and ``stop`` answer meanwhile.
+message the CLI prints (files it names must lie under the data root, `services.bus.dataroot`); it
+checks that the services are alive, that no run is going, and (for a user's controller class) that
+the controller service will run its file; then it replies that the run is accepted, with its id and
+the key to follow it by (``status``). Only then is the run loaded into the map, controller and
+monitor services and handed to the vehicle, in a thread of its own (`_Launch`): a failure there shows
+in ``status``. Parsing and building run in a thread of their own too (the building at most
+`BUILD_TIMEOUT_S`), so ``status`` and ``stop`` answer meanwhile; a client waits
+`services.bus.config.ACCEPT_TIMEOUT_S` for the reply.
 ``<prefix>/scenario/status`` says how far the run is, what the monitor has stored, and which
 services are alive (liveliness tokens, so a killed service shows within milliseconds);
 ``<prefix>/scenario/stop`` stops the vehicle. ``<prefix>/<anything>`` else at the top level gets an
@@ -21,8 +26,9 @@ import sys
 import threading
 import time
 import traceback
+from dataclasses import dataclass, field
 
-from common import ServiceError
+from common import ServiceError, VrsimError
 from services.bus import client, messages
 from services.bus.config import SERVICES, Keys, ServiceConfig
 from services.bus.dataroot import DataRoot
@@ -32,6 +38,7 @@ from services.outputs.encode import dumps
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 BUILD_TIMEOUT_S = 60.0  # building the world of a scenario (the caps make a real one take seconds)
 STATUS_TIMEOUT_S = 1.0  # status must answer within 2 s even when a service hangs
+CHECK_TIMEOUT_S = 20.0  # the controller service's check of a user's controller file (no building)
 DEFAULT_TICKS_PER_MESSAGE = 50
 
 
@@ -70,6 +77,13 @@ class _RunEnds:
     def started(self, run_id: str) -> None:
         with self.lock:
             self.live = messages.RunEnd(run_id, "interrupted", 0, 0.0, "")
+
+    def ended(self, end: messages.RunEnd) -> None:
+        """Announce the end of a run that never reached the vehicle (its launch failed or was stopped
+        after the monitor had loaded it)."""
+        with self.lock:
+            self.pending.append((time.monotonic(), end))
+        self.flush()
 
     def observe(self, status: dict | None, alive: list[str] | None = None) -> None:
         """Decide from a vehicle status (None: no answer) and the services alive (None: not asked)
@@ -132,6 +146,34 @@ class _RunEnds:
         self.thread.join(timeout=5.0)
 
 
+_MAX_END_ERROR_CHARS = 2000  # messages.RunEnd's cap on its error
+
+
+@dataclass
+class _Launch:
+    """A run scenario control accepted: after the reply it is loaded into the map, controller and
+    monitor services and handed to the vehicle (`_ScenarioService._launch`). Until the vehicle drives
+    it, ``status`` shows it from here: ``starting`` while it loads (its ``run_id`` still empty there,
+    since a client that saw it would ask the monitor for a run not yet loaded; ``accepted_run_id``
+    names it), ``failed`` or ``stopped`` if it never reached the vehicle."""
+
+    start: messages.RunStart
+    scenario: str
+    t0: float = field(default_factory=time.monotonic)
+    state: str = "starting"  # "starting", "driving" (the vehicle has it), "failed" or "stopped"
+    error: str = ""
+    announced: bool = False  # the monitor has loaded it: its end is owed to the monitor
+
+    def status(self) -> dict:
+        """The fields of `messages.RunStatus` for this launch."""
+        return {"state": self.state, "run_id": "" if self.state == "starting" else self.start.run_id,
+                "scenario": self.scenario, "clock": self.start.clock, "ticks": 0, "sim_time_s": 0.0,
+                "wall_s": time.monotonic() - self.t0, "drive_s": 0.0, "error": self.error}
+
+    def end(self) -> messages.RunEnd:
+        return messages.RunEnd(self.start.run_id, self.state, 0, 0.0, self.error[:_MAX_END_ERROR_CHARS])
+
+
 class _ScenarioService:
     """Handlers of scenario control; ``session`` reaches the other services."""
 
@@ -140,6 +182,7 @@ class _ScenarioService:
         self.lock = threading.Lock()  # one start or stop at a time
         self.building = threading.Lock()  # one world being built at a time (held until it is done)
         self.counter = 0
+        self.launch: _Launch | None = None  # the run accepted last
         self.ends = _RunEnds(session, keys, self._vehicle_status)
 
     def start(self, params: Params, payload: bytes | None) -> Later:
@@ -151,10 +194,30 @@ class _ScenarioService:
         speed = params.number("speed", *messages.SPEED_RANGE, default=1.0)
         per_message = params.integer("ticks_per_message", *messages.TICKS_PER_MESSAGE_RANGE,
                                      default=DEFAULT_TICKS_PER_MESSAGE)
+        # Parsing reads what the scenario names (a spinner's catch-tray profile): in the reply's thread,
+        # so that status and stop answer meanwhile.
+        return Later(lambda: self._accept(params, payload, (clock, speed, per_message)))
+
+    def _accept(self, params: Params, payload: bytes | None, run: tuple) -> bytes:
+        """Check the scenario and the services as `vrsim run` and the run would, accept the run, and
+        start loading it (`_launch`); the reply says it was accepted and where to follow it."""
+        key = params.key
         text, source, base_dir = self._scenario_text(params, payload)
         sc = self.data.scenario(text, source, base_dir)
-        start = messages.RunStart("", text, source, base_dir, clock, speed, per_message)
-        return Later(lambda: self._start(params.key, sc, start))
+        start = messages.RunStart("", text, source, base_dir, *run)
+        self._build(key, sc)
+        self._check_alive(key)
+        if sc.controller.file is not None:  # refused now, not after the reply, and none of it runs
+            client.request(self.session, f"{self.keys.control_load}?check=true", start.to_json(),
+                           CHECK_TIMEOUT_S, what=f"{key}: the controller service")
+        with self.lock:
+            self._check_free(key)
+            self.counter += 1
+            start = dataclasses.replace(start, run_id=_new_run_id(sc.name, self.counter))
+            launch = self.launch = _Launch(start, sc.name)
+        threading.Thread(target=self._launch, args=(key, launch), name="vrsim-launch", daemon=True).start()
+        return dumps({"run_id": start.run_id, "accepted": True, "state": "starting", "scenario": sc.name,
+                      "clock": start.clock, "status": self.keys.scenario("status")})
 
     def _build(self, key: str, sc) -> None:
         """`build_world(sc)` in its own thread, at most `BUILD_TIMEOUT_S`: it refuses what `vrsim run`
@@ -172,28 +235,63 @@ class _ScenarioService:
 
         within(BUILD_TIMEOUT_S, build, f"{key}: building the world of {sc.source}")
 
-    def _start(self, key: str, sc, start: messages.RunStart) -> bytes:
-        self._build(key, sc)
-        with self.lock:
-            # Check first, so that no service loads a run that cannot start.
-            alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
-            missing = [s for s in SERVICES if s != "scenario" and s not in alive]
-            if missing:
-                raise ServiceError(f"{key}: cannot start, service(s) not alive: {', '.join(missing)} "
-                                   f"(liveliness {self.keys.alive('*')})")
-            state = self._vehicle_status()
-            self.ends.observe(state)  # the run before this one ended, if it had not been seen to
-            if state is not None and state["state"] in ("starting", "running"):
-                raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
-                                   f"stop it first ({self.keys.scenario('stop')})")
-            self.counter += 1
-            start = dataclasses.replace(start, run_id=_new_run_id(sc.name, self.counter))
-            body = start.to_json()
+    def _check_alive(self, key: str) -> None:
+        alive = client.alive_services(self.session, self.keys, timeout_s=STATUS_TIMEOUT_S)
+        missing = [s for s in SERVICES if s != "scenario" and s not in alive]
+        if missing:
+            raise ServiceError(f"{key}: cannot start, service(s) not alive: {', '.join(missing)} "
+                               f"(liveliness {self.keys.alive('*')})")
+
+    def _check_free(self, key: str) -> None:
+        """Refuse while a run is loading or driving (``self.lock`` held)."""
+        launch = self.launch
+        if launch is not None and launch.state == "starting":
+            raise ServiceError(f"{key}: run {launch.start.run_id} is starting; "
+                               f"stop it first ({self.keys.scenario('stop')})")
+        state = self._vehicle_status()
+        self.ends.observe(state)  # the run before this one ended, if it had not been seen to
+        if state is not None and state["state"] in ("starting", "running"):
+            raise ServiceError(f"{key}: run {state['run_id']} is {state['state']}; "
+                               f"stop it first ({self.keys.scenario('stop')})")
+
+    def _launch(self, key: str, launch: _Launch) -> None:
+        """Load the accepted run into the map, controller and monitor and hand it to the vehicle; a
+        failure (or a stop) shows in status, and the monitor, if it had loaded the run, is told."""
+        body = launch.start.to_json()
+        try:
             for load, name in ((self.keys.map_load, "map"), (self.keys.control_load, "controller"),
-                               (self.keys.monitor_load, "monitor"), (self.keys.vehicle("start"), "vehicle")):
+                               (self.keys.monitor_load, "monitor")):
+                if launch.state != "starting":  # stopped meanwhile
+                    break
                 client.request(self.session, load, body, LOAD_TIMEOUT_S, what=f"{key}: the {name} service")
-            self.ends.started(start.run_id)
-        return dumps({"run_id": start.run_id, "state": "running", "scenario": sc.name, "clock": start.clock})
+                launch.announced = launch.announced or name == "monitor"
+            # A stop comes either before the vehicle has the run (and cancels it) or after (and stops it).
+            with self.lock:
+                if launch.state == "starting":
+                    self._hand_to_vehicle(key, launch, body)
+                    launch.state = "driving"
+                    self.ends.started(launch.start.run_id)
+        except VrsimError as exc:
+            self._launch_failed(launch, str(exc))
+        except Exception as exc:  # noqa: BLE001 - a bug: the run fails visibly, the service lives on
+            traceback.print_exc(file=sys.stderr)
+            self._launch_failed(launch, f"internal error: {type(exc).__name__}: {exc}")
+        if launch.state in ("failed", "stopped") and launch.announced:
+            self.ends.ended(launch.end())
+
+    def _hand_to_vehicle(self, key: str, launch: _Launch, body: bytes) -> None:
+        try:
+            client.request(self.session, self.keys.vehicle("start"), body, LOAD_TIMEOUT_S,
+                           what=f"{key}: the vehicle service")
+        except ServiceError:
+            status = self._vehicle_status()  # a reply lost or late: the vehicle may drive it all the same
+            if status is None or status["run_id"] != launch.start.run_id:
+                raise
+
+    def _launch_failed(self, launch: _Launch, error: str) -> None:
+        with self.lock:
+            if launch.state == "starting":
+                launch.state, launch.error = "failed", error
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
         from services.sim import scenario
@@ -244,11 +342,21 @@ class _ScenarioService:
             "alive": alive,
             "missing": [s for s in SERVICES if s not in alive],
         }
+        launch = self.launch
+        if launch is not None and launch.state != "driving" and (vehicle is None
+                                                                 or vehicle["run_id"] != launch.start.run_id):
+            # it has not reached the vehicle (yet): the monitor's figures would be an older run's
+            out.update(launch.status(), monitor_ticks=None, live_mae_kg_ha=None)
+        out["accepted_run_id"] = launch.start.run_id if launch is not None else ""
         return dumps(out)
 
     def stop(self, params: Params, payload: bytes | None) -> bytes:
         params.only()
         with self.lock:
+            launch = self.launch
+            if launch is not None and launch.state == "starting":  # still loading: it never drives
+                launch.state = "stopped"
+                return messages.RunStatus(**launch.status()).to_json()
             reply = client.request(self.session, self.keys.vehicle("stop"), timeout_s=10.0,
                                    what=f"{params.key}: the vehicle service")
         self.ends.observe(messages.RunStatus.from_json(reply).to_dict())

@@ -17,6 +17,7 @@ import sys
 from common import ServiceError, files
 from services.bus.client import request
 from services.bus.config import (
+    ACCEPT_TIMEOUT_S,
     QUERY_TIMEOUT_S,
     Keys,
     add_arguments,
@@ -34,8 +35,10 @@ def configure(parser) -> None:
     parser.add_argument("params", nargs="*", metavar="NAME=VALUE", help="selector parameters")
     parser.add_argument("--body", metavar="FILE", default=None,
                         help="send this file as the query's body ('-': standard input)")
-    parser.add_argument("--timeout", type=float, default=QUERY_TIMEOUT_S, metavar="S",
-                        help=f"seconds to wait for the reply (default {QUERY_TIMEOUT_S:g})")
+    parser.add_argument("--timeout", type=float, default=None, metavar="S",
+                        help=f"seconds to wait for the reply (default {QUERY_TIMEOUT_S:g}; "
+                             f"{ACCEPT_TIMEOUT_S:g} for scenario/start, which replies once it has checked "
+                             "the scenario and accepted the run)")
     parser.add_argument("--watch", action="store_true", help="subscribe to KEY and print samples")
     parser.add_argument("--count", type=int, default=1, metavar="N",
                         help="--watch: samples to print (default 1)")
@@ -80,8 +83,14 @@ def _body(path: str | None) -> bytes | None:
     return data
 
 
+def _default_timeout(key: str, keys: Keys) -> float:
+    """What ``key`` takes to answer: scenario/start builds the scenario's world and checks the services
+    before it replies (`ACCEPT_TIMEOUT_S`), every other key answers at once (`QUERY_TIMEOUT_S`)."""
+    return ACCEPT_TIMEOUT_S if key == keys.scenario("start") else QUERY_TIMEOUT_S
+
+
 def run(args) -> int:
-    if not 0 < args.timeout < math.inf:
+    if args.timeout is not None and not 0 < args.timeout < math.inf:
         raise ServiceError(f"--timeout {args.timeout}: must be a finite number > 0")
     if args.count < 1:
         raise ServiceError(f"--count {args.count}: must be >= 1")
@@ -89,6 +98,8 @@ def run(args) -> int:
         raise ServiceError("--watch subscribes to KEY: it takes no NAME=VALUE parameters and no --body")
     options = options_from_args(args)
     key = _full_key(args.key, options.keys)
+    if args.timeout is None:
+        args.timeout = _default_timeout(key, options.keys)
     body = _body(args.body)
     user = None if options.insecure else options.user or "operator"
     with open_session(options, "client", default_user="operator") as session:

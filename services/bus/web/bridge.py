@@ -38,7 +38,8 @@ from services.bus.web.live import (
 
 DECODERS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
 RECORDS_PAGE = 20_000  # ticks per monitor/records query (the monitor's cap)
-MAP_BATCH = 1_000_000  # cell centres per map/rate query when rendering the prescription
+MAP_BATCH = messages.MAX_POINTS  # cell centres per map/rate query (the map service's limit: its reply
+# must pass the router)
 STATUS_EVERY_S = 1.0
 REPORT_EVERY_S = 5.0  # a report rebuilds the run's arrays in the monitor: not more often than this
 QUERY_TIMEOUT_S = 5.0
