@@ -61,8 +61,8 @@ def configure(parser) -> None:
     parser.add_argument("--allow-user-code", metavar="PATH", action="append", default=[],
                         help="controller: run user-defined controllers (kind = \"python\") from this file, "
                              "or from the .py files directly in this folder as they are when the service "
-                             "starts (repeatable; default none; `all SCENARIO` allows the folder of that scenario's "
-                             "controller file)")
+                             "starts (repeatable; default none; `all SCENARIO` allows the folder of that "
+                             "scenario's controller file)")
     parser.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep",
                         help="all: clock of the run it starts (default lockstep)")
     parser.add_argument("--speed", type=float, default=1.0, help="all: real-time speed factor (default 1)")
