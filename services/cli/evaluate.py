@@ -1,7 +1,7 @@
 """`vrsim evaluate LOG [--prescription RX] [--product NAME|PDTn] [--rate-field NAME] [--target-field NAME]
-[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--unit UNIT]
-[--prescription-unit UNIT] [--density-kg-l KG_L] [--crs CRS] [--json] [--out DIR]`: the accuracy
-of a machine's as-applied log (`services.sim.evaluate`)."""
+[--layer NAME] [--field BOUNDARY] [--delay-s S] [--include-zero-target] [--standstill-m-s M_S]
+[--outlier-multiple X] [--include-outliers] [--unit UNIT] [--prescription-unit UNIT] [--density-kg-l KG_L]
+[--crs CRS] [--json] [--out DIR]`: the accuracy of a machine's as-applied log (`services.sim.evaluate`)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ HELP = "accuracy of an as-applied log (TASKDATA TimeLogs, point shapefile or Geo
 
 
 def configure(parser) -> None:
+    from services.sim.metrics import OUTLIER_MULTIPLE, STANDSTILL_M_S
+
     parser.add_argument("log", help="the log: a TASKDATA (folder, TASKDATA.XML or .zip) with TimeLogs, a "
                                     "point shapefile (.shp or zipped, e.g. a John Deere export) or a "
                                     "GeoPackage")
@@ -37,6 +39,15 @@ def configure(parser) -> None:
     parser.add_argument("--include-zero-target", action="store_true",
                         help="also compare records whose target is 0 (left out by default: the machine was "
                              "told not to apply there)")
+    parser.add_argument("--standstill-m-s", type=float, default=STANDSTILL_M_S, metavar="M_S",
+                        help="records at a ground speed below this (m/s) are left out and counted: a "
+                             "machine barely moving logs its flow over almost no ground (default "
+                             f"{STANDSTILL_M_S:g}; 0: none)")
+    parser.add_argument("--outlier-multiple", type=float, default=OUTLIER_MULTIPLE, metavar="X",
+                        help="records applying more than X times their target are outliers: counted and "
+                             f"left out (default {OUTLIER_MULTIPLE:g})")
+    parser.add_argument("--include-outliers", action="store_true",
+                        help="keep the outliers in the figures (they are still counted)")
     parser.add_argument("--unit", help="unit of the log's rates when it does not say (kg/ha, t/ha, lb/ac, "
                                        "L/ha, gal/ac, floz/ac, ...)")
     parser.add_argument("--prescription-unit", metavar="UNIT",
@@ -67,7 +78,9 @@ def run(args) -> int:
                        density_kg_l=args.density_kg_l) if args.prescription else None
     field = _field(args.field) if args.field else None
     ev = evaluate(log, rx, field=field, delay_s=args.delay_s,
-                  include_zero_target=args.include_zero_target, density_kg_l=args.density_kg_l)
+                  include_zero_target=args.include_zero_target, density_kg_l=args.density_kg_l,
+                  standstill_m_s=args.standstill_m_s, outlier_multiple=args.outlier_multiple,
+                  include_outliers=args.include_outliers)
     if args.out:
         write_evaluation(ev, error_grid(ev, rx), args.out)
     print(dumps_text(ev.summary(), indent=True) if args.json else text_evaluation(ev))

@@ -1,6 +1,6 @@
 """What `vrsim evaluate --out DIR` writes: evaluation.json, error.tif (applied minus target per cell,
-in the log's unit), error_map.png, timeseries.png and report.html (the page `vrsim run` writes, with
-the log's figures)."""
+in the log's unit), error_map.png, timeseries.png (a panel per session of the log, at most
+`MAX_PANELS`) and report.html (the page `vrsim run` writes, with the log's figures)."""
 
 from __future__ import annotations
 
@@ -10,19 +10,37 @@ import numpy as np
 
 from common.written import staged
 from maps import Grid, write_map
+from maps.log_records import SESSION_GAP_S
 from services.outputs.encode import dumps_text
 from services.outputs.plots import figure
 from services.outputs.report import definitions, figures_table, key_values, page, versions
 from services.outputs.summary import fmt
 from services.sim.evaluate import Evaluation
-from services.sim.metrics import LOG_UNIT, POINT_METRICS
+from services.sim.metrics import AREA_OR_RECORDS, AREA_OR_TIMESTAMPS, LOG_UNIT, POINT_METRICS
 
 MAX_PLOT_POINTS = 20_000
+MAX_PANELS = 12  # sessions drawn in timeseries.png: more would be too small to read
 
 
-def _rows(unit: str):
-    """The report's rows (label, key, unit) of `POINT_METRICS`, rate figures in `unit`."""
-    return tuple((m.label, m.key, unit if m.unit == LOG_UNIT else m.unit) for m in POINT_METRICS)
+def _rows(ev: Evaluation):
+    """The report's rows (label, key, unit) of `POINT_METRICS` with a label: rate figures in the log's
+    unit, weighted shares in what they are shares of, a count with the setting it was found with."""
+    weighting = ev.metrics.weighting
+    units = {LOG_UNIT: ev.unit, AREA_OR_RECORDS: "% of area" if weighting == "area" else "% of records",
+             AREA_OR_TIMESTAMPS: "% of area" if weighting == "area" else "% of timestamps"}
+    notes = _notes(ev.metrics)
+    return tuple((m.label, m.key, notes.get(m.key, units.get(m.unit, m.unit))) for m in POINT_METRICS
+                 if m.label)
+
+
+def _notes(m) -> dict[str, str]:
+    """What the counts and the weighting were found with: the settings of the rows without a label."""
+    kept = "kept in the figures (--include-outliers)" if m.outliers_included else "left out"
+    return {"weighting": ("(each record's distance x width)" if m.weighting == "area"
+                          else "(each record alike: not every record's distance and width logged)"),
+            "standstill_records": f"(ground speed below {m.standstill_speed_m_s:g} m/s, from {m.speed_from})",
+            "outlier_records": f"(applied above {m.outlier_multiple:g}x the target; {kept})",
+            "sessions": f"(records more than {SESSION_GAP_S:g} s apart begin a new one)"}
 
 
 def text_evaluation(ev: Evaluation) -> str:
@@ -30,9 +48,11 @@ def text_evaluation(ev: Evaluation) -> str:
     summary = ev.summary()
     lines = [f"vrsim evaluate: {ev.log.source} ({ev.log.points:,} records, {ev.log.format}) against "
              f"{ev.against}" + (f", delay {ev.delay_s:g} s" if ev.delay_s else "")]
-    lines += [f"  {label:<38} {fmt(summary[key]):>14} {unit}" for label, key, unit in _rows(ev.unit)]
     left = sum(ev.excluded.values())
-    lines.append(f"  {'Records left out':<38} {left:>14,} {_excluded_text(ev.excluded)}")
+    for label, key, unit in _rows(ev):
+        if key == "standstill_records":  # the records left out, each reason after the other
+            lines.append(f"  {'Records left out':<38} {left:>14,} {_excluded_text(ev.excluded)}")
+        lines.append(f"  {label:<38} {fmt(summary[key]):>14} {unit}")
     return "\n".join(lines)
 
 
@@ -62,7 +82,7 @@ def _write_evaluation(ev: Evaluation, errors: Grid, paths: dict[str, str]) -> No
             "records left out": f"{sum(ev.excluded.values()):,} {_excluded_text(ev.excluded)}", **versions()}
     text = page(f"vrsim evaluate: {os.path.basename(os.path.normpath(ev.log.source))}",
                 "An as-applied log against its targets.",
-                [("Figures", figures_table(_rows(ev.unit), ev.summary())), ("The log", key_values(info))],
+                [("Figures", figures_table(_rows(ev), ev.summary())), ("The log", key_values(info))],
                 [paths["error_map.png"], paths["timeseries.png"]],
                 [("What the figures mean", definitions(POINT_METRICS, ev.unit))],
                 "Files beside this page: evaluation.json, error.tif (GeoTIFF, applied minus target per cell, "
@@ -92,16 +112,55 @@ def _plot_error_map(ev: Evaluation, errors: Grid, path: str) -> None:
     fig.savefig(path, dpi=90)
 
 
-def _plot_log_timeseries(ev: Evaluation, path: str) -> None:
-    log = ev.log
-    step = max(1, log.points // MAX_PLOT_POINTS)
-    t = log.time_s[::step]
-    fig = figure(11, 5, left=0.08, right=0.97, bottom=0.11, top=0.9)
-    ax = fig.subplots()
-    ax.plot(t, ev.target[::step], label=f"target ({ev.against})", lw=1.2)
-    ax.plot(t, np.where(ev.compared, log.applied, np.nan)[::step], label="applied (points compared)", lw=1.0)
-    ax.set_xlabel("time since the first record (s)")
-    ax.set_ylabel(f"rate ({ev.unit})")
-    ax.legend(loc="upper right")
-    ax.set_title(f"{os.path.basename(os.path.normpath(log.source))}: applied and target rate")
+def _session_panels(ev: Evaluation) -> list[int]:
+    """The sessions timeseries.png shows, in time order: those with a record compared, at most
+    `MAX_PANELS` (the ones with the most records compared)."""
+    counts = np.bincount(ev.session[ev.compared], minlength=int(ev.session.max()) + 1)
+    busiest = np.argsort(-counts, kind="stable")[:MAX_PANELS]
+    return sorted(int(s) for s in busiest if counts[s] > 0)
+
+
+def _plot_log_timeseries(ev: Evaluation, path: str) -> int:
+    """Applied and target rate over time, a panel per session (`_session_panels`): a log of several
+    days on one time axis would be a few vertical lines. Returns the number of panels."""
+    shown = _session_panels(ev)
+    cols = 1 if len(shown) <= 4 else 2 if len(shown) <= 8 else 3
+    rows = -(-len(shown) // cols)
+    fig = figure(11, 1.0 + 2.6 * rows, layout="constrained")
+    axes = fig.subplots(rows, cols, squeeze=False, sharey=True).ravel()
+    step = max(1, int(np.isin(ev.session, shown).sum()) // MAX_PLOT_POINTS)
+    for i, (ax, session) in enumerate(zip(axes, shown, strict=False)):
+        _plot_session(ev, ax, session, step)
+        if i % cols:  # the panels of a row share the first one's rate axis
+            ax.set_ylabel("")
+    for ax in axes[len(shown):]:
+        ax.set_visible(False)
+    axes[0].legend(loc="upper right")
+    total = ev.metrics.sessions
+    if len(shown) < total:
+        said = f"{len(shown)} of {total} sessions shown (those with the most points compared)"
+    else:
+        said = f"{total} session{'s' if total > 1 else ''}"
+    fig.suptitle(f"{os.path.basename(os.path.normpath(ev.log.source))}: applied and target rate; {said}")
     fig.savefig(path, dpi=90)
+    return len(shown)
+
+
+def _plot_session(ev: Evaluation, ax, session: int, step: int) -> None:
+    """One session's panel: time since its first record, in s, or in min past 10 minutes."""
+    idx = np.flatnonzero(ev.session == session)[::step]
+    t = ev.log.time_s[idx]
+    timed = np.isfinite(t).any()
+    t0 = float(np.nanmin(t)) if timed else 0.0
+    span_s = float(np.nanmax(t)) - t0 if timed else 0.0
+    scale, unit = (60.0, "min") if span_s > 600 else (1.0, "s")
+    applied = np.where(ev.compared[idx], ev.log.applied[idx], np.nan)
+    ax.plot((t - t0) / scale, ev.target[idx], label=f"target ({ev.against})", lw=1.2)
+    ax.plot((t - t0) / scale, applied, label="applied (points compared)", lw=1.0)
+    ax.set_xlabel(f"time since the session's first record ({unit})")
+    ax.set_ylabel(f"rate ({ev.unit})")
+    start = ""
+    if ev.log.start is not None:
+        when = (ev.log.start + np.timedelta64(round(t0 * 1000), "ms")).astype("datetime64[s]")
+        start = f", from {str(when).replace('T', ' ')}"
+    ax.set_title(f"session {session + 1}{start}, {span_s / 60:.1f} min", fontsize=9)

@@ -68,8 +68,11 @@ def page() -> str:
         "and `vrsim tune` optimises (a blank: the figure describes the run, it does not judge it).", "",
         *_table(metrics.METRICS, with_library=True), "",
         "## An as-applied log's figures (`POINT_METRICS`, `vrsim evaluate`)", "",
-        "Over the logged points, each of the same weight (the run's figures above are over map cells, "
-        "area-weighted); `(log unit)` is the unit of the log's rates.", "",
+        "Over the logged points (the run's figures above are over map cells, area-weighted): mass balance "
+        "and the within-shares weigh each point by its area where the log gives it (`weighting`), the "
+        "other figures each point alike. `(log unit)` is the unit of the log's rates; a share `% of area "
+        "or records` is of the one `weighting` says. A row without a label is a setting, printed beside "
+        "its count.", "",
         *_table(metrics.POINT_METRICS, with_library=False),
     ]
     return "\n".join(lines) + "\n"

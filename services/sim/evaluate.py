@@ -4,10 +4,15 @@ A log (`maps.PointLog`: a TASKDATA's TimeLogs, a John Deere point export, a run'
 compared point by point either with the target rate it logged or with a prescription map looked up at
 each point. Only records where the machine was applying to a target count (implement on, a
 section on or a width above 0, a target above 0); the others are counted by reason (`EXCLUSIONS`).
+Of those, records at a standstill (ground speed below a cut-off: the log's speed, else its distance,
+else its positions', over time) are left out and counted, and outliers
+(applied above a multiple of the target, `metrics.outliers`) counted and left out unless included.
+The records are split into sessions where they are more than `SESSION_GAP_S` apart, as a replay's.
 With ``delay_s``, the product metered at a record's time lands ``delay_s`` later, where
 the machine is then (its position interpolated along the log at ``time_s + delay_s``): the applied
 rate of the record is compared with the prescription there. The figures are `metrics.point_metrics`
-(what each means: `metrics.POINT_METRICS`).
+(what each means: `metrics.POINT_METRICS`), weighted by each record's area (DISTANCE x width) where the
+log gives both.
 """
 
 from __future__ import annotations
@@ -21,8 +26,17 @@ import numpy as np
 from common import MapError
 from maps import Grid, PointLog, grid_from_bounds, utm_crs_for
 from maps.crs import WGS84, transform_xy
+from maps.log_records import SESSION_GAP_S
 from maps.units import base_unit, convert_rate, is_rate_unit, rate_unit
-from services.sim.metrics import POINT_METRICS, PointMetrics, point_metrics
+from services.sim.metrics import (
+    OUTLIER_MULTIPLE,
+    POINT_METRICS,
+    STANDSTILL_M_S,
+    LogScreen,
+    PointMetrics,
+    outliers,
+    point_metrics,
+)
 
 ERROR_CELL_M = 5.0  # cell of the error map without a prescription: about a point's spacing at 1 Hz
 MAX_DELAY_S = 30.0  # as `vehicle.Implement.delivery_delay_s`
@@ -46,7 +60,8 @@ class Evaluation:
     target : ndarray, shape (n,)
         What each point's applied rate is compared with.
     compared : ndarray of bool, shape (n,)
-        The points the figures are over.
+        The points the figures are over: not excluded (`excluded`), not at a standstill and, unless
+        included, not outliers.
     x_m, y_m : ndarray, shape (n,)
         Where each point is compared, in `crs` (metres; with a delay, where its product landed; NaN
         without a position).
@@ -56,6 +71,12 @@ class Evaluation:
     metrics : PointMetrics
     excluded : dict of str -> int
         Records not compared, by reason (`EXCLUSIONS`; each record under its first reason).
+    speed_m_s : ndarray, shape (n,)
+        Each record's ground speed (NaN: not known).
+    standstill, outlier : ndarray of bool, shape (n,)
+        The records otherwise compared that were at a standstill, and the outliers among the rest.
+    session : ndarray of int, shape (n,)
+        Each record's session, from 0 in time order (records without a time: 0).
     """
 
     log: PointLog
@@ -70,6 +91,10 @@ class Evaluation:
     delay_s: float
     metrics: PointMetrics
     excluded: dict
+    speed_m_s: np.ndarray
+    standstill: np.ndarray
+    outlier: np.ndarray
+    session: np.ndarray
 
     def summary(self) -> dict:
         """``points``, ``unit``, the other `POINT_METRICS` figures, then ``excluded`` (records left out,
@@ -81,7 +106,9 @@ class Evaluation:
 
 
 def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_s: float = 0.0,
-             include_zero_target: bool = False, density_kg_l: float | None = None) -> Evaluation:
+             include_zero_target: bool = False, density_kg_l: float | None = None,
+             standstill_m_s: float = STANDSTILL_M_S, outlier_multiple: float = OUTLIER_MULTIPLE,
+             include_outliers: bool = False) -> Evaluation:
     """Compare a log's applied rates with its logged targets, or with `prescription` at each point.
 
     Parameters
@@ -100,12 +127,19 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
         Also compare records whose target is 0 (or below): the machine was told not to apply there.
     density_kg_l : float, optional
         The product's density, kg/L (default: the one `prescription` was read with).
+    standstill_m_s : float
+        Records at a ground speed below this (m/s, >= 0; 0: none) are left out and counted.
+    outlier_multiple : float
+        Records applying more than this many times their target (> 1) are outliers: counted, and left
+        out unless `include_outliers`.
+    include_outliers : bool
+        Keep the outliers in the figures.
 
     Raises
     ------
     MapError
-        Naming the log: a unit it does not say or that does not convert, a delay without times, no
-        point to compare.
+        Naming the log: a unit it does not say or that does not convert, a delay without times, a
+        cut-off out of range, no point to compare.
     """
     where = log.source or "log"
     if not is_rate_unit(log.unit):
@@ -114,6 +148,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
     log = dataclasses.replace(log, unit=rate_unit(log.unit))
     if not (isinstance(delay_s, (int, float)) and math.isfinite(delay_s) and 0 <= delay_s <= MAX_DELAY_S):
         raise MapError(f"--delay-s {delay_s!r}: must be a number from 0 to {MAX_DELAY_S:g} s")
+    _check_cut_offs(standstill_m_s, outlier_multiple)
     if prescription is not None:
         density = prescription.density_kg_l if density_kg_l is None else density_kg_l
         try:
@@ -136,18 +171,91 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
         import shapely
 
         inside = shapely.contains_xy(field.polygon, fx, fy)
-    compared, excluded = _select(log, target, inside, include_zero_target)
+    valid, excluded = _select(log, target, inside, include_zero_target)
+    speed, speed_from = _speed_m_s(log, x_m, y_m)
+    with np.errstate(invalid="ignore"):  # a speed not known is not a standstill
+        standstill = valid & (speed < standstill_m_s)
+    outlier = valid & ~standstill & outliers(log.applied, target, outlier_multiple)
+    compared = valid & ~standstill & (~outlier | include_outliers)
     if not compared.any():
-        left = ", ".join(f"{n} {r.replace('_', ' ')}" for r, n in excluded.items() if n)
-        raise MapError(f"{where}: no point to compare ({log.points} records; none with the implement on, "
-                       f"an applied rate and a target{' on the map' if prescription is not None else ''}"
-                       f"{' inside the field' if field is not None else ''}; left out: {left})")
+        _nothing_to_compare(log, excluded, int(standstill.sum()), int((outlier & ~compared).sum()),
+                            prescription is not None, field is not None)
     distance = _distance_m(x_m, y_m)
     time_s = np.where(np.isfinite(log.time_s), log.time_s, np.arange(log.points, dtype=float))
     scale = float(convert_rate(1.0, log.unit, base_unit(log.unit)))
-    figures = point_metrics(log.applied, target, time_s, distance, compared, step_scale=scale)
+    session = _sessions(log.time_s)
+    screen = LogScreen(int(standstill.sum()), float(standstill_m_s), speed_from, int(outlier.sum()),
+                       float(outlier_multiple), bool(include_outliers), int(session.max()) + 1)
+    figures = point_metrics(log.applied, target, time_s, distance, compared, step_scale=scale,
+                            area_m2=log.distance_m * log.width_m, screen=screen)
     return Evaluation(log, log.unit, against, np.asarray(target, float), compared, lx, ly, crs, distance,
-                      float(delay_s), figures, excluded)
+                      float(delay_s), figures, excluded, speed, standstill, outlier, session)
+
+
+def _check_cut_offs(standstill_m_s, outlier_multiple) -> None:
+    """Refuse a standstill cut-off or an outlier multiple that is not a number in its range."""
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    if not (number(standstill_m_s) and standstill_m_s >= 0):
+        raise MapError(f"--standstill-m-s {standstill_m_s!r}: must be a speed of 0 m/s or more")
+    if not (number(outlier_multiple) and outlier_multiple > 1):
+        raise MapError(f"--outlier-multiple {outlier_multiple!r}: must be a number above 1 (times the "
+                       "target)")
+
+
+def _nothing_to_compare(log: PointLog, excluded: dict, standstill: int, outlier: int, on_map: bool,
+                        in_field: bool):
+    """Raise the MapError of a log with no point to compare, saying what was left out."""
+    reasons = {**excluded, "at a standstill": standstill, "outliers": outlier}
+    left = ", ".join(f"{n} {r.replace('_', ' ')}" for r, n in reasons.items() if n)
+    raise MapError(f"{log.source or 'log'}: no point to compare ({log.points} records; none with the "
+                   f"implement on, an applied rate and a target{' on the map' if on_map else ''}"
+                   f"{' inside the field' if in_field else ''}; left out: {left})")
+
+
+def _speed_m_s(log: PointLog, x_m: np.ndarray, y_m: np.ndarray) -> tuple[np.ndarray, str]:
+    """Each record's ground speed, m/s, and where it is from: the log's speed, else its distance, else
+    its positions' (the centre of a timestamp's records), over the time since the previous timestamp;
+    NaN where not known (no time; positions at a session's first timestamp).
+
+    Chosen in `maps.log_records`' order, but not smoothed over 1 s as it is for a replay's drive: a
+    record's rate is over its own interval, so each record of a stop counts by its own speed.
+    """
+    logged = np.isfinite(log.speed_m_s)
+    if logged.all():
+        return log.speed_m_s, "logged speed"
+    ok = np.isfinite(log.time_s)
+    times, row = np.unique(log.time_s[ok], return_inverse=True)
+    gap_s = np.diff(times, prepend=np.nan)
+    first = ~(gap_s <= SESSION_GAP_S)  # a session's first timestamp: no previous one to go from
+    if np.isfinite(log.distance_m).sum() > 0.9 * log.points:  # as `maps.log_records` chooses
+        # A logger's DISTANCE is over its period, which a session's first record has too.
+        period_s = np.median(gap_s[~first]) if (~first).any() else np.nan
+        per_time, source = 1.0 / np.where(first, period_s, gap_s), "distance over time"
+        speed = np.full(log.points, np.nan)
+        speed[ok] = log.distance_m[ok] * per_time[row]
+    else:
+        count = np.bincount(row, minlength=times.size)
+        cx, cy = (np.bincount(row, weights=v[ok], minlength=times.size) / count for v in (x_m, y_m))
+        step = np.hypot(np.diff(cx, prepend=np.nan), np.diff(cy, prepend=np.nan)) / gap_s
+        per_time, source = np.where(first, np.nan, step), "positions over time"
+        speed = np.full(log.points, np.nan)
+        speed[ok] = per_time[row]
+    if logged.any():
+        return np.where(logged, log.speed_m_s, speed), f"logged speed, else {source}"
+    return speed, source if ok.any() else "not known"
+
+
+def _sessions(time_s: np.ndarray) -> np.ndarray:
+    """Each record's session, from 0: in time order, records more than `SESSION_GAP_S` apart begin a new
+    one, as `maps.log_records` splits a log for a replay; records without a time are of session 0."""
+    ok = np.isfinite(time_s)
+    times, row = np.unique(time_s[ok], return_inverse=True)
+    per_time = np.concatenate(([0], np.cumsum(np.diff(times) > SESSION_GAP_S)))
+    session = np.zeros(time_s.size, dtype=np.int64)
+    session[ok] = per_time[row]
+    return session
 
 
 def _section_on(log: PointLog) -> np.ndarray:

@@ -28,6 +28,17 @@ until the step's window closes, at the next step or where the implement goes off
 Steps into zero rate (sections closing) and steps whose window closes before the rate settles are
 counted apart and left out of the mean and the percentiles, so that both describe the same steps.
 
+An as-applied log (`POINT_METRICS`, `vrsim evaluate`; per logged record, not per cell): mass balance and
+the within-shares are weighted by each record's area, ``DISTANCE x width`` (the ground it stands for),
+where the log gives both for every record compared (``weighting`` "area"), else each record alike
+(``weighting`` "record"); mae, rmse, bias and the means are over the records, each alike. Records
+at a ground speed below ``standstill_speed_m_s`` (`STANDSTILL_M_S`, 0.5 m/s) are left out: a machine
+barely moving logs its flow over almost no ground, hundreds of gal/ac that no hectare got.
+Records applying more than ``outlier_multiple`` (`OUTLIER_MULTIPLE`, 5) times their target are
+outliers, counted and left out unless included. A log with one record per section per timestamp
+also gets its figures per timestamp: the machine's rate there is its records' mean (by area, or
+each alike), the share over timestamps (by area, or each alike).
+
 `METRICS` is the one table of every figure a run reports: its key, unit, label and meaning, the
 tolerance the accuracy library holds it to, and how it comes from a run's accounts
 (`services.sim.accounting.Accounts`). The summary (`summary`: ``vrsim run`` and ``--json``, the
@@ -38,12 +49,13 @@ library's tolerances all derive from it, so a new figure is one row here and its
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from operator import attrgetter
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from maps.log_records import SESSION_GAP_S
 from services.sim.transitions import transitions
 
 if TYPE_CHECKING:
@@ -51,7 +63,8 @@ if TYPE_CHECKING:
 
 __all__ = ["COVERED_FRACTION", "Metric", "METRICS", "summary", "RATE_UNIT", "rate_key", "in_rate_unit",
            "MapMetrics", "map_metrics", "OverlapMetrics", "overlap_metrics", "LimitMetrics", "limit_metrics",
-           "LOG_UNIT", "POINT_METRICS", "PointMetrics", "point_metrics"]
+           "LOG_UNIT", "AREA_OR_RECORDS", "AREA_OR_TIMESTAMPS", "STANDSTILL_M_S", "OUTLIER_MULTIPLE",
+           "POINT_METRICS", "PointMetrics", "LogScreen", "point_metrics", "outliers"]
 
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
 
@@ -264,7 +277,7 @@ class _Errors:
     within_10pct_pct: float
 
 
-def _errors(applied, target) -> _Errors:
+def _errors(applied, target, weight=None) -> _Errors:
     """``e = applied - target``: mean |e|, sqrt(mean e^2), mean e, and the share of the values with a
     positive target where |e| <= 5 % (10 %) of it; NaN for no values.
 
@@ -272,18 +285,22 @@ def _errors(applied, target) -> _Errors:
     ----------
     applied, target : ndarray, shape (n,)
         Paired values, finite.
+    weight : ndarray, shape (n,), optional
+        What each value weighs in the within-shares (an area); default: each alike. The means are
+        each alike whatever the weight.
     """
     err = applied - target
     nan = float("nan")
     positive = target > 0
     rel = np.abs(err[positive]) / target[positive]
+    w = np.ones(rel.size) if weight is None else np.asarray(weight, float)[positive]
     return _Errors(
         mean_target=float(target.mean()) if err.size else nan,
         mae=float(np.abs(err).mean()) if err.size else nan,
         rmse=float(np.sqrt((err**2).mean())) if err.size else nan,
         bias=float(err.mean()) if err.size else nan,
-        within_5pct_pct=_pct(np.count_nonzero(rel <= 0.05), rel.size),
-        within_10pct_pct=_pct(np.count_nonzero(rel <= 0.10), rel.size),
+        within_5pct_pct=_pct(w[rel <= 0.05].sum(), w.sum()),
+        within_10pct_pct=_pct(w[rel <= 0.10].sum(), w.sum()),
     )
 
 
@@ -409,28 +426,56 @@ def limit_metrics(limited, applying, limited_coverage, coverage_fraction, in_fie
 
 
 LOG_UNIT = "(log unit)"  # a figure in the unit of the log's rates (`vrsim evaluate`)
+# A share weighted as ``weighting`` says: shown as "% of area" or "% of records" ("% of timestamps").
+AREA_OR_RECORDS = "% of area or records"
+AREA_OR_TIMESTAMPS = "% of area or timestamps"
+# Below this ground speed (1.8 km/h) a record is the machine standing or creeping: its flow over almost
+# no ground logs hundreds of gal/ac that no hectare got (a sprayer holds a minimum flow at a stop).
+STANDSTILL_M_S = 0.5
+# An applied rate above this many times its target is a start-up (a preset flow before the demand
+# catches up) or a logging fault, not the controller's error: counted, and kept out of the means.
+OUTLIER_MULTIPLE = 5.0
 
 # The figures of `vrsim evaluate` over the points of an as-applied log, in the order it prints them.
 # The run's figures above are over map cells (area-weighted, covered cells only); these are over
-# logged points, each of the same weight, so mass balance and the within-shares differ in definition
-# from the run's. The transitions are the run's own (`transitions`), over the points.
+# logged points, weighted by their area where the log says it (see the module docstring). The
+# transitions are the run's own (`transitions`), over the points. A row without a label is a setting
+# that the reports state beside the count it belongs to.
 POINT_METRICS = (
     Metric("points", "", "Points compared",
            "records with the implement on (and a section on, where the log has section states) and both "
-           "rates (with a prescription or a field: a position on the map, inside the field)"),
-    Metric("applied_mean", LOG_UNIT, "Applied rate, mean", "mean applied rate over the points compared"),
+           "rates (with a prescription or a field: a position on the map, inside the field), not at a "
+           "standstill and, unless outliers are included, not outliers"),
+    Metric("applied_mean", LOG_UNIT, "Applied rate, mean",
+           "mean applied rate over the points compared, each alike"),
     Metric("target_mean", LOG_UNIT, "Target rate, mean",
-           "mean target over the points compared: the logged target, or the prescription at the point"),
-    Metric("mae", LOG_UNIT, "Mean absolute error", "mean |applied - target|"),
-    Metric("rmse", LOG_UNIT, "RMSE", "root mean square of applied - target"),
-    Metric("bias", LOG_UNIT, "Bias", "mean applied - target"),
+           "mean target over the points compared, each alike: the logged target, or the prescription at "
+           "the point"),
+    Metric("mae", LOG_UNIT, "Mean absolute error", "mean |applied - target|, each point alike"),
+    Metric("rmse", LOG_UNIT, "RMSE", "root mean square of applied - target, each point alike"),
+    Metric("bias", LOG_UNIT, "Bias", "mean applied - target, each point alike"),
     Metric("mass_balance_pct", "%", "Mass balance",
-           "100 (sum of applied - sum of target) / sum of target over the points, each point of the same "
-           "weight (a log at a fixed rate weighs each second alike, not each hectare)"),
-    Metric("within_5pct_pct", "%", "Points within +-5 %",
-           "share of the points with a positive target where |applied - target| <= 5 % of it"),
-    Metric("within_10pct_pct", "%", "Points within +-10 %",
-           "share of the points with a positive target where |applied - target| <= 10 % of it"),
+           "100 (sum of applied - sum of target) / sum of target over the points compared, each weighted "
+           "by its area (distance x width) or each alike, as `weighting` says"),
+    Metric("within_5pct_pct", AREA_OR_RECORDS, "Within +-5 %",
+           "share of the points with a positive target (of their area, or of their number: `weighting`) "
+           "where |applied - target| <= 5 % of it"),
+    Metric("within_10pct_pct", AREA_OR_RECORDS, "Within +-10 %",
+           "share of the points with a positive target (of their area, or of their number: `weighting`) "
+           "where |applied - target| <= 10 % of it"),
+    Metric("weighting", "", "Weighted by",
+           '"area": mass balance and the within-shares weigh each point by its distance since the '
+           'previous record x its width (the log gives both for every point compared); "record": each '
+           "point alike"),
+    Metric("timestamps", "", "Timestamps compared",
+           "distinct times of the points compared (a log with one record per section has one point per "
+           "open section at each)"),
+    Metric("within_5pct_timestamps_pct", AREA_OR_TIMESTAMPS, "Timestamps within +-5 %",
+           "share of the timestamps with a positive target (of their points' area, or of their number) "
+           "where the machine's rate, its points' mean (by area, or each alike), is within 5 % of their "
+           "target's mean"),
+    Metric("within_10pct_timestamps_pct", AREA_OR_TIMESTAMPS, "Timestamps within +-10 %",
+           "as within_5pct_timestamps_pct, within 10 %"),
     Metric("transitions", "", "Rate steps settled",
            "steps of the target between consecutive points compared (more than 10 % and 5 kg/ha, or 5 L/ha "
            "for a volume rate) to a non-zero target after which the applied rate settled (entered and stayed "
@@ -440,6 +485,22 @@ POINT_METRICS = (
            "interval), over the steps settled"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the logged positions over the transition"),
+    Metric("standstill_records", "", "Standstill records left out",
+           "records otherwise compared whose ground speed is below standstill_speed_m_s"),
+    Metric("standstill_speed_m_s", "m/s", "", "the standstill cut-off (`--standstill-m-s`)"),
+    Metric("speed_from", "", "",
+           'where the ground speed comes from: "logged speed", "distance over time" or "positions over '
+           'time" (smoothed over 1 s, as `vrsim replay` reads it), or "not known" (no record is at a '
+           "standstill then)"),
+    Metric("outlier_records", "", "Outlier records",
+           "records otherwise compared (not at a standstill) whose applied rate is above outlier_multiple "
+           "times their target (above 0); left out of every figure unless outliers_included"),
+    Metric("outlier_multiple", "x target", "",
+           "the outlier cut-off, times the target (`--outlier-multiple`)"),
+    Metric("outliers_included", "", "", "whether the outliers are in the figures (`--include-outliers`)"),
+    Metric("sessions", "", "Sessions",
+           f"runs of the log's records no more than {SESSION_GAP_S:g} s apart (as `vrsim replay` splits a "
+           "log): a log of several days is several"),
 )
 
 
@@ -454,12 +515,45 @@ class PointMetrics:
     mass_balance_pct: float
     within_5pct_pct: float
     within_10pct_pct: float
+    weighting: str
+    timestamps: int
+    within_5pct_timestamps_pct: float
+    within_10pct_timestamps_pct: float
     transitions: int
     transition_time_s_mean: float
     transition_distance_m_mean: float
+    standstill_records: int
+    standstill_speed_m_s: float
+    speed_from: str
+    outlier_records: int
+    outlier_multiple: float
+    outliers_included: bool
+    sessions: int
 
 
-def point_metrics(applied, target, time_s, distance_m, compared, step_scale: float = 1.0) -> PointMetrics:
+@dataclass(frozen=True)
+class LogScreen:
+    """What a log's records were screened for before its figures: the `POINT_METRICS` rows of the same
+    names (the default: nothing screened, one session)."""
+
+    standstill_records: int = 0
+    standstill_speed_m_s: float = STANDSTILL_M_S
+    speed_from: str = "not known"
+    outlier_records: int = 0
+    outlier_multiple: float = OUTLIER_MULTIPLE
+    outliers_included: bool = False
+    sessions: int = 1
+
+
+def outliers(applied, target, multiple: float = OUTLIER_MULTIPLE) -> np.ndarray:
+    """The records applying more than `multiple` times a target above 0 (bool, shape (n,))."""
+    a, t = np.asarray(applied, float), np.asarray(target, float)
+    with np.errstate(invalid="ignore"):
+        return (t > 0) & (a > multiple * t)
+
+
+def point_metrics(applied, target, time_s, distance_m, compared, step_scale: float = 1.0, area_m2=None,
+                  screen: LogScreen | None = None) -> PointMetrics:
     """Applied-versus-target figures over the points of a log (`POINT_METRICS` says what each is).
 
     Parameters
@@ -467,17 +561,27 @@ def point_metrics(applied, target, time_s, distance_m, compared, step_scale: flo
     applied, target : ndarray, shape (n,)
         Applied rate and what it is compared with, per point, in one unit.
     time_s, distance_m : ndarray, shape (n,)
-        Time of each point and distance travelled up to it (monotone), for the transitions.
+        Time of each point and distance travelled up to it (monotone), for the transitions; points
+        of one time are one timestamp.
     compared : ndarray of bool, shape (n,)
-        The points to compare (implement on, both rates finite, ...).
+        The points to compare (implement on, both rates finite, not at a standstill, ...).
     step_scale : float
         Factor from the rates' unit to kg/ha (or L/ha), so a rate step means the same in any unit.
+    area_m2 : ndarray, shape (n,), optional
+        Each point's area (distance since the previous record x width): mass balance and the
+        within-shares are weighted by it when every point compared has one (finite, >= 0, not all 0).
+    screen : LogScreen, optional
+        What was screened out before `compared`, reported as it is.
     """
     a = np.asarray(applied, dtype=float)
     t = np.asarray(target, dtype=float)
     use = np.asarray(compared, dtype=bool) & np.isfinite(a) & np.isfinite(t)
-    e = _errors(a[use], t[use])
+    weight = _area_weight(area_m2, use)
+    w = np.ones(a.size) if weight is None else weight
+    e = _errors(a[use], t[use], w[use])
+    stamps = _per_timestamp(a[use], t[use], np.asarray(time_s, float)[use], w[use], weight is not None)
     tm = transitions(time_s, distance_m, t * step_scale, a * step_scale, use)
+    weighted_target = (t * w)[use].sum()
     return PointMetrics(
         points=int(np.count_nonzero(use)),
         applied_mean=float(a[use].mean()) if use.any() else float("nan"),
@@ -485,10 +589,39 @@ def point_metrics(applied, target, time_s, distance_m, compared, step_scale: flo
         mae=e.mae,
         rmse=e.rmse,
         bias=e.bias,
-        mass_balance_pct=_pct(a[use].sum() - t[use].sum(), t[use].sum()),
+        mass_balance_pct=_pct((a * w)[use].sum() - weighted_target, weighted_target),
         within_5pct_pct=e.within_5pct_pct,
         within_10pct_pct=e.within_10pct_pct,
+        weighting="record" if weight is None else "area",
+        timestamps=stamps[0],
+        within_5pct_timestamps_pct=stamps[1].within_5pct_pct,
+        within_10pct_timestamps_pct=stamps[1].within_10pct_pct,
         transitions=tm.transitions,
         transition_time_s_mean=tm.transition_time_s_mean,
         transition_distance_m_mean=tm.transition_distance_m_mean,
+        **asdict(screen or LogScreen()),
     )
+
+
+def _area_weight(area_m2, use: np.ndarray) -> np.ndarray | None:
+    """Each point's area (0 where not used) when every point used has one (finite, >= 0, not all 0),
+    else None: a log that gives the area of only some points cannot weigh the rest."""
+    if area_m2 is None:
+        return None
+    area = np.asarray(area_m2, dtype=float)
+    used = area[use]
+    if not (used.size and np.isfinite(used).all() and (used >= 0).all() and used.sum() > 0):
+        return None
+    return np.where(use, area, 0.0)
+
+
+def _per_timestamp(applied, target, time_s, weight, by_area: bool) -> tuple[int, _Errors]:
+    """(timestamps, their within-shares): the points grouped by time; at each, the machine's rate is
+    its points' mean by `weight` (a per-section log's sections: the machine's rate over its open
+    width), and the timestamp weighs its points' area (`by_area`) or 1."""
+    times, group = np.unique(time_s, return_inverse=True)
+    total = np.bincount(group, weights=weight, minlength=times.size)
+    ok = total > 0  # a timestamp whose points have no area has no rate over ground
+    mean = [np.bincount(group, weights=v * weight, minlength=times.size)[ok] / total[ok]
+            for v in (applied, target)]
+    return int(times.size), _errors(*mean, total[ok] if by_area else None)

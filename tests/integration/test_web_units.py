@@ -5,6 +5,8 @@ rate figures read in lb/ac."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from tests.integration.test_rate_units import LB_AC, scenario, write_tif
@@ -28,8 +30,18 @@ def net(tmp_path_factory):
         yield server
 
 
+def view_with_map(web, timeout_s: float = 60.0) -> dict:
+    """`/api/view` once it carries the run's map: `scenario/start` answers when the run is accepted,
+    and the map service loads the map after that."""
+    deadline = time.monotonic() + timeout_s
+    while (view := web.json("/api/view"))["map"] is None:
+        assert time.monotonic() < deadline, f"no map in the view after {timeout_s:g} s: {view}"
+        time.sleep(0.2)
+    return view
+
+
 def test_the_view_and_the_runs_hello_carry_the_maps_unit(net):
-    scale = net.web.json("/api/view")["map"]["scale"]
+    scale = view_with_map(net.web)["map"]["scale"]
     assert scale["unit"] == "lb/ac"
     assert (scale["vmin"], scale["vmax"]) == (pytest.approx(100), pytest.approx(150))
     assert scale["vmax_kg_ha"] == pytest.approx(150 * LB_AC)   # the cells are painted on the kg/ha range
