@@ -9,27 +9,13 @@ HELP = "accuracy of an as-applied log (TASKDATA TimeLogs, point shapefile or Geo
 
 
 def configure(parser) -> None:
+    from services.cli.log_options import add_log_reading
     from services.sim.metrics import OUTLIER_MULTIPLE, STANDSTILL_M_S
 
-    parser.add_argument("log", help="the log: a TASKDATA (folder, TASKDATA.XML or .zip) with TimeLogs, a "
-                                    "point shapefile (.shp or zipped, e.g. a John Deere export) or a "
-                                    "GeoPackage")
+    add_log_reading(parser)
     parser.add_argument("--prescription", metavar="RX",
                         help="compare with this map at each point (any map vrsim reads) instead of the "
                              "logged target")
-    parser.add_argument("--product", metavar="NAME|PDTn",
-                        help="the product of a TASKDATA (the log's, logging the rates of several on their "
-                             "device elements, or the prescription's) holding several (listed when none is "
-                             "named)")
-    parser.add_argument("--rate-field", metavar="NAME",
-                        help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
-                             "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
-    parser.add_argument("--target-field", metavar="NAME",
-                        help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
-                             "DDI 6, else 1)")
-    parser.add_argument("--layer", metavar="NAME",
-                        help="the layer of a zip, folder or GeoPackage holding several (they are listed "
-                             "when none is named)")
     parser.add_argument("--field", metavar="BOUNDARY",
                         help="field boundary (GeoJSON, shapefile, KML/KMZ or an ISOXML TASKDATA's partfield; "
                              "holes kept): only points inside it are compared")
@@ -48,14 +34,11 @@ def configure(parser) -> None:
                              f"left out (default {OUTLIER_MULTIPLE:g})")
     parser.add_argument("--include-outliers", action="store_true",
                         help="keep the outliers in the figures (they are still counted)")
-    parser.add_argument("--unit", help="unit of the log's rates when it does not say (kg/ha, t/ha, lb/ac, "
-                                       "L/ha, gal/ac, floz/ac, ...)")
     parser.add_argument("--prescription-unit", metavar="UNIT",
                         help="unit of the prescription's rates when the map does not say")
     parser.add_argument("--density-kg-l", type=float, metavar="KG_L",
                         help="the product's density (kg/L): compares a volume rate log (gal/ac) with a mass "
                              "rate map (kg/ha), or the other way round")
-    parser.add_argument("--crs", help="CRS of a shapefile without .prj")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
     parser.add_argument("--out", metavar="DIR",
                         help="also write evaluation.json, error.tif, error_map.png, timeseries.png and "

@@ -5,10 +5,32 @@
 from __future__ import annotations
 
 
-def add_log_options(parser) -> None:
+def add_log_reading(parser) -> None:
+    """The log and how to read it: what `vrsim evaluate`, `replay` and `fit` share."""
     parser.add_argument("log", help="the log: a point shapefile (.shp or zipped, e.g. a John Deere "
                                     "export), a GeoPackage, or a TASKDATA (folder, TASKDATA.XML or .zip) "
                                     "with TimeLogs")
+    parser.add_argument("--layer", metavar="NAME",
+                        help="the layer of a zip, folder or GeoPackage holding several (listed when none "
+                             "is named)")
+    parser.add_argument("--product", metavar="NAME|PDTn",
+                        help="the product of a TASKDATA (the log's, logging the rates of several on their "
+                             "device elements, or the prescription's) holding several (listed when none is "
+                             "named)")
+    parser.add_argument("--rate-field", metavar="NAME",
+                        help="attribute (or TimeLog DDI, e.g. 7 or 0x0007) of the applied rate "
+                             "(default: found by name: AppliedRate, applied, ...; DDI 7, else 2)")
+    parser.add_argument("--target-field", metavar="NAME",
+                        help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
+                             "DDI 6, else 1)")
+    parser.add_argument("--unit", help="unit of the log's rates when it does not say (kg/ha, t/ha, lb/ac, "
+                                       "L/ha, gal/ac, floz/ac, ...)")
+    parser.add_argument("--crs", help="CRS of a shapefile without .prj")
+
+
+def add_log_options(parser) -> None:
+    """`add_log_reading`, the machine that replays the log, its target and which of its records."""
+    add_log_reading(parser)
     parser.add_argument("--scenario", metavar="FILE",
                         help="the machine: a scenario TOML file or built-in name, given the log's sections "
                              "(default: made from the log: a boom sprayer for a volume rate, else the "
@@ -16,26 +38,11 @@ def add_log_options(parser) -> None:
     parser.add_argument("--machine", metavar="FILE",
                         help="a machine fragment (TOML tables of scenario keys, e.g. machine_fit.toml) set "
                              "on the scenario")
+    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
+                        help="override a key of the machine, after --machine (controller.kp=0.8; repeatable)")
     parser.add_argument("--prescription", metavar="MAP",
                         help="take each record's target from this map at its position (any map vrsim "
                              "reads) instead of the logged target")
-    parser.add_argument("--layer", metavar="NAME",
-                        help="the layer of a zip, folder or GeoPackage holding several (listed when none "
-                             "is named)")
-    parser.add_argument("--product", metavar="NAME",
-                        help="the product of a TASKDATA (the log's or the prescription's) holding several")
-    parser.add_argument("--rate-field", metavar="F",
-                        help="attribute (or TimeLog DDI) of the applied rate (default: found by name: "
-                             "AppliedRate, applied, ...; DDI 7, else 2)")
-    parser.add_argument("--target-field", metavar="F",
-                        help="attribute (or DDI) of the target rate (default: TargetRate, target, ...; "
-                             "DDI 6, else 1)")
-    parser.add_argument("--unit", metavar="U",
-                        help="unit of the log's rates when it does not say (kg/ha, lb/ac, L/ha, gal/ac, "
-                             "...)")
-    parser.add_argument("--crs", help="CRS of a shapefile without .prj")
-    parser.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
-                        help="override a key of the machine, after --machine (controller.kp=0.8; repeatable)")
     parser.add_argument("--session", metavar="N", type=int, nargs="+", action="extend",
                         help="only these sessions (from 0; records more than 60 s apart begin a new "
                              "session; default: all)")

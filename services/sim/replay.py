@@ -31,14 +31,13 @@ from maps.grid import grid_from_bounds
 from maps.log_records import MachineRecords
 from maps.units import convert_rate, rate_kind
 from services.sim.core import ControlCore, machine_plant
+from services.sim.metrics import STANDSTILL_M_S  # the cut-off `vrsim evaluate` leaves records out by
 from services.sim.scenario import Scenario
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import MotionTrend
 
-__all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "figures", "replay_records", "working_point_grid",
-           "STANDSTILL_M_S"]
+__all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "figures", "replay_records", "working_point_grid"]
 
-STANDSTILL_M_S = 0.5        # records slower than this are standstill: left out of the figures, counted
 EVENT_WINDOW_S = 8.0        # a record this soon after an event belongs to its class
 RATE_STEP_FRACTION = 0.02   # a target change larger than this share is a rate step
 MIN_SESSION_S = 3.0         # a session shorter than this cannot be replayed
