@@ -177,3 +177,20 @@ def test_a_log_without_a_target_attribute_replays_on_a_prescription(logs, tmp_pa
                                          rates=np.full((10, 50), 140.0), unit="kg/ha"), rx)
     got = run_json(bare, "--prescription", rx)
     assert got["target_from"] == str(rx) and got["compared_records"] > 150
+
+
+def test_vrsims_own_timelog_replays_with_its_scenario(tmp_path):
+    """A TASKDATA's TimeLog (the one `vrsim run` writes, as a task controller would: positions, the
+    condensed work states of the sections, DDI 6 and 7) is a drive: its sections and rates replay."""
+    sprayer = os.path.join(os.path.dirname(__file__), "..", "..", "scenarios", "sprayer.toml")
+    run = subprocess.run([VRSIM, "run", sprayer, "--quiet", "--out", str(tmp_path / "run"), "--set",
+                          "output.plots=false", "--set", "output.html=false"], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    got = run_json(tmp_path / "run" / "taskdata", "--scenario", sprayer, "--out", tmp_path / "replay")
+    assert got["rate_unit"] == "kg/ha" and got["sessions"] == 1
+    assert got["compared_records"] > 1000 and got["closed_records"] > 0   # the headland turns
+    assert got["pass_start_compared_records"] > 0 and got["rate_step_compared_records"] > 0
+    assert got["within_10pct_of_log_pct"] > 80
+    table = pq.read_table(tmp_path / "replay" / "replay.parquet")
+    assert table["sections_on"].to_numpy().max() == 6   # the scenario's six sections, from the TimeLog
