@@ -227,11 +227,12 @@ class Accounts:
 
 
 def map_figures(grid: Grid, in_field: np.ndarray, applied_kg_ha, coverage_fraction, metered_kg: float,
-                outside_kg: float) -> MapMetrics:
+                outside_kg: float, worked: np.ndarray) -> MapMetrics:
     """`metrics.map_metrics` of a raster on `grid` (its cells of `maps.Grid.cell_area_m2`); `metered_kg`
-    is all product metered, `outside_kg` what landed off the grid."""
+    is all product metered, `outside_kg` what landed off the grid, `worked` the plan's worked share of
+    each cell (`Setting.worked_fraction`)."""
     return map_metrics(grid.rates_kg_ha, applied_kg_ha, coverage_fraction, in_field,
-                       grid.cell_area_m2 / M2_PER_HA, metered_kg, outside_kg)
+                       grid.cell_area_m2 / M2_PER_HA, metered_kg, outside_kg, worked_fraction=worked)
 
 
 def account(setting: Setting, deposits: Sequence[Deposit], timers: Sequence[StageTimer]) -> list[Accounts]:
@@ -259,7 +260,7 @@ def _figures(s: Setting, d: Deposit) -> tuple[MapMetrics, TransitionMetrics, Ove
     """The figures of one deposit, by part."""
     cover, landing = d.coverage_fraction, s.landing
     return (map_figures(s.world.grid, s.in_field, d.applied_kg_ha, cover, float(d.metered_kg.sum()),
-                        d.outside_kg),
+                        d.outside_kg, s.worked_fraction),
             transitions(s.track["time_s"], landing.distance_m, landing.prescribed_kg_ha, d.rate_kg_ha,
                         np.asarray(s.track["implement_on"], bool), s.steps),
             overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, s.worked_fraction, s.in_field,

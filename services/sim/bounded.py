@@ -286,7 +286,8 @@ class BoundedAccount:
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
                                in_field)
         accounts = Accounts(setting, deposit,
-                            map_figures(grid, in_field, d.applied_kg_ha, cover, metered_kg, d.outside_kg),
+                            map_figures(grid, in_field, d.applied_kg_ha, cover, metered_kg, d.outside_kg,
+                                        worked),
                             transition_figures(times, dists, self.to_zero, self.cut),
                             overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),
@@ -294,12 +295,12 @@ class BoundedAccount:
         references = None
         if self.refs is not None:
             meters = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction, self.ref_kg[j],
-                                  ref.outside_kg) for j, ref in enumerate(self.refs)]
+                                  ref.outside_kg, worked) for j, ref in enumerate(self.refs)]
             # The spread pattern's stage: the first meter's own figures where the kind lays strips.
             strips = self.ref_strips
             pattern = meters[0] if not strips.items else map_figures(
                 grid, in_field, strips.applied_kg_ha, strips.coverage_fraction, self.ref_kg[0],
-                strips.outside_kg)
+                strips.outside_kg, worked)
             references = [pattern, *meters]
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,

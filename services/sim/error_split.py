@@ -98,7 +98,8 @@ def reference_metered_kg(world: World, machine: Machine, states: SectionStates, 
     return machine.configured_kg(rev, sc.product) * machine.drive_share, start_rev
 
 
-def _reference_figures(world: World, track: dict, control: dict, measured_speed_m_s) -> list[MapMetrics]:
+def _reference_figures(world: World, track: dict, control: dict, measured_speed_m_s,
+                       worked: np.ndarray) -> list[MapMetrics]:
     """The map figures of the three reference meters (see the module docstring) on the run's track
     and sections: what `error_split` adds to the run's own figures, from an in-process run's arrays
     (`vrsim run` deposits the reference meters part by part beside its own product:
@@ -107,7 +108,8 @@ def _reference_figures(world: World, track: dict, control: dict, measured_speed_
     The references go through the run's machine kind (`services.sim.machines`): each drive's target
     and product, landing through the kind's plan (a drive per section: each section's strip its own
     drive's product). The sensed motion the targets were computed with is the measured speed and the
-    track's heading (`MotionTrend`: a drive's own speed in a turn). The plan is worked out once and
+    track's heading (`MotionTrend`: a drive's own speed in a turn); `worked` is the run's worked share
+    of each cell (`Setting.worked_fraction`). The plan is worked out once and
     mapped to the raster once for all meters (`maps.ColumnDeposit`); their figures are the
     accounting's map figures (`services.sim.accounting.map_figures`)."""
     imp, grid, period_s = world.scenario.implement, world.grid, world.scenario.timing.control_period_s
@@ -128,7 +130,7 @@ def _reference_figures(world: World, track: dict, control: dict, measured_speed_
     in_field = cells_in_field(grid, world.field.polygon)
     stages = [(strips, 0), *((rasters, j) for j in range(metered.shape[-1]))]
     return [map_figures(grid, in_field, r.applied_kg_ha[j], r.coverage_fraction[j],
-                        float(np.sum(metered[..., j])), float(r.outside_kg[j])) for r, j in stages]
+                        float(np.sum(metered[..., j])), float(r.outside_kg[j]), worked) for r, j in stages]
 
 
 def _reference_rasters(grid, plan, metered_kg: np.ndarray) -> AppliedColumns:
@@ -140,8 +142,9 @@ def _reference_rasters(grid, plan, metered_kg: np.ndarray) -> AppliedColumns:
 def error_split(result: RunResult) -> list[ErrorPart]:
     """The run's mass balance and mean absolute error split into `CAUSES` (see the module docstring);
     the reference meters' figures from ``result.reference_figures`` when the run computed them."""
-    references = result.reference_figures or _reference_figures(result.world, result.track, result.control,
-                                                                result.measured_speed_m_s)
+    references = result.reference_figures or _reference_figures(
+        result.world, result.track, result.control, result.measured_speed_m_s,
+        result.accounts.setting.worked_fraction)
     stages = [*references, result.accounts.map]
     total_mae = result.accounts.map.mae_kg_ha
     parts, mb0, mae0 = [], 0.0, 0.0

@@ -12,6 +12,7 @@ from services.sim.metrics import (
     map_metrics,
     overlap_metrics,
     summary,
+    within_band,
 )
 from services.sim.transitions import TransitionMetrics, rate_steps, transitions
 from vehicle import Implement
@@ -28,7 +29,8 @@ def test_constant_error_gives_known_mae_rmse_bias():
     rx, field, cover = _grid()
     applied = rx + 4.0  # +4 % everywhere
     cell_ha = 0.01
-    m = map_metrics(rx, applied, cover, field, cell_ha, applied_total_kg=applied.sum() * cell_ha)
+    m = map_metrics(rx, applied, cover, field, cell_ha, applied_total_kg=applied.sum() * cell_ha,
+                    worked_fraction=cover)
     assert m.mae_kg_ha == pytest.approx(4.0)
     assert m.rmse_kg_ha == pytest.approx(4.0)
     assert m.bias_kg_ha == pytest.approx(4.0)
@@ -46,7 +48,8 @@ def test_mixed_error_shares_and_signs():
     applied = rx.copy()
     applied[:5] += 8.0  # half the area +8 %
     applied[5:] -= 2.0  # half -2 %
-    m = map_metrics(rx, applied, cover, field, 0.01, applied_total_kg=applied.sum() * 0.01)
+    m = map_metrics(rx, applied, cover, field, 0.01, applied_total_kg=applied.sum() * 0.01,
+                    worked_fraction=cover)
     assert m.mae_kg_ha == pytest.approx(5.0)
     assert m.rmse_kg_ha == pytest.approx(np.sqrt((64 + 4) / 2))
     assert m.bias_kg_ha == pytest.approx(3.0)
@@ -63,7 +66,7 @@ def test_uncovered_cells_and_off_target():
     applied[1, 1] = 50.0
     applied[:, -1] = 20.0
     m = map_metrics(rx, applied, cover, field, 0.01, applied_total_kg=applied.sum() * 0.01,
-                    off_grid_kg=1.5)
+                    off_grid_kg=1.5, worked_fraction=cover)
     assert m.covered_cells == 10 * 9 - 1
     assert m.coverage_pct == pytest.approx(100 * 89 / 90)
     assert m.off_target_kg == pytest.approx(10 * 20 * 0.01 + 50 * 0.01 + 1.5)
@@ -213,3 +216,24 @@ def test_the_summary_reads_each_figure_off_the_accounts_in_table_order():
     assert (s["path_length_m"], s["section_widths_m"], s["sections"]) == (4.5, [3.0, 3.0], 2)
     assert (s["field_area_ha"], s["max_speed_m_s"], s["cv_pct"]) == (1.5, 4.0, 0.0)
     assert summary(_accounts(ticks=0))["path_length_m"] == 0.0
+
+
+def test_within_band_counts_bare_and_partly_covered_ground():
+    """Ground that asks for product and was worked but got none (sections closed early) is outside the
+    band; a cell the working width swept only in part is judged on the part swept."""
+    rx, field, cover = _grid()
+    worked = np.ones(rx.shape)
+    applied = rx.copy()
+    applied[0, :] = 0.0                  # a row worked but left bare: 10 % of the worked ground
+    worked[9, :], applied[9, :] = 0.5, 50.0   # the last row swept half, applied in full on that half
+    rx[5, 5], applied[5, 5] = 0.0, 0.0   # asks for nothing: not judged
+    m = map_metrics(rx, applied, np.where(applied > 0, 1.0, 0.0), field, 0.01,
+                    applied_total_kg=applied.sum() * 0.01, worked_fraction=worked)
+    judged = 100 - 1 - 10 * 0.5          # cells weighted by their worked share
+    assert m.within_10pct_area_pct == pytest.approx(100 * (judged - 10) / judged)
+    band = within_band(rx, applied, worked, field)
+    assert band.within_5pct_pct == pytest.approx(m.within_5pct_area_pct)
+    # the same ground covered only where product landed would have flattered it: 100 %
+    assert map_metrics(rx, applied, np.where(applied > 0, 1.0, 0.0), field, 0.01,
+                       applied_total_kg=applied.sum() * 0.01,
+                       worked_fraction=np.where(applied > 0, worked, 0.0)).within_10pct_area_pct == 100.0
