@@ -59,7 +59,13 @@ from services.sim.section_landing import (
 from services.sim.sections import STEPS_KEY, SectionStates
 from services.sim.sections.motion import MotionTrend
 from services.sim.sections.passes import PassTracker
-from services.sim.transitions import SETTLE_HOLD_S, rate_steps, transition_figures, transition_spans
+from services.sim.transitions import (
+    SETTLE_HOLD_S,
+    TransitionEvents,
+    rate_steps,
+    transition_events,
+    transition_figures,
+)
 from services.sim.world import World
 
 # The track's per-tick rows a sink gets (`BoundedAccount`'s ``track_sink``): the true track's, the
@@ -113,8 +119,8 @@ class BoundedAccount:
         self.ref_kg = [0.0] * len(REFERENCES)  # the reference meters' product so far ...
         self.ref_rev = [0.0] * len(REFERENCES)  # ... and where their shafts stand
         self.ref_motion = MotionTrend(self.period_s)  # the sensed motion the references' targets read
-        self.spans: list = []     # per stretch: transition times and distances
-        self.to_zero = self.cut = self.limited = self.applying = 0
+        self.events: list = []    # per stretch: its transition events
+        self.limited = self.applying = 0
         self.limited_ticks: list = []   # per stretch: the limited ticks' landing frames
         self.path = PathPoints.for_ticks(expected_ticks)
         self.series = SeriesWindow()
@@ -187,10 +193,8 @@ class BoundedAccount:
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
         steps = rate_steps(landing.prescribed_kg_ha[:n], on[:n])
-        times, dists, to_zero, cut = transition_spans(w["time_s"], distance, landing.prescribed_kg_ha,
-                                                      landing.applied_kg_ha, on, steps)
-        self.spans.append((times, dists))
-        self.to_zero, self.cut = self.to_zero + to_zero, self.cut + cut
+        self.events.append(transition_events(w["time_s"], distance, landing.prescribed_kg_ha,
+                                             landing.applied_kg_ha, on, steps, upto=n))
         self._limits(w, states, n)
         self._outputs(w, landing, n)
         self.distance_m = float(distance[n - 1])
@@ -279,8 +283,6 @@ class BoundedAccount:
         d = deposit
         setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
                           self.first, self.distance_m)
-        times = np.concatenate([s[0] for s in self.spans]) if self.spans else np.zeros(0)
-        dists = np.concatenate([s[1] for s in self.spans]) if self.spans else np.zeros(0)
         # The counts of limited and applying ticks as `limit_metrics` counts them over a run's arrays.
         applying = np.ones(self.applying, bool)
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
@@ -288,7 +290,7 @@ class BoundedAccount:
         accounts = Accounts(setting, deposit,
                             map_figures(grid, in_field, d.applied_kg_ha, cover, metered_kg, d.outside_kg,
                                         worked),
-                            transition_figures(times, dists, self.to_zero, self.cut),
+                            transition_figures(TransitionEvents.joined(self.events)),
                             overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),
                             limits, self.timer.timing())

@@ -25,11 +25,15 @@ Section control and the machine (see `overlap_metrics`, `limit_metrics`): overla
 prescribed: closing the sections there is right, not a skip), product beyond the first pass, and the
 share of working time and covered area where the meter could not turn at the speed the map asked for.
 
-In time (per tick, along the track, `services.sim.transitions`): a rate step's transition ends where
-the applied rate settles: enters and stays within 10 % of the new rate for ``SETTLE_HOLD_S`` (1 s) or
-until the step's window closes, at the next step or where the implement goes off (a turn, the end of a pass).
-Steps into zero rate (sections closing) and steps whose window closes before the rate settles are
-counted apart and left out of the mean and the percentiles, so that both describe the same steps.
+In time (per tick, along the track, `services.sim.transitions`), by event class: rate steps, steps to
+zero, pass starts (sections opening) and pass ends (sections closing), each with its count, the events
+whose window closed before they settled (cut: left out of the times and distances, so that the mean and
+the percentile describe the same events), time and distance (mean, 95th percentile) and peak error. A
+step's or an opening's transition ends where the applied rate settles: enters and stays within 10 % of
+the new rate for ``SETTLE_HOLD_S`` (1 s) or until its window closes, at the next event or where the
+implement goes off; a step to zero's where the product stops; a pass end's looks back over the last
+stretch outside the band before the closing. A figure that rests on fewer than ``MIN_EVENTS`` (5)
+events is n/a (null), not a number.
 
 An as-applied log (`POINT_METRICS`, `vrsim evaluate`; per logged record, not per cell): mass balance and
 the within-shares are weighted by each record's area, ``DISTANCE x width`` (the ground it stands for),
@@ -59,7 +63,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from maps.log_records import SESSION_GAP_S
-from services.sim.transitions import transitions
+from services.sim.transitions import MIN_EVENTS, transitions
 
 if TYPE_CHECKING:
     from services.sim.accounting import Accounts
@@ -126,6 +130,43 @@ def _cv_pct(a: Accounts) -> float:
     return cv_pct(*machine_for(implement).transverse_pattern(), implement.width_m)
 
 
+# The event classes beside the rate steps (`services.sim.transitions.EVENTS`): each class's rows.
+EVENT_ROWS = (
+    ("to_zero", "Steps to zero", "steps to a zero rate with product going on: until the product stops "
+     "(nothing, or at most 10 % of the rate before, for 1 s)"),
+    ("pass_start", "Pass starts", "sections opening (a pass's start, or a reopening within it) under a rate "
+     "above 0: until the applied rate settles within 10 % of it"),
+    ("pass_end", "Pass ends", "sections closing (the implement turning off, or every section closing) under "
+     "a rate above 0: looking back, the last stretch before it with the applied rate outside 10 % of the "
+     "prescription (0 where it closes in the band)"),
+)
+
+
+def _event_rows(kind: str, label: str, what: str) -> tuple[Metric, ...]:
+    """The rows of one event class: its count, cut events, time and distance (mean, p95), peak error."""
+    at = f"transitions.{kind}."
+    few = f"; n/a below {MIN_EVENTS} events"
+    return (
+        Metric(f"{kind}_events", "", label, what, of=at + "events"),
+        Metric(f"{kind}_cut", "", f"{label}, unsettled",
+               "events whose window closed (the next event, or the implement off) before they settled: "
+               "not in the times and distances", of=at + "cut"),
+        Metric(f"{kind}_time_s_mean", "s", f"{label}, time, mean", f"time of the settled events{few}",
+               sense="min", of=at + "time_s_mean"),
+        Metric(f"{kind}_time_s_p95", "s", f"{label}, time, 95th percentile",
+               f"as above, 95th percentile{few}", of=at + "time_s_p95"),
+        Metric(f"{kind}_distance_m_mean", "m", f"{label}, distance, mean",
+               f"distance along the landing path over the settled events{few}", of=at + "distance_m_mean"),
+        Metric(f"{kind}_distance_m_p95", "m", f"{label}, distance, 95th percentile",
+               f"as above, 95th percentile{few}", of=at + "distance_m_p95"),
+        *(() if kind == "to_zero" else (
+            Metric(f"{kind}_peak_error_pct_mean", "%", f"{label}, peak error, mean",
+                   "largest |applied - prescription| over each event's transition where product was "
+                   f"going on, % of the prescription, mean over the events{few}",
+                   of=at + "peak_error_pct_mean"),)),
+    )
+
+
 # The tolerances are chosen so that the run-to-run noise of a deterministic simulation (zero on one
 # machine, last-digit differences across BLAS builds) passes and a change of the model or controller
 # that a user would notice fails.
@@ -160,22 +201,24 @@ METRICS = (
     Metric("transition_time_s_mean", "s", "Transition time, mean",
            "from a rate step to a non-zero rate until the applied rate settles (enters and stays within "
            "10 % of the new rate), over the steps that settle", (0.05, 0.05),
-           sense="min", of="transitions.transition_time_s_mean"),
+           sense="min", of="transitions.rate_step.time_s_mean"),
     Metric("transition_time_s_p95", "s", "Transition time, 95th percentile",
            "as above (the same steps), 95th percentile", (0.05, 0.05), sense="min",
-           of="transitions.transition_time_s_p95"),
+           of="transitions.rate_step.time_s_p95"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the landing path over the transition", (0.1, 0.05), sense="min",
-           of="transitions.transition_distance_m_mean"),
+           of="transitions.rate_step.distance_m_mean"),
     Metric("transition_distance_m_p95", "m", "Transition distance, 95th percentile",
-           "as above, 95th percentile", (0.1, 0.05), sense="min", of="transitions.transition_distance_m_p95"),
-    Metric("transitions_to_zero", "", "Rate steps to zero",
-           "rate steps into a zero rate (sections closing), not in the transition figures",
-           of="transitions.transitions_to_zero"),
+           "as above, 95th percentile", (0.1, 0.05), sense="min", of="transitions.rate_step.distance_m_p95"),
     Metric("transitions_cut", "", "Rate steps cut",
            "rate steps to a non-zero rate whose window closed (the implement went off or the next step "
-           "came) before the applied rate settled, not in the transition figures",
-           of="transitions.transitions_cut"),
+           "came) before the applied rate settled, not in the transition figures (the steps to zero, "
+           "the pass starts and ends are classes of their own, below)",
+           of="transitions.rate_step.cut"),
+    Metric("transition_peak_error_pct_mean", "%", "Rate steps, peak error, mean",
+           "largest |applied - new rate| over each rate step's transition, % of the new rate, mean over the "
+           f"steps (n/a below {MIN_EVENTS} steps)", of="transitions.rate_step.peak_error_pct_mean"),
+    *(row for kind, label, what in EVENT_ROWS for row in _event_rows(kind, label, what)),
     Metric("off_target_kg", "kg", "Off-target product",
            "product landing outside the field, off the grid or on zero-rate cells", (0.2, 0.03), sense="min",
            of="map.off_target_kg"),
@@ -516,6 +559,13 @@ POINT_METRICS = (
            "interval), over the steps settled"),
     Metric("transition_distance_m_mean", "m", "Transition distance, mean",
            "distance along the logged positions over the transition"),
+    Metric("transition_peak_error_pct_mean", "%", "Rate steps, peak error, mean",
+           "largest |applied - target| over each step's transition, % of the target, mean"),
+    *(Metric(f"{kind}_{figure}", unit, f"{label}, {name}" if name else label, what)
+      for kind, label, what in EVENT_ROWS
+      for figure, unit, name in (("events", "", ""), ("time_s_mean", "s", "time, mean"),
+                                 ("peak_error_pct_mean", "%", "peak error, mean"))
+      if not (kind == "to_zero" and figure.startswith("peak"))),
     Metric("standstill_records", "", "Standstill records left out",
            "records otherwise compared whose ground speed is below standstill_speed_m_s"),
     Metric("standstill_speed_m_s", "m/s", "", "the standstill cut-off (`--standstill-m-s`)"),
@@ -553,6 +603,15 @@ class PointMetrics:
     transitions: int
     transition_time_s_mean: float
     transition_distance_m_mean: float
+    transition_peak_error_pct_mean: float
+    to_zero_events: int
+    to_zero_time_s_mean: float
+    pass_start_events: int
+    pass_start_time_s_mean: float
+    pass_start_peak_error_pct_mean: float
+    pass_end_events: int
+    pass_end_time_s_mean: float
+    pass_end_peak_error_pct_mean: float
     standstill_records: int
     standstill_speed_m_s: float
     speed_from: str
@@ -630,8 +689,21 @@ def point_metrics(applied, target, time_s, distance_m, compared, step_scale: flo
         transitions=tm.transitions,
         transition_time_s_mean=tm.transition_time_s_mean,
         transition_distance_m_mean=tm.transition_distance_m_mean,
+        transition_peak_error_pct_mean=tm.rate_step.peak_error_pct_mean,
+        **_event_figures(tm),
         **asdict(screen or LogScreen()),
     )
+
+
+def _event_figures(tm) -> dict:
+    """The `PointMetrics` fields of the event classes beside the rate steps."""
+    out = {}
+    for kind in ("to_zero", "pass_start", "pass_end"):
+        part = getattr(tm, kind)
+        out.update({f"{kind}_events": part.events, f"{kind}_time_s_mean": part.time_s_mean})
+        if kind != "to_zero":
+            out[f"{kind}_peak_error_pct_mean"] = part.peak_error_pct_mean
+    return out
 
 
 def _area_weight(area_m2, use: np.ndarray) -> np.ndarray | None:

@@ -14,7 +14,15 @@ from services.sim.metrics import (
     summary,
     within_band,
 )
-from services.sim.transitions import TransitionMetrics, rate_steps, transitions
+from services.sim.transitions import (
+    EVENTS,
+    EventFigures,
+    TransitionEvents,
+    TransitionMetrics,
+    rate_steps,
+    transition_events,
+    transitions,
+)
 from vehicle import Implement
 
 
@@ -80,26 +88,55 @@ def test_rate_steps_detects_only_big_changes():
     assert list(rate_steps(rx, on)) == [7]
 
 
+def _events(*args, **kw):
+    """The events of `transition_events` as (class name, settled, time_s, distance_m, peak_error_pct)."""
+    ev = transition_events(*args, **kw)
+    return [(EVENTS[k], bool(ok), float(t), float(d), float(p))
+            for k, ok, t, d, p in zip(ev.kind, ev.settled, ev.time_s, ev.distance_m, ev.peak_error_pct,
+                                      strict=True)]
+
+
 def test_transition_time_and_distance():
     t = np.arange(12) * 0.5
     d = t * 2.0  # 2 m/s
     rx = np.array([100.0] * 4 + [200.0] * 8)
     applied = np.array([100, 100, 100, 100, 120, 150, 175, 185, 195, 200, 200, 200], float)
+    ev = _events(t, d, rx, applied, np.ones(12, bool))
+    # the opening at tick 0 (in the band from the start), the step at tick 4 (first within 10 %,
+    # >= 180, at tick 7, its peak error -40 % at tick 4), the closing at the end (in the band)
+    assert ev[0] == ("rate_step", True, 1.5, 3.0, -40.0)
+    assert ev[1] == ("pass_start", True, 0.0, 0.0, 0.0)
+    assert ev[2] == ("pass_end", True, 0.0, 0.0, 0.0)
+    # one rate step is too few for a mean: n/a, and the count says why
     m = transitions(t, d, rx, applied, np.ones(12, bool))
-    # step at tick 4; first within 10 % (>= 180) at tick 7
-    assert m.transitions == 1
-    assert m.transition_time_s_mean == pytest.approx(1.5)
-    assert m.transition_distance_m_mean == pytest.approx(3.0)
+    assert (m.rate_step.events, m.rate_step.cut, m.transitions) == (1, 0, 1)
+    assert np.isnan(m.transition_time_s_mean) and np.isnan(m.rate_step.peak_error_pct_mean)
+
+
+def test_figures_rest_on_at_least_min_events():
+    """Five steps of 1.5 s each: the mean and percentile are numbers; four: n/a."""
+    t = np.arange(100) * 0.5
+    rx = np.where((np.arange(100) // 10) % 2 == 0, 100.0, 200.0)
+    applied = rx.copy()
+    for k in range(10, 100, 10):   # each step settles 3 ticks (1.5 s) later
+        applied[k:k + 3] = rx[k - 1]
+    on = np.ones(100, bool)
+    five = transitions(t[:60], 2 * t[:60], rx[:60], applied[:60], on[:60])
+    assert five.rate_step.events == 5 and five.transition_time_s_mean == pytest.approx(1.5)
+    assert five.rate_step.peak_error_pct_mean == pytest.approx(np.mean([50, 100, 50, 100, 50]))
+    four = transitions(t[:50], 2 * t[:50], rx[:50], applied[:50], on[:50])
+    assert four.rate_step.events == 4 and np.isnan(four.transition_time_s_mean)
 
 
 def test_unsettled_step_is_cut():
     t = np.arange(8) * 1.0
     rx = np.array([100, 100, 200, 200, 100, 100, 100, 100], float)
     applied = np.array([100, 100, 110, 120, 110, 100, 100, 100], float)
-    m = transitions(t, t, rx, applied, np.ones(8, bool))
-    assert m.transitions == 1  # the step at 2 never settles before the step back at 4
-    assert m.transitions_cut == 1
-    assert m.transition_time_s_mean == 0.0
+    ev = _events(t, t, rx, applied, np.ones(8, bool))
+    steps = [e for e in ev if e[0] == "rate_step"]
+    # the step at 2 never settles before the step back at 4; the step back settles at once
+    assert steps[0][:2] == ("rate_step", False) and np.isnan(steps[0][2]) and steps[0][4] == -45.0
+    assert steps[1] == ("rate_step", True, 0.0, 0.0, 10.0)
 
 
 def _track_of_steps():
@@ -126,27 +163,65 @@ def _track_of_steps():
     return t, 2.0 * t, rx, applied, on  # 2 m/s
 
 
-def test_transitions_settle_and_leave_out_steps_into_zero_and_cut_steps():
+def test_transitions_by_event_class():
     t, d, rx, applied, on = _track_of_steps()
     assert list(rate_steps(rx, on)) == [5, 15, 25, 35]
-    m = transitions(t, d, rx, applied, on)
-    assert (m.transitions, m.transitions_to_zero, m.transitions_cut) == (2, 1, 1)
-    assert m.transition_time_s_mean == pytest.approx((1.5 + 2.5) / 2)
-    assert m.transition_distance_m_mean == pytest.approx(2 * (1.5 + 2.5) / 2)
-    # The mean and the 95th percentile describe the same two steps: mean <= p95 <= max here.
-    assert m.transition_time_s_p95 == pytest.approx(np.percentile([1.5, 2.5], 95))
-    assert 1.5 <= m.transition_time_s_mean <= m.transition_time_s_p95 <= 2.5
-    assert m.transition_distance_m_p95 == pytest.approx(2 * m.transition_time_s_p95)
+    ev = _events(t, d, rx, applied, on)
+    by = {}
+    for e in ev:
+        by.setdefault(e[0], []).append(e[1:])
+    # tick 5: settles in 1.5 s; tick 35 (after the turn): an overshoot back in the band from 40 on: 2.5 s
+    assert by["rate_step"] == [(True, 1.5, 3.0, -40.0), (True, 2.5, 5.0, 80.0)]
+    # tick 15, into zero: the sections closed at 13, before it, so nothing was going on before the
+    # step: no transition
+    assert "to_zero" not in by
+    # the openings: tick 0 (in the band at once), tick 25 (the sections reopen under 300, cut by the turn
+    # at 29: peak -80 %), tick 31 after the turn (in the band at once)
+    assert [o[0] for o in by["pass_start"]] == [True, False, True]
+    assert by["pass_start"][1][3] == -80.0
+    # the closings: at 12 (every section closes, in the band), at 28 (the turn: out of the band since
+    # the opening at 25, 1.5 s; peak -80 %), at the end (in the band)
+    assert by["pass_end"] == [(True, 0.0, 0.0, 0.0), (True, 1.5, 3.0, -80.0), (True, 0.0, 0.0, 0.0)]
+
+
+def test_a_step_to_zero_settles_where_the_product_stops():
+    t = np.arange(20) * 0.5
+    rx = np.where(np.arange(20) < 8, 100.0, 0.0)
+    applied = rx.copy()
+    applied[8:11] = (90.0, 40.0, 5.0)   # the product tails off: at most 10 % of 100 from tick 10
+    applied[11:] = np.nan               # then the sections close
+    ev = _events(t, 2 * t, rx, applied, np.ones(20, bool))
+    zero = [e for e in ev if e[0] == "to_zero"]
+    assert len(zero) == 1 and zero[0][:4] == ("to_zero", True, 1.0, 2.0) and np.isnan(zero[0][4])
+    # the closing at 10 is under a zero rate: not a pass end
+    assert [e[0] for e in ev] == ["to_zero", "pass_start"]
+
+
+def test_events_of_a_stretch_are_those_before_upto():
+    """A run accounted part by part: each stretch's events are its own ticks', its windows reach into
+    the look-ahead; joined, they are the whole run's."""
+    t, d, rx, applied, on = _track_of_steps()
+    whole = transition_events(t, d, rx, applied, on)
+    cut = 30   # in the turn (29-30 off)
+    first = transition_events(t[:cut + 12], d[:cut + 12], rx[:cut + 12], applied[:cut + 12], on[:cut + 12],
+                              upto=cut)
+    second = transition_events(t[cut:], d[cut:], rx[cut:], applied[cut:], on[cut:])
+    joined = TransitionEvents.joined([first, second])
+    order = lambda ev: np.lexsort((ev.time_s, ev.kind))  # noqa: E731
+    for name in ("kind", "settled"):
+        assert np.array_equal(getattr(whole, name)[order(whole)], getattr(joined, name)[order(joined)])
+    np.testing.assert_array_equal(whole.peak_error_pct[order(whole)], joined.peak_error_pct[order(joined)])
 
 
 def test_a_step_within_the_band_at_once_takes_zero_and_none_gives_nan():
     t, d, rx, _, on = _track_of_steps()
-    m = transitions(t, d, rx, rx.copy(), on)  # applied = prescribed: every non-zero step settles at once
-    assert (m.transitions, m.transitions_to_zero, m.transitions_cut) == (3, 1, 0)
-    assert m.transition_time_s_mean == m.transition_time_s_p95 == 0.0
+    m = transitions(t, d, rx, rx.copy(), on)  # applied = prescribed: every step settles at once
+    assert (m.transitions, m.to_zero.events, m.rate_step.cut) == (3, 1, 0)
+    assert all(e[2] == 0.0 for e in _events(t, d, rx, rx.copy(), on))
+    assert np.isnan(m.transition_time_s_mean)   # three steps: too few for a mean
     flat = transitions(t, d, np.full(t.size, 100.0), np.full(t.size, 100.0), on)
-    assert (flat.transitions, flat.transitions_to_zero, flat.transitions_cut) == (0, 0, 0)
-    assert np.isnan(flat.transition_time_s_mean) and np.isnan(flat.transition_time_s_p95)
+    assert (flat.transitions, flat.to_zero.events, flat.rate_step.cut) == (0, 0, 0)
+    assert np.isnan(flat.transition_time_s_mean) and np.isnan(flat.rate_step.time_s_p95)
 
 
 def test_skipped_area_counts_only_ground_that_asks_for_product():
@@ -178,9 +253,12 @@ def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():
     # compute is a row of the table, read from its part.
     assert all(m.of is not None for m in METRICS)
     sources = {m.of for m in METRICS}
-    for part, cls in (("map", MapMetrics), ("transitions", TransitionMetrics), ("overlap", OverlapMetrics),
-                      ("limits", LimitMetrics)):
+    for part, cls in (("map", MapMetrics), ("overlap", OverlapMetrics), ("limits", LimitMetrics)):
         assert {f"{part}.{f.name}" for f in dataclasses.fields(cls)} <= sources, part
+    # Each event class's figures (the rate steps' count is `transitions`, settled; a step to zero has
+    # no peak error).
+    read = {f"transitions.{kind}.{f.name}" for kind in EVENTS for f in dataclasses.fields(EventFigures)}
+    assert read - sources == {"transitions.rate_step.events", "transitions.to_zero.peak_error_pct_mean"}
 
 
 def _accounts(ticks=4, wall_time_s=2.0):
@@ -196,7 +274,9 @@ def _accounts(ticks=4, wall_time_s=2.0):
     setting = SimpleNamespace(world=world, ticks=ticks, path_length_m=1.5 * (ticks - 1) if ticks else 0.0,
                               check=SimpleNamespace(max_speed_m_s=4.0))
     return SimpleNamespace(setting=setting, map=part(MapMetrics, 100),
-                           transitions=part(TransitionMetrics, 200), overlap=part(OverlapMetrics, 300),
+                           transitions=TransitionMetrics(*(part(EventFigures, 200 + 10 * k)
+                                                           for k in range(len(EVENTS)))),
+                           overlap=part(OverlapMetrics, 300),
                            limits=part(LimitMetrics, 400),
                            timing=SimpleNamespace(stage_s={"control_s": 1.0}, wall_time_s=wall_time_s))
 
