@@ -20,6 +20,7 @@ from common.written import staged
 from services.outputs.encode import dumps_text
 from services.outputs.plots import figure
 from services.sim.replay import EVENT_CLASSES, STANDSTILL_M_S, Replay, lonlat
+from services.sim.transitions import EVENTS, MIN_EVENTS
 
 REPLAY_FILES = ("replay.parquet", "replay.png", "replay_map.png", "summary.json")
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 1 mm, 1e-4 of the rate unit; None: as is
@@ -117,7 +118,20 @@ def text_replay(rp: Replay) -> str:
             continue
         lines.append(f"  {CLASS_LABELS[name]} ({n:,} compared)")
         lines += _figure_lines(s, f"{name}_", CLASS_ROWS, unit)
-    return "\n".join(lines)
+    return "\n".join(lines + _event_lines(s))
+
+
+def _event_lines(s: dict) -> list[str]:
+    """The transitions by event class of the log and of the twin (`services.sim.replay.event_figures`)."""
+    lines = [f"  Transitions by event (log | twin; n/a below {MIN_EVENTS} events)"]
+    for kind in EVENTS:
+        log, twin = (f"log_{kind}_", f"twin_{kind}_")
+        events = f"{s[log + 'events']:>5,} | {s[twin + 'events']:<5,}"
+        time_s = f"{_number(s[log + 'time_s_mean'], 2):>7} | {_number(s[twin + 'time_s_mean'], 2):<7}"
+        peak = (f"{_number(s[log + 'peak_error_pct_mean'], 1):>6} | "
+                f"{_number(s[twin + 'peak_error_pct_mean'], 1)}")
+        lines.append(f"    {kind.replace('_', ' '):<12} events {events} time {time_s} s  peak error {peak} %")
+    return lines
 
 
 # ----------------------------------------------------------------------------------------- files

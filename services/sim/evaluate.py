@@ -180,7 +180,7 @@ def evaluate(log: PointLog, prescription: Grid | None = None, field=None, delay_
     if not compared.any():
         _nothing_to_compare(log, excluded, int(standstill.sum()), int((outlier & ~compared).sum()),
                             prescription is not None, field is not None)
-    distance = _distance_m(x_m, y_m)
+    distance = distance_along_m(x_m, y_m)
     time_s = np.where(np.isfinite(log.time_s), log.time_s, np.arange(log.points, dtype=float))
     scale = float(convert_rate(1.0, log.unit, base_unit(log.unit)))
     session = _sessions(log.time_s)
@@ -306,7 +306,7 @@ def _delayed(log: PointLog, x_m, y_m, delay_s: float, where: str):
             np.interp(at, t, y_m[ok], left=np.nan, right=np.nan))
 
 
-def _distance_m(x_m, y_m) -> np.ndarray:
+def distance_along_m(x_m, y_m) -> np.ndarray:
     """Distance travelled up to each point along the logged positions (a gap adds nothing)."""
     step = np.hypot(np.diff(x_m), np.diff(y_m))
     return np.concatenate(([0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))))

@@ -29,14 +29,17 @@ from maps import Grid
 from maps.crs import transform_xy
 from maps.grid import grid_from_bounds
 from maps.log_records import MachineRecords
-from maps.units import convert_rate, rate_kind
+from maps.units import base_unit, convert_rate, rate_kind
 from services.sim.core import ControlCore, machine_plant
+from services.sim.evaluate import distance_along_m
 from services.sim.metrics import STANDSTILL_M_S  # the cut-off `vrsim evaluate` leaves records out by
 from services.sim.scenario import Scenario
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import MotionTrend
+from services.sim.transitions import EVENTS, transitions
 
-__all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "figures", "replay_records", "working_point_grid"]
+__all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "event_figures", "figures", "replay_records",
+           "working_point_grid"]
 
 EVENT_WINDOW_S = 8.0        # a record this soon after an event belongs to its class
 RATE_STEP_FRACTION = 0.02   # a target change larger than this share is a rate step
@@ -85,6 +88,7 @@ def replay_records(records: MachineRecords, scenario: Scenario) -> Replay:
     event = _event_classes(records)
     counts = _counting(records)
     summary = figures(records.applied, simulated, records.target, event, counts)
+    summary.update(event_figures(records, simulated, counts, scenario.product.density_kg_l))
     summary.update(sessions=records.sessions, records=records.rows,
                    standstill_records=int((records.speed_m_s < STANDSTILL_M_S).sum()),
                    closed_records=int((~records.sections_on.any(axis=1)).sum()), rate_unit=records.unit)
@@ -201,6 +205,26 @@ def figures(logged, simulated, target, event, counts) -> dict:
     for name in EVENT_CLASSES:
         part = compare_to_log(logged, simulated, target, counts & np.isfinite(simulated) & (event == name))
         out.update({f"{name}_{k}": v for k, v in part.items()})
+    return out
+
+
+def event_figures(rec: MachineRecords, simulated, counts, density_kg_l=None) -> dict:
+    """The transitions by event class (`services.sim.transitions.EVENTS`: rate steps, steps to zero,
+    pass starts, pass ends) of the logged applied rate and of the twin's against the logged target, as
+    `vrsim run` and `vrsim evaluate` count them over the records that count: ``log_<class>_<figure>`` and
+    ``twin_<class>_<figure>`` for its events, mean time (s) and mean peak error (%)."""
+    unit = rec.unit or "kg/ha"
+    # A rate step means the same in any unit (5 kg/ha, or 5 L/ha).
+    scale = float(convert_rate(1.0, unit, base_unit(unit), density_kg_l))
+    distance = distance_along_m(rec.x_m, rec.y_m)
+    out = {}
+    for who, applied in (("log", rec.applied), ("twin", simulated)):
+        use = counts & np.isfinite(applied)
+        tm = transitions(rec.time_s, distance, rec.target * scale, applied * scale, use)
+        for kind in EVENTS:
+            part = getattr(tm, kind)
+            out.update({f"{who}_{kind}_events": part.events, f"{who}_{kind}_time_s_mean": part.time_s_mean,
+                        f"{who}_{kind}_peak_error_pct_mean": part.peak_error_pct_mean})
     return out
 
 

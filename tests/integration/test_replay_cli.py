@@ -102,6 +102,10 @@ def test_one_hertz_export_prints_the_figures_with_their_unit(shared_dir):
     for label in ("All records", "Pass starts", "Rate steps", "Section changes", "Steady"):
         assert label in p.stdout
     assert "Rate steps: no records" in p.stdout   # its target is constant
+    # the transitions by event class, as vrsim run and vrsim evaluate count them: one pass here, too few
+    # events for a figure
+    line = next(x for x in p.stdout.splitlines() if x.strip().startswith("pass start"))
+    assert "events     1 | 1" in line and "n/a | n/a" in line
 
 
 def test_prescription_gives_the_target_at_each_record(shared_dir, tmp_path):
