@@ -55,12 +55,14 @@ def vrsim(*args):
 
 def test_uniform_map_with_the_ideal_meter_lands_the_map():
     """Geometry and section control alone (the ideal meter, no speed change at swath ends: turns at
-    the working speed) leave under 1 % overlap and at least 99 % of the covered area within 10 %."""
+    the working speed) leave under 1 % overlap and at least 98.5 % of the worked ground within 10 %
+    (98.84 % measured: within +-10 % counts the cells at the headland's edge that the sections' opening
+    and closing leave partly bare, judged on the share swept)."""
     sc = with_changes(field("uniform", 160.0, 400.0, rx=UNIFORM), controller={"kind": "ideal"},
                       tractor={"turn_speed_m_s": 2.5})
     s = run(sc).summary
     assert s["overlap_area_pct"] < 1.0, s
-    assert s["within_10pct_area_pct"] >= 99.0, s
+    assert s["within_10pct_area_pct"] >= 98.5, s
     assert s["skip_area_pct"] < 1.0 and abs(s["mass_balance_pct"]) < 1.0, s
 
 
@@ -93,7 +95,7 @@ def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
 
 
 @pytest.mark.xfail(strict=True, reason="issue #25's goal is out of the gated meter's reach on this field: "
-                   "98.03 % within +-10 %. Its headland corners put 0.88 % of the covered area outside "
+                   "97.13 % of the worked ground within +-10 % (98.03 % of the fully covered cells). Its headland corners put 0.88 % of the covered area outside "
                    "(one meter sharing product by width in a 6 m-radius turn: the outer end at twice the "
                    "centre's speed gets half the rate), the slow-down before each swath end within the "
                    "0.8 s delivery delay 0.65 % (band) and the headland's edge row 0.35 %, the corner "
@@ -156,14 +158,15 @@ def test_the_slow_speed_cutoff_closes_the_pivoting_inner_sections(rectangle_idea
 
 def test_rectangle_ideal_without_speed_changes_keeps_only_the_corners():
     """Turns at the working speed (no slow-down, no speed-up): the band and the edge are clean, and the
-    corners are what is left (99.01 % within +-10 %: the slow-downs are what keeps the scenario as
-    recorded under issue #25's 99 %)."""
+    corners are what is left among the fully covered cells. Over the worked ground (bare and partly
+    covered cells counted) 97.69 % is within +-10 %: the corners 1.41 %, the headland's edge 0.70 %
+    (cells the sections' opening and closing leave partly bare) and the band 0.17 %."""
     scenario = load(os.path.join(accuracy.SCENARIO_DIR, "rectangle_uniform_ideal.toml"))
     result = run(with_changes(scenario, tractor={"turn_speed_m_s": 2.5}))
     share = _outside_10_pct_by_place(result)
     assert share["corners"] > 0.8 and share["band"] == 0.0, share
     assert share["edge"] + share["rest"] < 0.2, share
-    assert result.summary["within_10pct_area_pct"] > 98.9, result.summary
+    assert result.summary["within_10pct_area_pct"] > 97.5, result.summary
 
 
 def test_oblique_headland_needs_coverage_control():
