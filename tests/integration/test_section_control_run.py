@@ -95,7 +95,8 @@ def test_sections_open_at_the_headland_edge_after_turns(rectangle_ideal):
 
 
 @pytest.mark.xfail(strict=True, reason="issue #25's goal is out of the gated meter's reach on this field: "
-                   "97.13 % of the worked ground within +-10 % (98.03 % of the fully covered cells). Its headland corners put 0.88 % of the covered area outside "
+                   "97.13 % of the worked ground within +-10 % (98.03 % of the fully covered cells). "
+                   "Its headland corners put 0.88 % of the covered area outside "
                    "(one meter sharing product by width in a 6 m-radius turn: the outer end at twice the "
                    "centre's speed gets half the rate), the slow-down before each swath end within the "
                    "0.8 s delivery delay 0.65 % (band) and the headland's edge row 0.35 %, the corner "
