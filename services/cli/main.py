@@ -28,7 +28,7 @@ from common import VrsimError, __version__  # noqa: E402
 
 # Order is the order `vrsim --help` lists them in.
 COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "replay", "report", "controller", "machine",
-            "paper", "map", "serve", "query", "accuracy", "calibrate", "fit")
+            "paper", "map", "serve", "query", "aog", "accuracy", "calibrate", "fit")
 
 
 def _available_commands(names=COMMANDS):

@@ -34,10 +34,12 @@ from services.bus.config import (
     options_from_args,
 )
 from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
+from services.cli.aog import add_serve_arguments, serve_aog_rc
 from services.cli.options import add_input_cap, apply_input_cap
 
-HELP = "run the Zenoh services: map, vehicle, controller, monitor, scenario, router, web, or all"
-CHOICES = (*SERVICES, "router", "web", "all")
+HELP = ("run the Zenoh services: map, vehicle, controller, monitor, scenario, router, web, or all; "
+        "or aog-rc, the AgOpenGPS Rate Controller's modules and AgIO over UDP (docs/aog_rc.md)")
+CHOICES = (*SERVICES, "router", "web", "all", "aog-rc")
 READY_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 10.0
 
@@ -81,6 +83,7 @@ def configure(parser) -> None:
                         help="files named by scenarios received over the bus must lie under DIR "
                              "(default: the folder serve runs in)")
     add_input_cap(parser)
+    add_serve_arguments(parser)
 
 
 INSECURE_WARNING = ("vrsim serve {name}: WARNING: --insecure: no authentication and no access control; any "
@@ -89,6 +92,8 @@ INSECURE_WARNING = ("vrsim serve {name}: WARNING: --insecure: no authentication 
 
 
 def run(args) -> int:
+    if args.service == "aog-rc":   # UDP, not the bus: its own options (services.cli.aog)
+        return serve_aog_rc(args)
     config = _service_config(args)
     apply_input_cap(args)
     files.show_content(False)  # files are named by others over the bus: messages never quote them

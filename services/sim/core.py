@@ -242,6 +242,14 @@ class ControlCore:
         rec["metered_kg"] = rec["drive_kg"].sum(axis=1) if self.machine.drives > 1 else rec["drive_kg"][:, 0]
         return {key: rec[key] for key in (*CONTROL_KEYS, STEPS_KEY) if key in rec}
 
+    def metered(self, drive_rev, drive_open) -> tuple[np.ndarray, np.ndarray]:
+        """Product metered from revolutions a drive turned outside this core's loop (a rate module
+        over UDP, `services.aog`), as `run_track` meters its own: each drive's kg (n, drives) and their
+        sum (n,). `drive_rev`, `drive_open`: (n, drives) revolutions and whether product reaches the
+        ground."""
+        kg = self._metered_kg(np.asarray(drive_rev, float), drive_open)
+        return kg, kg.sum(axis=1)
+
     def _metered_kg(self, shaft_rev, applying, drive=None, gain=None) -> np.ndarray:
         """Product metered, kg, from each drive's revolutions (n, drives) and whether its product
         reaches the ground (n, drives): the one place product comes from revolutions; each drive meters

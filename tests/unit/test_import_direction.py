@@ -69,6 +69,17 @@ def test_outputs_import_neither_bus_nor_batch_nor_cli():
     assert _violations("services.outputs", ("services.bus", "services.batch", "services.cli")) == []
 
 
+def test_aog_imports_neither_bus_nor_batch_nor_cli():
+    """`vrsim serve aog-rc`'s room (services.aog) builds on sim and outputs only."""
+    assert _violations("services.aog", ("services.bus", "services.batch", "services.cli")) == []
+
+
+def test_aog_app_client_imports_nothing_of_the_module_side():
+    """The app's side is written from the app's sources apart from vrsim's codec (docs/aog_rc.md)."""
+    imports = modules("services.aog")["services.aog.app_client"]
+    assert sorted(i for i in imports if i.startswith("services")) == []
+
+
 def test_batch_imports_only_sim():
     assert _violations("services.batch", ("services.outputs", "services.bus", "services.cli")) == []
 
