@@ -5,13 +5,12 @@ drove, the PID's integral) and aog_rc.png (the PID over time). Each file whole o
 from __future__ import annotations
 
 import csv
-import json
 import os
 
 import numpy as np
 
 from common.written import written
-from services.aog.service import json_plain
+from services.outputs.encode import dumps_text
 
 __all__ = ["write_aog_files"]
 
@@ -23,8 +22,7 @@ def write_aog_files(service, out_dir: str, settings: dict) -> dict[str, str]:
     paths = {name: os.path.join(out_dir, name) for name in ("aog_rc.json", "aog_rc.csv", "aog_rc.png")}
     doc = {"settings": settings, **service.status()}
     with written(paths["aog_rc.json"]) as temp, open(temp, "w") as fh:
-        json.dump(doc, fh, indent=1, default=json_plain)
-        fh.write("\n")
+        fh.write(dumps_text(doc, indent=True) + "\n")
     rows = service.timeline.rows
     with written(paths["aog_rc.csv"]) as temp, open(temp, "w", newline="") as fh:
         out = csv.writer(fh)

@@ -23,8 +23,6 @@ then the outputs are written (`write_outputs` given by the caller).
 from __future__ import annotations
 
 import asyncio
-import json
-import math
 import signal
 import socket
 import sys
@@ -35,9 +33,9 @@ from dataclasses import dataclass, field
 from common.written import written
 from services.aog import pgn
 from services.aog.firmware import LOOP_MS, REPORT_MS, RateModule
+from services.outputs.encode import dumps_text
 
-__all__ = ["AogService", "Counters", "Endpoints", "RATE_LIMIT_PPS", "Timeline", "beyond_loopback",
-           "json_plain"]
+__all__ = ["AogService", "Counters", "Endpoints", "RATE_LIMIT_PPS", "Timeline", "beyond_loopback"]
 
 RATE_LIMIT_PPS = 2000.0   # packets per second one source (host, port) may send (the app sends a few dozen)
 RATE_BURST = 200.0        # its bucket's depth
@@ -284,7 +282,7 @@ class AogService:
         if self.status_path is None:
             return
         with written(self.status_path) as temp, open(temp, "w") as fh:
-            json.dump(self.status(), fh, default=json_plain)
+            fh.write(dumps_text(self.status()))
 
     # -- running -------------------------------------------------------------------------------------------
     def run(self) -> None:
@@ -338,9 +336,3 @@ def _udp_socket(bind: tuple[str, int] | None) -> socket.socket:
 
 def _where(addr: tuple[str, int]) -> str:
     return f"{addr[0]}:{addr[1]}"
-
-
-def json_plain(value):
-    """numpy's scalars as JSON's (NaN as null)."""
-    value = value.item() if hasattr(value, "item") else value
-    return None if isinstance(value, float) and not math.isfinite(value) else value
