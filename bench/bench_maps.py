@@ -14,6 +14,8 @@ as_applied_tick_us          AsApplied.add_strips, one call with 130,000 ticks (1
                             serpentine passes on a 5 m grid), per strip, us
 as_applied_tick_us_1m       the same on a 1 m grid, per strip, us
 zones_50k_rasterize_s       read_map of a shapefile of 50,000 small zone polygons (pyshp-written) at 2 m, s
+point_export_40k_evaluate_s read_point_log + evaluate of a zipped point shapefile of 40,000 records with
+                            ISO 8601 text times (the reader's slow path; the issue's bound: 5 s), s
 reproject_2k_to_wgs84_s     Grid.reproject of a 2000 x 2000 continuous map (1 m, UTM 32N) to WGS84 lon/lat
                             at 1 m (bilinear, GDAL), best of 3, s
 reproject_2k_to_utm_s       the lon/lat result back to UTM 32N at 1 m, best of 3, s
@@ -169,6 +171,20 @@ def zones_figures() -> dict[str, float]:
         return {"zones_50k_rasterize_s": time.perf_counter() - t0}
 
 
+def point_export_figures() -> dict[str, float]:
+    import pathlib
+
+    from maps import read_point_log
+    from services.sim.evaluate import evaluate
+    from tests.unit.test_evaluate import write_iso_time_export
+
+    with tempfile.TemporaryDirectory(prefix="vrsim-bench-points-") as tmp:
+        path, _ = write_iso_time_export(pathlib.Path(tmp), 40_000)
+        t0 = time.perf_counter()
+        evaluate(read_point_log(path))
+        return {"point_export_40k_evaluate_s": time.perf_counter() - t0}
+
+
 def reproject_figures() -> dict[str, float]:
     from maps import synthetic
 
@@ -198,6 +214,7 @@ def run() -> dict[str, float]:
     figures = lookup_figures()
     figures.update(as_applied_figures())
     figures.update(zones_figures())
+    figures.update(point_export_figures())
     figures.update(reproject_figures())
     figures.update(geotiff_figures())
     return figures

@@ -10,7 +10,13 @@ this process, a zenoh client like any other program:
   (``..._with_client_json_s`` adds the client's own JSON encoding and decoding);
 - ``zenoh_lockstep_ticks_per_s``: a lockstep run of a 96 m x 200 m field (vehicle -> controller ->
   monitor, 50 ticks per message), ticks over the wall time from the first tick to the last reply;
-- ``zenoh_lockstep_report_s``: the monitor's report over that run (SQLite -> arrays -> metrics).
+- ``zenoh_lockstep_report_s``: the monitor's report over that run (SQLite -> arrays -> metrics);
+- ``zenoh_report_loop_default_slowdown``: the built-in default scenario (177,002 ticks) in lockstep
+  while a viewer asks ``report`` in a loop, its drive time over the mean of the runs before and after
+  without the loop, less 1 (``zenoh_report_loop_default_alone_s``: that mean; the issue's case was
+  11.4 s alone and 34.3 s with the loop, +200 %, before the reports were cached);
+- ``zenoh_service_lost_shown_s``: a controller killed (SIGKILL) mid-run, until ``scenario/status``
+  lists it missing (polled every 10 ms).
 """
 
 from __future__ import annotations
@@ -108,6 +114,36 @@ def lockstep(net, folder: str) -> tuple[float, float, int]:
     return status["ticks"] / status["drive_s"], time.perf_counter() - t0, status["ticks"]
 
 
+def report_loop(net) -> dict[str, float]:
+    from tests.integration.test_services_complete import default_drive_s
+
+    before, _ = default_drive_s(net)
+    looped, replies = default_drive_s(net, loop=True)
+    after, _ = default_drive_s(net)
+    alone = (before + after) / 2
+    print(f"default scenario in lockstep: {before:.2f} s and {after:.2f} s alone, {looped:.2f} s with a "
+          f"viewer looping on report ({replies})")
+    return {"zenoh_report_loop_default_slowdown": looped / alone - 1,
+            "zenoh_report_loop_default_alone_s": alone}
+
+
+def service_lost_shown_s(net) -> float:
+    """A controller killed mid-run of the realtime default scenario, until status lists it missing."""
+    import signal
+
+    ok, run = net.query("vrsim/scenario/start?clock=realtime;speed=2")
+    assert ok, run
+    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["ticks"] >= 40)
+    os.kill(net.children()["controller"], signal.SIGKILL)
+    t0 = time.perf_counter()
+    while True:
+        ok, status = net.query("vrsim/scenario/status")
+        assert ok and time.perf_counter() - t0 < 60, status
+        if "controller" in status["missing"]:
+            return time.perf_counter() - t0
+        time.sleep(0.01)
+
+
 def run() -> dict[str, float]:
     with tempfile.TemporaryDirectory() as folder:
         files = write_field_files(folder)
@@ -126,6 +162,8 @@ def run() -> dict[str, float]:
             figures["zenoh_lockstep_ticks_per_s"] = ticks_per_s
             figures["zenoh_lockstep_report_s"] = report_s
             figures["zenoh_lockstep_ticks"] = float(ticks)
+            figures.update(report_loop(net))
+            figures["zenoh_service_lost_shown_s"] = service_lost_shown_s(net)  # last: a service is killed
         finally:
             net.stop()
     return figures

@@ -20,6 +20,10 @@ import os
 import re
 import stat
 import struct
+from xml.etree.ElementTree import ParseError
+
+from defusedxml import DefusedXmlException
+from defusedxml import ElementTree as DET
 
 from common.errors import VrsimError
 
@@ -219,9 +223,9 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
 
     real = refuse_outside(path)
     if os.path.isdir(real):
-        folders = [real] + [os.path.join(real, n) for n in _names(real) if n.upper() == "TASKDATA"]
+        folders = [real] + [os.path.join(real, n) for n in folder_names(real) if n.upper() == "TASKDATA"]
         for folder in folders:
-            for name in _names(folder):
+            for name in folder_names(folder):
                 refuse_outside(os.path.join(folder, name))
         return real
     # A reader opens siblings beside the name it was given (pyshp, GDAL), not beside the link's target;
@@ -238,7 +242,7 @@ def check_within(path: str, root: str, error=VrsimError, private: tuple[str, ...
 def _siblings(path: str) -> list[str]:
     """The entries beside ``path`` named ``x.*`` or ``x_rpc.txt`` (GDAL's and pyshp's side files)."""
     folder, stem = os.path.dirname(path), os.path.splitext(os.path.basename(path))[0].lower()
-    return [os.path.join(folder, name) for name in _names(folder)
+    return [os.path.join(folder, name) for name in folder_names(folder)
             if name.lower().startswith(stem + ".") or name.lower() == stem + "_rpc.txt"]
 
 
@@ -333,14 +337,28 @@ def refuse_vsi(path: str, error=VrsimError, label: str | None = None) -> None:
 
 
 def _names_in(folder: str) -> list[str]:
-    return [os.path.join(folder, name) for name in _names(folder)]
+    return [os.path.join(folder, name) for name in folder_names(folder)]
 
 
-def _names(folder: str) -> list[str]:
+def folder_names(folder: str) -> list[str]:
+    """The names in `folder` (`os.listdir`); none when it cannot be listed (gone, not a folder, no
+    permission)."""
     try:
         return os.listdir(folder)
     except OSError:
         return []
+
+
+def parse_xml(data: bytes, label: str, error=VrsimError):
+    """Parse untrusted XML bytes into an ElementTree element, safely: defusedxml refuses entity
+    declarations and external references (the billion laughs, XXE). Raises `error` with one line
+    starting ``"{label}: "`` for refused or ill-formed XML."""
+    try:
+        return DET.fromstring(data)
+    except DefusedXmlException as exc:
+        raise error(f"{label}: refused: {exc} (entity and external references are not allowed)") from None
+    except ParseError as exc:
+        raise error(f"{label}: not well-formed XML: {exc}") from None
 
 
 # What a reader may quote from a file in an error message (a header, a cell value, a root tag). A

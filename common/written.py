@@ -16,6 +16,7 @@ import sys
 from contextlib import contextmanager
 
 from common.errors import VrsimError
+from common.files import folder_names
 
 # Causes of a failed write the user can fix (free space, a writable folder); any other is a bug.
 WRITE_CAUSES = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",
@@ -60,13 +61,6 @@ def _folder_cause(folder: str) -> str | None:
     return None
 
 
-def _names(folder: str) -> list[str]:
-    try:
-        return os.listdir(folder)
-    except OSError:
-        return []
-
-
 def _temp_beside(path: str) -> str:
     """A free name in ``path``'s folder for its temporary version, hidden and ending like ``path`` (a
     writer that picks the format by extension picks the same one)."""
@@ -81,7 +75,7 @@ def _remove_temp(temp: str) -> None:
 
     folder, name = os.path.split(temp)
     prefix = _temp_prefix(name)
-    for entry in _names(folder):
+    for entry in folder_names(folder):
         if entry.startswith(prefix):
             target = os.path.join(folder, entry)
             if os.path.isdir(target) and not os.path.islink(target):
@@ -103,7 +97,7 @@ def _put_all_in_place(temp: str, path: str) -> None:
     shapefile's ``.dbf``) to the same names beside ``path``; ``path`` itself last."""
     folder, name = os.path.split(temp)
     prefix, stem = _temp_prefix(name), os.path.splitext(os.path.basename(path))[0]
-    for entry in _names(folder):
+    for entry in folder_names(folder):
         if entry.startswith(prefix) and entry != name:
             _put_in_place(os.path.join(folder, entry), os.path.join(folder, stem + entry[len(prefix):]))
     _put_in_place(temp, path)

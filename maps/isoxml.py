@@ -29,12 +29,9 @@ import posixpath
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
-from xml.etree.ElementTree import ParseError
 
-import defusedxml.ElementTree as DET
 import numpy as np
 from affine import Affine
-from defusedxml import DefusedXmlException
 
 from common import MapError, __version__, files
 from maps import ddi as DDI
@@ -160,17 +157,11 @@ def _rate_ddi(ddis, where: str, what: str) -> int:
 
 
 def parse_xml(data: bytes, where: str, name: str, root_tag: str):
-    """Parse an ISOXML file's bytes safely (no entities, no external references) and check its root.
+    """Parse an ISOXML file's bytes safely (`common.files.parse_xml`) and check its root.
 
     `where` is the TASKDATA path and `name` the file within it, for messages.
     """
-    try:
-        root = DET.fromstring(data)
-    except DefusedXmlException as exc:
-        raise MapError(f"{where}: {name} refused: {exc} (entity and external references are not "
-                       "allowed)") from None
-    except ParseError as exc:
-        raise MapError(f"{where}: {name} is not well-formed XML: {exc}") from None
+    root = files.parse_xml(data, f"{where}: {name}", MapError)
     if root.tag != root_tag:
         raise MapError(f"{where}: {name}: root element is {files.shown(root.tag)}, not <{root_tag}>")
     return root

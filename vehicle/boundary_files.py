@@ -17,11 +17,8 @@ from __future__ import annotations
 
 import os
 import posixpath
-from xml.etree.ElementTree import ParseError
 
 import numpy as np
-from defusedxml import DefusedXmlException
-from defusedxml import ElementTree as DET
 from shapely.geometry import MultiPolygon, Polygon
 
 from common import files
@@ -37,7 +34,7 @@ def read_kml(path: str, placemark: str | None = None):
     A document whose polygons lie in several placemarks is refused, listing their names, unless
     `placemark` names one; a placemark of several polygons (a MultiGeometry) gives a MultiPolygon.
     """
-    root = _parse(_kml_bytes(path), path)
+    root = files.parse_xml(_kml_bytes(path), f"field file {path}", VehicleError)
     marks = [el for el in root.iter() if _local(el.tag) == "Placemark"] or [root]
     found = [(_kml_name(mark), [el for el in mark.iter() if _local(el.tag) == "Polygon"]) for mark in marks]
     found = [(name, polygons) for name, polygons in found if polygons]
@@ -76,7 +73,7 @@ def read_partfield(path: str, partfield: str | None = None) -> Polygon:
     `partfield` (a ``PFD`` id such as ``PFD2``, or its designator) chooses among several partfields
     with a boundary; without it such a TASKDATA is refused, listing them.
     """
-    root = _parse(_taskdata_bytes(path), path)
+    root = files.parse_xml(_taskdata_bytes(path), f"field file {path}", VehicleError)
     if _local(root.tag) != "ISO11783_TaskData":
         raise VehicleError(f"field file {path}: root element is {files.shown(root.tag)}, not "
                            "<ISO11783_TaskData>")
@@ -166,16 +163,6 @@ def _pln_ring(lsg, where: str) -> np.ndarray:
         raise VehicleError(f"{where}: a ring (LSG A={lsg.get('A')}) of {len(points)} points; a polygon "
                            "needs 3")
     return np.array(points, dtype=float)
-
-
-def _parse(data: bytes, path: str):
-    try:
-        return DET.fromstring(data)
-    except DefusedXmlException as exc:
-        raise VehicleError(f"field file {path}: refused: {exc} (entity and external references are not "
-                           "allowed)") from None
-    except ParseError as exc:
-        raise VehicleError(f"field file {path}: not well-formed XML: {exc}") from None
 
 
 def _kml_bytes(path: str) -> bytes:

@@ -1,8 +1,10 @@
 """Completeness that tells the truth, with real processes on 127.0.0.1: scenario control announces each
 run's end to the monitor, and the report says ``complete: true`` only for a finished run with every
 tick stored; a stopped run says so, a monitor killed mid-run and restarted after it names the unstored
-tail (and ``vrsim report --db`` warns); a viewer reading ``report`` in a loop barely slows a lockstep
-run. The tests share one `vrsim serve all` and run in file order."""
+tail (and ``vrsim report --db`` warns); a viewer reading ``report`` in a loop is answered and refused in
+turn while a lockstep run completes (how little the loop slows the default scenario's run is a figure of
+`bench/bench_services.py`, ``zenoh_report_loop_default_slowdown``). The tests share one `vrsim serve all`
+and run in file order."""
 
 from __future__ import annotations
 
@@ -10,7 +12,6 @@ import json
 import os
 import shutil
 import signal
-import statistics
 import subprocess
 import threading
 import time
@@ -22,9 +23,6 @@ from tests.integration.test_services_support import ServeAll, open_client
 
 SCENARIO = os.path.join(os.path.dirname(__file__), "..", "..", "scenarios", "quick_rectangle.toml")
 K = "vrsim/tractor1"
-SLOWDOWN = 0.10  # a viewer's report loop may cost a lockstep run this share of its time ...
-NOISE_S = 0.5  # ... plus this, for a machine whose other load comes and goes
-SLOWDOWN_ONE_ROUND = 0.35  # a single unalternated round's bound (see its test)
 
 
 @pytest.fixture(scope="module")
@@ -128,17 +126,9 @@ def test_a_monitor_killed_mid_run_and_restarted_after_it_names_the_tail(net, tmp
     assert page.index('<p class="incomplete"') < banner < page.index("<h1>")
 
 
-def lockstep_drive_s(net) -> float:
-    """A lockstep run's drive time; its report is asked once when it ended, as a page would."""
-    run = start(net)
-    drive_s = ended(net, run["run_id"])["drive_s"]
-    report(net, run["run_id"])
-    return drive_s
-
-
-def looped_drive_s(net, drive=None) -> tuple[float, dict]:
-    """A lockstep run's drive time (``drive()``, default `lockstep_drive_s`) while a viewer asks
-    ``report`` in a loop, and the replies it got."""
+def looped_drive_s(net, drive) -> tuple[float, dict]:
+    """A lockstep run's drive time (``drive()``) while a viewer asks ``report`` in a loop, and the
+    replies it got."""
     viewer = open_client(net.endpoint, net.state, user="viewer")
     done, replies = threading.Event(), {"ok": 0, "refused": 0}
 
@@ -151,28 +141,26 @@ def looped_drive_s(net, drive=None) -> tuple[float, dict]:
     reader = threading.Thread(target=loop, daemon=True)
     reader.start()
     try:
-        return (drive or (lambda: lockstep_drive_s(net)))(), replies
+        return drive(), replies
     finally:
         done.set()
         reader.join(timeout=60)
         viewer.close()
 
 
-def test_a_viewer_reading_report_in_a_loop_barely_slows_a_lockstep_run(net):
-    # Alternated, so that the machine's other load weighs on both alike, and the medians compared: a
-    # run slowed by a burst of other load is one of three.
-    plain, looped, replies = [lockstep_drive_s(net)], [], []
-    for _ in range(3):
-        drive_s, got = looped_drive_s(net)
-        looped.append(drive_s)
-        replies.append(got)
-        plain.append(lockstep_drive_s(net))
-    alone, loop = statistics.median(plain), statistics.median(looped)
-    print(f"lockstep drive alone {', '.join(f'{t:.2f}' for t in plain)} s, with a viewer looping on report "
-          f"{', '.join(f'{t:.2f}' for t in looped)} s: medians {loop:.2f} s against {alone:.2f} s, "
-          f"{loop / alone - 1:+.1%}; replies {replies}")
-    assert all(r["ok"] > 0 and r["refused"] > 0 for r in replies)
-    assert loop <= alone * (1 + SLOWDOWN) + NOISE_S
+def test_a_viewer_reading_report_in_a_loop_is_answered_and_refused_while_the_run_completes(net):
+    runs = []
+
+    def drive() -> float:
+        run = start(net)
+        runs.append(ended(net, run["run_id"]))
+        return runs[-1]["drive_s"]
+
+    _, replies = looped_drive_s(net, drive)
+    got = report(net, runs[0]["run_id"])
+    print(f"lockstep run with a viewer looping on report: replies {replies}")
+    assert replies["ok"] > 0 and replies["refused"] > 0, replies  # answered, and held to the limit
+    assert (got["complete"], got["ticks"]) == (True, runs[0]["ticks"]), got
 
 
 def default_drive_s(net, loop: bool = False) -> tuple[float, dict | None]:
@@ -187,20 +175,6 @@ def default_drive_s(net, loop: bool = False) -> tuple[float, dict | None]:
     if not loop:
         return run(), None
     return looped_drive_s(net, run)
-
-
-@pytest.mark.slow
-def test_a_viewer_reading_report_in_a_loop_barely_slows_the_default_scenario(net):
-    # The issue's case: 11.4 s alone, 34.3 s with the loop before the reports were cached.
-    before, _ = default_drive_s(net)
-    looped, replies = default_drive_s(net, loop=True)
-    after, _ = default_drive_s(net)
-    alone = (before + after) / 2
-    print(f"default scenario in lockstep: {before:.2f} s and {after:.2f} s alone, {looped:.2f} s with a "
-          f"viewer looping on report ({replies}): {looped / alone - 1:+.1%}")
-    # One round, not alternated medians (each run is 12 s): held to the issue's case (+200 % before the
-    # reports were cached) with room for one burst of other load; the 10 % bound is the test above's.
-    assert looped <= alone * (1 + SLOWDOWN_ONE_ROUND)
 
 
 def test_a_run_whose_vehicle_dies_is_interrupted(net):

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import subprocess
 import threading
-import time
 
 from common import ScenarioError
 from tests.conftest import VRSIM
@@ -30,10 +29,14 @@ def serve_slow_and_fast(endpoint: str, router) -> None:
 
     lines = [router.stderr.readline() for _ in range(2)]  # the --insecure warning, then "ready"
     assert b"ready" in lines[1], lines
-    release = threading.Event()
+    inside, release = threading.Event(), threading.Event()
+
+    def slow_work() -> bytes:
+        inside.set()  # the slow query's work has begun: its reply is held until `release`
+        return b'"slow"' if release.wait(120) else b'"gave up"'
 
     def slow(params, payload):
-        return Later(lambda: b'"slow"' if release.wait(20) else b'"gave up"')
+        return Later(slow_work)
 
     def failing(params, payload):
         return Later(lambda: (_ for _ in ()).throw(ScenarioError("s.toml: [map] bad")))
@@ -43,16 +46,16 @@ def serve_slow_and_fast(endpoint: str, router) -> None:
     queryable = serve(service, "t/**", handlers, "t/", "test")
     try:
         slow_replies: list = []
-        asking = threading.Thread(target=lambda: slow_replies.extend(client.get("t/slow", timeout=30)))
+        asking = threading.Thread(target=lambda: slow_replies.extend(client.get("t/slow", timeout=150)))
         asking.start()
-        time.sleep(0.5)  # the slow query is in its handler now
-        t0 = time.monotonic()
-        fast = list(client.get("t/fast", timeout=10))
-        took = time.monotonic() - t0
-        assert [r.ok.payload.to_bytes() for r in fast] == [b'"fast"'] and took < 2.0, took
-        assert not slow_replies
+        assert inside.wait(60), "the slow query's work never began"
+        # Answered while the slow query's work is held: a queryable that waited for it would time out.
+        fast = list(client.get("t/fast", timeout=60))
+        assert [r.ok.payload.to_bytes() for r in fast if r.ok is not None] == [b'"fast"'], \
+            f"t/fast got no reply while t/slow was held: {fast}"
+        assert not slow_replies and not release.is_set()
         release.set()
-        asking.join(timeout=30)
+        asking.join(timeout=150)
         assert [r.ok.payload.to_bytes() for r in slow_replies] == [b'"slow"']
         [err] = list(client.get("t/failing", timeout=10))
         assert err.ok is None and b"s.toml: [map] bad" in err.err.payload.to_bytes()

@@ -157,29 +157,64 @@ def test_sumo_may_drive_parts_ahead_of_the_run():
     assert held_bytes >= (PIPE_BYTES if PIPE_BYTES <= allowed_bytes else 1 << 16)
 
 
-def _sumo_s(stall_s: float) -> float:
-    """`DriveWorker.sumo_s` of the default scenario's drive, read at once or with the run stalled for
-    `stall_s` after the first part (SUMO fills the pipe, then waits for room)."""
-    import time
+class _FullPipe:
+    """The worker's stdout as a pipe that is always full: each write waits `WAIT_S` for room, on the
+    worker's clock (`_InjectedClock`), then keeps the bytes."""
 
-    worker = DriveWorker()
-    try:
-        worker.drive(load("default"))
-        for k, _ in enumerate(worker.parts()):
-            if k == 0:
-                time.sleep(stall_s)
-    finally:
-        worker.close()
-    return worker.sumo_s
+    WAIT_S = 1000.0
+
+    def __init__(self, clock):
+        self.clock, self.data, self.writes = clock, bytearray(), 0
+
+    def write(self, data) -> int:
+        self.clock.offset_s += self.WAIT_S
+        self.writes += 1
+        self.data += data
+        return len(data)
+
+    def flush(self) -> None:
+        pass
 
 
-def test_sumo_s_is_sumos_time_not_the_time_its_parts_waited_for_the_run():
+class _InjectedClock:
+    """`time` for the drive worker: real time plus what the `_FullPipe` made it wait."""
+
+    def __init__(self):
+        import time
+
+        self.offset_s, self._real = 0.0, time.perf_counter
+
+    def perf_counter(self) -> float:
+        return self._real() + self.offset_s
+
+
+def test_sumo_s_is_sumos_time_not_the_time_its_parts_waited_for_the_run(monkeypatch):
     """A run that accounts slowly keeps SUMO waiting on a full pipe: that wait is the run's, and
-    ``stage_s["sumo_s"]`` says how long SUMO took to drive (0.5 s of the default drive, not 3.4)."""
-    stall_s = 3.0
-    prompt_s, stalled_s = _sumo_s(0.0), _sumo_s(stall_s)
-    print(f"sumo_s read at once {prompt_s:.2f} s, with the run stalled {stall_s:g} s: {stalled_s:.2f} s")
-    assert 0 < stalled_s < prompt_s + stall_s / 2
+    ``stage_s["sumo_s"]`` says how long SUMO took to drive. The worker drives here (in this process,
+    reading its job from bytes) into a pipe where every write waits 1000 s on its clock."""
+    import io
+    import pickle
+
+    from services.sim import drive_worker
+    from services.sim.drive_job import DriveJob
+    from services.sim.world import plan_path
+
+    sc = load(QUICK)
+    job = pickle.dumps((DriveJob.of(sc, plan_path(sc)[1]), 500), protocol=pickle.HIGHEST_PROTOCOL)
+    clock = _InjectedClock()
+    out = _FullPipe(clock)
+    monkeypatch.setattr(drive_worker, "time", clock)
+    drive_worker._serve(io.BytesIO(job), out)
+    stream = io.BytesIO(bytes(out.data))
+    messages = []
+    while stream.tell() < len(out.data):
+        messages.append(pickle.load(stream))
+    kinds = [m[0] for m in messages]
+    assert kinds[-1] == "done" and kinds.count("part") == len(kinds) - 1 >= 3, kinds
+    (_, sumo_s) = messages[-1]
+    print(f"sumo_s {sumo_s:.2f} s; the parts' writes waited {out.writes * _FullPipe.WAIT_S:,.0f} s")
+    assert out.writes >= len(kinds)
+    assert 0 < sumo_s < _FullPipe.WAIT_S  # none of the waiting for room counts as SUMO's
 
 
 def test_handing_sumo_its_job_does_not_wait_for_sumo_to_read_it():

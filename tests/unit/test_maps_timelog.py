@@ -90,7 +90,7 @@ def test_missing_and_bad_files(shared_dir, tmp_path):
     with pytest.raises(MapError, match=r"TLG00002\.BIN \(task TSK2\) is missing"):
         read_timelogs(td)
     (td / "TLG00001.xml").write_text("<TIM><PTN")
-    with pytest.raises(MapError, match=r"TLG00001\.XML is not well-formed"):
+    with pytest.raises(MapError, match=r"TLG00001\.XML: not well-formed"):
         read_timelogs(td)
     (td / "TLG00001.xml").write_text('<TIM A="" D="4"><DLV A="zz" C="DET-1"/></TIM>')
     with pytest.raises(MapError, match="DLV 0.*A='zz' is not a valid hexadecimal DDI"):

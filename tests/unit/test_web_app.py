@@ -13,7 +13,7 @@ from services.bus import messages
 from services.bus.web.app import create_app
 from services.bus.web.auth import Logins
 from services.bus.web.bridge import _decode
-from services.bus.web.live import FIELDS, FRAME_S, LiveView, ViewGrid
+from services.bus.web.live import FIELDS, LiveView, ViewGrid
 
 INFO = {"bounds": [1000.0, 5000.0, 1100.0, 5060.0], "cell_size": [2.0, 2.0], "rows": 30, "cols": 50}
 
@@ -44,7 +44,16 @@ def events_of(chunks: list[bytes]) -> list[tuple[str, dict]]:
     return out
 
 
-async def stalled_browser(view: LiveView, stall_s: float):
+async def until(condition, what: str, timeout_s: float = 60.0) -> None:
+    """Until ``condition()`` holds, checked between the event loop's other tasks."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout_s
+    while not condition():
+        assert loop.time() < deadline, f"{what} within {timeout_s:g} s"
+        await asyncio.sleep(0.01)
+
+
+async def stalled_browser(view: LiveView, stall_frames: int):
     logins = Logins("viewer", None, "vrsim_session")
     app = create_app(view, NoBus(), None, logins)
     life_in: asyncio.Queue = asyncio.Queue()
@@ -80,17 +89,19 @@ async def stalled_browser(view: LiveView, stall_s: float):
         view.on_rate(_decode("rate", messages.encode_batch([rate]), FIELDS["rate"]))
 
     drive(0)  # the run is under way when the browser comes
-    await asyncio.sleep(2 * FRAME_S)
+    await until(lambda: view.seq >= 1, "no frame of the run's first tick")
     sid = logins.open("viewer")
     stream = asyncio.create_task(app(scope("/events", f"vrsim_session={sid}", logins.sessions[sid].key),
                                      receive, send))
+    await until(lambda: chunks, "no hello on the stream")  # sent; the browser reads nothing more
     first_seq = view.seq
-    for tick in range(1, int(stall_s / FRAME_S)):  # a run goes on: a new pose every frame
+    for tick in range(1, stall_frames + 1):  # a run goes on: a new pose, and a frame closed for it
+        seq = view.seq
         drive(tick)
-        await asyncio.sleep(FRAME_S)
+        await until(lambda seq=seq: view.seq > seq, f"no frame closed for tick {tick}")
     frames_during_stall = view.seq - first_seq
     reading.set()
-    await asyncio.sleep(4 * FRAME_S)
+    await until(lambda: b"".join(chunks).count(b"\n\n") >= 2, "nothing sent once the browser read again")
     stream.cancel()
     await life_in.put({"type": "lifespan.shutdown"})
     await asyncio.wait_for(lifespan, 5)
@@ -100,9 +111,9 @@ async def stalled_browser(view: LiveView, stall_s: float):
 def test_a_browser_that_stops_reading_skips_frames_and_then_gets_all_it_missed():
     view = LiveView()
     view.set_map(INFO, ViewGrid.from_info(INFO), 1)
-    events, frames = asyncio.run(stalled_browser(view, stall_s=1.5))
+    events, frames = asyncio.run(stalled_browser(view, stall_frames=20))
     kinds = [k for k, _ in events]
-    assert frames >= 20  # frames went on while the browser read nothing
+    assert frames == 20  # frames went on while the browser read nothing
     # The hello it stalled on, then one frame with everything since: none of the frames in between.
     assert kinds == ["hello", "frame"], kinds
     hello, frame = events[0][1], events[1][1]

@@ -15,6 +15,7 @@ from services.bus.web import app as web_app
 from services.bus.web.app import create_app
 from services.bus.web.auth import Logins
 from services.bus.web.live import LiveView
+from tests.unit.test_web_app import until
 
 PASSWORDS = {"operator": "op-secret", "viewer": "view-secret", "map": "map-secret"}
 
@@ -229,7 +230,7 @@ def test_streams_beyond_the_cap_are_503():
 
     async def run():
         starts, _, end = await _streams(app, logins, 5, reading=True)
-        await asyncio.sleep(0.3)
+        await until(lambda: len(starts) == 5, "not every stream was answered")
         opened = app.state.streams.open
         await end()
         return sorted(starts), opened, app.state.streams.open
@@ -245,7 +246,7 @@ def test_a_browser_that_takes_nothing_is_dropped_and_its_stream_freed(monkeypatc
 
     async def run():
         starts, sent, end = await _streams(app, logins, 2, reading=False)
-        await asyncio.sleep(1.0)
+        await until(lambda: app.state.streams.dropped == 2, "the streams that take nothing were not dropped")
         dropped, pieces = app.state.streams.dropped, len(sent)
         await end()
         return starts, dropped, pieces, app.state.streams.open
