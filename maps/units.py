@@ -56,6 +56,7 @@ def _registry():
     # 4 ppm larger), also spelled "ac" as farm files do (pint would read an abcoulomb).
     units.define("acre = 43560 * international_foot ** 2 = ac")
     units.define("seed = count = seeds")
+    units.define("gpm = gallon / minute")  # US gallons a minute: a nozzle's or a boom's flow
     return units
 
 
@@ -223,3 +224,124 @@ def unit_in_name(name: str) -> str | None:
         return None
     unit = f"{match.group(1)}/{match.group(2)}"
     return next((rate_unit(u) for u in (unit, unit.lower()) if is_rate_unit(u)), None)
+
+
+# --- Units a figure is shown in, and units given with a scenario's values ---------------------------
+# vrsim computes and writes its files and JSON keys in SI (and kg/ha, L/min, bar: units in the names);
+# what it prints, draws and reports is in the user's system of units: "metric" as computed, or "us",
+# each unit of `US_UNITS` shown as its US customary unit. A map in a US unit (lb/ac, gal/ac, floz/ac,
+# seeds/ac) makes "us" the default (`unit_system`).
+UNIT_SYSTEMS = ("metric", "us")
+# The one table of display units: a unit vrsim shows a figure in -> the US customary unit shown for it
+# (the US gallon, international foot, acre and mile). In "metric" a US unit (a map's lb/ac) is shown as
+# the first unit here that maps to it.
+US_UNITS = {
+    "kg": "lb", "g": "oz", "ha": "ac", "m": "ft", "km": "mi", "m/s": "mph", "km/h": "mph",
+    "L": "gal", "mL": "floz", "L/min": "gpm", "bar": "psi", "kPa": "psi",
+    "kg/ha": "lb/ac", "t/ha": "lb/ac", "g/m2": "lb/ac", "L/ha": "gal/ac", "mL/m2": "gal/ac",
+    "mL/ha": "floz/ac", "seeds/ha": "seeds/ac", "kg/L": "lb/gal",
+}
+# Scenario keys that hold a length, a speed or a pressure, by the unit their name ends in: such a key
+# (``width_m``), or the same name without it (``width``), also takes a number with a unit as a string
+# ("120 ft", "10 mph", "15 psi"), which `quantity_in` reads into the key's unit. Longest suffix first.
+KEY_UNITS = (("_m_s", "m/s", "speed"), ("_kpa", "kPa", "pressure"), ("_bar", "bar", "pressure"),
+             ("_pa", "Pa", "pressure"), ("_m", "m", "length"))
+_QUANTITY = re.compile(r"\s*(?P<number>[-+]?(?:\d{1,15}(?:\.\d{0,15})?|\.\d{1,15})(?:[eE][-+]?\d{1,3})?)"
+                       r"\s*(?P<unit>.*?)\s*$")
+_KIND_EXAMPLES = {"length": "ft, in, yd, m", "speed": "mph, km/h, ft/s, m/s", "pressure": "psi, bar, kPa"}
+
+
+def unit_system(map_unit: str | None, units: str | None = None) -> str:
+    """The system of units figures are shown in: `units` when given ("metric" or "us", ``[output]
+    units``), else "us" for a map whose rates are in a US unit (lb/ac, gal/ac, floz/ac, seeds/ac),
+    "metric" otherwise."""
+    if units is not None:
+        return units
+    return "us" if map_unit is not None and map_unit in US_UNITS.values() else "metric"
+
+
+def _display_unit(unit: str, system: str) -> str:
+    """The unit a figure in `unit` is shown in under `system` (`US_UNITS`); `unit` when the table has
+    none for it (%, s, rpm, a count)."""
+    if system == "us":
+        return US_UNITS.get(unit, unit)
+    return next((metric for metric, us in US_UNITS.items() if us == unit), unit)
+
+
+@functools.cache  # bounded: units of `US_UNITS` only
+def _factor(unit: str, to_unit: str) -> float:
+    return float(_registry().Quantity(1.0, _pint_text(unit)).to(_pint_text(to_unit)).magnitude)
+
+
+def in_units(value, unit: str, system: str):
+    """`value` (a figure in `unit`) as shown under `system`: ``(value, unit)`` converted by pint to
+    `_display_unit`. A number, a list or an array of numbers converts (NaN stays NaN); anything else
+    (None, a bool, a string) is returned as it is.
+
+    >>> in_units(36.576, "m", "us")
+    (120.0..., 'ft')
+    """
+    shown = _display_unit(unit, system)
+    if shown == unit or value is None or isinstance(value, (bool, str)):
+        return value, unit
+    factor = _factor(unit, shown)
+    if isinstance(value, (list, tuple)):
+        return [None if v is None else float(v) * factor for v in value], shown
+    if isinstance(value, np.ndarray):
+        return value * factor, shown
+    return float(value) * factor, shown
+
+
+def key_unit(key: str) -> tuple[str, str] | None:
+    """(unit, kind) of a scenario key whose name ends in a length, speed or pressure unit
+    (`KEY_UNITS`: ``"width_m"`` -> ``("m", "length")``), None for any other key."""
+    return next(((unit, kind) for suffix, unit, kind in KEY_UNITS if key.endswith(suffix)), None)
+
+
+def quantity_in(text, unit: str, kind: str) -> float:
+    """A number with a unit (``"120 ft"``, ``"10 mph"``, ``"15 psi"``) in `unit` (m, m/s, bar), to 12
+    significant digits (``"120 ft"`` is 36.576 m, as typed in metres, not 36.575999999999993).
+
+    The unit is read with the grammar of rate units (`_pint_text`: pint never sees anything else) and
+    must be of `kind` ("length", "speed" or "pressure").
+
+    Raises
+    ------
+    ValueError
+        Saying what is wrong (no number, no unit, a unit pint does not read or of another kind); the
+        caller names the key and the value.
+    """
+    if not isinstance(text, str) or len(text) > 2 * MAX_UNIT_CHARS:
+        raise ValueError(f"is not a {kind} with a unit (e.g. {_KIND_EXAMPLES[kind]})")
+    match = _QUANTITY.fullmatch(text)
+    if match is None or not match["unit"]:
+        raise ValueError(f"is not a number with a unit of {kind} (e.g. {_KIND_EXAMPLES[kind]})")
+    number, text = float(match["number"]), _pint_text(match["unit"])  # the grammar's ValueError
+    try:
+        quantity = _registry().Quantity(1.0, text)
+    # pint raises what it likes on odd names (KeyError for "m**0*%"): any failure to parse is no unit.
+    except Exception as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ValueError(f"has a unit pint does not read ({first}); e.g. {_KIND_EXAMPLES[kind]}") from None
+    target = _registry().Quantity(1.0, _pint_text(unit))
+    if quantity.dimensionality != target.dimensionality:
+        raise ValueError(f"is not a {kind} (its unit is {quantity.dimensionality}); e.g. "
+                         f"{_KIND_EXAMPLES[kind]}")
+    si = quantity.to(target.units).magnitude
+    value = number * float(si)
+    if not math.isfinite(value):
+        raise ValueError(f"is not a finite {kind}")
+    return float(f"{value:.12g}")
+
+
+def shown_text(value: float, unit: str, system: str, spec: str = ".2f") -> str:
+    """``"12.75 mph"``: `value` in `unit` as shown under `system` (`in_units`), formatted by `spec`."""
+    shown, to_unit = in_units(value, unit, system)
+    return f"{shown:{spec}} {to_unit}"
+
+
+def shown_range(low: float, high: float, unit: str, system: str, spec: str = ".2f",
+                between: str = "-") -> str:
+    """``"5.3-5.9 mph"``: a range in `unit` as shown under `system`, its unit once."""
+    (lo, to_unit), (hi, _) = in_units(low, unit, system), in_units(high, unit, system)
+    return f"{lo:{spec}}{between}{hi:{spec}} {to_unit}"

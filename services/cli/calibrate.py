@@ -36,12 +36,14 @@ def run(args) -> int:
     from services.cli.options import load_scenario
     from services.outputs.encode import dumps_text
     from services.sim.calibrate import calibrate
+    from services.sim.display import figures_display, scenario_units
 
     sc = load_scenario(args)
     result = calibrate(sc, args.revolutions, args.scale_error_g, args.seconds, args.jug_error_ml)
+    units = scenario_units(sc)  # [output] units, or the map's
     if args.json:
-        print(dumps_text({**vars(result), "change_pct": result.change_pct, "settings": result.settings},
-                         indent=True))
+        print(dumps_text({**vars(result), "change_pct": result.change_pct, "settings": result.settings,
+                          "units": units, "display": figures_display(vars(result), units)}, indent=True))
     else:
-        print(result.text())
+        print(result.text(units))
     return 0

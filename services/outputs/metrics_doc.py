@@ -67,6 +67,16 @@ def page() -> str:
         "(absolute floor plus a share of the value); *better* is the sense that `vrsim sweep` ranks by "
         "and `vrsim tune` optimises (a blank: the figure describes the run, it does not judge it).", "",
         *_table(metrics.METRICS, with_library=True), "",
+        "### Units", "",
+        "The unit column is the unit a figure is computed in and its key names (SI, and kg/ha for rates), "
+        "which `--json`, `summary.json`, the sweeps' tables and the accuracy library keep. What vrsim "
+        "prints, reports and draws is in the scenario's `[output] units` (`\"metric\"` or `\"us\"`; "
+        "unset, `\"us\"` for a map in lb/ac, gal/ac, floz/ac or seeds/ac): one table "
+        "(`maps.units.US_UNITS`) shows kg as lb, ha as ac, m as ft, m/s as mph, L/min as gpm, bar as psi, "
+        "mL as floz, and pint converts. The rate figures show in the map's own unit (`in_rate_unit`), or "
+        "its counterpart in the other system (a gal/ac map in metric: L/ha). `vrsim run --json` and "
+        "`summary.json` hold the system under `units` and every figure as shown under `display` "
+        "(`{key: {\"value\", \"unit\"}}`, `services.sim.display.displayed`).", "",
         "## An as-applied log's figures (`POINT_METRICS`, `vrsim evaluate`)", "",
         "Over the logged points (the run's figures above are over map cells, area-weighted): mass balance "
         "and the within-shares weigh each point by its area where the log gives it (`weighting`), the "

@@ -29,9 +29,10 @@ def figure(width_in: float, height_in: float, layout: str | None = None, **margi
 
 @dataclass
 class MapPicture:
-    """What map.png shows: rasters (rows, cols) in the map's `unit` on a map `extent_m` wide and high,
-    the field boundary and the path in metres from the map's south-west corner; the error's colour
-    scale spans at least `error_floor` (1 kg/ha in `unit`) either way."""
+    """What map.png shows: rasters (rows, cols) in the rate `unit` shown (the map's, or its counterpart
+    in the run's units) on a map `extent_m` wide and high, the field boundary and the path from the map's
+    south-west corner, lengths in `length_unit` (m, or ft in US units; `extent_m` too); the error's
+    colour scale spans at least `error_floor` (1 kg/ha in `unit`) either way."""
 
     prescribed: np.ndarray
     applied: np.ndarray
@@ -42,6 +43,7 @@ class MapPicture:
     title: str
     unit: str
     error_floor: float
+    length_unit: str = "m"
 
 
 @dataclass
@@ -58,6 +60,7 @@ class SectionsPicture:
     field_xy: tuple
     titles: tuple
     title: str
+    length_unit: str = "m"  # of `extent_m` and `field_xy`, as `MapPicture`'s
 
 
 @dataclass
@@ -74,46 +77,73 @@ class SeriesPicture:
 
 
 def _frame(result):
-    """Extent in metres from the map's south-west corner (UTM eastings of six digits crowd the axis),
-    that corner, and the field's outline in those metres."""
+    """Extent from the map's south-west corner (UTM eastings of six digits crowd the axis), that corner
+    (m), the field's outline from it, and a function that takes metres from it to the lengths shown
+    (`_lengths`) with their unit."""
     west, south, east, north = result.world.grid.bounds
     fx, fy = result.world.field.polygon.exterior.xy
-    outline = (np.asarray(fx) - west, np.asarray(fy) - south)
-    return (0.0, east - west, 0.0, north - south), (west, south), outline
+    shown, unit = _lengths(result.summary.get("units", "metric"))
+    outline = (shown(np.asarray(fx) - west), shown(np.asarray(fy) - south))
+    extent = tuple(shown(v) for v in (0.0, east - west, 0.0, north - south))
+    return extent, (west, south), outline, shown, unit
+
+
+def _lengths(units: str):
+    """(metres -> the length shown in `units`, its unit): `maps.units.in_units` of m."""
+    from maps.units import in_units
+
+    factor, unit = in_units(1.0, "m", units)
+    return (lambda metres: metres * factor), unit
+
+
+def _rates(values, grid, units: str):
+    """The rates `values` (kg/ha) in the map's unit, or its counterpart in `units`: (values, unit)."""
+    from maps.units import in_units
+
+    return in_units(np.asarray(grid.in_map_unit(values), float), grid.map_unit, units)
 
 
 def map_picture(result) -> MapPicture:
     """map.png's content of a `services.sim.run.RunResult`."""
+    from services.sim.display import shown_figure
+
     grid = result.world.grid
-    extent, (west, south), outline = _frame(result)
+    extent, (west, south), outline, shown, length_unit = _frame(result)
     x_m, y_m = result.kept.path_xy   # thinned (`services.sim.kept.PathPoints`)
     s = result.summary
+    units = s.get("units", "metric")
     # The deposit's rasters, read once by the run (each read of `result.as_applied` sums them again).
-    applied = result.accounts.deposit.applied_kg_ha
-    return MapPicture(grid.in_map_unit(grid.rates_kg_ha), grid.in_map_unit(applied),
-                      result.in_field, extent, outline, (x_m - west, y_m - south),
-                      f"{result.world.scenario.name}: MAE {s['in_rate_unit']['mae']:.1f} {grid.map_unit}, "
+    (rx, unit), (applied, _) = (_rates(v, grid, units) for v in (grid.rates_kg_ha,
+                                                                  result.accounts.deposit.applied_kg_ha))
+    mae, _ = shown_figure(s, "mae_kg_ha", "kg/ha")
+    return MapPicture(rx, applied, result.in_field, extent, outline, (shown(x_m - west), shown(y_m - south)),
+                      f"{result.world.scenario.name}: MAE {mae:.1f} {unit}, "
                       f"within 10 %: {s['within_10pct_area_pct']:.1f} % of covered area",
-                      grid.map_unit, float(grid.in_map_unit(1.0)))
+                      unit, float(_rates(1.0, grid, units)[0]), length_unit)
 
 
 def sections_picture(result) -> SectionsPicture:
     """sections.png's content of a `services.sim.run.RunResult`."""
-    extent, _, outline = _frame(result)
+    from services.sim.display import shown_figure
+
+    extent, _, outline, _, length_unit = _frame(result)
     deposit = result.accounts.deposit
     cover = deposit.coverage_fraction
     s = result.summary
-    titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {s['overlap_kg']:.1f} kg",
+    overlap, mass_unit = shown_figure(s, "overlap_kg", "kg")
+    titles = (f"Overlap: {s['overlap_area_pct']:.2f} % of covered area, {overlap:.1f} {mass_unit}",
               # Lines no wider than the panel: the colour bar beside it would hide their ends.
               f"Of worked area: skipped {s['skip_area_pct']:.2f} %\n(where the map asks for product),\n"
               f"bare as prescribed (rate 0) {s['off_as_prescribed_area_pct']:.2f} %",
               f"Machine-limited: {s['limited_area_pct']:.2f} % of covered area")
-    widths = ", ".join(f"{w:g}" for w in s["section_widths_m"])
+    section_widths, width_unit = shown_figure(s, "section_widths_m", "m")
+    widths = ", ".join(f"{w:.3g}" for w in section_widths)
     return SectionsPicture(deposit.overlap_fraction,
                            np.maximum(np.minimum(result.worked_fraction, 1.0) - cover, 0.0),
                            np.minimum(result.limited_fraction, 1.0), result.in_field, extent, outline, titles,
-                           f"{result.world.scenario.name}: {s['sections']} sections ({widths} m), section "
-                           f"control {result.world.scenario.implement.section_control!r}")
+                           f"{result.world.scenario.name}: {s['sections']} sections ({widths} {width_unit}), "
+                           f"section control {result.world.scenario.implement.section_control!r}",
+                           length_unit)
 
 
 def series_picture(result) -> SeriesPicture:
@@ -125,10 +155,12 @@ def series_picture(result) -> SeriesPicture:
 def window_picture(w: dict, world) -> SeriesPicture:
     """timeseries.png's content of a `services.sim.kept.SeriesWindow`'s ``series`` `w` of a run of
     `world` (`services.sim.world.World`)."""
-    grid = world.grid
-    rates = (grid.in_map_unit(w["prescribed_kg_ha"]), grid.in_map_unit(w["applied_kg_ha"]))
-    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], *rates,
-                         f"{world.scenario.name}: shaft speed and rate around rate steps", grid.map_unit)
+    from services.sim.display import run_units
+
+    grid, units = world.grid, run_units(world)
+    (rx, unit), (applied, _) = (_rates(w[k], grid, units) for k in ("prescribed_kg_ha", "applied_kg_ha"))
+    return SeriesPicture(w["time_s"], w["target_shaft_rpm"], w["shaft_rpm"], rx, applied,
+                         f"{world.scenario.name}: shaft speed and rate around rate steps", unit)
 
 
 def _save(fig, path) -> None:
@@ -137,9 +169,9 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=90, pil_kwargs={"compress_level": 1})
 
 
-def _draw_panels(fig, panels, extent, outline, unit: str):
+def _draw_panels(fig, panels, extent, outline, unit: str, length_unit: str = "m"):
     """Three maps side by side: panels of (data, title, colour map, low, high), the field's outline
-    on each; returns the axes."""
+    on each, lengths in `length_unit`; returns the axes."""
     axes = fig.subplots(1, 3)
     for ax, (data, title, cmap, lo, hi) in zip(axes, panels, strict=True):
         # Nearest cells coloured after resampling (the same pixels as before it, matplotlib's choice
@@ -151,11 +183,11 @@ def _draw_panels(fig, panels, extent, outline, unit: str):
         # axes to keep the title clear of top ticks these maps do not have.
         ax.set_title(title, y=1.0)
         ax.set_aspect("equal")
-        ax.set_xlabel("east (m)")
+        ax.set_xlabel(f"east ({length_unit})")
         # Placed from the panel's box (same place, same pixels) rather than by splitting its gridspec
         # cell into a new gridspec: fewer objects to build.
         fig.colorbar(im, ax=ax, label=unit, shrink=0.85, use_gridspec=False)
-    axes[0].set_ylabel("north (m) of the map's south-west corner")
+    axes[0].set_ylabel(f"north ({length_unit}) of the map's south-west corner")
     return axes
 
 
@@ -173,7 +205,7 @@ def draw_maps(pic: MapPicture, path: str) -> None:
     panels = ((rx * shown, "Prescribed", "viridis", 0, vmax),
               (applied * shown, "Applied", "viridis", 0, vmax),
               (err, "Applied - prescribed", "RdBu_r", -emax, emax))
-    axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, pic.unit)
+    axes = _draw_panels(fig, panels, pic.extent_m, pic.field_xy, pic.unit, pic.length_unit)
     axes[0].plot(*pic.path_xy, color="w", lw=0.3, alpha=0.6)
     fig.suptitle(pic.title)
     _save(fig, path)
@@ -186,7 +218,7 @@ def draw_sections(pic: SectionsPicture, path: str) -> None:
     panels = tuple((data * shown, title, cmap, 0.0, 1.0) for data, title, cmap in
                    zip((pic.overlap, pic.skipped, pic.limited), pic.titles, ("Reds", "Blues", "Purples"),
                        strict=True))
-    _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "share of the cell")
+    _draw_panels(fig, panels, pic.extent_m, pic.field_xy, "share of the cell", pic.length_unit)
     fig.suptitle(pic.title)
     _save(fig, path)
 

@@ -11,6 +11,7 @@ import importlib.metadata
 import os
 
 from common import __version__
+from maps.units import in_units
 from services.outputs.summary import fmt
 from services.outputs.track import TRACK_FILES
 from services.sim import metrics
@@ -127,15 +128,18 @@ def embedded_png(path: str) -> str:
 
 def _split_table(result: RunResult) -> str:
     """The error split into its causes (`services.sim.error_split`) as an HTML table and what it means."""
-    grid = result.world.grid  # the error in the map's own unit
+    grid, s = result.world.grid, result.summary
+
+    def shown(mae_kg_ha):  # the error in the map's own unit, or its counterpart in the run's units
+        return in_units(float(grid.in_map_unit(mae_kg_ha)), grid.map_unit, s.get("units", "metric"))
+
     rows = "\n".join(f"<tr><td>{html.escape(p.cause)}</td><td>{p.mass_balance_pct:+.2f}</td>"
-                     f"<td>{float(grid.in_map_unit(p.mae_kg_ha)):+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
+                     f"<td>{shown(p.mae_kg_ha)[0]:+.2f}</td><td>{fmt(p.share_pct)}</td></tr>"
                      for p in error_split(result))
-    s = result.summary
     return (f"<table><tr><th>cause</th><th>mass balance (pp)</th>"
-            f"<th>mean absolute error ({html.escape(grid.map_unit)})</th><th>share of the error (%)</th></tr>"
+            f"<th>mean absolute error ({html.escape(shown(0.0)[1])})</th><th>share of the error (%)</th></tr>"
             f"\n{rows}\n<tr><td>the run</td><td>{s['mass_balance_pct']:+.2f}</td>"
-            f"<td>{float(grid.in_map_unit(s['mae_kg_ha'])):.2f}</td>"
+            f"<td>{shown(s['mae_kg_ha'])[0]:.2f}</td>"
             "<td>100</td></tr></table>\n<p>Geometry and section control: the same run with a meter whose "
             "shaft turns at exactly the speed the map asks for; machine limits: what clipping that speed "
             "to the shaft's range adds (the <code>ideal</code> controller); calibration: what the "
@@ -146,7 +150,7 @@ def _split_table(result: RunResult) -> str:
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: machine check, figures, the error split, settings as run, versions and
     seed, pictures, definitions."""
-    from services.outputs.summary import shown
+    from services.outputs.summary import shown, warnings
 
     summary = result.summary
     config = config_as_run(result.world.scenario)
@@ -155,7 +159,8 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
     scenario_file = html.escape(to_toml(result.world.scenario))
     run_info = {**versions(), "seed": summary["seed"], "scenario": result.world.scenario.source,
                 "ticks": summary["ticks"]}
-    lines = result.machine_check.text(result.world.grid).splitlines()  # rates in the map's unit
+    # In the run's units, the rates in the map's unit (or its counterpart in those units).
+    lines = result.machine_check.text(result.world.grid, summary.get("units", "metric")).splitlines()
     check = "<br>".join(html.escape(line.strip()) for line in lines)
     images = [paths[name] for name in ("map.png", "sections.png", "timeseries.png") if name in paths]
     sections = [("Machine check", f"<p>{check}</p>"),
@@ -169,7 +174,7 @@ def write_html(result: RunResult, paths: dict[str, str]) -> None:
                 [("What the figures mean", definitions(metrics.METRICS))],
                 _files_note(result.world.grid.map_unit,
                             [TRACK_FILES[f] for f in result.world.scenario.output.track_formats]),
-                banner=incomplete_note(summary))
+                banner=" ".join(filter(None, [incomplete_note(summary), *warnings(summary)])) or None)
     with open(paths["report.html"], "w") as fh:
         fh.write(text)
 

@@ -7,6 +7,8 @@ import math
 
 from services.outputs.encode import dumps_text
 from services.sim import metrics
+from services.sim.display import shown_figure
+from services.sim.spread_pattern import CV_LIMIT_PCT
 
 
 def summary_json(summary: dict) -> str:
@@ -21,13 +23,13 @@ def summary_rows() -> tuple[tuple[str, str, str], ...]:
 
 
 def shown(summary: dict) -> tuple[tuple[tuple[str, str, str], ...], dict]:
-    """The report's rows (label, key, unit) and the values to show for them: the rate figures in the
-    map's own unit (the summary's ``rate_unit`` and ``in_rate_unit``; kg/ha in a summary without)."""
-    unit, in_unit = summary.get("rate_unit", metrics.RATE_UNIT), summary.get("in_rate_unit", {})
+    """The report's rows (label, key, unit) and the values to show for them, in the summary's ``units``
+    (`services.sim.display.shown_figure`): the rate figures in the map's own unit (the summary's
+    ``rate_unit`` and ``in_rate_unit``; kg/ha in a summary without), or its counterpart in the other
+    system; product in lb, area in ac, lengths in ft, speeds in mph in "us"."""
     values, rows = dict(summary), []
     for label, key, row_unit in summary_rows():
-        if row_unit == metrics.RATE_UNIT and metrics.rate_key(key) in in_unit:
-            values[key], row_unit = in_unit[metrics.rate_key(key)], unit
+        values[key], row_unit = shown_figure(summary, key, row_unit)
         rows.append((label, key, row_unit))
     return tuple(rows), values
 
@@ -40,10 +42,23 @@ def fmt(value) -> str:
     return str(value)
 
 
+def warnings(summary: dict) -> list[str]:
+    """What the figures say is wrong with the set-up, one line each (the text summary's last lines, the
+    report's banner): a spread CV above EN 13739's `CV_LIMIT_PCT`, with the driving width that meets it."""
+    cv_pct = summary.get("cv_pct")
+    if not isinstance(cv_pct, float) or not math.isfinite(cv_pct) or cv_pct <= CV_LIMIT_PCT:
+        return []
+    width, unit = shown_figure(summary, "effective_width_m", "m")
+    meets = (f"drive at {fmt(width)} {unit} or narrower to meet it" if isinstance(width, float) and width > 0
+             else "no driving width meets it")
+    return [f"warning: spread CV {cv_pct:.1f} % is above EN 13739's {CV_LIMIT_PCT:g} % at this driving "
+            f"width: the ground between passes gets an uneven rate; {meets}"]
+
+
 def text_summary(summary: dict) -> str:
-    """The readable summary `vrsim run` prints."""
+    """The readable summary `vrsim run` prints, its `warnings` last."""
     lines = [f"vrsim run: {summary['scenario']} ({summary['ticks']:,} ticks)"]
     rows, values = shown(summary)
     for label, key, unit in rows:
         lines.append(f"  {label:<38} {fmt(values[key]):>14} {unit}")
-    return "\n".join(lines)
+    return "\n".join(lines + warnings(summary))

@@ -68,9 +68,14 @@ def as_run(scenario: Scenario) -> Scenario:
 
 def with_settings(result: RunResult) -> dict:
     """A run's summary and, under ``scenario_config``, the settings it ran with: its scenario as run
-    with the plant as run (`services.sim.core.config_as_run`). What summary.json, ``vrsim run --json``,
-    ``vrsim report --json``, the monitor's report and each run of ``vrsim compare --json`` print."""
-    return dict(result.summary, scenario_config=config_as_run(result.world.scenario))
+    with the plant as run (`services.sim.core.config_as_run`), and under ``display`` each figure as shown
+    in the run's ``units`` (`services.sim.display.displayed`: ``{key: {"value", "unit"}}``). What
+    summary.json, ``vrsim run --json``, ``vrsim report --json``, the monitor's report and each run of
+    ``vrsim compare --json`` print."""
+    from services.sim.display import displayed
+
+    return dict(result.summary, display=displayed(result.summary),
+                scenario_config=config_as_run(result.world.scenario))
 
 
 def resolved_controller(cfg: ControllerConfig, plant: PlantParams,

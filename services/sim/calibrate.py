@@ -41,6 +41,7 @@ import numpy as np
 
 from common import ScenarioError, VrsimError
 from common.checks import in_range
+from maps.units import shown_text
 from services.sim.machines import Machine
 from services.sim.machines.registry import MACHINES
 from services.sim.machines.sprayer import check_liquid
@@ -140,15 +141,15 @@ class Calibration:
         return {"implement.kg_per_rev": _as_written(self.measured_kg_per_rev),
                 "product.calibration_error_pct": _rounded_pct(self.remaining_error_pct)}
 
-    def text(self) -> str:
-        """What `vrsim calibrate` prints."""
+    def text(self, units: str = "metric") -> str:
+        """What `vrsim calibrate` prints, its weights in `units` (the scenario's keys as they are set)."""
         value = f"{self.measured_kg_per_rev:.6g}"
         kg, error = self.settings.values()
         return "\n".join([
             f"Calibration of {self.scenario} ({self.form}): {self.revolutions} revolutions at "
             f"{self.test_shaft_rpm:.0f} rpm ({self.duration_s:.0f} s), the catch weighed on a scale "
-            f"of +-{self.scale_error_g:g} g.",
-            f"  Weighed {self.weighed_kg:.3f} kg: {value} kg/rev measured against "
+            f"of +-{shown_text(self.scale_error_g, 'g', units, '.3g')}.",
+            f"  Weighed {shown_text(self.weighed_kg, 'kg', units, '.3f')}: {value} kg/rev measured against "
             f"{self.configured_kg_per_rev:g} kg/rev configured ({self.change_pct:+.2f} %).",
             f"  Put in the scenario: [implement] kg_per_rev = {kg:.6g}; the same meter's true "
             f"{self.true_kg_per_rev:.6g} kg/rev then leaves [product] calibration_error_pct = {error:g}.",
@@ -264,14 +265,16 @@ class LiquidCalibration:
                 "implement.flow_meter_error_pct": _rounded_pct(_error_left_pct(self.true_pulses_per_l,
                                                                                self.measured_pulses_per_l))}
 
-    def text(self) -> str:
-        """What `vrsim calibrate` prints."""
+    def text(self, units: str = "metric") -> str:
+        """What `vrsim calibrate` prints, its pressure and volumes in `units` (the scenario's keys as
+        they are set)."""
         ppl, error = self.settings.values()
         return "\n".join([
             f"Calibration of {self.scenario} (liquid, flow meter): the boom sprayed {self.seconds:g} s at "
-            f"{REF_PRESSURE_BAR:g} bar, each of its {self.nozzles} nozzles caught in a jug read to "
-            f"+-{self.jug_error_ml:g} mL.",
-            f"  Jugs {self.read_l:.3f} L together, the meter {self.pulses:.0f} pulses: "
+            f"{shown_text(REF_PRESSURE_BAR, 'bar', units, '.3g')}, each of its {self.nozzles} nozzles caught "
+            f"in a jug read to +-{shown_text(self.jug_error_ml, 'mL', units, '.3g')}.",
+            f"  Jugs {shown_text(self.read_l, 'L', units, '.3f')} together, the meter {self.pulses:.0f} "
+            "pulses: "
             f"{ppl:g} pulses/L measured against {self.configured_pulses_per_l:g} configured "
             f"({self.change_pct:+.2f} %).",
             f"  Put in the scenario: [implement] flow_meter_pulses_per_l = {ppl:g}; the same meter's true "

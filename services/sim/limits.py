@@ -40,9 +40,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
+from maps.units import in_units, shown_range, shown_text, unit_system
 from services.sim.metrics import RATE_UNIT, rate_key
 from vehicle import DriveConfig, Implement
 from vehicle.driver import MAX_WORKING_SPEED_M_S
@@ -104,6 +106,8 @@ class MachineCheck:
     kg_per_rev_min: float
     kg_per_rev_max: float
     rates_from: str = RATES_FROM_CELLS
+    # The unit of ``rpm_*`` and ``shaft_rpm_*``: the shaft's speed, or what a kind checks instead.
+    RPM_UNIT: ClassVar[str] = "rpm"
 
     @property
     def can_apply(self) -> bool:
@@ -125,31 +129,42 @@ class MachineCheck:
         convert = (lambda v: v) if grid is None else grid.in_map_unit
         return {rate_key(k): float(convert(v)) for k, v in vars(self).items() if k.endswith("_kg_ha")}
 
-    def text(self, grid=None) -> str:
+    def text(self, grid=None, units: str | None = None) -> str:
         """Three or four lines for the run's printout (the verdict, which rates, the speeds at which it
         can, ...); two more naming what to change if it cannot. Rates in the unit of `grid`
-        (`in_rate_unit`; None: kg/ha)."""
+        (`in_rate_unit`; None: kg/ha), every figure as shown in `units` ("metric" or "us",
+        `maps.units.in_units`; None: as the run shows them, in the system of the map's unit)."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
+        units = check_units(grid, units)
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
-        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
-        lo, hi = rate_text(rates["rate_min"]), rate_text(rates["rate_max"])
-        lines = [f"Machine check: the meter {verdict}: {lo}-{hi} {unit} at {self.speed_min_m_s:.2f}-"
-                 f"{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
-                 f"{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-{self.shaft_rpm_max:g} rpm shaft.",
-                 self.rates_line(), self.speeds_line()]
+        lines = [f"Machine check: the meter {verdict}: {self.rates_text(grid, units)} at "
+                 f"{shown_range(self.speed_min_m_s, self.speed_max_m_s, 'm/s', units)} needs "
+                 f"{self.rpm_min:.1f}-{self.rpm_max:.1f} rpm of a {self.shaft_rpm_min:g}-"
+                 f"{self.shaft_rpm_max:g} rpm shaft.",
+                 self.rates_line(), self.speeds_line(units)]
         if self.rpm_max > self.shaft_rpm_max:
-            lines.append(f"  Above {self.max_speed_m_s:.2f} m/s the highest rates are under-applied.")
+            lines.append(f"  Above {shown_text(self.max_speed_m_s, 'm/s', units)} the highest rates are "
+                         "under-applied.")
         if self.rpm_min < self.shaft_rpm_min:
             lines.append("  At every field speed the lowest rates are over-applied."
                          if self.min_speed_m_s > MAX_WORKING_SPEED_M_S else
-                         f"  Below {self.min_speed_m_s:.2f} m/s the lowest rates are over-applied.")
+                         f"  Below {shown_text(self.min_speed_m_s, 'm/s', units)} the lowest rates are "
+                         "over-applied.")
         elif self.min_width_m > self.narrowest_section_m:
-            lines.append(f"  With less than {self.min_width_m:.1f} m of sections on, the lowest rate at the "
-                         "lowest speed is over-applied.")
+            width = shown_text(self.min_width_m, "m", units, ".1f")
+            lines.append(f"  With less than {width} of sections on, the lowest rate at the lowest speed is "
+                         "over-applied.")
         if not self.can_apply:
-            lines += self._remedies()
+            lines += self._remedies(units)
         return "\n".join(lines)
+
+    def rates_text(self, grid=None, units: str = "metric") -> str:
+        """``"100-150 lb/ac"``: the map's lowest positive and highest rate in the unit of `grid` (None:
+        kg/ha), or its counterpart in `units` (gal/ac in "metric" as L/ha)."""
+        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
+        (lo, shown), (hi, _) = (in_units(rates[k], unit, units) for k in ("rate_min", "rate_max"))
+        return f"{rate_text(lo)}-{rate_text(hi)} {shown}"
 
     def rates_line(self) -> str:
         """Which of the map's values the check read (`rates_from`), one line."""
@@ -165,37 +180,40 @@ class MachineCheck:
         lo, hi = self.min_speed_m_s, min(self.max_speed_m_s, MAX_WORKING_SPEED_M_S)
         return (lo, hi) if lo <= hi else None
 
-    def speeds_line(self) -> str:
-        """The working speeds at which it can (`speed_window_m_s`), one line."""
+    def speeds_line(self, units: str = "metric") -> str:
+        """The working speeds at which it can (`speed_window_m_s`), one line, in `units`."""
         window = self.speed_window_m_s
         if window is None:
-            return f"  Working speeds at which it can: none ({self._no_speed()})."
+            return f"  Working speeds at which it can: none ({self._no_speed(units)})."
         lo, hi = window
-        capped = f"; field speeds end at {MAX_WORKING_SPEED_M_S:g} m/s" if hi < self.max_speed_m_s else ""
-        return (f"  Working speeds at which it can: {lo:.2f} to {hi:.2f} m/s (highest {hi * 3.6:.1f} "
-                f"km/h{capped}).")
+        notes = [f"highest {hi * 3.6:.1f} km/h"] if units == "metric" else []  # as a tractor shows it
+        if hi < self.max_speed_m_s:
+            notes.append(f"field speeds end at {shown_text(MAX_WORKING_SPEED_M_S, 'm/s', units, '.3g')}")
+        notes_text = f" ({'; '.join(notes)})" if notes else ""
+        return (f"  Working speeds at which it can: {shown_range(lo, hi, 'm/s', units, between=' to ')}"
+                f"{notes_text}.")
 
-    def _no_speed(self) -> str:
+    def _no_speed(self, units: str = "metric") -> str:
         """Why no field speed applies the whole map."""
         if self.min_speed_m_s <= self.max_speed_m_s:
-            return (f"it needs {self.min_speed_m_s:.2f} m/s or more, beyond field speeds, which end at "
-                    f"{MAX_WORKING_SPEED_M_S:g} m/s")
+            return (f"it needs {shown_text(self.min_speed_m_s, 'm/s', units)} or more, beyond field speeds, "
+                    f"which end at {shown_text(MAX_WORKING_SPEED_M_S, 'm/s', units, '.3g')}")
         return f"the map's rates span {self.rate_span:.1f}x, the shaft's speeds {self.shaft_span:.1f}x"
 
-    def speed_remedy(self) -> str:
+    def speed_remedy(self, units: str = "metric") -> str:
         """The first line of what to change: the working speeds within `speed_window_m_s`, else why none."""
         window = self.speed_window_m_s
         if window is not None:
-            lo, hi = window
-            return f"  To apply it all: keep the working speeds within {lo:.2f}-{hi:.2f} m/s, or"
+            return (f"  To apply it all: keep the working speeds within "
+                    f"{shown_range(*window, 'm/s', units)}, or")
         if self.min_speed_m_s <= self.max_speed_m_s:
-            return f"  No field speed applies it all: {self._no_speed()}; instead"
-        return f"  No working speed applies it all: {self._no_speed()}; narrow the map's range, or"
+            return f"  No field speed applies it all: {self._no_speed(units)}; instead"
+        return f"  No working speed applies it all: {self._no_speed(units)}; narrow the map's range, or"
 
-    def _remedies(self) -> list[str]:
+    def _remedies(self, units: str = "metric") -> list[str]:
         """What to change so that the full width applies the whole map: the speeds, or the meter."""
-        speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
-        lines = [self.speed_remedy()]
+        speeds = shown_range(self.speed_min_m_s, self.speed_max_m_s, "m/s", units)
+        lines = [self.speed_remedy(units)]
         if self.kg_per_rev_min <= self.kg_per_rev_max:
             lo = f"{self.kg_per_rev_min:.4g}"
             constants = (f"{lo}-{self.kg_per_rev_max:.4g} kg/rev" if math.isfinite(self.kg_per_rev_max)
@@ -217,6 +235,12 @@ class MachineCheck:
     def shaft_span(self) -> float:
         """Highest over lowest shaft speed (infinite for a range from 0 rpm)."""
         return self.shaft_rpm_max / self.shaft_rpm_min if self.shaft_rpm_min > 0 else math.inf
+
+
+def check_units(grid, units: str | None) -> str:
+    """`units`, or the system of `grid`'s rate unit when None (`maps.units.unit_system`; no grid:
+    metric)."""
+    return unit_system(None if grid is None else grid.map_unit, units)
 
 
 def rate_text(value: float) -> str:

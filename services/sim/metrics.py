@@ -55,6 +55,8 @@ library's tolerances all derive from it, so a new figure is one row here and its
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from operator import attrgetter
@@ -120,14 +122,30 @@ def _sim_time_s(a: Accounts) -> float:
     return a.setting.ticks * a.setting.world.scenario.timing.control_period_s
 
 
-def _cv_pct(a: Accounts) -> float:
-    """The machine's transverse pattern (`Machine.transverse_pattern`) overlapped to and fro at the
-    driving width: its CV across the driving width (`services.sim.spread_pattern.cv_pct`), %."""
+def _spread_pattern(a: Accounts):
+    """The machine's transverse pattern (`Machine.transverse_pattern`), None for a kind without one."""
     from services.sim.machines import machine_for
+
+    return machine_for(a.setting.world.scenario.implement).transverse_pattern()
+
+
+def _cv_pct(a: Accounts) -> float:
+    """The machine's transverse pattern overlapped to and fro at the driving width: its CV across the
+    driving width (`services.sim.spread_pattern.cv_pct`), %; NaN (null: not applicable) for a kind
+    without a spread pattern."""
     from services.sim.spread_pattern import cv_pct
 
-    implement = a.setting.world.scenario.implement
-    return cv_pct(*machine_for(implement).transverse_pattern(), implement.width_m)
+    pattern = _spread_pattern(a)
+    return math.nan if pattern is None else cv_pct(*pattern, a.setting.world.scenario.implement.width_m)
+
+
+def _effective_width_m(a: Accounts) -> float:
+    """The largest driving width at which the pattern's CV is within `spread_pattern.CV_LIMIT_PCT`
+    (`services.sim.spread_pattern.effective_width_m`), m; NaN for a kind without a spread pattern."""
+    from services.sim.spread_pattern import effective_width_m
+
+    pattern = _spread_pattern(a)
+    return math.nan if pattern is None else effective_width_m(*pattern)
 
 
 # The event classes beside the rate steps (`services.sim.transitions.EVENTS`): each class's rows.
@@ -225,7 +243,9 @@ METRICS = (
     Metric("coverage_pct", "%", "Coverage", "share of the field's cells that are covered", (0.3, 0.0),
            sense="max", of="map.coverage_pct"),
     Metric("overlap_area_pct", "%", "Overlap area",
-           "share of the covered field area that received product from more than one pass", (0.3, 0.03),
+           "share of the covered field area that received product from more than one pass; for a "
+           "spinner it includes the designed overlap of its neighbouring passes' throw (product laid "
+           "beyond the pattern's design is not told apart yet)", (0.3, 0.03),
            sense="min", of="overlap.overlap_area_pct"),
     Metric("skip_area_pct", "%", "Skipped area",
            "share of the worked field area (swept by the working width along working stretches) whose "
@@ -246,7 +266,12 @@ METRICS = (
     # A figure of the machine's set-up (its pattern and driving width), not of the run: not held.
     Metric("cv_pct", "%", "Spread CV (EN 13739)",
            "CV across the driving width of the machine's transverse pattern overlapped to and fro on "
-           "straight passes (0 for rectangles)", sense="min", of=_cv_pct),
+           "straight passes; null (not applicable) for kinds without a spread pattern (strips side by "
+           "side: gated meters, drives per section, sprayers); above 15 % the summary warns",
+           sense="min", of=_cv_pct),
+    Metric("effective_width_m", "m", "Driving width for CV 15 %",
+           "largest driving width at which the spread pattern's CV is within 15 % (EN 13739's usual "
+           "limit); null for kinds without a spread pattern", of=_effective_width_m),
     Metric("sections", "", "Sections", "number of sections of the implement",
            of="setting.world.scenario.implement.sections"),
     Metric("section_widths_m", "m", "Section widths", "width of each section, left to right",

@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 from common import ScenarioError, VrsimError
+from maps.units import KEY_UNITS, key_unit, quantity_in
 
 
 def _where(section: str) -> str:
@@ -99,6 +101,7 @@ def build(cls, table: dict, source: str, section: str):
         Naming `source`, ``[section]``, the key and the value (what `cls` refuses, with its message).
     """
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    table = with_units(table, fields, source, section)
     no_unknown(table, fields, source, section)
     for key, value in table.items():
         kind = _expected_type(fields[key])
@@ -116,3 +119,55 @@ def build(cls, table: dict, source: str, section: str):
         raise ScenarioError(f"{source}: [{section}] {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ScenarioError(f"{source}: [{section}] {exc}") from None
+
+
+def with_units(table: dict, known, source: str, section: str) -> dict:
+    """`table` with its lengths, speeds and pressures given with a unit in the unit of their key.
+
+    A known key whose name ends in a unit of `maps.units.KEY_UNITS` (``width_m``, ``working_speed_m_s``,
+    ``pressure_range_bar``), or the same name without that ending (``width``) where the key with it is
+    known, may hold a number with a unit as a string (``"120 ft"``, ``"10 mph"``) or a list of such
+    strings and numbers (``["15 psi", "60 psi"]``; a plain number is in the key's unit): each string
+    becomes a number in the key's unit (`maps.units.quantity_in`), under the key's full name. A word
+    under the full name ("fast") is left for the type check, which refuses it as any other.
+
+    Raises
+    ------
+    ScenarioError
+        ``"<source>: [<section>] <key> '<value>' is not a length (...)"``: a string that is no number
+        with a unit of the key's kind, or one pint cannot read; a value given under both names.
+    """
+    out = {}
+    for key, value in table.items():
+        full = key if key in known else next((key + suffix for suffix, _, _ in KEY_UNITS
+                                              if key + suffix in known and key_unit(key + suffix)), None)
+        unit = key_unit(full) if full is not None else None
+        # A word under the key's own name ("fast") is no quantity: its type is refused as any other's.
+        if unit is None or not _has_text(value) or (full == key and isinstance(value, str)
+                                                    and not _NUMBER_FIRST.match(value)):
+            out[key] = value
+            continue
+        converted = _in_unit(value, key, unit, source, section)
+        if full != key and full in table:
+            raise ScenarioError(f"{source}: {_where(section)}{key} and {full}: give one of them, got "
+                                f"{value!r} and {table[full]!r}")
+        out[full] = converted
+    return out
+
+
+_NUMBER_FIRST = re.compile(r"\s*[-+]?\.?\d")  # what a number with a unit starts with
+
+
+def _has_text(value) -> bool:
+    return isinstance(value, str) or (isinstance(value, list) and any(isinstance(v, str) for v in value))
+
+
+def _in_unit(value, key: str, unit: tuple[str, str], source: str, section: str):
+    """A string (or the strings of a list) read as a number with a unit, in `unit` (`with_units`)."""
+    try:
+        if isinstance(value, list):
+            return [quantity_in(v, *unit) if isinstance(v, str) else v for v in value]
+        return quantity_in(value, *unit)
+    except ValueError as exc:
+        shown = value if len(repr(value)) <= 60 else f"{str(value)[:40]}..."
+        raise ScenarioError(f"{source}: {_where(section)}{key} {shown!r} {exc}") from None

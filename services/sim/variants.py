@@ -41,9 +41,9 @@ import numpy as np
 from common import ControllerError, ScenarioError
 from controller import ControllerConfig, build_variant_loops
 from maps import AppliedColumns, ColumnDeposit
-from services.sim import metrics
 from services.sim.accounting import Deposit, Setting, StageTimer, account
 from services.sim.core import OPENING_KEY, RUN_CHUNK, ControlCore, context_track, machine_plant
+from services.sim.display import run_summary
 from services.sim.landing import applied_rate_kg_ha, land
 from services.sim.look_ahead import initial_look_ahead_s
 from services.sim.run import Drive, control_and_account
@@ -224,7 +224,7 @@ def _account(shared: _Shared, drive_kg: np.ndarray, timers: list[StageTimer]) ->
         for timer in chunk:
             timer.add("metrics_s", share_s)
         # summed up chunk by chunk: the accounts hold their rasters
-        summaries += [metrics.summary(a) for a in account(setting, deposits, chunk)]
+        summaries += [run_summary(a) for a in account(setting, deposits, chunk)]
     return summaries
 
 

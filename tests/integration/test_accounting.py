@@ -54,8 +54,8 @@ def test_a_figure_added_to_the_table_is_in_the_summary_its_json_the_reports_and_
     peak = result.summary["peak_applied_kg_ha"]
     covered = result.in_field & (result.as_applied.coverage_fraction >= metrics.COVERED_FRACTION)
     assert peak == float(result.as_applied.applied_kg_ha[covered].max()) > 0
-    assert list(result.summary)[-5:] == ["peak_applied_kg_ha", "rate_unit", "in_rate_unit", "seed",
-                                         "stage_s"]   # in table order
+    assert list(result.summary)[-6:] == ["peak_applied_kg_ha", "rate_unit", "in_rate_unit", "seed",
+                                         "stage_s", "units"]   # in table order
     assert result.summary["in_rate_unit"]["peak_applied"] == peak  # a kg/ha figure, in the map's unit too
     assert json.loads(summary_json(result.summary))["peak_applied_kg_ha"] == peak
     line = next(line for line in text_summary(result.summary).splitlines() if "Peak applied rate" in line)

@@ -104,13 +104,13 @@ def test_check_reads_a_zone_maps_zone_rates_and_advises_field_speeds(tmp_path):
     assert doc["rates_from"] == "zone rates of the vector map" and doc["rate_unit"] == "lb/ac"
     assert doc["in_rate_unit"]["rate_min"] == pytest.approx(10.0)
     assert 1.0 < doc["min_speed_m_s"] < 2.0
-    p = vrsim("run", tmp_path / "zones.toml", "--check")
-    assert p.returncode == 0 and "the meter can apply the map: 10-10 lb/ac at 2.38-2.62 m/s" in p.stdout
+    p = vrsim("run", tmp_path / "zones.toml", "--check")   # a lb/ac map: in US units (`[output] units`)
+    assert p.returncode == 0 and "the meter can apply the map: 10-10 lb/ac at 5.31-5.87 mph" in p.stdout
     assert "Rates: the zone rates of the vector map inside the field" in p.stdout
-    assert "Working speeds at which it can: 1.55 to 15.00 m/s" in p.stdout, p.stdout
+    assert "Working speeds at which it can: 3.46 to 33.55 mph" in p.stdout, p.stdout
     # With a 0.5 kg/rev roller 10 lb/ac is too little at 2.38 m/s: exit 3, the advice a field speed.
     p = vrsim("run", tmp_path / "zones.toml", "--check", "--set", "implement.kg_per_rev=0.5")
-    assert p.returncode == 3 and "keep the working speeds within 3.10-15.00 m/s, or" in p.stdout, p.stdout
+    assert p.returncode == 3 and "keep the working speeds within 6.93-33.55 mph, or" in p.stdout, p.stdout
 
 
 def test_check_never_advises_the_nozzle_on_the_boom(tmp_path):

@@ -196,7 +196,10 @@ def test_a_sprayers_machine_check_names_the_maps_unit_beside_l_ha(tmp_path):
     p = vrsim("run", scen, "--check")
     assert p.returncode == 3, p.stderr   # '06' nozzles need 5.5 m/s or more for 10 gal/ac: it cannot
     lo, hi = 10 * GAL_AC, 15 * GAL_AC   # 10-15 gal/ac in L/ha
-    assert f"the whole map: {lo:.0f}-{hi:.0f} L/ha (10-15 gal/ac) at 2.38-2.62 m/s" in p.stdout, p.stdout
+    # A gal/ac map shows US units (`[output] units`); in metric its rates are L/ha.
+    assert "the whole map: 10-15 gal/ac at 5.31-5.87 mph" in p.stdout, p.stdout
+    p = vrsim("run", scen, "--check", "--set", "output.units=metric")
+    assert f"the whole map: {lo:.0f}-{hi:.0f} L/ha at 2.38-2.62 m/s" in p.stdout, p.stdout
 
 
 def test_tune_shows_the_rate_figures_in_the_maps_unit(tmp_path):

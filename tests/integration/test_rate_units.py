@@ -151,7 +151,8 @@ def test_a_map_without_a_unit_is_refused_in_one_line_and_set_gives_it(tmp_path):
     p = vrsim("run", scen, "--quiet", "--out", tmp_path / "out")
     one_line_exit_2(p, f"{scen}: [map]", "does not state the unit of its rates", '[map] unit = "lb/ac"',
                     "--unit")
-    one_line_exit_2(vrsim("map", "info", tif), "does not state the unit", "--unit")
+    p = vrsim("map", "info", tif)   # describes first: the values as stored, and what to give
+    assert p.returncode == 0 and "not stated in the file" in p.stdout and "give --unit" in p.stdout, p
     p = vrsim("map", "info", tif, "--unit", "lb/ac", "--json")
     assert p.returncode == 0 and json.loads(p.stdout)["rate_unit"] == "lb/ac", p.stderr
     p = vrsim("run", scen, "--json", "--quiet", "--out", tmp_path / "out", "--set", "map.unit=lb/ac")
@@ -165,9 +166,12 @@ def test_a_bad_unit_exits_2_naming_file_key_and_value(tmp_path, unit, needle):
     scen = scenario(tmp_path, write_tif(tmp_path / "rx.tif", None), map_keys=f'unit = "{unit}"')
     one_line_exit_2(vrsim("run", scen, "--quiet", "--out", tmp_path / "out"),
                     f"{scen}: [map] unit: {unit!r}", needle)
-    # A file stating a unit pint cannot read names the file, the band unit and its value.
+    # A file stating a unit pint cannot read: map info describes it and names the band unit, its value
+    # and why it does not read.
     tif = write_tif(tmp_path / "bad.tif", unit)
-    one_line_exit_2(vrsim("map", "info", tif), f"{tif}: band unit: {unit!r}", needle)
+    p = vrsim("map", "info", tif)
+    assert p.returncode == 0 and f"band unit: {unit!r}" in p.stdout and needle in p.stdout, p
+    assert json.loads(vrsim("map", "info", tif, "--json").stdout)["unit_problem"].startswith("band unit")
     # A unit given that the file contradicts.
     one_line_exit_2(vrsim("map", "info", write_tif(tmp_path / "kg.tif", "kg/ha"), "--unit", "lb/ac"),
                     "states its rates in kg/ha (band unit), not in the unit given, 'lb/ac'")

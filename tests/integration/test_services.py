@@ -298,10 +298,11 @@ def test_published_streams_can_be_watched(net, files):
         assert ticks == sorted(ticks) and len(set(ticks)) == 3
         ok, refused = net.query("vrsim/scenario/start", text)
         assert not ok and "stop it first" in refused["error"]
-        time.sleep(1.0)
-        ok, status = net.query("vrsim/scenario/status")
-        # speed=20: paced to the wall clock (never ahead; behind only when the machine is loaded)
-        assert 5 < status["sim_time_s"] / status["drive_s"] < 21, status
+        # speed=20: paced to the wall clock, never ahead of it (behind only when the machine is loaded;
+        # unpaced, lockstep drives thousands of times faster than real time)
+        ended = ("finished", "failed", "stopped")
+        status = net.wait_status(lambda s: s["sim_time_s"] >= 10.0 or s["state"] in ended)
+        assert status["state"] not in ended and status["sim_time_s"] / status["drive_s"] < 21, status
     finally:
         ok, stopped = net.query("vrsim/scenario/stop")
     assert ok and stopped["state"] == "stopped", stopped
@@ -312,9 +313,7 @@ def test_sigint_stops_every_process(files, tmp_path):
     server.wait_ready()
     children = server.children()
     assert set(children) == {"map", "vehicle", "controller", "monitor", "scenario"}
-    t0 = time.monotonic()
-    assert server.stop(signal.SIGINT) == 0
-    assert time.monotonic() - t0 < 15
+    assert server.stop(signal.SIGINT) == 0  # within its 30 s deadline, or it says what was left running
     assert not [name for name, pid in children.items() if pid_alive(pid)]
     assert child_services(server.proc.pid) == {}
 

@@ -1,6 +1,8 @@
 """Faults with real processes: a monitor killed with SIGKILL and restarted on its database reports
-over everything it had received; a killed controller or vehicle shows in scenario/status within 2 s
-and the monitor's records stay intact. The tests share one `vrsim serve all` and run in file order."""
+over everything it had received; a killed controller or vehicle shows in scenario/status as missing
+(waited for with a deadline generous for a loaded machine; how soon it shows on a quiet one is a
+figure of `bench/bench_services.py`) and the monitor's records stay intact. The tests share one
+`vrsim serve all` and run in file order."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import time
 
 import pytest
 
-from tests.integration.test_services_support import ServeAll, pid_alive, write_field_files
+from tests.integration.test_services_support import ServeAll, pid_alive, without_clock, write_field_files
 
 WALL_KEYS = {"stage_s"}  # the only keys a report recomputes from the clock (wall time is stored)
 
@@ -42,21 +44,25 @@ def start(net, *params: str) -> dict:
     return reply
 
 
-def wait_missing(net, service: str, timeout_s: float) -> tuple[float, dict]:
-    t0 = time.monotonic()
+MISSING_DEADLINE_S = 60.0  # a killed service shows within about 2 s on a quiet machine
+
+
+def wait_missing(net, service: str, timeout_s: float = MISSING_DEADLINE_S) -> dict:
+    """scenario/status once it lists `service` as missing."""
+    deadline = time.monotonic() + timeout_s
     while True:
         ok, status = net.query("vrsim/scenario/status")
         assert ok, status
         if service in status["missing"]:
-            return time.monotonic() - t0, status
-        assert time.monotonic() - t0 < 10, status
+            return status
+        assert time.monotonic() < deadline, f"{service} not reported missing within {timeout_s:g} s: {status}"
         time.sleep(0.05)
 
 
 def report_without_clock(net) -> dict:
     ok, report = net.query("vrsim/tractor1/report")
     assert ok, report
-    return {k: v for k, v in report.items() if k not in WALL_KEYS}
+    return without_clock(report, WALL_KEYS)
 
 
 def test_restarted_monitor_lost_nothing(net):
@@ -66,20 +72,19 @@ def test_restarted_monitor_lost_nothing(net):
     before = report_without_clock(net)
     monitor = net.children()["monitor"]
     os.kill(monitor, signal.SIGKILL)
-    wait_missing(net, "monitor", 10)
+    wait_missing(net, "monitor")
     net.extra.append(net.serve("monitor", "--db", net.db))
     net.wait_status(lambda s: "monitor" in s["alive"], timeout_s=30)
     assert report_without_clock(net) == before
     assert before["ticks"] > 1000
 
 
-def test_killed_controller_is_reported_within_2s_and_records_stay(net):
+def test_killed_controller_is_reported_missing_and_records_stay(net):
     run = start(net, "clock=realtime", "speed=2")
     net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["ticks"] >= 40)
     controller = net.children()["controller"]
     os.kill(controller, signal.SIGKILL)
-    elapsed, status = wait_missing(net, "controller", 2.0)
-    assert elapsed < 2.0, status
+    wait_missing(net, "controller")
     status = net.wait_status(lambda s: s["state"] == "failed", timeout_s=15)
     assert "no controller answered" in status["error"], status
     assert not pid_alive(controller)
@@ -110,11 +115,10 @@ def test_hung_vehicle_is_reported_as_silent_not_dead(net):
     assert status["error"] == "the vehicle service did not answer within 1 s", status
 
 
-def test_killed_vehicle_is_reported_within_2s(net):
+def test_killed_vehicle_is_reported_missing(net):
     vehicle = net.children()["vehicle"]
     os.kill(vehicle, signal.SIGKILL)
-    elapsed, status = wait_missing(net, "vehicle", 2.0)
-    assert elapsed < 2.0
+    status = wait_missing(net, "vehicle")
     assert status["state"] == "unknown" and status["error"] == "the vehicle service is not alive"
     assert set(status["missing"]) == {"vehicle", "controller"}
     with open(net.files["scenario"], "rb") as fh:

@@ -196,6 +196,15 @@ def pid_alive(pid: int) -> bool:
         return False
 
 
+def without_clock(doc: dict, keys=WALL_KEYS) -> dict:
+    """`doc` (a summary, or its ``display``) without the wall-clock figures `keys`, in its ``display``
+    too: what two runs of the same scenario share."""
+    out = {k: v for k, v in doc.items() if k not in keys}
+    if isinstance(out.get("display"), dict):
+        out["display"] = without_clock(out["display"], keys)
+    return out
+
+
 def assert_same_summary(got: dict, expected: dict, extra: frozenset = frozenset()) -> None:
     """`got` (the monitor's report, compare's run) has `expected`'s keys (`vrsim run --json`) plus
     `extra` (`MONITOR_KEYS` for a monitor's report) and its figures to 1e-9 relative, all but the
@@ -210,6 +219,15 @@ def assert_same_summary(got: dict, expected: dict, extra: frozenset = frozenset(
             continue
         if isinstance(want, float) and not math.isnan(want):
             assert got[key] == pytest.approx(want, rel=1e-9, abs=1e-12), key
+        elif key == "display":   # every figure as shown: the same, but for the wall-clock ones
+            assert set(got[key]) == set(want)
+            for name, shown in without_clock(want).items():
+                assert got[key][name]["unit"] == shown["unit"], name
+                value, seen = shown["value"], got[key][name]["value"]
+                if isinstance(value, float):
+                    assert seen == pytest.approx(value, rel=1e-9, abs=1e-12, nan_ok=True), name
+                else:
+                    assert seen == value, name
         elif key == "scenario_config":   # the same settings as run, wherever the scenario came from
             assert {k: v for k, v in got[key].items() if k not in ORIGIN_KEYS} == \
                 {k: v for k, v in want.items() if k not in ORIGIN_KEYS}

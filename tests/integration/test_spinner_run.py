@@ -72,6 +72,34 @@ def test_at_its_nominal_width_the_interior_is_within_10_pct_and_too_wide_stripes
     assert wide.summary["mae_kg_ha"] > 1.5 * limit.summary["mae_kg_ha"] > 1.5 * nominal.summary["mae_kg_ha"]
 
 
+
+def test_a_spinner_driven_beyond_cv_15_pct_is_warned_with_the_width_that_meets_it(runs):
+    """Above EN 13739's 15 % the summary and the report warn and name the driving width that meets it
+    (the pattern's effective width: the triangle 36 m wide meets it at 24 m, its CV there 14.3 %)."""
+    from services.outputs.summary import text_summary, warnings
+
+    limit, wide = runs["spinner_36m_at_24m"], runs["spinner_36m_at_30m"]
+    assert warnings(limit.summary) == []
+    assert 24.0 < wide.summary["effective_width_m"] < 25.0, wide.summary["effective_width_m"]
+    warned = warnings(wide.summary)
+    assert len(warned) == 1 and f"{wide.summary['cv_pct']:.1f} %" in warned[0], warned
+    assert f"drive at {wide.summary['effective_width_m']:,.2f} m or narrower" in warned[0], warned
+    assert text_summary(wide.summary).endswith(warned[0])
+
+
+def test_a_kind_without_a_spread_pattern_has_no_spread_cv():
+    """Strips side by side (a gated meter) have no spread pattern: the CV and the effective width are
+    null in the JSON and n/a in the text, never a flattering 0 %."""
+    import json
+
+    from services.outputs.summary import summary_json, text_summary
+
+    gated = run(_scenario("rectangle_uniform_ideal"))
+    data = json.loads(summary_json(gated.summary))
+    assert data["cv_pct"] is None and data["effective_width_m"] is None
+    assert "Spread CV (EN 13739)" in text_summary(gated.summary)
+    assert "n/a" in next(line for line in text_summary(gated.summary).splitlines() if "Spread CV" in line)
+
 def test_border_spreading_keeps_the_product_inside_the_field(runs):
     on, off = runs["spinner_36m_at_24m"].summary, runs["spinner_36m_at_24m_no_border"].summary
     assert off["off_target_kg"] > 5.0 and on["off_target_kg"] < 0.05 * off["off_target_kg"]

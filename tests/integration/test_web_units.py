@@ -64,14 +64,16 @@ def test_page_shows_rates_in_lb_ac(net):
             text = "(id) => document.getElementById(id).textContent"
             assert [page.evaluate(text, i) for i in ("vmin", "vmax", "unit")] == ["100", "150", "lb/ac"]
             until(page, "document.getElementById('rateUnit').textContent === 'lb/ac'", timeout=60_000)
-            until(page, "document.getElementById('reportTable').textContent.includes('MAE, lb/ac')",
+            until(page, "document.getElementById('reportTable').textContent"
+                        ".includes('MAE over covered cells, lb/ac')",
                   timeout=60_000)
             rows = page.evaluate("[...document.querySelectorAll('#reportTable tr')]"
                                  ".map((tr) => [...tr.cells].map((c) => c.textContent))")
             report = net.web.json("/api/report")
-            assert ["MAE, lb/ac", f"{report['in_rate_unit']['mae']:.2f}"] in rows, rows
-            assert ["MAE, kg/ha", f"{report['mae_kg_ha']:.2f}"] not in rows
-            until(page, "document.getElementById('statusTable').textContent.includes('live MAE, lb/ac')")
+            assert ["MAE over covered cells, lb/ac", f"{report['in_rate_unit']['mae']:.2f}"] in rows, rows
+            assert ["MAE over covered cells, kg/ha", f"{report['mae_kg_ha']:.2f}"] not in rows
+            until(page, "document.getElementById('statusTable').textContent"
+                        ".includes('per-tick MAE (live), lb/ac')")
             assert errors == []
         finally:
             browser.close()

@@ -64,7 +64,9 @@ def test_the_check_reads_the_zone_rates_not_the_edge_cells_means(tmp_path):
     check = machine_check(grid.rates_kg_ha, (2.38, 2.62), imp, zone_rates_kg_ha=grid.zone_rates_kg_ha)
     assert check.can_apply and check.rates_from == RATES_FROM_ZONES
     assert check.in_rate_unit(grid)["rate_min"] == pytest.approx(10.0)
-    assert "10-10 lb/ac at 2.38-2.62 m/s" in check.text(grid)
+    # As the run prints it: a map in lb/ac shows US units (`[output] units`), "metric" converts its rates.
+    assert "10-10 lb/ac at 5.32-5.86 mph" in check.text(grid)
+    assert "11-11 kg/ha at 2.38-2.62 m/s" in check.text(grid, "metric")
     assert "Rates: the zone rates of the vector map inside the field" in check.text(grid)
     assert 1.0 < check.min_speed_m_s < 2.0
     # Read as cells, an edge cell's 0.156 lb/ac is the lowest rate: 64x the rates, for a 30x shaft.

@@ -1,4 +1,5 @@
 import dataclasses
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -266,7 +267,7 @@ def _accounts(ticks=4, wall_time_s=2.0):
     def part(cls, first):
         return cls(*(float(first + i) for i, _ in enumerate(dataclasses.fields(cls))))
 
-    implement = Implement(width_m=6.0, sections=2)   # a gated meter: its rectangles' cv_pct is 0
+    implement = Implement(width_m=6.0, sections=2)   # a gated meter: no spread pattern, cv_pct n/a
     scenario = SimpleNamespace(name="s", seed=3, implement=implement,
                                timing=SimpleNamespace(control_period_s=0.05))
     grid = SimpleNamespace(map_unit="lb/ac", in_map_unit=lambda kg_ha: kg_ha / 2.0)
@@ -294,7 +295,8 @@ def test_the_summary_reads_each_figure_off_the_accounts_in_table_order():
     assert s["limited_area_pct"] == a.limits.limited_area_pct
     assert (s["ticks"], s["sim_time_s"], s["wall_time_s"], s["realtime_factor"]) == (4, 0.2, 2.0, 0.1)
     assert (s["path_length_m"], s["section_widths_m"], s["sections"]) == (4.5, [3.0, 3.0], 2)
-    assert (s["field_area_ha"], s["max_speed_m_s"], s["cv_pct"]) == (1.5, 4.0, 0.0)
+    assert (s["field_area_ha"], s["max_speed_m_s"]) == (1.5, 4.0)
+    assert math.isnan(s["cv_pct"]) and math.isnan(s["effective_width_m"])
     assert summary(_accounts(ticks=0))["path_length_m"] == 0.0
 
 

@@ -108,13 +108,12 @@ class Machine(ABC):
         nozzles pass less of a denser liquid); a shaft's does not."""
         return self.implement.shaft_limited(control["drive_target_rpm"]).any(axis=1)
 
-    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray]:
-        """What one straight pass lays across its path with every section open: lateral offsets (m,
-        increasing, left positive) and relative mass per metre there (linear between, zero beyond),
-        for the spread-pattern figures (`services.sim.spread_pattern`). By default a rectangle of the
-        working width (strips side by side)."""
-        half_m = self.implement.width_m / 2
-        return np.array([-half_m, half_m]), np.ones(2)
+    def transverse_pattern(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """What one straight pass lays across its path with every section open, for the spread-pattern
+        figures (`services.sim.spread_pattern`): lateral offsets (m, increasing, left positive) and
+        relative mass per metre there (linear between, zero beyond); None for a kind without a spread
+        pattern (strips side by side: a spread CV does not apply to it), the default."""
+        return None
 
     @abstractmethod
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:

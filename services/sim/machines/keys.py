@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 
 from common import ScenarioError, VrsimError
-from services.sim.tables import build, no_unknown
+from services.sim.tables import build, no_unknown, with_units
 from vehicle import Implement
 from vehicle.machines import DEFAULT_KIND, SPECS, key_owner, spec_class, spec_keys
 
@@ -27,6 +27,8 @@ def implement_from_table(table: dict, source: str, base_dir: str = ".") -> Imple
         spec = spec_class(kind)
     except VrsimError as exc:
         raise ScenarioError(f"{source}: [implement] {exc}") from None
+    # Lengths, speeds and pressures given with a unit ("120 ft"), under the key's own name (width_m).
+    table = with_units(table, IMPLEMENT_KEYS | set(spec_keys(kind)), source, "implement")
     # A key the kind has no use for, set to anything but its default, would be silently ignored; at its
     # default (a file written for another kind, its kind changed by --set) it changes nothing.
     unused = sorted(k for k in set(table) & set(spec.UNUSED_KEYS) if table[k] != _DEFAULTS[k])

@@ -34,15 +34,16 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from common import ScenarioError, VehicleError, VrsimError
 from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
-from services.sim.limits import MachineCheck, rate_text
+from maps.units import in_units, shown_range
+from services.sim.limits import MachineCheck, check_units, rate_text
 from services.sim.machines.base import Machine
 from services.sim.machines.registry import register_machine
-from services.sim.metrics import RATE_UNIT
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -309,6 +310,7 @@ class _SprayerCheck(MachineCheck):
         are of it (the text says so when it is not water's).
     """
 
+    RPM_UNIT: ClassVar[str] = "L/min"  # ``rpm_*``, ``shaft_rpm_*``: the boom's flows
     nozzle: str = ""
     nozzle_flow_min_l_min: float = math.nan
     nozzle_flow_max_l_min: float = math.nan
@@ -317,28 +319,32 @@ class _SprayerCheck(MachineCheck):
     nozzles_advised: tuple[str, ...] = ()
     density_kg_l: float = 1.0
 
-    def text(self, grid=None) -> str:
+    def text(self, grid=None, units: str | None = None) -> str:
         """The verdict, the speeds at which the nozzles stay in range and, if it cannot, what to change;
-        the rates in L/ha and in the unit of `grid` (`in_rate_unit`; None: kg/ha)."""
+        the rates in L/ha (gal/ac in "us") and in the unit of `grid` (`in_rate_unit`; None: kg/ha) where
+        that differs, every figure as shown in `units` (`maps.units.in_units`; None: in the system of
+        the map's unit, as the run shows them)."""
         if not math.isfinite(self.rate_max_kg_ha):
             return "Machine check: the map asks for no product inside the field."
+        units = check_units(grid, units)
         verdict = "can apply the map" if self.can_apply else "CANNOT apply the whole map"
-        lo_l, hi_l = self.rate_min_kg_ha / self.density_kg_l, self.rate_max_kg_ha / self.density_kg_l
-        rates, unit = self.in_rate_unit(grid), RATE_UNIT if grid is None else grid.map_unit
-        lo, hi = rate_text(rates["rate_min"]), rate_text(rates["rate_max"])
-        also = "" if unit == "L/ha" else f"({lo}-{hi} {unit}) "
+        (lo_l, per_area), (hi_l, _) = (in_units(rate / self.density_kg_l, "L/ha", units)
+                                       for rate in (self.rate_min_kg_ha, self.rate_max_kg_ha))
+        rates = self.rates_text(grid, units)
+        also = "" if rates.endswith(f" {per_area}") else f"({rates}) "
         liquid = ("" if self.density_kg_l == WATER_DENSITY_KG_L else
                   f" of a {self.density_kg_l:g} kg/L liquid ({density_flow_factor(self.density_kg_l):.3f} "
                   "times water's)")
-        lines = [f"Machine check: the sprayer {verdict}: {lo_l:.0f}-{hi_l:.0f} L/ha {also}at "
-                 f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s needs {self.rpm_min:.1f}-"
-                 f"{self.rpm_max:.1f} L/min of a boom of {self.nozzle!r} nozzles giving "
-                 f"{self.shaft_rpm_min:.1f}-{self.shaft_rpm_max:.1f} L/min{liquid}.",
-                 self.rates_line(), self.speeds_line()]
+        lines = [f"Machine check: the sprayer {verdict}: {rate_text(lo_l)}-{rate_text(hi_l)} {per_area} "
+                 f"{also}at {shown_range(self.speed_min_m_s, self.speed_max_m_s, 'm/s', units)} needs "
+                 f"{shown_range(self.rpm_min, self.rpm_max, 'L/min', units, '.1f')} of a boom of "
+                 f"{self.nozzle!r} nozzles giving "
+                 f"{shown_range(self.shaft_rpm_min, self.shaft_rpm_max, 'L/min', units, '.1f')}{liquid}.",
+                 self.rates_line(), self.speeds_line(units)]
         if not self.can_apply:
-            speeds = f"{self.speed_min_m_s:.2f}-{self.speed_max_m_s:.2f} m/s"
+            speeds = shown_range(self.speed_min_m_s, self.speed_max_m_s, "m/s", units)
             sizes = " or ".join(repr(size) for size in self.nozzles_advised)
-            lines.append(self.speed_remedy())
+            lines.append(self.speed_remedy(units))
             lines.append(f"  set [implement] nozzle = {sizes} (now {self.nozzle!r}) to apply it at {speeds}."
                          if sizes else f"  no other nozzle size applies it at {speeds}.")
         return "\n".join(lines)
