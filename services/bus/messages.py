@@ -457,6 +457,7 @@ class RunStatus(Message):
     wall_s: float  # wall time since the run started (building the world and SUMO's network included)
     drive_s: float  # wall time since the first tick
     error: str  # why it failed ("" otherwise)
+    speed: float = 1.0  # the real-time factor asked (`RunStart.speed`; the realtime clock's pace)
 
 
 @_message

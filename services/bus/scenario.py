@@ -168,7 +168,8 @@ class _Launch:
         """The fields of `messages.RunStatus` for this launch."""
         return {"state": self.state, "run_id": "" if self.state == "starting" else self.start.run_id,
                 "scenario": self.scenario, "clock": self.start.clock, "ticks": 0, "sim_time_s": 0.0,
-                "wall_s": time.monotonic() - self.t0, "drive_s": 0.0, "error": self.error}
+                "wall_s": time.monotonic() - self.t0, "drive_s": 0.0, "error": self.error,
+                "speed": self.start.speed}
 
     def end(self) -> messages.RunEnd:
         return messages.RunEnd(self.start.run_id, self.state, 0, 0.0, self.error[:_MAX_END_ERROR_CHARS])
@@ -336,6 +337,7 @@ class _ScenarioService:
             "sim_time_s": vehicle["sim_time_s"] if vehicle else 0.0,
             "wall_s": vehicle["wall_s"] if vehicle else 0.0,
             "drive_s": vehicle["drive_s"] if vehicle else 0.0,
+            "speed": vehicle["speed"] if vehicle else None,
             "monitor_ticks": monitor["ticks"] if monitor else None,
             "live_mae_kg_ha": monitor["live_mae_kg_ha"] if monitor else None,
             "error": vehicle["error"] if vehicle else silent,
@@ -347,6 +349,7 @@ class _ScenarioService:
                                                                  or vehicle["run_id"] != launch.start.run_id):
             # it has not reached the vehicle (yet): the monitor's figures would be an older run's
             out.update(launch.status(), monitor_ticks=None, live_mae_kg_ha=None)
+        out.update(_realtime_factors(out["clock"], out.pop("speed"), out["sim_time_s"], out["drive_s"]))
         out["accepted_run_id"] = launch.start.run_id if launch is not None else ""
         return dumps(out)
 
@@ -364,6 +367,15 @@ class _ScenarioService:
 
     def handlers(self) -> dict:
         return {"start": self.start, "status": self.status, "stop": self.stop}
+
+
+def _realtime_factors(clock: str, speed_asked, sim_time_s: float, drive_s: float) -> dict:
+    """``realtime_factor_asked``: the speed a realtime run was asked to keep (None for lockstep, which
+    runs as fast as the controller answers); ``realtime_factor``: what the run kept, simulated seconds
+    per wall second since its first tick (None before it)."""
+    asked = float(speed_asked) if clock == "realtime" and isinstance(speed_asked, (int, float)) else None
+    kept = sim_time_s / drive_s if drive_s > 0 else None
+    return {"realtime_factor_asked": asked, "realtime_factor": kept}
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

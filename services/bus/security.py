@@ -13,7 +13,9 @@ that someone else owns is refused. It holds
 - ``dictionary.txt``: ``user:password`` lines, the router's dictionary;
 - ``<user>.json5``: a complete client configuration per user (mode, endpoint, credentials, CA), so a
   plain zenoh program logs in with ``zenoh.Config.from_file(".vrsim/viewer.json5")``;
-- ``tls/``: ``ca.pem``, ``router.pem``, ``router-key.pem`` when TLS is on.
+- ``tls/``: ``ca.pem``, ``router.pem``, ``router-key.pem`` when TLS is on;
+- ``.gitignore``: ``*``, so that the folder never shows in a git checkout it lies in (as pytest's
+  cache does); written when missing.
 
 Users: one per service (`SERVICE_USERS`) and two people roles, ``operator`` (start and stop runs,
 query every key, subscribe to everything) and ``viewer`` (query the read-only keys and subscribe;
@@ -45,6 +47,8 @@ PEOPLE_USERS = ("operator", "viewer")
 USERS = SERVICE_USERS + PEOPLE_USERS
 DICTIONARY = "dictionary.txt"
 TLS_DIR = "tls"
+GITIGNORE = ".gitignore"  # "*": the credentials never show as untracked in a user's git checkout
+GITIGNORE_TEXT = b"# written by vrsim: the bus's credentials, never to be committed\n*\n"
 TLS_FILES = ("ca.pem", "router.pem", "router-key.pem")
 TLS_HOSTS = ("localhost", "127.0.0.1", "::1")
 TLS_VALID_DAYS = 825  # the longest validity common TLS clients accept for a server certificate
@@ -249,6 +253,8 @@ def prepare_state(folder: str = DEFAULT_STATE_DIR, tls: bool = False, rotate: bo
     """
     folder = os.path.abspath(folder)
     _private_dir(folder, create=True)
+    if not os.path.lexists(os.path.join(folder, GITIGNORE)):
+        _write_private(os.path.join(folder, GITIGNORE), GITIGNORE_TEXT)
     passwords = {} if rotate else _read_dictionary(folder)
     for user in users:
         passwords.setdefault(user, secrets.token_urlsafe(PASSWORD_BYTES))

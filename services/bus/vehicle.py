@@ -52,7 +52,7 @@ class _VehicleService:
             self.stop_flag.clear()
             self.wall0, self.drive0 = time.monotonic(), None
             self.status = messages.RunStatus("starting", start.run_id, sc.name, start.clock, 0, 0.0, 0.0, 0.0,
-                                             "")
+                                             "", start.speed)
             # The world is built in the worker, so that status and stop answer while it is built.
             self.worker = threading.Thread(target=self._run, args=(start, sc), name="vrsim-drive",
                                            daemon=True)

@@ -25,7 +25,7 @@ import numpy as np
 from common import ScenarioError, files
 from controller import ControllerConfig
 from maps import AsApplied, Grid
-from services.sim import metrics
+from services.sim import ticks
 from services.sim.accounting import (
     Accounts,
     Deposit,
@@ -38,6 +38,7 @@ from services.sim.accounting import (
 from services.sim.as_run import as_run
 from services.sim.aslog import run_point_log
 from services.sim.core import ControlCore
+from services.sim.display import run_summary
 from services.sim.kept import Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
@@ -66,7 +67,23 @@ class RunResult:
     """What a run measured and its accounts: the track and what the sensors read on it, the control
     loop's arrays, the sections' gates, the as-applied raster and the figures (``summary``, from
     `services.sim.metrics.METRICS` over `accounts`; callers add their own keys, such as ``out_dir``).
-    The world, the track, where product landed and the field's cells are the accounts' `Setting`'s."""
+    The world, the track, where product landed and the field's cells are the accounts' `Setting`'s.
+
+    Per tick (arrays of shape (ticks,), 50 ms ticks by default; docs/api.md lists every attribute):
+    ``track`` (dict: the true path), ``measured_*`` (the sensors), ``control`` (dict keyed as
+    `services.sim.core.CONTROL_KEYS`: the controller's look-ahead point and rate, target and actual
+    shaft speed, current, metered kg, open width, the gates), ``landing`` (`services.sim.landing.
+    Landing`: where each tick's product landed, the prescription there and the applied rate). One
+    table of them all: `to_pandas` (`services.sim.ticks.tick_columns`).
+
+    NaN in the per-tick rates: ``landing.applied_kg_ha`` (and the table's ``applied_kg_ha``) is a
+    tick's metered kg over the strip its open sections covered, so it is NaN where no section is open
+    or the strip is under 1 cm: with the implement lifted (turns, headland, the way to the first
+    pass), with every section closed over covered ground, at a standstill (13.6 % of the default
+    run's ticks: 12.8 % lifted, 0.8 % all sections closed). ``landing.prescribed_kg_ha`` and
+    ``control["prescribed_kg_ha"]`` are NaN off the map. The run's figures (``summary``) are over the
+    as-applied raster's cells, not over these ticks.
+    """
 
     measured_x_m: np.ndarray
     measured_y_m: np.ndarray
@@ -85,7 +102,7 @@ class RunResult:
     summary: dict = field(init=False)
 
     def __post_init__(self):
-        self.summary = metrics.summary(self.accounts)
+        self.summary = run_summary(self.accounts)   # and ``units``, the system its figures are shown in
 
     @property
     def world(self) -> World:
@@ -160,6 +177,16 @@ class RunResult:
     @property
     def stage_s(self) -> dict:
         return self.accounts.timing.stage_s
+
+    def tick_columns(self) -> dict[str, np.ndarray]:
+        """Every per-tick array under one name each, units in the names (`services.sim.ticks.
+        tick_columns` lists them); a `VrsimError` for a run accounted part by part (``bounded``)."""
+        return ticks.tick_columns(self)
+
+    def to_pandas(self):
+        """The per-tick table: a `pandas.DataFrame`, one row per tick (index ``tick``), the columns of
+        `tick_columns`. NaN rates: see the class docstring."""
+        return ticks.to_pandas(self)
 
 
 @dataclass

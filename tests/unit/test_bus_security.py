@@ -135,3 +135,24 @@ def test_settings_apply_to_a_zenoh_config(tmp_path):
     loaded = zenoh.Config.from_file(paths["operator"])
     assert loaded.get_json("transport/auth/usrpwd/user") == '"operator"'
     assert mode(paths["operator"]) == 0o600
+
+
+def test_the_state_folder_never_shows_as_untracked_in_a_git_checkout(tmp_path):
+    import shutil
+    import subprocess
+
+    git = shutil.which("git")
+    if git is None:
+        pytest.skip("git is not installed")
+    subprocess.run([git, "init", "-q", str(tmp_path)], check=True)
+    (tmp_path / "field.geojson").write_text("{}")
+    state = security.prepare_state(str(tmp_path / security.DEFAULT_STATE_DIR), tls=True)
+    shown = subprocess.run([git, "status", "--porcelain", "--untracked-files=all"], cwd=tmp_path,
+                           capture_output=True, text=True, check=True).stdout
+    assert shown == "?? field.geojson\n"  # the user's own file shows; nothing of the state folder does
+    ignore = os.path.join(state.folder, security.GITIGNORE)
+    assert mode(ignore) == 0o600 and open(ignore, "rb").read() == security.GITIGNORE_TEXT
+    os.unlink(ignore)  # a folder made before vrsim wrote one gets it on the next start
+    security.prepare_state(state.folder)
+    assert os.path.exists(ignore)
+    assert security.load_state(state.folder).passwords == state.passwords

@@ -33,6 +33,7 @@ from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from common import VrsimError
+from services.bus.web import upload
 from services.bus.web.auth import LoginGate, Logins, SecurityHeaders, csrf_ok
 from services.bus.web.bridge import RUN_ID, Bridge, Operator
 from services.bus.web.live import FRAME_S, LiveView
@@ -281,6 +282,8 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
             operator.check("start", params)
         except VrsimError as exc:
             return _error(400, str(exc))
+        if request.headers.get("content-type", "").startswith("multipart/form-data"):
+            return await _start_uploaded(request, operator, params, bridge.data_root())
         body = await _body(request, MAX_SCENARIO_BYTES)
         if body is None:
             return _error(413, f"/api/start: the scenario is larger than {MAX_SCENARIO_BYTES} bytes")
@@ -316,6 +319,61 @@ def create_app(view: LiveView, bridge: Bridge, operator: Operator | None, logins
     # Outside Starlette (whose error handler is outermost within it): every answer, a refused Host's
     # and a 500 too, carries the frame and content headers.
     return SecurityHeaders(app)
+
+
+class _TooLarge(Exception):
+    """A request body past its cap (raised while it is read)."""
+
+
+def _capped(request: Request, limit: int) -> Request:
+    """``request`` whose body raises `_TooLarge` once more than ``limit`` bytes came (counted, not
+    trusted from Content-Length)."""
+    seen = 0
+
+    async def receive():
+        nonlocal seen
+        message = await request.receive()
+        seen += len(message.get("body", b""))
+        if seen > limit:
+            raise _TooLarge
+        return message
+
+    return Request(request.scope, receive)
+
+
+async def _start_uploaded(request: Request, operator: Operator, params: dict,
+                          data_root: str | None) -> Response:
+    """``/api/start`` with a multipart body: the scenario and its files (`upload.save`) kept under the
+    data root, then started from there."""
+    from starlette.concurrency import run_in_threadpool
+    from starlette.datastructures import UploadFile
+    from starlette.formparsers import MultiPartException
+
+    if data_root is None:
+        return _error(400, "/api/start: this web service keeps no uploads (it has no data root); send the "
+                           "scenario's TOML text alone")
+    too_large = _error(413, f"/api/start: the upload is larger than {upload.MAX_UPLOAD_BYTES >> 20} MB")
+    declared = request.headers.get("content-length", "")
+    if declared.isdigit() and int(declared) > upload.MAX_UPLOAD_BYTES:
+        return too_large  # said before it is sent; a body that says less is counted as it comes
+    try:
+        async with _capped(request, upload.MAX_UPLOAD_BYTES).form(
+                max_files=upload.MAX_FILES, max_fields=1, max_part_size=1024) as form:
+            items = form.multi_items()
+            fields = [key for key, value in items if not isinstance(value, UploadFile)]
+            if fields:
+                return _error(400, f"/api/start: form field {fields[0][:40]!r}: the upload takes files only")
+            parts = [(value.filename, value.file) for _, value in items]
+            kept = await run_in_threadpool(upload.save, parts, data_root)
+    except _TooLarge:
+        return too_large
+    except MultiPartException as exc:
+        return _error(400, f"/api/start: not a readable upload: {exc.message}")
+    except upload.UploadError as exc:
+        return _error(exc.status, str(exc))
+    except OSError as exc:
+        return _error(507, f"/api/start: the upload could not be kept under the data root: {exc.strerror}")
+    return await _bus(operator.start_uploaded, kept, params)
 
 
 async def _bus(fn, *args) -> Response:

@@ -67,6 +67,7 @@ class Bridge:
         self.map_png: bytes | None = None
         self.map_scale: dict | None = None
         self.map_version = 0
+        self.map_rates: np.ndarray | None = None  # the rates map_png shows (kg/ha per view cell)
         self.jobs: queue.Queue = queue.Queue()
         self.stop = threading.Event()
         self.threads: list[threading.Thread] = []
@@ -93,7 +94,7 @@ class Bridge:
         if not RUN_ID.match(run_id):  # it goes into selectors: scenario control never makes such ids
             print(f"vrsim serve web: not following run {run_id[:80]!r}: not a run id", file=sys.stderr)
             return
-        self.jobs.put(("map", None))
+        self.jobs.put(("map", run_id))  # a new run: its map may be a new one with the same info
         self.jobs.put(("run", run_id))
         if catch_up:
             self.jobs.put(("catchup", run_id))
@@ -113,7 +114,8 @@ class Bridge:
             thread.join(timeout=5.0)
 
     def _work(self) -> None:
-        jobs = {"map": lambda _: self.refresh_map(), "run": self.load_run, "catchup": self.catch_up}
+        jobs = {"map": lambda run_id: self.refresh_map(new_run=run_id is not None), "run": self.load_run,
+                "catchup": self.catch_up}
         while not self.stop.is_set():
             kind, arg = self.jobs.get()
             if kind == "stop":
@@ -157,6 +159,10 @@ class Bridge:
                 return
 
     # ---------------------------------------------------------------- queries (the /api views too)
+    def data_root(self) -> str | None:
+        """Where uploads are kept (`services.bus.web.upload`): the data root, None without one."""
+        return None if self.data is None else self.data.root
+
     def query(self, selector: str, timeout_s: float = QUERY_TIMEOUT_S):
         """One query's JSON reply (a `ServiceError` with the service's message otherwise)."""
         return client.request_json(self.session, selector, timeout_s=timeout_s)
@@ -172,16 +178,22 @@ class Bridge:
         return _object(self.query(selector, REPORT_TIMEOUT_S), "report")
 
     # ---------------------------------------------------------------- jobs
-    def refresh_map(self) -> None:
+    def refresh_map(self, new_run: bool = False) -> None:
         """The prescription the map service serves now, sampled at the view grid's cell centres and
-        rendered once to a PNG; skipped when nothing changed."""
+        rendered once to a PNG; skipped when its info is unchanged, unless for a ``new_run`` (whose
+        map may hold other rates under the same info: then its rates are compared)."""
         info = self.map_info()
         grid = ViewGrid.from_info(info)
         current = self.view.map
-        if current is not None and current["info"] == info and current["grid"] == grid:
+        same = current is not None and current["info"] == info and current["grid"] == grid
+        if same and not new_run:
+            return
+        rates = self._rates(grid)
+        if same and self.map_rates is not None and np.array_equal(rates, self.map_rates, equal_nan=True):
             return
         colours = picture.scale(info)
-        png = picture.render_png(self._rates(grid), grid.rows, grid.cols, colours)
+        png = picture.render_png(rates, grid.rows, grid.cols, colours)
+        self.map_rates = rates
         self.map_png, self.map_scale = png, colours
         self.map_version += 1
         if self.view.set_map(info, grid, self.map_version) and self.view.run_id:
@@ -281,6 +293,7 @@ class Operator:
 
     PARAMS = ("clock", "speed", "ticks_per_message")
     _VALUE = re.compile(r"^[A-Za-z0-9._-]{1,32}$")
+    _PATH = re.compile(r"^/[^;=?#&\s\x00-\x1f]{0,4000}$")  # an absolute path a selector carries as it is
 
     def __init__(self, options: ZenohOptions):
         self.keys = options.keys
@@ -293,11 +306,25 @@ class Operator:
                 raise ServiceError(f"/api/{verb}: parameter {name}={value[:40]!r} is not one of "
                                    f"{', '.join(self.PARAMS)} with a plain value")
 
-    def request(self, verb: str, body: bytes | None = None, params: dict | None = None) -> dict:
-        """``<prefix>/scenario/<verb>`` (start or stop) with ``body`` and selector ``params``: the one
-        function through which the web service writes to the bus."""
+    def start_uploaded(self, kept, params: dict) -> dict:
+        """``scenario/start`` of an upload (`services.bus.web.upload.Upload`): its text, named by its
+        path, its relative paths resolved in its folder."""
+        where = {"source": kept.source, "base_dir": kept.base_dir}
+        for name, path in where.items():
+            if not self._PATH.match(path):
+                raise ServiceError(f"/api/start: the upload's {name} {path[:200]!r} holds characters a "
+                                   "selector cannot carry (';', '=', '?', '#', '&', spaces): give the "
+                                   "services a --data-root without them")
+        return self.request("start", kept.text.encode(), params, where)
+
+    def request(self, verb: str, body: bytes | None = None, params: dict | None = None,
+                where: dict | None = None) -> dict:
+        """``<prefix>/scenario/<verb>`` (start or stop) with ``body`` and selector ``params`` (and the
+        ``source`` and ``base_dir`` of an upload, ``where``): the one function through which the web
+        service writes to the bus."""
         params = params or {}
         self.check(verb, params)
+        params = {**params, **(where or {})}
         selector = self.keys.scenario(verb) + ("?" + ";".join(f"{k}={v}" for k, v in params.items())
                                                if params else "")
         return _object(client.request_json(self.session, selector, body or None, timeout_s=120.0,

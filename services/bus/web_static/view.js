@@ -17,10 +17,13 @@
     connected: false, events: 0, hellos: 0, frames: 0, runId: "", role: "viewer",
     pose: null, shaft: null, rate: null, status: null, report: null, catchup: null,
     tractorMoves: 0, appliedCells: 0, points: 0, mapVersion: null, mapLoaded: false, draws: 0,
+    mapShown: null, // the map version whose prescription the canvas shows (null: none yet)
+    run: {}, reportPartial: null, realtime: null,
   });
 
   let view = null; // /api/view
   let mapImg = null; // the prescription PNG
+  let mapImgVersion = null; // the map version mapImg is of
   let grid = null; // view grid: west_m, north_m, cell_x_m, cell_y_m, rows, cols
   let values = null; // Float32Array rows*cols of applied kg/ha (NaN: not yet)
   let layer = null; // offscreen canvas of the applied layer, one pixel per cell
@@ -107,6 +110,7 @@
     if (hello) {
       S.hellos++;
       run = doc.run || {};
+      S.run = run;
       S.runId = doc.run_id;
       S.catchup = doc.catchup;
       points = [];
@@ -154,6 +158,7 @@
       if (!doc.map) return;
       grid = doc.map.grid;
       S.mapVersion = doc.map.version;
+      if (mapImgVersion !== doc.map.version) { mapImg = null; mapImgVersion = null; S.mapLoaded = false; }
       values = new Float32Array(grid.rows * grid.cols).fill(NaN);
       layer = document.createElement("canvas");
       layer.width = grid.cols;
@@ -166,9 +171,13 @@
       $("mapinfo").textContent = `${info.source} · ${info.crs} · ${grid.cols}×${grid.rows} cells of ` +
         `${grid.cell_x_m.toFixed(1)} m`;
       // Fetched with the key (an <img src> could not send it), decoded without a URL of its own.
+      const version = doc.map.version;
       fetch(doc.map.png, { headers: withKey() }).then((r) => (r.ok ? r.blob() : Promise.reject(r.status)))
         .then((blob) => createImageBitmap(blob))
-        .then((bitmap) => { mapImg = bitmap; S.mapLoaded = true; dirty = true; })
+        .then((bitmap) => {
+          if (request !== viewRequests) return; // a newer map is on its way
+          mapImg = bitmap; mapImgVersion = version; S.mapLoaded = true; dirty = true;
+        })
         .catch(() => {});
       dirty = true;
     }).catch(() => { if (request === viewRequests) S.mapVersion = null; });
@@ -246,7 +255,7 @@
     const ox = (cssW - wM * scale) / 2, oy = (cssH - hM * scale) / 2;
     const X = (x) => ox + (x - grid.west_m) * scale, Y = (y) => oy + (grid.north_m - y) * scale;
     const which = document.querySelector("input[name=layer]:checked").value;
-    const key = [cv.width, cv.height, S.mapVersion, S.mapLoaded, S.runId, !!run.field, which].join();
+    const key = [cv.width, cv.height, S.mapVersion, mapImgVersion, S.runId, !!run.field, which].join();
     if (key !== backgroundKey) {
       backgroundKey = key;
       background = drawBackground(cv.width, cv.height, dpr, X, Y, ox, oy, wM * scale, hM * scale, which);
@@ -296,6 +305,7 @@
     const c = bg.getContext("2d");
     c.setTransform(dpr, 0, 0, dpr, 0, 0);
     c.imageSmoothingEnabled = false;
+    S.mapShown = mapImg ? mapImgVersion : null;
     if (mapImg && which !== "applied") {
       c.globalAlpha = which === "both" ? 0.35 : 1;
       c.drawImage(mapImg, ox, oy, w, h);
@@ -367,12 +377,22 @@
   // ------------------------------------------------------------------ tables
   const STATUS_ROWS = [
     ["state", "state"], ["scenario", "scenario"], ["clock", "clock"], ["ticks", "ticks", 0],
-    ["sim time, s", "sim_time_s", 1], ["wall time, s", "wall_s", 1], ["monitor ticks", "monitor_ticks", 0],
-    ["live MAE, kg/ha", "live_mae_kg_ha", 2], ["services missing", "missing"], ["error", "error"],
+    ["sim time, s", "sim_time_s", 1], ["wall time, s", "wall_s", 1],
+    ["real time ×, asked / kept", "realtime"], ["monitor ticks", "monitor_ticks", 0],
+    ["per-tick MAE (live), kg/ha", "live_mae_kg_ha", 2], ["services missing", "missing"], ["error", "error"],
   ];
+  // What each MAE is (the two differ by definition: docs/api.md, "The web page").
+  const TITLES = {
+    live_mae_kg_ha: "mean |applied − prescribed| over the rate samples with the implement on, each tick alike, " +
+      "the prescription taken at the landing point the controller predicted (the monitor's live figure)",
+    mae_kg_ha: "mean |applied − prescribed| over the covered cells of the as-applied map, product put where it " +
+      "landed on the true path (the report's figure, as vrsim run reports it; docs/metrics.md)",
+    realtime: "simulated seconds per wall second since the first tick: asked (realtime clock) and kept",
+  };
   const REPORT_ROWS = [
     ["applied, kg", "applied_kg", 1], ["prescribed, kg", "prescribed_kg", 1],
-    ["mass balance, %", "mass_balance_pct", 2], ["MAE, kg/ha", "mae_kg_ha", 2], ["RMSE, kg/ha", "rmse_kg_ha", 2],
+    ["mass balance, %", "mass_balance_pct", 2], ["MAE over covered cells, kg/ha", "mae_kg_ha", 2],
+    ["RMSE, kg/ha", "rmse_kg_ha", 2],
     ["bias, kg/ha", "bias_kg_ha", 2], ["within ±5 %, % area", "within_5pct_area_pct", 1],
     ["within ±10 %, % area", "within_10pct_area_pct", 1], ["coverage, %", "coverage_pct", 1],
     ["transitions", "transitions", 0], ["transition time, s", "transition_time_s_mean", 2],
@@ -390,6 +410,7 @@
       tr.innerHTML = "<td></td><td></td>";
       tr.cells[0].textContent = label;
       tr.cells[1].textContent = v;
+      if (TITLES[key]) tr.title = TITLES[key];
       return tr;
     }));
   }
@@ -398,8 +419,20 @@
     return v.toFixed(digits).replace(/^-(0\.?0*)$/, "$1"); // no "-0.00"
   }
 
+  // "×40 / ×13.5" (realtime), "as fast as it goes / ×310" (lockstep); S.realtime for scripts and tests.
+  function realtimeText(st) {
+    const asked = st.realtime_factor_asked, kept = st.realtime_factor;
+    const x = (v) => `×${v >= 100 ? v.toFixed(0) : v >= 10 ? v.toFixed(1) : v.toFixed(2)}`;
+    S.realtime = { asked: typeof asked === "number" ? asked : null, kept: typeof kept === "number" ? kept : null };
+    const a = typeof asked === "number" ? x(asked) : st.clock === "lockstep" ? "as fast as it goes" : "-";
+    const k = typeof kept === "number" ? x(kept) : "-";
+    const short = typeof asked === "number" && typeof kept === "number" && kept < 0.9 * asked &&
+      st.state === "running" ? " (behind)" : "";
+    return `${a} / ${k}${short}`;
+  }
+
   function showStatus(st) {
-    const [unit, factor] = rateUnit(), doc = { ...st };
+    const [unit, factor] = rateUnit(), doc = { ...st, realtime: realtimeText(st) };
     if (typeof st.live_mae_kg_ha === "number") doc.live_mae_kg_ha = st.live_mae_kg_ha * factor;
     fill("statusTable", STATUS_ROWS.map(([l, k, d]) => [l.replace("kg/ha", unit), k, d]), doc);
     $("state").textContent = st.state;
@@ -410,6 +443,7 @@
   function showReport(rep) {
     const unit = typeof rep.rate_unit === "string" ? rep.rate_unit : null, own = rep.in_rate_unit || {};
     const doc = { ...rep };
+    showPartial(rep);
     const rows = REPORT_ROWS.map(([label, key, digits]) => {
       const v = own[key.replace(/_kg_ha$/, "")];
       if (!unit || !key.endsWith("_kg_ha") || typeof v !== "number") return [label, key, digits];
@@ -417,6 +451,22 @@
       return [label.replace("kg/ha", unit), key, digits];
     });
     fill("reportTable", rows, doc);
+  }
+
+  // A report that is not of a whole finished run says so: its coverage and mass balance are of the
+  // ticks so far (the monitor's `complete`, `end_reason`, `missing_ticks`).
+  function showPartial(rep) {
+    const partial = rep.complete !== true, ticks = typeof rep.ticks === "number" ? rep.ticks : "?";
+    const why = {
+      unknown: `the run so far, ${ticks} ticks: not final`,
+      stopped: `the run was stopped after ${ticks} ticks`,
+      failed: `the run failed after ${ticks} ticks`,
+      interrupted: `the run was interrupted after ${ticks} ticks`,
+      finished: "ticks missing from the monitor's records",
+    }[rep.end_reason] || `${ticks} ticks: not final`;
+    S.reportPartial = partial;
+    $("reportTable").classList.toggle("partial", partial);
+    $("reportState").textContent = partial ? `partial: ${why}` : "final: the whole run";
   }
 
   function showCatchup() {
@@ -431,13 +481,20 @@
   async function operate(verb) {
     $("opmsg").textContent = "";
     let url = `/api/${verb}`, body = null;
+    const headers = { "Content-Type": "text/plain", "X-CSRF-Token": csrf };
     if (verb === "start") {
       url += `?clock=${encodeURIComponent($("clock").value)}&speed=${encodeURIComponent($("speed").value)}`;
-      const file = $("scenario").files[0];
-      body = file ? await file.text() : "";
+      // The scenario with the files it names (or a .zip of them): uploaded, kept by the service under its
+      // data root and started from there. None: the built-in default.
+      const chosen = [...$("scenario").files];
+      body = "";
+      if (chosen.length) {
+        body = new FormData();
+        for (const f of chosen) body.append("files", f, f.name);
+        delete headers["Content-Type"]; // the browser sets multipart/form-data with its boundary
+      }
     }
-    const r = await fetch(url, { method: "POST", body,
-      headers: withKey({ "Content-Type": "text/plain", "X-CSRF-Token": csrf }) });
+    const r = await fetch(url, { method: "POST", body, headers: withKey(headers) });
     const doc = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
     if (!r.ok) $("opmsg").textContent = doc.error || `HTTP ${r.status}`;
   }
