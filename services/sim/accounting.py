@@ -30,7 +30,7 @@ from maps import Grid
 from services.sim.landing import M2_PER_HA, Landing
 from services.sim.limits import MachineCheck, machine_check, working_speeds
 from services.sim.machines import machine_for
-from services.sim.metrics import (
+from services.sim.metric_formulas import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,

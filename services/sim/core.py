@@ -16,7 +16,8 @@ from controller.context import ContextTrack
 from maps import Grid, RatePolicy
 from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
 from services.sim.machines import machine_for
-from services.sim.scenario import Scenario, as_dict
+from services.sim.resolve import config_as_run, plant_for  # noqa: F401 - config_as_run: re-exported
+from services.sim.scenario import Scenario
 from services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
 from services.sim.sections.motion import Motion
 from vehicle.product import metered_kg
@@ -27,14 +28,6 @@ RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, p
 TUNE_CHUNK = 400    # with the look-ahead tune: ticks looked up ahead (re-done after each tuner update)
 
 
-def plant_for(scenario: Scenario) -> PlantParams:
-    """The scenario's plant with the implement's transmission ratio and shaft-speed limit: the machine
-    is described once, in ``[implement]``."""
-    imp = scenario.implement
-    return dataclasses.replace(scenario.plant, transmission_ratio=imp.transmission_ratio,
-                               shaft_rpm_max=imp.shaft_rpm_max)
-
-
 def machine_plant(scenario: Scenario, grid: Grid, machine=None) -> PlantParams:
     """The plant each metering drive's loop closes: the kind's (`Machine.loop_plant`), from `plant_for`'s,
     with the machine's dead time (``[response] dead_time_s``) inside the loop, on its sensor's delay.
@@ -43,13 +36,6 @@ def machine_plant(scenario: Scenario, grid: Grid, machine=None) -> PlantParams:
     plant = machine.loop_plant(plant_for(scenario), scenario, grid)
     dead_s = scenario.response.dead_time_s
     return plant if dead_s == 0 else dataclasses.replace(plant, sensor_delay_s=plant.sensor_delay_s + dead_s)
-
-
-def config_as_run(scenario: Scenario) -> dict:
-    """The scenario as plain data with the parameters as the run used them (the plant with the
-    implement's transmission ratio and shaft-speed limit, `plant_for`): summary.json's
-    ``scenario_config`` and the report's settings."""
-    return dict(as_dict(scenario), plant=dataclasses.asdict(plant_for(scenario)))
 
 
 class ControlCore:

@@ -10,7 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from controller import PlantParams
-from services.sim.limits import MachineCheck, shaft_check
+from services.sim.machines.check import MachineCheck, shaft_check
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
@@ -81,7 +81,7 @@ class Machine(ABC):
         """Whether the machine can apply the map's lowest positive and highest rate inside the field
         (kg/ha; NaN: none positive) at working speeds within `speed_range_m_s`, before anything moves
         (`services.sim.limits.machine_check`): by default the metering shaft's range
-        (`services.sim.limits.shaft_check`). A kind with another actuator checks it and gives its own
+        (`services.sim.machines.check.shaft_check`). A kind with another actuator checks it and gives its own
         `MachineCheck` (a sprayer: its nozzles, with the product's `density_kg_l` and a nozzle size
         suggested at `working_speed_m_s`); `VehicleError` where it cannot at any speed."""
         return shaft_check(self.implement, lo_rate_kg_ha, hi_rate_kg_ha, speed_range_m_s)
@@ -153,6 +153,16 @@ class Machine(ABC):
         `services.sim.section_landing.StripPlan`. Parameters as
         `services.sim.section_landing.StripPlan.of`'s (`ticks`: only these; `tick_m`, `first_tick`: a
         tick's travel and where the track begins in a run accounted part by part)."""
+
+    def ownership(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
+                  cell_m: float, ticks=None, tick_m: float | None = None,
+                  first_tick: int = 0) -> StripPlan | None:
+        """The ground each pass is set up to own, where the deposition lays product beyond it by design
+        (a spinner's throw reaches into its neighbours' driving width): strips of the working width
+        in `deposition`'s terms (same parameters, the same `deposit_kg` product), from which the
+        overlap figures are read, so that a pattern's designed overlap is not counted as overlap.
+        None, the default: the deposition's own strips are that ground."""
+        return None
 
     def deposit_kg(self, control: dict) -> np.ndarray:
         """The product per tick in `deposition`'s terms, from a run's control arrays: ``metered_kg``

@@ -41,8 +41,8 @@ import numpy as np
 from common import ScenarioError, VehicleError, VrsimError
 from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
 from maps.units import in_units, shown_range
-from services.sim.limits import MachineCheck, check_units, rate_text
 from services.sim.machines.base import Machine
+from services.sim.machines.check import MachineCheck, check_units, rate_text
 from services.sim.machines.registry import register_machine
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
