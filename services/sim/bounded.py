@@ -102,6 +102,7 @@ class BoundedAccount:
         self.cell_m, self.tick_m = min(grid.cell_size), tick_travel_m(sc)
         self.lookahead = int(math.ceil(max(self.delay_s + self.period_s, SETTLE_HOLD_S) / self.period_s)) + 3
         self.acc = AsApplied(grid)
+        self.owned = None   # the ground each pass owns, for a machine whose deposition lays beyond it
         self.worked = WorkedArea(grid)
         self.machine = machine_for(imp, world.field.polygon)
         # The field's cells, for the result: found now, while SUMO drives, not after the drive.
@@ -189,6 +190,7 @@ class BoundedAccount:
         # The reference meters' product on the same footprint: its samples and sub-cells worked out once.
         others = () if self.refs is None else self._references(w, states, n, plan)
         self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index, others=others)
+        self._own(w, states, ticks)
         self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
@@ -268,6 +270,18 @@ class BoundedAccount:
                             self.world.scenario.output.log_rate_hz)
         self.logs.append(log if last is None else _dropped_first(log))
 
+    def _own(self, w: dict, states: SectionStates, ticks: np.ndarray) -> None:
+        """The product of `ticks` on the ground each pass owns (`Machine.ownership`, as
+        `services.sim.run._owned_overlap` puts it), for a machine whose deposition lays beyond it."""
+        own = self.machine.ownership(w, states, self.delay_s, self.period_s, self.cell_m, ticks, self.tick_m,
+                                     self.first)
+        if own is None:
+            return
+        if self.owned is None:
+            self.owned = AsApplied(self.world.grid)
+        product = own.mass_kg(self.machine.deposit_kg(w))
+        self.owned.deposit(own.footprint(), product, pass_index=own.pass_index)
+
     # --- the end ---------------------------------------------------------------------------------
     def _result(self) -> RunResult:
         world, grid, acc = self.world, self.world.grid, self.acc
@@ -278,7 +292,9 @@ class BoundedAccount:
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
         limited_cover = self._limited_coverage()
         # Each raster figure read once (each read sums the sub-cells again).
-        deposit = Deposit(None, None, acc.applied_kg_ha, cover, acc.overlap_fraction, acc.overlap_kg,
+        owned = acc if self.owned is None else self.owned
+        owned.close_pass()
+        deposit = Deposit(None, None, acc.applied_kg_ha, cover, owned.overlap_fraction, owned.overlap_kg,
                           acc.outside_kg, limited_cover)
         d = deposit
         setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),

@@ -35,7 +35,6 @@ from services.sim.accounting import (
     cells_in_field,
     check_world,
 )
-from services.sim.as_run import as_run
 from services.sim.aslog import run_point_log
 from services.sim.core import ControlCore
 from services.sim.display import run_summary
@@ -44,6 +43,7 @@ from services.sim.landing import Landing, land
 from services.sim.limits import MachineCheck
 from services.sim.machines import Machine, machine_for
 from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
+from services.sim.resolve import as_run
 from services.sim.scenario import Scenario
 from services.sim.section_landing import limited_coverage, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
@@ -287,13 +287,15 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
         states = run_section_states(track, control, implement)
         landing = land(world.grid, track, metered, width_on, delay_s, period_s)
         machine = machine_for(implement, world.field.polygon)
-        acc = as_applied(world.grid, track, machine.deposit_kg(control), states, delay_s, period_s, machine,
-                         tick_travel_m(world.scenario))
+        product_kg, tick_m = machine.deposit_kg(control), tick_travel_m(world.scenario)
+        acc = as_applied(world.grid, track, product_kg, states, delay_s, period_s, machine, tick_m)
+        owned = _owned_overlap(world.grid, track, product_kg, states, delay_s, period_s, machine,
+                              tick_m) or acc
         setting = Setting.of(world, track, control, landing)
         limited_cover = limited_coverage(track, metered[:, None], states, setting.limited, delay_s, period_s,
                                          cell_m, world.grid)[0]
         deposit = Deposit(metered, landing.applied_kg_ha, acc.applied_kg_ha, acc.coverage_fraction,
-                          acc.overlap_fraction, acc.overlap_kg, acc.outside_kg, limited_cover)
+                          owned.overlap_fraction, owned.overlap_kg, acc.outside_kg, limited_cover)
     accounts, = account(setting, [deposit], [timer])
     x_m, y_m, speed_m_s = measured
     return RunResult(measured_x_m=x_m, measured_y_m=y_m, measured_speed_m_s=speed_m_s, control=control,
@@ -308,6 +310,19 @@ def as_applied(grid: Grid, track: dict, product_kg, states: SectionStates, delay
     acc = AsApplied(grid)
     plan = machine.deposition(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
     acc.deposit(plan.footprint(), plan.mass_kg(product_kg), pass_index=plan.pass_index)
+    return acc
+
+
+def _owned_overlap(grid: Grid, track: dict, product_kg, states: SectionStates, delay_s: float,
+                  period_s: float, machine: Machine, tick_m: float | None = None) -> AsApplied | None:
+    """The product on the ground each pass is set up to own (`Machine.ownership`), whose overlap is
+    the run's overlap figures; None for a machine whose deposition lays nothing beyond it (`as_applied`'s
+    raster is that ground). `as_applied`'s parameters."""
+    own = machine.ownership(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
+    if own is None:
+        return None
+    acc = AsApplied(grid)
+    acc.deposit(own.footprint(), own.mass_kg(product_kg), pass_index=own.pass_index)
     return acc
 
 

@@ -116,6 +116,7 @@ class _Shared:
     limited_strips: LimitedStrips
     control_s: float          # each variant's share of the shared stage 1
     metrics_s: float          # ... and of the shared geometry
+    owned: tuple | None = None   # (plan, its ColumnDeposit) of `Machine.ownership`; None: `plan`'s ground
 
     @classmethod
     def of(cls, drive: Drive, scenario: Scenario, variants: int) -> _Shared:
@@ -132,9 +133,10 @@ class _Shared:
         setting = Setting.of(world, track, rec, landing)
         plan = core.machine.deposition(track, states, delay_s, period_s, cell_m,
                                        tick_m=tick_travel_m(scenario))
+        own = core.machine.ownership(track, states, delay_s, period_s, cell_m, tick_m=tick_travel_m(scenario))
         shared = cls(drive, scenario, rec, core, setting, plan, _strip_map(grid, plan),
                      LimitedStrips.of(track, states, setting.limited, delay_s, period_s, cell_m, grid),
-                     control_s / variants, 0.0)
+                     control_s / variants, 0.0, None if own is None else (own, _strip_map(grid, own)))
         shared.metrics_s = (time.perf_counter() - clock) / variants
         return shared
 
@@ -214,11 +216,12 @@ def _account(shared: _Shared, drive_kg: np.ndarray, timers: list[StageTimer]) ->
         clock = time.perf_counter()
         columns, chunk = metered[:, lo:lo + RASTER_CHUNK], timers[lo:lo + RASTER_CHUNK]
         rasters = _rasters(shared, drive_kg[:, :, lo:lo + RASTER_CHUNK])
+        owned = _owned_rasters(shared, drive_kg[:, :, lo:lo + RASTER_CHUNK]) or rasters
         applied, cover = rasters.applied_kg_ha, rasters.coverage_fraction
         # the applied rate per tick, a row per variant (its transitions read it whole)
         rates = applied_rate_kg_ha(columns, width_on_m, strip_length_m).T.copy()
-        deposits = [Deposit(columns[:, c], rates[c], applied[c], cover[c], rasters.overlap_fraction[c],
-                            rasters.overlap_kg[c], float(rasters.outside_kg[c]), limited_cover[lo + c])
+        deposits = [Deposit(columns[:, c], rates[c], applied[c], cover[c], owned.overlap_fraction[c],
+                            owned.overlap_kg[c], float(rasters.outside_kg[c]), limited_cover[lo + c])
                     for c in range(len(chunk))]
         share_s = limited_s + (time.perf_counter() - clock) / len(chunk)
         for timer in chunk:
@@ -232,3 +235,11 @@ def _rasters(shared: _Shared, drive_kg: np.ndarray) -> AppliedColumns:
     """The as-applied rasters of the mass columns `drive_kg` (ticks, drives, n) along the shared strips."""
     product = drive_kg[:, 0, :] if drive_kg.shape[1] == 1 else drive_kg
     return shared.strip_map.apply(shared.plan.mass_kg(product))
+
+
+def _owned_rasters(shared: _Shared, drive_kg: np.ndarray) -> AppliedColumns | None:
+    """`_rasters` on the ground each pass owns (`Machine.ownership`); None where that is the plan's."""
+    if shared.owned is None:
+        return None
+    plan, strip_map = shared.owned
+    return strip_map.apply(plan.mass_kg(drive_kg[:, 0, :] if drive_kg.shape[1] == 1 else drive_kg))

@@ -87,6 +87,19 @@ def test_a_spinner_driven_beyond_cv_15_pct_is_warned_with_the_width_that_meets_i
     assert text_summary(wide.summary).endswith(warned[0])
 
 
+
+def test_overlap_is_product_beyond_the_patterns_design(runs):
+    """A spinner's throw reaches into its neighbours' driving width by design: the throw's raster
+    overlaps on most of the field, the overlap figures (read on the driving width each pass owns,
+    `Machine.ownership`) only where passes' own ground meets (headlands, pass ends)."""
+    for name in ("spinner_36m_at_24m", "spinner_48m_at_24m"):
+        result = runs[name]
+        field = result.in_field
+        covered = field & (result.as_applied.coverage_fraction >= 0.9)
+        thrown_pct = 100.0 * result.as_applied.overlap_fraction[field].sum() / covered.sum()
+        assert thrown_pct > 40.0, (name, thrown_pct)
+        assert 0.0 < result.summary["overlap_area_pct"] < 10.0, (name, result.summary["overlap_area_pct"])
+
 def test_a_kind_without_a_spread_pattern_has_no_spread_cv():
     """Strips side by side (a gated meter) have no spread pattern: the CV and the effective width are
     null in the JSON and n/a in the text, never a flattering 0 %."""

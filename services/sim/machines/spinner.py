@@ -196,6 +196,21 @@ class Spinner(Machine):
         pattern = self.pattern
         return ThrowPlan(plan, SIDES[side_index], reach, pattern.offset_m, pattern.mass_per_m, throw)
 
+    def ownership(self, track: dict, states: SectionStates, delay_s: float, period_s: float,
+                  cell_m: float, ticks=None, tick_m: float | None = None, first_tick: int = 0) -> StripPlan:
+        """Each disc owns its half of the driving width (left: offsets 0 to w/2, right: -w/2 to 0) out to
+        its steps' reach over treated ground (`steps_reach_m`), while its gate is open: the spread
+        beyond that is the pattern's designed overlap with the neighbours. Sections (level, side) as
+        `deposition`'s, each side's product its disc's."""
+        levels, reach_m = self._levels(states)
+        count = reach_m.size
+        width = np.repeat(np.minimum(reach_m, self.implement.width_m / 2), 2)   # (level, side) pairs
+        level = (levels[:, None, :] == np.arange(count)[None, :, None]) & (reach_m > 0)[None, :, None]
+        on = np.tile(self.sides_on(states.actual), (1, count)) & level.reshape(len(levels), 2 * count)
+        owned = SectionStates(on, width, np.tile(SIDES, count) * width / 2, states.pass_index)
+        return _by_side(StripPlan.of(track, owned, delay_s, period_s, cell_m, ticks, tick_m, first_tick,
+                                     own_drives=True), count)
+
     def _levels(self, states: SectionStates) -> tuple[np.ndarray, np.ndarray]:
         """Each side's reach over treated ground per tick as a level (n, 2; int) and each level's reach,
         m: its steps on (`steps_reach_m`), one level (the whole half) where the switch decides on
