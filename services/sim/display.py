@@ -10,7 +10,7 @@ then in that unit's counterpart if the map's unit is of the other system (gal/ac
 
 from __future__ import annotations
 
-from maps.units import in_units, rate_unit, unit_system
+from maps.units import in_units, rate_kind, rate_unit, unit_system
 from services.sim import metrics
 from services.sim.metrics import METRICS, RATE_UNIT, rate_key
 
@@ -22,10 +22,23 @@ def run_units(world) -> str:
 
 
 def run_summary(accounts) -> dict:
-    """A run's summary (`services.sim.metrics.summary` of its `Accounts`) and ``units``, the system its
-    figures are shown in (`run_units`; the figures stay SI): what `services.sim.run.RunResult` and the
-    batched variants (`services.sim.variants`) hold."""
-    return {**metrics.summary(accounts), "units": run_units(accounts.setting.world)}
+    """A run's summary (`services.sim.metrics.summary` of its `Accounts`), for a liquid's map
+    ``in_product_unit`` (`in_product_unit`), and ``units``, the system its figures are shown in
+    (`run_units`; the figures stay SI): what `services.sim.run.RunResult` and the batched variants
+    (`services.sim.variants`) hold."""
+    summary, grid = metrics.summary(accounts), accounts.setting.world.grid
+    litres = in_product_unit(summary, grid.map_unit, grid.density_kg_l)
+    return {**summary, **({"in_product_unit": litres} if litres else {}),
+            "units": run_units(accounts.setting.world)}
+
+
+def in_product_unit(summary: dict, map_unit: str, density_kg_l: float | None) -> dict:
+    """The product figures (the `METRICS` rows in kg) in litres, ``{"applied_kg": ...}``, for a map in
+    a volume rate (L/ha, gal/ac) read with the product's density: a liquid is shown by its volume, as
+    its rates are; empty for any other map."""
+    if density_kg_l is None or rate_kind(map_unit) != "volume":
+        return {}
+    return {m.key: summary[m.key] / density_kg_l for m in METRICS if m.unit == "kg"}
 
 
 def scenario_units(scenario) -> str:
@@ -46,11 +59,13 @@ def scenario_units(scenario) -> str:
 def shown_figure(summary: dict, key: str, unit: str) -> tuple:
     """(value, unit) of figure `key` (its `METRICS` `unit`) of a run's `summary` as shown in the
     summary's ``units`` (without: the system of its ``rate_unit``): a rate figure in the map's unit
-    (``in_rate_unit``) first."""
+    (``in_rate_unit``) first, a liquid's product in litres (``in_product_unit``)."""
     value = summary[key]
     own = summary.get("in_rate_unit", {})
     if unit == RATE_UNIT and rate_key(key) in own:
         value, unit = own[rate_key(key)], summary.get("rate_unit", RATE_UNIT)
+    elif unit == "kg" and key in summary.get("in_product_unit", {}):   # a liquid, by its volume
+        value, unit = summary["in_product_unit"][key], "L"
     return in_units(value, unit, summary.get("units") or unit_system(summary.get("rate_unit")))
 
 

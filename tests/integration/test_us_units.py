@@ -102,7 +102,8 @@ def test_a_gal_ac_sprayer_in_ft_and_mph_prints_us_units_and_its_json_is_the_si_s
     for line in check.splitlines() + lines:
         assert not METRIC_UNITS.search(line), line
     shown = {line[:40].strip(): line[40:].split()[-1] for line in lines if not line.rstrip().endswith(" ")}
-    assert shown["Field area"] == "ac" and shown["Applied product"] == "lb" and shown["Bias"] == "gal/ac"
+    # A liquid's product by its volume, as its rates: gal.
+    assert shown["Field area"] == "ac" and shown["Applied product"] == "gal" and shown["Bias"] == "gal/ac"
     assert shown["Highest speed for the map"] == "mph" and shown["Section widths"] == "ft"
     assert "20, 20, 20, 20, 20, 20 ft" in figures
     us_json = json.loads((folder / "us_out" / "summary.json").read_text())
@@ -113,8 +114,10 @@ def test_a_gal_ac_sprayer_in_ft_and_mph_prints_us_units_and_its_json_is_the_si_s
     assert us_json["units"] == "us" and us_json["section_widths_m"] == [6.096] * 6
     assert us_json["display"]["section_widths_m"]["unit"] == "ft"
     assert us_json["display"]["section_widths_m"]["value"] == pytest.approx([20.0] * 6, rel=1e-12)
-    assert us_json["display"]["applied_kg"] == {"value": pytest.approx(us_json["applied_kg"] / 0.45359237,
-                                                                       rel=1e-12), "unit": "lb"}
+    litres = us_json["applied_kg"] / us_json["scenario_config"]["product"]["density_kg_l"]
+    assert us_json["in_product_unit"]["applied_kg"] == pytest.approx(litres, rel=1e-12)
+    assert us_json["display"]["applied_kg"] == {"value": pytest.approx(litres / 3.785411784, rel=1e-12),
+                                                "unit": "gal"}
     assert us_json["display"]["mae_kg_ha"] == {"value": us_json["in_rate_unit"]["mae"], "unit": "gal/ac"}
 
 
