@@ -64,12 +64,13 @@ class AsApplied:
         self.total_kg = 0.0
         self.items = 0  # items deposited
         # Pass accounting (see `deposit`'s pass_index). The open pass deposits into its own raster
-        # (`_pass_acc`, made on first use), over a window of sub-cells `_window`; when it closes,
+        # (`_pass_acc`, a new one per pass), over a window of sub-cells `_window`; when it closes,
         # that window is added to `_acc`, and to the capped swept-area sum (`_capped`, per interior
         # sub-cell) and the pass count (`_count`, per cell) of the closed passes.
         self._pass = None
         self._pass_acc = None
         self._window = None  # [row_min, row_max, col_min, col_max] touched, ring coordinates
+        self._tiles = None   # the open pass's touched tiles (`_mark_tiles`)
         self._capped = np.zeros((grid.rows * subcells, grid.cols * subcells))
         self._count = np.zeros((grid.rows, grid.cols), dtype=np.int64)
         self._target = self._acc  # where `_spread` deposits
@@ -241,28 +242,66 @@ class AsApplied:
         if index != self._pass:
             if self._pass is not None:
                 self._close_pass()
-            if self._pass_acc is None:
-                self._pass_acc = np.zeros_like(self._acc)
+            self._pass_acc = np.zeros(self._acc.shape, self._acc.dtype)  # not zeros_like: it writes them
             self._pass = index
         self._target = self._pass_acc
 
     def _close_pass(self) -> None:
-        capped, count, window = self._open_pass_terms()
-        if window is not None:
-            s = self.raster.subcells
-            rows, cols = window
-            self._capped[rows, cols] += capped
-            self._count[rows.start // s: rows.stop // s, cols.start // s: cols.stop // s] += count
+        """Add the open pass's raster to the rest, tile row by tile row over the runs of tiles its
+        samples touched (`_tiles`): an oblique pass's window is a quarter of the grid, its tiles a few
+        per cent. Everywhere else the pass's raster is zero, so the sums are the window's to the bit."""
         if self._window is not None:   # also a pass that put product off the grid only
-            shape = self.raster.shape
-            touched = self._touched()
-            self._acc.reshape(shape)[touched] += self._pass_acc.reshape(shape)[touched]
-            self._pass_acc.reshape(shape)[touched] = 0.0
-        self._pass, self._window = None, None
+            s, shape, area = self.raster.subcells, self.raster.shape, self.raster.sub_area
+            acc, part = self._acc.reshape(shape), self._pass_acc.reshape(shape)
+            for i0, i1, j0, j1 in self._slabs():   # interior sub-cells, whole cells
+                inner = (slice(1 + i0, 1 + i1), slice(1 + j0, 1 + j1))
+                acc[inner] += part[inner]
+                swept = part[inner].imag
+                self._capped[i0:i1, j0:j1] += np.minimum(swept, area)
+                blocks = self.raster.cell_sums(swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s))
+                self._count[i0 // s: i1 // s, j0 // s: j1 // s] += self.raster.pass_puts_on(blocks)
+            for ring in ((0, slice(None)), (-1, slice(None)), (slice(1, -1), 0), (slice(1, -1), -1)):
+                acc[ring] += part[ring]   # what fell off the grid
+        # The next pass gets a new raster (zeros the system maps as it writes them): this one's memory is
+        # given back, where zeroing its window would keep every page any pass touched (the whole grid).
+        self._pass, self._window, self._pass_acc, self._tiles = None, None, None, None
 
-    def _touched(self):
-        r0, r1, c0, c1 = self._window
-        return slice(r0, r1 + 1), slice(c0, c1 + 1)
+    def _slabs(self):
+        """(i0, i1, j0, j1) interior sub-cell ranges (whole cells, no two overlapping) that hold every
+        sub-cell the open pass's samples touched: per row of tiles, each run of touched tiles
+        (`_tiles`)."""
+        tile = _TILE * self.raster.subcells
+        height, width = self.raster.shape[0] - 2, self.raster.shape[1] - 2
+        for t in np.flatnonzero(self._tiles.any(axis=1)):
+            edges = np.flatnonzero(np.diff(np.concatenate(([0], self._tiles[t], [0])).astype(np.int8)))
+            i0, i1 = t * tile, min((t + 1) * tile, height)
+            for a, b in zip(edges[0::2], edges[1::2], strict=True):
+                yield i0, i1, a * tile, min(b * tile, width)
+
+    def _mark_tiles(self, row, col) -> None:
+        """Mark in `_tiles` the tiles of the sub-cells samples at `row`, `col` (ring coordinates) and
+        their neighbours may touch: by runs of `_CHUNK` samples (consecutive samples mostly lie close
+        together), sample by sample for a run that spreads wider than a tile (strips cut alike from
+        both ends of a pass). Each box then spans at most two tiles a side: its corners' tiles are all."""
+        tile = _TILE * self.raster.subcells
+        height, width = self.raster.shape[0] - 2, self.raster.shape[1] - 2
+        if self._tiles is None:
+            self._tiles = np.zeros((-(-height // tile), -(-width // tile)), dtype=bool)
+        starts = np.arange(0, row.size, _CHUNK)
+        boxes = [np.minimum.reduceat(row, starts) - 1, np.maximum.reduceat(row, starts) + 1,
+                 np.minimum.reduceat(col, starts) - 1, np.maximum.reduceat(col, starts) + 1]
+        wide = (boxes[1] - boxes[0] >= tile) | (boxes[3] - boxes[2] >= tile)
+        if wide.any():
+            each = np.repeat(wide, np.diff(np.append(starts, row.size)))
+            r, c = row[each], col[each]
+            each_box = (r - 1, r + 1, c - 1, c + 1)
+            boxes = [np.concatenate((b[~wide], e)) for b, e in zip(boxes, each_box, strict=True)]
+        lo_r, hi_r = np.maximum(boxes[0] - 1, 0), np.minimum(boxes[1] - 1, height - 1)   # interior
+        lo_c, hi_c = np.maximum(boxes[2] - 1, 0), np.minimum(boxes[3] - 1, width - 1)
+        inside = (lo_r <= hi_r) & (lo_c <= hi_c)
+        r0, r1, c0, c1 = (v[inside] // tile for v in (lo_r, hi_r, lo_c, hi_c))
+        for r, c in ((r0, c0), (r0, c1), (r1, c0), (r1, c1)):
+            self._tiles[r, c] = True
 
     def _open_pass_terms(self):
         """The open pass's capped swept area per sub-cell and whether it put product on each cell,
@@ -302,11 +341,16 @@ class AsApplied:
         r0, r1 = int(row.min()) - 1, int(row.max()) + 1
         c0, c1 = int(col.min()) - 1, int(col.max()) + 1
         rows, cols = self.raster.shape
+        self._mark_tiles(row, col)
         new = [max(r0, 0), min(r1, rows - 1), max(c0, 0), min(c1, cols - 1)]
         if self._window is not None:
             w = self._window
             new = [min(new[0], w[0]), max(new[1], w[1]), min(new[2], w[2]), max(new[3], w[3])]
         self._window = new
+
+
+_CHUNK = 256   # samples per box of `AsApplied._mark_tiles` (a strip's samples go along it, then across)
+_TILE = 16     # cells per side of the tiles of `AsApplied._tiles`
 
 
 def checked_raster(grid: Grid, subcells: int, who: str) -> SubcellRaster:

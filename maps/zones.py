@@ -88,22 +88,22 @@ def read_zones(path: str, rate_field: str | None = None, cell_size_m: float | No
         raise MapError(f"{path}: no polygon features")
     field_name = _pick_rate_field(path, fields, rate_field)
     rates = _rates(path, values_of(field_name), field_name)
-    stated, key = _stated_unit(path, field_name, kind)
+    stated, key = stated_unit(path, field_name, kind)
     unit = map_unit(path, stated, unit, key)
     grid = _rasterize_zones(rings, rates, src_crs, cell_size_m, source=path, format=kind, max_cells=max_cells)
     return replace(grid, unit=unit, map_unit=unit)
 
 
-def _stated_unit(path: str, name: str, kind: str) -> tuple[str | None, str]:
+def stated_unit(path: str, name: str, kind: str, layer: str | None = None) -> tuple[str | None, str]:
     """(the unit the file states for attribute `name`, where): in the name, or in the John Deere
-    metadata of a shapefile; (None, "") when none."""
+    metadata of a shapefile (of `layer`, in a zip or folder of several); (None, "") when none."""
     if unit_in_name(name):
         return unit_in_name(name), f"attribute {name!r}"
     if kind == "shapefile":
         from maps.pointlog import deere_units
         from maps.vector import gdal_source
 
-        stem = os.path.splitext(os.path.basename(gdal_source(path, None)[0]))[0]
+        stem = os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0]
         stated = deere_units(path, stem).get(name.lower())
         if stated:
             return stated, f"Deere metadata of {name!r}"
@@ -146,28 +146,39 @@ def _rasterize_zones(rings: _Rings, rates, crs, cell_size_m: float | None = None
                 zone_rates_kg_ha=rates)
 
 
-def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None) -> str:
-    """The rate attribute: the user's, else a known name, else the only numeric one."""
+def rate_field_choice(fields: dict[str, bool], rate_field: str | None = None) -> tuple[str | None, str]:
+    """(the attribute read as the rate, why) among `fields` (name -> numeric): the user's, else a name
+    farm software uses for the rate (`RATE_NAMES`), else the one numeric attribute whose name states a
+    rate unit, else the only numeric one; (None, why not) when none of these tells."""
     if rate_field is not None:
-        if rate_field not in fields:
-            raise MapError(f"{path}: no attribute {rate_field!r} (rate_field); attributes: "
-                           f"{files.shown(sorted(fields), 200)}")
-        return rate_field
+        return (rate_field, "named (rate_field / --rate-field)") if rate_field in fields else \
+            (None, f"no attribute {rate_field!r} (rate_field / --rate-field)")
     lower = {name.lower(): name for name in fields}
     for candidate in RATE_NAMES:
         if candidate in lower:  # by name even if not numeric: the error then names the bad value
-            return lower[candidate]
+            return lower[candidate], f"its name is one farm software gives the rate ({candidate!r})"
     numeric = [name for name, is_num in fields.items() if is_num]
     with_unit = [name for name in numeric if unit_in_name(name)]
     if len(with_unit) == 1:  # "Rate_lb_ac": the one attribute that states a rate unit
-        return with_unit[0]
+        return with_unit[0], "the one numeric attribute whose name states a rate unit"
     if len(numeric) == 1:
-        warnings.warn(f"{path}: using attribute {numeric[0]!r} as the rate (its only numeric one)",
+        return numeric[0], "its only numeric attribute"
+    return None, (f"cannot tell which attribute is the rate; numeric attributes: "
+                  f"{files.shown(numeric, 200) if numeric else 'none'}; name one with rate_field= / "
+                  "--rate-field")
+
+
+def _pick_rate_field(path: str, fields: dict[str, bool], rate_field: str | None) -> str:
+    """The rate attribute (`rate_field_choice`), or a MapError saying why none."""
+    name, why = rate_field_choice(fields, rate_field)
+    if name is None and rate_field is not None:
+        raise MapError(f"{path}: {why}; attributes: {files.shown(sorted(fields), 200)}")
+    if name is None:
+        raise MapError(f"{path}: {why}")
+    if why == "its only numeric attribute":
+        warnings.warn(f"{path}: using attribute {name!r} as the rate (its only numeric one)",
                       MapWarning, stacklevel=3)
-        return numeric[0]
-    raise MapError(f"{path}: cannot tell which attribute is the rate; numeric attributes: "
-                   f"{files.shown(numeric, 200) if numeric else 'none'}; name one with rate_field= / "
-                   "--rate-field")
+    return name
 
 
 def _rates(path: str, values: list, name: str) -> np.ndarray:

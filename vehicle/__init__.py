@@ -13,7 +13,7 @@ pressure range as the limit, the flow meter, PWM).
 
 from vehicle.coverage import CoveragePath, Segment, plan_coverage
 from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
-from vehicle.field import Field
+from vehicle.field import Field, FieldWarning
 from vehicle.gnss import Gnss, GnssConfig
 from vehicle.implement import Implement
 from vehicle.network import build_network, default_cache_dir, find_netconvert
@@ -22,7 +22,8 @@ from vehicle.sprayer import FlowMeter, SprayerSpec
 from vehicle.track import track_on_path
 
 __all__ = [
-    "CoveragePath", "DriveConfig", "Field", "FlowMeter", "Gnss", "GnssConfig", "Implement", "Pose",
+    "CoveragePath", "DriveConfig", "Field", "FieldWarning", "FlowMeter", "Gnss", "GnssConfig", "Implement",
+    "Pose",
     "Segment", "SpeedSensor", "SpeedSensorConfig", "SpeedVariation", "SprayerSpec", "SumoDriver",
     "build_network",
     "default_cache_dir", "find_netconvert", "plan_coverage", "track_on_path",

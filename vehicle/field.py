@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 
@@ -22,7 +23,7 @@ from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
 from common import files
-from common.checks import check_positive
+from common.checks import check_number, check_positive
 from common.errors import VehicleError
 
 WGS84 = pyproj.CRS.from_epsg(4326)
@@ -30,6 +31,13 @@ WGS84 = pyproj.CRS.from_epsg(4326)
 # path and grid would not fit in memory (a 1e9 m square would need ~1e8 swaths).
 MAX_FIELD_AREA_HA = 10_000.0
 MAX_FIELD_SIDE_M = 50_000.0  # bounding-box side; UTM's scale error also grows past a few tens of km
+# A field dissolved from many polygons (`Field.from_polygons`) drops parts and holes smaller than this:
+# the slivers that zones which do not quite meet leave, not a headland's worth of ground (a 10 m square).
+SLIVER_M2 = 100.0
+
+
+class FieldWarning(UserWarning):
+    """A boundary used with a repair: an invalid ring made valid, slivers dropped (one line)."""
 
 
 def _utm_crs(lon: float, lat: float) -> pyproj.CRS:
@@ -94,7 +102,65 @@ class Field:
         return cls(shapely.box(x0, y0, x0 + width_m, y0 + length_m), crs, name)
 
     @classmethod
-    def from_file(cls, path: str, crs=None, partfield: str | None = None) -> Field:
+    def from_polygons(cls, polygons, crs, name: str = "field", sliver_m2: float = SLIVER_M2,
+                      where: str | None = None) -> Field:
+        """One field from many polygons: a prescription's zones, a boundary file's parts.
+
+        The polygons are projected to the UTM zone of their centre, repaired there (an invalid ring,
+        which may become invalid only once projected, with ``shapely.make_valid``), dissolved
+        (``shapely.union_all``, holes kept), and parts and holes smaller than `sliver_m2` dropped. A
+        repair or a drop is said in one `FieldWarning`.
+
+        Parameters
+        ----------
+        polygons : sequence of shapely geometries
+            Polygons or multipolygons in `crs` (None and empty ones are skipped).
+        crs : anything `pyproj.CRS.from_user_input` takes
+            The polygons' CRS.
+        name : str
+            The field's label.
+        sliver_m2 : float
+            Parts and holes of the union under this area are dropped, m^2 (0: none).
+        where : str, optional
+            What errors and the warning name (default: the field's name).
+
+        Raises
+        ------
+        VehicleError
+            No polygon; a union of several parts above `sliver_m2` (listed); the caps of `_check_extent`.
+        """
+        where = where or f"field {name!r}"
+        check_number(sliver_m2, f"{where}: sliver_m2", VehicleError, lo=0.0, unit="m^2")
+        array = np.asarray([g for g in polygons if g is not None and not g.is_empty], dtype=object)
+        if array.size == 0:
+            raise VehicleError(f"{where}: no polygon to make a field of")
+        try:
+            src = pyproj.CRS.from_user_input(crs)
+        except pyproj.exceptions.CRSError as exc:
+            raise VehicleError(f"{where}: crs={crs!r} is not a CRS: {exc}") from None
+        minx, miny, maxx, maxy = shapely.total_bounds(array)
+        lon, lat = pyproj.Transformer.from_crs(src, WGS84, always_xy=True).transform(
+            0.5 * (minx + maxx), 0.5 * (miny + maxy))
+        if not (math.isfinite(lon) and math.isfinite(lat)):
+            raise VehicleError(f"{where}: the polygons' centre does not map to WGS84")
+        utm = _utm_crs(lon, lat)
+        to_utm = pyproj.Transformer.from_crs(src, utm, always_xy=True)
+        projected = shapely.transform(array, lambda xy: np.column_stack(to_utm.transform(xy[:, 0], xy[:, 1])))
+        _check_extent(shapely.box(*shapely.total_bounds(projected)), where)
+        dissolved, notes = _dissolve(projected, sliver_m2)
+        if notes:
+            warnings.warn(f"{where}: {'; '.join(notes)}", FieldWarning, stacklevel=2)
+        if len(dissolved) != 1:
+            areas = ", ".join(f"{p.area / 1e4:,.2f} ha" for p in sorted(dissolved, key=lambda p: -p.area)[:6])
+            raise VehicleError(f"{where}: the polygons' union is {len(dissolved)} separate parts ({areas}"
+                               f"{', ...' if len(dissolved) > 6 else ''}) above the sliver area of "
+                               f"{sliver_m2:g} m^2; a field is one: give a boundary of one polygon, or a "
+                               "sliver area above the parts to drop")
+        return cls(dissolved[0], utm, name)
+
+    @classmethod
+    def from_file(cls, path: str, crs=None, partfield: str | None = None, union: bool = False,
+                  sliver_m2: float = SLIVER_M2) -> Field:
         """Read a boundary from GeoJSON (``.geojson``/``.json``), a shapefile (``.shp`` or ``.zip``),
         KML (``.kml``/``.kmz``) or an ISOXML TASKDATA (folder, ``TASKDATA.XML`` or a ``.zip`` holding
         one: its partfield boundary).
@@ -102,14 +168,18 @@ class Field:
         Parameters
         ----------
         path : str
-            The file. One polygon, holes included (or a multipolygon with one part, or a collection
-            whose first polygon feature is used).
+            The file. One polygon, holes included (or a multipolygon with one part); several only
+            with `union`.
         crs : anything `pyproj.CRS.from_user_input` takes, optional
             The coordinates' CRS. Default: the shapefile's ``.prj``, the GeoJSON ``crs`` member, or
             WGS84 if the coordinates look like degrees (KML and ISOXML: WGS84).
         partfield : str, optional
             The partfield (``PFDn`` or its designator) of a TASKDATA with several, or the placemark
             (its name) of a KML with several.
+        union : bool
+            A GeoJSON or shapefile of several polygons (a prescription's zones) becomes their union
+            (`from_polygons`, with `sliver_m2`); without it such a file is refused, saying how many
+            polygons it holds and what to do (never one of them taken in silence).
         """
         from vehicle import boundary_files
         if isinstance(path, (str, os.PathLike)):
@@ -136,16 +206,20 @@ class Field:
                 file_crs = pyproj.CRS.from_user_input(crs)
             except pyproj.exceptions.CRSError as exc:
                 raise VehicleError(f"field file {path}: crs={crs!r} is not a CRS: {exc}") from None
+        name, where = os.path.splitext(os.path.basename(path))[0], f"field file {path}"
+        if isinstance(geom, list):  # a GeoJSON's or shapefile's polygon features
+            if len(geom) > 1 and not union:
+                raise VehicleError(f"{where}: holds {len(geom):,} polygons (a prescription's zones?); a "
+                                   "field is one: take their union ([field] union = true), take the "
+                                   "prescription's zones ([field] from_map = true), or give a file of one "
+                                   "polygon")
+            if len(geom) > 1:
+                return cls.from_polygons(geom, file_crs or _degrees_or_refused(geom, path), name,
+                                         sliver_m2, where)
+            geom = geom[0]
         if geom.is_empty:
             raise VehicleError(f"field file {path}: boundary is empty")
-        if file_crs is None:
-            minx, miny, maxx, maxy = geom.bounds
-            if not (-180 <= minx <= maxx <= 180 and -90 <= miny <= maxy <= 90):
-                raise VehicleError(f"field file {path}: no CRS given and coordinates {geom.bounds} "
-                                   "are not degrees; pass crs=")
-            file_crs = WGS84
-        return cls._from_geometry(geom, file_crs, os.path.splitext(os.path.basename(path))[0],
-                                  f"field file {path}")
+        return cls._from_geometry(geom, file_crs or _degrees_or_refused([geom], path), name, where)
 
     @classmethod
     def _from_geometry(cls, geom, src_crs: pyproj.CRS, name: str, where: str | None = None) -> Field:
@@ -179,12 +253,59 @@ class Field:
         """Local (x, y) metres of (lon, lat) degrees; arrays or scalars."""
         return self._from_wgs.transform(lon, lat)
 
+    def to_geojson(self) -> dict:
+        """The boundary as a GeoJSON Feature in WGS84 (RFC 7946: exterior counter-clockwise, holes
+        clockwise), its name, area (ha) and UTM zone as properties: what QGIS or Google Earth shows."""
+        from shapely.geometry import mapping
+
+        wgs = shapely.transform(self.polygon, lambda xy: np.column_stack(self.to_wgs84(xy[:, 0], xy[:, 1])))
+        props = {"name": self.name, "area_ha": round(self.area_ha, 4), "holes": len(self.polygon.interiors),
+                 "utm_crs": f"EPSG:{self.crs.to_epsg()}"}
+        return {"type": "Feature", "properties": props, "geometry": mapping(shapely.orient_polygons(wgs))}
+
     def longest_edge_heading_deg(self) -> float:
         """Compass bearing (degrees clockwise from north, in [0, 180)) of the boundary's longest edge."""
         xy = np.asarray(self.polygon.exterior.coords)
         d = np.diff(xy, axis=0)
         k = int(np.argmax(np.hypot(d[:, 0], d[:, 1])))
         return math.degrees(math.atan2(d[k, 0], d[k, 1])) % 180.0
+
+
+def _degrees_or_refused(geoms: list, path: str) -> pyproj.CRS:
+    """WGS84 for a file with no CRS whose coordinates look like degrees; else refused."""
+    minx, miny, maxx, maxy = shapely.total_bounds(np.asarray(geoms, dtype=object))
+    if not (-180 <= minx <= maxx <= 180 and -90 <= miny <= maxy <= 90):
+        raise VehicleError(f"field file {path}: no CRS given and coordinates {(minx, miny, maxx, maxy)} "
+                           "are not degrees; pass crs=")
+    return WGS84
+
+
+def _dissolve(polygons: np.ndarray, sliver_m2: float) -> tuple[list[Polygon], list[str]]:
+    """The union of `polygons` (metres) as its parts, invalid ones made valid first, parts and holes
+    under `sliver_m2` dropped; and what was repaired or dropped, as phrases."""
+    notes = []
+    invalid = ~shapely.is_valid(polygons)
+    if invalid.any():
+        first = shapely.is_valid_reason(polygons[invalid][0])
+        polygons = polygons.copy()
+        polygons[invalid] = shapely.make_valid(polygons[invalid])
+        notes.append(f"{int(invalid.sum()):,} invalid ring{'s' if invalid.sum() > 1 else ''} repaired with "
+                     f"shapely's make_valid (the first: {first}, in UTM metres)")
+    parts = shapely.get_parts(shapely.get_parts(polygons))  # collections of make_valid, then multi-parts
+    parts = parts[shapely.get_type_id(parts) == 3]  # polygons (make_valid may leave lines, points)
+    union = shapely.union_all(parts)
+    kept, small_parts, small_holes = [], 0, 0
+    for part in shapely.get_parts(union):
+        if part.area < sliver_m2:
+            small_parts += 1
+            continue
+        holes = [ring for ring in part.interiors if Polygon(ring).area >= sliver_m2]
+        small_holes += len(part.interiors) - len(holes)
+        kept.append(Polygon(part.exterior, holes))
+    if small_parts or small_holes:
+        notes.append(f"dropped {small_parts} part{'s' * (small_parts != 1)} and {small_holes} "
+                     f"hole{'s' * (small_holes != 1)} under {sliver_m2:g} m^2 (slivers)")
+    return kept, notes
 
 
 def _validated(polygon, name: str) -> Polygon:
@@ -245,17 +366,22 @@ def _read_geojson(path: str):
     polys = [g for g in geoms if isinstance(g, dict) and g.get("type") in ("Polygon", "MultiPolygon")]
     if not polys:
         raise VehicleError(f"field file {path}: no Polygon or MultiPolygon geometry in it")
+    return [_geojson_polygon(poly, path) for poly in polys], crs
+
+
+def _geojson_polygon(poly: dict, path: str):
+    """A GeoJSON Polygon or MultiPolygon as shapely's, each ring checked to close."""
     try:
-        geom = shape(polys[0])
-        rings = [np.asarray(ring, dtype=float) for part in ([polys[0]["coordinates"]] if polys[0]["type"] ==
-                 "Polygon" else polys[0]["coordinates"]) for ring in part]
+        geom = shape(poly)
+        rings = [np.asarray(ring, dtype=float) for part in ([poly["coordinates"]] if poly["type"] ==
+                 "Polygon" else poly["coordinates"]) for ring in part]
     except (ValueError, TypeError, AttributeError, IndexError, KeyError) as exc:
         raise VehicleError(f"field file {path}: bad polygon coordinates: {exc}") from None
     for ring in rings:  # GeoJSON repeats a ring's first position last; shapely would close it silently
         if ring.ndim == 2 and len(ring) and not np.array_equal(ring[0], ring[-1]):
             raise VehicleError(f"field file {path}: a ring does not close: it starts at "
                                f"{tuple(ring[0].tolist())} and ends at {tuple(ring[-1].tolist())}")
-    return geom, crs
+    return geom
 
 
 def _geojson_geometries(doc):
@@ -290,7 +416,7 @@ def _read_shapefile(path: str):
                                                                     shapefile.POLYGONM)]
             if not shapes:
                 raise VehicleError(f"field file {path}: no polygon shape in it")
-            geom = shape(shapes[0].__geo_interface__)
+            geom = [shape(s.__geo_interface__) for s in shapes]
     except damaged as exc:
         raise VehicleError(f"field file {path}: not a readable shapefile: {exc}") from None
     return geom, _read_prj(path)

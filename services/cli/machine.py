@@ -1,10 +1,13 @@
-"""`vrsim machine pattern SCENARIO [--out DIR] [--json] [--tray-width M]`: a spinner's simulated
-catch-tray test (EN 13739 / ISO 5690): CV across the driving width, the effective working width at
-CV 15 %, and pattern.png, the transverse profile of three adjacent passes. The scenario is loaded
-and checked whole (`services.sim.scenario.load`); a machine of another kind is refused in one line
-(its strips side by side lay a flat rate: ``vrsim run`` reports its ``cv_pct`` as 0)."""
+"""`vrsim machine pattern SCENARIO [--set KEY=VALUE ...] [--out DIR] [--json] [--tray-width M]`: a
+spinner's simulated catch-tray test (EN 13739 / ISO 5690): CV across the driving width, the effective
+working width at CV 15 %, and pattern.png, the transverse profile of three adjacent passes. The scenario
+(with its ``--set`` keys, as for ``vrsim run``) is loaded and checked whole; a machine of another kind
+is refused in one line (its strips side by side lay a flat rate, no spread pattern: ``vrsim run``
+reports its ``cv_pct`` as null, not applicable)."""
 
 from __future__ import annotations
+
+from services.cli.options import add_overrides
 
 HELP = "a spinner's spread pattern: catch-tray CV, effective working width, pattern.png"
 ACTIONS = ("pattern",)
@@ -14,6 +17,8 @@ PICTURE = "pattern.png"
 def configure(parser) -> None:
     parser.add_argument("action", choices=ACTIONS, metavar="ACTION", help="pattern")
     parser.add_argument("scenario", help="scenario TOML file or built-in name whose [implement] is a spinner")
+    add_overrides(parser, "override a scenario key, as for vrsim run (implement.spread_width_m=30); "
+                          "repeatable")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help=f"folder for {PICTURE} (default: runs/pattern-<scenario>-<time>/)")
@@ -28,7 +33,7 @@ def run(args) -> int:
     from services.outputs.encode import dumps_text
     from services.sim.spread_pattern import CV_LIMIT_PCT, catch_tray_test
 
-    name, spec, pattern, width_m = _spinner(args.scenario)
+    name, spec, pattern, width_m = _spinner(args)
     test = catch_tray_test(spec, pattern, width_m, args.tray_width)
     out_dir = args.out or default_out_dir(name, "pattern")
     png = os.path.join(out_dir, PICTURE)
@@ -55,19 +60,20 @@ def run(args) -> int:
     return 0
 
 
-def _spinner(spec: str):
-    """(scenario name, `SpinnerSpec`, `TransversePattern`, driving width m) of a scenario loaded and
-    checked whole (`services.sim.scenario.load`), whose machine must be a spinner: another kind's
-    strips lie side by side and lay a flat rate (``cv_pct`` 0 in ``vrsim run``), so it is refused."""
+def _spinner(args):
+    """(scenario name, `SpinnerSpec`, `TransversePattern`, driving width m) of ``args.scenario`` with
+    its ``--machine`` and ``--set`` keys, loaded and checked whole (`services.cli.options.load_scenario`),
+    whose machine must be a spinner: another kind's strips lie side by side and lay a flat rate
+    (``cv_pct`` null in ``vrsim run``: not applicable), so it is refused."""
     from common import ScenarioError
-    from services.sim import scenario
+    from services.cli.options import load_scenario
 
-    sc = scenario.load(spec)
+    sc = load_scenario(args)
     implement = sc.implement
     if implement.kind != "spinner":
         raise ScenarioError(f'{sc.source}: [implement] kind: machine pattern needs a spinner '
                             f'(kind = "spinner"), got {implement.kind!r} (its strips lie side by side: '
-                            "cv_pct 0)")
+                            "no spread pattern, cv_pct not applicable)")
     return sc.name, implement.machine, implement.machine.transverse_pattern(), implement.width_m
 
 

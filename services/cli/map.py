@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 
 from common import MapError
-from services.cli.options import add_input_cap, apply_input_cap
+from services.cli.options import add_input_cap, apply_input_cap, warnings_as_lines
 from services.outputs.encode import dumps_text
 
-HELP = "prescription maps: info, sample, convert, plot"
+HELP = "prescription maps: info, sample, convert, plot, boundary"
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                        help="refuse grids with more cells (default 200,000,000; 0: no cap)")
         add_input_cap(p)
 
-    p = sub.add_parser("info", help="format, CRS, bounds, cell size, size, rate statistics")
+    p = sub.add_parser("info", help="what the file holds (layers, attributes and their values, the rate "
+                                    "attribute and why, zones, area, CRS); with a unit, the rates")
     reading(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -57,7 +59,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("plot", help="draw the map to a PNG")
     reading(p)
-    p.add_argument("out", help="output .png")
+    p.add_argument("--out", dest="out_option", metavar="OUT.png", help="output .png")
+    p.add_argument("out", nargs="?", help=argparse.SUPPRESS)  # the older form: OUT.png as an argument
+
+    p = sub.add_parser("boundary", help="write the field a zone prescription covers (its zones' union: "
+                                        "holes kept, slivers dropped, invalid rings repaired) as GeoJSON")
+    p.add_argument("file", help="zone map: shapefile (.shp/.zip/folder), GeoPackage, GeoJSON")
+    p.add_argument("out", nargs="?", help="output .geojson (WGS84)")
+    p.add_argument("--out", dest="out_option", metavar="OUT.geojson", help="output .geojson (the same)")
+    p.add_argument("--layer", metavar="NAME", help="the shapefile of a zip or folder holding several")
+    p.add_argument("--crs", help="CRS of a file that does not state one (a shapefile without .prj)")
+    p.add_argument("--sliver-m2", type=float, default=None, metavar="M2",
+                   help="drop parts and holes of the union smaller than this (m^2; default 100)")
+    add_input_cap(p)
 
 
 def _read(args):
@@ -68,40 +82,116 @@ def _read(args):
                          unit=args.unit, density_kg_l=args.density_kg_l)
 
 
-def _warnings_as_lines() -> None:
-    """Map warnings (a repaired file) as one stderr line each, not Python's two-line format."""
-    import warnings
-
-    def show(message, category, filename, lineno, file=None, line=None):
-        print(f"vrsim map: warning: {message}", file=sys.stderr)
-
-    warnings.showwarning = show
-
-
 def run(args) -> int:
-    _warnings_as_lines()
-    if args.max_cells < 0:
+    warnings_as_lines("map")
+    if getattr(args, "max_cells", 0) < 0:
         raise MapError(f"--max-cells {args.max_cells}: must be >= 0")
     apply_input_cap(args)
-    return {"info": _info, "sample": _sample, "convert": _convert, "plot": _plot}[args.map_command](args)
+    return {"info": _info, "sample": _sample, "convert": _convert, "plot": _plot,
+            "boundary": _boundary}[args.map_command](args)
 
 
 def _info(args) -> int:
-    info = _read(args).info()
+    """What the file holds first (`maps.zone_table.describe_zones` for a zone file: no unit needed),
+    then, when its unit is known (stated or ``--unit``), the rates in it (`maps.Grid.info`); another
+    map whose unit is neither stated nor given shows its values as stored."""
+    described, stand_in = _described(args), None
+    if described is None:
+        grid, stand_in = _grid_or_values(args)
+    else:
+        grid = _read(args) if args.unit is not None or described["stated_unit"] else None
+    info = grid.info() if grid is not None else {}
+    if stand_in:  # values as stored, in no unit; why
+        info = ({k: v for k, v in info.items() if not k.endswith("_kg_ha")}
+                | {"unit": None, "rate_unit": None, "unit_problem": stand_in})
+    if described is not None and grid is not None and described["rate_attribute"]:
+        info["rate_attribute_used"] = described["rate_attribute"]
     if args.json:
-        print(dumps_text(info))
+        print(dumps_text({**(described or {}), **info}))
         return 0
+    if described is not None:
+        _print_described(described, args.unit)
+    if stand_in:
+        print(f"{'unit':16} {stand_in}: the values below are as stored; give --unit (kg/ha, lb/ac, L/ha, "
+              "gal/ac, seeds/ac, ...) to read them as rates")
+    if "rate_attribute_used" in info:
+        print(f"{'rates read from':16} attribute {info['rate_attribute_used']!r} in {grid.map_unit}")
     for key, value in info.items():
-        if key == "unit" or key.endswith("_rate_kg_ha"):  # the text shows rates in the map's own unit
+        if key in ("unit", "unit_problem", "rate_attribute_used") or key.endswith("_rate_kg_ha"):
             continue
         if key.endswith("_rate") and value is not None:
-            value = f"{value:.6g} {info['rate_unit']}"
+            value = f"{value:.6g} {info['rate_unit'] or ''}".rstrip()
+        elif key == "rate_unit" and value is None:
+            value = "not stated"
         elif isinstance(value, list):
             value = "[" + ", ".join(f"{v:.9g}" for v in value) + "]"
         elif isinstance(value, float):
             value = f"{value:.6g}"
         print(f"{key:16} {value}")
     return 0
+
+
+def _described(args) -> dict | None:
+    """`describe_zones` of a zone file (polygons with attributes), None for any other map."""
+    from maps.points import geojson_is_points
+    from maps.zone_table import describe_zones, is_zone_file, read_zone_table
+    from maps.zones import load_geojson
+
+    path = args.file
+    if not os.path.exists(path) or not is_zone_file(path):
+        return None
+    if path.lower().endswith((".geojson", ".json")) and geojson_is_points(load_geojson(path), path):
+        return None
+    return describe_zones(read_zone_table(path, layer=args.layer, crs=args.crs), args.rate_field)
+
+
+def _grid_or_values(args):
+    """(the map, None); or, for a map that reads with a unit given but not without one, (its values
+    read with a stand-in unit, why its own unit does not do: the file states none, or states one vrsim
+    cannot read, in the read's words): what it holds, before its unit is known."""
+    try:
+        return _read(args), None
+    except MapError as exc:
+        if args.unit is not None:
+            raise
+        why = _unit_problem(str(exc), args.file)
+        stand_in = argparse.Namespace(**{**vars(args), "unit": "kg/ha"})
+        try:
+            return _read(stand_in), why
+        except MapError:
+            pass
+        raise
+
+
+def _unit_problem(message: str, path: str) -> str:
+    """The unit part of a read's error `message` about `path`: "not stated in the file" when it states
+    none, else what it says of the file's unit (its file name left out: the info names the source)."""
+    if "does not state the unit" in message:
+        return "not stated in the file"
+    return message.removeprefix(f"{path}: ")
+
+
+def _print_described(d: dict, unit: str | None) -> None:
+    print(f"{'source':16} {d['source']}")
+    if d["layer"]:
+        print(f"{'layer':16} {d['layer']}")
+    print(f"{'file_crs':16} {d['file_crs'] or 'not stated (no .prj): give --crs'}")
+    area = f", {d['zones_area_ha']:,.2f} ha" if d["zones_area_ha"] is not None else ""
+    print(f"{'zones':16} {d['zones']:,} polygons{area}")
+    print(f"{'attributes':16} {len(d['attributes'])}")
+    for name, a in d["attributes"].items():
+        shown = (": " + ", ".join(f"{v:g}" if isinstance(v, float) else str(v) for v in a["values"])
+                 if "values" in a else f", {a['range'][0]:g} .. {a['range'][1]:g}" if "range" in a else "")
+        print(f"  {name:14} {a['type']}, {a['count']:,} values, {a['distinct']:,} distinct{shown}")
+    why = d["rate_attribute_why"]
+    print(f"{'rate_attribute':16} {d['rate_attribute'] + ' (' + why + ')' if d['rate_attribute'] else why}")
+    if d["stated_unit"]:
+        print(f"{'unit':16} {d['stated_unit']} (stated: {d['stated_in']})")
+    elif unit:
+        print(f"{'unit':16} {unit} (given with --unit; the file states none)")
+    else:
+        print(f"{'unit':16} not stated in the file: give --unit (kg/ha, lb/ac, L/ha, gal/ac, seeds/ac, ...) "
+              "to see the rates in it")
 
 
 def _sample(args) -> int:
@@ -168,15 +258,53 @@ def _write_whole(write, out: str) -> None:
         raise
 
 
+def _output(args, action: str, ext: str, older: bool = False) -> str:
+    """OUT from ``--out`` or the positional form (`older`: the positional form is the older one, taken
+    with a note on stderr), checked to end in `ext`."""
+    if args.out and args.out_option:
+        raise MapError(f"map {action}: give the output once, with --out")
+    out = args.out_option or args.out
+    if not out:
+        raise MapError(f"map {action}: give the output with --out OUT{ext}")
+    if args.out and older:
+        print(f"vrsim map: note: `vrsim map {action} FILE OUT` is the older form; write `--out {out}`",
+              file=sys.stderr)
+    if not out.lower().endswith(ext):
+        raise MapError(f"map {action}: output {out!r} must end in {ext}")
+    return out
+
+
 def _plot(args) -> int:
+    from common.written import written
     from maps.plot import plot_map
 
-    if not args.out.lower().endswith(".png"):
-        raise MapError(f"map plot: output {args.out!r} must end in .png")
-    from common.written import written
-
+    out = _output(args, "plot", ".png", older=True)
     grid = _read(args)
-    with written(args.out, MapError) as temp:
+    with written(out, MapError) as temp:
         plot_map(grid.as_map_unit(), temp)
-    print(f"wrote {args.out}")
+    print(f"wrote {out}")
+    return 0
+
+
+def _boundary(args) -> int:
+    """`vrsim map boundary RX OUT.geojson`: the field `[field] from_map = true` takes, for a look in QGIS."""
+    import json
+
+    from common import VehicleError
+    from common.written import written
+    from services.sim.world import field_from_map
+    from vehicle.field import SLIVER_M2
+
+    out = _output(args, "boundary", ".geojson")
+    try:
+        field = field_from_map(args.file, crs=args.crs, layer=args.layer,
+                               sliver_m2=SLIVER_M2 if args.sliver_m2 is None else args.sliver_m2)
+    except VehicleError as exc:
+        raise MapError(str(exc)) from None
+    feature = field.to_geojson()
+    with written(out, MapError) as temp, open(temp, "w") as fh:
+        json.dump({"type": "FeatureCollection", "features": [feature]}, fh)
+    props = feature["properties"]
+    print(f"wrote {out} (one polygon of {props['area_ha']:,.2f} ha, {props['holes']} "
+          f"hole{'s' * (props['holes'] != 1)}, WGS84; the field's UTM zone is {props['utm_crs']})")
     return 0

@@ -5,6 +5,18 @@ from __future__ import annotations
 from common import VrsimError, files
 
 
+def warnings_as_lines(command: str) -> None:
+    """Warnings (a map or a field used with a repair) as one stderr line each, ``vrsim COMMAND:
+    warning: ...``, not Python's two-line format."""
+    import sys
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"vrsim {command}: warning: {message}", file=sys.stderr)
+
+    warnings.showwarning = show
+
+
 def add_input_cap(parser) -> None:
     """``--max-input-mb MB``: raise the byte cap of every input format (`common.files.BYTE_CAPS`)."""
     parser.add_argument("--max-input-mb", type=float, default=None, metavar="MB",

@@ -8,7 +8,13 @@ import os
 import sys
 import time
 
-from services.cli.options import add_input_cap, add_overrides, apply_input_cap, load_scenario
+from services.cli.options import (
+    add_input_cap,
+    add_overrides,
+    apply_input_cap,
+    load_scenario,
+    warnings_as_lines,
+)
 
 # The young generation's threshold during the run, objects (Python's default: 700). The run allocates
 # numpy arrays and small records, which hold no reference cycles to collect.
@@ -28,7 +34,8 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="output folder (default: runs/<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--quiet", action="store_true",
+                        help="no progress on stderr (a bar on a terminal; else a line every 10 s)")
     parser.add_argument("--check", action="store_true",
                         help="only say whether the machine can apply the map at the working speeds, and the "
                              "highest speed at which it can; then exit (nothing is driven): 0 it can, 3 it "
@@ -44,19 +51,32 @@ def default_out_dir(name: str, command: str = "") -> str:
 
 
 class Progress:
-    """A one-line progress bar on stderr, shown once a run has taken more than a second, and only on a
-    terminal (a log file gets no carriage-return noise)."""
+    """Progress on stderr once a run has taken more than a second: on a terminal a one-line bar
+    redrawn in place; without one (a log file, a CI job, a pipe) a plain line every
+    `LOG_EVERY_S` seconds, so a long run is seen to move and nothing fills the log with carriage
+    returns."""
+
+    LOG_EVERY_S = 10.0
 
     def __init__(self, label: str, enabled: bool):
         self.label = label
-        self.enabled = enabled and sys.stderr.isatty()
+        self.enabled = enabled
+        self.tty = sys.stderr.isatty()
         self.start = time.perf_counter()
         self.shown = False
+        self.logged_s = 0.0
 
     def __call__(self, done: int, total: int) -> None:
-        if not self.enabled or time.perf_counter() - self.start < 1.0:
+        elapsed = time.perf_counter() - self.start
+        if not self.enabled or elapsed < 1.0:
             return
         frac = done / total if total else 1.0
+        if not self.tty:
+            if elapsed - self.logged_s >= self.LOG_EVERY_S:
+                self.logged_s = elapsed
+                sys.stderr.write(f"{self.label}: control loop {100 * frac:5.1f} % after {elapsed:.0f} s\n")
+                sys.stderr.flush()
+            return
         bar = "#" * int(30 * frac)
         sys.stderr.write(f"\r{self.label} control loop [{bar:<30}] {100 * frac:5.1f} %")
         sys.stderr.flush()
@@ -68,6 +88,7 @@ class Progress:
 
 
 def run(args) -> int:
+    warnings_as_lines("run")
     if args.check:
         return _check(args)
     # SUMO's process starts first: it imports while this one does and loads the scenario.
@@ -143,7 +164,7 @@ def _run(args, driver) -> int:
     if args.json:
         print(summary_json(with_settings(result)))
     else:
-        print(result.machine_check.text(result.world.grid))
+        print(result.machine_check.text(result.world.grid, result.summary.get("units", "metric")))
         print(text_summary(result.summary))
         print(outputs_line(out_dir, sc.output.track_formats))
     return 0
@@ -171,17 +192,19 @@ def _check(args) -> int:
     import dataclasses
 
     from services.outputs.summary import summary_json
+    from services.sim.display import check_display, run_units
     from services.sim.run import check_world, start_up
     from services.sim.world import build_world
 
     sc = _scenario(args)
     world = build_world(sc)
     start_up(world)
-    result = check_world(world)
+    result, units = check_world(world), run_units(world)
     if args.json:
         doc = {"scenario": sc.name, **dataclasses.asdict(result), "can_apply": result.can_apply,
-               "rate_unit": world.grid.map_unit, "in_rate_unit": result.in_rate_unit(world.grid)}
+               "rate_unit": world.grid.map_unit, "in_rate_unit": result.in_rate_unit(world.grid),
+               "units": units, "display": check_display(result, world.grid, units)}
         print(summary_json(doc))
     else:
-        print(result.text(world.grid))
+        print(result.text(world.grid, units))
     return 0 if result.can_apply else EXIT_CANNOT

@@ -27,6 +27,9 @@ from common.written import write_failure, written
 TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),
                  ("shaft_rpm", 3), ("current_a", 5), ("prescribed_kg_ha", 2), ("applied_kg_ha", 2),
                  ("implement_on", None), ("sections_on", None), ("section_mask", None))
+PARTIAL_PREFIX = ".track-partial-"  # then the writing process's id: a killed run's is removed later
+
+
 TRACK_FILES = {"parquet": "track.parquet", "csv": "track.csv"}   # ``[output] track``'s formats
 # Parts handed to the writing thread and not yet written, at most: the track's memory stays a few
 # parts' whatever the disk's speed.
@@ -83,7 +86,8 @@ class TrackFiles:
         self._pending: list = []   # the parts handed to it (futures), oldest first
         try:
             os.makedirs(folder, exist_ok=True)
-            self.partial = tempfile.mkdtemp(prefix=".track-partial-", dir=folder)
+            _remove_stale_partials(folder)
+            self.partial = tempfile.mkdtemp(prefix=f"{PARTIAL_PREFIX}{os.getpid()}-", dir=folder)
         except OSError as exc:
             self._failed(exc)
 
@@ -194,3 +198,36 @@ def track_rows(result) -> dict:
     track, control, landing = result.track, result.control, result.landing
     rows = {k: v[k] for v, keys in ((track, _ROW_KEYS[:5]), (control, _ROW_KEYS[5:9])) for k in keys}
     return dict(rows, prescribed_kg_ha=landing.prescribed_kg_ha, applied_kg_ha=landing.applied_kg_ha)
+
+
+def _remove_stale_partials(folder: str) -> list[str]:
+    """Remove the ``.track-partial-<pid>-*`` folders in `folder` that a run killed before it could
+    clean up left (their process is gone; one of an older vrsim, without a pid, too), saying so in one
+    warning; the names removed."""
+    import shutil
+    import warnings
+
+    removed = []
+    for name in sorted(os.listdir(folder)):
+        if not name.startswith(PARTIAL_PREFIX) or not os.path.isdir(os.path.join(folder, name)):
+            continue
+        pid = name[len(PARTIAL_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and _alive(int(pid)):
+            continue
+        shutil.rmtree(os.path.join(folder, name), ignore_errors=True)
+        removed.append(name)
+    if removed:
+        warnings.warn(f"{folder}: removed {', '.join(removed)}: the unfinished track of a run that was "
+                      "killed", UserWarning, stacklevel=3)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` runs (or runs under another user)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return pid != 0

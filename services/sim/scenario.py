@@ -29,13 +29,14 @@ from common import MapError, ScenarioError, files, is_number
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
-from maps.units import rate_unit
+from maps.units import UNIT_SYSTEMS, rate_unit
 from services.sim.machines.keys import changed_implement, implement_from_table, implement_table
 from services.sim.overrides import Override
 from services.sim.overrides import apply as apply_overrides
-from services.sim.tables import build, no_unknown, typed
+from services.sim.tables import build, no_unknown, typed, with_units
 from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
 from vehicle.driver import MAX_SEED, STEP_RANGE_S
+from vehicle.field import SLIVER_M2
 from vehicle.product import Product
 from vehicle.response import MachineResponse
 
@@ -47,15 +48,23 @@ MAX_SIM_TIME_S = 1e6  # an explicit time limit above ~11.6 days of driving is a 
 
 @dataclass(frozen=True)
 class FieldSpec:
-    """Where the field is: exactly one of `file`, `rectangle` or `polygon_lonlat`."""
+    """Where the field is: exactly one of `file`, `rectangle`, `polygon_lonlat` or `from_map`."""
 
     file: str | None = None
     crs: str | None = None  # for a shapefile without .prj
     rectangle: dict | None = None  # {width_m, length_m, lat, lon}
     polygon_lonlat: list | None = None  # [[lon, lat], ...]
+    from_map: bool = False  # the union of the [map] file's zones (`vehicle.Field.from_polygons`)
+    union: bool = False  # a `file` of several polygons: their union (else refused)
+    sliver_m2: float = SLIVER_M2  # a union's parts and holes under this area are dropped
     headland_passes: int = 1
     heading_deg: float | None = None  # AB heading; None = along the longest edge
     turn_radius_m: float = 6.0
+
+    def __post_init__(self):
+        if isinstance(self.rectangle, dict):  # its sides may be given with a unit: width = "400 ft"
+            object.__setattr__(self, "rectangle", with_units(self.rectangle, ("width_m", "length_m"),
+                                                             "rectangle", ""))
 
 
 @dataclass(frozen=True)
@@ -107,6 +116,10 @@ class OutputSpec:
     track : str or list of str
         The per-tick track: "parquet" (track.parquet, columnar: a big field's track in a fraction of
         the CSV's size and time), "csv" (track.csv), a list of both, or "none" (`track_formats`).
+    units : {"metric", "us"} or None
+        The units every printed, reported and drawn figure is shown in (`maps.units.US_UNITS`; files
+        and JSON keys stay SI); None: "us" for a map in a US unit (lb/ac, gal/ac), else "metric"
+        (`maps.units.unit_system`).
     """
 
     plots: bool = True
@@ -114,6 +127,7 @@ class OutputSpec:
     log_rate_hz: float = 1.0
     points: str = "gpkg"
     track: str | list | tuple = ("parquet",)
+    units: str | None = None
 
     def __post_init__(self):
         if isinstance(self.track, list):   # a TOML array: the same value as the default's tuple
@@ -344,16 +358,23 @@ def _check(scenario: Scenario) -> None:
     if not 0 <= scenario.seed <= MAX_SEED:
         raise ScenarioError(f"{source}: seed must be in [0, {MAX_SEED}], got {scenario.seed}")
     _check_field(scenario.field, source)
-    _check_map(scenario.map, source)
+    _check_map(scenario.map, source, scenario.field)
     _check_timing(scenario.timing, source)
     _check_output(scenario.output, scenario.timing, source)
 
 
 def _check_field(spec: FieldSpec, source: str) -> None:
     given = [k for k in ("file", "rectangle", "polygon_lonlat") if getattr(spec, k) is not None]
+    given += ["from_map"] if spec.from_map else []
     if len(given) != 1:
-        raise ScenarioError(f"{source}: [field] needs exactly one of file, rectangle, polygon_lonlat "
-                            f"(got {', '.join(given) or 'none'})")
+        raise ScenarioError(f"{source}: [field] needs exactly one of file, rectangle, polygon_lonlat, "
+                            f"from_map = true (got {', '.join(given) or 'none'})")
+    if spec.union and spec.file is None:
+        raise ScenarioError(f"{source}: [field] union = true is for a file of several polygons; there is "
+                            "no [field] file")
+    if not (is_number(spec.sliver_m2) and spec.sliver_m2 >= 0):
+        raise ScenarioError(f"{source}: [field] sliver_m2 must be a number >= 0 (m^2), got "
+                            f"{spec.sliver_m2!r}")
     if spec.rectangle is not None:
         no_unknown(spec.rectangle, {"width_m", "length_m", "lat", "lon"}, source, "field.rectangle")
         for key in ("width_m", "length_m", "lat", "lon"):
@@ -366,9 +387,12 @@ def _check_field(spec: FieldSpec, source: str) -> None:
         raise ScenarioError(f"{source}: [field] turn_radius_m must be > 0, got {spec.turn_radius_m}")
 
 
-def _check_map(spec: MapSpec, source: str) -> None:
+def _check_map(spec: MapSpec, source: str, field_spec: FieldSpec | None = None) -> None:
     if (spec.file is None) == (spec.synthetic is None):
         raise ScenarioError(f"{source}: [map] needs exactly one of file or synthetic")
+    if field_spec is not None and field_spec.from_map and spec.file is None:
+        raise ScenarioError(f"{source}: [field] from_map = true takes the field from the [map] file's "
+                            f"zones; [map] is synthetic {spec.synthetic!r}: give [map] file")
     if spec.synthetic is not None:
         if spec.synthetic not in SYNTHETIC_KINDS:
             raise ScenarioError(f"{source}: [map] synthetic must be one of {', '.join(SYNTHETIC_KINDS)}, "
@@ -449,6 +473,9 @@ def _check_output(spec: OutputSpec, timing: TimingSpec, source: str) -> None:
     if not 0 < spec.log_rate_hz <= control_hz * (1 + 1e-9):
         raise ScenarioError(f"{source}: [output] log_rate_hz must be > 0 and <= the control rate "
                             f"({control_hz:g} Hz), got {spec.log_rate_hz}")
+    if spec.units is not None and spec.units not in UNIT_SYSTEMS:
+        raise ScenarioError(f"{source}: [output] units must be one of {', '.join(UNIT_SYSTEMS)}, got "
+                            f"{spec.units!r}")
     if spec.points not in POINT_FORMATS:
         raise ScenarioError(f"{source}: [output] points must be one of {', '.join(POINT_FORMATS)}, "
                             f"got {spec.points!r}")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,10 +16,11 @@ import numpy as np
 from common import MapError, ScenarioError, VehicleError, files
 from maps import Grid, read_map, synthetic
 from maps.units import rate_kind
-from services.sim.as_run import as_run
 from services.sim.drive_job import DriveJob
+from services.sim.resolve import as_run
 from services.sim.scenario import Scenario, product_density_kg_l
 from vehicle import CoveragePath, Field, plan_coverage
+from vehicle.field import SLIVER_M2
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
 # Memory of a run accounted part by part (`services.sim.bounded`, `vrsim run`), measured on the huge
@@ -44,12 +46,44 @@ class World:
 
 def _build_field(scenario: Scenario) -> Field:
     spec = scenario.field
+    if spec.from_map:
+        try:
+            return field_from_map(scenario.path(scenario.map.file), crs=scenario.map.crs,
+                                  sliver_m2=spec.sliver_m2)
+        except MapError as exc:
+            raise VehicleError(f"from_map: {exc}") from None
     if spec.file is not None:
-        return Field.from_file(scenario.path(spec.file), crs=spec.crs)
+        return Field.from_file(scenario.path(spec.file), crs=spec.crs, union=spec.union,
+                               sliver_m2=spec.sliver_m2)
     if spec.rectangle is not None:
         r = spec.rectangle
         return Field.rectangle(r["width_m"], r["length_m"], lat=r["lat"], lon=r["lon"])
     return Field.from_lonlat([tuple(p) for p in spec.polygon_lonlat])
+
+
+def field_from_map(path: str, crs=None, layer: str | None = None, sliver_m2: float = SLIVER_M2) -> Field:
+    """The field a zone prescription covers: the union of its zones (`vehicle.Field.from_polygons`:
+    repaired in the field's UTM zone, holes kept, parts and holes under `sliver_m2` m^2 dropped).
+
+    Raises
+    ------
+    MapError
+        Not a zone file (a shapefile, zipped or not, GeoPackage or GeoJSON), no polygon, no CRS.
+    VehicleError
+        A union of several parts, or one over the field caps.
+    """
+    from maps.zone_table import is_zone_file, read_zone_table
+
+    if not os.path.exists(path):
+        raise MapError(f"{path}: no such file or folder")
+    if not is_zone_file(path):
+        raise MapError(f"{path}: a field is taken from a zone map's polygons (a shapefile, zipped or not, "
+                       "GeoPackage or GeoJSON); this one has none")
+    table = read_zone_table(path, layer=layer, crs=crs)
+    if table.crs is None:
+        raise MapError(f"{path}: the file does not state its CRS (no .prj); give one ([map] crs, --crs)")
+    name = os.path.splitext(os.path.basename(path))[0]
+    return Field.from_polygons(table.polygons, table.crs, name, sliver_m2, f"{path}: its zones' union")
 
 
 def _build_prescription(scenario: Scenario, field: Field) -> Grid:

@@ -67,7 +67,7 @@ BAD = [
                                          "driving width width_m=24"),
     ('kind = "gated_meter"\nwidth_m = 24.0\n', None, '[implement] kind: machine pattern needs a spinner '
                                                      '(kind = "spinner"), got \'gated_meter\''),
-    ('width_m = 24.0\n', None, "got 'gated_meter' (its strips lie side by side: cv_pct 0)"),
+    ('width_m = 24.0\n', None, "got 'gated_meter' (its strips lie side by side: no spread pattern"),
     (SPIN + "sections = 3\n", None, "[implement] Implement: kind 'spinner' supports at most 2 sections, got "
                                     "sections=3"),
     (SPIN + "turn_compensation = true\n", None, "[implement] turn_compensation is a key of kind "
@@ -114,3 +114,12 @@ def test_bad_files_and_options_exit_2(tmp_path):
     p = vrsim("pattern", SPINNER, "--out", tmp_path / "a_file")
     assert p.returncode == 2 and "cannot create the folder" in p.stderr, p.stderr
     assert p.stderr.count("\n") == 1
+
+
+def test_set_changes_the_scenario_as_for_run(tmp_path):
+    p = vrsim("pattern", SPINNER, "--set", "implement.spread_width_m=30.0", "--out", tmp_path, "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["spread_width_m"] == 30.0 and out["cv_pct"] != pytest.approx(HAND_CV_PCT, abs=0.5)
+    p = vrsim("pattern", SPINNER, "--set", "implement.spread_width_m=-1", "--out", tmp_path)
+    assert p.returncode == 2 and "spread_width_m" in p.stderr and len(p.stderr.strip().splitlines()) == 1

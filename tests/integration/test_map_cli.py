@@ -42,6 +42,15 @@ def test_info_text():
     assert "max_rate         290 kg/ha" in p.stdout
 
 
+def test_info_without_a_unit_shows_the_values_as_stored():
+    p = vrsim("info", TIF)
+    assert p.returncode == 0, p.stderr
+    assert "not stated in the file" in p.stdout and "--unit" in p.stdout
+    assert "max_rate         290\n" in p.stdout and "rate_unit        not stated" in p.stdout
+    info = json.loads(vrsim("info", TIF, "--json").stdout)
+    assert info["rate_unit"] is None and info["max_rate"] == 290 and "max_rate_kg_ha" not in info
+
+
 def test_sample_isoxml_lat_lon_and_outside(shared_dir):
     t2 = isoxml(shared_dir, "isoxml-dotnet-Type2/TASKDATA.XML")
     lat = 55.82481700900832 + 3.5 * 0.0000902618210782717
@@ -123,15 +132,15 @@ def test_bad_input_exit_2_one_line(tmp_path, shared_dir):
     assert "is missing" in bad("info", isoxml(shared_dir, "isoxml-js-grid-without-binary.zip"))
     assert "no such file" in bad("info", tmp_path / "nope.tif")
     assert "exceeds the cap" in bad("info", TIF, "--max-cells", 10)
-    assert "does not state the unit of its rates" in bad("info", TIF)
-    assert "no .prj" in bad("info", os.path.join(DATA, "zones_noprj.shp"))
+    assert "does not state the unit of its rates" in bad("sample", TIF, "--x", 500_001, "--y", 5_300_049)
+    assert "no .prj" in bad("info", os.path.join(DATA, "zones_noprj.shp"), *KG_HA)
     assert "not a polygon" in bad("info", os.path.join(DATA, "lines.shp"))
     assert "give --lat and --lon" in bad("sample", TIF)
     assert "give --lat and --lon" in bad("sample", TIF, "--lat", 1, "--x", 2)
     assert "finite" in bad("sample", TIF, "--lat", "nan", "--lon", 1)
     assert "unknown output format" in bad("convert", TIF, *KG_HA, tmp_path / "a.txt")
     assert "needs --to-crs" in bad("convert", tmp_path / "nope.tif", tmp_path / "a.tif", "--to-cell-size", 2)
-    assert ".png" in bad("plot", TIF, *KG_HA, tmp_path / "a.jpg")
+    assert ".png" in bad("plot", TIF, *KG_HA, "--out", tmp_path / "a.jpg")
     hostile = '<!DOCTYPE x [<!ENTITY a "b">]><ISO11783_TaskData>&a;</ISO11783_TaskData>'
     (tmp_path / "TASKDATA.XML").write_text(hostile)
     assert "refused" in bad("info", tmp_path / "TASKDATA.XML")

@@ -55,7 +55,8 @@ LINES = _command_lines()
 def test_every_subcommand_and_action_is_listed():
     names = {line[0] for line in LINES}
     assert names == set(COMMANDS)
-    assert {line[1] for line in LINES if line[0] == "map"} == {"info", "sample", "convert", "plot"}
+    assert {line[1] for line in LINES if line[0] == "map"} == {"info", "sample", "convert", "plot",
+                                                                     "boundary"}
     assert len([line for line in LINES if line[0] == "serve"]) > 3
 
 

@@ -44,3 +44,26 @@ def test_a_write_that_fails_in_the_thread_is_raised_and_leaves_nothing(tmp_path)
     with pytest.raises(FileNotFoundError):
         files.finish()
     assert not out.exists()
+
+
+def test_a_killed_runs_partial_track_is_removed_at_the_next_start(tmp_path):
+    dead = subprocess_pid_that_ended()
+    live = f".track-partial-{os.getpid()}-x"
+    for name in (f".track-partial-{dead}-abcd1234", ".track-partial-old12345", live):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "track.csv").write_text("half a track")
+    with pytest.warns(UserWarning, match="the unfinished track of a run that was killed"):
+        files = TrackFiles(FIELD, str(tmp_path), ["csv"])
+    left = sorted(n for n in os.listdir(tmp_path) if n.startswith(".track-partial-"))
+    assert live in left and len(left) == 2  # a live run's own, and this one's
+    files.abort()
+    assert sorted(os.listdir(tmp_path)) == [live]
+
+
+def subprocess_pid_that_ended() -> int:
+    import subprocess
+    import sys
+
+    p = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                       text=True)
+    return int(p.stdout)
