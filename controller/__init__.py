@@ -15,7 +15,8 @@ from controller.gains import PidGains, paper_gains, ziegler_nichols
 from controller.interface import Controller, LoopInfo
 from controller.kinds.ideal import IdealLoop
 from controller.kinds.python import UserCodeError
-from controller.loop import ClosedLoop, StepOutput
+from controller.loop import ClosedLoop
+from controller.loop_io import StepOutput
 from controller.metrics import StepMetrics, step_metrics
 from controller.plant import PlantParams, assumptions, state_space, unlimited
 from controller.plant_loop import PlantLoop

@@ -21,16 +21,27 @@ from collections.abc import Sequence
 import numpy as np
 
 from common import ControllerError
-from controller.discretize import Lifted, delay_split, lift
+from controller.discretize import delay_split
 from controller.gains import FORMS, PidGains
+from controller.loop_io import StepOutput, clip_targets, targets_matrix
+from controller.loop_matrix import (
+    ACC,
+    IN_CURRENT,
+    IN_LOAD,
+    IN_TARGET,
+    OUT_CURRENT,
+    OUT_MEASURED,
+    OUT_REV,
+    OUT_RPM,
+    Layout,
+    gain_vectors,
+    per_loop,
+    plant_block,
+    values_of,
+)
 from controller.pid_law import clamped, pid_rows, pid_terms, saturate
-from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
+from controller.plant import N_STATES, PlantParams
 
-N_PID = 5
-ACC, E1, E2, Y1, Y2 = range(N_PID)
-# Extra entries of the product's input after the state, and extra rows of its output after the state.
-IN_CURRENT, IN_TARGET, IN_LOAD = range(3)
-OUT_REV, OUT_RPM, OUT_CURRENT, OUT_MEASURED = range(4)
 # n loops of one plant: the floats of the products held before their outputs are recorded (a block of
 # ticks that stays in the cache), and the most loops whose PID law runs in Python floats (up to here
 # their arithmetic costs less than a numpy call).
@@ -40,105 +51,6 @@ SHARED_BLOCK_FLOATS = 1 << 16
 EINSUM_LAW_LOOPS = 1000
 FLOAT_LAW_LOOPS = 4
 
-
-class StepOutput:
-    """What one control period did, per loop (all shape (n,)).
-
-    Attributes
-    ----------
-    shaft_rpm : metering-shaft speed at the end of the period [rpm].
-    shaft_rev : metering-shaft revolutions during the period (exact, from the angle state) [rev].
-    current_a : valve current held during the period, after saturation [A].
-    measured_rpm : the (delayed) speed-sensor reading the PID used this period [rpm].
-    """
-
-    __slots__ = ("shaft_rpm", "shaft_rev", "current_a", "measured_rpm")
-
-    def __init__(self, shaft_rpm, shaft_rev, current_a, measured_rpm):
-        # a plain slotted class: a frozen dataclass costs ~1 us more per tick
-        self.shaft_rpm = shaft_rpm
-        self.shaft_rev = shaft_rev
-        self.current_a = current_a
-        self.measured_rpm = measured_rpm
-
-    def __repr__(self):
-        return (f"StepOutput(shaft_rpm={self.shaft_rpm}, shaft_rev={self.shaft_rev}, "
-                f"current_a={self.current_a}, measured_rpm={self.measured_rpm})")
-
-
-class _Layout:
-    """Index arithmetic of the augmented state for a delay line of D samples."""
-
-    def __init__(self, delay_slots: int):
-        self.D = delay_slots
-        self.ring0 = N_STATES
-        self.pid0 = N_STATES + delay_slots
-        self.ns = self.pid0 + N_PID          # state size
-        self.nv = self.ns + 3                 # product input size: state, current, target, load
-
-
-def _plant_block(p: PlantParams, lay: _Layout, form: str, control_period_s: float,
-                 plant_step_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """The product matrix M (ns + 7, nv) and the fine-output rows F (N, nv) for one plant.
-
-    M's rows: the next state (ns), three zero rows where the next tick writes its inputs (so the product
-    is directly the next tick's vector), and the outputs (4).
-    """
-    A, B = state_space(p)
-    lifted = lift(A, B, shaft_rpm_row(p), shaft_rev_row(p), control_period_s, plant_step_s,
-                  p.sensor_delay_s)
-    d = lifted.delay_periods
-    ns, nv, r0, p0 = lay.ns, lay.nv, lay.ring0, lay.pid0
-    cur, tgt, load = ns + IN_CURRENT, ns + IN_TARGET, ns + IN_LOAD
-    ks, ka = p.sensor_gain_v_per_rpm, p.amplifier_gain_a_per_v
-    out0 = ns + 3
-    M = np.zeros((out0 + 4, nv))
-    xu = list(range(N_STATES)) + [cur, load]     # columns that the lifted rows act on
-    M[:N_STATES, xu] = lifted.step[:N_STATES]
-    for j in range(d - 1):                       # delay line shifts towards its head
-        M[r0 + j, r0 + j + 1] = 1.0
-    M[r0 + d - 1, xu] = lifted.step[Lifted.ROW_SAMPLE]
-    if form == "incremental":
-        M[p0 + ACC, cur] = 1.0 / ka               # u(n-1) <- saturated output in volts
-    else:
-        M[p0 + ACC, p0 + ACC] = 1.0               # error sum += e
-        M[p0 + ACC, tgt], M[p0 + ACC, r0] = ks, -ks
-    M[p0 + E1, tgt], M[p0 + E1, r0] = ks, -ks     # e1 <- e = Ks (r - y_m)
-    M[p0 + E2, p0 + E1] = 1.0
-    M[p0 + Y1, r0] = ks                           # y1 <- Ks y_m
-    M[p0 + Y2, p0 + Y1] = 1.0
-    M[out0 + OUT_REV, xu] = lifted.step[Lifted.ROW_REV]
-    M[out0 + OUT_RPM, xu] = lifted.step[Lifted.ROW_RPM]
-    M[out0 + OUT_CURRENT, cur] = 1.0
-    M[out0 + OUT_MEASURED, r0] = 1.0
-    F = np.zeros((lifted.fine.shape[0], nv))
-    F[:, xu] = lifted.fine
-    return M, F
-
-
-def _gain_vectors(rows: np.ndarray, ks: np.ndarray, lay: _Layout) -> tuple[np.ndarray, np.ndarray]:
-    """Turn `pid_rows` into (g over the state (n, ns), g_r on the target (n,)), substituting
-    e = Ks r - Ks y_m and y = Ks y_m."""
-    a_acc, a_e, a_e1, a_e2, a_y, a_y1, a_y2 = rows.T
-    g = np.zeros((rows.shape[0], lay.ns))
-    p0 = lay.pid0
-    g[:, p0 + ACC], g[:, p0 + E1], g[:, p0 + E2], g[:, p0 + Y1], g[:, p0 + Y2] = a_acc, a_e1, a_e2, a_y1, a_y2
-    g[:, lay.ring0] = ks * (a_y - a_e)
-    return g, ks * a_e
-
-
-def _per_loop(value, n: int, name: str) -> list:
-    if isinstance(value, Sequence) and not isinstance(value, str):
-        if len(value) != n:
-            raise ControllerError(f"{name} must be one value or {n} values (n={n}), got {len(value)}")
-        return list(value)
-    return [value] * n
-
-
-def _values(source: list, name: str, n: int) -> np.ndarray:
-    """Attribute `name` of each loop's object, shape (n,); `source` is n objects or one shared one."""
-    values = [getattr(x, name) for x in source]
-    return np.array(values if len(source) == n else values * n, dtype=float)
 
 
 class ClosedLoop:
@@ -169,8 +81,8 @@ class ClosedLoop:
             raise ControllerError(f"n must be a positive integer, got {n!r}")
         if form not in FORMS:
             raise ControllerError(f"form must be one of {', '.join(FORMS)}, got {form!r}")
-        plant_list = _per_loop(plants, n, "plants")
-        gain_list = _per_loop(gains, n, "gains")
+        plant_list = per_loop(plants, n, "plants")
+        gain_list = per_loop(gains, n, "gains")
         for t in set(map(type, plant_list)):
             if t is not PlantParams:
                 raise ControllerError(f"plants must be PlantParams, got {t.__name__}")
@@ -182,20 +94,21 @@ class ClosedLoop:
         self.control_period_s = float(control_period_s)
         self.plant_step_s = float(plant_step_s)
         unique = list(dict.fromkeys(plant_list)) if isinstance(plants, Sequence) else [plants]
-        self._lay = lay = _Layout(max(delay_split(p.sensor_delay_s, control_period_s)[0] for p in unique))
-        blocks = {p: _plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
+        self._lay = lay = Layout(max(delay_split(p.sensor_delay_s, control_period_s)[0] for p in unique))
+        blocks = {p: plant_block(p, lay, form, control_period_s, plant_step_s) for p in unique}
         shared = len(unique) == 1
         M = blocks[unique[0]][0] if shared else np.stack([blocks[p][0] for p in plant_list])
         F = blocks[unique[0]][1] if shared else np.stack([blocks[p][1] for p in plant_list])
         self.n_fine = F.shape[-2]
         ps = unique if shared else plant_list
         gs = gain_list if isinstance(gains, Sequence) else [gains]
-        self._ka, self._ks = _values(ps, "amplifier_gain_a_per_v", n), _values(ps, "sensor_gain_v_per_rpm", n)
-        self._ilo, self._ihi = _values(ps, "current_min_a", n), _values(ps, "current_max_a", n)
-        self._rmax = _values(ps, "shaft_rpm_max", n)
-        kp, ki, kd = _values(gs, "kp", n), _values(gs, "ki", n), _values(gs, "kd", n)
+        self._ka = values_of(ps, "amplifier_gain_a_per_v", n)
+        self._ks = values_of(ps, "sensor_gain_v_per_rpm", n)
+        self._ilo, self._ihi = values_of(ps, "current_min_a", n), values_of(ps, "current_max_a", n)
+        self._rmax = values_of(ps, "shaft_rpm_max", n)
+        kp, ki, kd = values_of(gs, "kp", n), values_of(gs, "ki", n), values_of(gs, "kd", n)
         rows = pid_rows(kp, ki, kd, form, derivative_on_measurement, control_period_s)
-        self._g, self._gr = _gain_vectors(rows, self._ks, lay)
+        self._g, self._gr = gain_vectors(rows, self._ks, lay)
         self._terms = pid_terms(kp, ki, kd, form, derivative_on_measurement, control_period_s)
         self._scalar = n == 1 and shared
         # With one plant and one set of gains, g . s' (the state part of the next tick's PID output) is one
@@ -370,7 +283,7 @@ class ClosedLoop:
             raise ControllerError("target_shaft_rpm must be numbers, got NaN")
         ns, ks = self._ns, self._ks
         weights, basis = self._terms
-        gamma, delta = _gain_vectors(basis, np.full(len(basis), ks[0]), self._lay)
+        gamma, delta = gain_vectors(basis, np.full(len(basis), ks[0]), self._lay)
         out0, w0, nin = ns + 4, ns + 8, ns + 4     # outputs, basis outputs; inputs: ..., next target
         M = self._M
         mx = np.zeros((ns + 12, nin))
@@ -569,30 +482,3 @@ class ClosedLoop:
 
     def _targets(self, target) -> np.ndarray:
         return clip_targets(target, self.n, self._rmax)
-
-
-def clip_targets(target, n: int, rpm_max) -> np.ndarray:
-    """Targets as shape (n,), clipped to [0, `rpm_max`]; NaN or a wrong shape is a `ControllerError`."""
-    if isinstance(target, np.ndarray) and target.shape == (n,):
-        r = target.astype(float, copy=False)
-    else:
-        try:
-            r = np.broadcast_to(np.asarray(target, dtype=float), (n,))
-        except (TypeError, ValueError):
-            raise ControllerError(f"target_shaft_rpm must be a number or shape ({n},), "
-                                  f"got {target!r}") from None
-    r = np.minimum(np.maximum(r, 0.0), rpm_max)
-    total = r.sum()
-    if total != total:
-        raise ControllerError(f"target_shaft_rpm must be numbers, got NaN in {target!r}")
-    return r
-
-
-def targets_matrix(targets_rpm, n: int) -> np.ndarray:
-    """Targets of a run as shape (K, n) ((K,) is accepted for n = 1); `ControllerError` otherwise."""
-    t = np.asarray(targets_rpm, dtype=float)
-    if t.ndim == 1 and n == 1:
-        t = t[:, None]
-    if t.ndim != 2 or t.shape[1] != n:
-        raise ControllerError(f"targets_rpm must have shape (K, {n}), got {np.shape(targets_rpm)}")
-    return t

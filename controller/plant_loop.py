@@ -28,7 +28,7 @@ from common import ControllerError
 from controller.context import ContextTrack, ControlContext, takes_context
 from controller.discretize import lift
 from controller.interface import LoopInfo, state_arrays
-from controller.loop import StepOutput, clip_targets, targets_matrix
+from controller.loop_io import StepOutput, clip_targets, targets_matrix
 from controller.plant import IX_ANGLE, N_STATES, shaft_rev_row, shaft_rpm_row, state_space
 
 # Columns of the lifted product's output after the next state (rows of `Lifted.step`).

@@ -19,7 +19,8 @@ from common import ControllerError
 from controller import liang2013
 from controller.discretize import Lifted, delay_split, lift
 from controller.gains import GAIN_SOURCES, PidGains, paper_gains, ziegler_nichols
-from controller.loop import ClosedLoop, StepOutput
+from controller.loop import ClosedLoop
+from controller.loop_io import StepOutput
 from controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space, unlimited
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from common import ControllerError
 from controller.interface import LoopInfo, state_arrays
-from controller.loop import StepOutput, clip_targets, targets_matrix
+from controller.loop_io import StepOutput, clip_targets, targets_matrix
 from controller.params import KindParams
 from controller.registry import register_loop
 
