@@ -23,16 +23,16 @@ def run_units(world) -> str:
 
 def run_summary(accounts) -> dict:
     """A run's summary (`services.sim.metrics.summary` of its `Accounts`), for a liquid's map
-    ``in_product_unit`` (`in_product_unit`), and ``units``, the system its figures are shown in
+    ``in_product_unit`` (`_in_product_unit`), and ``units``, the system its figures are shown in
     (`run_units`; the figures stay SI): what `services.sim.run.RunResult` and the batched variants
     (`services.sim.variants`) hold."""
     summary, grid = metrics.summary(accounts), accounts.setting.world.grid
-    litres = in_product_unit(summary, grid.map_unit, grid.density_kg_l)
+    litres = _in_product_unit(summary, grid.map_unit, grid.density_kg_l)
     return {**summary, **({"in_product_unit": litres} if litres else {}),
             "units": run_units(accounts.setting.world)}
 
 
-def in_product_unit(summary: dict, map_unit: str, density_kg_l: float | None) -> dict:
+def _in_product_unit(summary: dict, map_unit: str, density_kg_l: float | None) -> dict:
     """The product figures (the `METRICS` rows in kg) in litres, ``{"applied_kg": ...}``, for a map in
     a volume rate (L/ha, gal/ac) read with the product's density: a liquid is shown by its volume, as
     its rates are; empty for any other map."""
