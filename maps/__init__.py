@@ -25,7 +25,7 @@ from maps.warn import MapWarning
 _LAZY = {
     "PointLog": "maps.pointlog",
     "read_point_log": "maps.pointlog",
-    "write_points": "maps.pointlog",
+    "write_points": "maps.pointlog_write",
     "TimeLog": "maps.timelog",
     "read_timelogs": "maps.timelog",
     "write_taskdata": "maps.taskdata",

@@ -12,7 +12,8 @@ import pyarrow.parquet as pq
 import pytest
 
 import maps
-from maps.pointlog import PointLog, read_point_log, write_points
+from maps.pointlog import PointLog, read_point_log
+from maps.pointlog_write import write_points
 from services.sim.replay import EVENT_CLASSES
 from tests.conftest import VRSIM
 
@@ -30,7 +31,7 @@ def vrsim(*args):
 
 def write_log(path, time_s, target=150.0):
     """A 12 m machine driving east at 2 m/s, one record per second of `time_s`, kg/ha, written with
-    `maps.pointlog.write_points` (a GeoPackage)."""
+    `maps.pointlog_write.write_points` (a GeoPackage)."""
     n = time_s.size
     timed = np.isfinite(time_s).all()
     log = PointLog(500000.0 + 2.0 * np.arange(n), np.full(n, 5760000.0), "EPSG:32632",

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from maps.log_records import machine_records
-from maps.pointlog import PointLog, read_point_log, write_points
+from maps.pointlog import PointLog, read_point_log
+from maps.pointlog_write import write_points
 from services.sim.fit import fit_machine
 from services.sim.replay import replay_records
 from services.sim.replay_setup import replay_scenario
