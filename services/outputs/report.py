@@ -19,7 +19,7 @@ from services.sim.core import config_as_run
 from services.sim.error_split import error_split
 from services.sim.metrics import LOG_UNIT
 from services.sim.run import RunResult
-from services.sim.scenario import to_toml, toml_value
+from services.sim.scenario_toml import to_toml, toml_value
 
 # The scenario tables the report shows, in this order: the scenario as run (`services.sim.as_run`, every
 # kind's default resolved), the plant as run (`config_as_run`).
@@ -62,7 +62,7 @@ def key_values(doc: dict) -> str:
 
 def _settings_table(table: dict) -> str:
     """A two-column table of a scenario table's keys and values as a scenario file writes them
-    (`services.sim.scenario.toml_value`: every digit of a number), "unset" for None."""
+    (`services.sim.scenario_toml.toml_value`: every digit of a number), "unset" for None."""
     body = "".join(f"<tr><td>{html.escape(str(k))}</td><td><code>"
                    f"{html.escape('unset' if v is None else toml_value(v))}</code></td></tr>"
                    for k, v in table.items())

@@ -339,7 +339,7 @@ def _t63(y: np.ndarray, period_s: float) -> float:
 def fragment_text(fit: MachineFit, source: str) -> str:
     """``machine_fit.toml``: the fitted machine as a fragment of scenario tables (`--machine FILE`)."""
     from services.sim.machines.keys import implement_table
-    from services.sim.scenario import toml_value
+    from services.sim.scenario_toml import toml_value
 
     sc = fit.scenario
     implement = {k: v for k, v in implement_table(sc.implement).items()

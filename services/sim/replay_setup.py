@@ -18,7 +18,8 @@ from common import ScenarioError
 from maps.log_records import MachineRecords
 from maps.units import convert_rate, rate_kind
 from services.sim.overrides import Override
-from services.sim.scenario import Scenario, parse, read, to_toml
+from services.sim.scenario import Scenario, parse, read
+from services.sim.scenario_toml import to_toml
 from vehicle.sprayer import NOZZLE_FLOW_L_MIN, boom_flow_l_min
 
 __all__ = ["replay_scenario"]

@@ -6,7 +6,7 @@ sensor delay), ``look_ahead_s`` unset or "auto", the GNSS ``kind`` (its error an
 and the speed sensor's ``kind`` (its noise and bias). `as_run` fills them in, in the same
 dataclasses, before anything moves: `services.sim.world.build_world` calls it, so the world's scenario,
 which the run consumes, is the one that summary.json, ``vrsim run --json`` (`with_settings`) and the
-report's "Settings as run" show. Written out (`services.sim.scenario.to_toml`), it loads and reruns to
+report's "Settings as run" show. Written out (`services.sim.scenario_toml.to_toml`), it loads and reruns to
 the same figures.
 
 What each becomes:
@@ -40,7 +40,8 @@ from common import ControllerError, ScenarioError
 from controller import ControllerConfig, PlantParams, gains_from_source, resolve_gains
 from controller.config import LOOK_AHEAD_AUTO, PID_KINDS, USER_KIND
 from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.scenario import Scenario, as_dict
+from services.sim.scenario import Scenario
+from services.sim.scenario_toml import as_dict
 
 # Kinds whose parameter None means "the plant's sensor delay" (see each kind's params dataclass).
 SENSOR_DELAY_KEYS = {"smith": "model_delay_s", "ff_pi": "reference_delay_s"}

@@ -12,7 +12,8 @@ import pytest
 from services.outputs.encode import dumps
 from services.sim.as_run import as_run
 from services.sim.run import run
-from services.sim.scenario import load, to_toml, with_changes
+from services.sim.scenario import load, with_changes
+from services.sim.scenario_toml import to_toml
 from tests.conftest import VRSIM
 
 pytestmark = pytest.mark.integration

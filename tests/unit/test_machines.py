@@ -11,7 +11,8 @@ import shapely
 from common import ScenarioError, VehicleError
 from maps import AsApplied, synthetic
 from services.sim.machines import Machine, machine_for, machine_kinds, register_machine
-from services.sim.scenario import as_dict, load, parse, to_toml, with_changes
+from services.sim.scenario import load, parse, with_changes
+from services.sim.scenario_toml import as_dict, to_toml
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates, switch_sections
 from services.sim.sections.motion import Motion
@@ -40,6 +41,30 @@ def test_a_kind_registers_once_and_only_with_its_keys():
     with pytest.raises(VehicleError, match="registered twice"):
         register_spec(dataclasses.make_dataclass("Twice", [], bases=(MachineSpec,), frozen=True,
                                                  namespace={"KIND": "gated_meter"}))
+
+
+def test_one_registration_names_keys_run_time_part_and_footprint_and_refuses_what_disagrees():
+    from maps.footprint import FOOTPRINTS, Strips
+    from services.sim.machines.registry import MACHINES
+
+    for kind, machine in MACHINES.items():   # the three registries hold every kind's one entry
+        assert SPECS[kind] is machine.keys and FOOTPRINTS[machine.footprint.kind] is machine.footprint
+    other = dataclasses.make_dataclass("Other", [], bases=(MachineSpec,), frozen=True,
+                                       namespace={"KIND": "y"})
+    vehicles = register_spec(dataclasses.make_dataclass("Vehicles", [], bases=(MachineSpec,), frozen=True,
+                                                        namespace={"KIND": "y"}))
+    before = (dict(SPECS), dict(MACHINES), dict(FOOTPRINTS))
+    try:
+        with pytest.raises(ValueError, match="has no keys"):    # keys of another kind
+            register_machine(type("Mislabelled", (Machine,), {"kind": "x", "keys": other}))
+        with pytest.raises(ValueError, match="not the ones registered"):   # keys other than vehicle's
+            register_machine(type("Twin", (Machine,), {"kind": "y", "keys": other}))
+        with pytest.raises(ValueError, match="footprint"):    # a footprint name another class holds
+            register_machine(type("Clash", (Machine,), {"kind": "y", "keys": vehicles,
+                                                         "footprint": type("S", (), {"kind": Strips.kind})}))
+        assert (dict(SPECS), dict(MACHINES), dict(FOOTPRINTS)) == before   # nothing half registered
+    finally:
+        assert SPECS.pop("y") is vehicles
 
 
 def test_an_implement_refuses_keys_of_another_kind_as_its_machine():

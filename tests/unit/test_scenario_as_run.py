@@ -1,5 +1,5 @@
 """The scenario as run (`services.sim.as_run`): every kind's default resolved once, the same loop bit for
-bit; a scenario written as TOML (`scenario.to_toml`) reads back to itself; the public table checks."""
+bit; a scenario written as TOML (`scenario_toml.to_toml`) reads back to itself; the public table checks."""
 
 import dataclasses
 import os
@@ -12,7 +12,8 @@ from controller import build_loop, paper_gains
 from services.sim.as_run import as_run
 from services.sim.core import plant_for
 from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.scenario import load, parse, to_toml, with_changes
+from services.sim.scenario import load, parse, with_changes
+from services.sim.scenario_toml import to_toml
 from services.sim.tables import no_unknown, typed
 from vehicle import GnssConfig, SpeedSensorConfig
 from vehicle.gnss import CLASSES as GNSS_CLASSES

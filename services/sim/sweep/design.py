@@ -21,6 +21,7 @@ import numpy as np
 from common import ScenarioError, files
 from services.sim import scenario as scenario_mod
 from services.sim.overrides import key_parts, machine_overrides
+from services.sim.scenario_toml import as_dict
 from services.sim.sweep.stats import METRIC_SENSE
 from services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
 
@@ -309,7 +310,7 @@ def _design_points(sweep: Sweep) -> list[tuple]:
 def _scenario_key(sc: scenario_mod.Scenario) -> str:
     """A hash of a resolved scenario: every value after overrides and defaults (not the file's name
     or path, which do not change what runs; the folder relative paths resolve against does)."""
-    doc = scenario_mod.as_dict(sc)
+    doc = as_dict(sc)
     doc.pop("source")
     text = json.dumps(doc, sort_keys=True, default=repr)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
