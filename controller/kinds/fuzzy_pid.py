@@ -27,6 +27,7 @@ from importlib import resources
 import numpy as np
 
 from common import ControllerError, files
+from common.toml_text import loads_toml
 from controller import ops
 from controller.gains import GAIN_SOURCES, PidGains
 from controller.interface import LawController, LoopInfo
@@ -51,7 +52,7 @@ def _load_rules(path: str | None = None) -> np.ndarray:
         else:
             with open(path, encoding="utf-8") as fh:
                 text = fh.read(files.cap_for("toml") + 1)  # one more: over the cap is refused, not cut
-        doc = files.loads_toml(text, f"fuzzy rules {where}", ControllerError)
+        doc = loads_toml(text, f"fuzzy rules {where}", ControllerError)
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ControllerError(f"fuzzy rules {where}: cannot be read: {exc}") from None
     if doc.get("terms") != list(TERMS):

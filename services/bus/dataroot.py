@@ -20,6 +20,7 @@ import tomllib
 from dataclasses import dataclass
 
 from common import ScenarioError, VrsimError, files
+from common.toml_text import loads_toml
 from services.bus.config import ServiceConfig
 
 
@@ -73,7 +74,7 @@ def _read_while_parsing(text: str, base_dir: str) -> list[tuple[str, str]]:
     if "pattern" not in text or len(text) > files.cap_for("toml"):
         return []
     try:
-        doc = files.loads_toml(text, "scenario", ScenarioError)
+        doc = loads_toml(text, "scenario", ScenarioError)
     except (VrsimError, tomllib.TOMLDecodeError, RecursionError):
         return []
     implement = doc.get("implement")

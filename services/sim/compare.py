@@ -17,6 +17,7 @@ import tomllib
 from dataclasses import dataclass
 
 from common import ScenarioError, files
+from common.toml_text import loads_toml
 from controller import KINDS, ControllerConfig
 from controller.config import PID_KINDS
 from services.sim.as_run import with_settings
@@ -76,7 +77,7 @@ def _spec_table(path: str) -> dict:
     """The ``[controller]`` table of the TOML file `path`."""
     data = files.read_bytes(path, "toml", ScenarioError)
     try:
-        doc = files.loads_toml(data.decode("utf-8"), f"controller spec {path}", ScenarioError)
+        doc = loads_toml(data.decode("utf-8"), f"controller spec {path}", ScenarioError)
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"controller spec {path}: cannot be read as TOML: {exc}") from None
     table = doc.get("controller")

@@ -15,6 +15,7 @@ from collections.abc import Iterable
 from typing import Any
 
 from common import ScenarioError, files
+from common.toml_text import loads_toml
 
 Override = tuple[str, Any]
 
@@ -37,7 +38,7 @@ def _parse_value(text: str) -> Any:
     """A command-line value read as a TOML value (``0.8``, ``12``, ``true``, ``"x"``, ``[1, 2]``,
     ``{ a = 1 }``); text that is not a TOML value is taken as a string (``dgps``)."""
     try:
-        return files.loads_toml(f"v = {text}", "--set value", ScenarioError)["v"]
+        return loads_toml(f"v = {text}", "--set value", ScenarioError)["v"]
     except tomllib.TOMLDecodeError:
         return text
 
@@ -78,7 +79,7 @@ def machine_overrides(path: str) -> list[Override]:
     dotted overrides (``response.dead_time_s``)."""
     data = files.read_bytes(path, "toml", ScenarioError)
     try:
-        doc = files.loads_toml(data.decode("utf-8"), f"{path}: not a machine file", ScenarioError)
+        doc = loads_toml(data.decode("utf-8"), f"{path}: not a machine file", ScenarioError)
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ScenarioError(f"{path}: not a machine file (TOML): {exc}") from None
     out: list[Override] = []

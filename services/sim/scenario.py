@@ -23,6 +23,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from common import MapError, ScenarioError, files, is_number
+from common.toml_text import loads_toml
 from controller import ControllerConfig, PlantParams
 from controller.config import PID_KINDS
 from maps import synthetic
@@ -220,7 +221,7 @@ def parse(text: str, source: str = "<scenario>", base_dir: str = ".",
 
 def _parse(text: str, source: str, base_dir: str, overrides: Iterable[Override]) -> Scenario:
     try:
-        doc = files.loads_toml(text, f"{source}: not a scenario", ScenarioError)
+        doc = loads_toml(text, f"{source}: not a scenario", ScenarioError)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     doc = apply_overrides(doc, overrides, source)

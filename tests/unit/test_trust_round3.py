@@ -17,7 +17,7 @@ import pytest
 import rasterio
 from affine import Affine
 
-from common import ControllerError, MapError, ScenarioError, VehicleError, files
+from common import ControllerError, MapError, ScenarioError, VehicleError, files, toml_text
 from controller.kinds.fuzzy_pid import _load_rules
 from maps import units
 from maps.timelog import read_timelogs
@@ -168,8 +168,9 @@ def test_values_and_strings_are_no_keys_to_the_scan():
     floats = "x = [" + ", ".join(f"{i}.5" for i in range(5000)) + "]\n"
     dates = "".join(f"d{i} = 1979-05-27T07:32:00.999Z\n" for i in range(300))
     text = 'a = "' + "." * 500 + '"\nb = \'\'\'\n[x]\n' + "." * 100 + "\n'''\n" + floats + dates
-    assert len(files.loads_toml(text, "t.toml", ScenarioError)["x"]) == 5000
-    assert files.loads_toml('[a.b.c]\n"p.q".r = { s.t = [[1.5], [{u.v = 2}]] }\n', "t", ScenarioError) == \
+    assert len(toml_text.loads_toml(text, "t.toml", ScenarioError)["x"]) == 5000
+    text = '[a.b.c]\n"p.q".r = { s.t = [[1.5], [{u.v = 2}]] }\n'
+    assert toml_text.loads_toml(text, "t", ScenarioError) == \
         {"a": {"b": {"c": {"p.q": {"r": {"s": {"t": [[1.5], [{"u": {"v": 2}}]]}}}}}}}
 
 
@@ -178,11 +179,11 @@ def test_the_projects_toml_files_lie_far_inside_the_caps(monkeypatch):
                                "tests/accuracy/scenarios/*.toml", "pyproject.toml")
              for p in glob.glob(os.path.join(ROOT, pattern))]
     assert len(paths) > 20
-    monkeypatch.setattr(files, "MAX_TOML_TABLES", files.MAX_TOML_TABLES // 8)
-    monkeypatch.setattr(files, "MAX_TOML_DEPTH", files.MAX_TOML_DEPTH // 4)
+    monkeypatch.setattr(toml_text, "MAX_TOML_TABLES", toml_text.MAX_TOML_TABLES // 8)
+    monkeypatch.setattr(toml_text, "MAX_TOML_DEPTH", toml_text.MAX_TOML_DEPTH // 4)
     for path in paths:
         with open(path, encoding="utf-8") as fh:
-            files.loads_toml(fh.read(), path, ScenarioError)
+            toml_text.loads_toml(fh.read(), path, ScenarioError)
 
 
 # ---------------------------------------------------------------------------------- catch trays

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from common import ScenarioError, files
+from common.toml_text import loads_toml
 from services.sim import scenario as scenario_mod
 from services.sim.overrides import key_parts, machine_overrides
 from services.sim.scenario_toml import as_dict
@@ -119,7 +120,7 @@ def load_sweep(path: str) -> Sweep:
 def parse_sweep(text: str, source: str = "<sweep>", base_dir: str = ".") -> Sweep:
     """Check a sweep file's TOML text; scenario files in it are relative to `base_dir`."""
     try:
-        doc = files.loads_toml(text, f"{source}: not a sweep file", ScenarioError)
+        doc = loads_toml(text, f"{source}: not a sweep file", ScenarioError)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{source}: not valid TOML: {exc}") from None
     no_unknown(doc, SWEEP_KEYS, source, "")
