@@ -18,6 +18,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from common import MapError
+from common.pattern_integral import cumulative_mass
 from maps.footprint import MAX_SAMPLES_PER_BATCH, Samples, register_footprint
 
 
@@ -58,7 +59,9 @@ class SpinnerThrow:
         self._knots = _checked_knots(offset_m, mass_per_m)
         extent = np.where(side > 0, self._knots[0][-1], -self._knots[0][0])
         self.reach_m = np.minimum(reach, np.maximum(extent, 0.0))
-        total = np.abs(self._cumulative(side * self.reach_m) - self._cumulative(np.zeros_like(side)))
+        knots = self._knots
+        centre = cumulative_mass(*knots, np.zeros_like(side))
+        total = np.abs(cumulative_mass(*knots, side * self.reach_m) - centre)
         if not np.all(total > 0):
             i = int(np.argmax(~(total > 0)))
             raise MapError(f"SpinnerThrow: item {i} throws nothing: the pattern holds no mass within its "
@@ -108,24 +111,13 @@ class SpinnerThrow:
         x = (x0 - throw * cos)[col] + u * dx[col] - across[:, None, :] * sin[col]
         y = (y0 - throw * sin)[col] + u * dy[col] + across[:, None, :] * cos[col]
         # Each strip's weight: the pattern's mass over its offsets, over the whole reach's.
-        edges = self._cumulative((side * reach)[:, None] * frac[None, :])
+        edges = cumulative_mass(*self._knots, (side * reach)[:, None] * frac[None, :])
         weight = np.abs(np.diff(edges, axis=1)) / np.abs(edges[:, -1] - edges[:, 0])[:, None]
         a_al, a_ac = length / nal, reach / metres_per_unit / nac
         ext_x = np.abs(cos) * a_al + np.abs(sin) * a_ac
         ext_y = np.abs(sin) * a_al + np.abs(cos) * a_ac
         return Samples(items, x, y, ext_x, ext_y, length * reach / metres_per_unit,
                        weight[:, None, :] / nal)
-
-    def _cumulative(self, offset_m) -> np.ndarray:
-        """The pattern's mass from its right end up to `offset_m` (m, vectorized): exact for its
-        piecewise-linear density (a quadratic within each knot interval)."""
-        xs, ms = self._knots
-        at = np.clip(offset_m, xs[0], xs[-1])
-        i = np.clip(np.searchsorted(xs, at, side="right") - 1, 0, xs.size - 2)
-        slope = (ms[i + 1] - ms[i]) / (xs[i + 1] - xs[i])
-        t = at - xs[i]
-        before = np.concatenate(([0.0], np.cumsum(np.diff(xs) * (ms[:-1] + ms[1:]) / 2)))
-        return before[i] + ms[i] * t + slope * t * t / 2
 
 
 def _checked_knots(offset_m, mass_per_m) -> tuple[np.ndarray, np.ndarray]:

@@ -5,7 +5,9 @@ metering constant, shaft range, delivery delay, section control) and a *kind* th
 and where its product lands. Each kind registers a frozen dataclass of its own keys here
 (`register_spec`); a scenario's ``[implement]`` table holds the shared keys and the kind's keys side
 by side, and a key of another kind is refused naming the kind it belongs to. How a kind runs (its
-drives, loops and footprint) lives in `services.sim.machines`; docs/machines.md describes both.
+drives, loops and footprint) lives in `services.sim.machines`, whose one registration of a kind
+(`register_machine`: its keys, run-time part and footprint) checks that its keys are the ones
+registered here, or registers them; docs/machines.md describes both.
 
 Kinds:
 

@@ -43,6 +43,7 @@ import numpy as np
 from common import files
 from common.checks import check_number, check_positive
 from common.errors import VehicleError
+from common.pattern_integral import cumulative_mass
 from vehicle.machines import MachineSpec, register_spec
 
 PATTERN_SHAPES = ("triangular", "trapezoidal")
@@ -180,14 +181,8 @@ class TransversePattern:
 
     def cumulative(self, offset_m) -> np.ndarray:
         """The pattern's mass from its right end up to `offset_m` (m, vectorized): exact for its
-        piecewise-linear density (a quadratic within each knot interval)."""
-        xs, ms = self.offset_m, self.mass_per_m
-        at = np.clip(np.asarray(offset_m, dtype=float), xs[0], xs[-1])
-        i = np.clip(np.searchsorted(xs, at, side="right") - 1, 0, xs.size - 2)
-        slope = (ms[i + 1] - ms[i]) / (xs[i + 1] - xs[i])
-        t = at - xs[i]
-        before = np.concatenate(([0.0], np.cumsum(np.diff(xs) * (ms[:-1] + ms[1:]) / 2)))
-        return before[i] + ms[i] * t + slope * t * t / 2
+        piecewise-linear density (`common.pattern_integral.cumulative_mass`)."""
+        return cumulative_mass(self.offset_m, self.mass_per_m, offset_m)
 
     def side_share(self, side, reach_m) -> np.ndarray:
         """The share of one side's mass (`side` +1: left of the centre line, -1: right) that lies

@@ -10,11 +10,13 @@ from typing import ClassVar
 import numpy as np
 
 from controller import PlantParams
+from maps.footprint import Strips
 from services.sim.machines.check import MachineCheck, shaft_check
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
 from vehicle import Implement
+from vehicle.machines import MachineSpec
 
 
 class Machine(ABC):
@@ -30,6 +32,10 @@ class Machine(ABC):
     masses of its items, linear in the product), through the one deposition engine (`maps.AsApplied`,
     `maps.ColumnDeposit`).
 
+    A kind is one entry: the subclass names its `kind`, its `keys` and its `footprint`, and
+    `services.sim.machines.registry.register_machine` registers all three (docs/machines.md, "Adding a
+    kind").
+
     Parameters
     ----------
     implement : vehicle.Implement
@@ -40,6 +46,10 @@ class Machine(ABC):
     """
 
     kind: ClassVar[str] = ""
+    keys: ClassVar[type[MachineSpec]]
+    """The kind's own ``[implement]`` keys (`vehicle.machines.MachineSpec`; ``KIND`` is `kind`)."""
+    footprint: ClassVar[type] = Strips
+    """The `maps.footprint` kind its `deposition` plan's ``footprint()`` gives: strips by default."""
     product_form: ClassVar[str] = "granular"
     """The ``[product] form`` the machine meters; it picks the calibration test `vrsim calibrate` runs
     (`services.sim.calibrate`: a granular meter's rotor test, a liquid's catch test)."""

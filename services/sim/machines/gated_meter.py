@@ -15,6 +15,7 @@ from services.sim.machines.registry import register_machine
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
+from vehicle.machines import GatedMeter as GatedMeterKeys
 
 
 @register_machine
@@ -22,6 +23,7 @@ class GatedMeter(Machine):
     """One drive, gates per section (see the module's docstring)."""
 
     kind = "gated_meter"
+    keys = GatedMeterKeys
 
     def landing(self, motion: Motion, lead_s: float) -> tuple[np.ndarray, ...]:
         x, y, _, _ = motion.ahead(lead_s)

@@ -21,6 +21,7 @@ from services.sim.machines.registry import register_machine
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
+from vehicle.machines import SectionDrives as SectionDrivesKeys
 
 
 @register_machine
@@ -28,6 +29,7 @@ class SectionDrives(Machine):
     """A drive per section (see the module's docstring)."""
 
     kind = "section_drives"
+    keys = SectionDrivesKeys
 
     @property
     def drives(self) -> int:

@@ -39,6 +39,7 @@ from services.sim.machines.registry import register_machine
 from services.sim.section_landing import StripPlan
 from services.sim.sections import SectionStates
 from services.sim.sections.motion import Motion
+from vehicle.spinner import SpinnerSpec
 
 __all__ = ["Spinner", "ThrowPlan"]
 
@@ -56,6 +57,8 @@ class Spinner(Machine):
     """Two discs, a drive and a loop each (see the module's docstring)."""
 
     kind = "spinner"
+    keys = SpinnerSpec
+    footprint = SpinnerThrow
 
     def __init__(self, implement, field_polygon=None):
         super().__init__(implement, field_polygon)

@@ -51,6 +51,7 @@ from vehicle import Implement
 from vehicle.sprayer import (
     REF_PRESSURE_BAR,
     WATER_DENSITY_KG_L,
+    SprayerSpec,
     boom_flow_l_min,
     density_flow_factor,
     nozzle_flow_l_min,
@@ -65,6 +66,7 @@ class Sprayer(Machine):
     """A boom sprayer (see the module's docstring)."""
 
     kind = "sprayer"
+    keys = SprayerSpec
     product_form = "liquid"   # its calibration: the flow meter's catch test
 
     def __init__(self, implement: Implement, field_polygon=None):
