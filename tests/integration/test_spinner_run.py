@@ -100,18 +100,21 @@ def test_overlap_is_product_beyond_the_patterns_design(runs):
         assert thrown_pct > 40.0, (name, thrown_pct)
         assert 0.0 < result.summary["overlap_area_pct"] < 10.0, (name, result.summary["overlap_area_pct"])
 
-def test_a_kind_without_a_spread_pattern_has_no_spread_cv():
-    """Strips side by side (a gated meter) have no spread pattern: the CV and the effective width are
-    null in the JSON and n/a in the text, never a flattering 0 %."""
+@pytest.mark.parametrize("path", [os.path.join(LIBRARY, "rectangle_uniform_ideal.toml"),
+                                  os.path.join(os.path.dirname(LIBRARY), "..", "..", "scenarios",
+                                               "sprayer.toml")], ids=["gated_meter", "sprayer"])
+def test_a_kind_without_a_spread_pattern_has_no_spread_cv(path):
+    """Strips side by side (a gated meter, a sprayer's boom) have no spread pattern: the CV and the
+    effective width are null in the JSON and n/a in the text, never a flattering 0 %."""
     import json
 
     from services.outputs.summary import summary_json, text_summary
 
-    gated = run(_scenario("rectangle_uniform_ideal"))
-    data = json.loads(summary_json(gated.summary))
+    result = run(load(path))
+    data = json.loads(summary_json(result.summary))
     assert data["cv_pct"] is None and data["effective_width_m"] is None
-    assert "Spread CV (EN 13739)" in text_summary(gated.summary)
-    assert "n/a" in next(line for line in text_summary(gated.summary).splitlines() if "Spread CV" in line)
+    line = next(line for line in text_summary(result.summary).splitlines() if "Spread CV" in line)
+    assert "n/a" in line and "0.00" not in line
 
 def test_border_spreading_keeps_the_product_inside_the_field(runs):
     on, off = runs["spinner_36m_at_24m"].summary, runs["spinner_36m_at_24m_no_border"].summary
