@@ -159,7 +159,7 @@ class ControlCore:
                 "drive_target_rpm": target, "drive_speed_m_s": machine.drive_speed_m_s(states.motion),
                 "width_on_m": states.width_on_m, "sections_on": states.actual,
                 "sections_commanded": states.commanded,
-                "drive_open": machine.drive_open(states), **steps,
+                "drive_open": machine.drive_open(states) & ~machine.shut_off(target), **steps,
                 **({} if since_s is None else {OPENING_KEY: self.passes.opening_gain(since_s)})}
 
     def _preset(self, states: SectionStates, since_open_s) -> SectionStates:

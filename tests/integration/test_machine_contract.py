@@ -78,7 +78,6 @@ KINDS = machine_kinds()
 
 # A sprayer's loop holds its valve's lowest flow with every nozzle open, target 0 or not: a zero-rate
 # map is sprayed at that flow (12.4 L/min on this boom, 35 kg here). Known, left for its own change.
-ZERO_RATE_XFAIL = {"sprayer": "a sprayer meters its valve's lowest flow at a zero target (sections open)"}
 
 
 def _run(kind: str, rate: float = RATE_KG_HA, min_speed: float = 0.14):
@@ -135,8 +134,7 @@ def test_mass_is_conserved(base_runs, kind):
     assert type(plan.footprint()) is MACHINES[kind].footprint
 
 
-@pytest.mark.parametrize("kind", [pytest.param(k, marks=pytest.mark.xfail(
-    k in ZERO_RATE_XFAIL, reason=ZERO_RATE_XFAIL.get(k, ""), strict=True)) for k in KINDS])
+@pytest.mark.parametrize("kind", KINDS)
 def test_a_zero_rate_map_lays_nothing(kind):
     result = _run(kind, rate=0.0)
     assert float(np.sum(result.control["metered_kg"])) <= NOTHING_KG

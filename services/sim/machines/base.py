@@ -135,6 +135,12 @@ class Machine(ABC):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         """Whether each drive's product reaches the ground in each tick, bool (n, drives)."""
 
+    def shut_off(self, drive_target: np.ndarray) -> np.ndarray:
+        """Where a shut-off stops each drive's product whatever its loop does, bool (n, drives), from
+        the drives' targets (`drive_targets`): nowhere by default (a shaft at a zero target slows to a
+        stop and meters while it turns)."""
+        return np.zeros(np.shape(drive_target), bool)
+
     def drive_speed_m_s(self, motion: Motion) -> np.ndarray:
         """Each drive's ground speed as the machine senses it, m/s (n, drives): the centre's sensed
         speed for every drive unless a kind's drives have their own (the controllers' context)."""

@@ -207,6 +207,11 @@ class Sprayer(Machine):
     def drive_open(self, states: SectionStates) -> np.ndarray:
         return states.actual if self.pwm else (states.width_on_m > 0)[:, None]
 
+    def shut_off(self, drive_target: np.ndarray) -> np.ndarray:
+        """At a zero target the boom's (PWM: the section's) shut-off valve closes, as a terminal closes
+        it where the map asks for nothing: the flow valve's lowest opening never reaches the nozzles."""
+        return np.asarray(drive_target) <= 0.0
+
     def nozzle_flow_l_min(self, rate_l_ha: np.ndarray, states: SectionStates, density_kg_l: float,
                           limits: bool = True) -> np.ndarray:
         """Each nozzle's target flow, L/min (n, N), for the rates in L/ha (n, drives) of a liquid of
