@@ -1,10 +1,12 @@
 """A run's accounting, once: what its ticks put on the ground becomes its figures (`Accounts`).
 
-Every path that reports a run's figures comes here: the in-process run and `vrsim run`'s streamed run
-(`services.sim.run.accounted`), the monitor's report rebuilt from its records (the same), controller
-variants, many mass columns at once (`services.sim.variants`), and the error split's reference meters
-(`map_figures`, the map part alone). The summary is the rows of `services.sim.metrics.METRICS` read off
-the `Accounts` (`metrics.summary`): a new figure is a row there and its formula, nothing else.
+Every path that reports a run's figures comes here: a run's one accounting
+(`services.sim.bounded.BoundedAccount`: `vrsim run`'s streamed run part by part, the in-process run and
+the monitor's report rebuilt from its records the whole track at once, `services.sim.run.accounted`),
+controller variants, many mass columns at once (`services.sim.variants`: `account`), and the error
+split's reference meters (`map_figures`, the map part alone). The summary is the rows of
+`services.sim.metrics.METRICS` read off the `Accounts` (`metrics.summary`): a new figure is a row there
+and its formula, nothing else.
 
 The parts:
 
@@ -128,8 +130,8 @@ class Setting:
     world : World
     track : dict or None
         The true track per tick (``track["tick"]``, when given, numbers the ticks: a monitor's record);
-        None for a run accounted part by part (`services.sim.bounded`), as are `landing`, `limited`,
-        `applying` and `steps`.
+        None for a run accounted part by part without its arrays (`services.sim.bounded`, `vrsim
+        run`), as are `landing`, `limited`, `applying` and `steps`.
     landing : Landing or None
         Where each tick's product lands (its applied rates are a column's own: `Deposit.rate_kg_ha`).
     in_field : ndarray of bool, shape (rows, cols)
@@ -182,7 +184,8 @@ class Deposit:
     ----------
     metered_kg, rate_kg_ha : ndarray, shape (ticks,), or None
         Product through the meter per tick, kg, and its applied rate at the landing point, kg/ha
-        (`landing.applied_rate_kg_ha`); None for a run accounted part by part (`services.sim.bounded`).
+        (`landing.applied_rate_kg_ha`); None for a run accounted part by part without its arrays
+        (`services.sim.bounded`).
     applied_kg_ha, coverage_fraction, overlap_fraction, overlap_kg : ndarray, shape (rows, cols)
         The as-applied raster: product per cell area, the share of each cell product landed on, the
         share more than one pass put product on, and the product beyond the first pass (kg).

@@ -4,8 +4,12 @@
 `BoundedAccount.add`; the account lands the product, deposits it on the as-applied raster, adds the
 worked area, the transitions and the machine limits, passes each tick's track row to a sink (the
 track files, written as they go) and keeps of the ticks only what the outputs show (`services.sim.kept`).
-Its figures equal the in-process run's (`services.sim.run.accounted`) bit for bit, because it runs the
-same functions over stretches that they treat alike:
+
+It is the one accounting of a run: the in-process run (`services.sim.run.accounted`: the Python API's
+`run` and `control_and_account`, the monitor's report, AgOpenGPS's field) hands it the whole track in
+one part and keeps the per-tick arrays (``arrays=True``), so a figure or a fix is written once. Its
+figures do not depend on how the track is cut into parts, bit for bit, because it runs the same
+functions over stretches that they treat alike:
 
 - a stretch ends where the pass that product lands in changes and the implement is not on across the
   cut (a turn): the strips are ordered by pass and a pass is deposited whole (`maps.AsApplied`), a run
@@ -26,6 +30,7 @@ pass not yet ended is held until it ends (a stretch is at most a swath and its t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -47,7 +52,7 @@ from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
 from services.sim.landing import Landing, land
 from services.sim.machines import machine_for
 from services.sim.metrics import limit_metrics, overlap_metrics
-from services.sim.run import RunResult
+from services.sim.result import RunResult
 from services.sim.section_landing import (
     LimitedStrips,
     StripPlan,
@@ -91,10 +96,15 @@ class BoundedAccount:
         `CONTROL_ROW_KEYS` arrays, ``prescribed_kg_ha`` and ``applied_kg_ha`` (the landing's).
     references : bool
         Also deposit the error split's reference meters (``reference_figures`` of the result).
+    arrays : bool
+        Keep the per-tick arrays the Python API offers (`services.sim.run.accounted`, the in-process
+        run): the result holds the whole track, the control core's arrays, the sections' gates and
+        where each tick's product landed, and its outputs' points and log are read off them
+        (``RunResult.kept``) instead of kept as the parts come.
     """
 
     def __init__(self, world: World, timer: StageTimer, started_unix: float, expected_ticks: float = 0,
-                 track_sink=None, references: bool = False):
+                 track_sink=None, references: bool = False, arrays: bool = False):
         sc, grid = world.scenario, world.grid
         imp = sc.implement
         self.world, self.timer, self.started_unix, self.track_sink = world, timer, started_unix, track_sink
@@ -127,6 +137,11 @@ class BoundedAccount:
         self.series = SeriesWindow()
         self.logs: list = []
         self.last_row: dict | None = None   # the last tick accounted, for the log's thinning
+        # With `arrays`: the parts as given (track, measured speed, control), and per stretch its
+        # ticks' landing and their limited and applying flags.
+        self.arrays = [] if arrays else None
+        self.landings: list = []
+        self.flags: list = []
 
     def add(self, track: dict, measured_speed_m_s, control: dict) -> None:
         """The next ticks: the true track (`vehicle.track_on_path`), the measured ground speed and the
@@ -134,20 +149,24 @@ class BoundedAccount:
         with self.timer.stage("metrics_s"):
             part = dict(track, measured_speed_m_s=np.asarray(measured_speed_m_s), **control)
             part["pass_index"] = self.passes.step(track["heading_rad"], track["implement_on"])
+            if self.arrays is not None:
+                self.arrays.append((track, measured_speed_m_s, control, part["pass_index"]))
             self.pending.append(part)
             # Only what finds the cut is joined as the parts come (a swath spans several of them).
             cut = self._last_cut(self._joined(("time_s", "pass_index", "implement_on")))
             if cut:
                 self._account(cut, self._joined(part))
 
-    def result(self, reference_figures=None) -> RunResult:
-        """Account for the ticks still pending (the drive has ended) and return the run's result."""
+    def result(self, measured: tuple | None = None) -> RunResult:
+        """Account for the ticks still pending (the drive has ended) and return the run's result;
+        `measured`: with ``arrays``, the measured x, y (m) and ground speed (m/s) per tick of the whole
+        run, for the result (None: the parts' measured speed, and no measured x, y)."""
         with self.timer.stage("metrics_s"):
             if self.pending:
                 p = self._joined(self.pending[0])
                 if len(p["time_s"]):
                     self._account(len(p["time_s"]), p)
-            return self._result()
+            return self._result(measured)
 
     # --- stretches -------------------------------------------------------------------------------
     def _joined(self, keys) -> dict:
@@ -186,11 +205,12 @@ class BoundedAccount:
         ticks = np.arange(n)
         plan = self.machine.deposition(w, states, self.delay_s, self.period_s, self.cell_m, ticks,
                                        self.tick_m, self.first)
-        product = plan.mass_kg(self.machine.deposit_kg(w))
+        product_kg = self.machine.deposit_kg(w)
+        product = plan.mass_kg(product_kg)
         # The reference meters' product on the same footprint: its samples and sub-cells worked out once.
         others = () if self.refs is None else self._references(w, states, n, plan)
         self.acc.deposit(plan.footprint(), product, pass_index=plan.pass_index, others=others)
-        self._own(w, states, ticks)
+        self._own(w, states, ticks, product_kg)
         self.metered.append(metered[:n].copy())   # a copy: not a view holding the look-ahead's arrays
         self.worked.add(w, imp.width_m, n)
         on = np.asarray(w["implement_on"], bool)
@@ -198,7 +218,10 @@ class BoundedAccount:
         self.events.append(transition_events(w["time_s"], distance, landing.prescribed_kg_ha,
                                              landing.applied_kg_ha, on, steps, upto=n))
         self._limits(w, states, n)
-        self._outputs(w, landing, n)
+        if self.arrays is None:
+            self._outputs(w, landing, n)
+        else:
+            self.landings.append((dataclasses.replace(landing, distance_m=distance), n))
         self.distance_m = float(distance[n - 1])
         self.last_pass = int(max(self.last_pass, np.max(w["pass_index"][:n], initial=-1)))
         self.first += n
@@ -236,6 +259,8 @@ class BoundedAccount:
         limited = self.machine.limited(window, self.world.scenario.product) & applying
         self.applying += int(np.count_nonzero(applying))
         self.limited += int(np.count_nonzero(limited))
+        if self.arrays is not None:
+            self.flags.append((limited, applying))
         idx = np.flatnonzero(limited)
         if idx.size:
             frame = landing_frame(w, self.delay_s, self.period_s, idx)
@@ -270,20 +295,20 @@ class BoundedAccount:
                             self.world.scenario.output.log_rate_hz)
         self.logs.append(log if last is None else _dropped_first(log))
 
-    def _own(self, w: dict, states: SectionStates, ticks: np.ndarray) -> None:
-        """The product of `ticks` on the ground each pass owns (`Machine.ownership`, as
-        `services.sim.run._owned_overlap` puts it), for a machine whose deposition lays beyond it."""
+    def _own(self, w: dict, states: SectionStates, ticks: np.ndarray, product_kg) -> None:
+        """The product of `ticks` (`product_kg`: `Machine.deposit_kg` of the window `w`) on the ground
+        each pass owns (`Machine.ownership`), for a machine whose deposition lays beyond it: its overlap
+        is the run's overlap figures."""
         own = self.machine.ownership(w, states, self.delay_s, self.period_s, self.cell_m, ticks, self.tick_m,
                                      self.first)
         if own is None:
             return
         if self.owned is None:
             self.owned = AsApplied(self.world.grid)
-        product = own.mass_kg(self.machine.deposit_kg(w))
-        self.owned.deposit(own.footprint(), product, pass_index=own.pass_index)
+        self.owned.deposit(own.footprint(), own.mass_kg(product_kg), pass_index=own.pass_index)
 
     # --- the end ---------------------------------------------------------------------------------
-    def _result(self) -> RunResult:
+    def _result(self, measured: tuple | None) -> RunResult:
         world, grid, acc = self.world, self.world.grid, self.acc
         acc.close_pass()   # the drive is over: each read below no longer adds the last pass's raster
         in_field = self.in_field
@@ -294,11 +319,16 @@ class BoundedAccount:
         # Each raster figure read once (each read sums the sub-cells again).
         owned = acc if self.owned is None else self.owned
         owned.close_pass()
-        deposit = Deposit(None, None, acc.applied_kg_ha, cover, owned.overlap_fraction, owned.overlap_kg,
-                          acc.outside_kg, limited_cover)
+        whole = self._arrays() if self.arrays is not None else None
+        track, speed, control, landing, limited, applying_ticks, states = whole or (None,) * 7
+        deposit = Deposit(None if whole is None else control["metered_kg"],
+                          None if whole is None else landing.applied_kg_ha, acc.applied_kg_ha, cover,
+                          owned.overlap_fraction, owned.overlap_kg, acc.outside_kg, limited_cover)
         d = deposit
-        setting = Setting(world, None, None, in_field, worked, None, None, None, check_world(world, in_field),
-                          self.first, self.distance_m)
+        steps = None if whole is None else rate_steps(landing.prescribed_kg_ha,
+                                                      np.asarray(track["implement_on"], bool))
+        setting = Setting(world, track, landing, in_field, worked, limited, applying_ticks, steps,
+                          check_world(world, in_field), self.first, self.distance_m)
         # The counts of limited and applying ticks as `limit_metrics` counts them over a run's arrays.
         applying = np.ones(self.applying, bool)
         limits = limit_metrics(np.arange(self.applying) < self.limited, applying, limited_cover, cover,
@@ -320,9 +350,33 @@ class BoundedAccount:
                 grid, in_field, strips.applied_kg_ha, strips.coverage_fraction, self.ref_kg[0],
                 strips.outside_kg, worked)
             references = [pattern, *meters]
+        if whole is not None:   # the arrays' own outputs (`RunResult.kept`)
+            x_m, y_m, speed = measured or (None, None, speed)
+            return RunResult(x_m, y_m, speed, control, states, acc, accounts, self.started_unix,
+                             reference_figures=references)
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
                          reference_figures=references, kept_parts=kept)
+
+    def _arrays(self) -> tuple:
+        """The whole run's per-tick arrays (``arrays``): the track, the measured speed, the control
+        core's arrays, where each tick's product landed, the limited and the applying ticks and the
+        sections' states."""
+        imp, parts = self.world.scenario.implement, self.arrays
+        track, speed, control, pass_index = (parts[0] if len(parts) == 1 else
+                                             [_concatenated(column) for column in zip(*parts, strict=True)])
+        if self.landings:
+            landing = Landing(*(np.concatenate([getattr(g, f.name)[:n] for g, n in self.landings])
+                                for f in dataclasses.fields(Landing)))
+        else:   # no tick
+            landing = land(self.world.grid, track, control["metered_kg"], control["width_on_m"],
+                           self.delay_s, self.period_s)
+        limited, applying = ((np.concatenate(f) for f in zip(*self.flags, strict=True)) if self.flags
+                             else (np.zeros(0, bool), np.zeros(0, bool)))
+        states = SectionStates(np.asarray(control["sections_on"], bool), imp.section_widths,
+                               imp.section_offsets_m, pass_index, control.get("sections_commanded"),
+                               steps_on=control.get(STEPS_KEY))
+        return track, speed, control, landing, limited, applying, states
 
     def _limited_coverage(self) -> np.ndarray:
         """`section_landing.limited_coverage` of the limited ticks kept."""
@@ -339,10 +393,15 @@ class BoundedAccount:
         return LimitedStrips.of_plan(plan, grid).coverage(np.concatenate(metered)[:, None])[0]
 
 
+def _concatenated(parts: list):
+    """Consecutive parts joined: arrays end to end, dicts of arrays key by key."""
+    if isinstance(parts[0], dict):
+        return {k: np.concatenate([np.asarray(p[k]) for p in parts]) for k in parts[0]}
+    return np.concatenate([np.asarray(p) for p in parts])
+
+
 def _dropped_first(log):
     """`log` without its first record."""
-    import dataclasses
-
     from maps.pointlog import COLUMNS
 
     return dataclasses.replace(log, **{name: getattr(log, name)[1:] for name in COLUMNS})
@@ -350,8 +409,6 @@ def _dropped_first(log):
 
 def _joined_logs(logs: list):
     """One log of consecutive parts' logs (None: no part)."""
-    import dataclasses
-
     from maps.pointlog import COLUMNS
 
     if not logs:

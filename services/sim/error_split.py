@@ -42,7 +42,7 @@ from maps import AppliedColumns, ColumnDeposit
 from services.sim.accounting import cells_in_field, map_figures
 from services.sim.machines import Machine, machine_for
 from services.sim.metrics import MapMetrics
-from services.sim.run import RunResult
+from services.sim.result import RunResult
 from services.sim.section_landing import StripPlan, tick_travel_m
 from services.sim.sections import SectionStates, run_section_states
 from services.sim.sections.motion import MotionTrend

@@ -16,177 +16,31 @@ control loop follow it.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from common import ScenarioError, files
 from controller import ControllerConfig
-from maps import AsApplied, Grid
-from services.sim import ticks
-from services.sim.accounting import (
-    Accounts,
-    Deposit,
-    Setting,
-    StageTimer,
-    account,
-    cells_in_field,
-    check_world,
-)
-from services.sim.aslog import run_point_log
+from services.sim.accounting import StageTimer, cells_in_field, check_world
+from services.sim.bounded import BoundedAccount
 from services.sim.core import ControlCore
-from services.sim.display import run_summary
-from services.sim.kept import Kept, PathPoints, SeriesWindow
-from services.sim.landing import Landing, land
-from services.sim.limits import MachineCheck
-from services.sim.machines import Machine, machine_for
-from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
 from services.sim.resolve import as_run
+from services.sim.result import RunResult
 from services.sim.scenario import Scenario
-from services.sim.section_landing import limited_coverage, tick_travel_m
-from services.sim.sections import SectionStates, run_section_states
-from services.sim.transitions import TransitionMetrics
 from services.sim.world import World, build_world, driving
 from vehicle import Gnss, SpeedSensor
 
 # `cells_in_field` and `check_world` are the accounting's; `vrsim run --check` and the benchmarks
 # import them from here, with the run's other public names.
-__all__ = ["Drive", "RunResult", "accounted", "as_applied", "cells_in_field", "check_world",
+__all__ = ["Drive", "RunResult", "accounted", "cells_in_field", "check_world",
            "control_and_account", "drive", "measure", "run", "sensors", "start_up"]
 
 SPEED_SENSOR_SEED_OFFSET = 1  # the speed sensor's noise is seeded apart from the GNSS noise
 # Memory the in-process run keeps per control tick: ~35 float64 arrays (the track, the sensors, the
 # targets, the loop's outputs, the landing) plus temporaries of the vectorized stages.
 ARRAY_BYTES_PER_TICK = 400
-
-
-@dataclass
-class RunResult:
-    """What a run measured and its accounts: the track and what the sensors read on it, the control
-    loop's arrays, the sections' gates, the as-applied raster and the figures (``summary``, from
-    `services.sim.metrics.METRICS` over `accounts`; callers add their own keys, such as ``out_dir``).
-    The world, the track, where product landed and the field's cells are the accounts' `Setting`'s.
-
-    Per tick (arrays of shape (ticks,), 50 ms ticks by default; docs/api.md lists every attribute):
-    ``track`` (dict: the true path), ``measured_*`` (the sensors), ``control`` (dict keyed as
-    `services.sim.core.CONTROL_KEYS`: the controller's look-ahead point and rate, target and actual
-    shaft speed, current, metered kg, open width, the gates), ``landing`` (`services.sim.landing.
-    Landing`: where each tick's product landed, the prescription there and the applied rate). One
-    table of them all: `to_pandas` (`services.sim.ticks.tick_columns`).
-
-    NaN in the per-tick rates: ``landing.applied_kg_ha`` (and the table's ``applied_kg_ha``) is a
-    tick's metered kg over the strip its open sections covered, so it is NaN where no section is open
-    or the strip is under 1 cm: with the implement lifted (turns, headland, the way to the first
-    pass), with every section closed over covered ground, at a standstill (13.6 % of the default
-    run's ticks: 12.8 % lifted, 0.8 % all sections closed). ``landing.prescribed_kg_ha`` and
-    ``control["prescribed_kg_ha"]`` are NaN off the map. The run's figures (``summary``) are over the
-    as-applied raster's cells, not over these ticks.
-    """
-
-    measured_x_m: np.ndarray
-    measured_y_m: np.ndarray
-    measured_speed_m_s: np.ndarray
-    control: dict
-    sections: SectionStates  # gates per tick and section, section widths and offsets, passes
-    as_applied: AsApplied
-    accounts: Accounts
-    started_unix: float  # when the run (or the services run it was rebuilt from) started, Unix time
-    # The error split's reference meters' figures (`services.sim.error_split`),
-    # when the run computed them beside its accounting; None: computed when asked for.
-    reference_figures: list[MapMetrics] | None = None
-    # What a run accounted part by part (`services.sim.bounded`) kept for its outputs; None: the
-    # in-process run, whose arrays give them (`kept`).
-    kept_parts: Kept | None = None
-    summary: dict = field(init=False)
-
-    def __post_init__(self):
-        self.summary = run_summary(self.accounts)   # and ``units``, the system its figures are shown in
-
-    @property
-    def world(self) -> World:
-        return self.accounts.setting.world
-
-    @property
-    def bounded(self) -> bool:
-        """Accounted part by part (`services.sim.bounded`, what `vrsim run` does): no per-tick arrays
-        (``track``, ``control``, ``landing``, the measured arrays and ``sections`` are None); the track
-        was written as it went, and `kept` holds what the other outputs need."""
-        return self.kept_parts is not None
-
-    @functools.cached_property
-    def kept(self) -> Kept:
-        """The path points, timeseries.png's window and the as-applied log (`services.sim.kept`)."""
-        if self.kept_parts is not None:
-            return self.kept_parts
-        track, landing, control = self.track, self.landing, self.control
-        path = PathPoints.for_ticks(len(track["x_m"]))
-        path.add(track["x_m"], track["y_m"])
-        series = SeriesWindow()
-        series.add({"time_s": track["time_s"], "target_shaft_rpm": control["target_shaft_rpm"],
-                    "shaft_rpm": control["shaft_rpm"], "prescribed_kg_ha": landing.prescribed_kg_ha,
-                    "applied_kg_ha": landing.applied_kg_ha}, track["implement_on"])
-        log = run_point_log(self.world, track, control, landing.applied_kg_ha, self.started_unix,
-                            self.world.scenario.output.log_rate_hz)
-        return Kept(path.xy(), series.finish(), log)
-
-    @property
-    def track(self) -> dict:
-        return self.accounts.setting.track
-
-    @property
-    def landing(self) -> Landing:
-        return self.accounts.setting.landing
-
-    @property
-    def in_field(self) -> np.ndarray:
-        return self.accounts.setting.in_field
-
-    @property
-    def worked_fraction(self) -> np.ndarray:
-        """(rows, cols): share of each cell the plan's working width swept."""
-        return self.accounts.setting.worked_fraction
-
-    @property
-    def limited_fraction(self) -> np.ndarray:
-        """(rows, cols): share of each cell covered by product metered at a clipped target."""
-        return self.accounts.deposit.limited_coverage
-
-    @property
-    def machine_check(self) -> MachineCheck:
-        return self.accounts.setting.check
-
-    # The accounts' parts by the names the Python API has documented (README, docs/api.md).
-    @property
-    def map_metrics(self) -> MapMetrics:
-        return self.accounts.map
-
-    @property
-    def transition_metrics(self) -> TransitionMetrics:
-        return self.accounts.transitions
-
-    @property
-    def overlap_metrics(self) -> OverlapMetrics:
-        return self.accounts.overlap
-
-    @property
-    def limit_metrics(self) -> LimitMetrics:
-        return self.accounts.limits
-
-    @property
-    def stage_s(self) -> dict:
-        return self.accounts.timing.stage_s
-
-    def tick_columns(self) -> dict[str, np.ndarray]:
-        """Every per-tick array under one name each, units in the names (`services.sim.ticks.
-        tick_columns` lists them); a `VrsimError` for a run accounted part by part (``bounded``)."""
-        return ticks.tick_columns(self)
-
-    def to_pandas(self):
-        """The per-tick table: a `pandas.DataFrame`, one row per tick (index ``tick``), the columns of
-        `tick_columns`. NaN rates: see the class docstring."""
-        return ticks.to_pandas(self)
 
 
 @dataclass
@@ -269,9 +123,9 @@ def control_and_account(drive: Drive, controller: ControllerConfig | None = None
 
 def accounted(world: World, track: dict, measured: tuple, control: dict, timer: StageTimer,
               started_unix: float) -> RunResult:
-    """The `RunResult` of a driven and controlled track: each section's product landed, the as-applied
-    raster built and the whole accounted (`services.sim.accounting.account`), in the timer's
-    ``metrics_s``; the timer then gives the run's wall time.
+    """The `RunResult` of a driven and controlled track, its per-tick arrays kept: the one accounting
+    (`services.sim.bounded.BoundedAccount`, which `vrsim run` feeds part by part) fed the whole track
+    at once, in the timer's ``metrics_s``; the timer then gives the run's wall time.
 
     `measured` holds the measured x, y (m) and ground speed (m/s) per tick. `control` holds at least
     ``metered_kg``, ``width_on_m``, ``sections_on``, ``drive_target_rpm`` and ``drive_kg``
@@ -280,50 +134,9 @@ def accounted(world: World, track: dict, measured: tuple, control: dict, timer: 
     the ticks the arrays hold: a record with gaps (the monitor's after it was down) lands each stretch
     on its own (no strip joins across a gap); ``ticks`` and ``sim_time_s`` count what is there.
     """
-    implement, period_s = world.scenario.implement, world.scenario.timing.control_period_s
-    delay_s, cell_m = implement.delivery_delay_s, min(world.grid.cell_size)
-    metered, width_on = control["metered_kg"], control["width_on_m"]
-    with timer.stage("metrics_s"):
-        states = run_section_states(track, control, implement)
-        landing = land(world.grid, track, metered, width_on, delay_s, period_s)
-        machine = machine_for(implement, world.field.polygon)
-        product_kg, tick_m = machine.deposit_kg(control), tick_travel_m(world.scenario)
-        acc = as_applied(world.grid, track, product_kg, states, delay_s, period_s, machine, tick_m)
-        owned = _owned_overlap(world.grid, track, product_kg, states, delay_s, period_s, machine,
-                              tick_m) or acc
-        setting = Setting.of(world, track, control, landing)
-        limited_cover = limited_coverage(track, metered[:, None], states, setting.limited, delay_s, period_s,
-                                         cell_m, world.grid)[0]
-        deposit = Deposit(metered, landing.applied_kg_ha, acc.applied_kg_ha, acc.coverage_fraction,
-                          owned.overlap_fraction, owned.overlap_kg, acc.outside_kg, limited_cover)
-    accounts, = account(setting, [deposit], [timer])
-    x_m, y_m, speed_m_s = measured
-    return RunResult(measured_x_m=x_m, measured_y_m=y_m, measured_speed_m_s=speed_m_s, control=control,
-                     sections=states, as_applied=acc, accounts=accounts, started_unix=started_unix)
-
-
-def as_applied(grid: Grid, track: dict, product_kg, states: SectionStates, delay_s: float,
-               period_s: float, machine: Machine, tick_m: float | None = None) -> AsApplied:
-    """The as-applied raster of a run: the machine's product (`Machine.deposit_kg`'s) put on `grid`
-    through its footprint (`Machine.deposition`: a strip per section and tick for today's kinds), with
-    the passes (strips cut by a tick's travel `tick_m`, m: `section_landing.tick_travel_m`)."""
-    acc = AsApplied(grid)
-    plan = machine.deposition(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
-    acc.deposit(plan.footprint(), plan.mass_kg(product_kg), pass_index=plan.pass_index)
-    return acc
-
-
-def _owned_overlap(grid: Grid, track: dict, product_kg, states: SectionStates, delay_s: float,
-                  period_s: float, machine: Machine, tick_m: float | None = None) -> AsApplied | None:
-    """The product on the ground each pass is set up to own (`Machine.ownership`), whose overlap is
-    the run's overlap figures; None for a machine whose deposition lays nothing beyond it (`as_applied`'s
-    raster is that ground). `as_applied`'s parameters."""
-    own = machine.ownership(track, states, delay_s, period_s, min(grid.cell_size), tick_m=tick_m)
-    if own is None:
-        return None
-    acc = AsApplied(grid)
-    acc.deposit(own.footprint(), own.mass_kg(product_kg), pass_index=own.pass_index)
-    return acc
+    account = BoundedAccount(world, timer, started_unix, arrays=True)
+    account.add(track, measured[2], control)
+    return account.result(measured=measured)
 
 
 def _check_arrays(world: World) -> None:
