@@ -89,10 +89,23 @@ def open_client(scheduler: str | None = None, workers: int | None = None, dashbo
         yield from _remote_client(Client, scheduler, timeout_s)
 
 
+def _client_shutdown_noise(record: logging.LogRecord) -> bool:
+    """False for asyncio's "Task exception was never retrieved" about the client's own gather ending
+    with `AllExit` as the client closes: a result asked with a timeout that ran out (`_outcome`) leaves
+    that gather behind, and the close ends it; nothing was lost that the rows do not say."""
+    error = record.exc_info[1] if record.exc_info else None
+    return type(error).__name__ != "AllExit"
+
+
 @contextmanager
 def _quiet_dask():
     """Dask's own log quiet (as the embedded cluster's `silence_logs`): a lost scheduler is the rows'
-    `lost` and the command's one line, not the client's tracebacks of each reconnection."""
+    `lost` and the command's one line, not the client's tracebacks of each reconnection, nor asyncio's
+    word on the client's gather ended by its close (`_client_shutdown_noise`; it may come after the
+    close, when the task is collected, so the filter stays)."""
+    asyncio_log = logging.getLogger("asyncio")
+    if _client_shutdown_noise not in asyncio_log.filters:
+        asyncio_log.addFilter(_client_shutdown_noise)
     # Dask's logging config gives its client's logger a level of its own: the package's is not enough.
     logs = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
     levels = [log.level for log in logs]

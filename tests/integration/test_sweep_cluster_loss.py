@@ -15,8 +15,11 @@ from services.outputs.sweep_results import _read_rows
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_sweep import SCENARIO, _stop, vrsim
 
-# Eight runs of about 1.5 s each, one task per run (not all axes are controller.* keys): on one
-# worker the sweep lasts long enough to be cut after its first row.
+# Eight runs, one task per run (not all axes are controller.* keys), on a field long enough that a warm
+# worker takes about 0.8 s a run (test_sweep's 72 m x 150 m takes 0.07 s: all eight were done before
+# the table's first flush, 1 s in, and nothing was left to cut): on one worker the sweep lasts long
+# enough to be cut after its first row.
+FIELD = ("width_m = 72.0, length_m = 150.0", "width_m = 144.0, length_m = 1200.0")
 SWEEP = """
 scenarios = ["q.toml"]
 seeds = [1]
@@ -29,7 +32,7 @@ ENV = dict(os.environ, PYTHONPATH=ROOT)
 
 @pytest.fixture
 def folder(tmp_path):
-    (tmp_path / "q.toml").write_text(SCENARIO)
+    (tmp_path / "q.toml").write_text(SCENARIO.replace(*FIELD))
     (tmp_path / "s.toml").write_text(SWEEP)
     return tmp_path
 
