@@ -55,6 +55,7 @@ library's tolerances all derive from it, so a new figure is one row here and its
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -134,24 +135,25 @@ def _sim_time_s(a: Accounts) -> float:
     return a.setting.ticks * a.setting.world.scenario.timing.control_period_s
 
 
-def _spread_pattern(a: Accounts):
-    """The machine's transverse pattern (`Machine.transverse_pattern`), None for a kind without one."""
-    return machine_for(a.setting.world.scenario.implement).transverse_pattern()
+@functools.lru_cache(maxsize=64)   # a figure of the set-up: a sweep's variants share their implement
+def _spread_figures(implement) -> tuple[float, float]:
+    """(CV %, effective width m) of `implement`'s transverse pattern (`Machine.transverse_pattern`)
+    overlapped to and fro: the CV across its driving width (`services.sim.spread_pattern.cv_pct`) and
+    the largest driving width whose CV is within `spread_pattern.CV_LIMIT_PCT`
+    (`services.sim.spread_pattern.effective_width_m`); both NaN (null: not applicable) for a kind
+    without a spread pattern."""
+    pattern = machine_for(implement).transverse_pattern()
+    if pattern is None:
+        return math.nan, math.nan
+    return cv_pct(*pattern, implement.width_m), effective_width_m(*pattern)
 
 
 def _cv_pct(a: Accounts) -> float:
-    """The machine's transverse pattern overlapped to and fro at the driving width: its CV across the
-    driving width (`services.sim.spread_pattern.cv_pct`), %; NaN (null: not applicable) for a kind
-    without a spread pattern."""
-    pattern = _spread_pattern(a)
-    return math.nan if pattern is None else cv_pct(*pattern, a.setting.world.scenario.implement.width_m)
+    return _spread_figures(a.setting.world.scenario.implement)[0]
 
 
 def _effective_width_m(a: Accounts) -> float:
-    """The largest driving width at which the pattern's CV is within `spread_pattern.CV_LIMIT_PCT`
-    (`services.sim.spread_pattern.effective_width_m`), m; NaN for a kind without a spread pattern."""
-    pattern = _spread_pattern(a)
-    return math.nan if pattern is None else effective_width_m(*pattern)
+    return _spread_figures(a.setting.world.scenario.implement)[1]
 
 
 # The event classes beside the rate steps (`services.sim.transitions.EVENTS`): each class's rows.
