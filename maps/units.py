@@ -196,6 +196,15 @@ def convert_rate(values, unit: str, to_unit: str, density_kg_l: float | None = N
     return np.asarray(values, dtype=np.float64) * factor
 
 
+class MapUnitError(MapError):
+    """A map whose rates' unit is neither stated nor given, or stated in words pint cannot read:
+    `problem` says which, without the file's name (`vrsim map info` describes such a map anyway)."""
+
+    def __init__(self, message: str, problem: str):
+        super().__init__(message)
+        self.problem = problem
+
+
 def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit") -> str:
     """The unit of a map's rates: what the file states (`stated`, under `key`) or the user gives
     (`given`: ``[map] unit``, ``--unit``; it must agree with a unit the file states, and stands in
@@ -207,8 +216,12 @@ def map_unit(where: str, stated: str | None, given: str | None, key: str = "unit
                            f"unit given, {given!r}")
         return unit
     if not stated:
-        raise MapError(f"{where}: the map does not state the unit of its rates; {_HINT}")
-    return rate_unit(stated, f"{where}: {key}")
+        raise MapUnitError(f"{where}: the map does not state the unit of its rates; {_HINT}",
+                           "not stated in the file")
+    try:
+        return rate_unit(stated, f"{where}: {key}")
+    except MapError as exc:
+        raise MapUnitError(str(exc), str(exc).removeprefix(f"{where}: ")) from None
 
 
 def name_with_unit(unit: str) -> str:

@@ -146,29 +146,17 @@ def _described(args) -> dict | None:
 
 
 def _grid_or_values(args):
-    """(the map, None); or, for a map that reads with a unit given but not without one, (its values
-    read with a stand-in unit, why its own unit does not do: the file states none, or states one vrsim
-    cannot read, in the read's words): what it holds, before its unit is known."""
+    """(the map, None); or, for a map whose unit is neither stated nor readable and not given
+    (`maps.units.MapUnitError`), (its values read with a stand-in unit, why its own unit does not do):
+    what it holds, before its unit is known."""
+    from maps.units import MapUnitError
+
     try:
         return _read(args), None
-    except MapError as exc:
+    except MapUnitError as exc:
         if args.unit is not None:
             raise
-        why = _unit_problem(str(exc), args.file)
-        stand_in = argparse.Namespace(**{**vars(args), "unit": "kg/ha"})
-        try:
-            return _read(stand_in), why
-        except MapError:
-            pass
-        raise
-
-
-def _unit_problem(message: str, path: str) -> str:
-    """The unit part of a read's error `message` about `path`: "not stated in the file" when it states
-    none, else what it says of the file's unit (its file name left out: the info names the source)."""
-    if "does not state the unit" in message:
-        return "not stated in the file"
-    return message.removeprefix(f"{path}: ")
+        return _read(argparse.Namespace(**{**vars(args), "unit": "kg/ha"})), exc.problem
 
 
 def _print_described(d: dict, unit: str | None) -> None:
