@@ -7,6 +7,7 @@ failure names it and prints the table of what moved.
 import pytest
 
 from services.sim import accuracy
+from tests.integration.test_services_support import without_clock
 
 NAMES = accuracy.scenario_names()
 TIMING_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}
@@ -37,12 +38,4 @@ def test_scenario_holds_its_figures(results, name):
 def test_same_scenario_and_seed_give_bitwise_identical_metrics(results):
     name = "uniform_rate" if "uniform_rate" in NAMES else NAMES[0]
     again = accuracy.run_scenario(name)
-    assert _without_timing(results[name]) == _without_timing(again)
-
-
-def _without_timing(summary: dict) -> dict:
-    """`summary` without the wall-clock figures, in its ``display`` too."""
-    out = {k: v for k, v in summary.items() if k not in TIMING_KEYS}
-    if "display" in out:
-        out["display"] = {k: v for k, v in out["display"].items() if k not in TIMING_KEYS}
-    return out
+    assert without_clock(results[name], TIMING_KEYS) == without_clock(again, TIMING_KEYS)

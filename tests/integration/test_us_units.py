@@ -11,6 +11,7 @@ import pytest
 import shapefile
 
 from tests.integration.test_rate_units import one_line_exit_2, vrsim
+from tests.integration.test_services_support import without_clock
 
 SCENARIO = """name = "boom"
 seed = 3
@@ -82,8 +83,7 @@ def scenario(folder, name, keys, output=""):
 
 def comparable(summary: dict) -> dict:
     """A summary without the clock, the scenario file's path and folder."""
-    out = {k: v for k, v in summary.items() if k not in CLOCK_KEYS}
-    out["display"] = {k: v for k, v in out["display"].items() if k not in CLOCK_KEYS}
+    out = without_clock(summary, CLOCK_KEYS)
     out["scenario_config"] = {k: v for k, v in out["scenario_config"].items()
                               if k not in ("source", "base_dir")}
     return out
