@@ -79,7 +79,7 @@ def save(parts: list, data_root: str) -> Upload:
         if not any(n.lower().endswith(".toml") for n in names) and len(zips) == 1:
             _unpack(os.path.join(partial, zips[0]), partial, zips[0])
         scenario_path = _the_scenario(partial)
-        folder = os.path.join(home, f"{time.strftime('%Y%m%dT%H%M%S', time.gmtime())}-{os.urandom(4).hex()}")
+        folder = os.path.join(home, _folder_name(time.time_ns()))
         os.rename(partial, folder)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
@@ -200,6 +200,13 @@ def _in_upload(message: str, folder: str) -> str:
     """A parse error's message with the upload's folder left out (it says "the upload")."""
     message = message.replace(f"the data root {folder}", "the upload's folder")
     return "upload: " + message.replace(folder + os.sep, "").replace(folder, "the upload")
+
+
+def _folder_name(now_ns: int) -> str:
+    """An upload folder's name: its time to the nanosecond, so that names sort as the uploads came (a
+    second's uploads too: `_prune` keeps the newest by name), and a random tail against a clash."""
+    seconds, ns = divmod(now_ns, 1_000_000_000)
+    return f"{time.strftime('%Y%m%dT%H%M%S', time.gmtime(seconds))}.{ns:09d}-{os.urandom(4).hex()}"
 
 
 def _prune(home: str, keep: str) -> None:
