@@ -90,10 +90,14 @@ def test_killed_controller_is_reported_missing_and_records_stay(net):
     assert not pid_alive(controller)
     ok, stored = net.query(f"vrsim/tractor1/monitor/status?run_id={run['run_id']}")
     assert ok, stored
-    # Every tick the vehicle got through was stored on all three streams, and nothing else.
-    assert stored["ticks"] == stored["shaft_records"] == stored["rate_records"] >= 40
-    # Poses published without shaft and rate: at most the batch in flight and the one it failed on.
+    # Every tick the vehicle got through was stored on all three streams; beyond them only what was in
+    # flight when the controller died: poses sent without an answer (the batch in flight and the one it
+    # failed on), and of the batch the controller was answering, its shaft records published before its
+    # rate records (a SIGKILL between the two publishes left one shaft record more on a clean clone).
+    assert stored["ticks"] >= 40
     assert stored["pose_records"] - stored["ticks"] in (0, 1, 2)
+    beyond = {stream: stored[f"{stream}_records"] - stored["ticks"] for stream in ("pose", "shaft", "rate")}
+    assert 0 <= beyond["rate"] <= beyond["shaft"] <= beyond["pose"], stored
     report = report_without_clock(net)
     assert report["ticks"] == stored["ticks"]
     print(f"controller killed mid-run: complete {report['complete']}, "
