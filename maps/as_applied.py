@@ -72,7 +72,7 @@ class AsApplied:
         self._window = None  # [row_min, row_max, col_min, col_max] touched, ring coordinates
         self._tiles = None   # the open pass's touched tiles (`_mark_tiles`)
         self._capped = np.zeros((grid.rows * subcells, grid.cols * subcells))
-        self._count = np.zeros((grid.rows, grid.cols), dtype=np.int64)
+        self._count = np.zeros((grid.rows, grid.cols), dtype=np.int32)   # read as int64 (`pass_count`)
         self._target = self._acc  # where `_spread` deposits
 
     def _all(self) -> np.ndarray:
@@ -80,10 +80,18 @@ class AsApplied:
         return self._acc if self._pass is None else self._acc + self._pass_acc
 
     # --- reads ---------------------------------------------------------------------------------
+    # Each per-cell read goes band by band of cell rows (`cell_bands`): its temporaries are a band's, not
+    # the grid's sub-cells' (four times the cells, and a pass's raster added), the figures the same bits.
+    def _blocks(self, rows: slice) -> np.ndarray:
+        """The accumulator with the open pass's deposits, interior sub-cells of the cell rows `rows` as
+        (band rows, s, cols, s) blocks."""
+        part = self.raster.interior(self._acc)[rows]
+        return part if self._pass is None else part + self.raster.interior(self._pass_acc)[rows]
+
     @property
     def applied_kg(self) -> np.ndarray:
         """Applied product per cell, kg, shape (rows, cols)."""
-        return self.raster.cell_sums(self.raster.interior(self._all().real))
+        return cell_bands(self.raster, lambda rows: self.raster.cell_sums(self._blocks(rows).real))
 
     def applied_kg_in(self, rows: slice, cols: slice) -> np.ndarray:
         """`applied_kg` of a window of cells (slices of rows and columns, steps of 1), reading only
@@ -110,7 +118,8 @@ class AsApplied:
     @property
     def coverage_fraction(self) -> np.ndarray:
         """Share of each cell's area that product was applied to, in [0, 1], shape (rows, cols)."""
-        return self.raster.cell_means(self.raster.covered(self.raster.interior(self._all().imag)))
+        raster = self.raster
+        return cell_bands(raster, lambda rows: raster.cell_means(raster.covered(self._blocks(rows).imag)))
 
     def as_grid(self) -> Grid:
         """The applied rates as a `Grid` on the prescription's geometry (cells never covered: NaN)."""
@@ -123,7 +132,7 @@ class AsApplied:
     def pass_count(self) -> np.ndarray:
         """Number of passes that put product on at least half of each cell, shape (rows, cols) (items
         deposited without a pass index count for none)."""
-        return self._with_open_pass()[1]
+        return self._with_open_pass()[1].astype(np.int64)
 
     @property
     def overlap_fraction(self) -> np.ndarray:
@@ -133,15 +142,16 @@ class AsApplied:
         sub-cell's area; a lower bound of the area two passes share, exact when each covers whole
         sub-cells. A pass that sweeps the same ground twice (a turn) does not overlap itself.
         """
-        capped = self.raster.blocks(self._with_open_pass()[0])
-        return self.raster.cell_means(self.raster.overlap_share(capped))
+        raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
+        return cell_bands(raster, lambda rows: raster.cell_means(raster.overlap_share(capped[rows])))
 
     @property
     def overlap_kg(self) -> np.ndarray:
         """Product applied beyond the first pass on each cell, kg, shape (rows, cols): per sub-cell,
         its product times the share of its passes' swept area that overlaps."""
-        extra = self.raster.beyond_first(self.raster.blocks(self._with_open_pass()[0]))
-        return self.raster.cell_sums(self.raster.interior(self._all().real) * extra)
+        raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
+        return cell_bands(raster, lambda rows: raster.cell_sums(self._blocks(rows).real
+                                                               * raster.beyond_first(capped[rows])))
 
     # --- deposits ------------------------------------------------------------------------------
     def deposit(self, footprint: Footprint, mass_kg, pass_index=None, others=()) -> None:
@@ -157,18 +167,20 @@ class AsApplied:
             The pass each item belongs to, for `pass_count` and the overlap figures. Items of one
             pass come together, passes one after another (across calls too); a pass ends where the
             index changes.
-        others : sequence of (AsApplied, mass_kg), optional
-            Other meters' product on the same items (each raster on the same grid and sub-cells), put
-            there without passes: the samples and their sub-cells are worked out once for all (several
+        others : sequence of (AsApplied, mass_kg) or (MeterTotals, masses), optional
+            Other meters' product on the same items (each on the same grid and sub-cells), put there
+            without passes: the samples and their sub-cells are worked out once for all (several
             meters' product on one run's strips). This raster's figures are those of a `deposit` of its
             own, bit for bit; theirs equal a `deposit` each up to the order of the sums (they go pass
-            by pass, as this one does).
+            by pass, as this one does). A `maps.meter_totals.MeterTotals` takes the product of each of
+            its meters, (items, meters).
         """
         pairs = [(self, mass_kg), *others]
-        masses = [_checked_mass(mass, footprint.items) for _, mass in pairs]
+        masses = [acc._checked(mass, footprint.items) for acc, mass in pairs]
         step, unit = self.raster.step, metres_per_unit(self.grid.crs)
         for acc, _ in pairs:
-            acc._target = acc._acc
+            if isinstance(acc, AsApplied):
+                acc._target = acc._acc
         if pass_index is None:
             runs = [(None, slice(0, footprint.items))]
         else:
@@ -178,12 +190,11 @@ class AsApplied:
             if index is not None:
                 self._begin_pass(index)
             for samples in footprint.samples(step, unit, part):
-                terms = self._terms(samples)   # the sub-cells and shares, once for every meter
+                terms = subcell_terms(self.raster, samples)   # the sub-cells and shares, once for every meter
                 for (acc, _), mass in zip(pairs, masses, strict=True):
                     acc._deposit(samples, mass[samples.items], terms)
         for (acc, _), mass in zip(pairs, masses, strict=True):
-            acc.total_kg += float(mass.sum())
-            acc.items += int(mass.size)
+            acc._tally(mass)
 
     def add_strips(self, x0, y0, x1, y1, width_m, mass_kg, pass_index=None) -> None:
         """`deposit` through `maps.footprint.Strips` ``(x0, y0, x1, y1, width_m)``: strips of product,
@@ -193,7 +204,7 @@ class AsApplied:
         self.deposit(Strips(x0, y0, x1, y1, width), mass, pass_index)
 
     def _deposit(self, samples: Samples, mass: np.ndarray, terms=None) -> None:
-        """Spread `samples` carrying `mass` (per item); `terms`: `_terms` of the samples, if known."""
+        """Spread `samples` carrying `mass` (per item); `terms`: `subcell_terms` of the samples, if known."""
         n = samples.per_item
         area = np.where(mass > 0, samples.swept, 0.0)  # items carrying no product sweep no coverage
         if samples.weight is None:
@@ -202,23 +213,20 @@ class AsApplied:
             per_item = (samples.x.shape[0], *(1,) * (samples.x.ndim - 1))
             load = mass.reshape(per_item) * samples.weight + 1j * (area / n).reshape(per_item)
             load = np.broadcast_to(load, samples.x.shape).ravel()
-        self._spread(self._terms(samples) if terms is None else terms, load)
+        self._spread(subcell_terms(self.raster, samples) if terms is None else terms, load)
 
-    def _terms(self, samples: Samples):
-        """What `_spread` needs of the samples' boxes, the same for any load: the corner sub-cells
-        (`SubcellRaster.corners`: r0, c0), the flat indices of the four sub-cells each box overlaps
-        and the shares of the rows and columns, (1 - wc, wc, 1 - wr, wr)."""
-        r0, r1, c0, c1, wr, wc = self.raster.corners(samples.x.ravel(), samples.y.ravel(),
-                                                     samples.flat(samples.ext_x), samples.flat(samples.ext_y))
-        cols = self.raster.shape[1]
-        r0_flat, r1_flat = r0 * cols, r1 * cols
-        cells = (r0_flat + c0, r0_flat + c1, r1_flat + c0, r1_flat + c1)
-        return r0, c0, cells, (1.0 - wc, wc, 1.0 - wr, wr)
+    @staticmethod
+    def _checked(mass_kg, items: int) -> np.ndarray:
+        return _checked_mass(mass_kg, items)
+
+    def _tally(self, mass: np.ndarray) -> None:
+        self.total_kg += float(mass.sum())
+        self.items += int(mass.size)
 
     def _spread(self, terms, load):
         """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps (`terms`:
-        `_terms` of the samples, left unchanged)."""
-        r0, c0, (low_low, low_high, high_low, high_high), (wc_low, wc_high, wr_low, wr_high) = terms
+        `subcell_terms` of the samples, left unchanged)."""
+        r0, c0, (low_low, low_high, high_low, high_high), (wc_low, wc_high, wr_low, wr_high), _ = terms
         if self._target is not self._acc:
             self._widen_window(r0, c0)
         lc = load * wc_low
@@ -351,6 +359,31 @@ class AsApplied:
 
 _CHUNK = 256   # samples per box of `AsApplied._mark_tiles` (a strip's samples go along it, then across)
 _TILE = 16     # cells per side of the tiles of `AsApplied._tiles`
+_BAND_SUBCELLS = 1 << 19   # sub-cells a band of `cell_bands` holds at most (4 MB of floats; one row at least)
+
+
+def subcell_terms(raster: SubcellRaster, samples: Samples):
+    """What a deposit needs of the samples' boxes, the same for any load: the corner sub-cells
+    (`SubcellRaster.corners`: r0, c0), the flat indices of the four sub-cells each box overlaps, the
+    shares of the rows and columns, (1 - wc, wc, 1 - wr, wr), and the far corner (r1, c1)."""
+    r0, r1, c0, c1, wr, wc = raster.corners(samples.x.ravel(), samples.y.ravel(),
+                                            samples.flat(samples.ext_x), samples.flat(samples.ext_y))
+    cols = raster.shape[1]
+    r0_flat, r1_flat = r0 * cols, r1 * cols
+    cells = (r0_flat + c0, r0_flat + c1, r1_flat + c0, r1_flat + c1)
+    return r0, c0, cells, (1.0 - wc, wc, 1.0 - wr, wr), (r1, c1)
+
+
+def cell_bands(raster: SubcellRaster, per_band) -> np.ndarray:
+    """A per-cell figure (rows, cols) worked out band by band of cell rows: ``per_band(rows)`` gives the
+    cells of the rows `rows` (a slice), from their sub-cells; a band holds about `_BAND_SUBCELLS`."""
+    rows, cols = raster.grid.rows, raster.grid.cols
+    out = np.empty((rows, cols))
+    step = max(1, _BAND_SUBCELLS // max(1, cols * raster.subcells**2))
+    for r0 in range(0, rows, step):
+        band = slice(r0, min(rows, r0 + step))
+        out[band] = per_band(band)
+    return out
 
 
 def checked_raster(grid: Grid, subcells: int, who: str) -> SubcellRaster:

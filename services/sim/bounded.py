@@ -22,9 +22,10 @@ functions over stretches that they treat alike:
 
 What it keeps per tick: the metered product (8 bytes a tick): a run's total is numpy's pairwise sum over
 all its ticks, which a sum of parts does not reproduce to the last bit (the error split's reference
-meters, which only the report shows, are summed part by part: equal to the in-process run's to
-rounding). The machine-limited ticks keep their landing frames (about 100 bytes
-each), whose strips are cut by their own median travel at the end, as the in-process run cuts them; a
+meters, which only the report shows, are summed part by part, and their product per cell rather than
+per sub-cell (`maps.meter_totals`: a third of the memory): equal to the in-process run's to rounding,
+their coverage the same). The machine-limited ticks keep their landing frames (about 100 bytes each),
+whose strips are cut by their own median travel at the end, as the in-process run cuts them; a
 pass not yet ended is held until it ends (a stretch is at most a swath and its turn).
 """
 
@@ -36,6 +37,7 @@ import math
 import numpy as np
 
 from maps import AsApplied
+from maps.meter_totals import MeterTotals
 from services.sim.accounting import (
     Accounts,
     Deposit,
@@ -117,10 +119,12 @@ class BoundedAccount:
         self.machine = machine_for(imp, world.field.polygon)
         # The field's cells, for the result: found now, while SUMO drives, not after the drive.
         self.in_field = cells_in_field(grid, world.field.polygon)
-        self.refs = [AsApplied(grid) for _ in REFERENCES] if references else None
+        # The reference meters' totals (`maps.meter_totals`: their product per cell, their swept area
+        # shared while they put product on the same items), not an `AsApplied` each.
+        self.refs = MeterTotals(grid, len(REFERENCES)) if references else None
         # The spread pattern's reference: the unclipped product on the sections' strips (only a kind
         # whose footprint is not strips needs its own raster: for the others it is the first reference).
-        self.ref_strips = AsApplied(grid) if references else None
+        self.ref_strips = MeterTotals(grid, 1) if references else None
         self.passes = PassTracker()
         self.pending: list = []   # the parts of the ticks not yet accounted, from tick `first` of the run
         self.first = 0
@@ -249,8 +253,7 @@ class BoundedAccount:
                 self.ref_strips.deposit(strips.footprint(), strips.mass_kg(ref.sum(axis=1)))
         # The meters' strips in one product with the plan's map, a column each (each column's sums as
         # a product of its own).
-        masses = plan.mass_kg(np.stack(metered, axis=-1))
-        return [(raster, masses[:, j]) for j, raster in enumerate(self.refs)]
+        return [(self.refs, plan.mass_kg(np.stack(metered, axis=-1)))]
 
     def _limits(self, w: dict, states: SectionStates, n: int) -> None:
         """Count the applying and the machine-limited ticks, and keep the limited ones' landing frames."""
@@ -312,7 +315,9 @@ class BoundedAccount:
         world, grid, acc = self.world, self.world.grid, self.acc
         acc.close_pass()   # the drive is over: each read below no longer adds the last pass's raster
         in_field = self.in_field
-        worked, cover = self.worked.fraction(), acc.coverage_fraction
+        worked = self.worked.fraction()
+        references = self._reference_figures(worked)   # first: their rasters let go before the reads
+        cover = acc.coverage_fraction
         # numpy's pairwise sum over the whole run, as the in-process run's.
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())
         limited_cover = self._limited_coverage()
@@ -340,16 +345,6 @@ class BoundedAccount:
                             overlap_metrics(cover, d.overlap_fraction, d.overlap_kg, worked, in_field,
                                             grid.rates_kg_ha),
                             limits, self.timer.timing())
-        references = None
-        if self.refs is not None:
-            meters = [map_figures(grid, in_field, ref.applied_kg_ha, ref.coverage_fraction, self.ref_kg[j],
-                                  ref.outside_kg, worked) for j, ref in enumerate(self.refs)]
-            # The spread pattern's stage: the first meter's own figures where the kind lays strips.
-            strips = self.ref_strips
-            pattern = meters[0] if not strips.items else map_figures(
-                grid, in_field, strips.applied_kg_ha, strips.coverage_fraction, self.ref_kg[0],
-                strips.outside_kg, worked)
-            references = [pattern, *meters]
         if whole is not None:   # the arrays' own outputs (`RunResult.kept`)
             x_m, y_m, speed = measured or (None, None, speed)
             return RunResult(x_m, y_m, speed, control, states, acc, accounts, self.started_unix,
@@ -357,6 +352,21 @@ class BoundedAccount:
         kept = Kept(self.path.xy(), self.series.finish(), _joined_logs(self.logs))
         return RunResult(None, None, None, None, None, acc, accounts, self.started_unix,
                          reference_figures=references, kept_parts=kept)
+
+    def _reference_figures(self, worked: np.ndarray) -> list | None:
+        """The reference meters' map figures (the spread pattern's stage first), their rasters then let
+        go (the result keeps only the figures); None without references."""
+        refs, strips, grid, in_field = self.refs, self.ref_strips, self.world.grid, self.in_field
+        if refs is None:
+            return None
+        self.refs = self.ref_strips = None
+        meters = [map_figures(grid, in_field, refs.applied_kg_ha(j), refs.coverage_fraction(j),
+                              self.ref_kg[j], refs.outside_kg(j), worked) for j in range(refs.meters)]
+        # The spread pattern's stage: the first meter's own figures where the kind lays strips.
+        pattern = meters[0] if not strips.items else map_figures(
+            grid, in_field, strips.applied_kg_ha(0), strips.coverage_fraction(0), self.ref_kg[0],
+            strips.outside_kg(0), worked)
+        return [pattern, *meters]
 
     def _arrays(self) -> tuple:
         """The whole run's per-tick arrays (``arrays``): the track, the measured speed, the control

@@ -1,0 +1,113 @@
+"""Several meters' totals (`maps.meter_totals.MeterTotals`) against an `AsApplied` each, and the
+as-applied reads band by band against the whole grid's."""
+
+import numpy as np
+import pytest
+
+import maps.as_applied as as_applied
+from common import MapError
+from maps import AsApplied
+from maps.footprint import Samples, Strips
+from maps.meter_totals import MeterTotals
+from tests.unit.test_maps_applied import field, passes
+
+
+def _strips():
+    x0, y0, x1, y1, mass = passes(150.0, width_m=12.0, step_m=0.2, angle_deg=25.0)
+    x1 = x1 + np.where(np.arange(x0.size) % 5, 0.0, 3.0)   # strips cut in several patterns
+    return Strips(x0, y0, x1, y1, np.full(x0.size, 12.0)), mass, np.arange(x0.size) * 4 // x0.size
+
+
+def _assert_like_each(totals, each):
+    """Coverage bit for bit, product to the order of the sums."""
+    for j, acc in enumerate(each):
+        np.testing.assert_array_equal(totals.coverage_fraction(j), acc.coverage_fraction)
+        np.testing.assert_allclose(totals.applied_kg_ha(j), acc.applied_kg_ha, rtol=1e-12, atol=1e-12)
+        assert totals.outside_kg(j) == pytest.approx(acc.outside_kg, rel=1e-9, abs=1e-12)
+        assert totals.total_kg[j] == pytest.approx(acc.total_kg, rel=1e-12)
+    assert totals.items == each[0].items
+
+
+def test_meters_beside_a_run_equal_an_as_applied_each():
+    """The run's raster stays its own deposit's bit for bit; the meters' coverage is each one's own
+    `AsApplied` bit for bit (a meter putting product on other items than the rest gets its own swept
+    raster), their product to rounding."""
+    strips, mass, pass_index = _strips()
+    k = np.arange(strips.items)
+    masses = np.column_stack([np.full(k.size, mass), np.linspace(0.0, 2 * mass, k.size),
+                              np.where(k % 7, mass, 0.0), np.where(k % 7, 2 * mass, 0.0)])
+    alone = AsApplied(field())
+    alone.deposit(strips, mass, pass_index=pass_index)
+    run, totals = AsApplied(field()), MeterTotals(field(), masses.shape[1])
+    half = k.size // 2   # two deposits: the meters part ways in the first
+    for part in (slice(0, half), slice(half, None)):
+        run.deposit(Strips(*(a[part] for a in (strips.x0, strips.y0, strips.x1, strips.y1, strips.width_m))),
+                    mass, pass_index=pass_index[part], others=[(totals, masses[part])])
+    for name in ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count"):
+        np.testing.assert_array_equal(getattr(run, name), getattr(alone, name))
+    each = [AsApplied(field()) for _ in range(masses.shape[1])]
+    for acc, m in zip(each, masses.T, strict=True):
+        acc.deposit(strips, m)
+    _assert_like_each(totals, each)
+    # The first meter's items with product are the second's (linspace: all but the first) but not the
+    # third's; the third and fourth share theirs.
+    assert totals._of[2] == totals._of[3] != totals._of[0] and len(totals._swept) == 3
+
+
+class _Weighted:
+    """A footprint whose items' samples carry unequal shares of its product (as a spinner's throw)."""
+
+    kind = "weighted-test"
+
+    def __init__(self, strips):
+        self.strips = strips
+
+    @property
+    def items(self):
+        return self.strips.items
+
+    def samples(self, step, unit, part):
+        for s in self.strips.samples(step, unit, part):
+            weight = np.linspace(1.0, 3.0, s.per_item).reshape(s.x.shape[1:])
+            yield Samples(s.items, s.x, s.y, s.ext_x, s.ext_y, s.swept, weight / weight.sum())
+
+
+def test_meters_deposited_alone_with_weighted_samples_equal_an_as_applied_each():
+    strips, mass, _ = _strips()
+    footprint = _Weighted(strips)
+    masses = np.column_stack([np.full(strips.items, mass), np.full(strips.items, 0.5 * mass)])
+    totals = MeterTotals(field(), 2)
+    totals.deposit(footprint, masses)
+    each = [AsApplied(field()) for _ in range(2)]
+    for acc, m in zip(each, masses.T, strict=True):
+        acc.deposit(footprint, m)
+    _assert_like_each(totals, each)
+    assert len(totals._swept) == 1   # both put product on every item: one swept raster
+
+
+def test_meter_totals_refuse_bad_product_and_meters():
+    strips, mass, _ = _strips()
+    with pytest.raises(MapError, match=r"mass_kg\[3, 1\]"):
+        MeterTotals(field(), 2).deposit(strips, np.where(np.arange(strips.items)[:, None] == 3, [mass, -1.0],
+                                                         mass))
+    with pytest.raises(MapError, match="meters=0"):
+        MeterTotals(field(), 0)
+
+
+def test_reads_band_by_band_are_the_whole_grids_to_the_bit(monkeypatch):
+    """The per-cell reads go a band of cell rows at a time: the same bits as over the whole grid at
+    once, the open pass's raster included."""
+    strips, mass, pass_index = _strips()
+    names = ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg")
+    acc = AsApplied(field())
+    acc.deposit(strips, mass, pass_index=pass_index)   # the last pass left open
+    r, capped = acc.raster, acc.raster.blocks(acc._with_open_pass()[0])
+    every = acc._all()
+    whole = {"applied_kg": r.cell_sums(r.interior(every.real)),
+             "coverage_fraction": r.cell_means(r.covered(r.interior(every.imag))),
+             "overlap_fraction": r.cell_means(r.overlap_share(capped)),
+             "overlap_kg": r.cell_sums(r.interior(every.real) * r.beyond_first(capped))}
+    for band in (1, 3 * r.subcells**2 * acc.grid.cols, as_applied._BAND_SUBCELLS):
+        monkeypatch.setattr(as_applied, "_BAND_SUBCELLS", band)
+        for name in names:
+            np.testing.assert_array_equal(getattr(acc, name), whole[name])
