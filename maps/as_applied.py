@@ -74,6 +74,7 @@ class AsApplied:
         self._capped = np.zeros((grid.rows * subcells, grid.cols * subcells))
         self._count = np.zeros((grid.rows, grid.cols), dtype=np.int32)   # read as int64 (`pass_count`)
         self._target = self._acc  # where `_spread` deposits
+        self._kept = None    # after `finish`: the per-cell figures, the sub-cell rasters given back
 
     def _all(self) -> np.ndarray:
         """The accumulator with the open pass's deposits (flat, ring included)."""
@@ -91,11 +92,15 @@ class AsApplied:
     @property
     def applied_kg(self) -> np.ndarray:
         """Applied product per cell, kg, shape (rows, cols)."""
+        if self._kept is not None:
+            return self._kept["applied_kg"]
         return cell_bands(self.raster, lambda rows: self.raster.cell_sums(self._blocks(rows).real))
 
     def applied_kg_in(self, rows: slice, cols: slice) -> np.ndarray:
         """`applied_kg` of a window of cells (slices of rows and columns, steps of 1), reading only
         its sub-cells: for a reader that follows deposits as they arrive (the live page)."""
+        if self._kept is not None:
+            return self._kept["applied_kg"][rows, cols].copy()
         s = self.raster.subcells
         r0, r1, _ = rows.indices(self.grid.rows)
         c0, c1, _ = cols.indices(self.grid.cols)
@@ -113,11 +118,15 @@ class AsApplied:
     @property
     def outside_kg(self) -> float:
         """Product that fell outside the grid, kg."""
+        if self._kept is not None:
+            return self._kept["outside_kg"]
         return float(self.raster.ring_sum(self._all().real[None, :])[0])
 
     @property
     def coverage_fraction(self) -> np.ndarray:
         """Share of each cell's area that product was applied to, in [0, 1], shape (rows, cols)."""
+        if self._kept is not None:
+            return self._kept["coverage_fraction"]
         raster = self.raster
         return cell_bands(raster, lambda rows: raster.cell_means(raster.covered(self._blocks(rows).imag)))
 
@@ -132,7 +141,8 @@ class AsApplied:
     def pass_count(self) -> np.ndarray:
         """Number of passes that put product on at least half of each cell, shape (rows, cols) (items
         deposited without a pass index count for none)."""
-        return self._with_open_pass()[1].astype(np.int64)
+        count = self._with_open_pass()[1] if self._kept is None else self._kept["pass_count"]
+        return count.astype(np.int64)
 
     @property
     def overlap_fraction(self) -> np.ndarray:
@@ -142,6 +152,8 @@ class AsApplied:
         sub-cell's area; a lower bound of the area two passes share, exact when each covers whole
         sub-cells. A pass that sweeps the same ground twice (a turn) does not overlap itself.
         """
+        if self._kept is not None:
+            return self._kept["overlap_fraction"]
         raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
         return cell_bands(raster, lambda rows: raster.cell_means(raster.overlap_share(capped[rows])))
 
@@ -149,9 +161,25 @@ class AsApplied:
     def overlap_kg(self) -> np.ndarray:
         """Product applied beyond the first pass on each cell, kg, shape (rows, cols): per sub-cell,
         its product times the share of its passes' swept area that overlaps."""
+        if self._kept is not None:
+            return self._kept["overlap_kg"]
         raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
         return cell_bands(raster, lambda rows: raster.cell_sums(self._blocks(rows).real
                                                                * raster.beyond_first(capped[rows])))
+
+    def finish(self) -> None:
+        """The deposits are over: close the open pass, read each per-cell figure once and give back the
+        sub-cell rasters (on a 534 ha map at 2 m cells, 170 MB for 60 MB of figures). The reads then
+        give those figures (read-only arrays), the same bits; a deposit is refused."""
+        if self._kept is not None:
+            return
+        self.close_pass()
+        kept = {name: getattr(self, name) for name in _KEPT}
+        kept["pass_count"] = self._count
+        for value in kept.values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+        self._kept, self._acc, self._target, self._capped, self._count = kept, None, None, None, None
 
     # --- deposits ------------------------------------------------------------------------------
     def deposit(self, footprint: Footprint, mass_kg, pass_index=None, others=()) -> None:
@@ -175,6 +203,8 @@ class AsApplied:
             by pass, as this one does). A `maps.meter_totals.MeterTotals` takes the product of each of
             its meters, (items, meters).
         """
+        if self._kept is not None:
+            raise MapError("deposit: this as-applied raster is finished (AsApplied.finish): it takes no more")
         pairs = [(self, mass_kg), *others]
         masses = [acc._checked(mass, footprint.items) for acc, mass in pairs]
         step, unit = self.raster.step, metres_per_unit(self.grid.crs)
@@ -190,7 +220,7 @@ class AsApplied:
             if index is not None:
                 self._begin_pass(index)
             for samples in footprint.samples(step, unit, part):
-                terms = subcell_terms(self.raster, samples)   # the sub-cells and shares, once for every meter
+                terms = SubcellTerms(self.raster, samples)   # the sub-cells and shares, once for every meter
                 for (acc, _), mass in zip(pairs, masses, strict=True):
                     acc._deposit(samples, mass[samples.items], terms)
         for (acc, _), mass in zip(pairs, masses, strict=True):
@@ -204,7 +234,7 @@ class AsApplied:
         self.deposit(Strips(x0, y0, x1, y1, width), mass, pass_index)
 
     def _deposit(self, samples: Samples, mass: np.ndarray, terms=None) -> None:
-        """Spread `samples` carrying `mass` (per item); `terms`: `subcell_terms` of the samples, if known."""
+        """Spread `samples` carrying `mass` (per item); `terms`: `SubcellTerms` of the samples, if known."""
         n = samples.per_item
         area = np.where(mass > 0, samples.swept, 0.0)  # items carrying no product sweep no coverage
         if samples.weight is None:
@@ -213,7 +243,7 @@ class AsApplied:
             per_item = (samples.x.shape[0], *(1,) * (samples.x.ndim - 1))
             load = mass.reshape(per_item) * samples.weight + 1j * (area / n).reshape(per_item)
             load = np.broadcast_to(load, samples.x.shape).ravel()
-        self._spread(subcell_terms(self.raster, samples) if terms is None else terms, load)
+        self._spread(SubcellTerms(self.raster, samples) if terms is None else terms, load)
 
     @staticmethod
     def _checked(mass_kg, items: int) -> np.ndarray:
@@ -225,17 +255,14 @@ class AsApplied:
 
     def _spread(self, terms, load):
         """Split each sample's load between the (at most 2 x 2) sub-cells its box overlaps (`terms`:
-        `subcell_terms` of the samples, left unchanged)."""
-        r0, c0, (low_low, low_high, high_low, high_high), (wc_low, wc_high, wr_low, wr_high), _ = terms
+        `SubcellTerms` of the samples, left unchanged)."""
         if self._target is not self._acc:
-            self._widen_window(r0, c0)
-        lc = load * wc_low
-        hc = load * wc_high
+            self._widen_window(terms.r0, terms.c0)
         acc = self._target
-        np.add.at(acc, low_low, lc * wr_low)
-        np.add.at(acc, low_high, hc * wr_low)
-        np.add.at(acc, high_low, lc * wr_high)
-        np.add.at(acc, high_high, hc * wr_high)
+        for corner in range(4):
+            for part in terms.pieces():
+                cells, wc, wr = terms.flat(corner, part)
+                np.add.at(acc, cells, load[part] * wc * wr)
 
     # --- passes --------------------------------------------------------------------------------
     def close_pass(self) -> None:
@@ -359,19 +386,40 @@ class AsApplied:
 
 _CHUNK = 256   # samples per box of `AsApplied._mark_tiles` (a strip's samples go along it, then across)
 _TILE = 16     # cells per side of the tiles of `AsApplied._tiles`
+_KEPT = ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg", "outside_kg")  # by `finish`
+_PIECE_SAMPLES = 1 << 16   # samples a piece of a deposit's batch holds (`SubcellTerms`)
 _BAND_SUBCELLS = 1 << 19   # sub-cells a band of `cell_bands` holds at most (4 MB of floats; one row at least)
 
 
-def subcell_terms(raster: SubcellRaster, samples: Samples):
-    """What a deposit needs of the samples' boxes, the same for any load: the corner sub-cells
-    (`SubcellRaster.corners`: r0, c0), the flat indices of the four sub-cells each box overlaps, the
-    shares of the rows and columns, (1 - wc, wc, 1 - wr, wr), and the far corner (r1, c1)."""
-    r0, r1, c0, c1, wr, wc = raster.corners(samples.x.ravel(), samples.y.ravel(),
-                                            samples.flat(samples.ext_x), samples.flat(samples.ext_y))
-    cols = raster.shape[1]
-    r0_flat, r1_flat = r0 * cols, r1 * cols
-    cells = (r0_flat + c0, r0_flat + c1, r1_flat + c0, r1_flat + c1)
-    return r0, c0, cells, (1.0 - wc, wc, 1.0 - wr, wr), (r1, c1)
+class SubcellTerms:
+    """What a deposit needs of a batch of samples' boxes, the same for any load, in 48 bytes a sample:
+    the sub-cells of each box's corners (`SubcellRaster.corners`, ring coordinates: r0, r1, c0, c1) and
+    the shares that spill (wr, wc). The four corners' flat indices and shares are worked out a piece of
+    `_PIECE_SAMPLES` samples at a time (`corner`): a deposit adds corner by corner over the batch, piece
+    by piece, in the order of the whole batch's arrays (the same sums), with a piece's temporaries."""
+
+    def __init__(self, raster: SubcellRaster, samples: Samples):
+        self.r0, self.r1, self.c0, self.c1, self.wr, self.wc = raster.corners(
+            samples.x.ravel(), samples.y.ravel(), samples.flat(samples.ext_x), samples.flat(samples.ext_y))
+        self.cols = raster.shape[1]
+        self.size = self.r0.size
+
+    def pieces(self):
+        """Consecutive slices of the samples, `_PIECE_SAMPLES` each."""
+        return [slice(lo, lo + _PIECE_SAMPLES) for lo in range(0, self.size, _PIECE_SAMPLES)]
+
+    def corner(self, corner: int, part: slice):
+        """(rows, cols, column share, row share) of corner 0..3 (r0 c0, r0 c1, r1 c0, r1 c1) of the
+        samples `part`: ring coordinates of its sub-cells, and the shares 1 - wc or wc, 1 - wr or wr."""
+        high_r, high_c = divmod(corner, 2)
+        rows, wr = (self.r1[part], self.wr[part]) if high_r else (self.r0[part], 1.0 - self.wr[part])
+        cols, wc = (self.c1[part], self.wc[part]) if high_c else (self.c0[part], 1.0 - self.wc[part])
+        return rows, cols, wc, wr
+
+    def flat(self, corner: int, part: slice):
+        """(flat sub-cell indices, column share, row share) of corner `corner` of the samples `part`."""
+        rows, cols, wc, wr = self.corner(corner, part)
+        return rows * self.cols + cols, wc, wr
 
 
 def cell_bands(raster: SubcellRaster, per_band) -> np.ndarray:

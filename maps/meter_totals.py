@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from common import MapError
-from maps.as_applied import cell_bands, checked_raster, subcell_terms
+from maps.as_applied import SubcellTerms, cell_bands, checked_raster
 from maps.crs import metres_per_unit
 from maps.footprint import Footprint, Samples
 from maps.grid import Grid
@@ -80,7 +80,7 @@ class MeterTotals:
         masses = self._checked(masses, footprint.items)
         step, unit = self.raster.step, metres_per_unit(self.grid.crs)
         for samples in footprint.samples(step, unit, slice(0, footprint.items)):
-            self._deposit(samples, masses[samples.items], subcell_terms(self.raster, samples))
+            self._deposit(samples, masses[samples.items], SubcellTerms(self.raster, samples))
         self._tally(masses)
 
     def _checked(self, masses, items: int) -> np.ndarray:
@@ -98,29 +98,29 @@ class MeterTotals:
         self.total_kg += masses.sum(axis=0)
         self.items += int(masses.shape[0])
 
-    def _deposit(self, samples: Samples, mass: np.ndarray, terms) -> None:
-        """Spread `samples` carrying `mass` (per item and meter, (k, meters)); `terms`: `subcell_terms`."""
-        _, _, subs, (wc_low, wc_high, wr_low, wr_high), _ = terms
-        shares = ((wc_low, wr_low), (wc_high, wr_low), (wc_low, wr_high), (wc_high, wr_high))
-        cells = self._cell_indices(terms)
+    def _deposit(self, samples: Samples, mass: np.ndarray, terms: SubcellTerms) -> None:
+        """Spread `samples` carrying `mass` (per item and meter, (k, meters)), corner by corner of the
+        boxes (`SubcellTerms`), piece by piece."""
         n = samples.per_item
-        for j in range(self.meters):   # the product, per cell
-            m = mass[:, j]
-            load = samples.flat(m / n) if samples.weight is None else np.broadcast_to(
-                m.reshape(-1, *(1,) * (samples.x.ndim - 1)) * samples.weight, samples.x.shape).ravel()
-            for index, (wc, wr) in zip(cells, shares, strict=True):
-                np.add.at(self._kg[j], index, load * wc * wr)
+        # Per item (or per sample, weighted) of each meter: its product's load, and per swept-area raster
+        # the swept area's; each a piece at a time (`_piece`).
+        per_item = (samples.x.shape[0], *(1,) * (samples.x.ndim - 1))
+        loads = [m / n if samples.weight is None else m.reshape(per_item) * samples.weight for m in mass.T]
+        swept = []
         for first, _ in self._groups(mass > 0):   # the swept area, per sub-cell
             # `AsApplied._deposit`'s load, whose imaginary part is the swept area: the same bits.
             area = np.where(mass[:, first] > 0, samples.swept, 0.0)
-            if samples.weight is None:
-                swept = samples.flat((mass[:, first] + 1j * area) / n).imag
-            else:
-                per_item = (samples.x.shape[0], *(1,) * (samples.x.ndim - 1))
-                swept = np.broadcast_to((area / n).reshape(per_item), samples.x.shape).ravel()
-            target = self._swept[self._of[first]]
-            for index, (wc, wr) in zip(subs, shares, strict=True):
-                np.add.at(target, index, swept * wc * wr)
+            load = ((mass[:, first] + 1j * area) / n).imag if samples.weight is None else area / n
+            swept.append((self._swept[self._of[first]], load))
+        for corner in range(4):
+            for part in terms.pieces():
+                rows, cols, wc, wr = terms.corner(corner, part)
+                cells = self._cell_index(rows, cols)
+                for j, load in enumerate(loads):
+                    np.add.at(self._kg[j], cells, _piece(load, samples, part) * wc * wr)
+                subs = rows * terms.cols + cols
+                for target, load in swept:
+                    np.add.at(target, subs, _piece(load, samples, part) * wc * wr)
 
     def _groups(self, on: np.ndarray) -> list:
         """(a meter, the meters sharing its swept-area raster) per raster, for a deposit whose items
@@ -140,16 +140,20 @@ class MeterTotals:
                 members = [j for j in members if j not in same]
         return [(first, same) for first, same, _ in groups]
 
-    def _cell_indices(self, terms) -> list[np.ndarray]:
-        """The flat cell index (the last: off the grid) of each of the four sub-cells of `terms`."""
-        r0, c0, _, _, (r1, c1) = terms
-        s, rows, cols = self.raster.subcells, self.grid.rows, self.grid.cols
+    def _cell_index(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The flat cell index (the last: off the grid) of sub-cells at `rows`, `cols` (ring coordinates)."""
+        s = self.raster.subcells
+        r, c = (rows - 1) // s, (cols - 1) // s
+        inside = (r >= 0) & (r < self.grid.rows) & (c >= 0) & (c < self.grid.cols)
+        return np.where(inside, r * self.grid.cols + c, self._cells)
 
-        def cell(i, n):   # ring coordinates of sub-cells -> cell, and whether it is one
-            k = (i - 1) // s
-            return k, (k >= 0) & (k < n)
 
-        (kr0, in_r0), (kr1, in_r1) = cell(r0, rows), cell(r1, rows)
-        (kc0, in_c0), (kc1, in_c1) = cell(c0, cols), cell(c1, cols)
-        return [np.where(ir & ic, kr * cols + kc, self._cells)
-                for kr, ir in ((kr0, in_r0), (kr1, in_r1)) for kc, ic in ((kc0, in_c0), (kc1, in_c1))]
+def _piece(values: np.ndarray, samples: Samples, part: slice) -> np.ndarray:
+    """The samples `part` (flat) of `values` given per item (k,) or at the samples' shape (broadcast
+    from (k, ...)), as `Samples.flat` would give them, without the whole batch's flat copy."""
+    lo, hi, _ = part.indices(samples.x.size)
+    index = np.arange(lo, hi)
+    if values.ndim == 1:   # per item
+        return values[index // samples.per_item]
+    item, within = np.divmod(index, samples.per_item)
+    return np.broadcast_to(values, samples.x.shape)[(item, *np.unravel_index(within, samples.x.shape[1:]))]

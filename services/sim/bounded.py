@@ -316,7 +316,9 @@ class BoundedAccount:
         acc.close_pass()   # the drive is over: each read below no longer adds the last pass's raster
         in_field = self.in_field
         worked = self.worked.fraction()
-        references = self._reference_figures(worked)   # first: their rasters let go before the reads
+        if self.arrays is None:   # a run's outputs read its raster per cell: the sub-cells given back
+            acc.finish()
+        references = self._reference_figures(worked)   # their rasters let go before the run's figures
         cover = acc.coverage_fraction
         # numpy's pairwise sum over the whole run, as the in-process run's.
         metered_kg = float(np.concatenate([np.zeros(0), *self.metered]).sum())

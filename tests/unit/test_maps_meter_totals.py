@@ -111,3 +111,45 @@ def test_reads_band_by_band_are_the_whole_grids_to_the_bit(monkeypatch):
         monkeypatch.setattr(as_applied, "_BAND_SUBCELLS", band)
         for name in names:
             np.testing.assert_array_equal(getattr(acc, name), whole[name])
+
+
+
+def test_a_batch_spread_piece_by_piece_is_the_whole_batchs_to_the_bit(monkeypatch):
+    """A batch's boxes are added corner by corner, a piece of samples at a time (bounded temporaries):
+    the figures of the run's raster and of the meters beside it are those of whole pieces, bit for bit."""
+    strips, mass, pass_index = _strips()
+    masses = np.column_stack([np.full(strips.items, mass), np.linspace(0.0, mass, strips.items)])
+    names = ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg", "pass_count", "outside_kg")
+
+    def deposited():
+        acc, totals = AsApplied(field()), MeterTotals(field(), 2)
+        acc.deposit(_Weighted(strips), mass, pass_index=pass_index, others=[(totals, masses)])
+        meters = [(totals.applied_kg_ha(j), totals.coverage_fraction(j), totals.outside_kg(j))
+                  for j in range(2)]
+        return [getattr(acc, name) for name in names] + [f for figures in meters for f in figures]
+
+    whole = deposited()
+    monkeypatch.setattr(as_applied, "_PIECE_SAMPLES", 4099)   # several pieces a batch
+    for a, b in zip(deposited(), whole, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_finished_raster_reads_the_same_figures_and_takes_no_deposit():
+    strips, mass, pass_index = _strips()
+    acc = AsApplied(field())
+    acc.deposit(strips, mass, pass_index=pass_index)   # the last pass left open: `finish` closes it
+    names = ("applied_kg", "applied_kg_ha", "coverage_fraction", "overlap_fraction", "overlap_kg",
+             "pass_count", "outside_kg")
+    before = {name: getattr(acc, name) for name in names}
+    window, rates = acc.applied_kg_in(slice(2, 7), slice(3, 9)), acc.as_grid().rates_kg_ha
+    acc.finish()
+    assert acc._acc is None and acc._capped is None   # the sub-cells given back
+    for name in names:
+        np.testing.assert_array_equal(getattr(acc, name), before[name])
+    assert acc.pass_count.dtype == np.int64
+    np.testing.assert_array_equal(acc.applied_kg_in(slice(2, 7), slice(3, 9)), window)
+    np.testing.assert_array_equal(acc.as_grid().rates_kg_ha, rates)
+    with pytest.raises(ValueError):
+        acc.coverage_fraction[0, 0] = 1.0   # the figures kept are read-only
+    with pytest.raises(MapError, match="finished"):
+        acc.deposit(strips, mass)
