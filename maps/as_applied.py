@@ -39,6 +39,7 @@ from common import MapError
 from maps.crs import metres_per_unit
 from maps.footprint import Footprint, Samples, Strips
 from maps.grid import Grid
+from maps.pass_capped import CappedSums
 from maps.subcells import SubcellRaster
 
 
@@ -65,13 +66,13 @@ class AsApplied:
         self.items = 0  # items deposited
         # Pass accounting (see `deposit`'s pass_index). The open pass deposits into its own raster
         # (`_pass_acc`, a new one per pass), over a window of sub-cells `_window`; when it closes,
-        # that window is added to `_acc`, and to the capped swept-area sum (`_capped`, per interior
+        # that window is added to `_acc`, and to the capped swept-area sums (`_capped`, per interior
         # sub-cell) and the pass count (`_count`, per cell) of the closed passes.
         self._pass = None
         self._pass_acc = None
         self._window = None  # [row_min, row_max, col_min, col_max] touched, ring coordinates
         self._tiles = None   # the open pass's touched tiles (`_mark_tiles`)
-        self._capped = np.zeros((grid.rows * subcells, grid.cols * subcells))
+        self._capped = CappedSums((grid.rows * subcells, grid.cols * subcells), self.raster.sub_area)
         self._count = np.zeros((grid.rows, grid.cols), dtype=np.int32)   # read as int64 (`pass_count`)
         self._target = self._acc  # where `_spread` deposits
         self._kept = None    # after `finish`: the per-cell figures, the sub-cell rasters given back
@@ -141,7 +142,7 @@ class AsApplied:
     def pass_count(self) -> np.ndarray:
         """Number of passes that put product on at least half of each cell, shape (rows, cols) (items
         deposited without a pass index count for none)."""
-        count = self._with_open_pass()[1] if self._kept is None else self._kept["pass_count"]
+        count = self._count_with_open_pass() if self._kept is None else self._kept["pass_count"]
         return count.astype(np.int64)
 
     @property
@@ -154,8 +155,8 @@ class AsApplied:
         """
         if self._kept is not None:
             return self._kept["overlap_fraction"]
-        raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
-        return cell_bands(raster, lambda rows: raster.cell_means(raster.overlap_share(capped[rows])))
+        raster, capped = self.raster, self._capped_bands()
+        return cell_bands(raster, lambda rows: raster.cell_means(raster.overlap_share(capped(rows))))
 
     @property
     def overlap_kg(self) -> np.ndarray:
@@ -163,9 +164,9 @@ class AsApplied:
         its product times the share of its passes' swept area that overlaps."""
         if self._kept is not None:
             return self._kept["overlap_kg"]
-        raster, capped = self.raster, self.raster.blocks(self._with_open_pass()[0])
+        raster, capped = self.raster, self._capped_bands()
         return cell_bands(raster, lambda rows: raster.cell_sums(self._blocks(rows).real
-                                                               * raster.beyond_first(capped[rows])))
+                                                               * raster.beyond_first(capped(rows))))
 
     def finish(self) -> None:
         """The deposits are over: close the open pass, read each per-cell figure once and give back the
@@ -211,6 +212,8 @@ class AsApplied:
         for acc, _ in pairs:
             if isinstance(acc, AsApplied):
                 acc._target = acc._acc
+                if acc is not self or pass_index is None:   # swept area no pass owns: the sums dense
+                    acc._capped.to_dense(acc._acc.reshape(acc.raster.shape)[1:-1, 1:-1].imag)
         if pass_index is None:
             runs = [(None, slice(0, footprint.items))]
         else:
@@ -286,15 +289,16 @@ class AsApplied:
         samples touched (`_tiles`): an oblique pass's window is a quarter of the grid, its tiles a few
         per cent. Everywhere else the pass's raster is zero, so the sums are the window's to the bit."""
         if self._window is not None:   # also a pass that put product off the grid only
-            s, shape, area = self.raster.subcells, self.raster.shape, self.raster.sub_area
+            s, shape = self.raster.subcells, self.raster.shape
             acc, part = self._acc.reshape(shape), self._pass_acc.reshape(shape)
             for i0, i1, j0, j1 in self._slabs():   # interior sub-cells, whole cells
                 inner = (slice(1 + i0, 1 + i1), slice(1 + j0, 1 + j1))
-                acc[inner] += part[inner]
                 swept = part[inner].imag
-                self._capped[i0:i1, j0:j1] += np.minimum(swept, area)
+                self._capped.add_pass(slice(i0, i1), slice(j0, j1), acc[inner].imag, swept)
+                acc[inner] += part[inner]
                 blocks = self.raster.cell_sums(swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s))
                 self._count[i0 // s: i1 // s, j0 // s: j1 // s] += self.raster.pass_puts_on(blocks)
+            self._capped.end_pass()
             for ring in ((0, slice(None)), (-1, slice(None)), (slice(1, -1), 0), (slice(1, -1), -1)):
                 acc[ring] += part[ring]   # what fell off the grid
         # The next pass gets a new raster (zeros the system maps as it writes them): this one's memory is
@@ -354,19 +358,35 @@ class AsApplied:
         blocks = self.raster.cell_sums(swept.reshape((i1 - i0) // s, s, (j1 - j0) // s, s))
         return np.minimum(swept, area), self.raster.pass_puts_on(blocks), (slice(i0, i1), slice(j0, j1))
 
-    def _with_open_pass(self):
-        """Per interior sub-cell the sum over passes of each pass's swept area (capped at the
-        sub-cell's area), and per cell the number of passes that swept at least half of it, the
-        open pass included."""
-        capped, count, window = self._open_pass_terms()
+    def _count_with_open_pass(self) -> np.ndarray:
+        """Per cell the number of passes that swept at least half of it, the open pass included."""
+        _, count, window = self._open_pass_terms()
         if window is None:
-            return self._capped, self._count
-        rows, cols = window
-        all_capped, all_count = self._capped.copy(), self._count.copy()
-        all_capped[rows, cols] += capped
-        s = self.raster.subcells
+            return self._count
+        rows, cols, s = *window, self.raster.subcells
+        all_count = self._count.copy()
         all_count[rows.start // s: rows.stop // s, cols.start // s: cols.stop // s] += count
-        return all_capped, all_count
+        return all_count
+
+    def _capped_bands(self):
+        """``capped(rows)``: per interior sub-cell of the cell rows `rows` the sum over passes of each
+        pass's swept area (capped at the sub-cell's area), the open pass included, as (band rows, s,
+        cols, s) blocks (`maps.pass_capped`)."""
+        s = self.raster.subcells
+        capped, _, window = self._open_pass_terms()
+        swept = self._acc.reshape(self.raster.shape)[1:-1, 1:-1].imag
+
+        def capped_rows(rows: slice) -> np.ndarray:
+            sub = slice(rows.start * s, rows.stop * s)
+            band = self._capped.band(sub, swept[sub])
+            if window is not None:   # the open pass's, where the band crosses its window
+                lo, hi = max(sub.start, window[0].start), min(sub.stop, window[0].stop)
+                if lo < hi:
+                    band[lo - sub.start: hi - sub.start, window[1]] += capped[lo - window[0].start:
+                                                                              hi - window[0].start]
+            return band.reshape(rows.stop - rows.start, s, self.grid.cols, s)
+
+        return capped_rows
 
     def _widen_window(self, row, col) -> None:
         """Grow the open pass's window to the sub-cells of samples at `row`, `col` (ring coordinates)

@@ -101,17 +101,47 @@ def test_reads_band_by_band_are_the_whole_grids_to_the_bit(monkeypatch):
     names = ("applied_kg", "coverage_fraction", "overlap_fraction", "overlap_kg")
     acc = AsApplied(field())
     acc.deposit(strips, mass, pass_index=pass_index)   # the last pass left open
-    r, capped = acc.raster, acc.raster.blocks(acc._with_open_pass()[0])
-    every = acc._all()
-    whole = {"applied_kg": r.cell_sums(r.interior(every.real)),
-             "coverage_fraction": r.cell_means(r.covered(r.interior(every.imag))),
-             "overlap_fraction": r.cell_means(r.overlap_share(capped)),
-             "overlap_kg": r.cell_sums(r.interior(every.real) * r.beyond_first(capped))}
-    for band in (1, 3 * r.subcells**2 * acc.grid.cols, as_applied._BAND_SUBCELLS):
+    monkeypatch.setattr(as_applied, "_BAND_SUBCELLS", 10**9)
+    whole = {name: getattr(acc, name) for name in names}
+    for band in (1, 3 * acc.raster.subcells**2 * acc.grid.cols):
         monkeypatch.setattr(as_applied, "_BAND_SUBCELLS", band)
         for name in names:
             np.testing.assert_array_equal(getattr(acc, name), whole[name])
 
+
+@pytest.mark.parametrize("angle_deg", [0.0, 25.0, 90.0])
+def test_the_passes_capped_sums_held_sparse_are_the_dense_ones_to_the_bit(angle_deg):
+    """`maps.pass_capped`: the sums of the sub-cells two passes or more swept kept on their own, the
+    others read off the raster: the overlap figures of dense sums, bit for bit, an open pass included
+    and once closed; product deposited without a pass turns the sums dense as they stand."""
+    x0, y0, x1, y1, mass = passes(150.0, width_m=12.0, step_m=0.2, angle_deg=angle_deg)
+    x1 = x1 + np.where(np.arange(x0.size) % 5, 0.0, 3.0)   # ticks reaching over the next: overlap
+    strips = Strips(x0, y0, x1, y1, np.full(x0.size, 13.0))   # 13 m swaths 12 m apart: passes meet
+    pass_index = np.arange(x0.size) * 7 // x0.size
+    sparse, dense = AsApplied(field()), AsApplied(field())
+    dense._capped.to_dense(None)   # no pass yet: dense zeros, the sums as a dense array adds them
+    names = ("overlap_fraction", "overlap_kg", "pass_count")
+    for acc in (sparse, dense):
+        acc.deposit(strips, mass, pass_index=pass_index)
+    assert sparse._capped.dense is None and sparse._capped.at.size > 0
+    for name in names:   # the last pass open
+        np.testing.assert_array_equal(getattr(sparse, name), getattr(dense, name))
+    assert sparse.overlap_kg.sum() > 0
+    again = Strips(x0[:900], y0[:900], x1[:900], y1[:900], np.full(900, 13.0))   # over passes 0 and 1
+    for acc in (sparse, dense):   # its ground swept a second and a third time
+        acc.deposit(again, mass, pass_index=9)
+        acc.deposit(again, mass, pass_index=10)
+        acc.close_pass()
+    assert sparse._capped.dense is None
+    for name in names:
+        np.testing.assert_array_equal(getattr(sparse, name), getattr(dense, name))
+    for acc in (sparse, dense):
+        acc.add_strips(x0[:500], y0[:500], x1[:500], y1[:500], 12.0, mass)   # without a pass
+        acc.deposit(again, mass, pass_index=11)
+        acc.close_pass()
+    assert sparse._capped.dense is not None
+    for name in names:
+        np.testing.assert_array_equal(getattr(sparse, name), getattr(dense, name))
 
 
 def test_a_batch_spread_piece_by_piece_is_the_whole_batchs_to_the_bit(monkeypatch):
