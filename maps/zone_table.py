@@ -68,7 +68,7 @@ def is_zone_file(path: str) -> bool:
     return lower.endswith((".shp", ".gpkg", ".geojson", ".json"))
 
 
-def read_zone_table(path, layer: str | None = None, crs=None) -> ZoneTable:
+def read_zone_table(path, layer: str | None = None, crs=None, attributes: bool = True) -> ZoneTable:
     """The polygons and attributes of a zone file.
 
     Parameters
@@ -79,6 +79,11 @@ def read_zone_table(path, layer: str | None = None, crs=None) -> ZoneTable:
         The shapefile (layer) of a file holding several (required then: they are listed).
     crs : pyproj.CRS or str, optional
         The CRS of a file that states none (a shapefile without ``.prj``); over the file's.
+    attributes : bool
+        Read the attributes too. Without them a shapefile is read without GDAL
+        (`maps.zones.shapefile_polygons`, the CRS from its ``.prj`` as `read_zones` reads it): the
+        polygons of a field from a prescription (`services.sim.world.field_from_map`), for which GDAL
+        would hold 25 MB more for the whole run.
 
     Raises
     ------
@@ -90,6 +95,8 @@ def read_zone_table(path, layer: str | None = None, crs=None) -> ZoneTable:
         raise MapError(f"{path}: no such file or folder")
     if path.lower().endswith((".geojson", ".json")):
         table = _geojson_table(path)
+    elif not attributes and not path.lower().endswith(".gpkg"):
+        table = _shapefile_table(path, layer)
     else:
         table = _vector_table(path, layer)
     if crs is not None:
@@ -121,6 +128,21 @@ def _vector_table(path: str, layer: str | None) -> ZoneTable:
     crs = pyproj.CRS.from_user_input(meta["crs"]) if meta.get("crs") else None
     stem = os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0]
     return ZoneTable(path, layer or stem, polygons, dict(zip(names, columns, strict=True)), crs)
+
+
+def _shapefile_table(path: str, layer: str | None) -> ZoneTable:
+    """A shapefile's polygons and CRS without its attributes, read without GDAL."""
+    import shapely
+
+    from maps.crs import crs_from_prj
+    from maps.zones import shapefile_polygons
+
+    try:
+        polygons, prj, stem = shapefile_polygons(path, layer)
+    except (ValueError, shapely.errors.GEOSException):   # rings GEOS makes no polygon of: as GDAL reads them
+        return _vector_table(path, layer)
+    crs = crs_from_prj(prj, f"{path}: .prj") if prj is not None else None
+    return ZoneTable(path, layer or stem, polygons, {}, crs)
 
 
 def _geojson_table(path: str) -> ZoneTable:

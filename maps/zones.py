@@ -16,6 +16,7 @@ import io
 import json
 import math
 import os
+import posixpath
 import struct
 import warnings
 from dataclasses import dataclass, replace
@@ -272,9 +273,61 @@ def _parse_shp(data: bytes, path: str):
     return rings, owners, keep
 
 
-def _shapefile_parts(path: str) -> dict:
-    """Contents of .shp, .dbf, .shx (optional) and .prj (optional), from a folder or a zip, as
-    in-memory files: nothing stays open once this returns."""
+def shapefile_polygons(path: str, layer: str | None = None):
+    """The polygon features of a shapefile (``.shp``, a ``.zip`` or folder holding one: `layer` names
+    it among several, as `maps.vector.gdal_source` does, whose checks it passes first) as shapely
+    geometries, read without GDAL: the ``.shp`` parsed as `read_zones` parses it, a feature's rings made
+    its polygons by the shapefile's rule (clockwise: a polygon; counter-clockwise: a hole of the one
+    holding it); null shapes left out. Returns (polygons, the ``.prj``'s text or None, the layer's name)."""
+    import shapely
+
+    from maps.vector import gdal_source
+
+    source = gdal_source(path, layer)[0]
+    member = None
+    if path.lower().endswith(".zip"):   # "/vsizip/<the checked zip>/<member>"
+        member = source[len(f"/vsizip/{files.gdal_path(path, MapError)}/"):]
+    parts = _shapefile_parts(path if member is not None else source, member)
+    rings, owners, _ = _parse_shp(parts["shp"].read(), path)
+    owners = np.asarray(owners, dtype=np.int64)
+    count = np.bincount(owners, minlength=int(owners.max(initial=-1)) + 1)
+    polygons = np.empty(count.size, dtype=object)
+    single = np.flatnonzero(count[owners] == 1)   # rings that are a feature's only one
+    if single.size:
+        lengths = np.array([len(rings[i]) for i in single])
+        coords = np.concatenate([rings[i] for i in single])
+        lines = shapely.linearrings(coords, indices=np.repeat(np.arange(single.size), lengths))
+        polygons[owners[single]] = shapely.polygons(lines)
+    for feature in np.flatnonzero(count > 1):
+        polygons[feature] = _polygon_of_rings([rings[i] for i in np.flatnonzero(owners == feature)])
+    prj = parts["prj"].read().decode("utf-8", "replace") if parts["prj"] is not None else None
+    stem = os.path.splitext(posixpath.basename(member) if member else os.path.basename(source))[0]
+    return polygons, prj, stem
+
+
+def _polygon_of_rings(rings: list[np.ndarray]):
+    """A feature of several rings as one polygon or a multipolygon: its clockwise rings the polygons
+    (all of them where none is), each counter-clockwise one a hole of the first that holds it."""
+    import shapely
+
+    def signed_area(r):
+        return 0.5 * float(np.dot(r[:-1, 0], r[1:, 1]) - np.dot(r[1:, 0], r[:-1, 1]))
+
+    outer = [r for r in rings if signed_area(r) < 0] or rings
+    holes = [r for r in rings if signed_area(r) >= 0] if len(outer) < len(rings) else []
+    shells = [shapely.Polygon(r) for r in outer]
+    inner = [[] for _ in outer]
+    for hole in holes:
+        at = next((k for k, p in enumerate(shells) if p.contains(shapely.Point(hole[0]))), None)
+        if at is not None:
+            inner[at].append(hole)
+    polygons = [shapely.Polygon(r, h) for r, h in zip(outer, inner, strict=True)]
+    return polygons[0] if len(polygons) == 1 else shapely.MultiPolygon(polygons)
+
+
+def _shapefile_parts(path: str, member: str | None = None) -> dict:
+    """Contents of .shp, .dbf, .shx (optional) and .prj (optional), from a folder or a zip (its
+    `member` .shp, else its first), as in-memory files: nothing stays open once this returns."""
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file")
     exts = (".shp", ".dbf", ".shx", ".prj")
@@ -283,6 +336,8 @@ def _shapefile_parts(path: str) -> dict:
             shps = [n for n in z.namelist() if n.lower().endswith(".shp") and not n.startswith("__MACOSX")]
             if not shps:
                 raise MapError(f"{path}: the zip archive holds no .shp file")
+            if member is not None:
+                shps = [member]
             if len(shps) > 1:
                 warnings.warn(f"{path}: {len(shps)} shapefiles in the archive; reading {shps[0]}", MapWarning,
                               stacklevel=4)

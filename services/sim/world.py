@@ -79,7 +79,7 @@ def field_from_map(path: str, crs=None, layer: str | None = None, sliver_m2: flo
     if not is_zone_file(path):
         raise MapError(f"{path}: a field is taken from a zone map's polygons (a shapefile, zipped or not, "
                        "GeoPackage or GeoJSON); this one has none")
-    table = read_zone_table(path, layer=layer, crs=crs)
+    table = read_zone_table(path, layer=layer, crs=crs, attributes=False)   # the polygons only: no GDAL
     if table.crs is None:
         raise MapError(f"{path}: the file does not state its CRS (no .prj); give one ([map] crs, --crs)")
     name = os.path.splitext(os.path.basename(path))[0]
