@@ -22,9 +22,9 @@ functions over stretches that they treat alike:
 
 What it keeps per tick: the metered product (8 bytes a tick): a run's total is numpy's pairwise sum over
 all its ticks, which a sum of parts does not reproduce to the last bit (the error split's reference
-meters, which only the report shows, are summed part by part, and their product per cell rather than
-per sub-cell (`maps.meter_totals`: a third of the memory): equal to the in-process run's to rounding,
-their coverage the same). The machine-limited ticks keep their landing frames (about 100 bytes each),
+meters, which only the report shows, are summed part by part, their product per cell, both it and their
+swept area in single precision (`maps.meter_totals`: a sixth of the memory): equal to the in-process
+run's to about 1e-6). The machine-limited ticks keep their landing frames (about 100 bytes each),
 whose strips are cut by their own median travel at the end, as the in-process run cuts them; a
 pass not yet ended is held until it ends (a stretch is at most a swath and its turn).
 """
@@ -120,7 +120,7 @@ class BoundedAccount:
         # The field's cells, for the result: found now, while SUMO drives, not after the drive.
         self.in_field = cells_in_field(grid, world.field.polygon)
         # The reference meters' totals (`maps.meter_totals`: their product per cell, their swept area
-        # shared while they put product on the same items), not an `AsApplied` each.
+        # shared while they put product on the same items, in single precision), not an `AsApplied` each.
         self.refs = MeterTotals(grid, len(REFERENCES)) if references else None
         # The spread pattern's reference: the unclipped product on the sections' strips (only a kind
         # whose footprint is not strips needs its own raster: for the others it is the first reference).

@@ -93,11 +93,12 @@ def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_afte
     assert streamed.reference_figures is not None
     whole = quick_whole
     assert whole.reference_figures is None
-    # The reference meters' product is summed part by part (`services.sim.bounded`): to rounding.
+    # The reference meters' product is summed part by part, per cell and in single precision, their swept
+    # area in single precision (`maps.meter_totals`): to a few parts in a million (shown: two decimals).
     for a, b in zip(error_split(streamed), error_split(whole), strict=True):
         assert a.cause == b.cause
         assert (a.mass_balance_pct, a.mae_kg_ha, a.share_pct) == pytest.approx(
-            (b.mass_balance_pct, b.mae_kg_ha, b.share_pct), rel=1e-9, abs=1e-12)
+            (b.mass_balance_pct, b.mae_kg_ha, b.share_pct), rel=1e-5, abs=1e-6)
 
 
 def test_progress_counts_every_tick_once():

@@ -19,19 +19,19 @@ def _strips():
 
 
 def _assert_like_each(totals, each):
-    """Coverage bit for bit, product to the order of the sums."""
+    """Single precision against double: coverage to 1e-6, product to a few parts in a million."""
     for j, acc in enumerate(each):
-        np.testing.assert_array_equal(totals.coverage_fraction(j), acc.coverage_fraction)
-        np.testing.assert_allclose(totals.applied_kg_ha(j), acc.applied_kg_ha, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(totals.coverage_fraction(j), acc.coverage_fraction, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(totals.applied_kg_ha(j), acc.applied_kg_ha, rtol=1e-5, atol=1e-6)
         assert totals.outside_kg(j) == pytest.approx(acc.outside_kg, rel=1e-9, abs=1e-12)
         assert totals.total_kg[j] == pytest.approx(acc.total_kg, rel=1e-12)
     assert totals.items == each[0].items
 
 
 def test_meters_beside_a_run_equal_an_as_applied_each():
-    """The run's raster stays its own deposit's bit for bit; the meters' coverage is each one's own
-    `AsApplied` bit for bit (a meter putting product on other items than the rest gets its own swept
-    raster), their product to rounding."""
+    """The run's raster stays its own deposit's bit for bit; the meters' coverage and product are each
+    one's own `AsApplied`'s to single precision (a meter putting product on other items than the rest
+    gets its own swept raster)."""
     strips, mass, pass_index = _strips()
     k = np.arange(strips.items)
     masses = np.column_stack([np.full(k.size, mass), np.linspace(0.0, 2 * mass, k.size),
