@@ -114,14 +114,14 @@ def _jitter_p99(periods: list[float]) -> float:
 
 def run() -> dict[str, float]:
     sys.path.insert(0, ROOT)
-    from services.aog.app_client import AppClient, AppProduct, pid_settings
+    from vrsim.services.aog.app_client import AppClient, AppProduct, pid_settings
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "bench.toml")
         with open(path, "w") as fh:
             fh.write(SCENARIO)
         modules, app, agio = (("127.0.0.1", _free_port()) for _ in range(3))
-        argv = [sys.executable, "-P", "-m", "services.cli", "serve", "aog-rc", path, "--speed", "1",
+        argv = [sys.executable, "-P", "-m", "vrsim.services.cli", "serve", "aog-rc", path, "--speed", "1",
                 "--listen", f"127.0.0.1:{modules[1]}", "--app", f"127.0.0.1:{app[1]}",
                 "--agio", f"127.0.0.1:{agio[1]}", "--out", os.path.join(tmp, "out")]
         proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -52,7 +52,7 @@ def _python_control_loop(plant, gains, T, h):
     """The same loop as a python-control interconnection of discrete systems at step h."""
     import control
 
-    from controller.plant import shaft_rpm_row, state_space
+    from vrsim.controller.plant import shaft_rpm_row, state_space
 
     A, B = state_space(plant)
     pl = control.sample_system(control.ss(A, B[:, :1], shaft_rpm_row(plant)[None, :], 0), h, method="zoh",
@@ -90,7 +90,7 @@ def _python_control_loop(plant, gains, T, h):
 def run() -> dict[str, float]:
     import control
 
-    from controller import (
+    from vrsim.controller import (
         ClosedLoop,
         ControllerConfig,
         PidGains,

@@ -54,7 +54,7 @@ def scalar_figures(g, x, y) -> dict[str, float]:
     for a, b in zip(xs, ys, strict=True):
         rate_at(a, b)
     rate_at_us = (time.perf_counter() - t0) / calls * 1e6
-    from maps.crs import WGS84, transform_xy
+    from vrsim.maps.crs import WGS84, transform_xy
 
     lon, lat = transform_xy(x[:20_000], y[:20_000], g.crs, WGS84)
     t0 = time.perf_counter()
@@ -133,7 +133,7 @@ def _serpentine(ticks: int, width_m: float, step_m: float, field_m: float, x0: f
 
 
 def as_applied_figures() -> dict[str, float]:
-    from maps import AsApplied, synthetic
+    from vrsim.maps import AsApplied, synthetic
 
     ticks = 130_000
     out = {}
@@ -153,7 +153,7 @@ def zones_figures() -> dict[str, float]:
     import pyproj
     import shapefile
 
-    import maps
+    from vrsim import maps
 
     with tempfile.TemporaryDirectory(prefix="vrsim-bench-zones-") as tmp:
         path = os.path.join(tmp, "zones")
@@ -174,9 +174,9 @@ def zones_figures() -> dict[str, float]:
 def point_export_figures() -> dict[str, float]:
     import pathlib
 
-    from maps import read_point_log
-    from services.sim.evaluate import evaluate
     from tests.unit.test_evaluate import write_iso_time_export
+    from vrsim.maps import read_point_log
+    from vrsim.services.sim.evaluate import evaluate
 
     with tempfile.TemporaryDirectory(prefix="vrsim-bench-points-") as tmp:
         path, _ = write_iso_time_export(pathlib.Path(tmp), 40_000)
@@ -186,7 +186,7 @@ def point_export_figures() -> dict[str, float]:
 
 
 def reproject_figures() -> dict[str, float]:
-    from maps import synthetic
+    from vrsim.maps import synthetic
 
     g = synthetic.random_field((500_000, 5_300_000, 502_000, 5_302_000), UTM, cell_size_m=1.0, seed=1)
     wgs84 = g.reproject("EPSG:4326")
@@ -195,8 +195,8 @@ def reproject_figures() -> dict[str, float]:
 
 
 def lookup_figures() -> dict[str, float]:
-    from maps import synthetic
-    from maps.crs import WGS84, transform_xy
+    from vrsim.maps import synthetic
+    from vrsim.maps.crs import WGS84, transform_xy
 
     g = synthetic.random_field((500_000, 5_300_000, 502_000, 5_302_000), UTM, cell_size_m=1.0, seed=1)
     rng = np.random.default_rng(0)

@@ -22,7 +22,7 @@ import tempfile
 import time
 
 from bench.bench_run import cli_wall_and_peak
-from maps.zone_rx import write_zone_rx
+from vrsim.maps.zone_rx import write_zone_rx
 
 SCENARIO = """name = "zone_rx"
 seed = 3

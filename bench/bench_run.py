@@ -29,8 +29,8 @@ import sys
 import tempfile
 import time
 
-from services.sim import run as run_field
-from services.sim import scenario
+from vrsim.services.sim import run as run_field
+from vrsim.services.sim import scenario
 
 
 def _in_process(name: str, **tables) -> dict:

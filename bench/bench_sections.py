@@ -19,13 +19,13 @@ from bench.bench_maps import _best  # best of 3 wall times
 
 
 def run() -> dict:
-    from maps import AsApplied
-    from services.sim.metrics import overlap_metrics
-    from services.sim.run import cells_in_field, measure
-    from services.sim.scenario import load
-    from services.sim.section_landing import section_strips, worked_fraction
-    from services.sim.sections import switch_sections
-    from services.sim.world import build_world, driving
+    from vrsim.maps import AsApplied
+    from vrsim.services.sim.metrics import overlap_metrics
+    from vrsim.services.sim.run import cells_in_field, measure
+    from vrsim.services.sim.scenario import load
+    from vrsim.services.sim.section_landing import section_strips, worked_fraction
+    from vrsim.services.sim.sections import switch_sections
+    from vrsim.services.sim.world import build_world, driving
 
     scenario = load("default")
     world = build_world(scenario)

@@ -22,10 +22,10 @@ import time
 
 import numpy as np
 
-from services.sim import accuracy, scenario
-from services.sim.drive_job import DriveJob
-from services.sim.world import plan_path
-from vehicle import track_on_path
+from vrsim.services.sim import accuracy, scenario
+from vrsim.services.sim.drive_job import DriveJob
+from vrsim.services.sim.world import plan_path
+from vrsim.vehicle import track_on_path
 
 STEP_RATIO = 2  # SUMO's step in control periods: 100 ms at the library's 50 ms
 

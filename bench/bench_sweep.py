@@ -34,8 +34,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from services.batch.driver import open_client, run_tasks
-from services.sim.sweep import parse_sweep, plan, run_group, run_row, variant_groups
+from vrsim.services.batch.driver import open_client, run_tasks
+from vrsim.services.sim.sweep import parse_sweep, plan, run_group, run_row, variant_groups
 
 SWEEP = """
 scenarios = ["default"]
@@ -44,7 +44,7 @@ seeds = [1, 2, 3, 4, 5, 6, 7, 8]
 
 
 def _import_simulation() -> None:
-    import services.sim.run  # noqa: F401 - imports SUMO, numpy, scipy, ... once per worker
+    import vrsim.services.sim.run  # noqa: F401 - imports SUMO, numpy, scipy, ... once per worker
 
 
 def _sweep_wall_s(client, specs, task=run_row, tag: str = "") -> tuple[float, list[dict]]:
@@ -91,8 +91,8 @@ samples = {VARIANTS}
 
 
 def _drive_s() -> float:
-    from services.sim.run import drive
-    from services.sim.scenario import load
+    from vrsim.services.sim.run import drive
+    from vrsim.services.sim.scenario import load
 
     t0 = time.perf_counter()
     drive(load("default"))
@@ -117,9 +117,9 @@ def variants_on_cluster(client) -> dict:
 def variant_cost_ms(n: int = 128) -> tuple[float, float]:
     """(ms per variant, drive s): `run_variants` of `n` PID variants on the default scenario, this
     process (the batch's cost without the drive)."""
-    from services.sim.run import drive
-    from services.sim.scenario import load
-    from services.sim.variants import run_variants
+    from vrsim.services.sim.run import drive
+    from vrsim.services.sim.scenario import load
+    from vrsim.services.sim.variants import run_variants
 
     specs = plan(parse_sweep(VARIANT_SWEEP.replace(f"samples = {VARIANTS}", f"samples = {n}"), "one-process"))
     cfgs = [spec.load().controller for spec in specs]

@@ -52,7 +52,7 @@ def _cli_wall_s(command: str, runs: int) -> float:
 
 def _replayed_ticks(records, scenario) -> int:
     """The control ticks `replay_records` steps through: each session's span (and lead-in), as it does."""
-    from services.sim import replay
+    from vrsim.services.sim import replay
 
     period_s = scenario.timing.control_period_s
     settled = replay._settled_at_start(records)   # per session: begun mid-pass, so run in first
@@ -66,9 +66,9 @@ def _replayed_ticks(records, scenario) -> int:
 
 def in_process() -> dict:
     """`replay_records` on the log's records, read as `vrsim replay LOG` reads them."""
-    from services.cli import replay as replay_cli
-    from services.cli.log_options import replay_input
-    from services.sim.replay import replay_records
+    from vrsim.services.cli import replay as replay_cli
+    from vrsim.services.cli.log_options import replay_input
+    from vrsim.services.sim.replay import replay_records
 
     parser = argparse.ArgumentParser()
     replay_cli.configure(parser)

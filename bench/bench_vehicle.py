@@ -14,7 +14,7 @@ from __future__ import annotations
 import tempfile
 import time
 
-from vehicle import DriveConfig, Field, Gnss, GnssConfig, SumoDriver, build_network, plan_coverage
+from vrsim.vehicle import DriveConfig, Field, Gnss, GnssConfig, SumoDriver, build_network, plan_coverage
 
 
 def run() -> dict[str, float]:

@@ -4,8 +4,8 @@
 here, and only that.
 """
 
-from common.checks import check_number, check_positive, in_range, is_number
-from common.errors import (
+from vrsim.common.checks import check_number, check_positive, in_range, is_number
+from vrsim.common.errors import (
     ClusterError,
     ControllerError,
     MapError,

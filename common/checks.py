@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import numbers
 
-from common.errors import VrsimError
+from vrsim.common.errors import VrsimError
 
 
 def is_number(value) -> bool:

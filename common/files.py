@@ -24,7 +24,7 @@ from xml.etree.ElementTree import ParseError
 from defusedxml import DefusedXmlException
 from defusedxml import ElementTree as DET
 
-from common.errors import VrsimError
+from vrsim.common.errors import VrsimError
 
 MiB = 1 << 20
 GiB = 1 << 30

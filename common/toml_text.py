@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import re
 
-from common.errors import VrsimError
-from common.files import cap_for
+from vrsim.common.errors import VrsimError
+from vrsim.common.files import cap_for
 
 __all__ = ["MAX_TOML_DEPTH", "MAX_TOML_TABLES", "loads_toml"]
 

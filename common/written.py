@@ -15,8 +15,8 @@ import os
 import sys
 from contextlib import contextmanager
 
-from common.errors import VrsimError
-from common.files import folder_names
+from vrsim.common.errors import VrsimError
+from vrsim.common.files import folder_names
 
 # Causes of a failed write the user can fix (free space, a writable folder); any other is a bug.
 WRITE_CAUSES = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",

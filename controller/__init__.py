@@ -6,23 +6,29 @@ Pure: numpy, scipy and python-control only, no I/O beyond reading a user's contr
 package's data; knows nothing of maps, SUMO or Zenoh.
 """
 
-from controller.config import ControllerConfig
-from controller.context import ContextTrack, ControlContext
-from controller.experiment import PaperRun, paper_experiment, run_paper
-from controller.factory import build_controller, build_loop, build_variant_loops, loop_info, resolve_gains
-from controller.flow_plant import FlowLinearization, FlowLoop, FlowPlant, linearize_flow
-from controller.gains import PidGains, paper_gains, ziegler_nichols
-from controller.interface import Controller, LoopInfo
-from controller.kinds.ideal import IdealLoop
-from controller.kinds.python import UserCodeError
-from controller.loop import ClosedLoop
-from controller.loop_io import StepOutput
-from controller.metrics import StepMetrics, step_metrics
-from controller.plant import PlantParams, assumptions, state_space, unlimited
-from controller.plant_loop import PlantLoop
-from controller.registry import KINDS
-from controller.simulate import SimResult, simulate
-from controller.tuning import (
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.context import ContextTrack, ControlContext
+from vrsim.controller.experiment import PaperRun, paper_experiment, run_paper
+from vrsim.controller.factory import (
+    build_controller,
+    build_loop,
+    build_variant_loops,
+    loop_info,
+    resolve_gains,
+)
+from vrsim.controller.flow_plant import FlowLinearization, FlowLoop, FlowPlant, linearize_flow
+from vrsim.controller.gains import PidGains, paper_gains, ziegler_nichols
+from vrsim.controller.interface import Controller, LoopInfo
+from vrsim.controller.kinds.ideal import IdealLoop
+from vrsim.controller.kinds.python import UserCodeError
+from vrsim.controller.loop import ClosedLoop
+from vrsim.controller.loop_io import StepOutput
+from vrsim.controller.metrics import StepMetrics, step_metrics
+from vrsim.controller.plant import PlantParams, assumptions, state_space, unlimited
+from vrsim.controller.plant_loop import PlantLoop
+from vrsim.controller.registry import KINDS
+from vrsim.controller.simulate import SimResult, simulate
+from vrsim.controller.tuning import (
     RelayResult,
     SensorFit,
     UltimateResult,

@@ -22,13 +22,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from common import ControllerError
-from controller import registry
-from controller.config import ControllerConfig
-from controller.discretize import delay_split
-from controller.factory import build_controller
-from controller.lti import plant_lti
-from controller.plant import PlantParams
+from vrsim.common import ControllerError
+from vrsim.controller import registry
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.discretize import delay_split
+from vrsim.controller.factory import build_controller
+from vrsim.controller.lti import plant_lti
+from vrsim.controller.plant import PlantParams
 
 
 class NotLinear(ControllerError):

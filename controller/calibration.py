@@ -15,9 +15,9 @@ from functools import cached_property
 
 import numpy as np
 
-from common import ControllerError
-from controller.interface import LoopInfo
-from controller.plant_loop import PlantLoop
+from vrsim.common import ControllerError
+from vrsim.controller.interface import LoopInfo
+from vrsim.controller.plant_loop import PlantLoop
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field, fields, replace
 
-from common import ControllerError, in_range
-from controller import registry
-from controller.gains import TERMS
+from vrsim.common import ControllerError, in_range
+from vrsim.controller import registry
+from vrsim.controller.gains import TERMS
 
 PID_KINDS = {"P": "P", "PI": "PI", "PID": "PID", "pid": "PID"}    # config kind -> terms of kind pid
 PID_KEYS = ("form", "gains", "kp", "ki", "kd", "derivative_on_measurement")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError, check_positive
+from vrsim.common import ControllerError, check_positive
 
 __all__ = ["zoh", "fine_steps", "delay_split", "Lifted", "lift"]
 

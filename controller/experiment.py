@@ -12,14 +12,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from controller import liang2013
-from controller.analysis import analyze_loop
-from controller.config import ControllerConfig
-from controller.gains import TERMS, PidGains, paper_gains, ziegler_nichols
-from controller.metrics import step_metrics
-from controller.plant import PlantParams, assumptions, unlimited
-from controller.simulate import simulate
-from controller.tuning import fit_sensor, relay_autotune, ultimate_gain_experiment
+from vrsim.controller import liang2013
+from vrsim.controller.analysis import analyze_loop
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.gains import TERMS, PidGains, paper_gains, ziegler_nichols
+from vrsim.controller.metrics import step_metrics
+from vrsim.controller.plant import PlantParams, assumptions, unlimited
+from vrsim.controller.simulate import simulate
+from vrsim.controller.tuning import fit_sensor, relay_autotune, ultimate_gain_experiment
 
 STEP_RPM = 100.0
 DURATION_S = 20.0

@@ -7,14 +7,14 @@ lifted-matrix fast path, the `ideal` meter), else `PlantLoop` around ``build_con
 
 from __future__ import annotations
 
-from common import ControllerError
-from controller import kinds as _kinds  # noqa: F401 - registers the built-in kinds
-from controller import registry
-from controller.config import ControllerConfig
-from controller.gains import PidGains
-from controller.interface import LoopInfo
-from controller.plant import PlantParams
-from controller.plant_loop import PlantLoop
+from vrsim.common import ControllerError
+from vrsim.controller import kinds as _kinds  # noqa: F401 - registers the built-in kinds
+from vrsim.controller import registry
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.gains import PidGains
+from vrsim.controller.interface import LoopInfo
+from vrsim.controller.plant import PlantParams
+from vrsim.controller.plant_loop import PlantLoop
 
 
 def loop_info(plant: PlantParams, control_period_s: float = 0.05, plant_step_s: float = 0.001) -> LoopInfo:

@@ -36,10 +36,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError, check_number, check_positive
-from controller.context import takes_context
-from controller.discretize import delay_split
-from controller.plant import RPM_PER_RAD_S, PlantParams
+from vrsim.common import ControllerError, check_number, check_positive
+from vrsim.controller.context import takes_context
+from vrsim.controller.discretize import delay_split
+from vrsim.controller.plant import RPM_PER_RAD_S, PlantParams
 
 __all__ = ["FlowLinearization", "FlowLoop", "FlowPlant", "linearize_flow"]
 

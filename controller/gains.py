@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from common import ControllerError
-from controller import liang2013
+from vrsim.common import ControllerError
+from vrsim.controller import liang2013
 
 TERMS = ("P", "PI", "PID")   # which terms a PID uses
 FORMS = ("incremental", "positional")

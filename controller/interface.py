@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError
-from controller import ops
-from controller.plant import PlantParams
+from vrsim.common import ControllerError
+from vrsim.controller import ops
+from vrsim.controller.plant import PlantParams
 
 METHODS = ("step", "reset", "state", "set_state")
 

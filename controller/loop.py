@@ -20,11 +20,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from common import ControllerError
-from controller.discretize import delay_split
-from controller.gains import FORMS, PidGains
-from controller.loop_io import StepOutput, clip_targets, targets_matrix
-from controller.loop_matrix import (
+from vrsim.common import ControllerError
+from vrsim.controller.discretize import delay_split
+from vrsim.controller.gains import FORMS, PidGains
+from vrsim.controller.loop_io import StepOutput, clip_targets, targets_matrix
+from vrsim.controller.loop_matrix import (
     ACC,
     IN_CURRENT,
     IN_LOAD,
@@ -39,8 +39,8 @@ from controller.loop_matrix import (
     plant_block,
     values_of,
 )
-from controller.pid_law import clamped, pid_rows, pid_terms, saturate
-from controller.plant import N_STATES, PlantParams
+from vrsim.controller.pid_law import clamped, pid_rows, pid_terms, saturate
+from vrsim.controller.plant import N_STATES, PlantParams
 
 # n loops of one plant: the floats of the products held before their outputs are recorded (a block of
 # ticks that stays in the cache), and the most loops whose PID law runs in Python floats (up to here

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import ControllerError
+from vrsim.common import ControllerError
 
 __all__ = ["StepOutput", "clip_targets", "targets_matrix"]
 

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from common import ControllerError
-from controller.discretize import Lifted, lift
-from controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
+from vrsim.common import ControllerError
+from vrsim.controller.discretize import Lifted, lift
+from vrsim.controller.plant import N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
 __all__ = ["ACC", "E1", "E2", "IN_CURRENT", "IN_LOAD", "IN_TARGET", "N_PID", "OUT_CURRENT", "OUT_MEASURED",
            "OUT_REV", "OUT_RPM", "Y1", "Y2", "Layout", "gain_vectors", "per_loop", "plant_block",

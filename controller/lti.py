@@ -13,9 +13,9 @@ python-control is imported only when one of these is called (it takes about 2 s 
 
 from __future__ import annotations
 
-from controller.discretize import Lifted, lift
-from controller.gains import PidGains
-from controller.plant import IX_ANGLE, N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
+from vrsim.controller.discretize import Lifted, lift
+from vrsim.controller.gains import PidGains
+from vrsim.controller.plant import IX_ANGLE, N_STATES, PlantParams, shaft_rev_row, shaft_rpm_row, state_space
 
 # The motor angle integrates the speed but feeds nothing back: leaving it out keeps the models minimal
 # (its pole at z = 1 would otherwise sit, unobservable, in every closed loop).

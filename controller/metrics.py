@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError
+from vrsim.common import ControllerError
 
 
 @dataclass(frozen=True)

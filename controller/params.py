@@ -12,8 +12,8 @@ import dataclasses
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar
 
-from common import ControllerError, in_range
-from common.checks import number_rule
+from vrsim.common import ControllerError, in_range
+from vrsim.common.checks import number_rule
 
 
 def param(default, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,

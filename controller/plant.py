@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from common import ControllerError, check_number
+from vrsim.common import ControllerError, check_number
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 

@@ -24,12 +24,12 @@ import itertools
 
 import numpy as np
 
-from common import ControllerError
-from controller.context import ContextTrack, ControlContext, takes_context
-from controller.discretize import lift
-from controller.interface import LoopInfo, state_arrays
-from controller.loop_io import StepOutput, clip_targets, targets_matrix
-from controller.plant import IX_ANGLE, N_STATES, shaft_rev_row, shaft_rpm_row, state_space
+from vrsim.common import ControllerError
+from vrsim.controller.context import ContextTrack, ControlContext, takes_context
+from vrsim.controller.discretize import lift
+from vrsim.controller.interface import LoopInfo, state_arrays
+from vrsim.controller.loop_io import StepOutput, clip_targets, targets_matrix
+from vrsim.controller.plant import IX_ANGLE, N_STATES, shaft_rev_row, shaft_rpm_row, state_space
 
 # Columns of the lifted product's output after the next state (rows of `Lifted.step`).
 OUT_REV, OUT_SAMPLE, OUT_RPM = N_STATES, N_STATES + 1, N_STATES + 2

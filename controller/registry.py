@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from common import ControllerError
+from vrsim.common import ControllerError
 
 
 @dataclass(frozen=True)

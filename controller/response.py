@@ -23,10 +23,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from common import ControllerError
-from controller.config import ControllerConfig
-from controller.factory import build_loop
-from controller.plant import PlantParams
+from vrsim.common import ControllerError
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.factory import build_loop
+from vrsim.controller.plant import PlantParams
 
 FRACTIONS = (0.5, 0.63, 0.9)
 

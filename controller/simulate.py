@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError
-from controller.config import ControllerConfig
-from controller.factory import build_loop, resolve_gains
-from controller.gains import PidGains
-from controller.loop import ClosedLoop
-from controller.plant import PlantParams
+from vrsim.common import ControllerError
+from vrsim.controller.config import ControllerConfig
+from vrsim.controller.factory import build_loop, resolve_gains
+from vrsim.controller.gains import PidGains
+from vrsim.controller.loop import ClosedLoop
+from vrsim.controller.plant import PlantParams
 
 
 @dataclass(frozen=True)

@@ -15,13 +15,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common import ControllerError
-from controller import liang2013
-from controller.discretize import Lifted, delay_split, lift
-from controller.gains import GAIN_SOURCES, PidGains, paper_gains, ziegler_nichols
-from controller.loop import ClosedLoop
-from controller.loop_io import StepOutput
-from controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space, unlimited
+from vrsim.common import ControllerError
+from vrsim.controller import liang2013
+from vrsim.controller.discretize import Lifted, delay_split, lift
+from vrsim.controller.gains import GAIN_SOURCES, PidGains, paper_gains, ziegler_nichols
+from vrsim.controller.loop import ClosedLoop
+from vrsim.controller.loop_io import StepOutput
+from vrsim.controller.plant import PlantParams, shaft_rev_row, shaft_rpm_row, state_space, unlimited
 
 
 def pulse_response(plant: PlantParams, theta: np.ndarray, control_period_s: float = 0.05,

@@ -4,32 +4,32 @@ machine's footprint: `AsApplied`, `ColumnDeposit`, the footprint kinds of `maps.
 spinner's `SpinnerThrow`), and as-applied logs (ISO 11783 TimeLogs in TASKDATA, point shapefiles and
 GeoPackages) in and out.
 
->>> from maps import Grid, read_map, write_map, synthetic, AsApplied, Strips, RatePolicy
->>> from maps import PointLog, read_point_log, write_points, write_taskdata, read_timelogs
+>>> from vrsim.maps import Grid, read_map, write_map, synthetic, AsApplied, Strips, RatePolicy
+>>> from vrsim.maps import PointLog, read_point_log, write_points, write_taskdata, read_timelogs
 """
 
 import importlib
 
-from maps import synthetic
-from maps.as_applied import AsApplied
-from maps.columns import AppliedColumns, ColumnDeposit
-from maps.crs import utm_crs_for
-from maps.footprint import FOOTPRINTS, Footprint, Samples, Strips, footprint_kind, register_footprint
-from maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
-from maps.io import read_map, write_map
-from maps.policy import RatePolicy
-from maps.spread_footprint import SpinnerThrow
-from maps.warn import MapWarning
+from vrsim.maps import synthetic
+from vrsim.maps.as_applied import AsApplied
+from vrsim.maps.columns import AppliedColumns, ColumnDeposit
+from vrsim.maps.crs import utm_crs_for
+from vrsim.maps.footprint import FOOTPRINTS, Footprint, Samples, Strips, footprint_kind, register_footprint
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid, LookupResult, grid_from_bounds
+from vrsim.maps.io import read_map, write_map
+from vrsim.maps.policy import RatePolicy
+from vrsim.maps.spread_footprint import SpinnerThrow
+from vrsim.maps.warn import MapWarning
 
 # The as-applied log modules load on first use (module __getattr__): `import maps` stays as fast.
 _LAZY = {
-    "PointLog": "maps.pointlog",
-    "read_point_log": "maps.pointlog",
-    "write_points": "maps.pointlog_write",
-    "TimeLog": "maps.timelog",
-    "read_timelogs": "maps.timelog",
-    "write_taskdata": "maps.taskdata",
-    "read_taskdata_log": "maps.taskdata",
+    "PointLog": "vrsim.maps.pointlog",
+    "read_point_log": "vrsim.maps.pointlog",
+    "write_points": "vrsim.maps.pointlog_write",
+    "TimeLog": "vrsim.maps.timelog",
+    "read_timelogs": "vrsim.maps.timelog",
+    "write_taskdata": "vrsim.maps.taskdata",
+    "read_taskdata_log": "vrsim.maps.taskdata",
 }
 
 __all__ = [

@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import MapError
-from maps.crs import metres_per_unit
-from maps.footprint import Footprint, Samples, Strips
-from maps.grid import Grid
-from maps.pass_capped import CappedSums
-from maps.subcells import SubcellRaster
+from vrsim.common import MapError
+from vrsim.maps.crs import metres_per_unit
+from vrsim.maps.footprint import Footprint, Samples, Strips
+from vrsim.maps.grid import Grid
+from vrsim.maps.pass_capped import CappedSums
+from vrsim.maps.subcells import SubcellRaster
 
 
 class AsApplied:

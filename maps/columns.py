@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError
-from maps.as_applied import checked_raster
-from maps.crs import metres_per_unit
-from maps.footprint import Footprint
-from maps.grid import Grid
+from vrsim.common import MapError
+from vrsim.maps.as_applied import checked_raster
+from vrsim.maps.crs import metres_per_unit
+from vrsim.maps.footprint import Footprint
+from vrsim.maps.grid import Grid
 
 
 class ColumnDeposit:

@@ -13,7 +13,7 @@ import numpy as np
 import pyproj
 from pyproj.exceptions import CRSError
 
-from common import MapError
+from vrsim.common import MapError
 
 WGS84 = pyproj.CRS.from_epsg(4326)
 

@@ -38,7 +38,7 @@ from typing import ClassVar, Protocol
 
 import numpy as np
 
-from common import MapError
+from vrsim.common import MapError
 
 MAX_SAMPLES_PER_BATCH = 4_000_000  # ~200 MB of the engine's temporaries at most
 

@@ -11,11 +11,11 @@ import rasterio
 from rasterio.errors import RasterioError
 from rasterio.windows import Window
 
-from common import MapError, files
-from maps.crs import as_crs
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
-from maps.units import map_unit
-from maps.warn import MapWarning
+from vrsim.common import MapError, files
+from vrsim.maps.crs import as_crs
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from vrsim.maps.units import map_unit
+from vrsim.maps.warn import MapWarning
 
 NODATA_OUT = -9999.0
 # GDAL's block cache defaults to 5 % of RAM; reading straight into our array needs none, and a big

@@ -14,9 +14,9 @@ import numpy as np
 import pyproj
 from affine import Affine
 
-from common import MapError, check_number, check_positive, files
-from maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
-from maps.units import KG_HA, convert_rate, rate_kind, rate_unit
+from vrsim.common import MapError, check_number, check_positive, files
+from vrsim.maps.crs import WGS84, as_crs, crs_label, metres_per_unit, transform_xy
+from vrsim.maps.units import KG_HA, convert_rate, rate_kind, rate_unit
 
 UNIT = KG_HA
 QUANTITIES = ("rate", "difference")  # what the values are: rates (>= 0), or signed differences of rates
@@ -184,7 +184,7 @@ class Grid:
         """(west, south, east, north) in WGS84 degrees, densified so curved edges are enclosed."""
         if self.crs.is_geographic and self.crs == WGS84:
             return self.bounds
-        from maps.crs import transformer
+        from vrsim.maps.crs import transformer
 
         w, s, e, n = transformer(self.crs, WGS84).transform_bounds(*self.bounds, densify_pts=21)
         return (float(w), float(s), float(e), float(n))
@@ -328,7 +328,7 @@ class Grid:
         return {"rate_kg_ha": rate if rate == rate else None, "inside": True, "row": row, "col": col}
 
     def _from_wgs84(self):
-        from maps.crs import transformer
+        from vrsim.maps.crs import transformer
 
         if self._to_grid is None:
             self._to_grid = transformer(WGS84, self.crs)
@@ -377,7 +377,7 @@ class Grid:
             Target cell size, in metres for a projected target (in degrees' equivalent metres at
             the map's centre for a geographic one). Default: the source cell size in metres.
         """
-        from maps.reproject import reproject_grid
+        from vrsim.maps.reproject import reproject_grid
 
         return reproject_grid(self, as_crs(dst_crs, "reproject: dst_crs"), cell_size_m)
 
@@ -401,7 +401,7 @@ class Grid:
         MapError
             If the field and the map's bounds do not overlap, or the field has no area.
         """
-        from maps.reproject import field_overlap
+        from vrsim.maps.reproject import field_overlap
 
         return field_overlap(self, polygon_or_bounds, as_crs(crs, "check_overlap: crs"))
 

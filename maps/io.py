@@ -6,8 +6,8 @@ import os
 import posixpath
 import tempfile
 
-from common import MapError, files
-from maps.grid import DEFAULT_MAX_CELLS, Grid
+from vrsim.common import MapError, files
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid
 
 READ_FORMATS = "GeoTIFF (.tif/.tiff), ISOXML TASKDATA (folder, TASKDATA.XML or .zip), shapefile (.shp or " \
                "zipped), GeoJSON zones or points (.geojson/.json), CSV points (.csv)"
@@ -68,8 +68,8 @@ def _read(path: str, rate_field, cell_size_m, crs, max_cells, layer, product, un
     if os.path.isdir(path) and not _is_taskdata_folder(path):
         return _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells, unit)
     if os.path.isdir(path) or lower.endswith(".xml"):
-        from maps.isoxml import read_isoxml
-        from maps.timelog import is_lone_timelog
+        from vrsim.maps.isoxml import read_isoxml
+        from vrsim.maps.timelog import is_lone_timelog
 
         if is_lone_timelog(path):
             raise MapError(f"{path}: a TimeLog (what a machine logged), not a prescription map; "
@@ -79,23 +79,23 @@ def _read(path: str, rate_field, cell_size_m, crs, max_cells, layer, product, un
     if lower.endswith(".zip"):
         return _read_zip(path, rate_field, cell_size_m, crs, max_cells, layer, product, unit)
     if lower.endswith((".tif", ".tiff", ".gtiff")):
-        from maps.geotiff import read_geotiff
+        from vrsim.maps.geotiff import read_geotiff
 
         return read_geotiff(path, crs=crs, max_cells=max_cells, unit=unit)
     if lower.endswith(".shp"):
-        from maps.zones import read_zones
+        from vrsim.maps.zones import read_zones
 
         return read_zones(path, rate_field, cell_size_m, crs, max_cells, unit)
     if lower.endswith((".geojson", ".json")):
-        from maps.points import geojson_is_points, read_geojson_points
-        from maps.zones import load_geojson, read_zones
+        from vrsim.maps.points import geojson_is_points, read_geojson_points
+        from vrsim.maps.zones import load_geojson, read_zones
 
         doc = load_geojson(path)
         if geojson_is_points(doc, path):
             return read_geojson_points(path, doc, rate_field, max_cells, unit)
         return read_zones(path, rate_field, cell_size_m, crs, max_cells, unit)
     if lower.endswith(".csv"):
-        from maps.points import read_csv
+        from vrsim.maps.points import read_csv
 
         return read_csv(path, rate_field, crs, max_cells, unit)
     raise MapError(f"{path}: unknown map format (by extension); vrsim reads {READ_FORMATS}")
@@ -106,7 +106,7 @@ def _read_zip(path, rate_field, cell_size_m, crs, max_cells, layer, product, uni
     with files.open_zip(path, MapError) as z:
         names = [n.lower() for n in z.namelist()]
     if any(os.path.basename(n) == "taskdata.xml" for n in names):
-        from maps.isoxml import read_isoxml
+        from vrsim.maps.isoxml import read_isoxml
 
         return read_isoxml(path, max_cells=max_cells, product=product or rate_field, unit=unit)
     if any(n.endswith(".shp") for n in names):
@@ -124,8 +124,8 @@ def _read_layer(path, layer, rate_field, cell_size_m, crs, max_cells, unit) -> G
     """The rate zones of one shapefile of a zip or folder: the only one, or `layer` (several: named)."""
     from dataclasses import replace
 
-    from maps.vector import gdal_source
-    from maps.zones import read_zones
+    from vrsim.maps.vector import gdal_source
+    from vrsim.maps.zones import read_zones
 
     source, _, _ = gdal_source(path, layer)  # refuses several layers and none named, or a wrong name
     if os.path.isdir(path) or layer is None:  # a folder's shapefile, or a zip's only one
@@ -164,7 +164,7 @@ def write_map(grid: Grid, path, like: str | None = None) -> None:
     (`maps.shapefile_rx`). ``.geojson`` / ``.json`` / ``.csv``: one point per cell centre. Rates
     are written in the grid's `map_unit`, which the file states (ISOXML: DDI 6, in kg/ha).
     """
-    from maps.shapefile_rx import is_shapefile_path
+    from vrsim.maps.shapefile_rx import is_shapefile_path
 
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
@@ -173,20 +173,20 @@ def write_map(grid: Grid, path, like: str | None = None) -> None:
     lower = os.fspath(like or path).lower()
     grid = grid.as_map_unit()  # files state the map's own unit
     if is_shapefile_path(lower):
-        from maps.shapefile_rx import write_shapefile
+        from vrsim.maps.shapefile_rx import write_shapefile
 
         def writer(grid, path):
             write_shapefile(grid, path, like=like)
     elif lower.endswith((".tif", ".tiff")):
-        from maps.geotiff import write_geotiff as writer
+        from vrsim.maps.geotiff import write_geotiff as writer
     elif lower.endswith((".xml", ".zip")) or os.path.isdir(path) or not os.path.splitext(path)[1]:
-        from maps.isoxml import write_isoxml as writer  # DDI 0006: in kg/ha
+        from vrsim.maps.isoxml import write_isoxml as writer  # DDI 0006: in kg/ha
 
         grid = grid.to_kg_ha(grid.density_kg_l)
     elif lower.endswith((".geojson", ".json")):
-        from maps.points import write_geojson as writer
+        from vrsim.maps.points import write_geojson as writer
     elif lower.endswith(".csv"):
-        from maps.points import write_csv as writer
+        from vrsim.maps.points import write_csv as writer
     else:
         raise MapError(f"{path}: unknown output format (by extension); vrsim writes {WRITE_FORMATS}")
     try:

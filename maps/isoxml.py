@@ -33,13 +33,13 @@ import zipfile
 import numpy as np
 from affine import Affine
 
-from common import MapError, __version__, files
-from maps import ddi as DDI
-from maps.crs import WGS84
-from maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
-from maps.units import map_unit
-from maps.warn import MapWarning
+from vrsim.common import MapError, __version__, files
+from vrsim.maps import ddi as DDI
+from vrsim.maps.crs import WGS84
+from vrsim.maps.ddi import KG_HA_PER_MG_M2, NAMES, ddi_list
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from vrsim.maps.units import map_unit
+from vrsim.maps.warn import MapWarning
 
 
 class TaskdataFolder:

@@ -24,9 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError
-from maps.crs import transform_xy, utm_crs_for
-from maps.pointlog import PointLog
+from vrsim.common import MapError
+from vrsim.maps.crs import transform_xy, utm_crs_for
+from vrsim.maps.pointlog import PointLog
 
 __all__ = ["MachineRecords", "machine_records", "SESSION_GAP_S", "SPEED_SMOOTH_S"]
 

@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import MapError
-from maps.as_applied import SubcellTerms, cell_bands, checked_raster
-from maps.crs import metres_per_unit
-from maps.footprint import Footprint, Samples
-from maps.grid import Grid
+from vrsim.common import MapError
+from vrsim.maps.as_applied import SubcellTerms, cell_bands, checked_raster
+from vrsim.maps.crs import metres_per_unit
+from vrsim.maps.footprint import Footprint, Samples
+from vrsim.maps.grid import Grid
 
 
 class MeterTotals:

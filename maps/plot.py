@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import MapError
-from maps.crs import crs_label
-from maps.grid import Grid
+from vrsim.common import MapError
+from vrsim.maps.crs import crs_label
+from vrsim.maps.grid import Grid
 
 
 def plot_map(grid: Grid, path: str, title: str | None = None) -> None:

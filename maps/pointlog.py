@@ -37,10 +37,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pyproj
 
-from common import MapError, files
-from maps.crs import WGS84, as_crs, transform_xy
-from maps.units import RATE_UNITS, convert_rate
-from maps.warn import MapWarning
+from vrsim.common import MapError, files
+from vrsim.maps.crs import WGS84, as_crs, transform_xy
+from vrsim.maps.units import RATE_UNITS, convert_rate
+from vrsim.maps.warn import MapWarning
 
 NOT_AVAILABLE = 15  # ISO 11783 position status: not available
 
@@ -232,7 +232,7 @@ def read_point_log(path, rate_field: str | None = None, target_field: str | None
     files.refuse_vsi(path, MapError)
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")
-    from maps.taskdata import is_taskdata, read_taskdata_log
+    from vrsim.maps.taskdata import is_taskdata, read_taskdata_log
 
     if is_taskdata(path):
         return read_taskdata_log(path, rate_ddi=rate_field, target_ddi=target_field, product=product)
@@ -246,7 +246,7 @@ def _read_vector(path, rate_field, target_field, time_field, unit, crs, layer=No
                  target_optional=False) -> PointLog:
     import shapely
 
-    from maps.vector import gdal_source, read_vector
+    from vrsim.maps.vector import gdal_source, read_vector
 
     if not os.path.isdir(path):  # a folder's shapefiles are checked as `read_vector` lists them
         files.check_file(path, error=MapError)  # GDAL opens by name: a FIFO or a device would hang it

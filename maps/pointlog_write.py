@@ -10,8 +10,8 @@ import zipfile
 
 import numpy as np
 
-from common import MapError
-from maps.pointlog import PointLog
+from vrsim.common import MapError
+from vrsim.maps.pointlog import PointLog
 
 __all__ = ["write_points"]
 

@@ -20,11 +20,11 @@ import os
 import numpy as np
 from affine import Affine
 
-from common import MapError, files
-from maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
-from maps.units import map_unit, name_with_unit, unit_in_name
-from maps.zones import RATE_NAMES, geojson_crs, geojson_features
+from vrsim.common import MapError, files
+from vrsim.maps.crs import WGS84, as_crs, crs_from_prj, crs_label, transform_xy
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from vrsim.maps.units import map_unit, name_with_unit, unit_in_name
+from vrsim.maps.zones import RATE_NAMES, geojson_crs, geojson_features
 
 X_NAMES = ("x", "easting", "east", "e")
 Y_NAMES = ("y", "northing", "north", "n")

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError, check_number
+from vrsim.common import MapError, check_number
 
 MODES = ("off", "hold", "default")
 

@@ -11,9 +11,9 @@ import shapely
 from rasterio.crs import CRS
 from rasterio.enums import Resampling
 
-from common import MapError, check_positive
-from maps.crs import WGS84, crs_label, metres_per_unit, transform_xy, transformer
-from maps.grid import Grid, grid_from_bounds
+from vrsim.common import MapError, check_positive
+from vrsim.maps.crs import WGS84, crs_label, metres_per_unit, transform_xy, transformer
+from vrsim.maps.grid import Grid, grid_from_bounds
 
 # Metres per degree of latitude, and of longitude at the equator (WGS84, to 0.1 %: cell sizes only).
 M_PER_DEG_LAT = 110_574.0

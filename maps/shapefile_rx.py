@@ -16,8 +16,8 @@ import zipfile
 
 import numpy as np
 
-from common import MapError
-from maps.grid import Grid
+from vrsim.common import MapError
+from vrsim.maps.grid import Grid
 
 ZIPPED = ".shp.zip"
 CENTI = 100  # rates are written in 0.01 of their unit, exact through the integer zone labels

@@ -17,9 +17,9 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from common import MapError
-from common.pattern_integral import cumulative_mass
-from maps.footprint import MAX_SAMPLES_PER_BATCH, Samples, register_footprint
+from vrsim.common import MapError
+from vrsim.common.pattern_integral import cumulative_mass
+from vrsim.maps.footprint import MAX_SAMPLES_PER_BATCH, Samples, register_footprint
 
 
 @register_footprint

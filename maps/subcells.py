@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from maps.grid import Grid
+from vrsim.maps.grid import Grid
 
 
 class SubcellRaster:

@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 
-from common import MapError, check_number, check_positive
-from maps.crs import as_crs, metres_per_unit
-from maps.grid import Grid, grid_from_bounds
+from vrsim.common import MapError, check_number, check_positive
+from vrsim.maps.crs import as_crs, metres_per_unit
+from vrsim.maps.grid import Grid, grid_from_bounds
 
 # The generators a scenario names (`[map] synthetic = "zones"`, looked up by name).
 __all__ = ["uniform", "zones", "gradient", "random_field", "checkerboard"]

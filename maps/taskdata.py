@@ -31,12 +31,12 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from common import MapError, __version__, files
-from maps import ddi as DDI
-from maps.crs import WGS84
-from maps.pointlog import NOT_AVAILABLE, PointLog
-from maps.timelog import encode_records, header_xml, read_timelogs
-from maps.units import is_rate_unit, rate_kind
+from vrsim.common import MapError, __version__, files
+from vrsim.maps import ddi as DDI
+from vrsim.maps.crs import WGS84
+from vrsim.maps.pointlog import NOT_AVAILABLE, PointLog
+from vrsim.maps.timelog import encode_records, header_xml, read_timelogs
+from vrsim.maps.units import is_rate_unit, rate_kind
 
 TLG_NAME = "TLG00001"
 BOOM = "DET-2"
@@ -376,8 +376,8 @@ def _rate_element(path: str, logs, rate: int, product: str | None) -> str | None
 
 def _products_by_element(path: str) -> dict[str, tuple[str, str]]:
     """{device element: (PDT id, product name)} from the tasks' product allocations (PAN A, E)."""
-    from maps.isoxml import TaskdataFolder, parse_xml
-    from maps.timelog import is_lone_timelog
+    from vrsim.maps.isoxml import TaskdataFolder, parse_xml
+    from vrsim.maps.timelog import is_lone_timelog
 
     if is_lone_timelog(path):
         return {}

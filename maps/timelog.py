@@ -47,9 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError, files
-from maps.ddi import ddi_list
-from maps.isoxml import TaskdataFolder, parse_xml, typed_attr
+from vrsim.common import MapError, files
+from vrsim.maps.ddi import ddi_list
+from vrsim.maps.isoxml import TaskdataFolder, parse_xml, typed_attr
 
 MAX_TLG_BYTES = 256 * 1024 * 1024  # default cap on one binary: ~3 M records of 20 values
 # Memory the decoding takes (peak RSS measured, rounded up): per record, 5 bytes for each of

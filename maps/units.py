@@ -17,7 +17,7 @@ import re
 
 import numpy as np
 
-from common import MapError
+from vrsim.common import MapError
 
 KG_HA = "kg/ha"  # the unit vrsim computes in
 # The spellings vrsim writes a unit in, first of each kind its base (what the run computes in).

@@ -20,7 +20,7 @@ import posixpath
 import zipfile
 from dataclasses import dataclass
 
-from common import MapError, files
+from vrsim.common import MapError, files
 
 # Extension -> the GDAL driver that reads it.
 DRIVERS = {".shp": "ESRI Shapefile", ".gpkg": "GPKG", ".zip": "ESRI Shapefile"}

@@ -18,8 +18,8 @@ import zipfile
 
 import numpy as np
 
-from common import MapError
-from maps.crs import WGS84, as_crs, utm_crs_for
+from vrsim.common import MapError
+from vrsim.maps.crs import WGS84, as_crs, utm_crs_for
 
 __all__ = ["write_zone_rx"]  # for benchmarks and tests: `bench/bench_real_rx.py`
 
@@ -150,7 +150,7 @@ def _write_zip(path: str, polygons: np.ndarray, rates: np.ndarray) -> None:
     import pyogrio
     import shapely
 
-    from common.written import written
+    from vrsim.common.written import written
 
     stem = os.path.basename(path).removesuffix(".zip").removesuffix(".shp")
     with tempfile.TemporaryDirectory(prefix="vrsim-rx-") as tmp, written(path, MapError) as temp:

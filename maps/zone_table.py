@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import pyproj
 
-from common import MapError
-from maps.crs import as_crs, crs_label, utm_crs_for
-from maps.zones import geojson_crs, geojson_features, load_geojson, rate_field_choice, stated_unit
+from vrsim.common import MapError
+from vrsim.maps.crs import as_crs, crs_label, utm_crs_for
+from vrsim.maps.zones import geojson_crs, geojson_features, load_geojson, rate_field_choice, stated_unit
 
 DISTINCT_SHOWN = 12  # an attribute with at most this many distinct values lists them; else its range
 _KINDS = {"i": "integer", "u": "integer", "f": "real", "b": "boolean", "M": "date"}
@@ -59,7 +59,7 @@ def is_zone_file(path: str) -> bool:
     if os.path.isdir(path):
         return any(n.lower().endswith(".shp") for n in os.listdir(path))
     if lower.endswith(".zip"):
-        from common import files
+        from vrsim.common import files
 
         with files.open_zip(path, MapError) as z:
             names = [n.lower() for n in z.namelist()]
@@ -112,7 +112,7 @@ def read_zone_table(path, layer: str | None = None, crs=None, attributes: bool =
 def _vector_table(path: str, layer: str | None) -> ZoneTable:
     import shapely
 
-    from maps.vector import gdal_source, read_vector
+    from vrsim.maps.vector import gdal_source, read_vector
 
     meta, _, wkb, columns = read_vector(path, layer)
     kind = str(meta.get("geometry_type") or "")
@@ -134,8 +134,8 @@ def _shapefile_table(path: str, layer: str | None) -> ZoneTable:
     """A shapefile's polygons and CRS without its attributes, read without GDAL."""
     import shapely
 
-    from maps.crs import crs_from_prj
-    from maps.zones import shapefile_polygons
+    from vrsim.maps.crs import crs_from_prj
+    from vrsim.maps.zones import shapefile_polygons
 
     try:
         polygons, prj, stem = shapefile_polygons(path, layer)

@@ -25,12 +25,12 @@ import numpy as np
 import shapefile
 from affine import Affine
 
-from common import MapError, check_positive, files
-from maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
-from maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
-from maps.rasterize import rasterize_rings
-from maps.units import map_unit, unit_in_name
-from maps.warn import MapWarning
+from vrsim.common import MapError, check_positive, files
+from vrsim.maps.crs import WGS84, as_crs, crs_from_prj, metres_per_unit, transform_xy, utm_crs_for
+from vrsim.maps.grid import DEFAULT_MAX_CELLS, Grid, check_size
+from vrsim.maps.rasterize import rasterize_rings
+from vrsim.maps.units import map_unit, unit_in_name
+from vrsim.maps.warn import MapWarning
 
 DEFAULT_CELL_SIZE_M = 5.0
 # Attribute names farm software uses for the rate, tried in this order (case-insensitive).
@@ -101,8 +101,8 @@ def stated_unit(path: str, name: str, kind: str, layer: str | None = None) -> tu
     if unit_in_name(name):
         return unit_in_name(name), f"attribute {name!r}"
     if kind == "shapefile":
-        from maps.pointlog import deere_units
-        from maps.vector import gdal_source
+        from vrsim.maps.pointlog import deere_units
+        from vrsim.maps.vector import gdal_source
 
         stem = os.path.splitext(os.path.basename(gdal_source(path, layer)[0]))[0]
         stated = deere_units(path, stem).get(name.lower())
@@ -281,7 +281,7 @@ def shapefile_polygons(path: str, layer: str | None = None):
     holding it); null shapes left out. Returns (polygons, the ``.prj``'s text or None, the layer's name)."""
     import shapely
 
-    from maps.vector import gdal_source
+    from vrsim.maps.vector import gdal_source
 
     source = gdal_source(path, layer)[0]
     member = None

@@ -16,10 +16,10 @@ import sys
 
 import numpy as np
 
-from services.outputs.write import write_outputs
-from services.sim.metrics import METRICS
-from services.sim.run import run
-from services.sim.scenario import load, with_changes
+from vrsim.services.outputs.write import write_outputs
+from vrsim.services.sim.metrics import METRICS
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, with_changes
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SHOWN = ("mae_kg_ha", "within_10pct_area_pct", "transition_time_s_mean", "transition_distance_m_mean")

@@ -11,15 +11,15 @@ serpentine swaths, turns from `vehicle.dubins`), `vehicle.network` (netconvert, 
 pressure range as the limit, the flow meter, PWM).
 """
 
-from vehicle.coverage import CoveragePath, Segment, plan_coverage
-from vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
-from vehicle.field import Field, FieldWarning
-from vehicle.gnss import Gnss, GnssConfig
-from vehicle.implement import Implement
-from vehicle.network import build_network, default_cache_dir, find_netconvert
-from vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
-from vehicle.sprayer import FlowMeter, SprayerSpec
-from vehicle.track import track_on_path
+from vrsim.vehicle.coverage import CoveragePath, Segment, plan_coverage
+from vrsim.vehicle.driver import DriveConfig, Pose, SpeedVariation, SumoDriver
+from vrsim.vehicle.field import Field, FieldWarning
+from vrsim.vehicle.gnss import Gnss, GnssConfig
+from vrsim.vehicle.implement import Implement
+from vrsim.vehicle.network import build_network, default_cache_dir, find_netconvert
+from vrsim.vehicle.speed_sensor import SpeedSensor, SpeedSensorConfig
+from vrsim.vehicle.sprayer import FlowMeter, SprayerSpec
+from vrsim.vehicle.track import track_on_path
 
 __all__ = [
     "CoveragePath", "DriveConfig", "Field", "FieldWarning", "FlowMeter", "Gnss", "GnssConfig", "Implement",

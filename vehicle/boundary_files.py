@@ -21,8 +21,8 @@ import posixpath
 import numpy as np
 from shapely.geometry import MultiPolygon, Polygon
 
-from common import files
-from common.errors import VehicleError
+from vrsim.common import files
+from vrsim.common.errors import VehicleError
 
 PLN_BOUNDARY = "1"  # PLN A: partfield boundary
 LSG_EXTERIOR, LSG_INTERIOR = "1", "2"  # LSG A: polygon exterior / interior

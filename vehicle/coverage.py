@@ -17,10 +17,10 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Polygon
 
-from common.checks import check_number, check_positive
-from common.errors import VehicleError
-from vehicle.dubins import dubins_xy
-from vehicle.field import Field
+from vrsim.common.checks import check_number, check_positive
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.dubins import dubins_xy
+from vrsim.vehicle.field import Field
 
 KINDS = ("headland", "swath", "turn")
 _MIN_PIECE_M = 1.0  # shorter swath pieces (tangent cuts at curved edges) are not worth a turn

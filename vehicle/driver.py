@@ -26,11 +26,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from common.checks import check_number, check_positive
-from common.errors import VehicleError
-from vehicle.coverage import CoveragePath
-from vehicle.network import Network, build_network, import_sumo_module
-from vehicle.track import ticks_between, track_on_path
+from vrsim.common.checks import check_number, check_positive
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.coverage import CoveragePath
+from vrsim.vehicle.network import Network, build_network, import_sumo_module
+from vrsim.vehicle.track import ticks_between, track_on_path
 
 _VEH, _TYPE, _ROUTE = "tractor", "tractor", "coverage"
 STEP_RANGE_S = (0.001, 1.0)  # SUMO's simulation step (by default the control period), s

@@ -22,9 +22,9 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon, shape
 from shapely.validation import explain_validity
 
-from common import files
-from common.checks import check_number, check_positive
-from common.errors import VehicleError
+from vrsim.common import files
+from vrsim.common.checks import check_number, check_positive
+from vrsim.common.errors import VehicleError
 
 WGS84 = pyproj.CRS.from_epsg(4326)
 # Larger than any field farmed as one: a bigger boundary is a unit or CRS mistake, and its coverage
@@ -181,7 +181,7 @@ class Field:
             (`from_polygons`, with `sliver_m2`); without it such a file is refused, saying how many
             polygons it holds and what to do (never one of them taken in silence).
         """
-        from vehicle import boundary_files
+        from vrsim.vehicle import boundary_files
         if isinstance(path, (str, os.PathLike)):
             files.refuse_vsi(os.fspath(path), VehicleError, label=f"field file {path}")  # no GDAL /vsi path
         if not isinstance(path, (str, os.PathLike)) or not os.path.exists(path):

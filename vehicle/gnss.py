@@ -19,9 +19,9 @@ from itertools import chain
 
 import numpy as np
 
-from common.checks import check_number
-from common.errors import VehicleError
-from vehicle.track import track_arrays
+from vrsim.common.checks import check_number
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.track import track_arrays
 
 # Per-axis 1-sigma horizontal error (m) and correlation time (s) of each receiver class.
 CLASSES = {

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from common.checks import check_number, check_positive
-from common.errors import VehicleError
-from vehicle.machines import DEFAULT_KIND, MachineSpec, spec_class
+from vrsim.common.checks import check_number, check_positive
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.machines import DEFAULT_KIND, MachineSpec, spec_class
 
 M2_PER_HA = 10_000.0
 SECTION_CONTROL_MODES = ("coverage", "boundary", "off")  # the switching engines' registry keys

@@ -32,7 +32,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
-from common.errors import VehicleError
+from vrsim.common.errors import VehicleError
 
 __all__ = ["DEFAULT_KIND", "SPECS", "GatedMeter", "MachineSpec", "SectionDrives", "key_owner",
            "register_spec", "spec_class", "spec_keys"]
@@ -125,4 +125,4 @@ class SectionDrives(MachineSpec):
 
 
 # Kinds whose keys live in their own module register on import.
-from vehicle import spinner  # noqa: E402, F401
+from vrsim.vehicle import spinner  # noqa: E402, F401

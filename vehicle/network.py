@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.errors import VehicleError
+from vrsim.common.errors import VehicleError
 
 NETCONVERT_OPTIONS = (
     "--no-internal-links", "true",           # the tractor passes straight from lane to lane

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.checks import in_range
-from common.errors import VehicleError
+from vrsim.common.checks import in_range
+from vrsim.common.errors import VehicleError
 
 PRODUCT_FORMS = ("granular", "liquid")
 MAX_FLOW_CV_PCT = 50.0

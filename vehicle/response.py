@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import VehicleError, check_number
+from vrsim.common import VehicleError, check_number
 
 __all__ = ["MachineResponse", "PassClock"]
 

@@ -13,9 +13,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common.checks import check_number
-from common.errors import VehicleError
-from vehicle.track import track_arrays
+from vrsim.common.checks import check_number
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.track import track_arrays
 
 # (noise 1-sigma, bias) in percent of the true speed, the unit of `noise_pct` and `bias_pct`: a class's
 # value and the same value written as an override are the same number (x / 100 rounds alike).

@@ -40,11 +40,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from common import files
-from common.checks import check_number, check_positive
-from common.errors import VehicleError
-from common.pattern_integral import cumulative_mass
-from vehicle.machines import MachineSpec, register_spec
+from vrsim.common import files
+from vrsim.common.checks import check_number, check_positive
+from vrsim.common.errors import VehicleError
+from vrsim.common.pattern_integral import cumulative_mass
+from vrsim.vehicle.machines import MachineSpec, register_spec
 
 PATTERN_SHAPES = ("triangular", "trapezoidal")
 TRAPEZOID_TOP_SHARE = 0.5  # a trapezoid's flat top spans this share of the spread width

@@ -33,9 +33,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from common.checks import check_number, check_positive, in_range
-from common.errors import VehicleError
-from vehicle.machines import MachineSpec, register_spec
+from vrsim.common.checks import check_number, check_positive, in_range
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.machines import MachineSpec, register_spec
 
 __all__ = ["NOZZLE_FLOW_L_MIN", "WATER_DENSITY_KG_L", "FlowMeter", "SprayerSpec", "applied_rate_l_ha",
            "boom_flow_l_min", "density_flow_factor", "nozzle_flow_l_min", "nozzle_pressure_bar",

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.errors import VehicleError
-from vehicle.coverage import CoveragePath
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.coverage import CoveragePath
 
 
 def track_arrays(where: str, time_s, **values) -> tuple[np.ndarray, ...]:

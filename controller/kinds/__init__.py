@@ -1,3 +1,3 @@
 """The built-in controller kinds; importing this package registers them (`controller.registry`)."""
 
-from controller.kinds import aog_pi, ff_pi, fuzzy_pid, ideal, pid, python, smith  # noqa: F401
+from vrsim.controller.kinds import aog_pi, ff_pi, fuzzy_pid, ideal, pid, python, smith  # noqa: F401

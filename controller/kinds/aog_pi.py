@@ -33,11 +33,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from common import ControllerError
-from controller import ops
-from controller.interface import LawController, LoopInfo
-from controller.params import KindParams, param
-from controller.registry import register
+from vrsim.common import ControllerError
+from vrsim.controller import ops
+from vrsim.controller.interface import LawController, LoopInfo
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.registry import register
 
 PWM_FULL = 255.0        # 8-bit PWM: Receive.ino scales the percentages to 0-255
 KP_SCALE = 0.1          # PID.ino's MotorKpScale: the motor path accumulates its change every run

@@ -22,15 +22,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller import ops
-from controller.calibration import valve_calibration
-from controller.discretize import delay_split
-from controller.gains import PidGains
-from controller.interface import LawController, LoopInfo, state_arrays
-from controller.lti import pid_lti
-from controller.params import KindParams, param
-from controller.pid_law import clamped, saturate
-from controller.registry import register
+from vrsim.controller import ops
+from vrsim.controller.calibration import valve_calibration
+from vrsim.controller.discretize import delay_split
+from vrsim.controller.gains import PidGains
+from vrsim.controller.interface import LawController, LoopInfo, state_arrays
+from vrsim.controller.lti import pid_lti
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.pid_law import clamped, saturate
+from vrsim.controller.registry import register
 
 FEEDFORWARDS = ("valve_cal", "model")
 

@@ -26,16 +26,16 @@ from importlib import resources
 
 import numpy as np
 
-from common import ControllerError, files
-from common.toml_text import loads_toml
-from controller import ops
-from controller.gains import GAIN_SOURCES, PidGains
-from controller.interface import LawController, LoopInfo
-from controller.lti import pid_lti
-from controller.params import KindParams, param
-from controller.pid_law import saturate
-from controller.registry import register
-from controller.tuning import gains_from_source
+from vrsim.common import ControllerError, files
+from vrsim.common.toml_text import loads_toml
+from vrsim.controller import ops
+from vrsim.controller.gains import GAIN_SOURCES, PidGains
+from vrsim.controller.interface import LawController, LoopInfo
+from vrsim.controller.lti import pid_lti
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.pid_law import saturate
+from vrsim.controller.registry import register
+from vrsim.controller.tuning import gains_from_source
 
 TERMS = ("NB", "NM", "NS", "ZO", "PS", "PM", "PB")
 TABLES = ("delta_kp", "delta_ki", "delta_kd")
@@ -48,7 +48,7 @@ def _load_rules(path: str | None = None) -> np.ndarray:
     where = path or f"controller/data/{DEFAULT_RULES}"
     try:
         if path is None:
-            text = resources.files("controller").joinpath("data", DEFAULT_RULES).read_text()
+            text = resources.files("vrsim.controller").joinpath("data", DEFAULT_RULES).read_text()
         else:
             with open(path, encoding="utf-8") as fh:
                 text = fh.read(files.cap_for("toml") + 1)  # one more: over the cap is refused, not cut

@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError
-from controller.interface import LoopInfo, state_arrays
-from controller.loop_io import StepOutput, clip_targets, targets_matrix
-from controller.params import KindParams
-from controller.registry import register_loop
+from vrsim.common import ControllerError
+from vrsim.controller.interface import LoopInfo, state_arrays
+from vrsim.controller.loop_io import StepOutput, clip_targets, targets_matrix
+from vrsim.controller.params import KindParams
+from vrsim.controller.registry import register_loop
 
 
 @dataclass(frozen=True)

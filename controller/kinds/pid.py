@@ -15,16 +15,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError
-from controller import ops
-from controller.gains import FORMS, GAIN_SOURCES, MAX_GAIN, TERMS, PidGains
-from controller.interface import LawController, LoopInfo, state_arrays
-from controller.loop import ClosedLoop
-from controller.lti import pid_lti
-from controller.params import KindParams, param
-from controller.pid_law import clamped, saturate
-from controller.registry import register
-from controller.tuning import gains_from_source
+from vrsim.common import ControllerError
+from vrsim.controller import ops
+from vrsim.controller.gains import FORMS, GAIN_SOURCES, MAX_GAIN, TERMS, PidGains
+from vrsim.controller.interface import LawController, LoopInfo, state_arrays
+from vrsim.controller.loop import ClosedLoop
+from vrsim.controller.lti import pid_lti
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.pid_law import clamped, saturate
+from vrsim.controller.registry import register
+from vrsim.controller.tuning import gains_from_source
 
 
 @dataclass(frozen=True)

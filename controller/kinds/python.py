@@ -27,12 +27,12 @@ import sys
 import traceback
 from dataclasses import dataclass, field
 
-from common import ControllerError, files
-from controller.context import takes_context
-from controller.interface import LoopInfo, check_controller_class
-from controller.params import KindParams, param
-from controller.plant_loop import as_loop_currents
-from controller.registry import register
+from vrsim.common import ControllerError, files
+from vrsim.controller.context import takes_context
+from vrsim.controller.interface import LoopInfo, check_controller_class
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.plant_loop import as_loop_currents
+from vrsim.controller.registry import register
 
 BAD_PARAMS = (ControllerError, ValueError, TypeError, KeyError)
 

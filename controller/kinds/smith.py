@@ -18,14 +18,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from controller.discretize import lift
-from controller.gains import FORMS, PidGains
-from controller.interface import LawController, LoopInfo, state_arrays
-from controller.kinds.pid import PidLaw
-from controller.lti import pid_lti, plant_lti, undelayed_lti
-from controller.params import KindParams, param
-from controller.plant import N_STATES, shaft_rev_row, shaft_rpm_row, state_space
-from controller.registry import register
+from vrsim.controller.discretize import lift
+from vrsim.controller.gains import FORMS, PidGains
+from vrsim.controller.interface import LawController, LoopInfo, state_arrays
+from vrsim.controller.kinds.pid import PidLaw
+from vrsim.controller.lti import pid_lti, plant_lti, undelayed_lti
+from vrsim.controller.params import KindParams, param
+from vrsim.controller.plant import N_STATES, shaft_rev_row, shaft_rpm_row, state_space
+from vrsim.controller.registry import register
 
 
 @dataclass(frozen=True)

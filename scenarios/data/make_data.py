@@ -9,7 +9,7 @@ import os
 
 import pyproj
 
-from maps import synthetic, utm_crs_for, write_map
+from vrsim.maps import synthetic, utm_crs_for, write_map
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 LON, LAT = 9.35, 53.2

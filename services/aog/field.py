@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.aog.pgn import MachineData, SectionData, SteerData
-from services.sim.accounting import StageTimer
-from services.sim.core import ControlCore, machine_plant
-from services.sim.run import RunResult, accounted, drive
+from vrsim.services.aog.pgn import MachineData, SectionData, SteerData
+from vrsim.services.sim.accounting import StageTimer
+from vrsim.services.sim.core import ControlCore, machine_plant
+from vrsim.services.sim.run import RunResult, accounted, drive
 
 __all__ = ["FieldRun", "agio_messages"]
 

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller import LoopInfo, PlantLoop, PlantParams
-from services.aog.pgn import PidLog, PidSettings, RateCommand, RateReport, RelayCommand
+from vrsim.controller import LoopInfo, PlantLoop, PlantParams
+from vrsim.services.aog.pgn import PidLog, PidSettings, RateCommand, RateReport, RelayCommand
 
 __all__ = ["COMM_TIMEOUT_MS", "CONTROL_TYPES", "DrivePlant", "FAN", "FirmwarePid", "FlowMeter", "LOOP_MS",
            "MOTOR", "REPORT_MS", "RateModule", "SensorChannel", "TIMED_COMBO", "VALVE", "VALVE_TRAVEL_S"]

@@ -9,8 +9,8 @@ import os
 
 import numpy as np
 
-from common.written import written
-from services.outputs.encode import dumps_text
+from vrsim.common.written import written
+from vrsim.services.outputs.encode import dumps_text
 
 __all__ = ["write_aog_files"]
 

@@ -30,10 +30,10 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
-from common.written import written
-from services.aog import pgn
-from services.aog.firmware import LOOP_MS, REPORT_MS, RateModule
-from services.outputs.encode import dumps_text
+from vrsim.common.written import written
+from vrsim.services.aog import pgn
+from vrsim.services.aog.firmware import LOOP_MS, REPORT_MS, RateModule
+from vrsim.services.outputs.encode import dumps_text
 
 __all__ = ["AogService", "Counters", "Endpoints", "RATE_LIMIT_PPS", "Timeline", "beyond_loopback"]
 

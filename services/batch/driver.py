@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from common import ClusterError
+from vrsim.common import ClusterError
 
 T = TypeVar("T")
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import json
 
-from common import ServiceError
-from services.bus.config import QUERY_TIMEOUT_S, Keys, zenoh_reason
-from services.bus.serving import error_message
+from vrsim.common import ServiceError
+from vrsim.services.bus.config import QUERY_TIMEOUT_S, Keys, zenoh_reason
+from vrsim.services.bus.serving import error_message
 
 
 # ---------------------------------------------------------------------------------------- client

@@ -21,7 +21,7 @@ import re
 import sys
 from dataclasses import dataclass
 
-from common import ServiceError
+from vrsim.common import ServiceError
 
 DEFAULT_PORT = 7448  # zenohd's 7447 plus one, so a system zenohd does not collide with vrsim
 DEFAULT_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
@@ -90,7 +90,7 @@ class ZenohOptions:
         security model and a client logs in as ``user`` (default ``default_user``); a client
         configuration file that already logs in (``.vrsim/viewer.json5``) is used as it is.
         """
-        from services.bus import security
+        from vrsim.services.bus import security
 
         conf = self._base()
         if self.listen:
@@ -127,7 +127,7 @@ class ZenohOptions:
         listens (its ``<user>.json5``), else `DEFAULT_ENDPOINT`."""
         if self.insecure:
             return [DEFAULT_ENDPOINT]
-        from services.bus import security
+        from vrsim.services.bus import security
 
         return security.recorded_endpoints(security.load_state(self.state_dir), user) or [DEFAULT_ENDPOINT]
 

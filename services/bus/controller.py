@@ -29,15 +29,15 @@ import threading
 
 import numpy as np
 
-from common import ServiceError, VrsimError
-from common.section_masks import section_masks
-from controller.kinds.python import check_defines_class
-from services.bus import messages
-from services.bus.config import ServiceConfig
-from services.bus.dataroot import DataRoot
-from services.bus.serving import Params, run_service, serve
-from services.outputs.encode import dumps
-from services.sim.landing import applied_rate_kg_ha
+from vrsim.common import ServiceError, VrsimError
+from vrsim.common.section_masks import section_masks
+from vrsim.controller.kinds.python import check_defines_class
+from vrsim.services.bus import messages
+from vrsim.services.bus.config import ServiceConfig
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.serving import Params, run_service, serve
+from vrsim.services.outputs.encode import dumps
+from vrsim.services.sim.landing import applied_rate_kg_ha
 
 
 class _ControllerService:
@@ -61,8 +61,8 @@ class _ControllerService:
         if check not in ("true", "false"):
             raise ServiceError(f"{params.key}: parameter check={check!r} must be true or false")
         start = messages.RunStart.from_json(payload)
-        from services.sim.core import ControlCore
-        from services.sim.world import build_world
+        from vrsim.services.sim.core import ControlCore
+        from vrsim.services.sim.world import build_world
 
         sc = self.data.scenario(start.scenario_text, start.source, start.base_dir)
         sc = self._check_user_code(params.key, sc)

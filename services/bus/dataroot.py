@@ -19,9 +19,9 @@ import os
 import tomllib
 from dataclasses import dataclass
 
-from common import ScenarioError, VrsimError, files
-from common.toml_text import loads_toml
-from services.bus.config import ServiceConfig
+from vrsim.common import ScenarioError, VrsimError, files
+from vrsim.common.toml_text import loads_toml
+from vrsim.services.bus.config import ServiceConfig
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,7 @@ class DataRoot:
         ScenarioError
             A bad scenario, or a file outside the data root (naming the file, the table and the key).
         """
-        from services.sim import scenario
+        from vrsim.services.sim import scenario
 
         for what, path in _read_while_parsing(text, base_dir):  # checked before `parse` opens them
             self._check(path, f"{source}: {what} {path}")
@@ -69,7 +69,7 @@ def _read_while_parsing(text: str, base_dir: str) -> list[tuple[str, str]]:
     """(``[table] key``, path) of the files `services.sim.scenario.parse` itself reads: a spinner's
     catch-tray profile CSV (``[implement] pattern``, resolved as `vehicle.spinner.SpinnerSpec.resolved`
     resolves it). A text that does not read as TOML names none here: `parse` says what is wrong."""
-    from vehicle.spinner import PATTERN_SHAPES
+    from vrsim.vehicle.spinner import PATTERN_SHAPES
 
     if "pattern" not in text or len(text) > files.cap_for("toml"):
         return []

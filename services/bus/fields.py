@@ -9,9 +9,9 @@ from __future__ import annotations
 import json
 import math
 
-from common import ServiceError
-from vehicle.implement import MAX_SECTIONS
-from vehicle.spinner import MAX_SIDE_STEPS
+from vrsim.common import ServiceError
+from vrsim.vehicle.implement import MAX_SECTIONS
+from vrsim.vehicle.spinner import MAX_SIDE_STEPS
 
 NAN = math.nan
 

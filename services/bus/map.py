@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import threading
 
-from common import ServiceError
-from maps.units import KG_HA
-from services.bus import messages
-from services.bus.config import ServiceConfig
-from services.bus.dataroot import DataRoot
-from services.bus.serving import Params, body_limit, run_service, serve
-from services.outputs.encode import dumps
+from vrsim.common import ServiceError
+from vrsim.maps.units import KG_HA
+from vrsim.services.bus import messages
+from vrsim.services.bus.config import ServiceConfig
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.serving import Params, body_limit, run_service, serve
+from vrsim.services.outputs.encode import dumps
 
 
 class _MapService:
@@ -85,7 +85,7 @@ def _no_body(params: Params, payload: bytes | None) -> None:
 
 def _scenario_grid(sc):
     """The scenario's prescription on the field's metric grid (what `ControlCore` looks up)."""
-    from services.sim.world import field_and_grid
+    from vrsim.services.sim.world import field_and_grid
 
     return field_and_grid(sc)[1]
 
@@ -94,11 +94,11 @@ def _configured_grid(config: ServiceConfig):
     """The map to serve and whether it is fixed: ``config.map_file``, else the prescription of
     ``config.scenario`` (a file or built-in name; None: the built-in default)."""
     if config.map_file is not None:
-        import maps
+        from vrsim import maps
 
         return maps.read_map(config.map_file, rate_field=config.rate_field, cell_size_m=config.cell_size_m,
                              crs=config.crs, unit=config.unit), True
-    from services.sim import scenario
+    from vrsim.services.sim import scenario
 
     return _scenario_grid(scenario.load(config.scenario)), False
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import orjson
 
-from common import ServiceError
-from services.bus.fields import KINDS, Floats, Steps, check, short
-from services.outputs.encode import dumps
+from vrsim.common import ServiceError
+from vrsim.services.bus.fields import KINDS, Floats, Steps, check, short
+from vrsim.services.outputs.encode import dumps
 
 # The API a Zenoh client in Python uses: the messages, their codecs and the limits they check.
 __all__ = [

@@ -1,20 +1,14 @@
 """The monitor service: records every pose, shaft and rate sample in SQLite and reports applied
 versus prescribed (``vrsim serve monitor``).
 
-Every message it receives is committed to a local SQLite database (WAL) before the next one is read,
-so a monitor that is killed and restarted on the same ``--db`` has lost nothing it had received.
-``<prefix>/<machine>/report`` rebuilds the run's arrays from the database and accounts for them with
-`services.sim.run.accounted`, as ``vrsim run`` does, so it replies with the same JSON keys
-as ``vrsim run --json`` (over every tick received so far with pose, shaft and rate all stored) plus
-``missing_ticks``, ``complete`` and ``end_reason``: the ticks it did not get (a monitor that was down for
-a while, the tail after it went down) and how the run ended, as scenario control announced it on
-``monitor/end`` (`_completeness`: complete only for a finished run with every tick stored). Reports are
-kept and answered again while they hold (`services.bus.reads`).
-That rebuild is `recorded_run`; ``vrsim report --db`` writes ``vrsim run``'s files from it.
-
-Integrity: a record is stored only for a run announced by ``monitor/load`` (scenario control; the
-access rules let no one else load a run) and only once per tick: a second record for a stored tick is
-ignored, never written over the first.
+Each message is committed to a local SQLite database (WAL) before the next is read: a monitor killed
+and restarted on the same ``--db`` has lost nothing it had received. ``<prefix>/<machine>/report``
+rebuilds the run from the database (`recorded_run`, also ``vrsim report --db``'s) and accounts for it as
+``vrsim run`` does (`services.sim.run.accounted`): the keys of ``vrsim run --json`` over every tick
+stored, plus ``missing_ticks``, ``complete`` and ``end_reason`` (`_completeness`: complete only for a
+finished run, as scenario control announced on ``monitor/end``, with every tick stored); reports are
+answered again while they hold (`services.bus.reads`). A record is stored only for a run announced by
+``monitor/load`` (only scenario control may) and once per tick: a second one is ignored.
 """
 
 from __future__ import annotations
@@ -26,15 +20,21 @@ import time
 
 import numpy as np
 
-from common import ServiceError
-from common.section_masks import sections_from_masks
-from services.bus import messages
-from services.bus import records as sql
-from services.bus.config import ServiceConfig
-from services.bus.dataroot import DataRoot
-from services.bus.reads import MAX_CACHED_REPORTS, REPORT_BURST, REPORT_RATE_PER_S, CachedReport, RateLimit
-from services.bus.serving import Later, Params, guarded, payload_bytes, run_service, serve
-from services.outputs.encode import dumps
+from vrsim.common import ServiceError
+from vrsim.common.section_masks import sections_from_masks
+from vrsim.services.bus import messages
+from vrsim.services.bus import records as sql
+from vrsim.services.bus.config import ServiceConfig
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.reads import (
+    MAX_CACHED_REPORTS,
+    REPORT_BURST,
+    REPORT_RATE_PER_S,
+    CachedReport,
+    RateLimit,
+)
+from vrsim.services.bus.serving import Later, Params, guarded, payload_bytes, run_service, serve
+from vrsim.services.outputs.encode import dumps
 
 NAN = float("nan")
 STREAMS = {"pose": messages.Pose, "shaft": messages.ShaftState, "rate": messages.RateSample}
@@ -341,8 +341,8 @@ class _MonitorService:
             self.report_lock.release()
 
     def _recompute(self, run_id: str, key: tuple) -> bytes:
-        from services.outputs.summary import summary_json  # what `vrsim run --json` prints with
-        from services.sim.as_run import with_settings
+        from vrsim.services.outputs.summary import summary_json  # what `vrsim run --json` prints with
+        from vrsim.services.sim.as_run import with_settings
 
         cached = self.reports.get(run_id)
         if cached is not None and cached.fresh(key):  # made while this query waited for the lock
@@ -377,8 +377,8 @@ def _run_world(run: dict, data: DataRoot | None = None):
     """The world of a recorded run, rebuilt from the scenario text the run was started with (its files
     confined to `data`'s root when given: the monitor's scenarios came over the bus; ``vrsim report``
     reads local files as ``vrsim run`` does)."""
-    from services.sim import scenario
-    from services.sim.world import build_world
+    from vrsim.services.sim import scenario
+    from vrsim.services.sim.world import build_world
 
     parse = scenario.parse if data is None else data.scenario
     return build_world(parse(run["scenario_text"], run["source"], run["base_dir"]))
@@ -397,9 +397,9 @@ def recorded_run(store: MonitorStore, run: dict, world_of=_run_world):
     world_of : callable
         ``world_of(run) -> World`` (default `_run_world`; the monitor keeps the last one).
     """
-    from services.sim.accounting import StageTimer
-    from services.sim.machines import machine_for
-    from services.sim.run import accounted
+    from vrsim.services.sim.accounting import StageTimer
+    from vrsim.services.sim.machines import machine_for
+    from vrsim.services.sim.run import accounted
 
     t0 = time.perf_counter()
     world = world_of(run)  # first: the records' section masks and drives need the implement's
@@ -479,7 +479,7 @@ def _private_db(path: str) -> None:
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:
     """Serve the monitor on ``config.db`` (default `default_db`) until SIGINT/SIGTERM (or ``stop``)."""
-    import services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
+    import vrsim.services.sim.run  # noqa: F401 - seconds of imports (scipy, shapely...): not in the first report
 
     store = MonitorStore(config.db or _default_db(config.zenoh))
     svc = _MonitorService(store, DataRoot.of(config))

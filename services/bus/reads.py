@@ -14,8 +14,8 @@ import threading
 import time
 from dataclasses import dataclass
 
-from common import ServiceError
-from services.bus.serving import Later
+from vrsim.common import ServiceError
+from vrsim.services.bus.serving import Later
 
 REPORT_LIVE_EVERY_S = 5.0  # a live run's report is rebuilt at most this often ...
 REPORT_LIVE_DUTY = 0.025  # ... and at most this share of the time (a 1 s rebuild: every 40 s)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import orjson
 
-from services.outputs.encode import dumps
+from vrsim.services.outputs.encode import dumps
 
 NAN = float("nan")
 _SCALARS = (float, int, bool)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import threading
 
-from services.bus.config import ServiceConfig
-from services.bus.serving import run_service
+from vrsim.services.bus.config import ServiceConfig
+from vrsim.services.bus.serving import run_service
 
 
 def main(config: ServiceConfig, stop: threading.Event | None = None) -> int:

@@ -28,12 +28,12 @@ import time
 import traceback
 from dataclasses import dataclass, field
 
-from common import ServiceError, VrsimError
-from services.bus import client, messages
-from services.bus.config import SERVICES, Keys, ServiceConfig
-from services.bus.dataroot import DataRoot
-from services.bus.serving import Later, Params, run_service, serve, within
-from services.outputs.encode import dumps
+from vrsim.common import ServiceError, VrsimError
+from vrsim.services.bus import client, messages
+from vrsim.services.bus.config import SERVICES, Keys, ServiceConfig
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.serving import Later, Params, run_service, serve, within
+from vrsim.services.outputs.encode import dumps
 
 LOAD_TIMEOUT_S = 120.0  # building a large map from a file can take a while
 BUILD_TIMEOUT_S = 60.0  # building the world of a scenario (the caps make a real one take seconds)
@@ -223,7 +223,7 @@ class _ScenarioService:
     def _build(self, key: str, sc) -> None:
         """`build_world(sc)` in its own thread, at most `BUILD_TIMEOUT_S`: it refuses what `vrsim run`
         refuses (a missing map file, a map off the field...)."""
-        from services.sim.world import build_world
+        from vrsim.services.sim.world import build_world
 
         if not self.building.acquire(blocking=False):
             raise ServiceError(f"{key}: still building the world of an earlier start; try again later")
@@ -295,7 +295,7 @@ class _ScenarioService:
                 launch.state, launch.error = "failed", error
 
     def _scenario_text(self, params: Params, payload: bytes | None) -> tuple[str, str, str]:
-        from services.sim import scenario
+        from vrsim.services.sim import scenario
 
         if not payload:  # the built-in default, refused as `vrsim run` would refuse it
             sc = scenario.load(None)

@@ -38,8 +38,8 @@ import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from common import ServiceError
-from services.bus.config import Keys
+from vrsim.common import ServiceError
+from vrsim.services.bus.config import Keys
 
 DEFAULT_STATE_DIR = ".vrsim"
 SERVICE_USERS = ("vehicle", "controller", "monitor", "map", "scenario", "web")

@@ -14,9 +14,9 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from common import ServiceError, VrsimError
-from services.bus.config import Keys, ZenohOptions, open_session
-from services.outputs.encode import dumps
+from vrsim.common import ServiceError, VrsimError
+from vrsim.services.bus.config import Keys, ZenohOptions, open_session
+from vrsim.services.outputs.encode import dumps
 
 
 # ---------------------------------------------------------------------------------------- errors

@@ -18,11 +18,11 @@ import threading
 import time
 import traceback
 
-from common import ServiceError, VrsimError
-from services.bus import messages
-from services.bus.config import ServiceConfig
-from services.bus.dataroot import DataRoot
-from services.bus.serving import Params, error_message, run_service, serve
+from vrsim.common import ServiceError, VrsimError
+from vrsim.services.bus import messages
+from vrsim.services.bus.config import ServiceConfig
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.serving import Params, error_message, run_service, serve
 
 STEP_TIMEOUT_S = 10.0  # a controller that does not answer a step within this fails the run
 
@@ -99,7 +99,7 @@ class _VehicleService:
         st.drive_s = now - self.drive0 if self.drive0 is not None else 0.0
 
     def _run(self, start: messages.RunStart, sc) -> None:
-        from services.sim.world import build_world
+        from vrsim.services.sim.world import build_world
 
         try:
             state = self._drive(start, build_world(sc))
@@ -111,8 +111,8 @@ class _VehicleService:
             self._set(state="failed", error=f"internal error: {type(exc).__name__}: {exc}")
 
     def _drive(self, start: messages.RunStart, world) -> str:
-        from services.sim.run import sensors
-        from services.sim.world import driving
+        from vrsim.services.sim.run import sensors
+        from vrsim.services.sim.world import driving
 
         sc = world.scenario
         period = sc.timing.control_period_s

@@ -18,9 +18,9 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from common import ScenarioError
-    from services.outputs.encode import dumps_text
-    from services.sim import accuracy
+    from vrsim.common import ScenarioError
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.sim import accuracy
 
     if args.update and not args.reason.strip():
         raise ScenarioError("--update needs --reason TEXT saying why the figures change")

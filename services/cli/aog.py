@@ -17,7 +17,7 @@ import os
 import sys
 import time
 
-from common import ServiceError, VrsimError
+from vrsim.common import ServiceError, VrsimError
 
 HELP = "be the AgOpenGPS Rate Controller app towards rate modules over UDP (e.g. `vrsim serve aog-rc`)"
 ACTIONS = ("target", "watch", "app")
@@ -53,7 +53,7 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from services.aog.app_client import AppClient
+    from vrsim.services.aog.app_client import AppClient
 
     _check(args)
     try:
@@ -110,7 +110,7 @@ def _watch(args, client) -> int:
 
 
 def _app(args, client) -> int:
-    from services.aog.app_client import AppProduct
+    from vrsim.services.aog.app_client import AppProduct
 
     product = AppProduct(args.module, args.sensor, args.value, tuple(args.section_width), args.meter_cal,
                          args.control)
@@ -195,15 +195,15 @@ def _parse_modules(text: str) -> list[tuple[int, int]]:
 
 def serve_aog_rc(args) -> int:
     """`vrsim serve aog-rc [SCENARIO]`: see docs/aog_rc.md."""
-    from services.bus.config import DEFAULT_MACHINE
-    from services.cli.options import apply_input_cap, overrides_of
-    from services.cli.run import default_out_dir
+    from vrsim.services.bus.config import DEFAULT_MACHINE
+    from vrsim.services.cli.options import apply_input_cap, overrides_of
+    from vrsim.services.cli.run import default_out_dir
 
     apply_input_cap(args)
     machine_file = args.machine if args.machine != DEFAULT_MACHINE else None
     if len(args.listen) > 1:
         raise VrsimError("serve aog-rc: give --listen HOST:PORT once")
-    from services.aog.service import Endpoints, beyond_loopback
+    from vrsim.services.aog.service import Endpoints, beyond_loopback
 
     listen = args.listen[0] if args.listen else DEFAULT_LISTEN
     endpoints = Endpoints(_parse_host_port(listen, "--listen", 28888),
@@ -222,20 +222,20 @@ def serve_aog_rc(args) -> int:
               "beyond this machine: UDP has no login, anyone who reaches it can set the rates and the relays "
               "(use a loopback address unless the app runs on another machine)", file=sys.stderr, flush=True)
     scenario_args = type("ScenarioArgs", (), {"machine": machine_file, "overrides": args.overrides})()
-    from services.sim.scenario import load
+    from vrsim.services.sim.scenario import load
 
     sc = load(args.scenario, overrides_of(scenario_args))
     return _serve(args, sc, endpoints, modules, machine_file, default_out_dir(sc.name, "aog-rc"))
 
 
 def _serve(args, sc, endpoints, modules, machine_file, default_out: str) -> int:
-    from services.aog.field import FieldRun
-    from services.aog.firmware import LOOP_MS, VALVE_TRAVEL_S, DrivePlant, RateModule
-    from services.aog.report import write_aog_files
-    from services.aog.service import AogService
-    from services.sim.core import machine_plant
-    from services.sim.machines import machine_for
-    from services.sim.world import build_world
+    from vrsim.services.aog.field import FieldRun
+    from vrsim.services.aog.firmware import LOOP_MS, VALVE_TRAVEL_S, DrivePlant, RateModule
+    from vrsim.services.aog.report import write_aog_files
+    from vrsim.services.aog.service import AogService
+    from vrsim.services.sim.core import machine_plant
+    from vrsim.services.sim.machines import machine_for
+    from vrsim.services.sim.world import build_world
 
     if abs(sc.timing.control_period_s * 1000.0 - LOOP_MS) > 1e-9:
         raise VrsimError(f"{sc.source}: [timing] control_period_s {sc.timing.control_period_s:g}: "
@@ -277,8 +277,8 @@ def _serve(args, sc, endpoints, modules, machine_file, default_out: str) -> int:
           f"{c['sent']['32400']} PGN 32400, {c['sent']['32402']} PGN 32402, {c['sent']['agio']} AgIO",
           file=sys.stderr, flush=True)
     if field_run is not None and field_run.done > 0:
-        from services.outputs.summary import text_summary
-        from services.outputs.write import outputs_line, write_outputs
+        from vrsim.services.outputs.summary import text_summary
+        from vrsim.services.outputs.write import outputs_line, write_outputs
 
         result = field_run.result()
         write_outputs(result, out_dir)

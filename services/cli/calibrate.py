@@ -9,8 +9,8 @@ HELP = ("simulate the meter's calibration test (turn and weigh; a sprayer's catc
 
 
 def configure(parser) -> None:
-    from services.cli.options import add_overrides
-    from services.sim.calibrate import (
+    from vrsim.services.cli.options import add_overrides
+    from vrsim.services.sim.calibrate import (
         DEFAULT_CATCH_S,
         DEFAULT_JUG_ERROR_ML,
         DEFAULT_REVOLUTIONS,
@@ -33,10 +33,10 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from services.cli.options import load_scenario
-    from services.outputs.encode import dumps_text
-    from services.sim.calibrate import calibrate
-    from services.sim.display import figures_display, scenario_units
+    from vrsim.services.cli.options import load_scenario
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.sim.calibrate import calibrate
+    from vrsim.services.sim.display import figures_display, scenario_units
 
     sc = load_scenario(args)
     result = calibrate(sc, args.revolutions, args.scale_error_g, args.seconds, args.jug_error_ml)

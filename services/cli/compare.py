@@ -22,7 +22,7 @@ def configure(parser) -> None:
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="folder for compare.html and its pictures "
                              "(default: runs/compare-<scenario>-<time>/)")
-    from services.cli.options import add_overrides
+    from vrsim.services.cli.options import add_overrides
 
     add_overrides(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
@@ -30,8 +30,8 @@ def configure(parser) -> None:
 
 def _look_ahead_arg(text: str | None):
     """``--look-ahead``: None, "auto" or seconds (the scenario's rules check the range)."""
-    from common import ScenarioError
-    from controller.config import LOOK_AHEAD_AUTO
+    from vrsim.common import ScenarioError
+    from vrsim.controller.config import LOOK_AHEAD_AUTO
 
     if text is None or text == LOOK_AHEAD_AUTO:
         return text
@@ -42,11 +42,11 @@ def _look_ahead_arg(text: str | None):
 
 
 def run(args) -> int:
-    from services.cli.options import load_scenario
-    from services.cli.run import Progress, default_out_dir
-    from services.outputs.compare import table_text, write_page
-    from services.outputs.encode import dumps_text
-    from services.sim.compare import compare
+    from vrsim.services.cli.options import load_scenario
+    from vrsim.services.cli.run import Progress, default_out_dir
+    from vrsim.services.outputs.compare import table_text, write_page
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.sim.compare import compare
 
     sc = load_scenario(args)
     bars = {}

@@ -17,11 +17,11 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from services.cli.run import default_out_dir
-    from services.outputs.encode import dumps_text
-    from services.outputs.loop_analysis import text, write_pictures
-    from services.sim import scenario
-    from services.sim.analyze import analyze_controller
+    from vrsim.services.cli.run import default_out_dir
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.loop_analysis import text, write_pictures
+    from vrsim.services.sim import scenario
+    from vrsim.services.sim.analyze import analyze_controller
 
     sc = scenario.load(args.scenario)
     report = analyze_controller(sc)

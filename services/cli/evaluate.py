@@ -9,8 +9,8 @@ HELP = "accuracy of an as-applied log (TASKDATA TimeLogs, point shapefile or Geo
 
 
 def configure(parser) -> None:
-    from services.cli.log_options import add_log_reading
-    from services.sim.metrics import OUTLIER_MULTIPLE, STANDSTILL_M_S
+    from vrsim.services.cli.log_options import add_log_reading
+    from vrsim.services.sim.metrics import OUTLIER_MULTIPLE, STANDSTILL_M_S
 
     add_log_reading(parser)
     parser.add_argument("--prescription", metavar="RX",
@@ -48,10 +48,10 @@ def configure(parser) -> None:
 def run(args) -> int:
     from dataclasses import replace
 
-    import maps
-    from services.outputs.encode import dumps_text
-    from services.outputs.evaluation import text_evaluation, write_evaluation
-    from services.sim.evaluate import error_grid, evaluate
+    from vrsim import maps
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.evaluation import text_evaluation, write_evaluation
+    from vrsim.services.sim.evaluate import error_grid, evaluate
 
     log = maps.read_point_log(args.log, rate_field=args.rate_field, target_field=args.target_field,
                               unit=args.unit, crs=args.crs, layer=args.layer, product=args.product)
@@ -74,8 +74,8 @@ def run(args) -> int:
 
 
 def _field(path: str):
-    from common import MapError, VehicleError
-    from vehicle import Field
+    from vrsim.common import MapError, VehicleError
+    from vrsim.vehicle import Field
 
     try:
         return Field.from_file(path)

@@ -11,7 +11,7 @@ NOT_CONVERGED = 3   # exit code: the fit did not converge (its best figures are 
 
 
 def configure(parser) -> None:
-    from services.cli.log_options import add_log_options
+    from vrsim.services.cli.log_options import add_log_options
 
     add_log_options(parser)
     parser.add_argument("--split", type=float, default=None, metavar="FRACTION",
@@ -27,14 +27,14 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from common import ScenarioError
-    from services.cli.log_options import replay_input
-    from services.cli.run import default_out_dir
-    from services.outputs.encode import dumps_text
-    from services.outputs.fit import fit_summary, fit_text, write_fit
-    from services.sim.fit import fit_machine
-    from services.sim.replay import replay_records
-    from services.sim.replay_setup import replay_scenario
+    from vrsim.common import ScenarioError
+    from vrsim.services.cli.log_options import replay_input
+    from vrsim.services.cli.run import default_out_dir
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.fit import fit_summary, fit_text, write_fit
+    from vrsim.services.sim.fit import fit_machine
+    from vrsim.services.sim.replay import replay_records
+    from vrsim.services.sim.replay_setup import replay_scenario
 
     records, scenario, _ = replay_input(args, args.log)
     rows = None

@@ -57,7 +57,7 @@ def replay_input(args, path: str, select: bool = True):
     those of ``--session`` between ``--start-s`` and ``--end-s``), the scenario that replays them
     (`services.sim.replay_setup.replay_scenario`: ``--scenario`` or the log's, ``--machine`` over it),
     and what the summary should say of the choices (``log_sessions``, ``target_from``, ...)."""
-    from maps.log_records import machine_records
+    from vrsim.maps.log_records import machine_records
 
     log = read_log(path, args.rate_field, args.target_field, args.unit, args.crs, args.layer, args.product,
                    target_optional=bool(getattr(args, "prescription", None)))
@@ -70,7 +70,7 @@ def replay_input(args, path: str, select: bool = True):
 def read_log(path: str, rate_field=None, target_field=None, unit=None, crs=None, layer=None, product=None,
              target_optional=False):
     """The as-applied log at `path` (`maps.pointlog.read_point_log`) with its rates' unit checked."""
-    from maps.pointlog import read_point_log
+    from vrsim.maps.pointlog import read_point_log
 
     log = read_point_log(path, rate_field=rate_field, target_field=target_field, unit=unit, crs=crs,
                          layer=layer, product=product, target_optional=target_optional)
@@ -81,8 +81,8 @@ def _with_unit(log, unit: str | None):
     """`log` with its rates' unit checked (and ``--unit`` where the log does not say one)."""
     from dataclasses import replace
 
-    from common import MapError
-    from maps.units import is_rate_unit, rate_unit
+    from vrsim.common import MapError
+    from vrsim.maps.units import is_rate_unit, rate_unit
 
     if unit and not log.unit:   # a TimeLog of a DDI vrsim knows no unit of
         log = replace(log, unit=unit)
@@ -99,7 +99,7 @@ def _selected(records, sessions, start_s, end_s):
 
     import numpy as np
 
-    from common import MapError
+    from vrsim.common import MapError
 
     keep = np.ones(records.rows, dtype=bool)
     if sessions:
@@ -124,7 +124,7 @@ def _window(records, start_s, end_s):
     """The records from `start_s` to `end_s` (None: no bound), both checked."""
     import math
 
-    from common import MapError
+    from vrsim.common import MapError
 
     for name, value in (("--start-s", start_s), ("--end-s", end_s)):
         if value is not None and not math.isfinite(value):
@@ -143,12 +143,12 @@ def _machine_and_target(records, args):
 
     import numpy as np
 
-    from common import MapError
-    from services.sim.replay_setup import replay_scenario
-    from services.sim.scenario import load
+    from vrsim.common import MapError
+    from vrsim.services.sim.replay_setup import replay_scenario
+    from vrsim.services.sim.scenario import load
 
     user = load(args.scenario) if args.scenario else None
-    from services.cli.options import overrides_of
+    from vrsim.services.cli.options import overrides_of
 
     fragment = overrides_of(args)
     scenario = replay_scenario(records, user, fragment)
@@ -171,9 +171,9 @@ def _prescribed(records, path: str, product: str | None, density_kg_l: float | N
     lies off the map or on a nodata cell: no rate given there), and how many records that is."""
     import numpy as np
 
-    import maps
-    from common import MapError
-    from maps.units import convert_rate
+    from vrsim import maps
+    from vrsim.common import MapError
+    from vrsim.maps.units import convert_rate
 
     grid = maps.read_map(path, product=product, density_kg_l=density_kg_l)
     found = grid.lookup(records.x_m, records.y_m, crs=records.crs)   # reprojected to the map's CRS

@@ -7,7 +7,7 @@ reports its ``cv_pct`` as null, not applicable)."""
 
 from __future__ import annotations
 
-from services.cli.options import add_overrides
+from vrsim.services.cli.options import add_overrides
 
 HELP = "a spinner's spread pattern: catch-tray CV, effective working width, pattern.png"
 ACTIONS = ("pattern",)
@@ -29,9 +29,9 @@ def configure(parser) -> None:
 def run(args) -> int:
     import os
 
-    from services.cli.run import default_out_dir
-    from services.outputs.encode import dumps_text
-    from services.sim.spread_pattern import CV_LIMIT_PCT, catch_tray_test
+    from vrsim.services.cli.run import default_out_dir
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.sim.spread_pattern import CV_LIMIT_PCT, catch_tray_test
 
     name, spec, pattern, width_m = _spinner(args)
     test = catch_tray_test(spec, pattern, width_m, args.tray_width)
@@ -65,8 +65,8 @@ def _spinner(args):
     its ``--machine`` and ``--set`` keys, loaded and checked whole (`services.cli.options.load_scenario`),
     whose machine must be a spinner: another kind's strips lie side by side and lay a flat rate
     (``cv_pct`` null in ``vrsim run``: not applicable), so it is refused."""
-    from common import ScenarioError
-    from services.cli.options import load_scenario
+    from vrsim.common import ScenarioError
+    from vrsim.services.cli.options import load_scenario
 
     sc = load_scenario(args)
     implement = sc.implement
@@ -81,9 +81,9 @@ def _write_picture(test, spec, path: str) -> None:
     """pattern.png: each pass's share and their sum across the trays, the driving width marked."""
     import os
 
-    from common import VrsimError
-    from common.written import written
-    from services.outputs.plots import figure
+    from vrsim.common import VrsimError
+    from vrsim.common.written import written
+    from vrsim.services.outputs.plots import figure
 
     fig = figure(9.0, 4.2, layout="constrained")
     ax = fig.add_subplot()

@@ -24,7 +24,7 @@ import traceback
 # need: with them the whole command took 0.5 s longer and a tenth more CPU time.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from common import VrsimError, __version__  # noqa: E402
+from vrsim.common import VrsimError, __version__  # noqa: E402
 
 # Order is the order `vrsim --help` lists them in.
 COMMANDS = ("run", "compare", "sweep", "tune", "evaluate", "replay", "report", "controller", "machine",
@@ -35,9 +35,9 @@ def _available_commands(names=COMMANDS):
     """Yield (name, module) for each command module of `names` that exists."""
     for name in names:
         try:
-            module = importlib.import_module(f"services.cli.{name}")
+            module = importlib.import_module(f"vrsim.services.cli.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"services.cli.{name}":
+            if exc.name == f"vrsim.services.cli.{name}":
                 continue
             raise
         yield name, module
@@ -80,7 +80,7 @@ def _parse(argv: list[str]) -> argparse.Namespace:
 
 
 def console() -> None:
-    """The `vrsim` executable (and ``python -m services.cli``): `main`, then the exit."""
+    """The `vrsim` executable (and ``python -m vrsim.services.cli``): `main`, then the exit."""
     sys.exit(main(leave=True))
 
 
@@ -131,7 +131,7 @@ def _run_command(args: argparse.Namespace) -> int:
 def _user_code_error(exc: BaseException) -> bool:
     """A crash inside a user's controller class (`controller.UserCodeError`: exit 1 with its file and
     line). Looked up only if that module was loaded, so ``vrsim --help`` stays light."""
-    module = sys.modules.get("controller.kinds.python")
+    module = sys.modules.get("vrsim.controller.kinds.python")
     return module is not None and isinstance(exc, module.UserCodeError)
 
 

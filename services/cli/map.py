@@ -7,9 +7,9 @@ import math
 import os
 import sys
 
-from common import MapError
-from services.cli.options import add_input_cap, apply_input_cap, warnings_as_lines
-from services.outputs.encode import dumps_text
+from vrsim.common import MapError
+from vrsim.services.cli.options import add_input_cap, apply_input_cap, warnings_as_lines
+from vrsim.services.outputs.encode import dumps_text
 
 HELP = "prescription maps: info, sample, convert, plot, boundary"
 
@@ -75,7 +75,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def _read(args):
-    import maps
+    from vrsim import maps
 
     return maps.read_map(args.file, rate_field=args.rate_field, cell_size_m=args.cell_size, crs=args.crs,
                          max_cells=args.max_cells or None, layer=args.layer, product=args.product,
@@ -133,9 +133,9 @@ def _info(args) -> int:
 
 def _described(args) -> dict | None:
     """`describe_zones` of a zone file (polygons with attributes), None for any other map."""
-    from maps.points import geojson_is_points
-    from maps.zone_table import describe_zones, is_zone_file, read_zone_table
-    from maps.zones import load_geojson
+    from vrsim.maps.points import geojson_is_points
+    from vrsim.maps.zone_table import describe_zones, is_zone_file, read_zone_table
+    from vrsim.maps.zones import load_geojson
 
     path = args.file
     if not os.path.exists(path) or not is_zone_file(path):
@@ -149,7 +149,7 @@ def _grid_or_values(args):
     """(the map, None); or, for a map whose unit is neither stated nor readable and not given
     (`maps.units.MapUnitError`), (its values read with a stand-in unit, why its own unit does not do):
     what it holds, before its unit is known."""
-    from maps.units import MapUnitError
+    from vrsim.maps.units import MapUnitError
 
     try:
         return _read(args), None
@@ -209,7 +209,7 @@ def _sample(args) -> int:
 
 
 def _convert(args) -> int:
-    import maps
+    from vrsim import maps
 
     if args.to_cell_size is not None and not args.to_crs:  # before reading: a big map takes a while
         raise MapError("map convert: --to-cell-size needs --to-crs")
@@ -227,7 +227,7 @@ def _write_whole(write, out: str) -> None:
     place, what it added removed again if it fails."""
     import os
 
-    from common.written import write_failure, written
+    from vrsim.common.written import write_failure, written
 
     folder = os.path.dirname(out) or "." if out.lower().endswith(".xml") else out
     if not os.path.isdir(folder):
@@ -263,8 +263,8 @@ def _output(args, action: str, ext: str, older: bool = False) -> str:
 
 
 def _plot(args) -> int:
-    from common.written import written
-    from maps.plot import plot_map
+    from vrsim.common.written import written
+    from vrsim.maps.plot import plot_map
 
     out = _output(args, "plot", ".png", older=True)
     grid = _read(args)
@@ -278,10 +278,10 @@ def _boundary(args) -> int:
     """`vrsim map boundary RX OUT.geojson`: the field `[field] from_map = true` takes, for a look in QGIS."""
     import json
 
-    from common import VehicleError
-    from common.written import written
-    from services.sim.world import field_from_map
-    from vehicle.field import SLIVER_M2
+    from vrsim.common import VehicleError
+    from vrsim.common.written import written
+    from vrsim.services.sim.world import field_from_map
+    from vrsim.vehicle.field import SLIVER_M2
 
     out = _output(args, "boundary", ".geojson")
     try:

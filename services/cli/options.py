@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from common import VrsimError, files
+from vrsim.common import VrsimError, files
 
 
 def warnings_as_lines(command: str) -> None:
@@ -48,14 +48,14 @@ def add_overrides(parser, help_text: str = "override a scenario key, as for vrsi
 def load_scenario(args):
     """``args.scenario`` (a file or a built-in name) loaded with `overrides_of`, checked as a file's
     values are."""
-    from services.sim import scenario
+    from vrsim.services.sim import scenario
 
     return scenario.load(args.scenario, overrides_of(args))
 
 
 def overrides_of(args) -> list:
     """``--machine``'s keys, then the ``--set`` overrides, as (dotted key, value) pairs."""
-    from services.sim.overrides import parse_assignment
+    from vrsim.services.sim.overrides import parse_assignment
 
     machine = _machine_file(args.machine) if getattr(args, "machine", None) else []
     return [*machine, *(parse_assignment(text) for text in getattr(args, "overrides", ()))]
@@ -64,9 +64,9 @@ def overrides_of(args) -> list:
 def _machine_file(path: str) -> list:
     """A machine file's keys as overrides, checked on the built-in default scenario first, so that a
     key or value it gets wrong is reported against the machine file, not against the scenario."""
-    from common import ScenarioError
-    from services.sim.overrides import machine_overrides
-    from services.sim.scenario import load
+    from vrsim.common import ScenarioError
+    from vrsim.services.sim.overrides import machine_overrides
+    from vrsim.services.sim.scenario import load
 
     overrides = machine_overrides(path)
     try:

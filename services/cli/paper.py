@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from common import VrsimError
+from vrsim.common import VrsimError
 
 HELP = "reproduce Liang et al. 2013: ultimate gain and P/PI/PID step responses, paper vs vrsim"
 DEFAULT_OUT = os.path.join("runs", "paper")
@@ -17,9 +17,9 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from controller.experiment import run_paper
-    from services.outputs.encode import dumps_text
-    from services.outputs.paper import plot, table
+    from vrsim.controller.experiment import run_paper
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.paper import plot, table
 
     try:
         os.makedirs(args.out, exist_ok=True)

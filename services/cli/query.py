@@ -14,9 +14,9 @@ from __future__ import annotations
 import math
 import sys
 
-from common import ServiceError, files
-from services.bus.client import request
-from services.bus.config import (
+from vrsim.common import ServiceError, files
+from vrsim.services.bus.client import request
+from vrsim.services.bus.config import (
     ACCEPT_TIMEOUT_S,
     QUERY_TIMEOUT_S,
     Keys,
@@ -70,7 +70,7 @@ def _selector(key: str, params: list[str]) -> str:
 
 def _body(path: str | None) -> bytes | None:
     """The body: a regular file or standard input, at most `MAX_BODY_BYTES` (what the router passes)."""
-    from services.bus.security import MAX_BODY_BYTES
+    from vrsim.services.bus.security import MAX_BODY_BYTES
 
     if path is None:
         return None

@@ -9,7 +9,7 @@ HELP = "replay an as-applied log through the simulated machine: the twin's rates
 
 
 def configure(parser) -> None:
-    from services.cli.log_options import add_log_options
+    from vrsim.services.cli.log_options import add_log_options
 
     add_log_options(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON object")
@@ -21,10 +21,10 @@ def configure(parser) -> None:
 def run(args) -> int:
     from dataclasses import replace
 
-    from services.cli.log_options import replay_input
-    from services.outputs.encode import dumps_text
-    from services.outputs.replay import text_replay, write_replay
-    from services.sim.replay import replay_records
+    from vrsim.services.cli.log_options import replay_input
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.replay import text_replay, write_replay
+    from vrsim.services.sim.replay import replay_records
 
     records, scenario, extra = replay_input(args, args.log)
     rp = replay_records(records, scenario)

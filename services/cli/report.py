@@ -21,12 +21,12 @@ def configure(parser) -> None:
 
 
 def run(args) -> int:
-    from common import ServiceError
-    from services.bus.monitor import MonitorStore, recorded_run
-    from services.outputs.report import incomplete_note
-    from services.outputs.summary import summary_json, text_summary
-    from services.outputs.write import outputs_line, write_outputs
-    from services.sim.as_run import with_settings
+    from vrsim.common import ServiceError
+    from vrsim.services.bus.monitor import MonitorStore, recorded_run
+    from vrsim.services.outputs.report import incomplete_note
+    from vrsim.services.outputs.summary import summary_json, text_summary
+    from vrsim.services.outputs.write import outputs_line, write_outputs
+    from vrsim.services.sim.as_run import with_settings
 
     if not os.path.isfile(args.db):
         raise ServiceError(f"--db {args.db}: no such file")

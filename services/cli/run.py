@@ -8,7 +8,7 @@ import os
 import sys
 import time
 
-from services.cli.options import (
+from vrsim.services.cli.options import (
     add_input_cap,
     add_overrides,
     apply_input_cap,
@@ -92,7 +92,7 @@ def run(args) -> int:
     if args.check:
         return _check(args)
     # SUMO's process starts first: it imports while this one does and loads the scenario.
-    from services.sim.drive_worker import DriveWorker
+    from vrsim.services.sim.drive_worker import DriveWorker
 
     # What start-up imports and loads lives until the command ends: no collection walks it, neither
     # during start-up nor after (`_started`): collections took 0.08 to 0.19 s of this process's CPU in
@@ -124,20 +124,20 @@ def _run(args, driver) -> int:
     # files are written with (GDAL's: 0.06 s of CPU), not left to the first write after the drive.
     import pyogrio  # noqa: F401
 
-    import maps.geotiff  # noqa: F401
-    from services.outputs.plot_worker import PlotWorker
-    from services.sim.streamed import run_streamed
+    import vrsim.maps.geotiff  # noqa: F401
+    from vrsim.services.outputs.plot_worker import PlotWorker
+    from vrsim.services.sim.streamed import run_streamed
 
     # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
     track = early = None
     try:
-        from services.outputs.early import EarlyTimeseries
-        from services.outputs.summary import summary_json, text_summary
-        from services.outputs.track import TrackFiles
-        from services.outputs.write import outputs_line, write_outputs
-        from services.sim.as_run import with_settings
+        from vrsim.services.outputs.early import EarlyTimeseries
+        from vrsim.services.outputs.summary import summary_json, text_summary
+        from vrsim.services.outputs.track import TrackFiles
+        from vrsim.services.outputs.write import outputs_line, write_outputs
+        from vrsim.services.sim.as_run import with_settings
 
         out_dir = args.out or default_out_dir(sc.name)
         # The track is written as the run accounts it (its memory is the map's and a part's), and
@@ -191,10 +191,10 @@ def _check(args) -> int:
     `EXIT_CANNOT` when the machine cannot apply the whole map."""
     import dataclasses
 
-    from services.outputs.summary import summary_json
-    from services.sim.display import check_display, run_units
-    from services.sim.run import check_world, start_up
-    from services.sim.world import build_world
+    from vrsim.services.outputs.summary import summary_json
+    from vrsim.services.sim.display import check_display, run_units
+    from vrsim.services.sim.run import check_world, start_up
+    from vrsim.services.sim.world import build_world
 
     sc = _scenario(args)
     world = build_world(sc)

@@ -22,9 +22,9 @@ import sys
 import threading
 import time
 
-from common import ServiceError, files
-from services.bus.client import alive_services, request_json
-from services.bus.config import (
+from vrsim.common import ServiceError, files
+from vrsim.services.bus.client import alive_services, request_json
+from vrsim.services.bus.config import (
     SERVICES,
     Keys,
     ServiceConfig,
@@ -33,9 +33,9 @@ from services.bus.config import (
     open_session,
     options_from_args,
 )
-from services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
-from services.cli.aog import add_serve_arguments, serve_aog_rc
-from services.cli.options import add_input_cap, apply_input_cap
+from vrsim.services.bus.serving import PARENT_ENV, declare_alive, wait_for_signal
+from vrsim.services.cli.aog import add_serve_arguments, serve_aog_rc
+from vrsim.services.cli.options import add_input_cap, apply_input_cap
 
 HELP = ("run the Zenoh services: map, vehicle, controller, monitor, scenario, router, web, or all; "
         "or aog-rc, the AgOpenGPS Rate Controller's modules and AgIO over UDP (docs/aog_rc.md)")
@@ -106,7 +106,7 @@ def run(args) -> int:
                            "scenario/start)")
     if args.service == "all":
         return _serve_all(args, config.zenoh)
-    return importlib.import_module(f"services.bus.{args.service}").main(config)
+    return importlib.import_module(f"vrsim.services.bus.{args.service}").main(config)
 
 
 def _service_config(args) -> ServiceConfig:
@@ -131,7 +131,7 @@ def _service_config(args) -> ServiceConfig:
 
 def _child_argv(args, options: ZenohOptions, name: str, user_code_dirs: tuple[str, ...] = ()) -> list[str]:
     # -P: vrsim's own modules, not a `services` package in the folder the command runs in
-    argv = [sys.executable, "-P", "-m", "services.cli", "serve", name]
+    argv = [sys.executable, "-P", "-m", "vrsim.services.cli", "serve", name]
     if name == "map" and args.map is None and args.scenario is not None:
         argv.append(_abs_if_file(args.scenario))  # positionals first: argparse takes them in one go
     argv += options.child_args(name)
@@ -163,15 +163,15 @@ def _serve_all(args, options: ZenohOptions) -> int:
     """Be the router, start every service as a child process, stop them all on SIGINT/SIGTERM."""
     start_payload = start_selector = None
     if args.web:
-        from services.bus.web import DEFAULT_LISTEN, check_listen, parse_listen
+        from vrsim.services.bus.web import DEFAULT_LISTEN, check_listen, parse_listen
 
         # Before anything starts: beyond loopback the page needs the bus's TLS certificates.
         check_listen(*parse_listen(args.web_listen or DEFAULT_LISTEN, "serve all: --web-listen"),
                      tls=options.tls, insecure=options.insecure)
     user_code_dirs = tuple(os.path.abspath(d) for d in args.allow_user_code)
     if args.scenario is not None:  # refuse a bad scenario or run option before starting anything
-        from services.bus import messages
-        from services.sim import scenario
+        from vrsim.services.bus import messages
+        from vrsim.services.sim import scenario
 
         for flag, value, (lo, hi) in (("--speed", args.speed, messages.SPEED_RANGE),
                                       ("--ticks-per-message", args.ticks_per_message,
@@ -225,7 +225,7 @@ def _interrupt(signum, frame):
 
 def _start_request(keys: Keys, sc, args) -> tuple[bytes, str]:
     """The scenario/start query for a loaded scenario (its text, source and folder)."""
-    from services.sim.scenario import scenario_file
+    from vrsim.services.sim.scenario import scenario_file
 
     with open(scenario_file(sc), "rb") as fh:
         text = fh.read()

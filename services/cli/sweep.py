@@ -78,7 +78,7 @@ def _run_on_dask(args, tasks_for, table, progress) -> int:
     """Run the tasks ``tasks_for(workers)`` names, ``(items, task, key, rows_of)``, on the cluster the
     options name: ``task(item)`` for every item, its rows (``rows_of(item, result, error)``) into
     `table` as each comes; returns how many workers the cluster had."""
-    from services.batch.driver import dashboard_available, open_client, run_tasks
+    from vrsim.services.batch.driver import dashboard_available, open_client, run_tasks
 
     dashboard = dashboard_available() and not args.no_dashboard
     with open_client(args.scheduler, args.workers, dashboard, args.timeout) as client:
@@ -120,7 +120,7 @@ def _duration(seconds: float) -> str:
 def _confirm_size(runs: int, args) -> None:
     """A plan over `LARGE_PLAN_RUNS` runs: its size and estimated time, then --yes or a y at the prompt
     (on a terminal); without a terminal (CI), a `ScenarioError` saying to pass --yes."""
-    from common import ScenarioError
+    from vrsim.common import ScenarioError
 
     if runs <= LARGE_PLAN_RUNS or args.yes:
         return
@@ -141,8 +141,8 @@ def _tasks(sweep, todo, args, out_dir, workers):
     per part of a group so that each of the cluster's `workers` has one (the batched fast path,
     `services.sim.sweep.run_group`), when every axis is a ``controller.*`` key and no run's own files
     are asked for; else one task per run (`run_row`)."""
-    from services.outputs.sweep_results import RunOutputs
-    from services.sim.sweep import controller_only, failed_row, run_group, run_row, variant_groups
+    from vrsim.services.outputs.sweep_results import RunOutputs
+    from vrsim.services.sim.sweep import controller_only, failed_row, run_group, run_row, variant_groups
 
     if controller_only(sweep) and not args.run_outputs:
         def group_rows(group, rows, error, lost):
@@ -159,12 +159,12 @@ def _tasks(sweep, todo, args, out_dir, workers):
 
 
 def run(args) -> int:
-    from common import ScenarioError
-    from services.batch.driver import check_workers
-    from services.outputs.summary import summary_json
-    from services.outputs.sweep_report import write_sweep_report
-    from services.outputs.sweep_results import ResultsTable
-    from services.sim.sweep import load_sweep, plan, planned_runs
+    from vrsim.common import ScenarioError
+    from vrsim.services.batch.driver import check_workers
+    from vrsim.services.outputs.summary import summary_json
+    from vrsim.services.outputs.sweep_report import write_sweep_report
+    from vrsim.services.outputs.sweep_results import ResultsTable
+    from vrsim.services.sim.sweep import load_sweep, plan, planned_runs
 
     if args.resume and not args.out:
         raise ScenarioError("--resume needs --out DIR: the folder of the sweep to go on with")

@@ -33,19 +33,19 @@ def configure(parser) -> None:
                         help="folder for best_controller.toml and history.csv "
                              "(default: runs/tune-<scenario>-<time>/)")
     parser.add_argument("--json", action="store_true", help="print the outcome as one JSON object")
-    from services.cli.options import add_overrides
+    from vrsim.services.cli.options import add_overrides
 
     add_overrides(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress line on stderr")
 
 
 def run(args) -> int:
-    from common import ScenarioError
-    from services.cli.options import load_scenario
-    from services.cli.run import default_out_dir
-    from services.outputs.encode import dumps_text
-    from services.outputs.tune import tune_text, write_tune
-    from services.sim.tune import check_objective, parse_param, tune
+    from vrsim.common import ScenarioError
+    from vrsim.services.cli.options import load_scenario
+    from vrsim.services.cli.run import default_out_dir
+    from vrsim.services.outputs.encode import dumps_text
+    from vrsim.services.outputs.tune import tune_text, write_tune
+    from vrsim.services.sim.tune import check_objective, parse_param, tune
 
     params = [parse_param(p) for p in args.param]
     check_objective(args.objective, args.log is not None)
@@ -86,11 +86,11 @@ def run(args) -> int:
 def _log_and_machine(args):
     """(records, scenario): the log of ``--log`` and the machine that replays it (SCENARIO or the log's,
     then ``--machine`` and ``--set``)."""
-    from maps.log_records import machine_records
-    from services.cli.log_options import read_log
-    from services.cli.options import overrides_of
-    from services.sim.replay_setup import replay_scenario
-    from services.sim.scenario import load
+    from vrsim.maps.log_records import machine_records
+    from vrsim.services.cli.log_options import read_log
+    from vrsim.services.cli.options import overrides_of
+    from vrsim.services.sim.replay_setup import replay_scenario
+    from vrsim.services.sim.scenario import load
 
     records = machine_records(read_log(args.log))
     user = load(args.scenario) if args.scenario else None

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import os
 
-from maps import write_points, write_taskdata
-from maps.taskdata import TLG_NAME, prepare_folder
-from services.sim.run import RunResult
+from vrsim.maps import write_points, write_taskdata
+from vrsim.maps.taskdata import TLG_NAME, prepare_folder
+from vrsim.services.sim.run import RunResult
 
 POINT_FILES = {"gpkg": "as_applied_points.gpkg", "shp": "as_applied_points.zip"}
 

@@ -9,12 +9,12 @@ import os
 
 import numpy as np
 
-from common.written import staged
-from services.outputs.plots import figure
-from services.outputs.report import embedded_png
-from services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
-from services.sim.metrics import RATE_UNIT, rate_key
-from services.sim.transitions import rate_steps
+from vrsim.common.written import staged
+from vrsim.services.outputs.plots import figure
+from vrsim.services.outputs.report import embedded_png
+from vrsim.services.sim.compare import BETTER, COLUMNS, Comparison, best_rows
+from vrsim.services.sim.metrics import RATE_UNIT, rate_key
+from vrsim.services.sim.transitions import rate_steps
 
 BEST = "*"
 DECIMALS = 3    # figures shown, and compared for "best", to three decimals

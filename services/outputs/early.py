@@ -11,7 +11,7 @@ the same rows, drawn by the same function).
 
 from __future__ import annotations
 
-from services.sim.kept import SERIES_KEYS, SeriesWindow
+from vrsim.services.sim.kept import SERIES_KEYS, SeriesWindow
 
 
 class EarlyTimeseries:
@@ -39,7 +39,7 @@ class EarlyTimeseries:
             return
         self.window.add({k: rows[k] for k in SERIES_KEYS}, rows["implement_on"])
         if self.window.complete:
-            from services.outputs.plots import window_picture
+            from vrsim.services.outputs.plots import window_picture
 
             self.plotter.submit("draw_timeseries", window_picture(self.window.series, self.world), None)
             self.submitted = True

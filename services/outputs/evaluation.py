@@ -8,15 +8,15 @@ import os
 
 import numpy as np
 
-from common.written import staged
-from maps import Grid, write_map
-from maps.log_records import SESSION_GAP_S
-from services.outputs.encode import dumps_text
-from services.outputs.plots import figure
-from services.outputs.report import definitions, figures_table, key_values, page, versions
-from services.outputs.summary import fmt
-from services.sim.evaluate import Evaluation
-from services.sim.metrics import AREA_OR_RECORDS, AREA_OR_TIMESTAMPS, LOG_UNIT, POINT_METRICS
+from vrsim.common.written import staged
+from vrsim.maps import Grid, write_map
+from vrsim.maps.log_records import SESSION_GAP_S
+from vrsim.services.outputs.encode import dumps_text
+from vrsim.services.outputs.plots import figure
+from vrsim.services.outputs.report import definitions, figures_table, key_values, page, versions
+from vrsim.services.outputs.summary import fmt
+from vrsim.services.sim.evaluate import Evaluation
+from vrsim.services.sim.metrics import AREA_OR_RECORDS, AREA_OR_TIMESTAMPS, LOG_UNIT, POINT_METRICS
 
 MAX_PLOT_POINTS = 20_000
 MAX_PANELS = 12  # sessions drawn in timeseries.png: more would be too small to read

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import os
 
-from common.written import written
-from services.outputs.encode import dumps_text
-from services.sim.fit import FIT_PARAMS, MachineFit, fragment_text
-from services.sim.replay import EVENT_CLASSES
+from vrsim.common.written import written
+from vrsim.services.outputs.encode import dumps_text
+from vrsim.services.sim.fit import FIT_PARAMS, MachineFit, fragment_text
+from vrsim.services.sim.replay import EVENT_CLASSES
 
 FIGURE_KEYS = ("compared_records", "mae_vs_log", "bias_vs_log", "rmse_vs_log", "r2_vs_log",
                "within_10pct_of_log_pct")

@@ -8,8 +8,8 @@ import os
 
 import numpy as np
 
-from common import VrsimError
-from common.written import staged
+from vrsim.common import VrsimError
+from vrsim.common.written import staged
 
 STEP_RPM = 100.0       # a shaft's step in step.png, from rest, as in the paper's bench test
 STEP_DURATION_S = 5.0
@@ -72,7 +72,7 @@ def _step(report):
     import control
     from matplotlib.figure import Figure
 
-    from controller.simulate import simulate
+    from vrsim.controller.simulate import simulate
 
     timing = report.scenario.timing
     t, step, unit = timing.control_period_s, _step_size(report), report.unit

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from common.written import written
+from vrsim.common.written import written
 
 PLOT_S = 8.0  # seconds of response shown: all of the paper's settling times fit
 

@@ -5,7 +5,7 @@ second or more) overlaps the simulation on another core; after the run it draws 
 sections.png (timeseries.png too, unless it was drawn as the run went) while the run's process writes
 the GeoTIFFs, the track files and the TimeLog. A process, not a thread: drawing holds the GIL.
 
-The worker is ``python -m services.outputs.plot_worker``: jobs (drawing function's name, picture, path
+The worker is ``python -m vrsim.services.outputs.plot_worker``: jobs (drawing function's name, picture, path
 or None) arrive pickled on its stdin, each behind its length (8 bytes, little-endian), and one reply
 per job goes back pickled on its stdout, in order (a job without a path is drawn in memory: its reply
 holds the PNG's bytes). A job may come while the run still goes on (timeseries.png's minute is known
@@ -55,7 +55,7 @@ class PlotWorker:
 
     def start(self) -> PlotWorker:
         # -P: vrsim's own modules, not a `services` package in the folder the command runs in
-        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.outputs.plot_worker"],
+        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "vrsim.services.outputs.plot_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         # Replies are read as they come, not when `result` asks: a PNG's bytes fill the pipe, and a
         # worker blocked writing one reads no job (map.png's waited 0.5 s for the caller's first
@@ -126,7 +126,7 @@ def _serve(stdin_fd: int, stdout) -> None:
     """The worker's loop until stdin closes and every job is answered: each job is drawn in a forked
     child (`common.forked.Forked` of `_drawn`); the replies, ("ok", path) or ("error", text), go out in
     the jobs' order."""
-    from common.forked import Forked
+    from vrsim.common.forked import Forked
 
     ready_to_draw = threading.Thread(target=_import_matplotlib, name="plot-imports")
     ready_to_draw.start()
@@ -171,7 +171,7 @@ def _import_matplotlib() -> None:
     import matplotlib.figure  # noqa: F401 - what every drawing needs
     from PIL import Image
 
-    from services.outputs import plots  # noqa: F401
+    from vrsim.services.outputs import plots  # noqa: F401
 
     Image.preinit()  # the image formats PIL loads at its first save, once here rather than in each child
 
@@ -184,7 +184,7 @@ def _drawn(job: bytes) -> tuple[str, str | bytes]:
 
     gc.disable()
 
-    from services.outputs import plots
+    from vrsim.services.outputs import plots
 
     drawing, picture, path = pickle.loads(job)
     try:

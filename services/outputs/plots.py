@@ -90,7 +90,7 @@ def _frame(result):
 
 def _lengths(units: str):
     """(metres -> the length shown in `units`, its unit): `maps.units.in_units` of m."""
-    from maps.units import in_units
+    from vrsim.maps.units import in_units
 
     factor, unit = in_units(1.0, "m", units)
     return (lambda metres: metres * factor), unit
@@ -98,14 +98,14 @@ def _lengths(units: str):
 
 def _rates(values, grid, units: str):
     """The rates `values` (kg/ha) in the map's unit, or its counterpart in `units`: (values, unit)."""
-    from maps.units import in_units
+    from vrsim.maps.units import in_units
 
     return in_units(np.asarray(grid.in_map_unit(values), float), grid.map_unit, units)
 
 
 def map_picture(result) -> MapPicture:
     """map.png's content of a `services.sim.run.RunResult`."""
-    from services.sim.display import shown_figure
+    from vrsim.services.sim.display import shown_figure
 
     grid = result.world.grid
     extent, (west, south), outline, shown, length_unit = _frame(result)
@@ -124,7 +124,7 @@ def map_picture(result) -> MapPicture:
 
 def sections_picture(result) -> SectionsPicture:
     """sections.png's content of a `services.sim.run.RunResult`."""
-    from services.sim.display import shown_figure
+    from vrsim.services.sim.display import shown_figure
 
     extent, _, outline, _, length_unit = _frame(result)
     deposit = result.accounts.deposit
@@ -155,7 +155,7 @@ def series_picture(result) -> SeriesPicture:
 def window_picture(w: dict, world) -> SeriesPicture:
     """timeseries.png's content of a `services.sim.kept.SeriesWindow`'s ``series`` `w` of a run of
     `world` (`services.sim.world.World`)."""
-    from services.sim.display import run_units
+    from vrsim.services.sim.display import run_units
 
     grid, units = world.grid, run_units(world)
     (rx, unit), (applied, _) = (_rates(w[k], grid, units) for k in ("prescribed_kg_ha", "applied_kg_ha"))

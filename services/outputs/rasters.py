@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from common import MapError
-from maps import write_map
-from services.sim.run import RunResult
+from vrsim.common import MapError
+from vrsim.maps import write_map
+from vrsim.services.sim.run import RunResult
 
 
 def write_rasters(result: RunResult, prescription_path: str, as_applied_path: str, error_path: str,

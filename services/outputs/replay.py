@@ -15,12 +15,12 @@ import os
 
 import numpy as np
 
-from common import MapError
-from common.written import staged
-from services.outputs.encode import dumps_text
-from services.outputs.plots import figure
-from services.sim.replay import EVENT_CLASSES, STANDSTILL_M_S, Replay, lonlat
-from services.sim.transitions import EVENTS, MIN_EVENTS
+from vrsim.common import MapError
+from vrsim.common.written import staged
+from vrsim.services.outputs.encode import dumps_text
+from vrsim.services.outputs.plots import figure
+from vrsim.services.sim.replay import EVENT_CLASSES, STANDSTILL_M_S, Replay, lonlat
+from vrsim.services.sim.transitions import EVENTS, MIN_EVENTS
 
 REPLAY_FILES = ("replay.parquet", "replay.png", "replay_map.png", "summary.json")
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 1 mm, 1e-4 of the rate unit; None: as is

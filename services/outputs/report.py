@@ -10,16 +10,16 @@ import html
 import importlib.metadata
 import os
 
-from common import __version__
-from maps.units import in_units
-from services.outputs.summary import fmt
-from services.outputs.track import TRACK_FILES
-from services.sim import metrics
-from services.sim.core import config_as_run
-from services.sim.error_split import error_split
-from services.sim.metrics import LOG_UNIT
-from services.sim.run import RunResult
-from services.sim.scenario_toml import to_toml, toml_value
+from vrsim.common import __version__
+from vrsim.maps.units import in_units
+from vrsim.services.outputs.summary import fmt
+from vrsim.services.outputs.track import TRACK_FILES
+from vrsim.services.sim import metrics
+from vrsim.services.sim.core import config_as_run
+from vrsim.services.sim.error_split import error_split
+from vrsim.services.sim.metrics import LOG_UNIT
+from vrsim.services.sim.run import RunResult
+from vrsim.services.sim.scenario_toml import to_toml, toml_value
 
 # The scenario tables the report shows, in this order: the scenario as run (`services.sim.as_run`, every
 # kind's default resolved), the plant as run (`config_as_run`).
@@ -150,7 +150,7 @@ def _split_table(result: RunResult) -> str:
 def write_html(result: RunResult, paths: dict[str, str]) -> None:
     """report.html of a run: machine check, figures, the error split, settings as run, versions and
     seed, pictures, definitions."""
-    from services.outputs.summary import shown, warnings
+    from vrsim.services.outputs.summary import shown, warnings
 
     summary = result.summary
     config = config_as_run(result.world.scenario)

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import math
 
-from services.outputs.encode import dumps_text
-from services.sim import metrics
-from services.sim.display import shown_figure
-from services.sim.spread_pattern import CV_LIMIT_PCT
+from vrsim.services.outputs.encode import dumps_text
+from vrsim.services.sim import metrics
+from vrsim.services.sim.display import shown_figure
+from vrsim.services.sim.spread_pattern import CV_LIMIT_PCT
 
 
 def summary_json(summary: dict) -> str:

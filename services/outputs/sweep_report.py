@@ -13,11 +13,11 @@ import math
 import numpy as np
 from matplotlib.ticker import NullFormatter
 
-from common.written import written
-from services.outputs.plots import figure
-from services.outputs.summary import summary_rows
-from services.sim.metrics import RATE_UNIT, rate_key
-from services.sim.sweep import (
+from vrsim.common.written import written
+from vrsim.services.outputs.plots import figure
+from vrsim.services.outputs.summary import summary_rows
+from vrsim.services.sim.metrics import RATE_UNIT, rate_key
+from vrsim.services.sim.sweep import (
     METRIC_SENSE,
     Configuration,
     Sweep,

@@ -16,9 +16,9 @@ import csv
 import os
 import time
 
-from common import ScenarioError
-from common.written import write_failure, written
-from services.sim.sweep import ROW_FIRST, ROW_LAST
+from vrsim.common import ScenarioError
+from vrsim.common.written import write_failure, written
+from vrsim.services.sim.sweep import ROW_FIRST, ROW_LAST
 
 PARQUET = "results.parquet"
 CSV = "results.csv"
@@ -148,7 +148,7 @@ class RunOutputs:
         self.root = os.path.abspath(root)
 
     def __call__(self, spec, result) -> None:
-        from services.outputs.write import write_outputs
+        from vrsim.services.outputs.write import write_outputs
 
         t0 = time.perf_counter()
         write_outputs(result, os.path.join(self.root, "runs", spec.key))

@@ -19,9 +19,9 @@ import os
 
 import numpy as np
 
-from common import MapError
-from common.section_masks import section_mask_codes
-from common.written import write_failure, written
+from vrsim.common import MapError
+from vrsim.common.section_masks import section_mask_codes
+from vrsim.common.written import write_failure, written
 
 # (column, decimals): 0.001 s, 1e-8 degree (~1 mm), 1 mm/s, 0.001 rpm, 0.01 mA, 0.01 kg/ha; None: as is
 TRACK_COLUMNS = (("time_s", 3), ("lat", 8), ("lon", 8), ("speed_m_s", 3), ("target_shaft_rpm", 3),

@@ -10,11 +10,11 @@ import json
 import math
 import os
 
-from common.written import staged
-from controller.config import PID_KEYS
-from services.outputs.summary import shown
-from services.sim.metrics import METRICS, rate_key
-from services.sim.tune import TuneResult
+from vrsim.common.written import staged
+from vrsim.controller.config import PID_KEYS
+from vrsim.services.outputs.summary import shown
+from vrsim.services.sim.metrics import METRICS, rate_key
+from vrsim.services.sim.tune import TuneResult
 
 COMPARED = tuple(m for m in METRICS if m.sense is not None and m.tolerance is not None)
 

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import os
 
-from common import MapError
-from common.written import staged
-from services.outputs.aslog import check_as_applied, write_as_applied
-from services.outputs.rasters import write_rasters
-from services.outputs.summary import summary_json
-from services.outputs.track import TRACK_FILES, TrackFiles, track_rows
-from services.sim.as_run import with_settings
-from services.sim.run import RunResult
+from vrsim.common import MapError
+from vrsim.common.written import staged
+from vrsim.services.outputs.aslog import check_as_applied, write_as_applied
+from vrsim.services.outputs.rasters import write_rasters
+from vrsim.services.outputs.summary import summary_json
+from vrsim.services.outputs.track import TRACK_FILES, TrackFiles, track_rows
+from vrsim.services.sim.as_run import with_settings
+from vrsim.services.sim.run import RunResult
 
 FILES = ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "passes.tif", "map.png",
          "sections.png", "timeseries.png", "report.html")   # and the track's (`TRACK_FILES`)
@@ -52,7 +52,7 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None, track: TrackFil
         `plotter`'s timeseries.png of the run, drawn as it went: if it was submitted, its bytes are
         written (the first reply due) instead of drawing it again.
     """
-    from services.outputs import plots
+    from vrsim.services.outputs import plots
 
     paths = {name: os.path.join(out_dir, name) for name in FILES}
     output = result.world.scenario.output
@@ -95,7 +95,7 @@ def write_outputs(result: RunResult, out_dir: str, plotter=None, track: TrackFil
 
 def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: list, plotter) -> dict[str, str]:
     """Every file into the staging folder; the as-applied log's {name: path}."""
-    from services.outputs import plots
+    from vrsim.services.outputs import plots
 
     logs = write_as_applied(result, stage)
     with open(paths["summary.json"], "w") as fh:
@@ -112,7 +112,7 @@ def _write_files(result: RunResult, stage: str, paths: dict[str, str], jobs: lis
         else:
             getattr(plots, drawing)(picture, path)
     if "report.html" in paths:
-        from services.outputs.report import write_html
+        from vrsim.services.outputs.report import write_html
 
         write_html(result, paths)
     return logs

@@ -3,12 +3,12 @@
 Pure and importable (no Zenoh, no command line, no output files): this is vrsim's Python API, and
 `__all__` lists its stable names::
 
-    from services.sim import load, run, with_changes, drive, control_and_account
+    from vrsim.services.sim import load, run, with_changes, drive, control_and_account
 
 Each name loads its module on first use (module ``__getattr__``), so importing one submodule, as
 ``vrsim run`` does to parse its options, stays as light as that submodule. Four names are also
 names of submodules (`run`, `compare`, `evaluate`, `tune`): here they are the functions; the modules
-are imported by their full names (``from services.sim.run import drive``, `importlib.import_module`).
+are imported by their full names (``from vrsim.services.sim.run import drive``, `importlib.import_module`).
 """
 
 import importlib
@@ -17,34 +17,34 @@ import types
 
 # name -> the module that defines it.
 _LAZY = {
-    "Scenario": "services.sim.scenario",
-    "builtin_names": "services.sim.scenario",
-    "load": "services.sim.scenario",
-    "parse": "services.sim.scenario",
-    "with_changes": "services.sim.scenario",
-    "Drive": "services.sim.run",
-    "RunResult": "services.sim.run",
-    "control_and_account": "services.sim.run",
-    "drive": "services.sim.run",
-    "run": "services.sim.run",
-    "METRICS": "services.sim.metrics",
-    "MachineCheck": "services.sim.limits",
-    "machine_check": "services.sim.limits",
-    "ErrorPart": "services.sim.error_split",
-    "error_split": "services.sim.error_split",
-    "Comparison": "services.sim.compare",
-    "compare": "services.sim.compare",
-    "ControllerReport": "services.sim.analyze",
-    "analyze_controller": "services.sim.analyze",
-    "Sweep": "services.sim.sweep",
-    "load_sweep": "services.sim.sweep",
-    "parse_sweep": "services.sim.sweep",
-    "TuneParam": "services.sim.tune",
-    "TuneResult": "services.sim.tune",
-    "parse_param": "services.sim.tune",
-    "tune": "services.sim.tune",
-    "Evaluation": "services.sim.evaluate",
-    "evaluate": "services.sim.evaluate",
+    "Scenario": "vrsim.services.sim.scenario",
+    "builtin_names": "vrsim.services.sim.scenario",
+    "load": "vrsim.services.sim.scenario",
+    "parse": "vrsim.services.sim.scenario",
+    "with_changes": "vrsim.services.sim.scenario",
+    "Drive": "vrsim.services.sim.run",
+    "RunResult": "vrsim.services.sim.run",
+    "control_and_account": "vrsim.services.sim.run",
+    "drive": "vrsim.services.sim.run",
+    "run": "vrsim.services.sim.run",
+    "METRICS": "vrsim.services.sim.metrics",
+    "MachineCheck": "vrsim.services.sim.limits",
+    "machine_check": "vrsim.services.sim.limits",
+    "ErrorPart": "vrsim.services.sim.error_split",
+    "error_split": "vrsim.services.sim.error_split",
+    "Comparison": "vrsim.services.sim.compare",
+    "compare": "vrsim.services.sim.compare",
+    "ControllerReport": "vrsim.services.sim.analyze",
+    "analyze_controller": "vrsim.services.sim.analyze",
+    "Sweep": "vrsim.services.sim.sweep",
+    "load_sweep": "vrsim.services.sim.sweep",
+    "parse_sweep": "vrsim.services.sim.sweep",
+    "TuneParam": "vrsim.services.sim.tune",
+    "TuneResult": "vrsim.services.sim.tune",
+    "parse_param": "vrsim.services.sim.tune",
+    "tune": "vrsim.services.sim.tune",
+    "Evaluation": "vrsim.services.sim.evaluate",
+    "evaluate": "vrsim.services.sim.evaluate",
 }
 
 __all__ = [*_LAZY]

@@ -27,12 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, VehicleError
-from maps import Grid
-from services.sim.landing import M2_PER_HA, Landing
-from services.sim.limits import MachineCheck, machine_check, working_speeds
-from services.sim.machines import machine_for
-from services.sim.metric_formulas import (
+from vrsim.common import ScenarioError, VehicleError
+from vrsim.maps import Grid
+from vrsim.services.sim.landing import M2_PER_HA, Landing
+from vrsim.services.sim.limits import MachineCheck, machine_check, working_speeds
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.metric_formulas import (
     LimitMetrics,
     MapMetrics,
     OverlapMetrics,
@@ -40,9 +40,9 @@ from services.sim.metric_formulas import (
     map_metrics,
     overlap_metrics,
 )
-from services.sim.section_landing import worked_fraction
-from services.sim.transitions import TransitionMetrics, rate_steps, transitions
-from services.sim.world import World
+from vrsim.services.sim.section_landing import worked_fraction
+from vrsim.services.sim.transitions import TransitionMetrics, rate_steps, transitions
+from vrsim.services.sim.world import World
 
 
 def cells_in_field(grid: Grid, polygon) -> np.ndarray:

@@ -20,8 +20,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from common import ScenarioError, is_number
-from services.sim.metrics import METRICS
+from vrsim.common import ScenarioError, is_number
+from vrsim.services.sim.metrics import METRICS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 LIBRARY_DIR = os.path.join(ROOT, "tests", "accuracy")

@@ -13,15 +13,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from controller import ControllerConfig, PlantParams
-from controller.analysis import LoopAnalysis, NotLinear, analyze_loop
-from controller.config import LOOK_AHEAD_AUTO
-from controller.response import ResponseTime, response_time
-from services.sim.core import machine_plant
-from services.sim.look_ahead import initial_look_ahead_s, known_delay_s
-from services.sim.machines import machine_for
-from services.sim.scenario import Scenario
-from services.sim.world import build_world
+from vrsim.controller import ControllerConfig, PlantParams
+from vrsim.controller.analysis import LoopAnalysis, NotLinear, analyze_loop
+from vrsim.controller.config import LOOK_AHEAD_AUTO
+from vrsim.controller.response import ResponseTime, response_time
+from vrsim.services.sim.core import machine_plant
+from vrsim.services.sim.look_ahead import initial_look_ahead_s, known_delay_s
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.world import build_world
 
 # Design minimums of a loop's stability margins (the classical 6 dB and 45 deg): below them a loop
 # rings on its steps and a modest change of the plant's gain or lag (a warmer oil, a worn valve, a

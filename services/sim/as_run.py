@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from services.sim.display import displayed
-from services.sim.resolve import SENSOR_DELAY_KEYS, as_run, config_as_run, resolved_controller
+from vrsim.services.sim.display import displayed
+from vrsim.services.sim.resolve import SENSOR_DELAY_KEYS, as_run, config_as_run, resolved_controller
 
 if TYPE_CHECKING:
-    from services.sim.run import RunResult
+    from vrsim.services.sim.run import RunResult
 
 __all__ = ["SENSOR_DELAY_KEYS", "as_run", "resolved_controller", "with_settings"]
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from maps import PointLog
+from vrsim.maps import PointLog
 
 SIMULATE_MODE = 8  # ISO 11783 position status "simulate mode"
 

@@ -36,9 +36,9 @@ import math
 
 import numpy as np
 
-from maps import AsApplied
-from maps.meter_totals import MeterTotals
-from services.sim.accounting import (
+from vrsim.maps import AsApplied
+from vrsim.maps.meter_totals import MeterTotals
+from vrsim.services.sim.accounting import (
     Accounts,
     Deposit,
     Setting,
@@ -47,15 +47,15 @@ from services.sim.accounting import (
     check_world,
     map_figures,
 )
-from services.sim.aslog import run_point_log
-from services.sim.core import CONTROL_KEYS
-from services.sim.error_split import REFERENCES, reference_metered_kg
-from services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
-from services.sim.landing import Landing, land
-from services.sim.machines import machine_for
-from services.sim.metrics import limit_metrics, overlap_metrics
-from services.sim.result import RunResult
-from services.sim.section_landing import (
+from vrsim.services.sim.aslog import run_point_log
+from vrsim.services.sim.core import CONTROL_KEYS
+from vrsim.services.sim.error_split import REFERENCES, reference_metered_kg
+from vrsim.services.sim.kept import SERIES_KEYS, Kept, PathPoints, SeriesWindow
+from vrsim.services.sim.landing import Landing, land
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.metrics import limit_metrics, overlap_metrics
+from vrsim.services.sim.result import RunResult
+from vrsim.services.sim.section_landing import (
     LimitedStrips,
     StripPlan,
     WorkedArea,
@@ -63,17 +63,17 @@ from services.sim.section_landing import (
     landing_pass,
     tick_travel_m,
 )
-from services.sim.sections import STEPS_KEY, SectionStates
-from services.sim.sections.motion import MotionTrend
-from services.sim.sections.passes import PassTracker
-from services.sim.transitions import (
+from vrsim.services.sim.sections import STEPS_KEY, SectionStates
+from vrsim.services.sim.sections.motion import MotionTrend
+from vrsim.services.sim.sections.passes import PassTracker
+from vrsim.services.sim.transitions import (
     SETTLE_HOLD_S,
     TransitionEvents,
     rate_steps,
     transition_events,
     transition_figures,
 )
-from services.sim.world import World
+from vrsim.services.sim.world import World
 
 # The track's per-tick rows a sink gets (`BoundedAccount`'s ``track_sink``): the true track's, the
 # control core's and the landing's (prescribed and applied rate where the product lands).
@@ -414,14 +414,14 @@ def _concatenated(parts: list):
 
 def _dropped_first(log):
     """`log` without its first record."""
-    from maps.pointlog import COLUMNS
+    from vrsim.maps.pointlog import COLUMNS
 
     return dataclasses.replace(log, **{name: getattr(log, name)[1:] for name in COLUMNS})
 
 
 def _joined_logs(logs: list):
     """One log of consecutive parts' logs (None: no part)."""
-    from maps.pointlog import COLUMNS
+    from vrsim.maps.pointlog import COLUMNS
 
     if not logs:
         return None

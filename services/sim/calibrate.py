@@ -39,15 +39,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, VrsimError
-from common.checks import in_range
-from maps.units import shown_text
-from services.sim.machines import Machine
-from services.sim.machines.registry import MACHINES
-from services.sim.machines.sprayer import check_liquid
-from services.sim.scenario import Scenario, scenario_file
-from vehicle.product import metered_kg
-from vehicle.sprayer import REF_PRESSURE_BAR
+from vrsim.common import ScenarioError, VrsimError
+from vrsim.common.checks import in_range
+from vrsim.maps.units import shown_text
+from vrsim.services.sim.machines import Machine
+from vrsim.services.sim.machines.registry import MACHINES
+from vrsim.services.sim.machines.sprayer import check_liquid
+from vrsim.services.sim.scenario import Scenario, scenario_file
+from vrsim.vehicle.product import metered_kg
+from vrsim.vehicle.sprayer import REF_PRESSURE_BAR
 
 DEFAULT_REVOLUTIONS = 50
 DEFAULT_SCALE_ERROR_G = 20.0    # a platform scale for a 20-30 kg catch, read to +-20 g

@@ -16,14 +16,14 @@ import os
 import tomllib
 from dataclasses import dataclass
 
-from common import ScenarioError, files
-from common.toml_text import loads_toml
-from controller import KINDS, ControllerConfig
-from controller.config import PID_KINDS
-from services.sim.as_run import with_settings
-from services.sim.metrics import METRICS
-from services.sim.run import Drive, RunResult, control_and_account, drive
-from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario, controller_from_table
+from vrsim.common import ScenarioError, files
+from vrsim.common.toml_text import loads_toml
+from vrsim.controller import KINDS, ControllerConfig
+from vrsim.controller.config import PID_KINDS
+from vrsim.services.sim.as_run import with_settings
+from vrsim.services.sim.metrics import METRICS
+from vrsim.services.sim.run import Drive, RunResult, control_and_account, drive
+from vrsim.services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario, controller_from_table
 
 USER_KIND = "python"
 # Which way is better for each compared figure: "low", "high" or "zero" (smallest magnitude), from the

@@ -10,18 +10,18 @@ import dataclasses
 
 import numpy as np
 
-from common import ControllerError, ScenarioError
-from controller import PlantParams, build_loop
-from controller.context import ContextTrack
-from maps import Grid, RatePolicy
-from services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
-from services.sim.machines import machine_for
-from services.sim.resolve import config_as_run, plant_for  # noqa: F401 - config_as_run: re-exported
-from services.sim.scenario import Scenario
-from services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
-from services.sim.sections.motion import Motion
-from vehicle.product import metered_kg
-from vehicle.response import PassClock
+from vrsim.common import ControllerError, ScenarioError
+from vrsim.controller import PlantParams, build_loop
+from vrsim.controller.context import ContextTrack
+from vrsim.maps import Grid, RatePolicy
+from vrsim.services.sim.look_ahead import LookAheadTuner, initial_look_ahead_s, known_delay_s
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.resolve import config_as_run, plant_for  # noqa: F401 - config_as_run: re-exported
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.sections import STEPS_KEY, SectionStates, SectionSwitch
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle.product import metered_kg
+from vrsim.vehicle.response import PassClock
 
 OPENING_KEY = "opening_gain"   # stage 1's factor of a pass start's opening transient per tick (n,)
 RUN_CHUNK = 20000   # ticks of stage 1 and the loop at a time (bounded memory, progress reports)

@@ -10,9 +10,9 @@ then in that unit's counterpart if the map's unit is of the other system (gal/ac
 
 from __future__ import annotations
 
-from maps.units import in_units, rate_kind, rate_unit, unit_system
-from services.sim import metrics
-from services.sim.metrics import METRICS, RATE_UNIT, rate_key
+from vrsim.maps.units import in_units, rate_kind, rate_unit, unit_system
+from vrsim.services.sim import metrics
+from vrsim.services.sim.metrics import METRICS, RATE_UNIT, rate_key
 
 
 def run_units(world) -> str:
@@ -49,7 +49,7 @@ def scenario_units(scenario) -> str:
         return unit_system(None, scenario.output.units)
     if spec.unit is not None:
         return unit_system(rate_unit(spec.unit))
-    from maps import read_map
+    from vrsim.maps import read_map
 
     grid = read_map(scenario.path(spec.file), rate_field=spec.rate_field, cell_size_m=spec.cell_size_m,
                     crs=spec.crs, density_kg_l=scenario.product.density_kg_l)

@@ -11,8 +11,8 @@ from __future__ import annotations
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-from common.errors import ScenarioError, VehicleError
-from vehicle import CoveragePath, DriveConfig, SumoDriver
+from vrsim.common.errors import ScenarioError, VehicleError
+from vrsim.vehicle import CoveragePath, DriveConfig, SumoDriver
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 process planned in SUMO and sends what SUMO reports, part by part, while the first process controls
 what has been driven so far.
 
-``python -m services.sim.drive_worker`` imports SUMO and the vehicle room first (nothing of the
+``python -m vrsim.services.sim.drive_worker`` imports SUMO and the vehicle room first (nothing of the
 scenario's parser, the controllers or the maps), then reads a `services.sim.drive_job.DriveJob` and
 the ticks per part, pickled, on stdin; on stdout go ``("part", time_s, s_m, speed_m_s)`` for each part
 (`vehicle.SumoDriver.run_parts`), then ``("done", sumo_s)`` (the drive's wall time, less the time its
@@ -40,7 +40,7 @@ class DriveWorker:
     def __init__(self):
         self.started_unix, self.started_perf_s = time.time(), time.perf_counter()
         # -P: vrsim's own modules, not a `services` package in the folder the command runs in
-        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "services.sim.drive_worker"],
+        self.proc = subprocess.Popen([sys.executable, "-P", "-m", "vrsim.services.sim.drive_worker"],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE)
         _enlarge(self.proc.stdout, PIPE_BYTES)
         self.planned = self.plan_s = self.sumo_s = self._sending = None
@@ -49,8 +49,8 @@ class DriveWorker:
         """Plan `scenario`'s path here (`services.sim.world.plan_path`: its errors are raised here) and
         start driving it, sending every `ticks_per_part` ticks; ``planned`` holds (field, path), ``plan_s``
         the time planning took."""
-        from services.sim.drive_job import DriveJob
-        from services.sim.world import plan_path
+        from vrsim.services.sim.drive_job import DriveJob
+        from vrsim.services.sim.world import plan_path
 
         clock = time.perf_counter()
         self.planned = plan_path(scenario)
@@ -67,7 +67,7 @@ class DriveWorker:
         """Yield ``(time_s, s_m, speed_m_s)`` of each part as SUMO drives it; then set `sumo_s` (the
         drive's wall time in the worker, less the time its parts waited for room in the pipe). Raises the
         worker's `common.VrsimError`, or RuntimeError if it ended without a word (a bug or a kill)."""
-        from common import errors
+        from vrsim.common import errors
 
         while True:
             try:
@@ -120,11 +120,11 @@ def _enlarge(pipe, size_bytes: int) -> None:
 
 def _serve(stdin, stdout) -> None:
     """Drive the `DriveJob` that arrives on `stdin`, writing the messages above to `stdout`."""
-    from vehicle.driver import import_libsumo
+    from vrsim.vehicle.driver import import_libsumo
 
     import_libsumo()  # the heaviest import, done while the caller loads the scenario
-    from common import VrsimError
-    from services.sim import drive_job  # noqa: F401 - the job's classes, before it arrives
+    from vrsim.common import VrsimError
+    from vrsim.services.sim import drive_job  # noqa: F401 - the job's classes, before it arrives
 
     def send(message) -> None:
         pickle.dump(message, stdout, protocol=pickle.HIGHEST_PROTOCOL)

@@ -38,16 +38,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AppliedColumns, ColumnDeposit
-from services.sim.accounting import cells_in_field, map_figures
-from services.sim.machines import Machine, machine_for
-from services.sim.metrics import MapMetrics
-from services.sim.result import RunResult
-from services.sim.section_landing import StripPlan, tick_travel_m
-from services.sim.sections import SectionStates, run_section_states
-from services.sim.sections.motion import MotionTrend
-from services.sim.world import World
-from vehicle.product import metered_kg
+from vrsim.maps import AppliedColumns, ColumnDeposit
+from vrsim.services.sim.accounting import cells_in_field, map_figures
+from vrsim.services.sim.machines import Machine, machine_for
+from vrsim.services.sim.metrics import MapMetrics
+from vrsim.services.sim.result import RunResult
+from vrsim.services.sim.section_landing import StripPlan, tick_travel_m
+from vrsim.services.sim.sections import SectionStates, run_section_states
+from vrsim.services.sim.sections.motion import MotionTrend
+from vrsim.services.sim.world import World
+from vrsim.vehicle.product import metered_kg
 
 CAUSES = ("geometry and section control", "spread pattern", "machine limits", "calibration", "metering")
 # The reference meters (`reference_metered_kg`): (shaft clipped to its range, the product's truth).

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError
-from maps import Grid, PointLog, grid_from_bounds, utm_crs_for
-from maps.crs import WGS84, transform_xy
-from maps.log_records import SESSION_GAP_S
-from maps.units import base_unit, convert_rate, is_rate_unit, rate_unit
-from services.sim.metrics import (
+from vrsim.common import MapError
+from vrsim.maps import Grid, PointLog, grid_from_bounds, utm_crs_for
+from vrsim.maps.crs import WGS84, transform_xy
+from vrsim.maps.log_records import SESSION_GAP_S
+from vrsim.maps.units import base_unit, convert_rate, is_rate_unit, rate_unit
+from vrsim.services.sim.metrics import (
     OUTLIER_MULTIPLE,
     POINT_METRICS,
     STANDSTILL_M_S,

@@ -28,14 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, VrsimError
-from controller import build_loop
-from maps.log_records import MachineRecords
-from services.sim.as_run import resolved_controller
-from services.sim.core import machine_plant
-from services.sim.replay import Replay, figures, replay_records, working_point_grid
-from services.sim.scenario import Scenario
-from vehicle.response import MachineResponse
+from vrsim.common import ScenarioError, VrsimError
+from vrsim.controller import build_loop
+from vrsim.maps.log_records import MachineRecords
+from vrsim.services.sim.as_run import resolved_controller
+from vrsim.services.sim.core import machine_plant
+from vrsim.services.sim.replay import Replay, figures, replay_records, working_point_grid
+from vrsim.services.sim.scenario import Scenario
+from vrsim.vehicle.response import MachineResponse
 
 __all__ = ["FIT_PARAMS", "FitParam", "MachineFit", "fit_machine", "fragment_text", "time_constants"]
 
@@ -235,7 +235,7 @@ def _base(scenario: Scenario, records: MachineRecords) -> Scenario:
 
 
 def _grid_for(scenario: Scenario, records: MachineRecords):
-    from maps.units import convert_rate
+    from vrsim.maps.units import convert_rate
     rate = convert_rate(records.target, records.unit or "kg/ha", "kg/ha", scenario.product.density_kg_l)
     return working_point_grid(records, rate)
 
@@ -338,8 +338,8 @@ def _t63(y: np.ndarray, period_s: float) -> float:
 
 def fragment_text(fit: MachineFit, source: str) -> str:
     """``machine_fit.toml``: the fitted machine as a fragment of scenario tables (`--machine FILE`)."""
-    from services.sim.machines.keys import implement_table
-    from services.sim.scenario_toml import toml_value
+    from vrsim.services.sim.machines.keys import implement_table
+    from vrsim.services.sim.scenario_toml import toml_value
 
     sc = fit.scenario
     implement = {k: v for k, v in implement_table(sc.implement).items()

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.sim.transitions import rate_steps
+from vrsim.services.sim.transitions import rate_steps
 
 TIMESERIES_WINDOW_S = 60.0   # timeseries.png's minute ...
 TIMESERIES_BEFORE_S = 10.0   # ... from this long before the first rate step (else the run's start)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import Grid
+from vrsim.maps import Grid
 
 MIN_STRIP_M = 0.01  # below 1 cm of travel in a tick (standing still) a tick's rate means nothing
 M2_PER_HA = 1e4

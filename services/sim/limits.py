@@ -43,8 +43,8 @@ import math
 
 import numpy as np
 
-from services.sim.machines import machine_for
-from services.sim.machines.check import (
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.machines.check import (
     RATES_FROM_CELLS,
     RATES_FROM_ZONES,
     MachineCheck,
@@ -52,7 +52,7 @@ from services.sim.machines.check import (
     rate_text,
     shaft_check,
 )
-from vehicle import DriveConfig, Implement
+from vrsim.vehicle import DriveConfig, Implement
 
 __all__ = ["RATES_FROM_CELLS", "RATES_FROM_ZONES", "ZONE_RATE_RTOL", "MachineCheck", "check_units",
            "machine_check", "rate_text", "shaft_check", "working_speeds"]

@@ -30,10 +30,10 @@ import math
 
 import numpy as np
 
-from controller import ControllerConfig, PlantParams
-from controller.config import LOOK_AHEAD_AUTO, LOOK_AHEAD_MAX_S
-from services.sim.scenario import Scenario
-from services.sim.transitions import rate_steps
+from vrsim.controller import ControllerConfig, PlantParams
+from vrsim.controller.config import LOOK_AHEAD_AUTO, LOOK_AHEAD_MAX_S
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.transitions import rate_steps
 
 TUNE_WINDOW_S = 3.0           # a step is measured over this long after it
 TUNE_MIN_CHANGE = 0.05        # target change below this share of the larger level: not measured
@@ -43,7 +43,7 @@ TUNE_MIN_CHANGE_RPM = 1.0     # ... or below this many rpm
 def _loop_lag_s(plant: PlantParams, cfg: ControllerConfig, control_period_s: float,
                plant_step_s: float) -> float:
     """The loop's mean lag behind its target [s] (`controller.response.ResponseTime.look_ahead_s`)."""
-    from controller.response import response_time
+    from vrsim.controller.response import response_time
 
     return response_time(plant, cfg, control_period_s, plant_step_s).look_ahead_s
 

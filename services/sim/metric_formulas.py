@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from services.sim.transitions import transitions
+from vrsim.services.sim.transitions import transitions
 
 COVERED_FRACTION = 0.9  # swept share of a cell's area above which it counts as covered
 

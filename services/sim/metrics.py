@@ -61,10 +61,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from operator import attrgetter
 
-from maps.log_records import SESSION_GAP_S
-from services.sim.accounting import Accounts
-from services.sim.machines import machine_for
-from services.sim.metric_formulas import (
+from vrsim.maps.log_records import SESSION_GAP_S
+from vrsim.services.sim.accounting import Accounts
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.metric_formulas import (
     COVERED_FRACTION,
     OUTLIER_MULTIPLE,
     STANDSTILL_M_S,
@@ -80,9 +80,9 @@ from services.sim.metric_formulas import (
     point_metrics,
     within_band,
 )
-from services.sim.rate_units import RATE_UNIT, rate_key
-from services.sim.spread_pattern import cv_pct, effective_width_m
-from services.sim.transitions import MIN_EVENTS
+from vrsim.services.sim.rate_units import RATE_UNIT, rate_key
+from vrsim.services.sim.spread_pattern import cv_pct, effective_width_m
+from vrsim.services.sim.transitions import MIN_EVENTS
 
 __all__ = ["COVERED_FRACTION", "Metric", "METRICS", "summary", "RATE_UNIT", "rate_key", "in_rate_unit",
            "MapMetrics", "map_metrics", "within_band", "OverlapMetrics", "overlap_metrics", "LimitMetrics",

@@ -14,8 +14,8 @@ import tomllib
 from collections.abc import Iterable
 from typing import Any
 
-from common import ScenarioError, files
-from common.toml_text import loads_toml
+from vrsim.common import ScenarioError, files
+from vrsim.common.toml_text import loads_toml
 
 Override = tuple[str, Any]
 

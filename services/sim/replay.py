@@ -24,19 +24,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError
-from maps import Grid
-from maps.crs import transform_xy
-from maps.grid import grid_from_bounds
-from maps.log_records import MachineRecords
-from maps.units import base_unit, convert_rate, rate_kind
-from services.sim.core import ControlCore, machine_plant
-from services.sim.evaluate import distance_along_m
-from services.sim.metrics import STANDSTILL_M_S  # the cut-off `vrsim evaluate` leaves records out by
-from services.sim.scenario import Scenario
-from services.sim.sections import SectionStates
-from services.sim.sections.motion import MotionTrend
-from services.sim.transitions import EVENTS, transitions
+from vrsim.common import ScenarioError
+from vrsim.maps import Grid
+from vrsim.maps.crs import transform_xy
+from vrsim.maps.grid import grid_from_bounds
+from vrsim.maps.log_records import MachineRecords
+from vrsim.maps.units import base_unit, convert_rate, rate_kind
+from vrsim.services.sim.core import ControlCore, machine_plant
+from vrsim.services.sim.evaluate import distance_along_m
+from vrsim.services.sim.metrics import STANDSTILL_M_S  # the cut-off `vrsim evaluate` leaves records out by
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.sections.motion import MotionTrend
+from vrsim.services.sim.transitions import EVENTS, transitions
 
 __all__ = ["EVENT_CLASSES", "Replay", "compare_to_log", "event_figures", "figures", "replay_records",
            "working_point_grid"]

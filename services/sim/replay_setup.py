@@ -14,13 +14,13 @@ import math
 
 import numpy as np
 
-from common import ScenarioError
-from maps.log_records import MachineRecords
-from maps.units import convert_rate, rate_kind
-from services.sim.overrides import Override
-from services.sim.scenario import Scenario, parse, read
-from services.sim.scenario_toml import to_toml
-from vehicle.sprayer import NOZZLE_FLOW_L_MIN, boom_flow_l_min
+from vrsim.common import ScenarioError
+from vrsim.maps.log_records import MachineRecords
+from vrsim.maps.units import convert_rate, rate_kind
+from vrsim.services.sim.overrides import Override
+from vrsim.services.sim.scenario import Scenario, parse, read
+from vrsim.services.sim.scenario_toml import to_toml
+from vrsim.vehicle.sprayer import NOZZLE_FLOW_L_MIN, boom_flow_l_min
 
 __all__ = ["replay_scenario"]
 

@@ -36,12 +36,12 @@ from __future__ import annotations
 
 import dataclasses
 
-from common import ControllerError, ScenarioError
-from controller import ControllerConfig, PlantParams, gains_from_source, resolve_gains
-from controller.config import LOOK_AHEAD_AUTO, PID_KINDS, USER_KIND
-from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.scenario import Scenario
-from services.sim.scenario_toml import as_dict
+from vrsim.common import ControllerError, ScenarioError
+from vrsim.controller import ControllerConfig, PlantParams, gains_from_source, resolve_gains
+from vrsim.controller.config import LOOK_AHEAD_AUTO, PID_KINDS, USER_KIND
+from vrsim.services.sim.look_ahead import initial_look_ahead_s
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.scenario_toml import as_dict
 
 # Kinds whose parameter None means "the plant's sensor delay" (see each kind's params dataclass).
 SENSOR_DELAY_KEYS = {"smith": "model_delay_s", "ff_pi": "reference_delay_s"}

@@ -10,18 +10,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from maps import AsApplied
-from services.sim import ticks
-from services.sim.accounting import Accounts
-from services.sim.aslog import run_point_log
-from services.sim.display import run_summary
-from services.sim.kept import Kept, PathPoints, SeriesWindow
-from services.sim.landing import Landing
-from services.sim.limits import MachineCheck
-from services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
-from services.sim.sections import SectionStates
-from services.sim.transitions import TransitionMetrics
-from services.sim.world import World
+from vrsim.maps import AsApplied
+from vrsim.services.sim import ticks
+from vrsim.services.sim.accounting import Accounts
+from vrsim.services.sim.aslog import run_point_log
+from vrsim.services.sim.display import run_summary
+from vrsim.services.sim.kept import Kept, PathPoints, SeriesWindow
+from vrsim.services.sim.landing import Landing
+from vrsim.services.sim.limits import MachineCheck
+from vrsim.services.sim.metrics import LimitMetrics, MapMetrics, OverlapMetrics
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.transitions import TransitionMetrics
+from vrsim.services.sim.world import World
 
 __all__ = ["RunResult"]
 

@@ -21,16 +21,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ScenarioError, files
-from controller import ControllerConfig
-from services.sim.accounting import StageTimer, cells_in_field, check_world
-from services.sim.bounded import BoundedAccount
-from services.sim.core import ControlCore
-from services.sim.resolve import as_run
-from services.sim.result import RunResult
-from services.sim.scenario import Scenario
-from services.sim.world import World, build_world, driving
-from vehicle import Gnss, SpeedSensor
+from vrsim.common import ScenarioError, files
+from vrsim.controller import ControllerConfig
+from vrsim.services.sim.accounting import StageTimer, cells_in_field, check_world
+from vrsim.services.sim.bounded import BoundedAccount
+from vrsim.services.sim.core import ControlCore
+from vrsim.services.sim.resolve import as_run
+from vrsim.services.sim.result import RunResult
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.world import World, build_world, driving
+from vrsim.vehicle import Gnss, SpeedSensor
 
 # `cells_in_field` and `check_world` are the accounting's; `vrsim run --check` and the benchmarks
 # import them from here, with the run's other public names.

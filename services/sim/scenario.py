@@ -22,21 +22,21 @@ import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from common import MapError, ScenarioError, files, is_number
-from common.toml_text import loads_toml
-from controller import ControllerConfig, PlantParams
-from controller.config import PID_KINDS
-from maps import synthetic
-from maps.units import UNIT_SYSTEMS, rate_unit
-from services.sim.machines.keys import changed_implement, implement_from_table
-from services.sim.overrides import Override
-from services.sim.overrides import apply as apply_overrides
-from services.sim.tables import build, no_unknown, typed, with_units
-from vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
-from vehicle.driver import MAX_SEED, STEP_RANGE_S
-from vehicle.field import SLIVER_M2
-from vehicle.product import Product
-from vehicle.response import MachineResponse
+from vrsim.common import MapError, ScenarioError, files, is_number
+from vrsim.common.toml_text import loads_toml
+from vrsim.controller import ControllerConfig, PlantParams
+from vrsim.controller.config import PID_KINDS
+from vrsim.maps import synthetic
+from vrsim.maps.units import UNIT_SYSTEMS, rate_unit
+from vrsim.services.sim.machines.keys import changed_implement, implement_from_table
+from vrsim.services.sim.overrides import Override
+from vrsim.services.sim.overrides import apply as apply_overrides
+from vrsim.services.sim.tables import build, no_unknown, typed, with_units
+from vrsim.vehicle import DriveConfig, GnssConfig, Implement, SpeedSensorConfig
+from vrsim.vehicle.driver import MAX_SEED, STEP_RANGE_S
+from vrsim.vehicle.field import SLIVER_M2
+from vrsim.vehicle.product import Product
+from vrsim.vehicle.response import MachineResponse
 
 BUILTIN_DIR = os.path.join(os.path.dirname(os.path.abspath(__file__)), "scenarios")
 SYNTHETIC_KINDS = ("uniform", "zones", "gradient", "random_field", "checkerboard", "zones_gradient")

@@ -11,9 +11,9 @@ import os
 import re
 from typing import Any
 
-from common import ScenarioError
-from services.sim.machines.keys import implement_table
-from services.sim.scenario import TABLES, Scenario
+from vrsim.common import ScenarioError
+from vrsim.services.sim.machines.keys import implement_table
+from vrsim.services.sim.scenario import TABLES, Scenario
 
 __all__ = ["as_dict", "to_toml", "toml_value"]
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import AsApplied, ColumnDeposit, Grid, Strips
-from services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
+from vrsim.maps import AsApplied, ColumnDeposit, Grid, Strips
+from vrsim.services.sim.sections import Poses, SectionStates, fill_outlines, runs_of
 
 # The strips' API (`section_strips` for a run's strips with their masses, as the benchmarks and the
 # tests call it; `StripPlan` for the plan the machine kinds deposit through; `tick_travel_m`,

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import VrsimError
-from vehicle.spinner import SpinnerSpec, TransversePattern
+from vrsim.common import VrsimError
+from vrsim.vehicle.spinner import SpinnerSpec, TransversePattern
 
 __all__ = ["CV_LIMIT_PCT", "OVERLAP_MODES", "TrayTest", "catch_tray_test", "cv_pct", "effective_width_m",
            "overlapped"]
@@ -177,7 +177,7 @@ def catch_tray_test(spec: SpinnerSpec, pattern: TransversePattern, driving_width
     driving_width_m, tray_width_m : float
         Distance between the passes and each tray's width across them, m (0 < tray <= driving).
     """
-    from maps import ColumnDeposit, SpinnerThrow, synthetic
+    from vrsim.maps import ColumnDeposit, SpinnerThrow, synthetic
 
     w, tray = float(driving_width_m), float(tray_width_m)
     if not (math.isfinite(tray) and 0 < tray <= w):

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import time
 
-from services.sim.accounting import StageTimer
-from services.sim.bounded import BoundedAccount
-from services.sim.drive_worker import PART_TICKS, DriveWorker
-from services.sim.run import RunResult, start_up
-from services.sim.scenario import Scenario
-from services.sim.world import build_world
-from vehicle import track_on_path
+from vrsim.services.sim.accounting import StageTimer
+from vrsim.services.sim.bounded import BoundedAccount
+from vrsim.services.sim.drive_worker import PART_TICKS, DriveWorker
+from vrsim.services.sim.run import RunResult, start_up
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.world import build_world
+from vrsim.vehicle import track_on_path
 
 
 def run_streamed(scenario: Scenario, progress=None, worker: DriveWorker | None = None,

@@ -10,8 +10,8 @@ import dataclasses
 import math
 import re
 
-from common import ScenarioError, VrsimError
-from maps.units import KEY_UNITS, key_unit, quantity_in
+from vrsim.common import ScenarioError, VrsimError
+from vrsim.maps.units import KEY_UNITS, key_unit, quantity_in
 
 
 def _where(section: str) -> str:

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from common import VrsimError
-from common.section_masks import section_mask_codes
+from vrsim.common import VrsimError
+from vrsim.common.section_masks import section_mask_codes
 
 # The columns by their source, in table order (docs/api.md lists them as `tick_columns` does).
 TRACK_COLUMNS = ("time_s", "x_m", "y_m", "heading_rad", "speed_m_s", "implement_on", "s_m", "segment_index")
@@ -66,7 +66,7 @@ def tick_columns(result) -> dict[str, np.ndarray]:
     if result.bounded:
         raise VrsimError("this run was accounted part by part (run_streamed, `vrsim run`) and kept no "
                          "per-tick arrays: read its track.parquet (pandas.read_parquet), or run it with "
-                         "services.sim.run")
+                         "vrsim.services.sim.run")
     track, control, landing = result.track, result.control, result.landing
     cols = {name: np.asarray(track[name]) for name in TRACK_COLUMNS if name in track}
     cols.update(measured_x_m=result.measured_x_m, measured_y_m=result.measured_y_m,

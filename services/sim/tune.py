@@ -32,18 +32,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError, ScenarioError
-from controller import ControllerConfig, PlantParams, build_controller
-from controller.analysis import LoopAnalysis
-from controller.config import PID_KINDS, USER_KIND
-from services.sim.analyze import loop_of, margin_warning
-from services.sim.as_run import resolved_controller
-from services.sim.compare import resolve_spec
-from services.sim.core import machine_plant, plant_for
-from services.sim.metrics import METRICS
-from services.sim.run import drive as drive_of
-from services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario
-from services.sim.variants import run_variants
+from vrsim.common import ControllerError, ScenarioError
+from vrsim.controller import ControllerConfig, PlantParams, build_controller
+from vrsim.controller.analysis import LoopAnalysis
+from vrsim.controller.config import PID_KINDS, USER_KIND
+from vrsim.services.sim.analyze import loop_of, margin_warning
+from vrsim.services.sim.as_run import resolved_controller
+from vrsim.services.sim.compare import resolve_spec
+from vrsim.services.sim.core import machine_plant, plant_for
+from vrsim.services.sim.metrics import METRICS
+from vrsim.services.sim.run import drive as drive_of
+from vrsim.services.sim.scenario import KIND_INDEPENDENT_KEYS, Scenario
+from vrsim.services.sim.variants import run_variants
 
 PID_TUNABLE = ("kp", "ki", "kd")   # the PID family's numeric keys (its gains are then "manual")
 TOP_LEVEL = ("look_ahead_s",)      # keys of [controller] itself that any kind can tune
@@ -276,7 +276,7 @@ def _field_runs(shared):
 
 def _replays(log, scenario: Scenario):
     """Candidates judged on a machine's log: each replays it with the scenario's machine."""
-    from services.sim.replay import replay_records
+    from vrsim.services.sim.replay import replay_records
 
     return lambda configs: [replay_records(log, dataclasses.replace(scenario, controller=c)).summary
                             for c in configs]
@@ -285,8 +285,8 @@ def _replays(log, scenario: Scenario):
 def _log_plant(log, scenario: Scenario) -> PlantParams:
     """The plant the machine's loops close on a replay of `log` (`services.sim.replay`): at the log's
     median positive target, as the replay's core sets its working point."""
-    from maps.units import convert_rate
-    from services.sim.replay import working_point_grid
+    from vrsim.maps.units import convert_rate
+    from vrsim.services.sim.replay import working_point_grid
 
     rate_kg_ha = convert_rate(log.target, log.unit or "kg/ha", "kg/ha", scenario.product.density_kg_l)
     return machine_plant(scenario, working_point_grid(log, rate_kg_ha))

@@ -38,18 +38,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import ControllerError, ScenarioError
-from controller import ControllerConfig, build_variant_loops
-from maps import AppliedColumns, ColumnDeposit
-from services.sim.accounting import Deposit, Setting, StageTimer, account
-from services.sim.core import OPENING_KEY, RUN_CHUNK, ControlCore, context_track, machine_plant
-from services.sim.display import run_summary
-from services.sim.landing import applied_rate_kg_ha, land
-from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.run import Drive, control_and_account
-from services.sim.scenario import Scenario
-from services.sim.section_landing import LimitedStrips, StripPlan, tick_travel_m
-from services.sim.sections import run_section_states
+from vrsim.common import ControllerError, ScenarioError
+from vrsim.controller import ControllerConfig, build_variant_loops
+from vrsim.maps import AppliedColumns, ColumnDeposit
+from vrsim.services.sim.accounting import Deposit, Setting, StageTimer, account
+from vrsim.services.sim.core import OPENING_KEY, RUN_CHUNK, ControlCore, context_track, machine_plant
+from vrsim.services.sim.display import run_summary
+from vrsim.services.sim.landing import applied_rate_kg_ha, land
+from vrsim.services.sim.look_ahead import initial_look_ahead_s
+from vrsim.services.sim.run import Drive, control_and_account
+from vrsim.services.sim.scenario import Scenario
+from vrsim.services.sim.section_landing import LimitedStrips, StripPlan, tick_travel_m
+from vrsim.services.sim.sections import run_section_states
 
 # Variants run as one loop batch: more cut the loop's Python work per variant (256: about a quarter
 # less than 128), and hold more (their ticks x variants of floats, 0.36 GB for 256 on the default

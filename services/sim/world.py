@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common import MapError, ScenarioError, VehicleError, files
-from maps import Grid, read_map, synthetic
-from maps.units import rate_kind
-from services.sim.drive_job import DriveJob
-from services.sim.resolve import as_run
-from services.sim.scenario import Scenario, product_density_kg_l
-from vehicle import CoveragePath, Field, plan_coverage
-from vehicle.field import SLIVER_M2
+from vrsim.common import MapError, ScenarioError, VehicleError, files
+from vrsim.maps import Grid, read_map, synthetic
+from vrsim.maps.units import rate_kind
+from vrsim.services.sim.drive_job import DriveJob
+from vrsim.services.sim.resolve import as_run
+from vrsim.services.sim.scenario import Scenario, product_density_kg_l
+from vrsim.vehicle import CoveragePath, Field, plan_coverage
+from vrsim.vehicle.field import SLIVER_M2
 
 MAP_MARGIN_M = 30.0  # synthetic maps extend this far beyond the field, so look-ahead stays on the map
 # Memory of a run accounted part by part (`services.sim.bounded`, `vrsim run`), measured on the huge
@@ -72,7 +72,7 @@ def field_from_map(path: str, crs=None, layer: str | None = None, sliver_m2: flo
     VehicleError
         A union of several parts, or one over the field caps.
     """
-    from maps.zone_table import is_zone_file, read_zone_table
+    from vrsim.maps.zone_table import is_zone_file, read_zone_table
 
     if not os.path.exists(path):
         raise MapError(f"{path}: no such file or folder")

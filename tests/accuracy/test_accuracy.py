@@ -6,8 +6,8 @@ failure names it and prints the table of what moved.
 
 import pytest
 
-from services.sim import accuracy
 from tests.integration.test_services_support import without_clock
+from vrsim.services.sim import accuracy
 
 NAMES = accuracy.scenario_names()
 TIMING_KEYS = {"wall_time_s", "realtime_factor", "stage_s", "outputs_wall_s", "out_dir"}

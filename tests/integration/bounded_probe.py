@@ -12,8 +12,8 @@ import time
 
 
 def read(kind: str, path: str):
-    import maps
-    from vehicle import Field
+    from vrsim import maps
+    from vrsim.vehicle import Field
 
     if kind == "map":
         return maps.read_map(path)
@@ -26,9 +26,11 @@ def read(kind: str, path: str):
 
 
 def main() -> None:
-    import maps  # noqa: F401 - the imports are the baseline, not part of any case
-    import vehicle  # noqa: F401
-    from common import VrsimError
+    from vrsim import (
+        maps,  # noqa: F401 - the imports are the baseline, not part of any case
+        vehicle,  # noqa: F401
+    )
+    from vrsim.common import VrsimError
 
     with open(sys.argv[1]) as fh:
         cases = json.load(fh)

@@ -2,7 +2,7 @@
 
 import pytest
 
-from vehicle import Field, plan_coverage
+from vrsim.vehicle import Field, plan_coverage
 
 
 @pytest.fixture(scope="module")

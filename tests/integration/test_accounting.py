@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from controller import ControllerConfig
-from services.outputs.report import figures_table
-from services.outputs.summary import summary_json, summary_rows, text_summary
-from services.sim import metrics
-from services.sim.run import control_and_account, drive
-from services.sim.scenario import parse
-from services.sim.variants import run_variants
+from vrsim.controller import ControllerConfig
+from vrsim.services.outputs.report import figures_table
+from vrsim.services.outputs.summary import summary_json, summary_rows, text_summary
+from vrsim.services.sim import metrics
+from vrsim.services.sim.run import control_and_account, drive
+from vrsim.services.sim.scenario import parse
+from vrsim.services.sim.variants import run_variants
 
 FIELD = """
 name = "accounting"

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from services.aog.app_client import AppClient, AppProduct, pid_settings, rate_settings, relay_settings
+from vrsim.services.aog.app_client import AppClient, AppProduct, pid_settings, rate_settings, relay_settings
 
 pytestmark = pytest.mark.integration
 
@@ -34,7 +34,7 @@ def _free_port() -> int:
 
 def _serve(args: list[str], out_dir: str) -> tuple[subprocess.Popen, tuple, tuple, tuple]:
     modules, app, agio = (("127.0.0.1", _free_port()) for _ in range(3))
-    argv = [sys.executable, "-P", "-m", "services.cli", "serve", "aog-rc", *args,
+    argv = [sys.executable, "-P", "-m", "vrsim.services.cli", "serve", "aog-rc", *args,
             "--listen", f"127.0.0.1:{modules[1]}", "--app", f"127.0.0.1:{app[1]}",
             "--agio", f"127.0.0.1:{agio[1]}", "--out", out_dir]
     proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -86,12 +86,12 @@ def _hold(client: AppClient, seconds_sim: float, commands, until=None) -> bool:
 
 def _inprocess_step(target: float, control_type: int, seconds: float) -> list[tuple[int, float, float]]:
     """The same firmware on the same plant in process: (millis, target, applied) of each PID sample."""
-    from services.aog import pgn
-    from services.aog.firmware import LOOP_MS, DrivePlant, RateModule
-    from services.sim.core import machine_plant
-    from services.sim.machines import machine_for
-    from services.sim.scenario import load
-    from services.sim.world import build_world
+    from vrsim.services.aog import pgn
+    from vrsim.services.aog.firmware import LOOP_MS, DrivePlant, RateModule
+    from vrsim.services.sim.core import machine_plant
+    from vrsim.services.sim.machines import machine_for
+    from vrsim.services.sim.scenario import load
+    from vrsim.services.sim.world import build_world
 
     sc = load(None, [])
     world = build_world(sc)

@@ -14,8 +14,8 @@ import zipfile
 
 import pytest
 
-from common import files
 from tests.conftest import ROOT, VRSIM
+from vrsim.common import files
 
 EXTENSIONS = (".geojson", ".csv", ".xml", ".zip", ".shp", ".tif")
 MAX_SECONDS = 5.0
@@ -40,7 +40,7 @@ def write_boundary(path: str, ring: list, crs: str) -> None:
 
 
 def hostile_cases(folder: str) -> list:
-    import maps
+    from vrsim import maps
 
     cases = []
     for ext in EXTENSIONS:

@@ -51,7 +51,7 @@ def test_a_run_ten_times_longer_on_the_same_map_peaks_less_than_10_pct_higher(tm
 
 
 def test_the_track_is_parquet_by_default_and_csv_on_request_with_the_same_columns(tmp_path):
-    from services.outputs.track import TRACK_COLUMNS
+    from vrsim.services.outputs.track import TRACK_COLUMNS
 
     out = tmp_path / "both"
     done = subprocess.run([VRSIM, "run", QUICK, "--quiet", "--out", str(out), "--set",

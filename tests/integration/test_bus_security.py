@@ -171,7 +171,7 @@ def test_each_service_asks_only_what_it_needs(bus):
 
 
 def test_the_router_drops_bodies_over_the_cap_before_any_service_sees_them(bus):
-    from services.bus.security import MAX_BODY_BYTES
+    from vrsim.services.bus.security import MAX_BODY_BYTES
 
     s = bus.standins
     operator = bus.session("operator")

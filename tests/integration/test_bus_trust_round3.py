@@ -61,7 +61,7 @@ def net(tmp_path_factory):
     it, ``ctl/sub/evil.py`` (module code, then the class) in a subfolder."""
     folder = str(tmp_path_factory.mktemp("trust3"))
     files = write_field_files(folder)
-    import maps
+    from vrsim import maps
 
     grid = files["grid"]
     rng = np.random.default_rng(41)
@@ -103,7 +103,7 @@ def idle(net) -> dict:
 
 # ------------------------------------------------------------------------------------ map/rate
 def test_a_map_rate_batch_at_the_limit_gets_its_reply_through_the_router_and_beyond_it_an_error(net):
-    from services.bus import messages
+    from vrsim.services.bus import messages
 
     fine = net.fine
     rng = np.random.default_rng(7)

@@ -11,9 +11,9 @@ import subprocess
 
 import pytest
 
-from services.sim import run, scenario
-from services.sim.error_split import CAUSES, error_split
 from tests.conftest import ROOT, VRSIM
+from vrsim.services.sim import run, scenario
+from vrsim.services.sim.error_split import CAUSES, error_split
 
 QUICK = os.path.join(ROOT, "scenarios", "quick_rectangle.toml")
 

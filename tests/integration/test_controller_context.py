@@ -9,12 +9,12 @@ import sys
 import numpy as np
 import pytest
 
-from controller import ControllerConfig
-from services.sim import scenario
-from services.sim.run import control_and_account, drive
-from services.sim.variants import run_variants
 from tests.conftest import ROOT
 from tests.integration.test_variants import FIELD, assert_same_summary
+from vrsim.controller import ControllerConfig
+from vrsim.services.sim import scenario
+from vrsim.services.sim.run import control_and_account, drive
+from vrsim.services.sim.variants import run_variants
 
 # Two context-taking P controllers in one user file, over a base without memory.
 RECORDERS = '''

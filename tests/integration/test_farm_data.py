@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import rasterio
 
-import maps
-from services.outputs.write import write_outputs
-from services.sim import run, scenario
-from services.sim.metrics import METRICS, point_metrics
 from tests.conftest import VRSIM
+from vrsim import maps
+from vrsim.services.outputs.write import write_outputs
+from vrsim.services.sim import run, scenario
+from vrsim.services.sim.metrics import METRICS, point_metrics
 
 SCENARIO = """
 name = "farm"
@@ -213,8 +213,8 @@ def test_round_trip_run_timelog_evaluate(farm_run):
 def test_pictures_drawn_here_and_by_the_worker(farm_run, tmp_path):
     from PIL import Image
 
-    from services.outputs import plots
-    from services.outputs.plot_worker import PlotWorker
+    from vrsim.services.outputs import plots
+    from vrsim.services.outputs.plot_worker import PlotWorker
 
     result, out = farm_run
     worker = PlotWorker().start()
@@ -242,8 +242,8 @@ class _EndsItsProcess:
 def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_ends(tmp_path):
     from PIL import Image
 
-    from services.outputs.plot_worker import PlotWorker
-    from services.outputs.plots import SeriesPicture
+    from vrsim.services.outputs.plot_worker import PlotWorker
+    from vrsim.services.outputs.plots import SeriesPicture
 
     t = np.arange(0.0, 60.0, 0.05)
     series = SeriesPicture(t, 100 + 0 * t, 99 + 0 * t, 150 + 0 * t, 149 + 0 * t, "a minute", "kg/ha")
@@ -270,8 +270,8 @@ def test_plot_worker_draws_each_job_in_its_own_process_and_survives_one_that_end
 def test_a_reply_nobody_asked_for_yet_does_not_hold_up_the_next_drawing(tmp_path):
     """A PNG drawn into memory is larger than the pipe: the worker must not wait for the caller's
     `result` before it takes the next job (map.png waited for the run's other files so)."""
-    from services.outputs.plot_worker import PlotWorker
-    from services.outputs.plots import SeriesPicture
+    from vrsim.services.outputs.plot_worker import PlotWorker
+    from vrsim.services.outputs.plots import SeriesPicture
 
     t = np.arange(0.0, 60.0, 0.05)
     noisy = SeriesPicture(t, 100 + 10 * np.sin(t), 99 + 10 * np.cos(3 * t), 150 + 0 * t, 149 + 0 * t,

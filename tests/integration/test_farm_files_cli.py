@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from maps import Grid, read_map, write_map
 from tests.conftest import VRSIM
+from vrsim.maps import Grid, read_map, write_map
 
 DEERE = os.path.join("data", "asapplied", "jd-gen4-application-point-onehertz.zip")
 LAYERS = ("Tank Mix Rate-Tank Mix", "Seeding-Corn", "Harvest-Yield", "Application-Product2")
@@ -149,7 +149,7 @@ def test_convert_writes_a_zipped_shapefile_prescription_read_back_by_vrsim_and_p
 def test_evaluate_field_from_kml_with_a_hole_and_bad_kml(shared_dir, tmp_path):
     """`--field` a KML around every point of the Deere export with a hole over its southern half: about
     half the points are compared; a KML with no polygon exits 2 naming the file."""
-    import maps
+    from vrsim import maps
 
     path = os.path.join(shared_dir, DEERE)
     log = maps.read_point_log(path)

@@ -11,8 +11,8 @@ import pyproj
 import pytest
 import shapely
 
-from maps.zone_rx import write_zone_rx
 from tests.conftest import VRSIM
+from vrsim.maps.zone_rx import write_zone_rx
 
 SCENARIO = """name = "rx"
 [field]

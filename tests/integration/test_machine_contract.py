@@ -25,11 +25,11 @@ import warnings
 import numpy as np
 import pytest
 
-from services.sim.machines import machine_for, machine_kinds
-from services.sim.machines.registry import MACHINES
-from services.sim.run import run
-from services.sim.scenario import parse
-from vehicle.machines import SPECS
+from vrsim.services.sim.machines import machine_for, machine_kinds
+from vrsim.services.sim.machines.registry import MACHINES
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import parse
+from vrsim.vehicle.machines import SPECS
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 MASS_RTOL = 1e-9            # float sums over the raster's cells
@@ -175,11 +175,11 @@ TOY_RUN = """
 import json, sys, warnings
 import numpy as np
 import band_meter_kind  # registers the kind, as the doc says
-from maps.footprint import FOOTPRINTS
-from services.sim.machines.registry import MACHINES
-from services.sim.run import run
-from services.sim.scenario import parse
-from vehicle.machines import SPECS
+from vrsim.maps.footprint import FOOTPRINTS
+from vrsim.services.sim.machines.registry import MACHINES
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import parse
+from vrsim.vehicle.machines import SPECS
 
 warnings.simplefilter("ignore", RuntimeWarning)
 result = run(parse(sys.stdin.read(), source="band_meter.toml"))

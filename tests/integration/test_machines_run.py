@@ -12,9 +12,9 @@ import os
 import numpy as np
 import pytest
 
-from services.sim.machines import machine_for
-from services.sim.run import run
-from services.sim.scenario import load, with_changes
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, with_changes
 
 LIBRARY = os.path.join(os.path.dirname(os.path.dirname(__file__)), "accuracy", "scenarios")
 TURN_RADIUS_M = 20.0

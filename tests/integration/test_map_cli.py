@@ -7,8 +7,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from maps import read_map
 from tests.conftest import VRSIM
+from vrsim.maps import read_map
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "maps")
 TIF = os.path.join(DATA, "rx_utm32.tif")  # written by GDAL without a unit: given with --unit

@@ -7,8 +7,8 @@ import json
 import numpy as np
 from affine import Affine
 
-from maps import Grid, read_map, write_map
 from tests.integration.test_map_cli import KG_HA, TIF, vrsim
+from vrsim.maps import Grid, read_map, write_map
 
 
 def test_info_accepts_a_difference_raster_and_refuses_negative_rates(tmp_path):

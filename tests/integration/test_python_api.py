@@ -37,8 +37,8 @@ def test_a_runs_tick_table_round_trips_through_parquet_and_says_where_rates_are_
     import numpy as np
     import pandas as pd
 
-    from services.sim import load, run
-    from services.sim.landing import MIN_STRIP_M
+    from vrsim.services.sim import load, run
+    from vrsim.services.sim.landing import MIN_STRIP_M
 
     result = run(load(os.path.join(ROOT, "scenarios", "quick_rectangle.toml")))
     table = result.to_pandas()

@@ -8,9 +8,6 @@ import os
 import numpy as np
 import pytest
 
-from maps import read_map, read_taskdata_log
-from maps.units import convert_rate
-from services.sim import scenario as scenario_mod
 from tests.integration.test_rate_units import (
     LB_AC,
     SOUTH,
@@ -21,6 +18,9 @@ from tests.integration.test_rate_units import (
     vrsim,
     write_tif,
 )
+from vrsim.maps import read_map, read_taskdata_log
+from vrsim.maps.units import convert_rate
+from vrsim.services.sim import scenario as scenario_mod
 
 TKW_G = 320.0  # maize, g per thousand seeds
 SEEDS_AC = float(convert_rate(1.0, "seeds/ac", "kg/ha", seed_mass_g=TKW_G / 1000))  # kg/ha in one seed/ac
@@ -45,9 +45,9 @@ def test_default_machine_check_stays_in_kg_ha():
 
 
 def test_pictures_and_compare_show_the_maps_unit(tmp_path):
-    from services.outputs import compare as compare_out
-    from services.outputs import plots
-    from services.sim.compare import compare
+    from vrsim.services.outputs import compare as compare_out
+    from vrsim.services.outputs import plots
+    from vrsim.services.sim.compare import compare
 
     sc = scenario_mod.load(str(scenario(tmp_path, write_tif(tmp_path / "rx.tif", "lb/ac"))))
     comparison = compare(sc, ["pid", "ff_pi"])
@@ -152,7 +152,7 @@ def test_serve_map_of_a_unitless_file_without_unit_is_refused_in_one_line(tmp_pa
 
 
 def test_the_web_legend_reads_in_the_maps_unit():
-    from services.bus.web import picture
+    from vrsim.services.bus.web import picture
 
     info = {"min_rate_kg_ha": 100 * LB_AC, "max_rate_kg_ha": 150 * LB_AC, "rate_unit": "lbs/ac",
             "min_rate": 100.0, "max_rate": 150.0}
@@ -167,7 +167,7 @@ def test_the_web_legend_reads_in_the_maps_unit():
 
 
 def test_sweep_rows_and_report_in_the_maps_unit(tmp_path):
-    from services.outputs.sweep_results import _read_rows
+    from vrsim.services.outputs.sweep_results import _read_rows
 
     scenario(tmp_path, write_tif(tmp_path / "rx.tif", "lb/ac"), name="q")
     (tmp_path / "s.toml").write_text('scenarios = ["q.toml"]\nseeds = [1]\n[axes]\n'

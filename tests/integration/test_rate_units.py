@@ -13,9 +13,9 @@ import rasterio
 import shapefile
 from affine import Affine
 
-from maps import read_map, read_point_log, read_taskdata_log
-from maps.units import convert_rate
 from tests.conftest import VRSIM
+from vrsim.maps import read_map, read_point_log, read_taskdata_log
+from vrsim.maps.units import convert_rate
 
 LB_AC = float(convert_rate(1.0, "lb/ac", "kg/ha"))  # kg/ha in one lb/ac
 GAL_AC = float(convert_rate(1.0, "gal/ac", "L/ha"))  # L/ha in one gal/ac

@@ -11,11 +11,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-import maps
-from maps.pointlog import PointLog, read_point_log
-from maps.pointlog_write import write_points
-from services.sim.replay import EVENT_CLASSES
 from tests.conftest import VRSIM
+from vrsim import maps
+from vrsim.maps.pointlog import PointLog, read_point_log
+from vrsim.maps.pointlog_write import write_points
+from vrsim.services.sim.replay import EVENT_CLASSES
 
 ASAPPLIED = os.path.join("data", "asapplied")
 EACH_SECTION = os.path.join(ASAPPLIED, "jd-gen4-application-point-eachsection.zip")

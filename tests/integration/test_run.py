@@ -11,12 +11,12 @@ import pytest
 import rasterio
 from PIL import Image
 
-from maps import write_map
-from services.outputs.encode import dumps_text
-from services.sim import run, scenario
-from services.sim.core import ControlCore
-from services.sim.world import build_world
 from tests.conftest import VRSIM
+from vrsim.maps import write_map
+from vrsim.services.outputs.encode import dumps_text
+from vrsim.services.sim import run, scenario
+from vrsim.services.sim.core import ControlCore
+from vrsim.services.sim.world import build_world
 
 QUICK = """
 name = "quick"

@@ -5,14 +5,14 @@ the Python API's callers and the tests)."""
 import gc
 import os
 
-from services.cli.main import main
 from tests.conftest import ROOT
+from vrsim.services.cli.main import main
 
 QUICK = os.path.join(ROOT, "scenarios", "quick_rectangle.toml")
 
 
 def test_run_freezes_start_up_and_leaves_the_collector_as_it_found_it(tmp_path, monkeypatch):
-    import services.sim.streamed as streamed
+    import vrsim.services.sim.streamed as streamed
 
     seen = {}
     run_streamed = streamed.run_streamed

@@ -9,12 +9,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from services.outputs.encode import dumps
-from services.sim.as_run import as_run
-from services.sim.run import run
-from services.sim.scenario import load, with_changes
-from services.sim.scenario_toml import to_toml
 from tests.conftest import VRSIM
+from vrsim.services.outputs.encode import dumps
+from vrsim.services.sim.as_run import as_run
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, with_changes
+from vrsim.services.sim.scenario_toml import to_toml
 
 pytestmark = pytest.mark.integration
 

@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 import rasterio
 
-from common.section_masks import sections_from_masks
-from services.outputs.write import write_outputs
-from services.sim import accuracy, metrics
-from services.sim.error_split import error_split
-from services.sim.run import run
-from services.sim.scenario import load, parse, with_changes
-from services.sim.sections import switch_sections
 from tests.conftest import VRSIM
+from vrsim.common.section_masks import sections_from_masks
+from vrsim.services.outputs.write import write_outputs
+from vrsim.services.sim import accuracy, metrics
+from vrsim.services.sim.error_split import error_split
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, parse, with_changes
+from vrsim.services.sim.sections import switch_sections
 
 FIELD = """
 name = "{name}"

@@ -184,14 +184,14 @@ def test_a_viewer_changes_nothing_and_the_operator_reaches_every_key(net):
 
 
 def messages_run_start(run_id: str, text: str) -> bytes:
-    from services.bus.messages import RunStart
+    from vrsim.services.bus.messages import RunStart
 
     return RunStart(run_id, text, "forged.toml", "/", "lockstep", 1.0, 50).to_json()
 
 
 def forged_records(stream: str, run_id: str, ticks, value: float) -> bytes:
     """A batch of well-formed records with ``value`` in every float field."""
-    from services.bus.monitor import STREAMS
+    from vrsim.services.bus.monitor import STREAMS
 
     out = []
     for tick in ticks:

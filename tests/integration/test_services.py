@@ -155,7 +155,7 @@ def test_serve_one_service_refuses_a_scenario_it_would_ignore():
 
 
 def test_zenoh_reason_drops_rust_locations_anywhere():
-    from services.bus.config import zenoh_reason
+    from vrsim.services.bus.config import zenoh_reason
 
     exc = Exception("Can not create a new TCP listener bound to tcp/127.0.0.1:7448: [127.0.0.1:7448: "
                     "Address already in use (os error 98) at /root/.cargo/x/src/tcp.rs:61.]")
@@ -164,8 +164,8 @@ def test_zenoh_reason_drops_rust_locations_anywhere():
 
 
 def test_monitor_db_whose_folder_cannot_be_made_is_a_clear_error(tmp_path):
-    from common import ServiceError
-    from services.bus.monitor import MonitorStore
+    from vrsim.common import ServiceError
+    from vrsim.services.bus.monitor import MonitorStore
 
     (tmp_path / "file").write_text("")
     with pytest.raises(ServiceError, match=r"--db .*/file/sub/m\.sqlite: cannot create its folder"):
@@ -267,7 +267,7 @@ def test_vrsim_report_from_the_monitor_database(net, tmp_path):
     for name in ("summary.json", "prescription.tif", "as_applied.tif", "error.tif", "track.parquet",
                  "map.png", "timeseries.png", "report.html", "as_applied_points.gpkg"):
         assert (out / name).is_file(), name
-    import maps
+    from vrsim import maps
 
     (timelog,) = maps.read_timelogs(out / "taskdata")
     assert timelog.records == math.floor(status["sim_time_s"]) + 1  # 1 Hz, from t = 0.05 s
@@ -371,10 +371,10 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     import importlib
     import types
 
-    import services.sim.drive_job
-    from services.bus import messages
-    from services.bus.config import Keys
-    from services.bus.vehicle import _VehicleService
+    import vrsim.services.sim.drive_job
+    from vrsim.services.bus import messages
+    from vrsim.services.bus.config import Keys
+    from vrsim.services.bus.vehicle import _VehicleService
 
     svc = _VehicleService(None, Keys(), lambda payload: None)
     sent = []
@@ -404,9 +404,10 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
     svc.session = types.SimpleNamespace(declare_querier=lambda key, timeout: querier)
     gnss = types.SimpleNamespace(fix=lambda t, x, y: (x, y))
     speed = types.SimpleNamespace(read=lambda t, v: v)
-    monkeypatch.setattr(services.sim.drive_job, "SumoDriver", Driver)
+    monkeypatch.setattr(vrsim.services.sim.drive_job, "SumoDriver", Driver)
     # The module: `services.sim.run` is the function (the package's API).
-    monkeypatch.setattr(importlib.import_module("services.sim.run"), "sensors", lambda sc: (gnss, speed))
+    run_module = importlib.import_module("vrsim.services.sim.run")
+    monkeypatch.setattr(run_module, "sensors", lambda sc: (gnss, speed))
     timing = types.SimpleNamespace(control_period_s=0.05, sumo_step_s=None, max_sim_time_s=100.0)
     scenario = types.SimpleNamespace(timing=timing, tractor=None, seed=1, source="s.toml")
     world = types.SimpleNamespace(scenario=scenario, path=None)
@@ -418,7 +419,7 @@ def test_stopped_run_counts_the_ticks_of_its_last_partial_batch(monkeypatch):
 def test_run_id_is_safe_in_a_selector_parameter():
     import zenoh
 
-    from services.bus.scenario import _new_run_id
+    from vrsim.services.bus.scenario import _new_run_id
 
     run_id = _new_run_id("north field; v2#b?", 3)
     assert re.fullmatch(r"north_field_v2_b_-\d{8}T\d{6}-\d+-3", run_id), run_id
@@ -432,12 +433,12 @@ def test_vehicle_service_stops_at_the_time_limit_of_vrsim_run(tmp_path):
     top speed (so the limit is not refused when the world is built), but takes 187 s with its turns."""
     import types
 
-    from common import ScenarioError
-    from services.bus import messages
-    from services.bus.config import Keys
-    from services.bus.vehicle import _VehicleService
-    from services.sim import run, scenario
-    from services.sim.world import build_world
+    from vrsim.common import ScenarioError
+    from vrsim.services.bus import messages
+    from vrsim.services.bus.config import Keys
+    from vrsim.services.bus.vehicle import _VehicleService
+    from vrsim.services.sim import run, scenario
+    from vrsim.services.sim.world import build_world
 
     path = tmp_path / "short.toml"
     path.write_text('[field]\nrectangle = { width_m = 40.0, length_m = 80.0, lat = 52.0, lon = 10.0 }\n'

@@ -43,8 +43,8 @@ def known_rates(rows: int, cols: int) -> np.ndarray:
 
 def write_field_files(folder: str) -> dict:
     """map.tif (EPSG:326xx, known cells) covering the field with a margin, and scenario.toml using it."""
-    import maps
-    from vehicle import Field
+    from vrsim import maps
+    from vrsim.vehicle import Field
 
     field = Field.rectangle(**FIELD)
     minx, miny, maxx, maxy = field.polygon.bounds

@@ -8,9 +8,9 @@ from __future__ import annotations
 import subprocess
 import threading
 
-from common import ScenarioError
 from tests.conftest import VRSIM
 from tests.integration.test_services_support import free_port, open_client
+from vrsim.common import ScenarioError
 
 
 def test_a_slow_reply_does_not_hold_up_the_other_keys_of_its_queryable(tmp_path):
@@ -25,7 +25,7 @@ def test_a_slow_reply_does_not_hold_up_the_other_keys_of_its_queryable(tmp_path)
 
 
 def serve_slow_and_fast(endpoint: str, router) -> None:
-    from services.bus.serving import Later, serve
+    from vrsim.services.bus.serving import Later, serve
 
     lines = [router.stderr.readline() for _ in range(2)]  # the --insecure warning, then "ready"
     assert b"ready" in lines[1], lines

@@ -15,13 +15,13 @@ import subprocess
 import numpy as np
 import pytest
 
-from controller import ControllerConfig
-from services.sim.error_split import CAUSES, error_split
-from services.sim.run import control_and_account, drive, run
-from services.sim.scenario import load, with_changes
-from services.sim.variants import run_variants
 from tests.conftest import VRSIM
 from tests.integration.test_machines_run import LIBRARY
+from vrsim.controller import ControllerConfig
+from vrsim.services.sim.error_split import CAUSES, error_split
+from vrsim.services.sim.run import control_and_account, drive, run
+from vrsim.services.sim.scenario import load, with_changes
+from vrsim.services.sim.variants import run_variants
 
 INTERIOR_MARGIN_M = 50.0   # the headland pass, the spread's reach and the throw kept out
 HAND_CV_PCT = np.sqrt(31 / 54 - 9 / 16) / 0.75 * 100   # triangles 1.5 x the driving width
@@ -76,7 +76,7 @@ def test_at_its_nominal_width_the_interior_is_within_10_pct_and_too_wide_stripes
 def test_a_spinner_driven_beyond_cv_15_pct_is_warned_with_the_width_that_meets_it(runs):
     """Above EN 13739's 15 % the summary and the report warn and name the driving width that meets it
     (the pattern's effective width: the triangle 36 m wide meets it at 24 m, its CV there 14.3 %)."""
-    from services.outputs.summary import text_summary, warnings
+    from vrsim.services.outputs.summary import text_summary, warnings
 
     limit, wide = runs["spinner_36m_at_24m"], runs["spinner_36m_at_30m"]
     assert warnings(limit.summary) == []
@@ -108,7 +108,7 @@ def test_a_kind_without_a_spread_pattern_has_no_spread_cv(path):
     effective width are null in the JSON and n/a in the text, never a flattering 0 %."""
     import json
 
-    from services.outputs.summary import summary_json, text_summary
+    from vrsim.services.outputs.summary import summary_json, text_summary
 
     result = run(load(path))
     data = json.loads(summary_json(result.summary))
@@ -185,7 +185,7 @@ def test_bad_machine_input_exits_2_with_one_line(tmp_path, change, message):
 
 
 def test_the_streamed_run_gives_the_in_process_runs_figures():
-    from services.sim.streamed import run_streamed
+    from vrsim.services.sim.streamed import run_streamed
 
     sc = with_changes(_scenario("spinner_36m_at_24m"), controller={"kind": "PID"})
     whole, parts = run(sc).summary, run_streamed(sc, ticks_per_part=3000).summary

@@ -17,12 +17,12 @@ import os
 import numpy as np
 import pytest
 
-from controller import ControllerConfig
-from services.sim.core import ControlCore
-from services.sim.run import control_and_account, drive, run
-from services.sim.scenario import load, with_changes
-from services.sim.sections import STEPS_KEY
-from services.sim.variants import run_variants
+from vrsim.controller import ControllerConfig
+from vrsim.services.sim.core import ControlCore
+from vrsim.services.sim.run import control_and_account, drive, run
+from vrsim.services.sim.scenario import load, with_changes
+from vrsim.services.sim.sections import STEPS_KEY
+from vrsim.services.sim.variants import run_variants
 
 ZONES = os.path.join(os.path.dirname(os.path.dirname(__file__)), "accuracy", "scenarios",
                      "zones_along_travel_gated_meter.toml")
@@ -67,7 +67,7 @@ def _same_figures(got: dict, want: dict) -> None:
 
 
 def test_the_streamed_run_gives_the_in_process_runs_figures():
-    from services.sim.streamed import run_streamed
+    from vrsim.services.sim.streamed import run_streamed
 
     sc = with_changes(_zones(), controller={"kind": "PID"})
     whole, parts = run(sc), run_streamed(sc, ticks_per_part=2500)

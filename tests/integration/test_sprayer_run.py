@@ -6,9 +6,9 @@ import os
 
 import pytest
 
-from services.sim.run import run
-from services.sim.scenario import load, with_changes
 from tests.integration.test_machines_run import LIBRARY, turn_rates_kg_ha
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, with_changes
 
 
 def test_pwm_turn_compensation_levels_a_20_m_turn_and_one_valve_follows_the_geometry():
@@ -27,7 +27,7 @@ def test_uan_under_flow_control_follows_its_map_within_the_nozzles_flows_of_it()
     orifice for UAN, applies the map (140-220 L/ha) in its own unit."""
     import math
 
-    from vehicle.sprayer import SprayerSpec
+    from vrsim.vehicle.sprayer import SprayerSpec
 
     result = run(load(os.path.join(LIBRARY, "sprayer_l_ha_geotiff.toml")))
     f = math.sqrt(1 / 1.28)
@@ -71,11 +71,11 @@ density_kg_l = 1.1
 def test_batched_variants_of_a_sprayer_equal_its_one_at_a_time_runs(control):
     """Sweeps' batched variants run the sprayer's flow loops (its plant, not the shaft's): each summary
     equals control_and_account's."""
-    from controller import ControllerConfig
-    from services.sim import scenario
-    from services.sim.run import control_and_account, drive
-    from services.sim.variants import run_variants
     from tests.integration.test_variants import assert_same_summary
+    from vrsim.controller import ControllerConfig
+    from vrsim.services.sim import scenario
+    from vrsim.services.sim.run import control_and_account, drive
+    from vrsim.services.sim.variants import run_variants
 
     shared = drive(scenario.parse(SPRAYER_FIELD.replace("CONTROL", control), "sprayer.toml", "."))
     cfgs = [ControllerConfig(kind="PID"), ControllerConfig(kind="PID", gains="manual", kp=0.2, ki=0.5),
@@ -115,7 +115,7 @@ def test_calibrating_the_flow_meter_brings_the_mass_balance_back_within_one_perc
 def test_the_error_split_puts_a_flow_meters_error_under_calibration():
     """The reference meters run in the sprayer's terms (L/min, litres x density): a meter reading 5 % high
     is the calibration part (about 1 - 1/1.05), the nozzles in range leave the machine limits near 0."""
-    from services.sim.error_split import error_split
+    from vrsim.services.sim.error_split import error_split
 
     result = run(load(os.path.join(LIBRARY, "sprayer_meter_error_5pct.toml")))
     parts = {p.cause: p for p in error_split(result)}

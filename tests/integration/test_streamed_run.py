@@ -8,13 +8,13 @@ import signal
 import numpy as np
 import pytest
 
-from common import ScenarioError
-from maps.pointlog import COLUMNS
-from services.outputs.encode import dumps
-from services.outputs.track import track_rows
-from services.sim.run import run
-from services.sim.scenario import load, with_changes
-from services.sim.streamed import DriveWorker, run_streamed
+from vrsim.common import ScenarioError
+from vrsim.maps.pointlog import COLUMNS
+from vrsim.services.outputs.encode import dumps
+from vrsim.services.outputs.track import track_rows
+from vrsim.services.sim.run import run
+from vrsim.services.sim.scenario import load, with_changes
+from vrsim.services.sim.streamed import DriveWorker, run_streamed
 
 pytestmark = pytest.mark.integration
 
@@ -87,7 +87,7 @@ def test_in_parts_a_drive_per_section_runs_as_in_process():
 
 
 def test_the_error_split_computed_beside_the_accounting_is_the_one_computed_after_it(quick_whole):
-    from services.sim.error_split import error_split
+    from vrsim.services.sim.error_split import error_split
 
     streamed = run_streamed(load(QUICK), error_split=True)
     assert streamed.reference_figures is not None
@@ -133,7 +133,7 @@ def test_a_drive_worker_killed_mid_drive_is_a_clear_error_and_no_orphan(monkeypa
                     self.proc.wait()
                 yield part
 
-    monkeypatch.setattr("services.sim.streamed.DriveWorker", Watched)
+    monkeypatch.setattr("vrsim.services.sim.streamed.DriveWorker", Watched)
     with pytest.raises(RuntimeError, match=r"drive worker .* ended before the drive did \(exit code -9\)"):
         run_streamed(load("default"))
     assert started[0].poll() == -9
@@ -144,7 +144,7 @@ def test_sumo_may_drive_parts_ahead_of_the_run():
     on each part's write while the run accounts a slow one."""
     import fcntl
 
-    from services.sim.drive_worker import PART_TICKS, PIPE_BYTES
+    from vrsim.services.sim.drive_worker import PART_TICKS, PIPE_BYTES
 
     worker = DriveWorker()
     try:
@@ -196,9 +196,9 @@ def test_sumo_s_is_sumos_time_not_the_time_its_parts_waited_for_the_run(monkeypa
     import io
     import pickle
 
-    from services.sim import drive_worker
-    from services.sim.drive_job import DriveJob
-    from services.sim.world import plan_path
+    from vrsim.services.sim import drive_worker
+    from vrsim.services.sim.drive_job import DriveJob
+    from vrsim.services.sim.world import plan_path
 
     sc = load(QUICK)
     job = pickle.dumps((DriveJob.of(sc, plan_path(sc)[1]), 500), protocol=pickle.HIGHEST_PROTOCOL)
@@ -225,9 +225,9 @@ def test_handing_sumo_its_job_does_not_wait_for_sumo_to_read_it():
     import pickle
     import threading
 
-    from services.sim.drive_job import DriveJob
-    from services.sim.drive_worker import PART_TICKS
-    from services.sim.world import plan_path
+    from vrsim.services.sim.drive_job import DriveJob
+    from vrsim.services.sim.drive_worker import PART_TICKS
+    from vrsim.services.sim.world import plan_path
 
     sc = load("default")
     job_bytes = len(pickle.dumps(DriveJob.of(sc, plan_path(sc)[1]), protocol=pickle.HIGHEST_PROTOCOL))
@@ -254,7 +254,7 @@ def _drive_workers(mark: bytes) -> set[int]:
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
             with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                if b"services.sim.drive_worker" not in fh.read():
+                if b"vrsim.services.sim.drive_worker" not in fh.read():
                     continue
             with open(f"/proc/{pid}/environ", "rb") as fh:
                 if mark in fh.read().split(b"\0"):
@@ -284,9 +284,9 @@ def test_vrsim_run_that_stops_early_leaves_no_drive_worker(args, code, says):
 
 
 def test_timeseries_drawn_as_the_run_goes_is_the_one_drawn_after_it(tmp_path):
-    from services.outputs import plots
-    from services.outputs.early import EarlyTimeseries
-    from services.outputs.plot_worker import PlotWorker
+    from vrsim.services.outputs import plots
+    from vrsim.services.outputs.early import EarlyTimeseries
+    from vrsim.services.outputs.plot_worker import PlotWorker
 
     worker = PlotWorker().start()
     early = EarlyTimeseries(worker)

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import shapely
 
-from common import ScenarioError, VehicleError
-from services.sim import scenario
-from services.sim.drive_job import DriveJob
 from tests.integration.test_vehicle_sumo import DRIVE
-from vehicle import Field, SumoDriver, plan_coverage, track_on_path
-from vehicle.track import ticks_between
+from vrsim.common import ScenarioError, VehicleError
+from vrsim.services.sim import scenario
+from vrsim.services.sim.drive_job import DriveJob
+from vrsim.vehicle import Field, SumoDriver, plan_coverage, track_on_path
+from vrsim.vehicle.track import ticks_between
 
 # The largest position difference a 100 ms SUMO step gave against the 50 ms drive over the accuracy
 # library was 0.75 m (bench/bench_sumo_step.py; docs/model.md, "SUMO's step"): far over the 1 cm the

@@ -13,8 +13,8 @@ import time
 
 import pytest
 
-from services.outputs.sweep_results import _read_rows, _write_parquet
 from tests.conftest import ROOT, VRSIM
+from vrsim.services.outputs.sweep_results import _read_rows, _write_parquet
 
 SCENARIO = """
 name = "sweep_quick"
@@ -281,8 +281,8 @@ def test_a_worker_that_dies_gets_its_task_retried_once_then_lost(tmp_path):
     """Real worker processes killed mid-task (os._exit in the task): once -> the retry succeeds;
     every time -> a lost result after the retry; a task that raises runs twice, then fails (not
     lost); the other tasks finish either way."""
-    from services.batch.driver import open_client, run_tasks
     from tests.integration.sweep_support import square_or_die
+    from vrsim.services.batch.driver import open_client, run_tasks
 
     items = [(1, "", ""), (2, "once", str(tmp_path / "died-once")), (3, "always", str(tmp_path / "x")),
              (4, "", ""), (5, "raise", str(tmp_path / "attempts"))]

@@ -11,9 +11,9 @@ import time
 
 import pytest
 
-from services.outputs.sweep_results import _read_rows
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_sweep import SCENARIO, _stop, vrsim
+from vrsim.services.outputs.sweep_results import _read_rows
 
 # Eight runs, one task per run (not all axes are controller.* keys), on a field long enough that a warm
 # worker takes about 0.8 s a run (test_sweep's 72 m x 150 m takes 0.07 s: all eight were done before

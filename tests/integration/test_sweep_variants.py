@@ -10,10 +10,10 @@ import subprocess
 
 import pytest
 
-from services.outputs.sweep_results import _read_rows
-from services.sim.sweep import load_sweep, plan, run_group, variant_groups
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_sweep import SCENARIO
+from vrsim.services.outputs.sweep_results import _read_rows
+from vrsim.services.sim.sweep import load_sweep, plan, run_group, variant_groups
 
 SWEEP = """
 scenarios = ["q.toml"]

@@ -3,7 +3,7 @@ without a [timing] table (the old fixed default stopped at 36,000 s of simulated
 
 import pytest
 
-from services.sim import run, scenario
+from vrsim.services.sim import run, scenario
 
 FIELD_500_HA = """
 name = "field_500ha"

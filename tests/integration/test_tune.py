@@ -9,10 +9,10 @@ import tomllib
 
 import pytest
 
-from services.sim import scenario
-from services.sim.run import run
 from tests.conftest import ROOT, VRSIM
 from tests.integration.test_variants import FIELD
+from vrsim.services.sim import scenario
+from vrsim.services.sim.run import run
 
 
 def vrsim(*args):

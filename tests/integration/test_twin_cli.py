@@ -135,8 +135,8 @@ def test_tune_on_a_log_prints_the_twins_figures(fitted, tmp_path):
 
 
 def test_a_fit_that_does_not_converge_exits_3_with_its_best_figures(tmp_path, monkeypatch, capsys):
-    from services.cli.main import main
-    from services.sim import fit
+    from vrsim.services.cli.main import main
+    from vrsim.services.sim import fit
 
     monkeypatch.setattr(fit, "MAX_EVALUATIONS", 2)   # the optimizer stops before it converges
     code = main(["fit", EACH_SECTION, "--out", str(tmp_path), "--json"])

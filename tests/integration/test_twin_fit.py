@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from maps.log_records import machine_records
-from maps.pointlog import PointLog, read_point_log
-from maps.pointlog_write import write_points
-from services.sim.fit import fit_machine
-from services.sim.replay import replay_records
-from services.sim.replay_setup import replay_scenario
+from vrsim.maps.log_records import machine_records
+from vrsim.maps.pointlog import PointLog, read_point_log
+from vrsim.maps.pointlog_write import write_points
+from vrsim.services.sim.fit import fit_machine
+from vrsim.services.sim.replay import replay_records
+from vrsim.services.sim.replay_setup import replay_scenario
 
 # The preset speed within what the nozzles' top pressure lets through (above it the flow is the same
 # for any preset: the log cannot tell them apart, and the fit says so).
@@ -64,7 +64,7 @@ def _true_machine_log(tmp_path, rate_hz: float) -> str:
 
 def fit_base_controller(records):
     """The default machine's controller with its gains scaled by the true loop gain."""
-    from services.sim import fit
+    from vrsim.services.sim import fit
 
     base = fit._base(replay_scenario(records), records)
     cfg = base.controller

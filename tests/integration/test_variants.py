@@ -6,10 +6,10 @@ import math
 
 import pytest
 
-from controller import ControllerConfig
-from services.sim import scenario
-from services.sim.run import control_and_account, drive
-from services.sim.variants import run_variants
+from vrsim.controller import ControllerConfig
+from vrsim.services.sim import scenario
+from vrsim.services.sim.run import control_and_account, drive
+from vrsim.services.sim.variants import run_variants
 
 FIELD = """
 name = "variants"

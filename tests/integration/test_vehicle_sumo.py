@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import shapely
 
-from common.errors import VehicleError
 from tests.conftest import ROOT
-from vehicle import DriveConfig, Field, SumoDriver, build_network, plan_coverage
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import DriveConfig, Field, SumoDriver, build_network, plan_coverage
 
 DATA = os.path.join(ROOT, "tests", "data", "vehicle")
 DRIVE = DriveConfig(working_speed_m_s=2.5, turn_speed_m_s=1.2, speed_variation_pct=5.0)

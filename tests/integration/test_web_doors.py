@@ -22,7 +22,6 @@ import time
 
 import pytest
 
-from services.bus.web.guard import HEAD_TIMEOUT_S, MAX_CONNECTIONS
 from tests.integration.test_web import (
     CHROMIUM,
     CHROMIUM_ARGS,
@@ -32,6 +31,7 @@ from tests.integration.test_web import (
     served_web,
     until,
 )
+from vrsim.services.bus.web.guard import HEAD_TIMEOUT_S, MAX_CONNECTIONS
 
 CROWD = MAX_CONNECTIONS + 476  # idle connections, more than the door keeps (1,500)
 LOGIN_DEADLINE_S = 60.0  # generous: the machine is shared

@@ -18,7 +18,6 @@ import time
 import psutil
 import pytest
 
-from services.bus.web.app import MAX_STREAMS
 from tests.conftest import VRSIM
 from tests.integration.test_services_support import ServeAll, free_port
 from tests.integration.test_web import (
@@ -30,6 +29,7 @@ from tests.integration.test_web import (
     served_web,
     until,
 )
+from vrsim.services.bus.web.app import MAX_STREAMS
 
 CROWD = 300  # stream clients at once in the memory test
 PAINT_S = 8.0  # of the built-in default run before the crowd comes

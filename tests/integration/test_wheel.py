@@ -62,14 +62,25 @@ def installed(tmp_path_factory):
 
 def test_the_wheel_ships_the_builtin_scenarios_and_no_tests(installed):
     names = zipfile.ZipFile(installed["wheel"]).namelist()
-    assert "services/sim/scenarios/default.toml" in names and "services/sim/scenarios/large.toml" in names
-    assert not [n for n in names if n.startswith("tests/")]
+    assert {"vrsim/services/sim/scenarios/default.toml", "vrsim/services/sim/scenarios/large.toml",
+            "vrsim/controller/data/fuzzy_pid_rules.toml",
+            "vrsim/services/bus/web_static/index.html"} <= set(names)
+    assert not [n for n in names if n.startswith(("tests/", "vrsim/tests/"))]
+
+
+def test_the_wheel_adds_one_top_level_package_vrsim(installed):
+    """Installed, the rooms are vrsim.common, vrsim.maps, ...: nothing named `common` or `services` lands in
+    a user's environment beside their own packages."""
+    names = zipfile.ZipFile(installed["wheel"]).namelist()
+    assert {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")} == {"vrsim"}
+    assert not [n for n in names if n.startswith("vrsim/__init__")]  # a namespace package
+    assert sorted(os.listdir(installed["site"])) == ["vrsim", "vrsim-0.1.0.dist-info", "vrsim-deps.pth"]
 
 
 def test_installed_vrsim_runs_the_builtin_default_from_any_folder(installed):
-    code = "import common, controller, maps, services.sim.scenario, vehicle as v; print(maps.__file__); " \
-           "print(services.sim.scenario.__file__); print(v.__file__); " \
-           "print(common.__file__, controller.__file__)"
+    code = "import vrsim.common as c, vrsim.controller as k, vrsim.services.sim.scenario as s\n" \
+           "from vrsim import maps, vehicle\n" \
+           "print(maps.__file__, s.__file__, vehicle.__file__, c.__file__, k.__file__)"
     where = sh(str(installed["python"]), "-c", code, cwd=installed["work"])
     files = where.stdout.split()
     assert len(files) == 5 and all(f.startswith(installed["site"]) for f in files), where  # not the checkout

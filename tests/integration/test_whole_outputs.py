@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from maps import Grid, write_map
 from tests.conftest import VRSIM
+from vrsim.maps import Grid, write_map
 
 QUICK = """
 name = "quick"

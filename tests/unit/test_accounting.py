@@ -4,8 +4,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from services.sim import accounting
-from services.sim.accounting import StageTimer
+from vrsim.services.sim import accounting
+from vrsim.services.sim.accounting import StageTimer
 
 
 @pytest.fixture

@@ -2,8 +2,8 @@ import json
 
 import pytest
 
-from common import ScenarioError
-from services.sim import accuracy
+from vrsim.common import ScenarioError
+from vrsim.services.sim import accuracy
 
 
 @pytest.fixture

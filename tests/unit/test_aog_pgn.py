@@ -4,12 +4,12 @@ app's side (`services.aog.app_client`); and the firmware emulation's rules in pr
 
 import pytest
 
-from services.aog import app_client, pgn
-from services.aog.firmware import COMM_TIMEOUT_MS, LOOP_MS, MOTOR, DrivePlant, RateModule
-from services.sim.core import machine_plant
-from services.sim.machines import machine_for
-from services.sim.scenario import load
-from services.sim.world import build_world
+from vrsim.services.aog import app_client, pgn
+from vrsim.services.aog.firmware import COMM_TIMEOUT_MS, LOOP_MS, MOTOR, DrivePlant, RateModule
+from vrsim.services.sim.core import machine_plant
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.scenario import load
+from vrsim.services.sim.world import build_world
 
 pytestmark = pytest.mark.unit
 

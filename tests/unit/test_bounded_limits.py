@@ -10,13 +10,13 @@ import numpy as np
 import orjson
 import pytest
 
-from common import MapError, ScenarioError, ServiceError, files
-from services.bus import messages
-from services.bus.serving import within
-from services.sim import scenario
-from services.sim.section_landing import section_strips
-from services.sim.sections import SectionStates
-from services.sim.world import build_world
+from vrsim.common import MapError, ScenarioError, ServiceError, files
+from vrsim.services.bus import messages
+from vrsim.services.bus.serving import within
+from vrsim.services.sim import scenario
+from vrsim.services.sim.section_landing import section_strips
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.world import build_world
 
 FIELD = '[field]\nrectangle = { width_m = 36.0, length_m = 60.0, lat = 52.1, lon = 11.6 }\n'
 MAP = '[map]\nsynthetic = "uniform"\n'
@@ -164,7 +164,7 @@ def test_within_refuses_work_that_takes_too_long_and_passes_errors_on():
 def test_max_input_mb_raises_every_cap_and_lowers_none():
     import argparse
 
-    from services.cli.options import apply_input_cap
+    from vrsim.services.cli.options import apply_input_cap
 
     before = dict(files.BYTE_CAPS)
     try:

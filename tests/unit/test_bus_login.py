@@ -8,9 +8,9 @@ import json
 
 import pytest
 
-from common import ServiceError
-from services.bus import security
-from services.bus.config import DEFAULT_ENDPOINT, ZenohOptions
+from vrsim.common import ServiceError
+from vrsim.services.bus import security
+from vrsim.services.bus.config import DEFAULT_ENDPOINT, ZenohOptions
 
 
 def entry(conf, path: str):

@@ -7,9 +7,9 @@ import stat
 
 import pytest
 
-from common import ServiceError
-from services.bus.config import ZenohOptions, _plain_beyond_loopback
-from services.bus.monitor import DEFAULT_DB_FOLDER, MonitorStore, _default_db
+from vrsim.common import ServiceError
+from vrsim.services.bus.config import ZenohOptions, _plain_beyond_loopback
+from vrsim.services.bus.monitor import DEFAULT_DB_FOLDER, MonitorStore, _default_db
 
 
 def _mode(path) -> int:

@@ -7,9 +7,9 @@ import stat
 
 import pytest
 
-from common import ServiceError
-from services.bus import security
-from services.bus.config import Keys
+from vrsim.common import ServiceError
+from vrsim.services.bus import security
+from vrsim.services.bus.config import Keys
 
 
 def mode(path: str) -> int:

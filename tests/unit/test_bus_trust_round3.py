@@ -10,12 +10,12 @@ import os
 import numpy as np
 import pytest
 
-from common import ControllerError, ServiceError
-from controller.kinds.python import check_defines_class
-from maps.units import MAX_UNIT_CHARS
-from services.bus import messages
-from services.bus.controller import _allowed_files
-from services.bus.security import MAX_BODY_BYTES, MESSAGE_OVERHEAD_BYTES
+from vrsim.common import ControllerError, ServiceError
+from vrsim.controller.kinds.python import check_defines_class
+from vrsim.maps.units import MAX_UNIT_CHARS
+from vrsim.services.bus import messages
+from vrsim.services.bus.controller import _allowed_files
+from vrsim.services.bus.security import MAX_BODY_BYTES, MESSAGE_OVERHEAD_BYTES
 
 ROUTER_MESSAGE_BYTES = MAX_BODY_BYTES + MESSAGE_OVERHEAD_BYTES  # what the router reassembles at most
 LONGEST_FLOAT = -2.2250738585072014e-308  # 24 characters in orjson's shortest round trip
@@ -130,9 +130,9 @@ def test_vrsim_query_waits_for_scenario_start_as_long_as_accepting_a_run_may_tak
     """scenario/start replies once the world is built (at most `BUILD_TIMEOUT_S`) and the services and
     a user's controller file are checked: `vrsim query` (its default), `serve all SCENARIO` and the web
     page wait `ACCEPT_TIMEOUT_S`, more than all of that; any other key answers at once."""
-    from services.bus import scenario
-    from services.bus.config import ACCEPT_TIMEOUT_S, QUERY_TIMEOUT_S, Keys
-    from services.cli.query import _default_timeout
+    from vrsim.services.bus import scenario
+    from vrsim.services.bus.config import ACCEPT_TIMEOUT_S, QUERY_TIMEOUT_S, Keys
+    from vrsim.services.cli.query import _default_timeout
 
     accepting = scenario.BUILD_TIMEOUT_S + scenario.CHECK_TIMEOUT_S + 3 * scenario.STATUS_TIMEOUT_S
     assert ACCEPT_TIMEOUT_S >= 1.25 * accepting

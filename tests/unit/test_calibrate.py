@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from common import ScenarioError, VrsimError
-from services.sim import scenario
-from services.sim.calibrate import _CATCH_STREAM, calibrate
-from vehicle.product import Product, _flow_factors
+from vrsim.common import ScenarioError, VrsimError
+from vrsim.services.sim import scenario
+from vrsim.services.sim.calibrate import _CATCH_STREAM, calibrate
+from vrsim.vehicle.product import Product, _flow_factors
 
 
 def cal5(**product):

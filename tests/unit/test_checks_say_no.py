@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 from pyproj import CRS
 
-from controller import ControllerConfig, PlantParams
-from controller.analysis import analyze_loop
-from maps import read_map
-from maps.units import convert_rate
-from services.sim.analyze import margin_warning
-from services.sim.limits import RATES_FROM_CELLS, RATES_FROM_ZONES, _map_rates, machine_check
-from vehicle import Implement
-from vehicle.driver import MAX_WORKING_SPEED_M_S
-from vehicle.sprayer import SprayerSpec
+from vrsim.controller import ControllerConfig, PlantParams
+from vrsim.controller.analysis import analyze_loop
+from vrsim.maps import read_map
+from vrsim.maps.units import convert_rate
+from vrsim.services.sim.analyze import margin_warning
+from vrsim.services.sim.limits import RATES_FROM_CELLS, RATES_FROM_ZONES, _map_rates, machine_check
+from vrsim.vehicle import Implement
+from vrsim.vehicle.driver import MAX_WORKING_SPEED_M_S
+from vrsim.vehicle.sprayer import SprayerSpec
 
 LB_AC = float(convert_rate(1.0, "lb/ac", "kg/ha"))
 # Two zones, 0 and 10 lb/ac, split by a diagonal: rasterized at 2 m, the cells it crosses hold means.

@@ -32,7 +32,7 @@ def test_bad_option_exits_2():
 
 
 def test_options_and_parameters_may_interleave():
-    from services.cli.main import _parse
+    from vrsim.services.cli.main import _parse
 
     args = _parse(["query", "scenario/start", "--body", "f.toml", "source=f.toml", "base_dir=/x"])
     assert args.command == "query" and args.body == "f.toml"

@@ -6,8 +6,8 @@ import subprocess
 
 import pytest
 
-from services.cli.main import COMMANDS, _build_parser, _parse
 from tests.conftest import VRSIM
+from vrsim.services.cli.main import COMMANDS, _build_parser, _parse
 
 
 def _value(action: argparse.Action) -> list[str]:

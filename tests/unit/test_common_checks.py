@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from common import MapError, VehicleError, check_number, check_positive, is_number
+from vrsim.common import MapError, VehicleError, check_number, check_positive, is_number
 
 
 @pytest.mark.parametrize("value, ok", [(1, True), (2.5, True), (np.float32(1.5), True), (np.int64(3), True),

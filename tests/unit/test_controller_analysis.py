@@ -8,12 +8,12 @@ import control
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import ControllerConfig, PlantParams, simulate, ultimate_from_pulse, unlimited
-from controller.analysis import NotLinear, analyze_loop
-from controller.factory import resolve_gains
-from controller.response import response_time
 from tests.unit.test_controller_plant import paper_tf
+from vrsim.common import ControllerError
+from vrsim.controller import ControllerConfig, PlantParams, simulate, ultimate_from_pulse, unlimited
+from vrsim.controller.analysis import NotLinear, analyze_loop
+from vrsim.controller.factory import resolve_gains
+from vrsim.controller.response import response_time
 
 P = PlantParams()
 T = 0.05

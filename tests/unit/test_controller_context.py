@@ -9,10 +9,18 @@ import re
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import ClosedLoop, ControllerConfig, PidGains, PlantLoop, PlantParams, build_loop, loop_info
-from controller import plant_loop as plant_loop_module
-from controller.context import ContextTrack, ControlContext, takes_context
+from vrsim.common import ControllerError
+from vrsim.controller import (
+    ClosedLoop,
+    ControllerConfig,
+    PidGains,
+    PlantLoop,
+    PlantParams,
+    build_loop,
+    loop_info,
+)
+from vrsim.controller import plant_loop as plant_loop_module
+from vrsim.controller.context import ContextTrack, ControlContext, takes_context
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 EXAMPLE = os.path.join(ROOT, "scenarios", "speed_scheduled_pi.py")

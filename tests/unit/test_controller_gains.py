@@ -2,8 +2,8 @@
 
 import pytest
 
-from common import ControllerError
-from controller import (
+from vrsim.common import ControllerError
+from vrsim.controller import (
     ControllerConfig,
     PidGains,
     PlantParams,

@@ -7,8 +7,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import (
+from vrsim.common import ControllerError
+from vrsim.controller import (
     KINDS,
     ControllerConfig,
     PlantParams,
@@ -17,11 +17,11 @@ from controller import (
     simulate,
     step_metrics,
 )
-from controller.calibration import valve_calibration
-from controller.factory import loop_info
-from controller.kinds.aog_pi import AogPiParams
-from controller.kinds.fuzzy_pid import _load_rules
-from controller.plant_loop import PlantLoop
+from vrsim.controller.calibration import valve_calibration
+from vrsim.controller.factory import loop_info
+from vrsim.controller.kinds.aog_pi import AogPiParams
+from vrsim.controller.kinds.fuzzy_pid import _load_rules
+from vrsim.controller.plant_loop import PlantLoop
 
 P = PlantParams()
 STEP_RPM = 100.0
@@ -137,7 +137,7 @@ def test_fuzzy_inference_equals_the_weighted_mean_over_all_49_rules():
 
 
 def test_fuzzy_rules_file_errors_name_the_file_and_entry(tmp_path):
-    shipped = resources.files("controller").joinpath("data", "fuzzy_pid_rules.toml").read_text()
+    shipped = resources.files("vrsim.controller").joinpath("data", "fuzzy_pid_rules.toml").read_text()
     bad = tmp_path / "rules.toml"
     bad.write_text(shipped.replace('"PB", "PB", "PM", "PM"', '"PB", "XL", "PM", "PM"', 1))
     with pytest.raises(ControllerError, match=r"rules.toml.*delta_kp.*'XL'"):

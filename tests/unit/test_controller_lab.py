@@ -11,18 +11,18 @@ import shutil
 import numpy as np
 import pytest
 
-from common import ScenarioError
-from controller import ControllerConfig, PlantParams, build_controller, build_loop
-from controller.analysis import analyze_loop
-from controller.response import response_time
-from services.outputs.loop_analysis import text, write_pictures
-from services.sim import scenario
-from services.sim.analyze import analyze_controller
-from services.sim.compare import BETTER, _builtin_specs, best_rows, resolve_spec
-from services.sim.core import plant_for
-from services.sim.look_ahead import TUNE_WINDOW_S, LookAheadTuner, initial_look_ahead_s, known_delay_s
-from services.sim.scenario import with_changes
 from tests.conftest import ROOT
+from vrsim.common import ScenarioError
+from vrsim.controller import ControllerConfig, PlantParams, build_controller, build_loop
+from vrsim.controller.analysis import analyze_loop
+from vrsim.controller.response import response_time
+from vrsim.services.outputs.loop_analysis import text, write_pictures
+from vrsim.services.sim import scenario
+from vrsim.services.sim.analyze import analyze_controller
+from vrsim.services.sim.compare import BETTER, _builtin_specs, best_rows, resolve_spec
+from vrsim.services.sim.core import plant_for
+from vrsim.services.sim.look_ahead import TUNE_WINDOW_S, LookAheadTuner, initial_look_ahead_s, known_delay_s
+from vrsim.services.sim.scenario import with_changes
 
 P = PlantParams()
 T = 0.05
@@ -98,8 +98,8 @@ def test_a_user_class_that_does_not_load_is_a_scenario_error_at_build(folder):
     with open(os.path.join(folder, "broken.py"), "w") as fh:
         fh.write("import numpy\n\nclass Broken:\n    pass\n")
     sc = scenario.load(write_scenario(folder, 'kind = "python"\nfile = "broken.py"\nclass = "Broken"'))
-    from services.sim.core import ControlCore
-    from services.sim.world import build_world
+    from vrsim.services.sim.core import ControlCore
+    from vrsim.services.sim.world import build_world
 
     world = build_world(sc)
     with pytest.raises(ScenarioError, match=r"lab.toml: \[controller\] controller file .*broken.py: class "

@@ -11,9 +11,9 @@ import dataclasses
 
 import numpy as np
 
-from controller import ClosedLoop, ControllerConfig, PidGains, PlantLoop, PlantParams, loop_info
-from controller.factory import build_controller
-from controller.pid_law import clamped, saturate
+from vrsim.controller import ClosedLoop, ControllerConfig, PidGains, PlantLoop, PlantParams, loop_info
+from vrsim.controller.factory import build_controller
+from vrsim.controller.pid_law import clamped, saturate
 
 DRAWS = 120
 TICKS = 160

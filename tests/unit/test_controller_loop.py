@@ -6,9 +6,17 @@ import control
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import ClosedLoop, ControllerConfig, PidGains, PlantParams, build_loop, simulate, unlimited
 from tests.unit.test_controller_plant import paper_tf
+from vrsim.common import ControllerError
+from vrsim.controller import (
+    ClosedLoop,
+    ControllerConfig,
+    PidGains,
+    PlantParams,
+    build_loop,
+    simulate,
+    unlimited,
+)
 
 P = PlantParams()
 

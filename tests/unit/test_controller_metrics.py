@@ -4,7 +4,7 @@ import control
 import numpy as np
 import pytest
 
-from controller import PidGains, PlantParams, simulate, step_metrics, unlimited
+from vrsim.controller import PidGains, PlantParams, simulate, step_metrics, unlimited
 
 
 @pytest.fixture(scope="module")

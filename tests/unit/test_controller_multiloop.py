@@ -20,8 +20,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from controller import ControllerConfig, PlantParams, build_loop, build_variant_loops
-from controller import loop as loop_module
+from vrsim.controller import ControllerConfig, PlantParams, build_loop, build_variant_loops
+from vrsim.controller import loop as loop_module
 
 TARGETS = os.path.join(os.path.dirname(__file__), os.pardir, "data", "controller", "run_targets.npz")
 P = PlantParams()

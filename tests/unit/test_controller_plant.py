@@ -7,10 +7,10 @@ import control
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import PlantParams, state_space
-from controller.discretize import zoh
-from controller.plant import RPM_PER_RAD_S, shaft_rpm_row
+from vrsim.common import ControllerError
+from vrsim.controller import PlantParams, state_space
+from vrsim.controller.discretize import zoh
+from vrsim.controller.plant import RPM_PER_RAD_S, shaft_rpm_row
 
 P = PlantParams()
 

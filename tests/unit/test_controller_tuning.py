@@ -4,7 +4,13 @@ from dataclasses import replace
 
 import pytest
 
-from controller import PlantParams, fit_sensor, relay_autotune, ultimate_from_pulse, ultimate_gain_experiment
+from vrsim.controller import (
+    PlantParams,
+    fit_sensor,
+    relay_autotune,
+    ultimate_from_pulse,
+    ultimate_gain_experiment,
+)
 
 P = PlantParams()
 
@@ -45,7 +51,7 @@ def test_relay_estimate_is_near_the_ultimate_point():
 
 
 def test_paper_run_reports_the_step_and_duration_it_used():
-    from controller.experiment import run_paper
+    from vrsim.controller.experiment import run_paper
 
     run = run_paper(step_rpm=50.0, duration_s=10.0)
     assumed = run.summary["assumptions"]

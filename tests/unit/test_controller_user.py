@@ -9,8 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from common import ControllerError, VrsimError
-from controller import ControllerConfig, PlantParams, UserCodeError, build_loop
+from vrsim.common import ControllerError, VrsimError
+from vrsim.controller import ControllerConfig, PlantParams, UserCodeError, build_loop
 
 P = PlantParams()
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -126,7 +126,7 @@ def test_missing_file_and_relative_path_are_reported(tmp_path):
 
 
 def test_example_controllers_linear_model_gives_the_built_in_pis_margins():
-    from controller.analysis import analyze_loop
+    from vrsim.controller.analysis import analyze_loop
 
     kp_a, ki_a = 0.0015, 0.008
     volts = P.amplifier_gain_a_per_v * P.sensor_gain_v_per_rpm

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import shapely
 
-from services.sim.sections.coverage import CoverageRaster
-from services.sim.sections.strips import Poses, Strip
-from vehicle import Implement
+from vrsim.services.sim.sections.coverage import CoverageRaster
+from vrsim.services.sim.sections.strips import Poses, Strip
+from vrsim.vehicle import Implement
 
 
 def _random_track(rng, n):

@@ -4,9 +4,17 @@ new kind (a weighted transverse pattern) deposited by both modes of the engine w
 import numpy as np
 import pytest
 
-import maps.footprint
-from common import MapError
-from maps import AsApplied, ColumnDeposit, Samples, Strips, footprint_kind, register_footprint, synthetic
+from vrsim.common import MapError
+from vrsim.maps import (
+    AsApplied,
+    ColumnDeposit,
+    Samples,
+    Strips,
+    footprint,
+    footprint_kind,
+    register_footprint,
+    synthetic,
+)
 
 UTM = "EPSG:32632"
 BOUNDS = (500_000.0, 5_300_000.0, 500_100.0, 5_300_100.0)  # 100 m x 100 m
@@ -42,7 +50,7 @@ class Triangle:
 @pytest.fixture
 def triangle(monkeypatch):
     """The test kind registered for one test (the registry left as it was after)."""
-    monkeypatch.setattr(maps.footprint, "FOOTPRINTS", dict(maps.footprint.FOOTPRINTS))
+    monkeypatch.setattr(footprint, "FOOTPRINTS", dict(footprint.FOOTPRINTS))
     return register_footprint(Triangle)
 
 

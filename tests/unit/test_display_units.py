@@ -6,9 +6,9 @@ import math
 
 import pytest
 
-from common import ScenarioError
-from maps.units import US_UNITS, in_units, quantity_in, shown_range, shown_text, unit_system
-from services.sim.scenario import parse
+from vrsim.common import ScenarioError
+from vrsim.maps.units import US_UNITS, in_units, quantity_in, shown_range, shown_text, unit_system
+from vrsim.services.sim.scenario import parse
 
 FT_M, IN_M, MI_M = 0.3048, 0.0254, 1609.344  # international foot, inch, mile
 LB_KG, GAL_L = 0.45359237, 3.785411784       # avoirdupois pound, US gallon

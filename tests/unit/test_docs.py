@@ -6,8 +6,8 @@ import glob
 import os
 import re
 
-from services.outputs import metrics_doc
 from tests.conftest import ROOT
+from vrsim.services.outputs import metrics_doc
 
 README = os.path.join(ROOT, "README.md")
 PAGES = [README, os.path.join(ROOT, "bench", "README.md"),
@@ -49,7 +49,7 @@ def test_metrics_page_is_what_the_generator_gives_from_metrics_now():
     with open(os.path.join(ROOT, "docs", "metrics.md"), encoding="utf-8") as f:
         committed = f.read()
     assert committed == metrics_doc.page(), \
-        "docs/metrics.md is stale: python -m services.outputs.metrics_doc > docs/metrics.md"
+        "docs/metrics.md is stale: python -m vrsim.services.outputs.metrics_doc > docs/metrics.md"
 
 
 def test_metrics_page_lists_every_figure_with_its_unit():

@@ -14,10 +14,10 @@ import typing
 
 import pytest
 
-from services.sim import scenario
-from services.sim.machines.keys import IMPLEMENT_KEYS
 from tests.conftest import ROOT
-from vehicle.machines import SPECS, spec_keys
+from vrsim.services.sim import scenario
+from vrsim.services.sim.machines.keys import IMPLEMENT_KEYS
+from vrsim.vehicle.machines import SPECS, spec_keys
 
 README = os.path.join(ROOT, "scenarios", "README.md")
 API = os.path.join(ROOT, "docs", "api.md")
@@ -82,10 +82,11 @@ def test_the_key_check_finds_a_key_missing_from_its_row():
 # ``name(params)`` or ``name(params) -> type`` in backticks (one level of parentheses inside).
 SIGNATURE = re.compile(r"`((?:[A-Za-z_]\w*\.)*[A-Za-z_]\w*)\(([^`()]*(?:\([^`()]*\)[^`()]*)*)\)"
                        r"(?:\s*->\s*[^`]*)?`", re.S)
-# Where an unqualified name of the page lives: the stable names are `services.sim`'s.
-# (or of the module the page named just before: `machine_kinds` after `services.sim.machines.machine_for`)
-HOMES = ("", "services.sim.", "services.sim.machines.", "services.sim.streamed.", "services.sim.overrides.",
-         "services.outputs.write.", "services.bus.")
+# Where an unqualified name of the page lives: the stable names are `vrsim.services.sim`'s (or of the
+# module the page named just before: `machine_kinds` after `vrsim.services.sim.machines.machine_for`).
+HOMES = ("", *(f"vrsim.{home}." for home in (
+    "services.sim", "services.sim.machines", "services.sim.streamed", "services.sim.overrides",
+    "services.outputs.write", "services.bus")))
 # Not functions of vrsim's modules: methods of a result, callbacks the caller writes, pandas, zenoh.
 NOT_FUNCTIONS = {"result.to_pandas", "to_pandas", "as_grid", "cell_centres", "state", "track_sink",
                  "on_world", "pandas.read_parquet", "session.get"}

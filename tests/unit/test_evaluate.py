@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from common import MapError
-from maps import Grid, PointLog
-from services.sim.aslog import _compass_deg
-from services.sim.evaluate import error_grid, evaluate
-from services.sim.metrics import POINT_METRICS, point_metrics
-from vehicle import Field
+from vrsim.common import MapError
+from vrsim.maps import Grid, PointLog
+from vrsim.services.sim.aslog import _compass_deg
+from vrsim.services.sim.evaluate import error_grid, evaluate
+from vrsim.services.sim.metrics import POINT_METRICS, point_metrics
+from vrsim.vehicle import Field
 
 FIELD = Field.rectangle(200.0, 100.0, lat=52.0, lon=10.0)
 
@@ -186,7 +186,7 @@ def test_a_point_export_with_iso_text_times_is_read_and_evaluated_whole(tmp_path
     """A zipped point shapefile with ISO 8601 text times (the slow path of the reader): every record
     read, the zero-target ones left out and counted. (How long 40,000 take: `bench/bench_maps.py`,
     ``point_export_40k_evaluate_s``.)"""
-    from maps import read_point_log
+    from vrsim.maps import read_point_log
 
     path, target = write_iso_time_export(tmp_path, 4_000)
     log = read_point_log(path)

@@ -8,16 +8,16 @@ import dataclasses
 import numpy as np
 import pytest
 
-from common import MapError
-from maps import PointLog, read_point_log, write_points
-from services.outputs.evaluation import (
+from vrsim.common import MapError
+from vrsim.maps import PointLog, read_point_log, write_points
+from vrsim.services.outputs.evaluation import (
     MAX_PANELS,
     _plot_log_timeseries,
     _session_panels,
     text_evaluation,
     write_evaluation,
 )
-from services.sim.evaluate import error_grid, evaluate
+from vrsim.services.sim.evaluate import error_grid, evaluate
 
 CRS = "EPSG:32632"  # metres: a record's distance is its step along x
 N = 120

@@ -8,7 +8,7 @@ import zipfile
 
 import pytest
 
-from common import MapError, VehicleError, files
+from vrsim.common import MapError, VehicleError, files
 
 
 def test_regular_file_within_its_cap_is_read(tmp_path):

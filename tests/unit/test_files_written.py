@@ -6,8 +6,8 @@ import os
 
 import pytest
 
-from common import MapError, VrsimError
-from common.written import staged, write_failure, written
+from vrsim.common import MapError, VrsimError
+from vrsim.common.written import staged, write_failure, written
 
 
 def _names(folder) -> list[str]:

@@ -6,10 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from common import ControllerError
-from controller import ControllerConfig, build_controller, build_loop, state_space, step_metrics
-from controller.discretize import zoh
-from controller.flow_plant import FlowLoop, FlowPlant, linearize_flow
+from vrsim.common import ControllerError
+from vrsim.controller import ControllerConfig, build_controller, build_loop, state_space, step_metrics
+from vrsim.controller.discretize import zoh
+from vrsim.controller.flow_plant import FlowLoop, FlowPlant, linearize_flow
 
 Q_REF_02 = 0.8                          # an ISO 02 nozzle at 3 bar [L/min]
 K_BOOM = 24 * Q_REF_02 / math.sqrt(3)   # 12 m boom, a nozzle every 0.5 m

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from common import MapError
-from common.forked import Forked
+from vrsim.common import MapError
+from vrsim.common.forked import Forked
 
 pytestmark = pytest.mark.unit
 

@@ -18,15 +18,15 @@ import rasterio
 import shapefile
 from affine import Affine
 
-from common import VrsimError
-from maps import read_map
-from maps.pointlog import read_point_log
-from services.bus import messages
-from services.bus.dataroot import DataRoot
-from services.bus.map import _MapService
-from services.bus.serving import Params
 from tests.conftest import VRSIM
-from vehicle.field import Field
+from vrsim.common import VrsimError
+from vrsim.maps import read_map
+from vrsim.maps.pointlog import read_point_log
+from vrsim.services.bus import messages
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.map import _MapService
+from vrsim.services.bus.serving import Params
+from vrsim.vehicle.field import Field
 
 X0, Y0 = 500_000.0, 5_300_050.0  # EPSG:32632, near 47.8 N, 9 E
 FIELD = '[field]\nrectangle = { width_m = 40.0, length_m = 40.0, lat = 47.8535, lon = 9.0002 }\n'
@@ -232,7 +232,7 @@ def test_vector_files_open_only_as_their_extension_says(place, web):
 def test_a_taskdata_xml_whose_grid_file_links_out_of_the_root_is_refused_unopened(place, watch):
     """Given TASKDATA.XML rather than its folder, the reader still opens the folder's GRD .BIN."""
     root, outside = place
-    from maps.isoxml import write_isoxml
+    from vrsim.maps.isoxml import write_isoxml
 
     write_isoxml(read_map(outside / "secret.tif"), str(outside / "TASKDATA"))
     (root / "task").mkdir()
@@ -251,7 +251,7 @@ def test_a_taskdata_xml_whose_grid_file_links_out_of_the_root_is_refused_unopene
 
 def test_gdal_read_env_itself_keeps_gdal_off_the_network(web):
     """Behind the signature checks, the environment every read runs in: /vsicurl/ fetches nothing."""
-    from common import files
+    from vrsim.common import files
 
     url, hits = web
     with pytest.raises(rasterio.errors.RasterioIOError), rasterio.Env(**files.GDAL_READ_ENV):

@@ -1,5 +1,8 @@
 """Imports point one way: cli -> bus/batch/outputs/sim -> maps/vehicle/controller -> common.
 
+Module names here are the repository's (``maps.grid``, from the folders); the code imports them by their
+installed names (``vrsim.maps.grid``: pyproject.toml's package-dir), which `repo_name` maps back.
+
 Read from the source with `ast` (every import, also those inside functions), so a lazy import that
 goes the wrong way fails here, not in a user's run.
 """
@@ -18,6 +21,12 @@ BUS_HELPERS = ("services.bus", "services.bus.config", "services.bus.serving", "s
                "services.bus.reads", "services.bus.records")
 
 
+def repo_name(name: str) -> str:
+    """An imported module's name as the repository's folders spell it (``vrsim.maps.grid`` -> ``maps.grid``;
+    ``vrsim`` itself, the namespace, -> ""); any other name as it is."""
+    return "" if name == "vrsim" else name.removeprefix("vrsim.")
+
+
 def modules(package: str, root: str = ROOT) -> dict[str, set[str]]:
     """{module name: the absolute module names it imports} for every .py file under `package`."""
     out = {}
@@ -32,11 +41,12 @@ def modules(package: str, root: str = ROOT) -> dict[str, set[str]]:
             imported = set()
             for node in ast.walk(tree):
                 if isinstance(node, ast.Import):
-                    imported.update(alias.name for alias in node.names)
+                    imported.update(repo_name(alias.name) for alias in node.names)
                 elif isinstance(node, ast.ImportFrom):
                     assert node.level == 0, f"{path}: relative import; use absolute ones"
-                    imported.add(node.module)
-                    imported.update(f"{node.module}.{alias.name}" for alias in node.names)
+                    base = repo_name(node.module)
+                    imported.update({base} - {""})
+                    imported.update(f"{base}.{alias.name}" if base else alias.name for alias in node.names)
             out[module] = imported
     return out
 
@@ -111,6 +121,38 @@ def test_the_rule_catches_a_wrong_import(tmp_path):
     """The checker itself: a lazy import from a domain package into services is reported."""
     pkg = tmp_path / "maps"
     pkg.mkdir()
-    (pkg / "bad.py").write_text("def f():\n    from services.sim import run\n")
+    (pkg / "bad.py").write_text("def f():\n    from vrsim.services.sim import run\n")
     assert _violations("maps", ("services",), str(tmp_path)) == ["maps.bad imports services.sim",
                                                                  "maps.bad imports services.sim.run"]
+
+
+ROOMS_TOP = ("common", "maps", "vehicle", "controller", "services")
+
+
+def bare_imports(top: str, root: str = ROOT) -> list[str]:
+    """Every import under the folder `top` of one of vrsim's rooms by its folder's name (``import maps``)
+    rather than its installed one (``from vrsim import maps``)."""
+    bad = []
+    for folder, _, files in os.walk(os.path.join(root, top)):
+        for name in sorted(f for f in files if f.endswith(".py")):
+            path = os.path.join(folder, name)
+            for node in ast.walk(ast.parse(open(path, encoding="utf-8").read(), path)):
+                names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+                bad += [f"{os.path.relpath(path, root)}:{node.lineno}: {n}" for n in names
+                        if n.split(".")[0] in ROOMS_TOP]
+    return bad
+
+
+@pytest.mark.parametrize("top", [*ROOMS_TOP, "tests", "bench", "scenarios"])
+def test_every_import_names_the_installed_namespace(top):
+    """Run from the checkout, ``import maps`` would still find the folder, and load a second copy of
+    each module beside vrsim.maps' (two registries, two classes of one name): only vrsim.* is imported."""
+    assert bare_imports(top) == []
+
+
+def test_the_bare_import_rule_catches_one(tmp_path):
+    (tmp_path / "maps").mkdir()
+    (tmp_path / "maps" / "a.py").write_text("import os\nfrom vrsim.maps import grid\ndef f():\n"
+                                            "    import services.sim.run as r\n    from maps import grid\n")
+    assert bare_imports("maps", str(tmp_path)) == ["maps/a.py:4: services.sim.run", "maps/a.py:5: maps"]

@@ -4,7 +4,7 @@ whole (the bounded run's parts against the in-process run's arrays)."""
 import numpy as np
 import pytest
 
-from services.sim.kept import MAX_TRACK_POINTS, SERIES_KEYS, PathPoints, SeriesWindow
+from vrsim.services.sim.kept import MAX_TRACK_POINTS, SERIES_KEYS, PathPoints, SeriesWindow
 
 
 def _track(n: int, step_at: int | None):

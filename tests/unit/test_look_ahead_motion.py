@@ -4,7 +4,7 @@ estimate, and the pose predicted along the arc with each section at its own grou
 import numpy as np
 import pytest
 
-from services.sim.sections.motion import TREND_WINDOW_S, Motion, MotionTrend
+from vrsim.services.sim.sections.motion import TREND_WINDOW_S, Motion, MotionTrend
 
 PERIOD_S = 0.05
 

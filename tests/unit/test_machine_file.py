@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from common import ScenarioError
-from services.sim.overrides import machine_overrides
-from services.sim.scenario import load
-from services.sim.sweep.design import parse_sweep, plan
+from vrsim.common import ScenarioError
+from vrsim.services.sim.overrides import machine_overrides
+from vrsim.services.sim.scenario import load
+from vrsim.services.sim.sweep.design import parse_sweep, plan
 
 MACHINE = """
 [controller]

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from services.sim.limits import machine_check, working_speeds
-from vehicle import DriveConfig, Implement
+from vrsim.services.sim.limits import machine_check, working_speeds
+from vrsim.vehicle import DriveConfig, Implement
 
 
 def test_held_out_boom_too_fast_for_its_shaft():

@@ -8,17 +8,17 @@ import numpy as np
 import pytest
 import shapely
 
-from common import ScenarioError, VehicleError
-from maps import AsApplied, synthetic
-from services.sim.machines import Machine, machine_for, machine_kinds, register_machine
-from services.sim.scenario import load, parse, with_changes
-from services.sim.scenario_toml import as_dict, to_toml
-from services.sim.section_landing import StripPlan
-from services.sim.sections import SectionStates, switch_sections
-from services.sim.sections.motion import Motion
 from tests.conftest import VRSIM
-from vehicle import Implement
-from vehicle.machines import SPECS, GatedMeter, MachineSpec, SectionDrives, register_spec
+from vrsim.common import ScenarioError, VehicleError
+from vrsim.maps import AsApplied, synthetic
+from vrsim.services.sim.machines import Machine, machine_for, machine_kinds, register_machine
+from vrsim.services.sim.scenario import load, parse, with_changes
+from vrsim.services.sim.scenario_toml import as_dict, to_toml
+from vrsim.services.sim.section_landing import StripPlan
+from vrsim.services.sim.sections import SectionStates, switch_sections
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle import Implement
+from vrsim.vehicle.machines import SPECS, GatedMeter, MachineSpec, SectionDrives, register_spec
 
 
 def test_the_default_machine_is_the_gated_meter_and_its_table_is_flat():
@@ -44,8 +44,8 @@ def test_a_kind_registers_once_and_only_with_its_keys():
 
 
 def test_one_registration_names_keys_run_time_part_and_footprint_and_refuses_what_disagrees():
-    from maps.footprint import FOOTPRINTS, Strips
-    from services.sim.machines.registry import MACHINES
+    from vrsim.maps.footprint import FOOTPRINTS, Strips
+    from vrsim.services.sim.machines.registry import MACHINES
 
     for kind, machine in MACHINES.items():   # the three registries hold every kind's one entry
         assert SPECS[kind] is machine.keys and FOOTPRINTS[machine.footprint.kind] is machine.footprint

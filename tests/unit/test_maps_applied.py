@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from common import MapError
-from maps import AsApplied, Grid, synthetic
+from vrsim.common import MapError
+from vrsim.maps import AsApplied, Grid, synthetic
 
 UTM = "EPSG:32632"
 BOUNDS = (500_000.0, 5_300_000.0, 500_100.0, 5_300_100.0)  # 100 m x 100 m
@@ -172,7 +172,7 @@ def test_pass_overlapping_itself_and_strips_without_pass():
 def test_strip_map_equals_add_strips_per_column():
     """Oblique, axis-aligned, zero-length and off-grid strips; columns with zero-mass strips (which
     sweep no coverage there): each column's rasters equal AsApplied.add_strips of that column."""
-    from maps import ColumnDeposit, Strips
+    from vrsim.maps import ColumnDeposit, Strips
 
     g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
     rng = np.random.default_rng(3)
@@ -203,7 +203,7 @@ def test_strip_map_pass_figures_equal_add_strips_with_passes():
     """Strips in passes (two passes overlapping, one sweeping ground twice) carrying columns of mass,
     some strips empty in some columns: pass count, overlap share and overlap kg, coverage and applied
     rate equal AsApplied.add_strips of each column with the same passes."""
-    from maps import ColumnDeposit, Strips
+    from vrsim.maps import ColumnDeposit, Strips
 
     g = synthetic.uniform(BOUNDS, UTM, cell_size_m=5.0)
     rng = np.random.default_rng(5)
@@ -264,7 +264,7 @@ def test_a_pass_off_the_grid_keeps_its_product_once_closed():
 def test_deposit_with_others_equals_a_deposit_each():
     """Several meters through one footprint: the first (with its passes) as a deposit of its own bit for
     bit; the others, without passes, to the order of the sums (they go pass by pass, as the first)."""
-    from maps.footprint import Strips
+    from vrsim.maps.footprint import Strips
 
     x0, y0, x1, y1, mass = passes(150.0, width_m=12.0, step_m=0.2, angle_deg=25.0)
     x1 = x1 + np.where(np.arange(x0.size) % 5, 0.0, 3.0)   # strips cut in several patterns
@@ -294,7 +294,7 @@ def test_deposit_with_others_equals_a_deposit_each():
 def test_a_cells_sum_of_its_subcells_is_numpys_to_the_bit(subcells):
     """`SubcellRaster.cell_sums` adds in numpy's order (`blocks.sum(axis=(1, 3))`), which the
     as-applied figures were recorded with: a numpy that sums otherwise fails here, not in a figure."""
-    from maps.subcells import SubcellRaster
+    from vrsim.maps.subcells import SubcellRaster
 
     rng = np.random.default_rng(subcells)
     grid = Grid(np.ones((3, 4)), Affine(4.0, 0, 0, 0, -4.0, 12.0), "EPSG:32633")

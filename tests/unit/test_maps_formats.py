@@ -13,8 +13,8 @@ import shapefile
 import shapely
 from affine import Affine
 
-from common import MapError
-from maps import Grid, MapWarning, read_map, synthetic, write_map
+from vrsim.common import MapError
+from vrsim.maps import Grid, MapWarning, read_map, synthetic, write_map
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "maps")
 X0, Y0 = 500_000.0, 5_300_050.0

@@ -7,9 +7,9 @@ import pytest
 import shapely
 from affine import Affine
 
-from common import MapError
-from maps import Grid, RatePolicy, grid_from_bounds, utm_crs_for
-from maps.crs import WGS84, transform_xy
+from vrsim.common import MapError
+from vrsim.maps import Grid, RatePolicy, grid_from_bounds, utm_crs_for
+from vrsim.maps.crs import WGS84, transform_xy
 
 UTM32 = "EPSG:32632"
 
@@ -150,7 +150,7 @@ def test_reproject_wgs84_to_utm_keeps_values_and_sharp_edges():
 
 
 def test_reproject_continuous_map_bilinear_onto_finer_cells():
-    from maps import synthetic
+    from vrsim.maps import synthetic
 
     g = synthetic.random_field((500_000, 5_300_000, 500_400, 5_300_400), UTM32, cell_size_m=10, seed=4)
     u = g.reproject("EPSG:32633", cell_size_m=2.0)  # the next UTM zone: rotated and finer
@@ -168,7 +168,7 @@ def test_reproject_continuous_map_bilinear_onto_finer_cells():
 
 
 def test_reproject_continuous_map_averaged_onto_coarser_cells():
-    from maps import synthetic
+    from vrsim.maps import synthetic
 
     g = synthetic.random_field((500_000, 5_300_000, 500_200, 5_300_200), UTM32, cell_size_m=1, seed=5)
     g.rates_kg_ha[:40, :40] = np.nan  # nodata stays out of the averages
@@ -182,7 +182,7 @@ def test_reproject_continuous_map_averaged_onto_coarser_cells():
 
 
 def test_reproject_zone_map_keeps_zone_rates_and_nodata():
-    from maps import synthetic
+    from vrsim.maps import synthetic
 
     g = synthetic.zones((500_000, 5_300_000, 500_300, 5_300_300), UTM32, cell_size_m=5, seed=2)
     g.rates_kg_ha[0, :] = np.nan

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from affine import Affine
 
-from common import MapError
-from maps import Grid, MapWarning, read_map, write_map
+from vrsim.common import MapError
+from vrsim.maps import Grid, MapWarning, read_map, write_map
 
 DOTNET = (55.82481700900832, 39.138728173503324, 0.0000902618210782717, 0.00016294086058760767)
 XFARM = (56.42601949235737, 9.925274835877255, 0.00009028027270540372, 0.00016434866866111552)

@@ -4,12 +4,12 @@ as-applied reads band by band against the whole grid's."""
 import numpy as np
 import pytest
 
-import maps.as_applied as as_applied
-from common import MapError
-from maps import AsApplied
-from maps.footprint import Samples, Strips
-from maps.meter_totals import MeterTotals
+import vrsim.maps.as_applied as as_applied
 from tests.unit.test_maps_applied import field, passes
+from vrsim.common import MapError
+from vrsim.maps import AsApplied
+from vrsim.maps.footprint import Samples, Strips
+from vrsim.maps.meter_totals import MeterTotals
 
 
 def _strips():

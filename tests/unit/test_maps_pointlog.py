@@ -8,10 +8,10 @@ import numpy as np
 import pyogrio
 import pytest
 
-from common import MapError
-from maps import MapWarning
-from maps.pointlog import PointLog, _deere_unit, convert_rate, read_point_log
-from maps.pointlog_write import write_points
+from vrsim.common import MapError
+from vrsim.maps import MapWarning
+from vrsim.maps.pointlog import PointLog, _deere_unit, convert_rate, read_point_log
+from vrsim.maps.pointlog_write import write_points
 
 START = np.datetime64("2026-05-04T10:00:00.250", "ms")
 

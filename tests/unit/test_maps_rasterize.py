@@ -6,8 +6,8 @@ import shapely
 from affine import Affine
 from rasterio.features import rasterize
 
-from maps.rasterize import fill_rings, rasterize_rings
-from maps.zones import _Rings
+from vrsim.maps.rasterize import fill_rings, rasterize_rings
+from vrsim.maps.zones import _Rings
 
 
 def rings_of(geoms):

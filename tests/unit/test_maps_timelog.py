@@ -9,16 +9,16 @@ import zipfile
 import numpy as np
 import pytest
 
-from common import MapError
-from maps.pointlog import PointLog
-from maps.taskdata import (
+from vrsim.common import MapError
+from vrsim.maps.pointlog import PointLog
+from vrsim.maps.taskdata import (
     _condensed_work_states,
     _parse_ddi,
     _sections_from_condensed,
     read_taskdata_log,
     write_taskdata,
 )
-from maps.timelog import encode_records, header_xml, read_timelogs
+from vrsim.maps.timelog import encode_records, header_xml, read_timelogs
 
 START = np.datetime64("2026-05-04T10:00:00", "ms")
 

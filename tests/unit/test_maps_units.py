@@ -9,9 +9,9 @@ import pytest
 import rasterio
 from affine import Affine
 
-from common import MapError
-from maps import read_map
-from maps.units import convert_rate, map_unit, rate_kind, rate_unit, unit_in_name
+from vrsim.common import MapError
+from vrsim.maps import read_map
+from vrsim.maps.units import convert_rate, map_unit, rate_kind, rate_unit, unit_in_name
 
 LB_AC_KG_HA = 0.45359237 / 0.40468564224  # one pound per acre in kg/ha
 GAL_AC_L_HA = 3.785411784 / 0.40468564224  # one US gallon per acre in L/ha
@@ -112,7 +112,7 @@ def test_a_geotiff_states_its_unit_by_band_unit_or_tag_and_is_read_in_kg_ha(tmp_
 
 
 def test_written_files_state_the_maps_unit_and_read_back_the_same(tmp_path):
-    from maps import write_map
+    from vrsim.maps import write_map
 
     g = read_map(_tif(tmp_path / "a.tif", unit="lb/ac"))
     for name in ("b.tif", "b.csv", "b.geojson", "b.shp"):
@@ -148,7 +148,7 @@ def test_zones_state_their_unit_in_the_attribute_name_or_deere_metadata(tmp_path
 
 
 def test_an_isoxml_grid_states_its_unit_by_its_ddi(tmp_path):
-    from maps import write_map
+    from vrsim.maps import write_map
 
     write_map(read_map(_tif(tmp_path / "a.tif", unit="kg/ha")), tmp_path / "mass")
     mass = read_map(tmp_path / "mass")  # DDI 0006, mg/m^2

@@ -8,8 +8,8 @@ import sys
 import pytest
 import shapely
 
-from common import MapError
-from maps.zone_table import read_zone_table
+from vrsim.common import MapError
+from vrsim.maps.zone_table import read_zone_table
 
 DATA = os.path.join(os.path.dirname(__file__), os.pardir, "data", "maps")
 NATURAL_EARTH = os.path.join(os.path.dirname(shapely.__file__), os.pardir, "pyogrio", "tests", "fixtures",

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from common import ServiceError
-from services.bus import messages
-from services.bus.messages import MapRate, Pose, RateSample, RunStart, ShaftState
+from vrsim.common import ServiceError
+from vrsim.services.bus import messages
+from vrsim.services.bus.messages import MapRate, Pose, RateSample, RunStart, ShaftState
 
 
 def pose(tick=0, **changes):

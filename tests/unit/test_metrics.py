@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from services.sim.metrics import (
+from vrsim.services.sim.metrics import (
     METRICS,
     LimitMetrics,
     MapMetrics,
@@ -15,7 +15,7 @@ from services.sim.metrics import (
     summary,
     within_band,
 )
-from services.sim.transitions import (
+from vrsim.services.sim.transitions import (
     EVENTS,
     EventFigures,
     TransitionEvents,
@@ -24,7 +24,7 @@ from services.sim.transitions import (
     transition_events,
     transitions,
 )
-from vehicle import Implement
+from vrsim.vehicle import Implement
 
 
 def _grid(rows=10, cols=10, rate=100.0):
@@ -242,8 +242,8 @@ def test_skipped_area_counts_only_ground_that_asks_for_product():
 
 
 def test_the_metrics_table_is_the_one_source_of_summary_report_and_tolerances():
-    from services.outputs.summary import summary_rows
-    from services.sim.accuracy import TOLERANCES
+    from vrsim.services.outputs.summary import summary_rows
+    from vrsim.services.sim.accuracy import TOLERANCES
 
     keys = [m.key for m in METRICS]
     assert len(keys) == len(set(keys))

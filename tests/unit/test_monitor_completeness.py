@@ -9,11 +9,11 @@ import types
 
 import pytest
 
-from common import ServiceError
-from services.bus import messages, reads
-from services.bus.monitor import MonitorStore, _completeness
-from services.outputs.report import incomplete_note
 from tests.unit.test_monitor_integrity import records, start
+from vrsim.common import ServiceError
+from vrsim.services.bus import messages, reads
+from vrsim.services.bus.monitor import MonitorStore, _completeness
+from vrsim.services.outputs.report import incomplete_note
 
 
 def stored(tmp_path, ticks, end: messages.RunEnd | None = None) -> MonitorStore:
@@ -151,12 +151,12 @@ def test_a_refusal_is_answered_late_so_a_loop_asks_slowly(monkeypatch):
 
 
 def test_the_monitor_makes_a_report_once_per_change_and_refuses_a_flood(tmp_path, monkeypatch):
-    from services.bus.dataroot import DataRoot
-    from services.bus.monitor import _MonitorService
-    from services.bus.serving import Later, Params
+    from vrsim.services.bus.dataroot import DataRoot
+    from vrsim.services.bus.monitor import _MonitorService
+    from vrsim.services.bus.serving import Later, Params
 
-    monkeypatch.setattr("services.sim.as_run.with_settings", lambda result: result)
-    monkeypatch.setattr("services.outputs.summary.summary_json", lambda result: str(result))
+    monkeypatch.setattr("vrsim.services.sim.as_run.with_settings", lambda result: result)
+    monkeypatch.setattr("vrsim.services.outputs.summary.summary_json", lambda result: str(result))
     store = stored(tmp_path, range(10), messages.RunEnd("r", "finished", 20, 1.0, ""))
     svc = _MonitorService(store, DataRoot(str(tmp_path)))
     made = []

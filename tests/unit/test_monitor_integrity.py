@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from common import ServiceError
-from services.bus import messages, monitor
-from services.bus.monitor import MonitorStore, _missing_ticks
+from vrsim.common import ServiceError
+from vrsim.services.bus import messages, monitor
+from vrsim.services.bus.monitor import MonitorStore, _missing_ticks
 
 
 def start(run_id: str) -> messages.RunStart:

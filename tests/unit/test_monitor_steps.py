@@ -10,10 +10,10 @@ import json
 import numpy as np
 import pytest
 
-from common import ServiceError
-from services.bus import messages
-from services.bus.monitor import MonitorStore
 from tests.unit.test_monitor_integrity import records, start
+from vrsim.common import ServiceError
+from vrsim.services.bus import messages
+from vrsim.services.bus.monitor import MonitorStore
 
 
 def _rate(steps=None) -> messages.RateSample:

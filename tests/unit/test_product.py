@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from common.errors import VehicleError
-from vehicle.product import Product, _flow_factors, metered_kg
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.product import Product, _flow_factors, metered_kg
 
 REV = np.random.default_rng(0).uniform(0.0, 0.12, 4000)   # forward revolutions per tick (0-144 rpm at 20 Hz)
 

@@ -32,6 +32,8 @@ import subprocess
 import sys
 import tomllib
 
+from tests.unit.test_import_direction import repo_name
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 PACKAGES = ("common", "maps", "vehicle", "controller", "services")
 
@@ -75,19 +77,21 @@ def _uses(tree: ast.Module, known: set[str]) -> set[tuple[str, str]]:
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if alias.asname:
-                    bound[alias.asname] = alias.name
+                    bound[alias.asname] = repo_name(alias.name)
                 else:
                     bound[alias.name.split(".")[0]] = alias.name.split(".")[0]
         elif isinstance(node, ast.ImportFrom) and node.module:
+            module = repo_name(node.module)
             for alias in node.names:
-                full = f"{node.module}.{alias.name}"
+                full = f"{module}.{alias.name}" if module else alias.name
                 if full in known:
                     bound[alias.asname or alias.name] = full
                 else:
-                    uses.add((node.module, alias.name))
+                    uses.add((module, alias.name))
         elif (isinstance(node, ast.Assign) and isinstance(node.value, ast.Dict)
               and any(isinstance(t, ast.Name) and t.id == "_LAZY" for t in node.targets)):
-            uses.update((v.value, k.value) for k, v in zip(node.value.keys, node.value.values, strict=True)
+            uses.update((repo_name(v.value), k.value)
+                        for k, v in zip(node.value.keys, node.value.values, strict=True)
                         if isinstance(k, ast.Constant) and isinstance(v, ast.Constant))
     for node in ast.walk(tree):
         if isinstance(node, ast.Attribute):
@@ -97,7 +101,7 @@ def _uses(tree: ast.Module, known: set[str]) -> set[tuple[str, str]]:
                 chain.insert(0, base.attr)
                 base = base.value
             if isinstance(base, ast.Name) and base.id in bound:
-                parts = bound[base.id].split(".") + chain
+                parts = repo_name(".".join([bound[base.id], *chain])).split(".")
                 # The longest prefix that is a module; the next part is the name used.
                 for i in range(len(parts) - 1, 0, -1):
                     if ".".join(parts[:i]) in known:
@@ -114,11 +118,12 @@ def _handed_over(tree: ast.Module, known: set[str]) -> set[str]:
     """
     own = set()  # names `tree` imports from vrsim's modules
     for node in tree.body:
-        if isinstance(node, ast.ImportFrom) and node.module in known:
+        if isinstance(node, ast.ImportFrom) and node.module and (
+                repo_name(node.module) in known or node.module == "vrsim"):
             own.update(alias.asname or alias.name for alias in node.names)
         elif isinstance(node, ast.Import):
             own.update((alias.asname or alias.name).split(".")[0] for alias in node.names
-                       if alias.name in known)
+                       if repo_name(alias.name) in known)
 
     def foreign(call) -> bool:
         func = call.func if isinstance(call, ast.Call) else call
@@ -143,13 +148,14 @@ def _handed_over(tree: ast.Module, known: set[str]) -> set[str]:
 
 
 def _entry_points(root: str) -> set[tuple[str, str]]:
-    """(module, name) of the commands pyproject.toml installs (``vrsim = "services.cli.main:console"``)."""
+    """(module, name) of the commands pyproject.toml installs (``vrsim = "vrsim.services.cli.main:console"``:
+    ``("services.cli.main", "console")``)."""
     path = os.path.join(root, "pyproject.toml")
     if not os.path.exists(path):
         return set()
     with open(path, "rb") as fh:
         scripts = tomllib.load(fh).get("project", {}).get("scripts", {})
-    return {tuple(target.split(":")) for target in scripts.values()}
+    return {(repo_name(module), name) for module, name in (t.split(":") for t in scripts.values())}
 
 
 def _in_signatures(trees: dict[str, ast.Module], used: set[tuple[str, str]]) -> set[tuple[str, str]]:
@@ -249,34 +255,37 @@ def test_the_rules_catch_a_private_import_and_an_unused_name(tmp_path):
     (pkg / "__init__.py").write_text('_LAZY = {"lazy": "maps.a"}\n')
     (pkg / "a.py").write_text("def _helper():\n    pass\n\ndef used():\n    pass\n\ndef lone():\n    pass\n\n"
                               "def lazy():\n    pass\n\nclass Listed:\n    pass\n\n__all__ = ['Listed']\n")
-    (pkg / "b.py").write_text("from maps.a import _helper, used\n")
-    (pkg / "c.py").write_text("import maps.a\n\ndef _f():\n    return maps.a._helper\n")
+    (pkg / "b.py").write_text("from vrsim.maps.a import _helper, used\n")
+    (pkg / "c.py").write_text("import vrsim.maps.a\n\ndef _f():\n    return vrsim.maps.a._helper\n")
     assert private_crossings(str(tmp_path)) == ["maps.b uses maps.a._helper", "maps.c uses maps.a._helper"]
     assert unused_public(str(tmp_path)) == ["maps.a.lone"]
 
 
 def test_the_simulation_api_is_importable_from_the_package():
     """`services.sim`'s names are the functions and classes, also after their modules were imported."""
-    code = ("import services.sim.run, services.sim.compare, services.sim.evaluate, services.sim.tune\n"
-            "from services.sim import load, run, with_changes, drive, control_and_account, compare, tune\n"
-            "import services.sim as sim\n"
-            "assert run.__module__ == 'services.sim.run' and callable(run) and sim.run is run\n"
-            "assert compare.__module__ == 'services.sim.compare' and tune.__module__ == 'services.sim.tune'\n"
-            "assert sim.evaluate.__module__ == 'services.sim.evaluate' and callable(sim.evaluate)\n"
+    code = ("import vrsim.services.sim.run, vrsim.services.sim.compare, vrsim.services.sim.evaluate\n"
+            "import vrsim.services.sim.tune\n"
+            "from vrsim.services.sim import load, run, with_changes, drive, control_and_account\n"
+            "from vrsim.services.sim import compare, tune\n"
+            "import vrsim.services.sim as sim\n"
+            "assert run.__module__ == 'vrsim.services.sim.run' and callable(run) and sim.run is run\n"
+            "assert compare.__module__ == 'vrsim.services.sim.compare'\n"
+            "assert tune.__module__ == 'vrsim.services.sim.tune'\n"
+            "assert sim.evaluate.__module__ == 'vrsim.services.sim.evaluate' and callable(sim.evaluate)\n"
             "assert [n for n in sim.__all__ if getattr(sim, n) is None] == []\n"
             "assert set(sim.__all__) <= set(dir(sim))\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    import services.sim
+    from vrsim.services import sim
 
-    assert {"load", "run", "with_changes", "drive", "control_and_account"} <= set(services.sim.__all__)
+    assert {"load", "run", "with_changes", "drive", "control_and_account"} <= set(sim.__all__)
 
 
 def test_importing_a_submodule_loads_no_other_part_of_the_api():
     """`vrsim run` imports `services.sim.scenario` to parse its options: the package adds nothing to it."""
-    heavy = ("services.sim.run", "services.sim.compare", "services.sim.sweep", "services.sim.tune",
-             "services.sim.evaluate", "scipy")
-    code = f"import sys, services.sim.scenario\nprint(*(m for m in {heavy!r} if m in sys.modules))"
+    heavy = ("vrsim.services.sim.run", "vrsim.services.sim.compare", "vrsim.services.sim.sweep",
+             "vrsim.services.sim.tune", "vrsim.services.sim.evaluate", "scipy")
+    code = f"import sys, vrsim.services.sim.scenario\nprint(*(m for m in {heavy!r} if m in sys.modules))"
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.split() == [], (done.stdout, done.stderr)
 
@@ -285,16 +294,17 @@ def _namesakes(tree: ast.Module) -> list[str]:
     """Where `tree` takes one of `services.sim`'s functions named like its module for the module:
     ``import services.sim.run as m`` (binds the function), or ``from services.sim import run``
     then ``run.drive``."""
-    import services.sim
+    from vrsim.services import sim as sim_package
 
     sim = os.path.join(ROOT, "services", "sim")
-    clash = {n for n in services.sim.__all__ if os.path.exists(os.path.join(sim, f"{n}.py"))}
+    clash = {n for n in sim_package.__all__ if os.path.exists(os.path.join(sim, f"{n}.py"))}
     bound, bad = set(), []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             bad += [f"import {a.name} as {a.asname}" for a in node.names
-                    if a.asname and a.name.startswith("services.sim.") and a.name.split(".")[2] in clash]
-        elif isinstance(node, ast.ImportFrom) and node.module == "services.sim":
+                    if a.asname and repo_name(a.name).startswith("services.sim.")
+                    and repo_name(a.name).split(".")[2] in clash]
+        elif isinstance(node, ast.ImportFrom) and node.module and repo_name(node.module) == "services.sim":
             bound |= {a.asname or a.name for a in node.names if a.name in clash}
     bad += [f"{n.value.id}.{n.attr}" for n in ast.walk(tree)
             if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id in bound]
@@ -304,8 +314,8 @@ def _namesakes(tree: ast.Module) -> list[str]:
 def test_no_module_is_taken_for_its_namesake_function():
     """`services.sim.run` is the function: its module is imported by its full name (``from
     services.sim.run import drive``); so are `compare`, `evaluate` and `tune`'s."""
-    wrong = "from services.sim import run as r\nr.drive(s)\nimport services.sim.tune as t\n"
-    assert _namesakes(ast.parse(wrong)) == ["import services.sim.tune as t", "r.drive"]
+    wrong = "from vrsim.services.sim import run as r\nr.drive(s)\nimport vrsim.services.sim.tune as t\n"
+    assert _namesakes(ast.parse(wrong)) == ["import vrsim.services.sim.tune as t", "r.drive"]
     found = {}
     for top in (*PACKAGES, "tests", "bench", "scenarios"):
         for folder, _, files in os.walk(os.path.join(ROOT, top)):

@@ -3,7 +3,7 @@ never a carriage-return bar; nothing with --quiet."""
 
 import time
 
-from services.cli.run import Progress
+from vrsim.services.cli.run import Progress
 
 
 def test_without_a_terminal_a_plain_line_every_few_seconds(capsys, monkeypatch):

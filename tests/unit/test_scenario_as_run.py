@@ -7,17 +7,17 @@ import os
 import numpy as np
 import pytest
 
-from common import ScenarioError
-from controller import build_loop, paper_gains
-from services.sim.as_run import as_run
-from services.sim.core import plant_for
-from services.sim.look_ahead import initial_look_ahead_s
-from services.sim.scenario import load, parse, with_changes
-from services.sim.scenario_toml import to_toml
-from services.sim.tables import no_unknown, typed
-from vehicle import GnssConfig, SpeedSensorConfig
-from vehicle.gnss import CLASSES as GNSS_CLASSES
-from vehicle.speed_sensor import CLASSES as SPEED_CLASSES
+from vrsim.common import ScenarioError
+from vrsim.controller import build_loop, paper_gains
+from vrsim.services.sim.as_run import as_run
+from vrsim.services.sim.core import plant_for
+from vrsim.services.sim.look_ahead import initial_look_ahead_s
+from vrsim.services.sim.scenario import load, parse, with_changes
+from vrsim.services.sim.scenario_toml import to_toml
+from vrsim.services.sim.tables import no_unknown, typed
+from vrsim.vehicle import GnssConfig, SpeedSensorConfig
+from vrsim.vehicle.gnss import CLASSES as GNSS_CLASSES
+from vrsim.vehicle.speed_sensor import CLASSES as SPEED_CLASSES
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 # Targets that step up, saturate the shaft's range and fall back: the loops' limits and memory at work.

@@ -4,8 +4,8 @@ import dataclasses
 
 import pytest
 
-from common import ScenarioError
-from services.sim.scenario import load, with_changes
+from vrsim.common import ScenarioError
+from vrsim.services.sim.scenario import load, with_changes
 
 
 def test_with_changes_changes_only_what_it_names():

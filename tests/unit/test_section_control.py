@@ -9,10 +9,10 @@ import pytest
 import shapely
 from affine import Affine
 
-from maps import AsApplied, Grid, synthetic
-from services.sim.metrics import overlap_metrics
-from services.sim.section_landing import section_strips, worked_fraction
-from services.sim.sections import (
+from vrsim.maps import AsApplied, Grid, synthetic
+from vrsim.services.sim.metrics import overlap_metrics
+from vrsim.services.sim.section_landing import section_strips, worked_fraction
+from vrsim.services.sim.sections import (
     SWITCHING,
     SectionStates,
     SectionSwitch,
@@ -21,8 +21,8 @@ from services.sim.sections import (
     pass_index,
     switch_sections,
 )
-from vehicle import Field, Implement, plan_coverage
-from vehicle.implement import SECTION_CONTROL_MODES
+from vrsim.vehicle import Field, Implement, plan_coverage
+from vrsim.vehicle.implement import SECTION_CONTROL_MODES
 
 PERIOD_S = 0.05
 RATE_KG_HA = 150.0
@@ -363,7 +363,7 @@ def test_product_with_every_gate_closed_is_refused():
 @pytest.mark.parametrize("on_s, off_s", [(1.0, 0.6), (0.3, 2.0)])
 def test_the_second_look_ahead_read_where_it_decides_gives_the_commands_of_both_read_everywhere(
         on_s, off_s, monkeypatch):
-    from services.sim.sections import switching
+    from vrsim.services.sim.sections import switching
 
     field = rectangle()
     track = planned_track(field, heading_deg=35.0, speed_wave=0.2)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from common.section_masks import section_mask_codes, section_masks, sections_from_masks
+from vrsim.common.section_masks import section_mask_codes, section_masks, sections_from_masks
 
 
 def test_six_sections_read_as_the_paper_writes_them():

@@ -2,17 +2,18 @@
 
 Read from the source with `ast`, like `test_import_direction.py`, and every import counts: those inside
 functions and under ``TYPE_CHECKING`` too (a back-import there is the same circle, only drawn later).
-Relative imports are resolved, and ``from services.sim import x`` is the module ``services.sim.x``
-where there is one (else the package itself, which defines the name). Importing a submodule runs its
-package's ``__init__`` first; that is not an edge here (a package that imports its modules would make
-every one of them a circle): the package's own imports are its edges.
+Relative imports are resolved, and ``from vrsim.services.sim import x`` is the module ``services.sim.x``
+(named as the folders spell it, `repo_name`) where there is one (else the package itself, which defines
+the name). Importing a submodule runs its package's ``__init__`` first; that is not an edge here (a
+package that imports its modules would make every one of them a circle): the package's own imports are
+its edges.
 """
 
 import ast
 import os
 from collections import deque
 
-from tests.unit.test_import_direction import ROOT
+from tests.unit.test_import_direction import ROOT, repo_name
 
 PACKAGE = "services.sim"
 
@@ -42,8 +43,8 @@ def _known(name: str, known) -> str | None:
 def _imported(node: ast.AST, module: str, is_package: bool, known) -> set[str]:
     """The `known` modules one Import/ImportFrom node of `module` imports."""
     if isinstance(node, ast.Import):
-        return {m for alias in node.names if (m := _known(alias.name, known))}
-    base = node.module or ""
+        return {m for alias in node.names if (m := _known(repo_name(alias.name), known))}
+    base = repo_name(node.module or "") if node.level == 0 else (node.module or "")
     if node.level:  # relative: from the module's package (the package itself for an __init__)
         anchor = module.split(".") if is_package else module.split(".")[:-1]
         anchor = anchor[:len(anchor) - (node.level - 1)]
@@ -51,7 +52,7 @@ def _imported(node: ast.AST, module: str, is_package: bool, known) -> set[str]:
     out = set()
     for alias in node.names:
         # `from pkg import sub`: the submodule where there is one, else the module defining the name.
-        sub = f"{base}.{alias.name}"
+        sub = f"{base}.{alias.name}" if base else alias.name
         target = sub if sub in known else _known(base, known)
         if target:
             out.add(target)
@@ -141,12 +142,12 @@ def test_the_checker_finds_a_circle_of_any_kind_of_import(tmp_path):
     pkg = tmp_path / "services" / "sim"
     (pkg / "kinds").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("def f():\n    from services.sim.b import g\n")
+    (pkg / "a.py").write_text("def f():\n    from vrsim.services.sim.b import g\n")
     (pkg / "b.py").write_text("from typing import TYPE_CHECKING\n\nif TYPE_CHECKING:\n"
-                              "    from services.sim import c\n")
+                              "    from vrsim.services.sim import c\n")
     (pkg / "c.py").write_text("from . import a\n")
-    (pkg / "d.py").write_text("from services.sim.kinds.one import X\n")
-    (pkg / "kinds" / "__init__.py").write_text("from services.sim.kinds import one\n")
+    (pkg / "d.py").write_text("from vrsim.services.sim.kinds.one import X\n")
+    (pkg / "kinds" / "__init__.py").write_text("from vrsim.services.sim.kinds import one\n")
     (pkg / "kinds" / "one.py").write_text("from ..d import Y\nX = 1\n")
     graph = import_graph(root=str(tmp_path))
     assert graph["services.sim.c"] == {"services.sim.a"}

@@ -4,10 +4,10 @@ modes of the engine (maps/spread_footprint.py), and the EN 13739 figures (servic
 import numpy as np
 import pytest
 
-from common import MapError, VehicleError
-from maps import AsApplied, ColumnDeposit, SpinnerThrow, footprint_kind, synthetic
-from services.sim.spread_pattern import catch_tray_test, cv_pct, effective_width_m, overlapped
-from vehicle.spinner import SpinnerSpec
+from vrsim.common import MapError, VehicleError
+from vrsim.maps import AsApplied, ColumnDeposit, SpinnerThrow, footprint_kind, synthetic
+from vrsim.services.sim.spread_pattern import catch_tray_test, cv_pct, effective_width_m, overlapped
+from vrsim.vehicle.spinner import SpinnerSpec
 
 UTM = "EPSG:32632"
 BOUNDS = (500_000.0, 5_300_000.0, 500_100.0, 5_300_100.0)  # 100 m x 100 m

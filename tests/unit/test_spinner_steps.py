@@ -10,12 +10,12 @@ import json
 import numpy as np
 import pytest
 
-from maps import AsApplied, synthetic
-from services.sim.machines import machine_for
-from services.sim.sections import SectionStates, SectionSwitch, switch_sections
-from services.sim.sections.motion import MotionTrend
-from vehicle import Field, Implement, plan_coverage
-from vehicle.spinner import SpinnerSpec
+from vrsim.maps import AsApplied, synthetic
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.sections import SectionStates, SectionSwitch, switch_sections
+from vrsim.services.sim.sections.motion import MotionTrend
+from vrsim.vehicle import Field, Implement, plan_coverage
+from vrsim.vehicle.spinner import SpinnerSpec
 
 PERIOD_S = 0.05
 MAP_CELL_M = 2.0
@@ -153,7 +153,7 @@ def _reach_by_side(steps, counts, treated, outside, treated_pct, outside_pct):
 
 @pytest.mark.parametrize("steps", [1, 2, 4, 16])
 def test_the_bands_wanted_and_the_steps_on_are_those_counted_band_by_band(steps):
-    from services.sim.sections.switching import _BandReach
+    from vrsim.services.sim.sections.switching import _BandReach
 
     rng = np.random.default_rng(steps)
     counts = rng.integers(4, 40, 2 * steps)
@@ -178,7 +178,7 @@ def test_the_bands_wanted_and_the_steps_on_are_those_counted_band_by_band(steps)
 def test_the_reach_far_from_the_boundary_is_the_full_reach_the_ray_cast_gives(border_spreading):
     import shapely
 
-    from services.sim.machines.spinner import _room_m
+    from vrsim.services.sim.machines.spinner import _room_m
 
     # An L with a hole: reflex corners, whose erosion is rounded.
     field = shapely.Polygon([(0, 0), (300, 0), (300, 120), (110, 120), (110, 250), (0, 250)],

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from common.errors import VehicleError
-from vehicle.sprayer import (
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle.sprayer import (
     NOZZLE_FLOW_L_MIN,
     FlowMeter,
     SprayerSpec,

@@ -7,14 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from common import VehicleError
-from services.sim.limits import machine_check
-from services.sim.machines import machine_for
-from services.sim.sections.motion import Motion
-from services.sim.sections.switching import SectionStates
-from vehicle import Implement
-from vehicle.product import Product
-from vehicle.sprayer import SprayerSpec, boom_flow_l_min
+from vrsim.common import VehicleError
+from vrsim.services.sim.limits import machine_check
+from vrsim.services.sim.machines import machine_for
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.services.sim.sections.switching import SectionStates
+from vrsim.vehicle import Implement
+from vrsim.vehicle.product import Product
+from vrsim.vehicle.sprayer import SprayerSpec, boom_flow_l_min
 
 
 def _sprayer(**keys) -> Implement:
@@ -103,9 +103,9 @@ def test_pwm_lands_each_sections_own_product_and_flow_control_the_booms():
 
 
 def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out():
-    from common import ScenarioError
-    from services.sim import scenario
-    from services.sim.machines.keys import implement_from_table, implement_table
+    from vrsim.common import ScenarioError
+    from vrsim.services.sim import scenario
+    from vrsim.services.sim.machines.keys import implement_from_table, implement_table
 
     with pytest.raises(ScenarioError, match=r"x.toml: \[implement\] kg_per_rev is not a key of kind 'spr"):
         implement_from_table({"kind": "sprayer", "kg_per_rev": 0.8}, "x.toml")
@@ -119,7 +119,7 @@ def test_a_shaft_key_set_on_a_sprayer_is_refused_and_as_run_files_leave_them_out
 def _uan_loop(imp: Implement, rate_l_ha: float, density_kg_l: float = 1.28):
     """`imp`'s sprayer with its loop built for a product of `density_kg_l` on a map of `rate_l_ha`."""
 
-    from controller import PlantParams
+    from vrsim.controller import PlantParams
 
     machine = machine_for(imp)
     sc = SimpleNamespace(source="uan.toml", product=Product(form="liquid", density_kg_l=density_kg_l),
@@ -187,9 +187,9 @@ def test_the_catch_test_catches_the_liquids_flow_at_3_bar():
     sqrt(1 / 1.28) of that of UAN; the meter's constant measured is the same."""
     import os
 
-    from services.sim import scenario
-    from services.sim.calibrate import calibrate
     from tests.conftest import ROOT
+    from vrsim.services.sim import scenario
+    from vrsim.services.sim.calibrate import calibrate
 
     path = os.path.join(ROOT, "scenarios", "sprayer.toml")
     water = calibrate(scenario.load(path), seconds=60.0, jug_error_ml=0.0)

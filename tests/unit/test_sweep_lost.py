@@ -3,9 +3,9 @@ a worker is watched, what `--resume` keeps, and a plan's size before it is plann
 
 import pytest
 
-from services.batch import driver
-from services.outputs.sweep_results import ResultsTable, _write_parquet
-from services.sim.sweep import parse_sweep, planned_runs
+from vrsim.services.batch import driver
+from vrsim.services.outputs.sweep_results import ResultsTable, _write_parquet
+from vrsim.services.sim.sweep import parse_sweep, planned_runs
 
 
 class _Future:

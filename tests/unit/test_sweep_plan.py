@@ -8,9 +8,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from common import ScenarioError
-from services.sim import overrides, scenario
-from services.sim.sweep import (
+from tests.conftest import ROOT
+from vrsim.common import ScenarioError
+from vrsim.services.sim import overrides, scenario
+from vrsim.services.sim.sweep import (
     configurations,
     load_sweep,
     mean_ci95,
@@ -19,8 +20,7 @@ from services.sim.sweep import (
     plan,
     variant_groups,
 )
-from services.sim.sweep.design import _scenario_key
-from tests.conftest import ROOT
+from vrsim.services.sim.sweep.design import _scenario_key
 
 BASE = """
 name = "base"

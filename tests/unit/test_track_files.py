@@ -8,8 +8,8 @@ import numpy as np
 import pyarrow.csv as pa_csv
 import pytest
 
-from services.outputs.track import _ROW_KEYS, BACKLOG_PARTS, TrackFiles
-from vehicle import Field
+from vrsim.services.outputs.track import _ROW_KEYS, BACKLOG_PARTS, TrackFiles
+from vrsim.vehicle import Field
 
 FIELD = Field.rectangle(72.0, 150.0)
 

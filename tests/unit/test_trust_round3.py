@@ -17,19 +17,19 @@ import pytest
 import rasterio
 from affine import Affine
 
-from common import ControllerError, MapError, ScenarioError, VehicleError, files, toml_text
-from controller.kinds.fuzzy_pid import _load_rules
-from maps import units
-from maps.timelog import read_timelogs
-from maps.units import MAX_UNIT_CHARS, convert_rate, rate_unit
-from services.outputs.sweep_results import ResultsTable
-from services.sim import scenario
-from services.sim.compare import _spec_table
-from services.sim.overrides import machine_overrides
-from services.sim.sweep.design import parse_sweep
 from tests.conftest import ROOT, VRSIM
-from vehicle.field import Field
-from vehicle.spinner import MAX_PROFILE_LINE, MAX_PROFILE_ROWS, SpinnerSpec
+from vrsim.common import ControllerError, MapError, ScenarioError, VehicleError, files, toml_text
+from vrsim.controller.kinds.fuzzy_pid import _load_rules
+from vrsim.maps import units
+from vrsim.maps.timelog import read_timelogs
+from vrsim.maps.units import MAX_UNIT_CHARS, convert_rate, rate_unit
+from vrsim.services.outputs.sweep_results import ResultsTable
+from vrsim.services.sim import scenario
+from vrsim.services.sim.compare import _spec_table
+from vrsim.services.sim.overrides import machine_overrides
+from vrsim.services.sim.sweep.design import parse_sweep
+from vrsim.vehicle.field import Field
+from vrsim.vehicle.spinner import MAX_PROFILE_LINE, MAX_PROFILE_ROWS, SpinnerSpec
 
 FIELD = '[field]\nrectangle = { width_m = 36.0, length_m = 60.0, lat = 52.1, lon = 11.6 }\n'
 
@@ -160,7 +160,7 @@ def test_every_toml_reader_uses_the_scan(tmp_path):
             call()
         assert "a dotted key of over 16 parts (TOML cap)" in str(err.value)
     with pytest.raises(ScenarioError, match="--set value: a dotted key of over 16 parts"):
-        from services.sim.overrides import parse_assignment
+        from vrsim.services.sim.overrides import parse_assignment
         parse_assignment("x=" + "{" + ".".join(["a"] * 40) + " = 1}")
 
 

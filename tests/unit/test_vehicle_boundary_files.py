@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import shapely
 
-from common.errors import VehicleError
-from vehicle import Field
-from vehicle.coverage import plan_coverage
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Field
+from vrsim.vehicle.coverage import plan_coverage
 
 # A 300 m x 200 m field at 52 N 10 E (about 0.0044 x 0.0018 degrees) with a 60 m x 40 m hole in it.
 WEST, SOUTH, EAST, NORTH = 10.0, 52.0, 10.0044, 52.0018

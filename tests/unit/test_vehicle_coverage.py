@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 import shapely
 
-from common.errors import VehicleError
 from tests.conftest import ROOT
-from vehicle import Field, plan_coverage
-from vehicle.dubins import _shortest_word, dubins_xy
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Field, plan_coverage
+from vrsim.vehicle.dubins import _shortest_word, dubins_xy
 
 DATA = os.path.join(ROOT, "tests", "data", "vehicle")
 

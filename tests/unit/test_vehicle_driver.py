@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from common.errors import VehicleError
-from vehicle import (
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import (
     DriveConfig,
     SpeedSensor,
     SpeedSensorConfig,

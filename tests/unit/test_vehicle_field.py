@@ -4,9 +4,9 @@ import os
 import numpy as np
 import pytest
 
-from common.errors import VehicleError
 from tests.conftest import ROOT
-from vehicle import Field
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Field
 
 DATA = os.path.join(ROOT, "tests", "data", "vehicle")
 

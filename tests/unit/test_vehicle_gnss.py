@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from common.errors import VehicleError
-from vehicle import Gnss, GnssConfig
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Gnss, GnssConfig
 
 
 def _track(n=6000, dt=0.05):
@@ -92,7 +92,7 @@ def test_bad_tracks():
 
 
 def test_sensors_refuse_ragged_or_unordered_tracks():
-    from vehicle import SpeedSensor
+    from vrsim.vehicle import SpeedSensor
 
     with pytest.raises(VehicleError, match=r"Gnss.measure: time_s, x_m, y_m must be 1-D of one length"):
         Gnss(GnssConfig()).measure([0.0, 1.0], [0.0], [0.0, 1.0])
@@ -104,7 +104,7 @@ def test_sensors_refuse_ragged_or_unordered_tracks():
 @pytest.mark.parametrize("rate_hz, latency_s", [(10.0, 0.1), (1.0, 0.33), (20.0, 0.05)])
 @pytest.mark.parametrize("cuts", [(1,), (7, 2000, 2001, 4500), (20, 40, 5999)])
 def test_a_track_measured_in_parts_equals_the_track_measured_whole(kind, rate_hz, latency_s, cuts):
-    from vehicle import SpeedSensor, SpeedSensorConfig
+    from vrsim.vehicle import SpeedSensor, SpeedSensorConfig
 
     t, x, y = _track()
     v = 2.5 + 0.3 * np.sin(t)

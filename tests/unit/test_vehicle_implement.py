@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import shapely
 
-from common.errors import VehicleError
-from vehicle import Implement
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Implement
 
 
 def test_target_shaft_rpm_formula_and_inverse():

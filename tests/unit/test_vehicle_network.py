@@ -2,9 +2,9 @@ import os
 
 import pytest
 
-from common.errors import VehicleError
-from vehicle import Segment, build_network, default_cache_dir, find_netconvert
-from vehicle.network import _plain_xml
+from vrsim.common.errors import VehicleError
+from vrsim.vehicle import Segment, build_network, default_cache_dir, find_netconvert
+from vrsim.vehicle.network import _plain_xml
 
 
 def test_cache_dir_from_environment(monkeypatch, tmp_path):
@@ -32,12 +32,12 @@ def test_plain_xml_one_edge_per_segment_with_planned_length():
 def test_unwritable_cache_is_a_vehicle_error(monkeypatch, tmp_path):
     import numpy as np
 
-    import vehicle.network
+    import vrsim.vehicle.network
 
     def refuse(src, dst):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(vehicle.network.os, "replace", refuse)
+    monkeypatch.setattr(vrsim.vehicle.network.os, "replace", refuse)
     seg = Segment("swath", np.array([[0.0, 0.0], [50.0, 0.0]]), True)
     with pytest.raises(VehicleError, match="cannot store the network: Permission denied"):
         build_network([seg], [2.5], 10.0, cache_dir=str(tmp_path))

@@ -9,11 +9,11 @@ from __future__ import annotations
 import asyncio
 import json
 
-from services.bus import messages
-from services.bus.web.app import create_app
-from services.bus.web.auth import Logins
-from services.bus.web.bridge import _decode
-from services.bus.web.live import FIELDS, LiveView, ViewGrid
+from vrsim.services.bus import messages
+from vrsim.services.bus.web.app import create_app
+from vrsim.services.bus.web.auth import Logins
+from vrsim.services.bus.web.bridge import _decode
+from vrsim.services.bus.web.live import FIELDS, LiveView, ViewGrid
 
 INFO = {"bounds": [1000.0, 5000.0, 1100.0, 5060.0], "cell_size": [2.0, 2.0], "rows": 30, "cols": 50}
 

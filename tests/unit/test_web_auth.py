@@ -10,12 +10,12 @@ import json
 
 import pytest
 
-from services.bus.web import _allowed_hosts
-from services.bus.web import app as web_app
-from services.bus.web.app import create_app
-from services.bus.web.auth import Logins
-from services.bus.web.live import LiveView
 from tests.unit.test_web_app import until
+from vrsim.services.bus.web import _allowed_hosts
+from vrsim.services.bus.web import app as web_app
+from vrsim.services.bus.web.app import create_app
+from vrsim.services.bus.web.auth import Logins
+from vrsim.services.bus.web.live import LiveView
 
 PASSWORDS = {"operator": "op-secret", "viewer": "view-secret", "map": "map-secret"}
 

@@ -16,11 +16,11 @@ import time
 
 import pytest
 
-from services.bus.web import _allowed_hosts, _bind, _HttpServer, guard
-from services.bus.web.app import create_app
-from services.bus.web.auth import Logins
-from services.bus.web.live import LiveView
 from tests.unit.test_web_auth import PASSWORDS, FakeOperator, NoBus
+from vrsim.services.bus.web import _allowed_hosts, _bind, _HttpServer, guard
+from vrsim.services.bus.web.app import create_app
+from vrsim.services.bus.web.auth import Logins
+from vrsim.services.bus.web.live import LiveView
 
 HEAD_S = 1.5  # the small door's deadlines
 WAIT_S = 20.0  # generous: the machine is shared

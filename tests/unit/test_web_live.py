@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from common import ServiceError
-from services.bus import messages
-from services.bus.web import parse_listen, picture
-from services.bus.web.bridge import _decode
-from services.bus.web.live import (
+from vrsim.common import ServiceError
+from vrsim.services.bus import messages
+from vrsim.services.bus.web import parse_listen, picture
+from vrsim.services.bus.web.bridge import _decode
+from vrsim.services.bus.web.live import (
     FIELDS,
     RECORD_FIELDS,
     AppliedLayer,

@@ -12,10 +12,10 @@ import json
 
 import pytest
 
-from services.bus.web.app import create_app
-from services.bus.web.auth import Logins
-from services.bus.web.live import LiveView
 from tests.unit.test_web_auth import PASSWORDS, NoBus, call, scope, service
+from vrsim.services.bus.web.app import create_app
+from vrsim.services.bus.web.auth import Logins
+from vrsim.services.bus.web.live import LiveView
 
 KEY_ROUTES = [("GET", "/api/view"), ("GET", "/api/status"), ("GET", "/api/map"), ("GET", "/api/map.png"),
               ("GET", "/api/report"), ("GET", "/events"), ("POST", "/api/stop"), ("POST", "/api/start")]

@@ -9,8 +9,8 @@ import zipfile
 
 import pytest
 
-from services.bus.web import upload
 from tests.conftest import ROOT
+from vrsim.services.bus.web import upload
 
 SCENARIO = os.path.join(ROOT, "scenarios", "quick_rectangle.toml")
 

@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 
-from common import ServiceError
+from vrsim.common import ServiceError
 
 DEFAULT_LISTEN = "127.0.0.1:8448"
 READY_TIMEOUT_S = 10.0
@@ -42,7 +42,7 @@ def parse_listen(text: str, flag: str = "serve web: --listen") -> tuple[str, int
 def _bind(host: str, port: int) -> socket.socket:
     """A listening socket, bound before anything else starts, so a taken port is a clear error; its
     ``accept`` admits connections through a `guard.Door` once `_HttpServer` gives it one."""
-    from services.bus.web.guard import BACKLOG, Listener
+    from vrsim.services.bus.web.guard import BACKLOG, Listener
 
     try:
         info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
@@ -63,7 +63,7 @@ class _HttpServer:
                  door=None):
         import logging
 
-        from services.bus.web import guard
+        from vrsim.services.bus.web import guard
 
         self.door = door or guard.Door(guard.cap_for(guard.raise_file_limit()), tls=tls is not None)
         sock.door = self.door
@@ -95,7 +95,7 @@ def _allowed_hosts(host: str) -> list[str]:
     """Host headers the page answers when listening on ``host`` (others: 400, against DNS rebinding):
     the loopback names, and the address listened on or, on a wildcard, this machine's names and
     addresses."""
-    from services.bus.web.app import LOOPBACK_HOSTS
+    from vrsim.services.bus.web.app import LOOPBACK_HOSTS
 
     names = [*LOOPBACK_HOSTS]
     if host not in WILDCARDS:
@@ -120,7 +120,7 @@ def _page_tls(config, host: str, port: int):
     """(the state folder's passwords or None, (certificate, key) for TLS or None) for a page on
     ``host``: beyond loopback the page is served over TLS with the bus's certificate (its CA signed
     it: ``vrsim serve all --tls``); an ``--insecure`` bus has neither, and says so."""
-    from services.bus import security
+    from vrsim.services.bus import security
 
     if config.zenoh.insecure:
         if host not in LOOPBACK:
@@ -141,12 +141,12 @@ def main(config, stop: threading.Event | None = None) -> int:
     """Serve the page until SIGINT/SIGTERM (or ``stop``): ``config.web_listen`` (default
     `DEFAULT_LISTEN`), a viewer on ``config.zenoh``, start/stop with ``config.operator``; prints
     the page's URL with its login token."""
-    from services.bus.dataroot import DataRoot
-    from services.bus.serving import run_service
-    from services.bus.web.app import create_app
-    from services.bus.web.auth import Logins
-    from services.bus.web.bridge import Bridge, Operator
-    from services.bus.web.live import LiveView
+    from vrsim.services.bus.dataroot import DataRoot
+    from vrsim.services.bus.serving import run_service
+    from vrsim.services.bus.web.app import create_app
+    from vrsim.services.bus.web.auth import Logins
+    from vrsim.services.bus.web.bridge import Bridge, Operator
+    from vrsim.services.bus.web.live import LiveView
 
     host, port = parse_listen(config.web_listen or DEFAULT_LISTEN)
     sock = _bind(host, port)  # first: a taken port is the clearest error

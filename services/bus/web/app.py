@@ -32,11 +32,11 @@ from starlette.responses import FileResponse, HTMLResponse, JSONResponse, Respon
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
-from common import VrsimError
-from services.bus.web import upload
-from services.bus.web.auth import LoginGate, Logins, SecurityHeaders, csrf_ok
-from services.bus.web.bridge import RUN_ID, Bridge, Operator
-from services.bus.web.live import FRAME_S, LiveView
+from vrsim.common import VrsimError
+from vrsim.services.bus.web import upload
+from vrsim.services.bus.web.auth import LoginGate, Logins, SecurityHeaders, csrf_ok
+from vrsim.services.bus.web.bridge import RUN_ID, Bridge, Operator
+from vrsim.services.bus.web.live import FRAME_S, LiveView
 
 STATIC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "web_static")
 KEEPALIVE_S = 15.0  # a comment line this often: proxies keep the stream open, a gone browser is noticed

@@ -20,13 +20,13 @@ import traceback
 import numpy as np
 import orjson
 
-from common import ServiceError, VrsimError
-from services.bus import client, messages
-from services.bus.config import Keys, ZenohOptions, open_session
-from services.bus.dataroot import DataRoot
-from services.bus.serving import guarded
-from services.bus.web import picture
-from services.bus.web.live import (
+from vrsim.common import ServiceError, VrsimError
+from vrsim.services.bus import client, messages
+from vrsim.services.bus.config import Keys, ZenohOptions, open_session
+from vrsim.services.bus.dataroot import DataRoot
+from vrsim.services.bus.serving import guarded
+from vrsim.services.bus.web import picture
+from vrsim.services.bus.web.live import (
     FIELDS,
     HISTORY_POINTS,
     RECORD_FIELDS,
@@ -214,8 +214,8 @@ class Bridge:
     def load_run(self, run_id: str) -> None:
         """The run's scenario from the monitor, built as every service builds it: field boundary and
         coverage path for the page."""
-        from services.sim import scenario
-        from services.sim.world import build_world
+        from vrsim.services.sim import scenario
+        from vrsim.services.sim.world import build_world
 
         run = _object(self.query(f"{self.keys.monitor_run}?run_id={run_id}"), "monitor/run")
         text, source, base_dir = (run.get(k) for k in ("scenario_text", "source", "base_dir"))

@@ -38,7 +38,7 @@ import h11
 import uvicorn
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-from services.bus.web.auth import SECURITY_HEADERS
+from vrsim.services.bus.web.auth import SECURITY_HEADERS
 
 MAX_CONNECTIONS = 1024  # open at once, TLS handshakes included
 RESERVE_FDS = 512  # the process's other files (zenoh, threads, the files it reads) below its limit

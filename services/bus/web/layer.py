@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from affine import Affine
 
-from common import ServiceError
-from maps import AsApplied, Grid, Strips
+from vrsim.common import ServiceError
+from vrsim.maps import AsApplied, Grid, Strips
 
 MAX_VIEW_CELLS = 500_000  # a larger map is shown (and accumulated) on a coarser grid
 LINE_M = 1e-3  # a rate sample is a line across the heading: a strip this long along it (m)

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.section_masks import sections_from_masks
-from services.bus.web.layer import AppliedLayer, ViewGrid
+from vrsim.common.section_masks import sections_from_masks
+from vrsim.services.bus.web.layer import AppliedLayer, ViewGrid
 
 FRAME_S = 0.05  # at most 20 frames a second, whatever the simulation speed
 HISTORY_POINTS = 600  # chart points kept: 30 s of frames at 20 a second

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from maps.units import KG_HA, is_rate_unit, rate_unit
+from vrsim.maps.units import KG_HA, is_rate_unit, rate_unit
 
 LUT_SIZE = 256
 MAX_UNIT_CHARS = 32  # a unit from the bus longer than this is not parsed (pint's parser is no sandbox)

@@ -21,7 +21,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 
-from common import ScenarioError, VrsimError, files
+from vrsim.common import ScenarioError, VrsimError, files
 
 UPLOADS_FOLDER = os.path.join("runs", "uploads")  # under the data root
 MAX_UPLOAD_BYTES = 256 * files.MiB  # a request's body, counted as it comes
@@ -177,8 +177,8 @@ def _the_scenario(folder: str) -> str:
 
 def _checked_scenario(folder: str, path: str) -> Upload:
     """Parse the scenario as the services will; every file it names must be in the upload."""
-    from services.bus.dataroot import DataRoot
-    from services.sim import scenario
+    from vrsim.services.bus.dataroot import DataRoot
+    from vrsim.services.sim import scenario
 
     name = os.path.relpath(path, folder)
     text = files.read_bytes(path, "toml", UploadError).decode("utf-8", "replace")

@@ -9,13 +9,13 @@ sprayer: flow loops through its valve and flow meter, in litres). A kind's keys 
 registry, each kind, how to add one.
 """
 
-from services.sim.machines import (  # noqa: F401  (register the kinds)
+from vrsim.services.sim.machines import (  # noqa: F401  (register the kinds)
     gated_meter,
     section_drives,
     spinner,
     sprayer,
 )
-from services.sim.machines.base import Machine
-from services.sim.machines.registry import machine_for, machine_kinds, register_machine
+from vrsim.services.sim.machines.base import Machine
+from vrsim.services.sim.machines.registry import machine_for, machine_kinds, register_machine
 
 __all__ = ["Machine", "machine_for", "machine_kinds", "register_machine"]

@@ -9,14 +9,14 @@ from typing import ClassVar
 
 import numpy as np
 
-from controller import PlantParams
-from maps.footprint import Strips
-from services.sim.machines.check import MachineCheck, shaft_check
-from services.sim.section_landing import StripPlan
-from services.sim.sections import SectionStates
-from services.sim.sections.motion import Motion
-from vehicle import Implement
-from vehicle.machines import MachineSpec
+from vrsim.controller import PlantParams
+from vrsim.maps.footprint import Strips
+from vrsim.services.sim.machines.check import MachineCheck, shaft_check
+from vrsim.services.sim.section_landing import StripPlan
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle import Implement
+from vrsim.vehicle.machines import MachineSpec
 
 
 class Machine(ABC):

@@ -12,10 +12,10 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from maps.units import in_units, shown_range, shown_text, unit_system
-from services.sim.rate_units import RATE_UNIT, rate_key
-from vehicle import Implement
-from vehicle.driver import MAX_WORKING_SPEED_M_S
+from vrsim.maps.units import in_units, shown_range, shown_text, unit_system
+from vrsim.services.sim.rate_units import RATE_UNIT, rate_key
+from vrsim.vehicle import Implement
+from vrsim.vehicle.driver import MAX_WORKING_SPEED_M_S
 
 RATES_FROM_CELLS = "cell values"
 RATES_FROM_ZONES = "zone rates of the vector map"

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.sim.machines.base import Machine
-from services.sim.machines.registry import register_machine
-from services.sim.section_landing import StripPlan
-from services.sim.sections import SectionStates
-from services.sim.sections.motion import Motion
-from vehicle.machines import GatedMeter as GatedMeterKeys
+from vrsim.services.sim.machines.base import Machine
+from vrsim.services.sim.machines.registry import register_machine
+from vrsim.services.sim.section_landing import StripPlan
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle.machines import GatedMeter as GatedMeterKeys
 
 
 @register_machine

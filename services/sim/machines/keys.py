@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 
-from common import ScenarioError, VrsimError
-from services.sim.tables import build, no_unknown, with_units
-from vehicle import Implement
-from vehicle.machines import DEFAULT_KIND, SPECS, key_owner, spec_class, spec_keys
+from vrsim.common import ScenarioError, VrsimError
+from vrsim.services.sim.tables import build, no_unknown, with_units
+from vrsim.vehicle import Implement
+from vrsim.vehicle.machines import DEFAULT_KIND, SPECS, key_owner, spec_class, spec_keys
 
 IMPLEMENT_KEYS = {f.name for f in dataclasses.fields(Implement) if f.init} - {"machine"}
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(Implement)}

@@ -10,10 +10,10 @@ table is read with; a kind whose keys `vehicle` registered itself must name that
 
 from __future__ import annotations
 
-from common import ScenarioError
-from maps.footprint import FOOTPRINTS, register_footprint
-from vehicle import Implement
-from vehicle.machines import SPECS, MachineSpec, register_spec
+from vrsim.common import ScenarioError
+from vrsim.maps.footprint import FOOTPRINTS, register_footprint
+from vrsim.vehicle import Implement
+from vrsim.vehicle.machines import SPECS, MachineSpec, register_spec
 
 MACHINES: dict[str, type] = {}
 
@@ -30,10 +30,10 @@ def register_machine(cls: type) -> type:
     keys = getattr(cls, "keys", None)
     if not (isinstance(keys, type) and issubclass(keys, MachineSpec) and keys.KIND == kind):
         raise ValueError(f"machine kind {kind!r} has no keys: set its class attribute 'keys' to a "
-                         f"vehicle.machines.MachineSpec dataclass whose KIND is {kind!r}")
+                         f"vrsim.vehicle.machines.MachineSpec dataclass whose KIND is {kind!r}")
     if SPECS.get(kind, keys) is not keys:
         raise ValueError(f"machine kind {kind!r}: its keys {keys.__name__} are not the ones registered in "
-                         f"vehicle.machines ({SPECS[kind].__name__})")
+                         f"vrsim.vehicle.machines ({SPECS[kind].__name__})")
     footprint = getattr(cls, "footprint", None)
     name = getattr(footprint, "kind", None)
     if not isinstance(name, str) or FOOTPRINTS.get(name, footprint) is not footprint:

@@ -33,13 +33,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps import SpinnerThrow
-from services.sim.machines.base import Machine
-from services.sim.machines.registry import register_machine
-from services.sim.section_landing import StripPlan
-from services.sim.sections import SectionStates
-from services.sim.sections.motion import Motion
-from vehicle.spinner import SpinnerSpec
+from vrsim.maps import SpinnerThrow
+from vrsim.services.sim.machines.base import Machine
+from vrsim.services.sim.machines.registry import register_machine
+from vrsim.services.sim.section_landing import StripPlan
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle.spinner import SpinnerSpec
 
 __all__ = ["Spinner", "ThrowPlan"]
 

@@ -38,17 +38,17 @@ from typing import ClassVar
 
 import numpy as np
 
-from common import ScenarioError, VehicleError, VrsimError
-from controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
-from maps.units import in_units, shown_range
-from services.sim.machines.base import Machine
-from services.sim.machines.check import MachineCheck, check_units, rate_text
-from services.sim.machines.registry import register_machine
-from services.sim.section_landing import StripPlan
-from services.sim.sections import SectionStates
-from services.sim.sections.motion import Motion
-from vehicle import Implement
-from vehicle.sprayer import (
+from vrsim.common import ScenarioError, VehicleError, VrsimError
+from vrsim.controller import FlowLinearization, FlowPlant, PlantParams, linearize_flow
+from vrsim.maps.units import in_units, shown_range
+from vrsim.services.sim.machines.base import Machine
+from vrsim.services.sim.machines.check import MachineCheck, check_units, rate_text
+from vrsim.services.sim.machines.registry import register_machine
+from vrsim.services.sim.section_landing import StripPlan
+from vrsim.services.sim.sections import SectionStates
+from vrsim.services.sim.sections.motion import Motion
+from vrsim.vehicle import Implement
+from vrsim.vehicle.sprayer import (
     REF_PRESSURE_BAR,
     WATER_DENSITY_KG_L,
     SprayerSpec,

@@ -12,10 +12,10 @@ will be, from the sensed speed, acceleration and yaw rate). The sections-on mask
 (``"0x3f"``) is `common.section_masks`.
 """
 
-from services.sim.sections.gates import command, gate
-from services.sim.sections.passes import pass_index, runs_of
-from services.sim.sections.strips import Poses, fill_outlines
-from services.sim.sections.switching import (
+from vrsim.services.sim.sections.gates import command, gate
+from vrsim.services.sim.sections.passes import pass_index, runs_of
+from vrsim.services.sim.sections.strips import Poses, fill_outlines
+from vrsim.services.sim.sections.switching import (
     STEPS_KEY,
     SWITCHING,
     SectionStates,

@@ -14,9 +14,9 @@ import zlib
 import numpy as np
 import shapely
 
-from maps.rasterize import fill_rings
-from services.sim.sections.strips import Poses, Strip
-from vehicle import Implement
+from vrsim.maps.rasterize import fill_rings
+from vrsim.services.sim.sections.strips import Poses, Strip
+from vrsim.vehicle import Implement
 
 # Bits of the coverage raster, a nibble apart: a section's codes summed count both at once (`_read`).
 _TREATED, _OUTSIDE = np.uint8(1), np.uint8(16)

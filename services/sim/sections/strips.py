@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps.rasterize import fill_rings
-from vehicle import Implement
+from vrsim.maps.rasterize import fill_rings
+from vrsim.vehicle import Implement
 
 _SAMPLES_PER_SECTION_MIN = 4  # a section's strip is read at least at this many points across
 _RING_VERTEX_SPACING_M = 1.0  # landed strips are outlined with a vertex every metre (chord error

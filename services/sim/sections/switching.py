@@ -20,14 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.sim.sections.coverage import CoverageRaster, coverage_cell_m
-from services.sim.sections.gates import GateLine, command
-from services.sim.sections.motion import Motion, MotionTrend
-from services.sim.sections.passes import PassTracker, pass_index
-from services.sim.sections.strips import Poses, Strip
-from vehicle import CoveragePath, Implement
-from vehicle.implement import SECTION_CONTROL_MODES
-from vehicle.machines import DEFAULT_KIND
+from vrsim.services.sim.sections.coverage import CoverageRaster, coverage_cell_m
+from vrsim.services.sim.sections.gates import GateLine, command
+from vrsim.services.sim.sections.motion import Motion, MotionTrend
+from vrsim.services.sim.sections.passes import PassTracker, pass_index
+from vrsim.services.sim.sections.strips import Poses, Strip
+from vrsim.vehicle import CoveragePath, Implement
+from vrsim.vehicle.implement import SECTION_CONTROL_MODES
+from vrsim.vehicle.machines import DEFAULT_KIND
 
 # The run's control array of `SectionStates.steps_on` (`services.sim.core.ControlCore`), (n, 2) per tick.
 STEPS_KEY = "side_steps_on"

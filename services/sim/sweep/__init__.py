@@ -22,8 +22,8 @@ A sweep file (see ``scenarios/README.md``)::
     pareto = ["within_10pct_area_pct", "transition_distance_m_mean"]
 """
 
-from services.sim.sweep.design import RunSpec, Sweep, load_sweep, parse_sweep, plan, planned_runs
-from services.sim.sweep.stats import (
+from vrsim.services.sim.sweep.design import RunSpec, Sweep, load_sweep, parse_sweep, plan, planned_runs
+from vrsim.services.sim.sweep.stats import (
     METRIC_SENSE,
     Configuration,
     best,
@@ -31,7 +31,7 @@ from services.sim.sweep.stats import (
     mean_ci95,
     pareto_front,
 )
-from services.sim.sweep.tasks import (
+from vrsim.services.sim.sweep.tasks import (
     ROW_FIRST,
     ROW_LAST,
     controller_only,

@@ -18,13 +18,13 @@ from typing import Any
 
 import numpy as np
 
-from common import ScenarioError, files
-from common.toml_text import loads_toml
-from services.sim import scenario as scenario_mod
-from services.sim.overrides import key_parts, machine_overrides
-from services.sim.scenario_toml import as_dict
-from services.sim.sweep.stats import METRIC_SENSE
-from services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
+from vrsim.common import ScenarioError, files
+from vrsim.common.toml_text import loads_toml
+from vrsim.services.sim import scenario as scenario_mod
+from vrsim.services.sim.overrides import key_parts, machine_overrides
+from vrsim.services.sim.scenario_toml import as_dict
+from vrsim.services.sim.sweep.stats import METRIC_SENSE
+from vrsim.services.sim.tables import no_unknown, typed  # the scenario loader's own checks and messages
 
 SWEEP_KEYS = ("scenarios", "seeds", "design", "samples", "design_seed", "machine", "set", "axes", "report")
 RANGE_KEYS = ("min", "max", "n", "log")

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from services.sim.metrics import METRICS
+from vrsim.services.sim.metrics import METRICS
 
 # Which way is better ("min", "max" or "zero"), for the accuracy figures the report ranks: the
 # METRICS table's sense.

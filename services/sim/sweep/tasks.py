@@ -13,8 +13,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from common import VrsimError
-from services.sim.sweep.design import RunSpec, Sweep
+from vrsim.common import VrsimError
+from vrsim.services.sim.sweep.design import RunSpec, Sweep
 
 ROW_FIRST = ("key", "scenario", "seed")  # then one column per axis, then the run's numeric figures
 ROW_LAST = ("wall_s", "status", "error")
@@ -70,7 +70,7 @@ def run_row(spec: RunSpec, after: Callable | None = None) -> dict:
         `_identity`, the run's `_figures`, ``wall_s`` (this task's wall time, s), ``status``
         (``"ok"`` or ``"failed"``) and ``error`` (None, or the message).
     """
-    from services.sim.run import run  # imports SUMO: only where a run happens
+    from vrsim.services.sim.run import run  # imports SUMO: only where a run happens
 
     t0 = time.perf_counter()
     try:
@@ -122,8 +122,8 @@ def run_group(specs: Sequence[RunSpec]) -> list[dict]:
     batch fails (a controller the run refuses), every spec runs alone through `run_row`, so a failed
     row is that run's own, with its own message.
     """
-    from services.sim.run import drive
-    from services.sim.variants import run_variants
+    from vrsim.services.sim.run import drive
+    from vrsim.services.sim.variants import run_variants
 
     t0 = time.perf_counter()
     try:

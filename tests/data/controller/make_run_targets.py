@@ -13,9 +13,9 @@ import os
 
 import numpy as np
 
-from controller.loop import ClosedLoop
-from services.sim import run as run_field
-from services.sim import scenario
+from vrsim.controller.loop import ClosedLoop
+from vrsim.services.sim import run as run_field
+from vrsim.services.sim import scenario
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 TICKS = 1200

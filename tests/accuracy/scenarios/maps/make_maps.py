@@ -25,7 +25,7 @@ import pyproj
 import shapefile
 import shapely
 
-from maps import synthetic, utm_crs_for, write_map
+from vrsim.maps import synthetic, utm_crs_for, write_map
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 LON, LAT = 10.0, 52.0
