@@ -56,3 +56,20 @@ def test_a_runs_tick_table_round_trips_through_parquet_and_says_where_rates_are_
     table.to_parquet(path)
     back = pd.read_parquet(path)
     pd.testing.assert_frame_equal(back, table)
+
+
+def test_two_controllers_example_plots_each_ones_error_over_one_drive(tmp_path):
+    """scenarios/two_controllers.py, the per-tick table in ten lines: two controllers, one drive, a plot."""
+    from PIL import Image
+
+    script = os.path.join(ROOT, "scenarios", "two_controllers.py")
+    p = subprocess.run([sys.executable, script, "err.png"], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    lines = [line.split() for line in p.stdout.splitlines() if "MAE" in line]
+    assert [line[0] for line in lines] == ["pid:", "smith:"]
+    maes = [float(line[2]) for line in lines]
+    ticks = {line[5] for line in lines}
+    assert all(0 < m < 50 for m in maes) and maes[0] != maes[1], maes  # two controllers, two results
+    assert len(ticks) == 1  # over the same drive: the same ticks put product down
+    assert Image.open(tmp_path / "err.png").size[0] > 300
