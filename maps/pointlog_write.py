@@ -11,7 +11,9 @@ import zipfile
 import numpy as np
 
 from vrsim.common import MapError
+from vrsim.common.arrow import arrow_array
 from vrsim.maps.pointlog import PointLog
+from vrsim.maps.vector import ogr
 
 __all__ = ["write_points"]
 
@@ -22,7 +24,7 @@ def write_points(log: PointLog, path) -> str:
     One point per record that has a position (records without one cannot be placed and are left
     out); the fields are listed in the module docstring. Returns the path written.
     """
-    import pyogrio
+    pyogrio = ogr()
     import shapely
 
     path = os.fspath(path)
@@ -49,7 +51,7 @@ def write_points(log: PointLog, path) -> str:
             # pyogrio.raw.write takes 0.7 s for 9,000 points; this, 0.05 s).
             import pyarrow as pa
 
-            table = pa.table({**dict(zip(names, values, strict=True)),
+            table = pa.table({**{n: arrow_array(v) for n, v in zip(names, values, strict=True)},
                               "geometry": _points_wkb(lon[keep], lat[keep])})
             pyogrio.raw.write_arrow(table, path, driver="GPKG", geometry_type="Point", crs="EPSG:4326",
                                     layer="as_applied_points", geometry_name="geometry")
@@ -89,7 +91,7 @@ def _fields(log: PointLog, keep: np.ndarray, text_time: bool) -> dict[str, np.nd
 
 
 def _write_zipped_shapefile(path: str, geometry, names, values) -> None:
-    import pyogrio
+    pyogrio = ogr()
 
     stem = os.path.splitext(os.path.basename(path))[0]
     with tempfile.TemporaryDirectory(prefix="vrsim-shp-") as tmp:

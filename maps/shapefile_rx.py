@@ -18,6 +18,7 @@ import numpy as np
 
 from vrsim.common import MapError
 from vrsim.maps.grid import Grid
+from vrsim.maps.vector import ogr
 
 ZIPPED = ".shp.zip"
 CENTI = 100  # rates are written in 0.01 of their unit, exact through the integer zone labels
@@ -60,7 +61,7 @@ def write_shapefile(grid: Grid, path: str, like: str | None = None) -> str:
     MapError
         A map of differences (not rates), a map with no rate, another extension.
     """
-    import pyogrio
+    pyogrio = ogr()
 
     path = os.fspath(path)
     final = os.fspath(like or path)

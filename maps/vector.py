@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import posixpath
+import sys
 import zipfile
 from dataclasses import dataclass
 
@@ -27,6 +28,26 @@ DRIVERS = {".shp": "ESRI Shapefile", ".gpkg": "GPKG", ".zip": "ESRI Shapefile"}
 SHAPEFILE_CODE = b"\x00\x00\x27\x0a"  # 9994, big-endian, the first 4 bytes of every .shp
 SQLITE_HEADER = b"SQLite format 3\x00"
 GPKG_IDS = (b"GPKG", b"GP10", b"GP11")  # application_id at byte 68 (GeoPackage 1.2+, 1.0, 1.1)
+
+
+def ogr():
+    """The pyogrio module, imported without its optional pandas.
+
+    pyogrio imports pandas where it is installed (for geopandas' data frames, which vrsim does not use:
+    it reads and writes through ``pyogrio.raw``, with numpy and Arrow), and pandas is some 40 MB of each
+    process that opens a vector file, a quarter of `vrsim run`'s libraries. For pyogrio's import only,
+    ``sys.modules`` maps pandas to None, so that its ``import pandas`` raises ImportError, which pyogrio
+    takes as not installed; ``import pandas`` works as ever after it.
+    """
+    if "pyogrio" not in sys.modules and "pandas" not in sys.modules:
+        sys.modules["pandas"] = None
+        try:
+            import pyogrio  # noqa: F401
+        finally:
+            del sys.modules["pandas"]
+    import pyogrio
+
+    return pyogrio
 
 
 @dataclass(frozen=True)
@@ -60,7 +81,7 @@ def read_vector(path: str, layer: str | None = None):
         and none (or one that does not exist) named, or a file GDAL cannot read (one line naming the
         file).
     """
-    import pyogrio
+    pyogrio = ogr()
     from pyogrio.errors import DataLayerError, DataSourceError
 
     source, driver, inner = gdal_source(path, layer)
@@ -73,7 +94,7 @@ def read_vector(path: str, layer: str | None = None):
 
 def _layers(path: str) -> list[_Layer]:
     """Every layer of a ``.zip`` (its shapefiles), a folder (its shapefiles) or a ``.gpkg``, in name order."""
-    import pyogrio
+    pyogrio = ogr()
     from pyogrio.errors import DataLayerError, DataSourceError
 
     pyogrio.set_gdal_config_options(files.GDAL_READ_ENV)
@@ -130,8 +151,7 @@ def _sources(path: str) -> list[tuple[str, str, str | None]]:
         return [(posixpath.basename(n)[:-4], f"/vsizip/{real}/{n}", None) for n in _zipped_shapefiles(path)]
     _check_head(path, ext)
     if ext == ".gpkg":
-        import pyogrio
-
+        pyogrio = ogr()
         pyogrio.set_gdal_config_options(files.GDAL_READ_ENV)
         try:
             names = [str(n) for n, kind in pyogrio.list_layers(real) if kind is not None]  # not plain tables

@@ -20,6 +20,7 @@ import numpy as np
 
 from vrsim.common import MapError
 from vrsim.maps.crs import WGS84, as_crs, utm_crs_for
+from vrsim.maps.vector import ogr
 
 __all__ = ["write_zone_rx"]  # for benchmarks and tests: `bench/bench_real_rx.py`
 
@@ -147,7 +148,7 @@ def _bow_tie(geom):
 
 
 def _write_zip(path: str, polygons: np.ndarray, rates: np.ndarray) -> None:
-    import pyogrio
+    pyogrio = ogr()
     import shapely
 
     from vrsim.common.written import written

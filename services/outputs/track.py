@@ -20,6 +20,7 @@ import os
 import numpy as np
 
 from vrsim.common import MapError
+from vrsim.common.arrow import arrow_array
 from vrsim.common.section_masks import section_mask_codes
 from vrsim.common.written import write_failure, written
 
@@ -49,13 +50,14 @@ def _track_table(field, rows: dict):
     values = (rows["time_s"], lat, lon, rows["speed_m_s"], rows["target_shaft_rpm"], rows["shaft_rpm"],
               rows["current_a"], rows["prescribed_kg_ha"], rows["applied_kg_ha"],
               np.asarray(rows["implement_on"], np.int8), gates.sum(axis=1, dtype=np.int16))
-    columns = {name: pa.array(v if decimals is None else np.round(np.asarray(v, float), decimals),
-                              from_pandas=True)  # from_pandas: NaN becomes null, written as ""
+    # NaN as null, written as "" (`arrow_array`: pa.array would load pandas into the run's process)
+    columns = {name: arrow_array(v if decimals is None else np.round(np.asarray(v, float), decimals), True)
                for (name, decimals), v in zip(TRACK_COLUMNS[:-1], values, strict=True)}  # the masks next
     # Each distinct mask's text once, then taken per tick: a plain text column (parts of a run have
     # masks of their own).
-    columns["section_mask"] = pa.array(masks, pa.string()).take(pa.array(codes.astype(np.int32)))
+    columns["section_mask"] = arrow_array(masks).take(arrow_array(codes.astype(np.int32)))
     return pa.table(columns)
+
 
 
 class TrackFiles:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import http.server
 import os
 import subprocess
+import sys
 import threading
 
 import numpy as np
@@ -260,3 +261,12 @@ def test_gdal_read_env_itself_keeps_gdal_off_the_network(web):
     with pytest.raises(rasterio.errors.RasterioIOError):  # the control: without it, GDAL goes out
         rasterio.open(f"/vsicurl/{url}/x.tif")
     assert "/x.tif" in hits
+
+
+def test_pyogrio_is_imported_without_pandas_and_pandas_still_imports_after():
+    """`maps.vector.ogr`: pyogrio's optional pandas (40 MB of a run's process) is not loaded with it."""
+    code = ("import sys\nfrom vrsim.maps.vector import ogr\npyogrio = ogr()\n"
+            "assert 'pandas' not in sys.modules and ogr() is pyogrio\n"
+            "import pandas\nprint(pandas.DataFrame({'a': [1]}).shape)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.split() == ["(1,", "1)"], done.stderr
