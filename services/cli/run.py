@@ -120,14 +120,13 @@ def _started() -> None:
 def _run(args, driver) -> int:
     sc = _scenario(args)
     driver.drive(sc)
-    # The other imports while SUMO's process plans the path and drives; among them the libraries the
-    # files are written with (GDAL's: 0.06 s of CPU), not left to the first write after the drive.
-    import pyogrio  # noqa: F401
-
+    # The other imports while SUMO's process plans the path and drives; among them rasterio, which the
+    # GeoTIFFs are written with, not left to the first write after the drive. Not pyogrio (the
+    # as-applied points'): its own copy of GDAL is some 30 MB, better taken once the drive has given
+    # its rasters back (`AsApplied.finish`) than at the drive's peak, for 0.06 s of CPU.
     import vrsim.maps.geotiff  # noqa: F401
     from vrsim.services.outputs.plot_worker import PlotWorker
     from vrsim.services.sim.streamed import run_streamed
-
     # The pictures' process imports matplotlib meanwhile, at a low priority (`PlotWorker`).
     plotter = PlotWorker().start() if sc.output.plots else None
     progress = Progress(f"vrsim run {sc.name}", enabled=not args.quiet)
