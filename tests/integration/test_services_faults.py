@@ -79,22 +79,40 @@ def test_restarted_monitor_lost_nothing(net):
     assert before["ticks"] > 1000
 
 
+def settled_records(net, run_id: str, quiet_s: float = 1.0, timeout_s: float = 60.0) -> dict:
+    """The monitor's record counts of `run_id` once they stop changing for `quiet_s` (records in flight
+    when a service died still arrive after the run is reported failed: a loaded machine's monitor lags)."""
+    deadline = time.monotonic() + timeout_s
+    last, since = None, time.monotonic()
+    while time.monotonic() < deadline:
+        ok, stored = net.query(f"vrsim/tractor1/monitor/status?run_id={run_id}")
+        assert ok, stored
+        if stored != last:
+            last, since = stored, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return stored
+        time.sleep(0.1)
+    raise AssertionError(f"the monitor's records of {run_id} still changing after {timeout_s} s: {last}")
+
+
 def test_killed_controller_is_reported_missing_and_records_stay(net):
     run = start(net, "clock=realtime", "speed=2")
-    net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["ticks"] >= 40)
+    seen = net.wait_status(lambda s: s["run_id"] == run["run_id"] and s["ticks"] >= 40)
     controller = net.children()["controller"]
     os.kill(controller, signal.SIGKILL)
     wait_missing(net, "controller")
     status = net.wait_status(lambda s: s["state"] == "failed", timeout_s=15)
     assert "no controller answered" in status["error"], status
     assert not pid_alive(controller)
-    ok, stored = net.query(f"vrsim/tractor1/monitor/status?run_id={run['run_id']}")
-    assert ok, stored
+    stored = settled_records(net, run["run_id"])
     # Every tick the vehicle got through was stored on all three streams; beyond them only what was in
     # flight when the controller died: poses sent without an answer (the batch in flight and the one it
     # failed on), and of the batch the controller was answering, its shaft records published before its
     # rate records (a SIGKILL between the two publishes left one shaft record more on a clean clone).
-    assert stored["ticks"] >= 40
+    # The vehicle counts a tick once its pose is sent, and waits for a batch's answer when it sends the
+    # next: of the ticks seen before the kill, all but the last one in flight were answered (and a kill
+    # on a loaded machine may come that soon: 39 of 40 stored on a clean clone).
+    assert stored["ticks"] >= seen["ticks"] - 1 >= 39
     assert stored["pose_records"] - stored["ticks"] in (0, 1, 2)
     beyond = {stream: stored[f"{stream}_records"] - stored["ticks"] for stream in ("pose", "shaft", "rate")}
     assert 0 <= beyond["rate"] <= beyond["shaft"] <= beyond["pose"], stored
