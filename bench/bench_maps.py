@@ -89,7 +89,7 @@ def _load_in_child(path: str) -> dict[str, float]:
         "def hwm():\n"
         "    with open('/proc/self/status') as f:\n"
         "        return next(int(ln.split()[1]) for ln in f if ln.startswith('VmHWM'))\n"
-        "import maps, maps.geotiff\n"
+        "from vrsim import maps\nimport vrsim.maps.geotiff\n"
         "before = hwm()\n"
         "t0 = time.perf_counter()\n"
         f"g = maps.read_map({path!r}, unit='kg/ha')\n"   # the bench GeoTIFF states no unit

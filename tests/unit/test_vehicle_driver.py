@@ -81,8 +81,8 @@ def test_sumos_modules_leave_the_process_proj_settings_as_they_were():
 
     env = {k: v for k, v in os.environ.items() if k not in ("PROJ_DATA", "PROJ_LIB")}
     # libsumo, and the `sumo` package that finding netconvert (to build a network) imports
-    for first in ("from vehicle.driver import import_libsumo; import_libsumo()",
-                  "from vehicle.network import find_netconvert; find_netconvert()"):
+    for first in ("from vrsim.vehicle.driver import import_libsumo; import_libsumo()",
+                  "from vrsim.vehicle.network import find_netconvert; find_netconvert()"):
         code = (f"{first}; import os, rasterio; from rasterio.crs import CRS;"
                 "assert 'PROJ_DATA' not in os.environ and 'PROJ_LIB' not in os.environ;"
                 "print(CRS.from_string('EPSG:2227').to_epsg())")
